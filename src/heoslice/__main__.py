@@ -1,0 +1,3 @@
+from heoslice.cli import main
+
+main()

@@ -1,0 +1,79 @@
+"""The ``heoslice`` command: a thin shell that parses options, calls the library, reports.
+
+Each sub-command lives in its own module here; this one holds the group and the
+error policy: a :class:`~heoslice.errors.HeosliceError` becomes one line on stderr
+and its exit status; any other exception is a bug, shown as one line unless
+``--debug`` asks for the traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+import traceback
+
+import click
+
+from heoslice import __version__
+from heoslice.errors import EXIT_BUG, EXIT_INTERRUPTED, HeosliceError
+
+EPILOG = """\b
+Examples:
+  heoslice info vase.ply
+  heoslice color vase.ply --func linear
+  heoslice slice vase.ply --layer 0.1 --dpi 600
+  heoslice verify vase_stack/
+  heoslice print vase_stack/ --port /dev/ttyUSB0
+"""
+
+
+@click.group(epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="heoslice")
+@click.option("--debug", is_flag=True, help="Show full tracebacks (for bug reports).")
+@click.pass_context
+def cli(ctx: click.Context, debug: bool) -> None:
+    """Slice coloured meshes into graded multi-material layer images and print them."""
+    ctx.ensure_object(dict)
+    ctx.obj["debug"] = debug
+
+
+def _register() -> None:
+    from heoslice.cli import info, slice as slice_
+
+    cli.add_command(info.info)
+    cli.add_command(slice_.slice_cmd)
+
+
+_register()
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point: run the group, map errors to one line and an exit status."""
+    args = sys.argv[1:] if argv is None else argv
+    debug = "--debug" in args
+    try:
+        cli.main(args=args, prog_name="heoslice", standalone_mode=False)
+    except click.exceptions.Exit as done:
+        sys.exit(done.exit_code)
+    except click.ClickException as err:
+        err.show()
+        sys.exit(err.exit_code)
+    except click.exceptions.Abort:
+        click.echo("heoslice: interrupted", err=True)
+        sys.exit(EXIT_INTERRUPTED)
+    except KeyboardInterrupt:
+        click.echo("heoslice: interrupted", err=True)
+        sys.exit(EXIT_INTERRUPTED)
+    except HeosliceError as err:
+        if debug:
+            traceback.print_exc()
+        click.echo(f"heoslice: error: {err}", err=True)
+        sys.exit(err.exit_code)
+    except Exception as err:  # noqa: BLE001 - the last line of defence for users
+        if debug:
+            traceback.print_exc()
+        click.echo(
+            f"heoslice: internal error: {type(err).__name__}: {err} "
+            "(rerun with --debug and report the traceback)",
+            err=True,
+        )
+        sys.exit(EXIT_BUG)

@@ -1,0 +1,43 @@
+"""``heoslice info``: what a mesh file holds, before slicing it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from heoslice.loading import load_mesh, mesh_info
+
+
+@click.command("info", epilog="""\b
+Examples:
+  heoslice info vase.ply
+  heoslice info liver.stl --json | jq .volume_mm3
+""")
+@click.argument("model", type=click.Path(path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+def info(model: Path, as_json: bool) -> None:
+    """Print MODEL's vertices, triangles, bounding box, watertightness, winding, shells, volume, colours."""
+    summary = mesh_info(load_mesh(model))
+    if as_json:
+        click.echo(json.dumps(summary))
+        return
+    low, high = summary["bounds_mm"]
+    volume = "n/a (not watertight)" if summary["volume_mm3"] is None else f"{summary['volume_mm3']:.6g} mm^3"
+    lines = [
+        f"file:               {summary['file']}",
+        f"vertices:           {summary['vertices']}",
+        f"triangles:          {summary['triangles']}",
+        f"bounding box (mm):  x {low[0]:.4g} .. {high[0]:.4g}, y {low[1]:.4g} .. {high[1]:.4g}, "
+        f"z {low[2]:.4g} .. {high[2]:.4g}",
+        f"watertight:         {'yes' if summary['watertight'] else 'no'} "
+        f"({summary['boundary_edges']} boundary, {summary['non_manifold_edges']} non-manifold edges)",
+        f"winding consistent: {'yes' if summary['winding_consistent'] else 'no'}",
+        f"shells:             {summary['shells']}",
+        f"volume:             {volume}",
+        f"colours:            {'per-vertex RGB' if summary['colors'] else 'none'}"
+        f"{', material fraction' if summary['material_fraction'] else ''}",
+    ]
+    lines += [f"warning:            {text}" for text in summary["warnings"]]
+    click.echo("\n".join(lines))

@@ -1,0 +1,107 @@
+"""User-facing errors: one line of text and a documented process exit status.
+
+Library code raises these; the CLI prints ``heoslice: error: <message>`` and exits
+with ``exit_code``. Anything else reaching the CLI is a bug (exit 1, traceback
+only with ``--debug``).
+"""
+
+from __future__ import annotations
+
+EXIT_OK = 0
+EXIT_BUG = 1
+EXIT_INPUT = 2  # bad input file, bad option value (click usage errors also exit 2)
+EXIT_OUTPUT = 3  # output cannot be written: exists, unwritable, disk full
+EXIT_VERIFY = 4  # a stack failed verification
+EXIT_INTERRUPTED = 130  # Ctrl-C
+
+
+class HeosliceError(Exception):
+    """An error the user can act on; ``str(err)`` is the whole one-line message."""
+
+    exit_code = EXIT_INPUT
+
+    def __init__(self, message: str, exit_code: int | None = None):
+        super().__init__(" ".join(str(message).split()))
+        if exit_code is not None:
+            self.exit_code = exit_code
+
+
+class InputError(HeosliceError):
+    """An input file or option value is unusable."""
+
+    exit_code = EXIT_INPUT
+
+
+class OutputError(HeosliceError):
+    """The output cannot be written."""
+
+    exit_code = EXIT_OUTPUT
+
+
+class VerifyError(HeosliceError):
+    """A stack on disk is incomplete, altered or malformed."""
+
+    exit_code = EXIT_VERIFY
+
+
+# --- printer link (issue 5): exit codes and errors of `heoslice print` --------------------
+# Documented in docs/protocol.md ("Exit codes").
+
+EXIT_PORT = 10  # the port cannot be opened (no such device, permission, refused connection)
+EXIT_LINK_DEAD = 11  # no frame from the controller for too long, reconnecting failed
+EXIT_PROTOCOL = 12  # protocol version mismatch, no controller answering, or a job it cannot print
+EXIT_RETRIES = 13  # retry cap reached; the job was paused on the controller
+EXIT_RESET = 14  # the controller was reset (new boot id) during the print: rerun with --from-layer
+EXIT_CONTROLLER = 15  # the controller reported an error (layer CRC mismatch, hardware fault)
+
+
+class ProtocolError(HeosliceError):
+    """Bytes that are not a valid frame or message of the printer protocol."""
+
+    exit_code = EXIT_PROTOCOL
+
+
+class PrinterError(HeosliceError):
+    """A print could not be completed; ``exit_code`` names the failure class."""
+
+    exit_code = EXIT_LINK_DEAD
+
+
+class PortError(PrinterError):
+    """The printer port cannot be opened."""
+
+    exit_code = EXIT_PORT
+
+
+class LinkDeadError(PrinterError):
+    """The controller stopped answering and could not be reached again."""
+
+    exit_code = EXIT_LINK_DEAD
+
+
+class IncompatibleControllerError(PrinterError):
+    """The controller speaks another protocol version, or cannot print this job."""
+
+    exit_code = EXIT_PROTOCOL
+
+
+class RetryLimitError(PrinterError):
+    """A frame was retransmitted too often without progress; the job was paused."""
+
+    exit_code = EXIT_RETRIES
+
+
+class ControllerResetError(PrinterError):
+    """The controller rebooted during the print; ``next_layer`` is where to resume after checking the part."""
+
+    exit_code = EXIT_RESET
+
+    def __init__(self, message: str, next_layer: int):
+        super().__init__(message)
+        self.next_layer = next_layer
+
+
+class ControllerFaultError(PrinterError):
+    """The controller reported an error state."""
+
+    exit_code = EXIT_CONTROLLER

@@ -1,0 +1,208 @@
+"""The slice pipeline: mesh -> sections -> contours -> layer images -> stack on disk.
+
+This module only connects the stages (:mod:`slicing`, :mod:`contours`,
+:mod:`rasterising`, :mod:`stack`); it renders and encodes layers in parallel
+worker processes, streaming each to disk as soon as it is done so that memory
+does not grow with the number of layers.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from heoslice import __version__
+from heoslice.contours import Contours, build_contours
+from heoslice.errors import InputError
+from heoslice.loading import Mesh
+from heoslice.rasterising import Grid, grid_for, render_layer
+from heoslice.slicing import interpolate_at, plane_heights, slice_mesh
+from heoslice.stack import (
+    COMPRESSIONS,
+    DEFAULT_COMPRESSION,
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    encode_tiff,
+    layer_file_name,
+    prepare_directory,
+    write_file,
+    write_manifest,
+)
+
+
+@dataclass(frozen=True)
+class SliceSpec:
+    """What to slice and how: layer height (mm), resolution (dpi x, y), canvas, encoding, workers."""
+
+    layer_height_mm: float = 0.1
+    dpi: tuple[float, float] = (600.0, 600.0)
+    margin_mm: float = 1.0
+    canvas_mm: tuple[float, float] | None = None
+    compression: str = DEFAULT_COMPRESSION
+    jobs: int = 0
+    base_color: tuple[int, int, int] = (255, 255, 255)
+
+    def __post_init__(self):
+        if self.compression not in COMPRESSIONS:
+            raise InputError(f"--compress: unknown compression {self.compression!r}; "
+                             f"choose one of {', '.join(COMPRESSIONS)}")
+        if not self.layer_height_mm > 0:
+            raise InputError(f"--layer: layer height must be positive, got {self.layer_height_mm}")
+
+    def worker_count(self) -> int:
+        return self.jobs if self.jobs > 0 else max(1, len(os.sched_getaffinity(0)))
+
+
+@dataclass
+class StageTimes:
+    """Seconds spent per stage (raster and encode summed over workers, i.e. CPU seconds)."""
+
+    slice: float = 0.0
+    contours: float = 0.0
+    raster: float = 0.0
+    encode: float = 0.0
+    write: float = 0.0
+    total: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class LayerJob:
+    """Everything a worker needs to render and write one layer."""
+
+    index: int
+    points: np.ndarray
+    offsets: np.ndarray
+    point_colors: np.ndarray | None
+    grid: Grid
+    dpi: tuple[float, float]
+    compression: str
+    base_color: tuple[int, int, int]
+    path: Path
+
+
+def render_and_write(job: LayerJob) -> tuple[int, str, int, float, float]:
+    """Render, encode and write one layer. Returns (index, sha256, solid pixels, raster s, encode s)."""
+    started = time.perf_counter()
+    image, solid = render_layer(job.points, job.offsets, job.grid, point_colors=job.point_colors,
+                                base_color=job.base_color)
+    rendered = time.perf_counter()
+    data = encode_tiff(image, job.dpi, job.compression)
+    encoded = time.perf_counter()
+    digest = write_file(job.path, data)
+    return job.index, digest, solid, rendered - started, encoded - rendered
+
+
+def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, directory: Path):
+    """One LayerJob per layer, built lazily (each carries only its own layer's loops)."""
+    colors = None if mesh.colors is None else mesh.colors.astype(np.float64)
+    for index in range(len(contours.layer_offsets) - 1):
+        first, last = contours.layer_offsets[index], contours.layer_offsets[index + 1]
+        start, stop = contours.offsets[first], contours.offsets[last]
+        point_colors = None
+        if colors is not None:
+            point_colors = interpolate_at(colors, contours.point_edge[start:stop], contours.point_t[start:stop])
+        yield LayerJob(
+            index=index,
+            points=contours.points[start:stop],
+            offsets=contours.offsets[first:last + 1] - start,
+            point_colors=point_colors,
+            grid=grid,
+            dpi=spec.dpi,
+            compression=spec.compression,
+            base_color=spec.base_color,
+            path=directory / layer_file_name(index),
+        )
+
+
+def _run_jobs(jobs, workers: int, on_done: Callable[[tuple], None]) -> None:
+    """Run render_and_write over jobs, at most 2 x workers in flight; call on_done per result."""
+    if workers <= 1:
+        for job in jobs:
+            on_done(render_and_write(job))
+        return
+    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork")) as pool:
+        pending = set()
+        for job in jobs:
+            pending.add(pool.submit(render_and_write, job))
+            if len(pending) >= 2 * workers:
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for future in done:
+                    on_done(future.result())
+        for future in pending:
+            on_done(future.result())
+
+
+def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool = False,
+                   progress: Callable[[int, int], None] | None = None) -> tuple[dict, StageTimes]:
+    """Slice ``mesh`` into a stack in ``directory``; return the manifest and stage timings.
+
+    ``progress(done, total)`` is called as layers finish. The manifest is written
+    last; if anything fails before, the directory holds no manifest.
+    """
+    directory = Path(directory)
+    times = StageTimes()
+    started = time.perf_counter()
+    prepare_directory(directory, force)
+    bounds = mesh.bounds
+    z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
+    sections = slice_mesh(mesh.vertices, mesh.faces, z)
+    times.slice = time.perf_counter() - started
+    contours = build_contours(sections)
+    times.contours = time.perf_counter() - started - times.slice
+    grid = grid_for(bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
+
+    results: dict[int, tuple[str, int]] = {}
+
+    def on_done(result: tuple) -> None:
+        index, digest, solid, raster_s, encode_s = result
+        results[index] = (digest, solid)
+        times.raster += raster_s
+        times.encode += encode_s
+        if progress is not None:
+            progress(len(results), len(z))
+
+    _run_jobs(layer_jobs(contours, mesh, grid, spec, directory), spec.worker_count(), on_done)
+    open_layers = np.zeros(len(z), dtype=bool)
+    open_layers[contours.layer[contours.closed_by_join]] = True
+    manifest = {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "complete": True,
+        "created_by": f"heoslice {__version__}",
+        "source": {"file": mesh.source.name, "sha256": mesh.sha256},
+        "layer_height_mm": spec.layer_height_mm,
+        "dpi": [float(spec.dpi[0]), float(spec.dpi[1])],
+        "pixel_size_mm": [grid.px, grid.py],
+        "image": {
+            "width": grid.width,
+            "height": grid.height,
+            "origin_mm": [grid.x_left, grid.y_top],
+            "mode": "1" if mesh.colors is None else "RGBA",
+            "compression": spec.compression,
+        },
+        "mask": "nonzero" if mesh.colors is None else "alpha",
+        "z_range_mm": [float(bounds[0, 2]), float(bounds[1, 2])],
+        "warnings": list(mesh.warnings),
+        "layers": [
+            {
+                "index": index,
+                "z_mm": float(z[index]),
+                "file": layer_file_name(index),
+                "sha256": results[index][0],
+                "solid_pixels": results[index][1],
+                "open_contours": bool(open_layers[index]),
+            }
+            for index in range(len(z))
+        ],
+    }
+    write_manifest(directory, manifest)
+    times.total = time.perf_counter() - started
+    return manifest, times
