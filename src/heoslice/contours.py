@@ -33,7 +33,8 @@ class Contours:
     Per loop: ``layer`` (int), ``area`` (signed, mm^2; > 0 counter-clockwise =
     outer ring, < 0 = hole), ``closed_by_join`` (bool: the chain was open and was
     closed by joining its ends), ``parent`` (the smallest loop of the same layer
-    containing it, or -1) and ``family`` (the outer ring whose family it belongs to).
+    containing it, or -1), ``family`` (the outer ring whose family it belongs to) and
+    ``face`` (a mesh face the loop was cut from: ``mesh.shell[face]`` names its shell).
     ``layer_offsets`` ((L+1,) int): loops of layer k are ``layer_offsets[k]:layer_offsets[k+1]``.
     """
 
@@ -46,6 +47,7 @@ class Contours:
     closed_by_join: np.ndarray
     parent: np.ndarray
     family: np.ndarray
+    face: np.ndarray
     layer_offsets: np.ndarray
 
     @property
@@ -57,7 +59,10 @@ class Contours:
         return self.points[self.offsets[loop] : self.offsets[loop + 1]]
 
     def layer_area(self) -> np.ndarray:
-        """(L,) float: each layer's solid area, mm^2 (sum of signed loop areas = integral of winding)."""
+        """(L,) float, mm^2: each layer's sum of signed loop areas, the integral of the winding number.
+
+        This is the solid area when shells do not overlap; a region inside two shells counts twice.
+        """
         count = len(self.layer_offsets) - 1
         return np.bincount(self.layer, weights=self.area, minlength=count)
 
@@ -89,16 +94,18 @@ def successors(start_key: np.ndarray, end_key: np.ndarray) -> np.ndarray:
 
 
 def _rank_paths(nxt: np.ndarray) -> np.ndarray:
-    """Steps from each node to the tail of its path (nxt == -1 at tails), by pointer jumping."""
-    hops = (nxt >= 0).astype(np.int64)
-    jump = nxt.copy()
-    while True:
-        live = jump >= 0
-        if not live.any():
-            return hops
-        target = jump[live]
-        hops[live] += hops[target]
-        jump[live] = jump[target]
+    """Steps from each node to the tail of its path (nxt == -1 at tails), by pointer jumping.
+
+    A sentinel node after the last one absorbs the tails, so every round is two
+    whole-array gathers and an add, and there are ceil(log2(longest path)) rounds.
+    """
+    count = len(nxt)
+    jump = np.append(np.where(nxt >= 0, nxt, count), count)
+    hops = np.append((nxt >= 0).astype(np.int64), 0)
+    while not np.all(jump[:count] == count):
+        hops += hops[jump]
+        jump = jump[jump]
+    return hops[:count]
 
 
 def chain_loops(sections: Sections) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -114,29 +121,29 @@ def chain_loops(sections: Sections) -> tuple[np.ndarray, np.ndarray, np.ndarray]
         return np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, bool)
     nxt = successors(sections.start_key, sections.end_key)
     linked = nxt >= 0
-    graph = scipy.sparse.coo_matrix(
+    graph = scipy.sparse.csr_matrix(
         (np.ones(int(linked.sum()), dtype=np.int8), (np.nonzero(linked)[0], nxt[linked])),
         shape=(count, count),
     )
-    _, label = scipy.sparse.csgraph.connected_components(graph, directed=True, connection="weak")
+    components, label = scipy.sparse.csgraph.connected_components(graph, directed=True, connection="weak")
     # A component with a tail is an open chain; a cycle is cut before its smallest index.
-    has_tail = np.zeros(label.max() + 1, dtype=bool)
+    has_tail = np.zeros(components, dtype=bool)
     has_tail[label[~linked]] = True
-    root = np.full(label.max() + 1, count, dtype=np.int64)
+    root = np.full(components, count, dtype=np.int64)
     np.minimum.at(root, label, np.arange(count))
     cut = nxt.copy()
-    cycle_root = root[label]
-    in_cycle = ~has_tail[label]
-    cut[in_cycle & (nxt == cycle_root)] = -1
+    cut[~has_tail[label] & (nxt == root[label])] = -1
     to_tail = _rank_paths(cut)
-    # order: by layer, then component, then distance from the head (largest to_tail first)
-    component_layer = sections.layer[root]
-    order = np.lexsort((-to_tail, label, component_layer[label]))
-    sorted_label = label[order]
-    boundaries = np.nonzero(np.diff(sorted_label))[0] + 1
-    offsets = np.concatenate([[0], boundaries, [count]]).astype(np.int64)
-    closed_by_join = has_tail[sorted_label[offsets[:-1]]]
-    return order, offsets, closed_by_join
+    # Place each segment directly: loops sorted by layer, then along the loop from its head.
+    size = np.bincount(label, minlength=components)
+    loop_order = np.argsort(sections.layer[root], kind="stable")
+    offsets = np.zeros(components + 1, dtype=np.int64)
+    offsets[1:] = np.cumsum(size[loop_order])
+    loop_start = np.empty(components, dtype=np.int64)
+    loop_start[loop_order] = offsets[:-1]
+    order = np.empty(count, dtype=np.int64)
+    order[loop_start[label] + size[label] - 1 - to_tail] = np.arange(count)
+    return order, offsets, has_tail[loop_order]
 
 
 def signed_areas(points: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -162,7 +169,8 @@ def loop_parents(points: np.ndarray, offsets: np.ndarray, layer: np.ndarray, are
     loops = len(offsets) - 1
     parent = np.full(loops, -1, dtype=np.int64)
     sizes = np.diff(offsets)
-    usable = np.nonzero(sizes >= 3)[0]
+    loops_in_layer = np.bincount(layer)[layer]
+    usable = np.nonzero((sizes >= 3) & (loops_in_layer >= 2))[0]
     if len(usable) < 2:
         return parent
     extent = np.ptp(points[:, 0]) + np.ptp(points[:, 1]) + 1.0
@@ -196,31 +204,46 @@ def assign_families(area: np.ndarray, parent: np.ndarray) -> np.ndarray:
     return np.where((area <= 0) & parent_is_outer, parent, own)
 
 
-def build_contours(sections: Sections) -> Contours:
-    """Chain all layers' segments into loops and classify them (outer/hole, families)."""
-    order, offsets, closed_by_join = chain_loops(sections)
-    loop_layer = sections.layer[order[offsets[:-1]]] if len(order) else np.zeros(0, np.int64)
-    # An open chain also keeps the end point of its last segment before it is closed.
-    tails = order[offsets[1:][closed_by_join] - 1]
-    at = offsets[1:][closed_by_join]
-    points = np.insert(sections.start[order], at, sections.end[tails], axis=0)
-    point_edge = np.insert(sections.start_edge[order], at, sections.end_edge[tails], axis=0)
-    point_t = np.insert(sections.start_t[order], at, sections.end_t[tails])
-    offsets = offsets + np.concatenate([[0], np.cumsum(closed_by_join)])
+def _drop_repeated_points(points, point_edge, point_t, offsets):
+    """Remove a loop point equal to its predecessor; a loop whose points are all equal keeps one.
+
+    Repeats only arise where a mesh vertex lies exactly on the plane (t is 0 or 1),
+    so only those points are examined.
+    """
+    on_vertex = np.nonzero((point_t == 0.0) | (point_t == 1.0))[0]
+    if len(on_vertex) == 0:
+        return points, point_edge, point_t, offsets
     loops = len(offsets) - 1
     loop_of_point = np.repeat(np.arange(loops), np.diff(offsets))
-
-    # Drop a point equal to its predecessor (a vertex exactly on the plane yields it twice);
-    # a loop whose points are all equal keeps one.
-    previous = np.arange(-1, len(points) - 1)
-    previous[offsets[:-1]] = offsets[1:] - 1
-    keep = ~np.all(points == points[previous], axis=1)
+    previous = on_vertex - 1
+    loop_first = offsets[loop_of_point[on_vertex]]
+    previous[on_vertex == loop_first] = offsets[loop_of_point[on_vertex] + 1][on_vertex == loop_first] - 1
+    keep = np.ones(len(points), dtype=bool)
+    keep[on_vertex] = ~np.all(points[on_vertex] == points[previous], axis=1)
     kept_any = np.zeros(loops, dtype=bool)
     kept_any[loop_of_point[keep]] = True
     keep[offsets[:-1][~kept_any]] = True
-    points, point_edge, point_t = points[keep], point_edge[keep], point_t[keep]
     sizes = np.bincount(loop_of_point[keep], minlength=loops)
-    offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    new_offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    return points[keep], point_edge[keep], point_t[keep], new_offsets
+
+
+def build_contours(sections: Sections) -> Contours:
+    """Chain all layers' segments into loops and classify them (outer/hole, families)."""
+    order, offsets, closed_by_join = chain_loops(sections)
+    first_segment = offsets[:-1]
+    loop_layer = sections.layer[order[first_segment]] if len(order) else np.zeros(0, np.int64)
+    points = sections.start[order]
+    point_edge = sections.start_edge[order]
+    point_t = sections.start_t[order]
+    if closed_by_join.any():  # an open chain also keeps the end point of its last segment
+        tails = order[offsets[1:][closed_by_join] - 1]
+        at = offsets[1:][closed_by_join]
+        points = np.insert(points, at, sections.end_points(tails), axis=0)
+        point_edge = np.insert(point_edge, at, sections.end_edge[tails], axis=0)
+        point_t = np.insert(point_t, at, sections.end_t[tails])
+        offsets = offsets + np.concatenate([[0], np.cumsum(closed_by_join)])
+    points, point_edge, point_t, offsets = _drop_repeated_points(points, point_edge, point_t, offsets)
 
     area = signed_areas(points, offsets)
     parent = loop_parents(points, offsets, loop_layer, area)
@@ -234,5 +257,6 @@ def build_contours(sections: Sections) -> Contours:
         closed_by_join=closed_by_join,
         parent=parent,
         family=assign_families(area, parent),
+        face=sections.face[order[first_segment]] if len(order) else np.zeros(0, np.int64),
         layer_offsets=np.searchsorted(loop_layer, np.arange(sections.layer_count + 1), side="left"),
     )

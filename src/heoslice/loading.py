@@ -26,13 +26,18 @@ SUPPORTED_SUFFIXES = (".ply", ".stl", ".obj", ".off")
 #: Name of the per-vertex float property carrying the material fraction in [0, 1].
 MATERIAL_PROPERTY = "material"
 
-_PLY_TYPE_SIZES = {
-    "char": 1, "int8": 1, "uchar": 1, "uint8": 1,
-    "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
-    "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4,
-    "double": 8, "float64": 8,
+#: PLY scalar type names (with their aliases) -> numpy type code.
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
 _PLY_MAX_HEADER_BYTES = 1 << 16
+#: Longest ASCII token accepted in a PLY body (a double needs at most 24 characters).
+_PLY_MAX_TOKEN = 64
+_PLY_FORMATS = {"ascii": None, "binary_little_endian": "<", "binary_big_endian": ">"}
+_PLY_FACE_LISTS = ("vertex_indices", "vertex_index")
 
 
 @dataclass(frozen=True)
@@ -70,59 +75,370 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def check_ply_header(path: Path) -> dict[str, int]:
-    """Parse a PLY header and refuse element counts the file cannot hold.
+@dataclass(frozen=True)
+class PlyProperty:
+    """One property of a PLY element: numpy type code of its values, and of its list length (None: scalar)."""
 
-    Returns {element name: count}. Runs before any parser allocates for the body,
-    so a header declaring 10**12 vertices in a small file fails at once.
-    """
-    size = path.stat().st_size
-    with open(path, "rb") as handle:
-        head = handle.read(_PLY_MAX_HEADER_BYTES)
-    if not head.startswith(b"ply"):
+    name: str
+    kind: str
+    count_kind: str | None = None
+
+
+@dataclass(frozen=True)
+class PlyHeader:
+    """A parsed PLY header: format ('ascii' or a binary byte order), elements in file order, body offset."""
+
+    format: str
+    elements: tuple[tuple[str, int, tuple[PlyProperty, ...]], ...]
+    body_offset: int
+
+
+def parse_ply_header(path: Path, head: bytes) -> PlyHeader:
+    """Parse and check the header at the start of ``head`` (the file's first bytes); InputError on any flaw."""
+    if not (head.startswith(b"ply\n") or head.startswith(b"ply\r\n")):
         raise InputError(f"{path}: not a PLY file (no 'ply' magic line)")
-    end = head.find(b"end_header")
-    if end < 0:
-        raise InputError(f"{path}: PLY header has no 'end_header' in its first 64 KiB")
-    newline = head.find(b"\n", end)
-    body_bytes = size - (newline + 1 if newline >= 0 else len(head))
-    lines = head[:end].decode("ascii", errors="replace").splitlines()
+    marker = head.find(b"end_header")
+    if marker < 0:
+        raise InputError(f"{path}: PLY header has no 'end_header' in its first {_PLY_MAX_HEADER_BYTES // 1024} KiB")
+    newline = head.find(b"\n", marker)
+    if newline < 0 or head[marker + len(b"end_header"):newline].strip():
+        raise InputError(f"{path}: PLY 'end_header' is not followed by a line break")
     fmt = None
-    elements: list[list] = []  # [name, count, min_row_bytes]
+    elements: list[tuple[str, int, list[PlyProperty]]] = []
+    lines = head[:marker].decode("ascii", errors="replace").splitlines()
     for number, raw in enumerate(lines[1:], start=2):
         words = raw.split()
+        where = f"{path}: PLY header line {number}"
         if not words or words[0] in ("comment", "obj_info"):
             continue
         if words[0] == "format":
-            if len(words) < 2 or words[1] not in ("ascii", "binary_little_endian", "binary_big_endian"):
-                raise InputError(f"{path}: PLY header line {number}: unknown format {raw.strip()!r}")
+            if len(words) != 3 or words[1] not in _PLY_FORMATS or fmt is not None:
+                raise InputError(f"{where}: bad or repeated format line {raw.strip()[:80]!r}")
             fmt = words[1]
         elif words[0] == "element":
-            if len(words) != 3 or not words[2].isdigit():
-                raise InputError(f"{path}: PLY header line {number}: bad element line {raw.strip()!r}")
-            elements.append([words[1], int(words[2]), 0])
+            if len(words) != 3 or not words[2].isdecimal() or not words[2].isascii():
+                raise InputError(f"{where}: bad element line {raw.strip()[:80]!r}")
+            if any(name == words[1] for name, _, _ in elements):
+                raise InputError(f"{where}: element {words[1]!r} declared twice")
+            elements.append((words[1], int(words[2]), []))
         elif words[0] == "property":
             if not elements:
-                raise InputError(f"{path}: PLY header line {number}: property before any element")
-            if len(words) >= 5 and words[1] == "list":
-                count_type, item_type = words[2], words[3]
-                if count_type not in _PLY_TYPE_SIZES or item_type not in _PLY_TYPE_SIZES:
-                    raise InputError(f"{path}: PLY header line {number}: unknown property type in {raw.strip()!r}")
-                elements[-1][2] += _PLY_TYPE_SIZES[count_type] if fmt != "ascii" else 2
-            elif len(words) == 3 and words[1] in _PLY_TYPE_SIZES:
-                elements[-1][2] += _PLY_TYPE_SIZES[words[1]] if fmt != "ascii" else 2
+                raise InputError(f"{where}: property before any element")
+            if len(words) == 5 and words[1] == "list":
+                if words[2] not in _PLY_TYPES or words[3] not in _PLY_TYPES:
+                    raise InputError(f"{where}: unknown property type in {raw.strip()[:80]!r}")
+                if _PLY_TYPES[words[2]][0] == "f":
+                    raise InputError(f"{where}: a list length must have an integer type, not {words[2]!r}")
+                prop = PlyProperty(words[4], _PLY_TYPES[words[3]], _PLY_TYPES[words[2]])
+            elif len(words) == 3 and words[1] in _PLY_TYPES:
+                prop = PlyProperty(words[2], _PLY_TYPES[words[1]])
             else:
-                raise InputError(f"{path}: PLY header line {number}: bad property line {raw.strip()!r}")
+                raise InputError(f"{where}: bad property line {raw.strip()[:80]!r}")
+            if any(p.name == prop.name for p in elements[-1][2]):
+                raise InputError(f"{where}: property {prop.name!r} declared twice")
+            elements[-1][2].append(prop)
+        else:
+            raise InputError(f"{where}: unknown header keyword {words[0][:40]!r}")
     if fmt is None:
         raise InputError(f"{path}: PLY header has no format line")
-    needed = sum(count * max(row, 1) for _, count, row in elements)
+    for name, count, props in elements:
+        if count and not props:
+            raise InputError(f"{path}: PLY element {name!r} has {count} rows but no properties")
+    return PlyHeader(fmt, tuple((n, c, tuple(p)) for n, c, p in elements), newline + 1)
+
+
+def _ply_min_body_bytes(header: PlyHeader) -> int:
+    """Fewest body bytes the declared elements can occupy (every list empty)."""
+    total = 0
+    for _, count, props in header.elements:
+        if header.format == "ascii":
+            row = 2 * len(props)  # one character and one separator per value
+        else:
+            row = sum(np.dtype(p.count_kind or p.kind).itemsize for p in props)
+        total += count * max(row, 1)
+    return total - 1 if header.format == "ascii" and total else total
+
+
+def check_ply_header(path: Path) -> dict[str, int]:
+    """Parse a PLY header and refuse element counts the file cannot hold.
+
+    Returns {element name: count}. Reads at most 64 KiB and allocates nothing for the
+    body, so a header declaring 10**12 vertices in a small file fails at once.
+    """
+    path = Path(path)
+    size = path.stat().st_size
+    with open(path, "rb") as handle:
+        head = handle.read(_PLY_MAX_HEADER_BYTES)
+    header = parse_ply_header(path, head)
+    needed = _ply_min_body_bytes(header)
+    body_bytes = size - header.body_offset
     if needed > body_bytes:
-        declared = ", ".join(f"{count} {name}" for name, count, _ in elements)
+        declared = ", ".join(f"{count} {name}" for name, count, _ in header.elements)
         raise InputError(
             f"{path}: truncated or corrupt PLY: the header declares {declared} "
             f"(at least {needed} bytes) but the body holds {body_bytes} bytes"
         )
-    return {name: count for name, count, _ in elements}
+    return {name: count for name, count, _ in header.elements}
+
+
+def _list_dtype(props: tuple[PlyProperty, ...], lengths: list[int], order: str) -> np.dtype:
+    """Structured dtype of one binary row whose list properties have the given lengths."""
+    fields, lists = [], iter(lengths)
+    for prop in props:
+        if prop.count_kind is None:
+            fields.append((prop.name, order + prop.kind))
+        else:
+            fields.append((f"{prop.name} length", order + prop.count_kind))
+            fields.append((prop.name, order + prop.kind, (next(lists),)))
+    return np.dtype(fields)
+
+
+def _read_binary_element(path: Path, buffer: memoryview, offset: int, name: str, count: int,
+                         props: tuple[PlyProperty, ...], order: str) -> tuple[dict, int]:
+    """Read one binary element: ({property: array, or (lengths, flat values) for lists}, end offset).
+
+    Rows with lists are read in runs of equal list lengths (one vectorised read per run),
+    so the common all-triangles file is a single read.
+    """
+    end = len(buffer)
+    if not any(p.count_kind for p in props):
+        dtype = _list_dtype(props, [], order)
+        if count * dtype.itemsize > end - offset:
+            raise InputError(f"{path}: truncated PLY: element {name!r} needs {count * dtype.itemsize} bytes, "
+                             f"{end - offset} left")
+        rows = np.frombuffer(buffer, dtype, count, offset)
+        return {p.name: rows[p.name] for p in props}, offset + count * dtype.itemsize
+    pieces, row, window = [], 0, 1024
+    while row < count:
+        lengths, cursor = [], offset
+        for prop in props:
+            if prop.count_kind is None:
+                cursor += np.dtype(prop.kind).itemsize
+                continue
+            width = np.dtype(prop.count_kind).itemsize
+            if cursor + width > end:
+                raise InputError(f"{path}: truncated PLY: element {name!r} ends at row {row} of {count}")
+            length = int(np.frombuffer(buffer, order + prop.count_kind, 1, cursor)[0])
+            if length < 0:
+                raise InputError(f"{path}: PLY element {name!r} row {row}: negative list length {length}")
+            lengths.append(length)
+            cursor += width + length * np.dtype(prop.kind).itemsize
+        if cursor > end:
+            raise InputError(f"{path}: truncated PLY: element {name!r} row {row} runs past the end of the file")
+        dtype = _list_dtype(props, lengths, order)
+        take = min(count - row, window, (end - offset) // dtype.itemsize)
+        block = np.frombuffer(buffer, dtype, take, offset)
+        same = np.ones(take, dtype=bool)
+        for prop, length in zip((p for p in props if p.count_kind), lengths):
+            same &= block[f"{prop.name} length"] == length
+        run = take if same.all() else int(np.argmin(same))
+        pieces.append((block[:run], lengths))
+        row, offset = row + run, offset + run * dtype.itemsize
+        window = 2 * window if run == take else 1024
+    columns: dict = {}
+    list_number = 0
+    for prop in props:
+        if prop.count_kind is None:
+            columns[prop.name] = np.concatenate([block[prop.name] for block, _ in pieces])
+            continue
+        lengths = np.concatenate([np.full(len(block), lens[list_number], dtype=np.int64) for block, lens in pieces])
+        flat = np.concatenate([block[prop.name].reshape(-1) for block, _ in pieces])
+        columns[prop.name] = (lengths, flat)
+        list_number += 1
+    return columns, offset
+
+
+def _ascii_rows(path: Path, body: bytes, first_line: int):
+    """Parse an ASCII PLY body: (values (t,) float64, and per non-empty line: first value, value count, line number)."""
+    data = np.frombuffer(body, dtype=np.uint8)
+    space = np.zeros(256, dtype=bool)
+    space[[9, 10, 11, 12, 13, 32]] = True
+    blank = space[data]
+    starts = np.flatnonzero(~blank & np.concatenate([[True], blank[:-1]]))
+    stops = np.flatnonzero(~blank & np.concatenate([blank[1:], [True]])) + 1
+    line_of = np.cumsum(data == 10)
+
+    def line_at(position: int) -> int:
+        return first_line + int(line_of[position - 1]) if position > 0 else first_line
+
+    too_long = np.flatnonzero(stops - starts > _PLY_MAX_TOKEN)
+    if len(too_long):
+        raise InputError(f"{path}: PLY line {line_at(int(starts[too_long[0]]))}: "
+                         f"value longer than {_PLY_MAX_TOKEN} characters")
+    if np.any(data > 126):
+        raise InputError(f"{path}: PLY line {line_at(int(np.argmax(data > 126)))}: non-ASCII byte in an ASCII body")
+    values = None
+    if len(starts):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            try:
+                values = np.fromstring(body.decode("ascii"), dtype=np.float64, sep=" ")
+            except (ValueError, DeprecationWarning):
+                values = None
+    else:
+        values = np.zeros(0)
+    if values is None or len(values) != len(starts):
+        bad = int(starts[min(0 if values is None else len(values), len(starts) - 1)])
+        for start, stop in zip(starts, stops):  # locate the first bad token for the message (error path only)
+            try:
+                float(body[start:stop])
+            except ValueError:
+                bad = int(start)
+                break
+        token = body[bad:bad + _PLY_MAX_TOKEN].split()[0].decode("ascii", "replace")
+        raise InputError(f"{path}: PLY line {line_at(bad)}: {token[:40]!r} is not a number")
+    token_line = line_of[starts] if len(starts) else np.zeros(0, dtype=np.int64)
+    lines, row_start, row_length = np.unique(token_line, return_index=True, return_counts=True)
+    return values, row_start, row_length, lines + first_line
+
+
+def _as_ply_type(path: Path, values: np.ndarray, kind: str, where: np.ndarray, what: str) -> np.ndarray:
+    """ASCII values converted to the declared PLY type; fractions and out-of-range integers are refused."""
+    if kind[0] == "f":
+        return values.astype(kind)
+    info = np.iinfo(kind)
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(values) | (values != np.round(values)) | (values < info.min) | (values > info.max)
+    if bad.any():
+        first = int(np.argmax(bad))
+        raise InputError(f"{path}: PLY line {where[first]}: {what} {values[first]!r} is not a {np.dtype(kind).name}")
+    return values.astype(kind)
+
+
+def _read_ascii_elements(path: Path, header: PlyHeader, body: bytes, first_line: int) -> dict[str, dict]:
+    """Every element of an ASCII body (one row per non-empty line), vectorised per property."""
+    values, row_start, row_length, row_line = _ascii_rows(path, body, first_line)
+    elements: dict[str, dict] = {}
+    row = 0
+    for name, count, props in header.elements:
+        if row + count > len(row_start):
+            raise InputError(f"{path}: truncated PLY: element {name!r} has {len(row_start) - row} "
+                             f"of its {count} rows")
+        cursor = row_start[row:row + count].astype(np.int64)
+        stop = cursor + row_length[row:row + count]
+        lines = row_line[row:row + count]
+        columns: dict = {}
+        for prop in props:
+            short = cursor >= stop
+            if short.any():
+                raise InputError(f"{path}: PLY line {lines[np.argmax(short)]}: too few values for element {name!r}")
+            if prop.count_kind is None:
+                columns[prop.name] = _as_ply_type(path, values[cursor], prop.kind, lines, f"{prop.name!r}")
+                cursor = cursor + 1
+                continue
+            lengths = _as_ply_type(path, values[cursor], prop.count_kind, lines,
+                                   f"list length of {prop.name!r}").astype(np.int64)
+            if (lengths < 0).any():
+                raise InputError(f"{path}: PLY line {lines[np.argmax(lengths < 0)]}: negative list length")
+            cursor = cursor + 1
+            over = cursor + lengths > stop
+            if over.any():
+                raise InputError(f"{path}: PLY line {lines[np.argmax(over)]}: list {prop.name!r} declares "
+                                 f"{lengths[np.argmax(over)]} values, the line holds fewer")
+            within = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+            flat = values[np.repeat(cursor, lengths) + within]
+            columns[prop.name] = (lengths, _as_ply_type(path, flat, prop.kind, np.repeat(lines, lengths),
+                                                        f"{prop.name!r} value"))
+            cursor = cursor + lengths
+        extra = cursor != stop
+        if extra.any():
+            raise InputError(f"{path}: PLY line {lines[np.argmax(extra)]}: more values than element {name!r} declares")
+        elements[name] = columns
+        row += count
+    if row < len(row_start):
+        raise InputError(f"{path}: PLY line {row_line[row]}: data after the last declared element")
+    return elements
+
+
+def _fan_triangles(lengths: np.ndarray, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Triangulate polygons (given as lengths (m,) and concatenated indices) by fans from their first vertex.
+
+    Returns (triangles (k, 3) int64, polygon of each triangle (k,)). Exact for convex
+    polygons (quads from scanners and CAD); triangles pass through unchanged.
+    """
+    per = lengths - 2
+    first = np.cumsum(lengths) - lengths
+    polygon = np.repeat(np.arange(len(lengths)), per)
+    step = np.arange(int(per.sum())) - np.repeat(np.cumsum(per) - per, per)
+    base = first[polygon]
+    triangles = np.stack([flat[base], flat[base + step + 1], flat[base + step + 2]], axis=1)
+    return triangles.astype(np.int64), polygon
+
+
+def _ply_mesh(path: Path, elements: dict[str, dict]):
+    """Check the parsed elements and build a trimesh.Trimesh (raw PLY columns kept in metadata['_ply_raw'])."""
+    import trimesh
+
+    vertex = elements.get("vertex")
+    if vertex is None:
+        raise InputError(f"{path}: PLY has no 'vertex' element")
+    for axis in "xyz":
+        if axis not in vertex or isinstance(vertex[axis], tuple):
+            raise InputError(f"{path}: PLY vertex element has no scalar property {axis!r}")
+    vertices = np.column_stack([vertex[axis].astype(np.float64) for axis in "xyz"])
+    finite = np.isfinite(vertices).all(axis=1)
+    if not finite.all():
+        raise InputError(f"{path}: vertex {int(np.argmin(finite))} has a NaN or infinite coordinate")
+    face = elements.get("face")
+    if face is None:
+        extra = " (only 'tristrips'; convert to triangles first)" if "tristrips" in elements else ""
+        raise InputError(f"{path}: PLY has no 'face' element{extra}")
+    key = next((name for name in _PLY_FACE_LISTS if isinstance(face.get(name), tuple)), None)
+    if key is None:
+        raise InputError(f"{path}: PLY face element has no list property 'vertex_indices'")
+    lengths, flat = face[key]
+    if flat.dtype.kind == "f":
+        raise InputError(f"{path}: PLY face property {key!r} holds floats; vertex indices must be integers")
+    short = lengths < 3
+    if short.any():
+        bad = int(np.argmax(short))
+        raise InputError(f"{path}: face {bad} has {int(lengths[bad])} vertices (a face needs at least 3)")
+    flat = flat.astype(np.int64)
+    outside = (flat < 0) | (flat >= len(vertices))
+    if outside.any():
+        bad = int(np.repeat(np.arange(len(lengths)), lengths)[np.argmax(outside)])
+        raise InputError(f"{path}: face {bad} refers to vertex {int(flat[np.argmax(outside)])}, "
+                         f"outside 0..{len(vertices) - 1}")
+    triangles, polygon = _fan_triangles(lengths, flat)
+    scalars = {name: {k: v for k, v in columns.items() if not isinstance(v, tuple)}
+               for name, columns in elements.items()}
+    face_colors = None
+    if all(scalars["face"].get(c) is not None and scalars["face"][c].dtype == np.uint8 for c in ("red", "green", "blue")):
+        face_colors = np.stack([scalars["face"][c] for c in ("red", "green", "blue")], axis=1)[polygon]
+    raw = {name: {"length": len(next(iter(columns.values()), ())), "data": columns}
+           for name, columns in scalars.items()}
+    raw["vertex"]["length"] = len(vertices)
+    return trimesh.Trimesh(vertices, triangles, face_colors=face_colors, process=False, validate=False,
+                           metadata={"_ply_raw": raw})
+
+
+def read_ply(path: Path):
+    """Read a PLY file (ascii or binary, any byte order) strictly into a trimesh.Trimesh.
+
+    Every structural flaw is an InputError naming the file and the place: impossible
+    element counts (refused before the body is read), truncated or over-long bodies,
+    values that are not numbers or do not fit their type, negative list lengths,
+    faces with fewer than 3 vertices or indices outside the vertex list, NaN
+    coordinates. Polygons are fan-triangulated; unknown elements and extra
+    properties are read and ignored.
+    """
+    path = Path(path)
+    check_ply_header(path)
+    data = path.read_bytes()
+    header = parse_ply_header(path, data[:_PLY_MAX_HEADER_BYTES])
+    if header.format == "ascii":
+        first_line = data[:header.body_offset].count(b"\n") + 1
+        elements = _read_ascii_elements(path, header, data[header.body_offset:], first_line)
+    else:
+        order = _PLY_FORMATS[header.format]
+        buffer = memoryview(data)
+        offset = header.body_offset
+        elements = {}
+        for name, count, props in header.elements:
+            elements[name], offset = _read_binary_element(path, buffer, offset, name, count, props, order)
+        if data[offset:].strip():
+            raise InputError(f"{path}: {len(data) - offset} bytes of data after the last declared PLY element")
+    return _ply_mesh(path, elements)
 
 
 def _read_trimesh(path: Path):
@@ -178,35 +494,72 @@ def _weld(vertices: np.ndarray, faces: np.ndarray):
     return unique, inverse.reshape(-1)[faces], first
 
 
-def _orient_outward(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """Make winding consistent and normals outward, shell by shell.
+def shell_labels(faces: np.ndarray, vertex_count: int) -> np.ndarray:
+    """(m,) int: connected shell of each face, faces being connected through shared edges."""
+    import scipy.sparse
+    import scipy.sparse.csgraph
 
-    Returns (faces, shell label per face, warnings). Trimesh finds the shells and
-    fixes the winding; a closed shell whose volume is negative is turned inside out.
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    key = edges[:, 0] * np.int64(vertex_count) + edges[:, 1]
+    order = np.argsort(key, kind="stable")
+    same = key[order][1:] == key[order][:-1]
+    owner = order // 3
+    a, b = owner[:-1][same], owner[1:][same]
+    graph = scipy.sparse.coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(len(faces), len(faces)))
+    return scipy.sparse.csgraph.connected_components(graph, directed=False)[1].astype(np.int64)
+
+
+def winding_number(point: np.ndarray, triangles: np.ndarray) -> float:
+    """Generalised winding number of closed triangles (k, 3, 3) around a point (3,): sum of solid angles / 4 pi.
+
+    Solid angles by Van Oosterom and Strackee's formula; for a closed outward shell
+    the result is 1 inside, 0 outside.
     """
-    import trimesh
+    a, b, c = (triangles[:, i] - point for i in range(3))
+    la, lb, lc = (np.linalg.norm(v, axis=1) for v in (a, b, c))
+    numerator = np.einsum("ij,ij->i", a, np.cross(b, c))
+    denominator = (la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", a, c) * lb
+                   + np.einsum("ij,ij->i", b, c) * la)
+    return float(np.sum(2.0 * np.arctan2(numerator, denominator)) / (4.0 * np.pi))
 
+
+def _orient_outward(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Make winding consistent and orientation outward where that is unambiguous.
+
+    Returns (faces, shell label per face, warnings). Inconsistent winding is fixed by
+    trimesh. A mesh whose total signed volume is negative is inverted as a whole. A
+    shell with negative volume that no other shell encloses is turned inside out; one
+    enclosed by another shell is a cavity and stays as it is (a nested shell with
+    positive volume, such as a lesion inside an organ, is solid and also stays).
+    """
     notes: list[str] = []
-    tm = trimesh.Trimesh(vertices, faces, process=False, validate=False)
-    shell = np.zeros(len(faces), dtype=np.int64)
-    labels = trimesh.graph.connected_component_labels(tm.face_adjacency, node_count=len(faces))
-    shell[:] = labels
-    if not tm.is_winding_consistent:
-        trimesh.repair.fix_winding(tm)
-        fixed = np.asarray(tm.faces)
+    shell = shell_labels(faces, len(vertices))
+    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    directed_key = directed[:, 0] * np.int64(len(vertices)) + directed[:, 1]
+    if len(np.unique(directed_key)) != len(directed_key):
+        import trimesh
+
+        mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
+        trimesh.repair.fix_winding(mesh)
+        fixed = np.asarray(mesh.faces, dtype=np.int64)
         if np.any(fixed != faces):
             notes.append("inconsistent triangle winding was made consistent")
         faces = fixed
-    # turn closed shells with negative signed volume inside out
     corner = vertices[faces]
     signed = np.einsum("ij,ij->i", corner[:, 0], np.cross(corner[:, 1], corner[:, 2])) / 6.0
     volume = np.bincount(shell, weights=signed)
-    inverted = volume < 0
-    if inverted.any():
-        flip = inverted[shell]
+    if volume.sum() < 0:
+        notes.append("normals pointed inward (negative volume); the mesh was turned inside out")
+        return faces[:, ::-1].copy(), shell, notes
+    flip = np.zeros(len(volume), dtype=bool)
+    for label in np.nonzero(volume < 0)[0]:  # one winding query per inverted shell, not per face
+        probe = vertices[faces[shell == label][0, 0]]
+        others = corner[shell != label]
+        flip[label] = abs(winding_number(probe, others)) < 0.5
+    if flip.any():
         faces = faces.copy()
-        faces[flip] = faces[flip][:, ::-1]
-        notes.append(f"{int(inverted.sum())} shell(s) had inward-facing normals and were flipped")
+        faces[flip[shell]] = faces[flip[shell]][:, ::-1]
+        notes.append(f"{int(flip.sum())} shell(s) had inward-facing normals and were flipped")
     return faces, shell, notes
 
 
@@ -230,7 +583,9 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
         if counts.get("face", 0) == 0:
             extra = " (only 'tristrips' elements; convert to triangles first)" if "tristrips" in counts else ""
             raise InputError(f"{path}: the mesh has no faces{extra}")
-    loaded = _read_trimesh(path)
+        loaded = read_ply(path)
+    else:
+        loaded = _read_trimesh(path)
     vertices = np.asarray(loaded.vertices, dtype=np.float64)
     faces = np.asarray(loaded.faces, dtype=np.int64).reshape(-1, 3)
     if len(faces) == 0:

@@ -29,6 +29,8 @@ from heoslice.stack import (
     DEFAULT_COMPRESSION,
     FORMAT_NAME,
     FORMAT_VERSION,
+    check_image_size,
+    encode_bilevel_tiff,
     encode_tiff,
     layer_file_name,
     prepare_directory,
@@ -94,7 +96,10 @@ def render_and_write(job: LayerJob) -> tuple[int, str, int, float, float]:
     image, solid = render_layer(job.points, job.offsets, job.grid, point_colors=job.point_colors,
                                 base_color=job.base_color)
     rendered = time.perf_counter()
-    data = encode_tiff(image, job.dpi, job.compression)
+    if job.point_colors is None:
+        data = encode_bilevel_tiff(image, job.grid.width, job.dpi, job.compression)
+    else:
+        data = encode_tiff(image, job.dpi, job.compression)
     encoded = time.perf_counter()
     digest = write_file(job.path, data)
     return job.index, digest, solid, rendered - started, encoded - rendered
@@ -150,6 +155,8 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     directory = Path(directory)
     times = StageTimes()
     started = time.perf_counter()
+    grid = grid_for(mesh.bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
+    check_image_size(grid.width, grid.height)
     prepare_directory(directory, force)
     bounds = mesh.bounds
     z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
@@ -157,7 +164,6 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     times.slice = time.perf_counter() - started
     contours = build_contours(sections)
     times.contours = time.perf_counter() - started - times.slice
-    grid = grid_for(bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
 
     results: dict[int, tuple[str, int]] = {}
 

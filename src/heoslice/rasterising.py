@@ -3,9 +3,10 @@
 A pixel is solid when its centre lies inside the layer's region by the non-zero
 winding rule, so a cavity (clockwise loop) stays empty and a nested shell (a second
 counter-clockwise loop) stays solid. The mask is built scanline-style without a
-Python loop: every loop edge adds +-1 at the first pixel centre right of where it
-crosses each row centre, and a cumulative sum along the row gives the winding
-number at every pixel centre. Work is confined to the layer's bounding box.
+Python loop: loop edges are crossed with the pixel-row centres, the winding number
+is accumulated over each row's sorted crossings, and the solid spans are filled
+straight into a packed 1-bit image (the TIFF layout) by a running XOR over bytes.
+Work is confined to the rows and byte columns the layer covers.
 """
 
 from __future__ import annotations
@@ -65,8 +66,8 @@ def grid_for(bounds_xy: np.ndarray, dpi: tuple[float, float], margin_mm: float =
                 f"canvas {size[0]:g} x {size[1]:g} mm is smaller than the part "
                 f"({high[0] - low[0]:.3f} x {high[1] - low[1]:.3f} mm)"
             )
-    width = int(np.ceil(size[0] / px))
-    height = int(np.ceil(size[1] / py))
+    width = int(np.ceil(size[0] / px - 1e-9))
+    height = int(np.ceil(size[1] / py - 1e-9))
     return Grid(width=width, height=height, x_left=float(centre[0] - width * px / 2.0),
                 y_top=float(centre[1] + height * py / 2.0), px=px, py=py)
 
@@ -92,50 +93,107 @@ def _loop_edges(points: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np
     return points, points[following]
 
 
-def winding_numbers(points: np.ndarray, offsets: np.ndarray, grid: Grid) -> tuple[np.ndarray, tuple[int, int, int, int]]:
-    """Winding number of the loops at every pixel centre of the loops' bounding box.
+def row_crossings(points: np.ndarray, offsets: np.ndarray, grid: Grid):
+    """Where loop edges cross pixel-row centres.
 
-    Returns (winding (rows, cols) int16, (row0, row1, col0, col1)) where the box is
-    rows row0:row1, columns col0:col1 of the grid.
+    Returns (row (k,) int, column (k,) int, sign (k,) int8): every pixel of that row
+    whose column is >= ``column`` gets ``sign`` added to its winding number (+1 for
+    an edge going down the image, i.e. the left side of a counter-clockwise loop).
+    A row centre exactly at an edge end counts once (rows r with v_low < r <= v_high,
+    v the row coordinate); a pixel centre exactly on an edge counts as right of it.
     """
-    if len(points) == 0:
-        return np.zeros((0, 0), np.int16), (0, 0, 0, 0)
     start, end = _loop_edges(points, offsets)
     u0 = (start[:, 0] - grid.x_left) / grid.px - 0.5
     u1 = (end[:, 0] - grid.x_left) / grid.px - 0.5
     v0 = (grid.y_top - start[:, 1]) / grid.py - 0.5
     v1 = (grid.y_top - end[:, 1]) / grid.py - 0.5
-    v_low = np.minimum(v0, v1)
-    v_high = np.maximum(v0, v1)
-    row0 = int(np.clip(np.floor(v_low.min()) + 1, 0, grid.height))
-    row1 = int(np.clip(np.floor(v_high.max()) + 1, 0, grid.height))
-    col0 = int(np.clip(np.ceil(min(u0.min(), u1.min())), 0, grid.width))
-    col1 = int(np.clip(np.ceil(max(u0.max(), u1.max())), 0, grid.width))
-    if row1 <= row0 or col1 <= col0:
-        return np.zeros((0, 0), np.int16), (row0, row0, col0, col0)
-    # rows r with v_low < r <= v_high, clipped to the box
-    first = np.clip(np.floor(v_low) + 1, row0, row1).astype(np.int64)
-    last = np.clip(np.floor(v_high) + 1, row0, row1).astype(np.int64)
+    first = np.clip(np.floor(np.minimum(v0, v1)) + 1, 0, grid.height).astype(np.int64)
+    last = np.clip(np.floor(np.maximum(v0, v1)) + 1, 0, grid.height).astype(np.int64)
     counts = last - first
     edge = np.repeat(np.arange(len(u0)), counts)
     row = np.repeat(first, counts) + (np.arange(len(edge)) - np.repeat(np.cumsum(counts) - counts, counts))
-    fraction = (row - v0[edge]) / (v1[edge] - v0[edge])
-    u = u0[edge] + fraction * (u1[edge] - u0[edge])
-    col = np.clip(np.ceil(u), col0, col1).astype(np.int64) - col0
-    sign = np.where(v1[edge] > v0[edge], 1, -1).astype(np.int16)
-    width = col1 - col0
-    steps = np.zeros((row1 - row0, width + 1), dtype=np.int16)
-    np.add.at(steps, (row - row0, col), sign)
-    return np.cumsum(steps[:, :width], axis=1, dtype=np.int16), (row0, row1, col0, col1)
+    dv = v1[edge] - v0[edge]
+    u = u0[edge] + (row - v0[edge]) / dv * (u1[edge] - u0[edge])
+    column = np.clip(np.ceil(u), 0, grid.width).astype(np.int64)
+    return row, column, np.where(dv > 0, 1, -1).astype(np.int8)
+
+
+def span_boundaries(row: np.ndarray, column: np.ndarray, sign: np.ndarray, width: int):
+    """Columns where the non-zero winding rule switches between empty and solid, per row.
+
+    Crossings are summed per (row, column), accumulated along each row (every row's
+    crossings sum to zero for closed loops, so one running sum serves all rows), and
+    a boundary is kept where "winding > 0" changes. Returns (row (b,), column (b,)),
+    an even number per row: solid spans are [column[2i], column[2i+1]).
+    """
+    key = row * (width + 1) + column
+    order = np.argsort(key, kind="stable")
+    key = key[order]
+    starts = np.concatenate([[0], np.nonzero(np.diff(key))[0] + 1]) if len(key) else np.zeros(0, np.int64)
+    winding = np.cumsum(np.add.reduceat(sign[order].astype(np.int64), starts)) if len(key) else np.zeros(0)
+    inside = winding > 0
+    changed = inside != np.concatenate([[False], inside[:-1]])
+    kept = key[starts][changed]
+    return kept // (width + 1), kept % (width + 1)
+
+
+def prefix_xor_bytes(steps: np.ndarray) -> np.ndarray:
+    """Running XOR along each row of a (rows, bytes) uint8 array, 64 bits at a time.
+
+    Bytes are viewed as little-endian 64-bit words: a word's bytes are prefix-XORed
+    with three shifts, then each word is XORed with the running XOR of the words
+    before it, so the sequential part works on 1/8 of the bytes.
+    """
+    rows, count = steps.shape
+    words = -(-count // 8)
+    padded = np.zeros((rows, words * 8), dtype=np.uint8)
+    padded[:, :count] = steps
+    word = padded.view("<u8")
+    word ^= word << np.uint64(8)
+    word ^= word << np.uint64(16)
+    word ^= word << np.uint64(32)
+    carry = (word >> np.uint64(56)) * np.uint64(0x0101010101010101)
+    carry = np.bitwise_xor.accumulate(carry, axis=1)
+    word[:, 1:] ^= carry[:, :-1]
+    return padded[:, :count]
+
+
+def packed_mask(points: np.ndarray, offsets: np.ndarray, grid: Grid) -> np.ndarray:
+    """The solid mask as packed bits: (height, ceil(width / 8)) uint8, most significant bit first.
+
+    This is the layout of a 1-bit TIFF row (and of ``np.packbits(mask, axis=1)``).
+    Each span [a, b) is written as two toggles of "all bits from here on"; a running
+    XOR along the row then fills the spans, touching bytes instead of pixels and only
+    the rows and byte columns the loops cover.
+    """
+    row_bytes = -(-grid.width // 8)
+    packed = np.zeros((grid.height, row_bytes), dtype=np.uint8)
+    if len(points) == 0:
+        return packed
+    row, column = span_boundaries(*row_crossings(points, offsets, grid), grid.width)
+    if len(row) == 0:
+        return packed
+    row0, row1 = int(row.min()), int(row.max()) + 1
+    byte = column >> 3
+    byte0, byte1 = int(byte.min()), int(byte.max()) + 2
+    partial = (0xFF >> (column & 7)).astype(np.uint8)
+    steps = np.zeros((row1 - row0, byte1 - byte0), dtype=np.uint8)
+    np.bitwise_xor.at(steps, (row - row0, byte - byte0), partial)
+    np.bitwise_xor.at(steps, (row - row0, byte - byte0 + 1), partial ^ np.uint8(0xFF))
+    filled = prefix_xor_bytes(steps)
+    stop = min(byte1, row_bytes)
+    packed[row0:row1, byte0:stop] = filled[:, : stop - byte0]
+    return packed
+
+
+def count_solid(packed: np.ndarray) -> int:
+    """Number of set bits (solid pixels) of a packed mask."""
+    return int(np.bitwise_count(packed).sum(dtype=np.int64))
 
 
 def solid_mask(points: np.ndarray, offsets: np.ndarray, grid: Grid) -> np.ndarray:
     """(height, width) bool: pixel centres inside the loops by the non-zero winding rule."""
-    mask = np.zeros((grid.height, grid.width), dtype=bool)
-    winding, (row0, row1, col0, col1) = winding_numbers(points, offsets, grid)
-    if winding.size:
-        mask[row0:row1, col0:col1] = winding > 0
-    return mask
+    return np.unpackbits(packed_mask(points, offsets, grid), axis=1, count=grid.width).astype(bool)
 
 
 def contour_pixels(mask: np.ndarray) -> np.ndarray:
@@ -168,14 +226,16 @@ def render_layer(points: np.ndarray, offsets: np.ndarray, grid: Grid, *,
                  base_color: tuple[int, int, int] = (255, 255, 255)) -> tuple[np.ndarray, int]:
     """One layer image and its solid pixel count.
 
-    Without point colours: the (h, w) bool solid mask (written as a 1-bit TIFF). With point colours
-    ((p, 3) float): (h, w, 4) uint8 RGBA, alpha 255 solid, interior ``base_color``,
-    contour pixels coloured from the nearest intersection point.
+    Without point colours: the packed 1-bit mask ((h, ceil(w / 8)) uint8, see
+    :func:`packed_mask`). With point colours ((p, 3) float): (h, w, 4) uint8 RGBA,
+    alpha 255 solid, interior ``base_color``, contour pixels coloured from the
+    nearest intersection point.
     """
-    mask = solid_mask(points, offsets, grid)
-    solid = int(np.count_nonzero(mask))
+    packed = packed_mask(points, offsets, grid)
+    solid = count_solid(packed)
     if point_colors is None:
-        return mask, solid
+        return packed, solid
+    mask = np.unpackbits(packed, axis=1, count=grid.width).astype(bool)
     image = np.zeros((grid.height, grid.width, 4), dtype=np.uint8)
     image[mask] = (*base_color, 255)
     paint_contour(image, mask, points, point_colors, grid)

@@ -30,12 +30,14 @@ from heoslice.errors import InputError
 class Sections:
     """The directed intersection segments of all layers, grouped by layer.
 
-    Segment i runs from ``start[i]`` to ``end[i]`` ((s, 2) float, mm) in layer
-    ``layer[i]`` (sorted); segments of layer k are ``offsets[k]:offsets[k+1]``.
-    ``start_key``/``end_key`` ((s,) int64) name the mesh edge each end lies on,
-    unique within a layer. ``start_edge``/``end_edge`` ((s, 2) int64) are that
-    edge's vertex indices (lower first) and ``start_t``/``end_t`` ((s,) float) the
-    position along it, for interpolating vertex attributes (colour, material).
+    Segment i lies in layer ``layer[i]`` (sorted; segments of layer k are
+    ``offsets[k]:offsets[k+1]``) and runs from a point on mesh edge
+    ``start_edge[i]`` to a point on mesh edge ``end_edge[i]`` ((s, 2) int64 vertex
+    indices, lower first). ``start_key``/``end_key`` ((s,) int64) name those edges
+    uniquely within the layer, for chaining. ``start`` ((s, 2) float, mm) is the
+    start point and ``start_t``/``end_t`` ((s,) float) the positions along the
+    edges (lower vertex 0, higher 1), for interpolating vertex attributes and for
+    :meth:`end_points`. The end of a segment is the start of the next one in its loop.
     ``face`` ((s,) int64) is the triangle each segment came from.
     """
 
@@ -44,13 +46,13 @@ class Sections:
     layer: np.ndarray
     face: np.ndarray
     start: np.ndarray
-    end: np.ndarray
     start_key: np.ndarray
     end_key: np.ndarray
     start_edge: np.ndarray
     end_edge: np.ndarray
     start_t: np.ndarray
     end_t: np.ndarray
+    vertices: np.ndarray
 
     @property
     def layer_count(self) -> int:
@@ -59,6 +61,11 @@ class Sections:
     def layer_slice(self, index: int) -> slice:
         """Index range of layer ``index``'s segments."""
         return slice(int(self.offsets[index]), int(self.offsets[index + 1]))
+
+    def end_points(self, segments: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """(k, 2) float end points of the given segments, mm."""
+        edge = self.end_edge[segments]
+        return interpolate_at(self.vertices[:, :2], edge, self.end_t[segments])
 
 
 def plane_heights(z_min: float, z_max: float, layer_height: float) -> np.ndarray:
@@ -72,18 +79,21 @@ def plane_heights(z_min: float, z_max: float, layer_height: float) -> np.ndarray
     return z_min + (np.arange(max(count, 1)) + 0.5) * layer_height
 
 
-def _intersect_edges(vertices: np.ndarray, a: np.ndarray, b: np.ndarray, z: np.ndarray):
-    """Points where edges (a, b) cross heights z, computed from the lower-numbered vertex.
+def _pick(rows: np.ndarray, column: np.ndarray) -> np.ndarray:
+    """rows[i, column[i]] for a 2-D or 3-D array (one entry per row)."""
+    index = column.reshape((-1,) + (1,) * (rows.ndim - 1))
+    return np.take_along_axis(rows, index, axis=1)[:, 0]
 
-    Returns (key-ordered vertex pairs (k, 2) int64, t (k,) float along lo->hi, xy (k, 2) float).
-    """
-    lo = np.minimum(a, b)
-    hi = np.maximum(a, b)
-    z_lo = vertices[lo, 2]
-    z_hi = vertices[hi, 2]
-    t = (z - z_lo) / (z_hi - z_lo)
-    xy = vertices[lo, :2] + t[:, None] * (vertices[hi, :2] - vertices[lo, :2])
-    return np.stack([lo, hi], axis=1), t, xy
+
+def _edge_crossing(v_a: np.ndarray, z_a: np.ndarray, v_b: np.ndarray, z_b: np.ndarray, plane: np.ndarray):
+    """Edges (a, b) as (k, 2) vertex pairs lower index first, and where they cross ``plane`` (t from the lower index)."""
+    swap = v_b < v_a
+    edge = np.empty((len(v_a), 2), dtype=np.int64)
+    edge[:, 0] = np.minimum(v_a, v_b)
+    edge[:, 1] = np.maximum(v_a, v_b)
+    z_lo = np.where(swap, z_b, z_a)
+    z_hi = np.where(swap, z_a, z_b)
+    return edge, (plane - z_lo) / (z_hi - z_lo)
 
 
 def slice_mesh(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray) -> Sections:
@@ -100,8 +110,7 @@ def slice_mesh(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray) -> Sectio
 
     # Global intersection filter: planes p with z_min < p <= z_max cross the triangle.
     first = np.searchsorted(z, face_z.min(axis=1), side="right")
-    stop = np.searchsorted(z, face_z.max(axis=1), side="right")
-    counts = stop - first
+    counts = np.searchsorted(z, face_z.max(axis=1), side="right") - first
     crossed = np.nonzero(counts)[0]
     counts = counts[crossed]
     pair_face = np.repeat(crossed, counts)
@@ -114,27 +123,43 @@ def slice_mesh(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray) -> Sectio
     # Local topology: the lone vertex (alone on its side of the plane) and its two edges.
     plane = z[pair_layer]
     tri = faces[pair_face]  # (s, 3)
-    below = face_z[pair_face] < plane[:, None]
-    lone_below = below.sum(axis=1) == 1
+    tri_z = face_z[pair_face]
+    below = tri_z < plane[:, None]
+    lone_below = np.count_nonzero(below, axis=1) == 1
     lone = np.where(lone_below, np.argmax(below, axis=1), np.argmin(below, axis=1))
-    rows = np.arange(len(tri))
-    v_lone = tri[rows, lone]
-    v_next = tri[rows, (lone + 1) % 3]
-    v_prev = tri[rows, (lone + 2) % 3]
-    # Directed edge lone->next goes up when the lone vertex is below; the segment runs
-    # from the point on the downward edge to the point on the upward edge.
-    start_a = np.where(lone_below, v_prev, v_lone)
-    start_b = np.where(lone_below, v_lone, v_next)
-    end_a = np.where(lone_below, v_lone, v_prev)
-    end_b = np.where(lone_below, v_next, v_lone)
-    start_edge, start_t, start = _intersect_edges(vertices, start_a, start_b, plane)
-    end_edge, end_t, end = _intersect_edges(vertices, end_a, end_b, plane)
+    after = lone + 1
+    after[after == 3] = 0
+    before = lone + 2
+    before[before >= 3] -= 3
+    # The segment runs from the point on the edge going down through the plane to the
+    # point on the edge going up (right-hand rule): with the lone vertex below, the
+    # start edge is (before, lone) and the end edge (lone, after); above, the reverse.
+    start_other = np.where(lone_below, before, after)
+    end_other = np.where(lone_below, after, before)
+    v_lone = _pick(tri, lone)
+    v_start = _pick(tri, start_other)
+    v_end = _pick(tri, end_other)
+    z_lone = _pick(tri_z, lone)
+    z_start = _pick(tri_z, start_other)
+    z_end = _pick(tri_z, end_other)
+
+    # Each intersection is computed from the edge's lower-numbered vertex so that both
+    # triangles sharing the edge agree bit for bit.
+    start_edge, start_t = _edge_crossing(v_lone, z_lone, v_start, z_start, plane)
+    end_edge, end_t = _edge_crossing(v_lone, z_lone, v_end, z_end, plane)
+    xy = np.ascontiguousarray(vertices[:, :2])
+    xy_a = xy[start_edge[:, 0]]
+    start = xy[start_edge[:, 1]]
+    start -= xy_a
+    start *= start_t[:, None]
+    start += xy_a
 
     span = np.int64(n_vertices) * np.int64(n_vertices)
     if len(z) * float(span) >= 2.0**62:
         raise InputError(f"mesh too large to slice: {n_vertices} vertices x {len(z)} layers")
-    start_key = pair_layer * span + start_edge[:, 0] * n_vertices + start_edge[:, 1]
-    end_key = pair_layer * span + end_edge[:, 0] * n_vertices + end_edge[:, 1]
+    layer_base = pair_layer * span
+    start_key = layer_base + start_edge[:, 0] * n_vertices + start_edge[:, 1]
+    end_key = layer_base + end_edge[:, 0] * n_vertices + end_edge[:, 1]
     offsets = np.searchsorted(pair_layer, np.arange(len(z) + 1), side="left")
     return Sections(
         z=z,
@@ -142,13 +167,13 @@ def slice_mesh(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray) -> Sectio
         layer=pair_layer,
         face=pair_face,
         start=start,
-        end=end,
         start_key=start_key,
         end_key=end_key,
         start_edge=start_edge,
         end_edge=end_edge,
         start_t=start_t,
         end_t=end_t,
+        vertices=vertices,
     )
 
 
