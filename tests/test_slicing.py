@@ -106,3 +106,25 @@ def test_interpolate_at_is_linear_along_the_edge():
     edge = np.array([[0, 1], [0, 1]])
     np.testing.assert_allclose(interpolate_at(values, edge, np.array([0.25, 1.0])), [[1.0, 15.0], [4.0, 30.0]])
     np.testing.assert_allclose(interpolate_at(values[:, 0], edge, np.array([0.5, 0.0])), [2.0, 0.0])
+
+
+@pytest.mark.parametrize("budget", [1, 5_000, 40_000, 10**9])
+def test_plane_chunks_partition_the_planes_and_reproduce_the_whole(budget):
+    """Slicing run by run gives exactly the segments of slicing everything at once, whatever the budget."""
+    from heoslice.slicing import plane_chunks, segments_per_plane, slice_planes
+
+    mesh = procedural.vase()
+    z = plane_heights(0.0, 60.0, 0.2)
+    whole = slice_mesh(mesh.vertices, mesh.faces, z)
+    assert segments_per_plane(mesh.vertices, mesh.faces, z).sum() == len(whole.layer)
+    runs = plane_chunks(mesh.vertices, mesh.faces, z, budget)
+    assert runs[0][0] == 0 and runs[-1][1] == len(z)
+    assert all(a[1] == b[0] for a, b in zip(runs, runs[1:]))
+    parts = [slice_planes(mesh.vertices, mesh.faces, z, start, stop) for start, stop in runs]
+    np.testing.assert_array_equal(np.concatenate([p.start for p in parts]), whole.start)
+    np.testing.assert_array_equal(np.concatenate([p.face for p in parts]), whole.face)
+    np.testing.assert_array_equal(np.concatenate([p.layer + start for p, (start, _) in zip(parts, runs)]),
+                                  whole.layer)
+    if budget >= 40_000:
+        per_run = [len(p.layer) for p in parts]
+        assert max(per_run) <= budget

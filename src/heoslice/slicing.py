@@ -19,7 +19,7 @@ point bit-identical in both triangles that share the edge.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -184,3 +184,42 @@ def interpolate_at(values: np.ndarray, edge: np.ndarray, t: np.ndarray) -> np.nd
     hi = values[edge[:, 1]]
     weight = t if values.ndim == 1 else t[:, None]
     return lo + weight * (hi - lo)
+
+
+def segments_per_plane(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(L,) int: how many segments each plane will get (triangles with z_min < plane <= z_max)."""
+    face_z = np.asarray(vertices, dtype=np.float64)[np.asarray(faces), 2]
+    first = np.searchsorted(z, face_z.min(axis=1), side="right")
+    stop = np.searchsorted(z, face_z.max(axis=1), side="right")
+    change = np.bincount(first, minlength=len(z) + 1) - np.bincount(stop, minlength=len(z) + 1)
+    return np.cumsum(change)[: len(z)]
+
+
+def plane_chunks(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
+                 max_segments: int = 2_000_000) -> list[tuple[int, int]]:
+    """Split the planes into consecutive runs [start, stop) of at most ~max_segments segments each.
+
+    Slicing run by run keeps peak memory bounded however many layers a part has
+    (a single plane with more segments than the budget is a run of its own).
+    """
+    per_plane = segments_per_plane(vertices, faces, z)
+    total = np.cumsum(per_plane)
+    bounds = [0]
+    while bounds[-1] < len(z):
+        start = bounds[-1]
+        base = total[start - 1] if start else 0
+        stop = int(np.searchsorted(total, base + max_segments, side="right"))
+        bounds.append(max(stop, start + 1))
+    return list(zip(bounds[:-1], bounds[1:]))
+
+
+def slice_planes(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, start: int, stop: int) -> Sections:
+    """Sections of planes z[start:stop] only, from the triangles that can reach them.
+
+    Layer numbers and ``face`` indices in the result are local to the run and to
+    ``faces`` respectively (face indices refer to the full ``faces`` array).
+    """
+    face_z = np.asarray(vertices, dtype=np.float64)[np.asarray(faces), 2]
+    reach = np.nonzero((face_z.max(axis=1) >= z[start]) & (face_z.min(axis=1) < z[stop - 1]))[0]
+    sections = slice_mesh(vertices, np.asarray(faces)[reach], z[start:stop])
+    return replace(sections, face=reach[sections.face])
