@@ -105,3 +105,9 @@ class ControllerFaultError(PrinterError):
     """The controller reported an error state."""
 
     exit_code = EXIT_CONTROLLER
+
+
+class PrintInterrupted(PrinterError):
+    """The user interrupted the print (Ctrl-C); ABORT was sent to the controller."""
+
+    exit_code = EXIT_INTERRUPTED

@@ -57,6 +57,7 @@ ERROR_NAMES = {ERR_NONE: "none", ERR_LAYER_CRC: "layer CRC mismatch",
 # NAK reasons.
 NAK_OUT_OF_ORDER = 1
 NAK_NO_CREDIT = 2
+NAK_BAD_FRAME = 3
 
 
 def crc32(data: bytes) -> int:
@@ -342,11 +343,11 @@ class Ack:
 
 @dataclass(frozen=True)
 class Nak:
-    """Controller -> host: frame ``got`` arrived but header.ack is expected; go back to it."""
+    """Controller -> host: header.ack is expected but another frame came; ``tag`` echoes that frame's header.ack."""
 
     TYPE: ClassVar[int] = 0x31
     FORMAT: ClassVar[str] = "<HIB"
-    got: int
+    tag: int
     credit: int
     reason: int
 

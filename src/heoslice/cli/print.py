@@ -1,0 +1,99 @@
+"""``heoslice print``: verify a stack, then stream its layers to the printer's controller."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from heoslice.printer import Progress, default_log_path, job_summary, plan_transfer, print_job, stack_job
+from heoslice.stack import check_input_path
+
+
+@click.command("print", epilog="""\b
+Examples:
+  heoslice print vase_stack/ --port /dev/ttyUSB0
+  heoslice print vase_stack/ --port socket://192.168.1.40:7000 --baud 1000000
+  heoslice print vase_stack/ --port /dev/ttyACM0 --from-layer 120   # after a controller reset
+  heoslice print vase_stack/ --port 'sim://?layer_time_s=0.01'        # built-in simulator
+  heoslice print vase_stack/ --dry-run                               # verify and size, no port
+\b
+Exit status: 0 printed; 2 bad input; 4 stack failed verification; 10 port cannot be
+opened; 11 link dead; 12 protocol/version mismatch or job does not fit; 13 retry limit
+(job paused); 14 controller was reset (rerun with --from-layer); 15 controller error;
+130 interrupted (ABORT sent). See docs/protocol.md.
+""")
+@click.argument("stack", type=click.Path(path_type=Path))
+@click.option("-p", "--port", default=None,
+              help="Device path or pyserial URL (socket://HOST:PORT, rfc2217://..., sim://?OPTIONS).")
+@click.option("--baud", type=click.IntRange(min=1), default=115200, show_default=True,
+              help="Link rate, bits/s (also paces writes on URLs that ignore it).")
+@click.option("--from-layer", type=click.IntRange(min=0), default=None,
+              help="Start at this layer (after a controller reset) instead of 0 or the controller's resume point.")
+@click.option("--dry-run", is_flag=True, help="Verify the stack and size the transfer; open no port.")
+@click.option("--log", "log_path", type=click.Path(path_type=Path), default=None,
+              help="Print log, JSON lines [default: STACK.print-log.jsonl beside the stack].")
+@click.option("--max-payload", type=click.IntRange(80, 4096), default=1024, show_default=True,
+              help="Largest frame payload offered to the controller, bytes.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
+def print_cmd(stack: Path, port: str | None, baud: int, from_layer: int | None, dry_run: bool,
+              log_path: Path | None, max_payload: int, as_json: bool) -> None:
+    """Verify STACK (manifest, sha256 of every file, paths inside it), then print it on PORT.
+
+    Each layer's solid mask is sent as channel 0 (bit-packed rows), droplet masks as
+    channels 1.. when the stack has them. Progress shows on a terminal; Ctrl-C sends
+    ABORT to the controller and exits cleanly. Every executed layer is logged.
+    """
+    check_input_path(stack)
+    job, get_layer = stack_job(stack)
+    if dry_run:
+        summary = {"stack": str(stack), **plan_transfer(job, get_layer, baud=baud, max_payload=max_payload,
+                                                         from_layer=from_layer or 0)}
+        click.echo(json.dumps(summary) if as_json else
+                   f"{stack}: verified; {job_summary(job)}\n"
+                   f"would send {summary['frames']} frames, {summary['wire_bytes']} bytes "
+                   f"({summary['raw_bytes']} raw), about {summary['seconds_at_baud']:.1f} s at {baud} baud")
+        return
+    if not port:
+        raise click.UsageError("--port is required (or use --dry-run)")
+    log_path = log_path or default_log_path(stack)
+    with _progress(job.layer_count - (from_layer or 0)) as progress:
+        result = print_job(port, job, get_layer, baud=baud, from_layer=from_layer, log_path=log_path,
+                           on_progress=progress, max_payload=max_payload)
+    if as_json:
+        click.echo(json.dumps({"stack": str(stack), "port": port, "log": str(log_path), **result.__dict__}))
+        return
+    rate = result.bytes_sent / result.elapsed_s if result.elapsed_s > 0 else 0.0
+    click.echo(f"{stack}: printed layers {result.first_layer}..{result.last_completed} on {port} "
+               f"in {result.elapsed_s:.1f} s ({result.bytes_sent} bytes, {rate / 1000:.1f} kB/s, "
+               f"{result.frames_retransmitted} frames resent); log: {log_path}")
+
+
+class _progress:
+    """A tqdm bar of executed layers with the link's bytes/s, on a terminal only."""
+
+    def __init__(self, total: int):
+        self.total = total
+        self.bar = None
+
+    def __enter__(self):
+        if sys.stderr.isatty():
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=self.total, desc="printing", unit="layer", file=sys.stderr,
+                            dynamic_ncols=True, leave=False)
+        return self
+
+    def __call__(self, progress: Progress) -> None:
+        if self.bar is not None:
+            self.bar.total = progress.layers_total
+            self.bar.n = progress.layers_done
+            rate = progress.bytes_sent / progress.elapsed_s if progress.elapsed_s > 0 else 0.0
+            self.bar.set_postfix_str(f"layer {progress.layer}, {rate / 1000:.1f} kB/s", refresh=False)
+            self.bar.refresh()
+
+    def __exit__(self, *exc) -> None:
+        if self.bar is not None:
+            self.bar.close()

@@ -1,0 +1,820 @@
+"""A simulated printer controller speaking protocol v1, with realistic pacing and seeded faults.
+
+The simulator models what the host cannot see on real hardware: a link of ``baud``
+bits/s (10 bits per byte, host -> controller direction paced), a bounded receive
+buffer whose free space is the credit it grants, a print queue and a head that
+takes ``layer_time_s`` per layer. ``time_scale`` multiplies both modelled durations
+so tests run fast. Faults (corrupted, dropped and duplicated bytes and frames, lost
+acks, delays, a reset mid-layer, a disconnect, a dead link, a persistent hardware
+fault, another protocol version) are drawn from a seeded generator.
+
+Every executed layer is recorded in :attr:`SimController.executed` (job, index, CRC of
+the data printed, boot id) so tests can check exactly-once, in-order execution.
+The controller runs one thread over a byte :class:`Transport`: a pseudo-terminal
+(:class:`FdTransport`), a TCP server (:class:`TcpServerTransport`) or an in-process
+pipe (:func:`pipe_pair`, used by ``sim://`` ports).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import select
+import socket
+import threading
+import time
+import urllib.parse
+from collections import deque
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from heoslice import protocol as P
+from heoslice.errors import PortError, ProtocolError
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """What the simulated controller is: its link, buffers, head speed and advertised capabilities."""
+
+    baud: int = 115200  # modelled link rate, bits/s (10 bits per byte)
+    layer_time_s: float = 0.2  # head time per layer, s
+    time_scale: float = 1.0  # multiplies modelled durations (byte time, layer time)
+    rx_buffer: int = 8192  # receive buffer, bytes (the credit when empty)
+    window: int = 64  # frames in flight allowed
+    max_payload: int = 1024  # largest frame payload accepted, bytes
+    encodings: int = P.ALL_ENCODINGS
+    channels: int = 4
+    max_width: int = 20000  # pixels
+    max_height: int = 20000  # pixels
+    dpi_x: float = 600.0
+    dpi_y: float = 600.0
+    print_queue: int = 2  # layers held ready beside the one printing
+    status_interval_s: float = 0.5  # heartbeat period, real seconds (not scaled)
+    version: int = P.PROTOCOL_VERSION
+    seed: int = 0
+
+    @property
+    def byte_time_s(self) -> float:
+        """Modelled time on the wire per byte, s."""
+        return 10.0 / self.baud * self.time_scale
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    """Seeded fault injection; rates are probabilities per byte or per received frame."""
+
+    byte_error_rate: float = 0.0  # per byte, both directions: the byte is replaced
+    byte_drop_rate: float = 0.0  # per byte, host -> controller
+    frame_drop_rate: float = 0.0  # per received frame
+    frame_dup_rate: float = 0.0  # per received frame: handled twice
+    ack_loss_rate: float = 0.0  # per accepted frame: applied, but its ACK is not sent
+    delay_rate: float = 0.0  # per received frame: processing stalls for delay_s
+    delay_s: float = 0.02
+    reset_at_layer: int | None = None  # reboot (new boot id) at the first chunk of this layer, once
+    disconnect_at_layer: int | None = None  # drop the connection at the first chunk of this layer, once
+    disconnect_s: float = 0.2  # how long the link stays down, s
+    dead_at_layer: int | None = None  # stop answering for good at the first chunk of this layer
+    fail_at_layer: int | None = None  # persistent hardware fault when the head reaches this layer
+    lose_data_from_layer: int | None = None  # every data frame of this and later layers is lost (one-way link fault)
+
+    @property
+    def any_byte_faults(self) -> bool:
+        """True when bytes are corrupted or dropped on the wire."""
+        return self.byte_error_rate > 0 or self.byte_drop_rate > 0
+
+
+@dataclass(frozen=True)
+class ExecutedLayer:
+    """One layer the head printed."""
+
+    job_id: int
+    layer: int
+    crc: int
+    boot_id: int
+
+
+def sim_from_url(url: str) -> tuple[SimConfig, FaultSpec]:
+    """Parse ``sim://?baud=...&layer_time_s=...&byte_error_rate=...``: query keys are field names
+    of :class:`SimConfig` and :class:`FaultSpec`."""
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme != "sim":
+        raise PortError(f"{url}: not a sim:// URL")
+    sim_fields = {f.name: f for f in fields(SimConfig)}
+    fault_fields = {f.name: f for f in fields(FaultSpec)}
+    sim_args: dict = {}
+    fault_args: dict = {}
+    for key, value in urllib.parse.parse_qsl(parts.query, keep_blank_values=True):
+        target = sim_args if key in sim_fields else fault_args if key in fault_fields else None
+        if target is None:
+            known = ", ".join(sorted(sim_fields) + sorted(fault_fields))
+            raise PortError(f"{url}: unknown sim:// option {key!r} (known: {known})")
+        kind = (sim_fields.get(key) or fault_fields[key]).type
+        try:
+            target[key] = float(value) if "float" in str(kind) else int(float(value))
+        except ValueError as err:
+            raise PortError(f"{url}: option {key}={value!r} is not a number") from err
+    return SimConfig(**sim_args), FaultSpec(**fault_args)
+
+
+# --- transports ------------------------------------------------------------------------
+
+
+class Transport:
+    """Bytes in and out of the controller: ``recv`` returns b'' on timeout, ``send`` may drop when nobody listens."""
+
+    def recv(self, timeout: float) -> bytes:
+        raise NotImplementedError
+
+    def send(self, data: bytes) -> None:
+        raise NotImplementedError
+
+    def disconnect(self, seconds: float) -> None:
+        """Model a pulled cable for ``seconds``."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release the transport."""
+
+
+class FdTransport(Transport):
+    """The master side of a pseudo-terminal; a disconnect is modelled as ``seconds`` of silence."""
+
+    def __init__(self, fd: int):
+        self.fd = fd
+        os.set_blocking(fd, False)
+        self._mute_until = 0.0
+
+    def recv(self, timeout: float) -> bytes:
+        ready, _, _ = select.select([self.fd], [], [], max(timeout, 0.0))
+        if not ready:
+            return b""
+        try:
+            data = os.read(self.fd, 65536)
+        except BlockingIOError:
+            return b""
+        except OSError as err:
+            if err.errno == errno.EIO:  # no process has the terminal side open right now
+                time.sleep(min(timeout, 0.01))
+                return b""
+            raise
+        return b"" if time.monotonic() < self._mute_until else data
+
+    def send(self, data: bytes) -> None:
+        if time.monotonic() < self._mute_until:
+            return
+        try:
+            os.write(self.fd, data)
+        except (BlockingIOError, OSError):
+            pass  # terminal buffer full or closed: bytes are lost, as on a real UART
+
+    def disconnect(self, seconds: float) -> None:
+        self._mute_until = time.monotonic() + seconds
+
+    def close(self) -> None:
+        try:
+            os.close(self.fd)
+        except OSError:
+            pass
+
+
+class TcpServerTransport(Transport):
+    """A TCP listener (``socket://host:port`` for the host); one connection at a time, re-accepted after a drop."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0):
+        self._server = socket.create_server((host, port))
+        self._server.setblocking(False)
+        self.address = self._server.getsockname()[:2]
+        self._conn: socket.socket | None = None
+        self._down_until = 0.0
+
+    def recv(self, timeout: float) -> bytes:
+        if self._conn is None:
+            if time.monotonic() >= self._down_until:
+                ready, _, _ = select.select([self._server], [], [], max(timeout, 0.0))
+                if ready:
+                    try:
+                        self._conn, _ = self._server.accept()
+                        self._conn.setblocking(False)
+                        self._conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                    except OSError:
+                        self._conn = None
+            else:
+                time.sleep(min(timeout, 0.01))
+            return b""
+        ready, _, _ = select.select([self._conn], [], [], max(timeout, 0.0))
+        if not ready:
+            return b""
+        try:
+            data = self._conn.recv(65536)
+        except BlockingIOError:
+            return b""
+        except OSError:
+            data = b""
+        if not data:
+            self._drop()
+        return data
+
+    def send(self, data: bytes) -> None:
+        if self._conn is None:
+            return
+        try:
+            self._conn.sendall(data)
+        except OSError:
+            self._drop()
+
+    def _drop(self) -> None:
+        """Close the current client connection."""
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+
+    def disconnect(self, seconds: float) -> None:
+        self._drop()
+        self._down_until = time.monotonic() + seconds
+
+    def close(self) -> None:
+        self._drop()
+        self._server.close()
+
+
+class _ByteQueue:
+    """One direction of an in-process pipe: bytes with a condition variable and a closed flag."""
+
+    def __init__(self):
+        self._data = bytearray()
+        self._cond = threading.Condition()
+        self.closed = False
+
+    def put(self, data: bytes) -> None:
+        """Append bytes and wake a reader."""
+        with self._cond:
+            if not self.closed:
+                self._data += data
+                self._cond.notify_all()
+
+    def get(self, size: int, timeout: float | None) -> bytes:
+        """Up to ``size`` bytes, waiting at most ``timeout`` s for the first."""
+        with self._cond:
+            if not self._data and not self.closed:
+                self._cond.wait(timeout)
+            out = bytes(self._data[:size])
+            del self._data[:size]
+            return out
+
+    def waiting(self) -> int:
+        """Bytes queued."""
+        with self._cond:
+            return len(self._data)
+
+    def clear(self) -> None:
+        """Drop queued bytes."""
+        with self._cond:
+            self._data.clear()
+
+    def close(self) -> None:
+        with self._cond:
+            self.closed = True
+            self._cond.notify_all()
+
+
+class PipePort:
+    """The host end of an in-process pipe, with the subset of the pyserial ``Serial`` API the printer uses."""
+
+    def __init__(self, incoming: _ByteQueue, outgoing: _ByteQueue, name: str = "sim://"):
+        self._in, self._out = incoming, outgoing
+        self.timeout: float | None = 0.0
+        self.port = name
+        self.is_open = True
+
+    def _check(self) -> None:
+        """Raise SerialException when the pipe is closed, as pyserial does for a lost device."""
+        import serial
+
+        if not self.is_open or self._in.closed or self._out.closed:
+            raise serial.SerialException(f"{self.port}: connection closed")
+
+    @property
+    def in_waiting(self) -> int:
+        """Bytes ready to read."""
+        self._check()
+        return self._in.waiting()
+
+    def read(self, size: int = 1) -> bytes:
+        """Up to ``size`` bytes within ``timeout`` (b'' on timeout)."""
+        self._check()
+        data = self._in.get(size, self.timeout)
+        if not data:
+            self._check()
+        return data
+
+    def write(self, data: bytes) -> int:
+        """Queue bytes for the controller."""
+        self._check()
+        self._out.put(bytes(data))
+        return len(data)
+
+    def flush(self) -> None:
+        """Nothing is buffered on this side."""
+
+    def reset_input_buffer(self) -> None:
+        """Drop unread bytes."""
+        self._in.clear()
+
+    def close(self) -> None:
+        self.is_open = False
+        self._in.close()
+        self._out.close()
+
+
+class PipeTransport(Transport):
+    """The controller end of an in-process pipe; a disconnect closes the pipe (the host sees an error)."""
+
+    def __init__(self, incoming: _ByteQueue, outgoing: _ByteQueue):
+        self._in, self._out = incoming, outgoing
+
+    def recv(self, timeout: float) -> bytes:
+        if self._in.closed:
+            time.sleep(min(timeout, 0.01))
+            return b""
+        return self._in.get(65536, max(timeout, 0.0))
+
+    def send(self, data: bytes) -> None:
+        self._out.put(data)
+
+    def disconnect(self, seconds: float) -> None:
+        self._in.close()
+        self._out.close()
+
+    def close(self) -> None:
+        self.disconnect(0.0)
+
+
+def pipe_pair(name: str = "sim://") -> tuple[PipePort, PipeTransport]:
+    """A connected (host port, controller transport) pair."""
+    host_to_ctrl, ctrl_to_host = _ByteQueue(), _ByteQueue()
+    return PipePort(ctrl_to_host, host_to_ctrl, name), PipeTransport(host_to_ctrl, ctrl_to_host)
+
+
+# --- the controller --------------------------------------------------------------------
+
+
+@dataclass
+class _Layer:
+    """A layer being received."""
+
+    index: int
+    channels: int
+    size: int
+    crc: int
+    buffers: list = field(default_factory=list)
+    complete: bool = False
+    crc_received: int = -1  # CRC-32 of the data actually received, set at LAYER_END
+
+
+class SimController:
+    """The simulated controller: call :meth:`run` on a thread (or :meth:`start`), :meth:`stop` to end it."""
+
+    def __init__(self, config: SimConfig = SimConfig(), faults: FaultSpec = FaultSpec()):
+        self.config = config
+        self.faults = faults
+        self._rng = np.random.default_rng(config.seed)
+        self.executed: list[ExecutedLayer] = []
+        self.stats = {"frames": 0, "bad_frames": 0, "duplicates": 0, "out_of_order": 0, "naks": 0,
+                      "acks_lost": 0, "resets": 0, "disconnects": 0, "hellos": 0, "aborts": 0}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._transport: Transport | None = None
+        self._pending_transport: Transport | None = None
+        self._thread: threading.Thread | None = None
+        self._fired: set[str] = set()
+        self.died_at: float | None = None  # monotonic time the dead-link fault struck
+        self.boot_id = self._new_boot_id()
+        # persisted across resets (as in non-volatile memory): the job and its last printed layer
+        self.job_id = 0
+        self.last_completed = -1
+        self._power_on()
+
+    # -- lifecycle ---------------------------------------------------------------------
+
+    def _new_boot_id(self) -> int:
+        """A random non-zero 32-bit boot id (seeded)."""
+        return int(self._rng.integers(1, 1 << 32))
+
+    def _power_on(self) -> None:
+        """State lost on a reset."""
+        self.session = 0
+        self.state = P.STATE_IDLE
+        self.error = P.ERR_NONE
+        self.error_layer = -1
+        self.expected = 0
+        self.job_active = False
+        self.job_end = False
+        self.layer_count = 0
+        self.next_execute = 0
+        self.last_queued = self.last_completed
+        self._rx: deque = deque()
+        self._rx_used = 0
+        self._advertised = self.config.rx_buffer
+        self._layer: _Layer | None = None
+        self._queue: deque = deque()
+        self._printing: tuple | None = None
+        self._print_end = 0.0
+        self._paused = False
+        self._splitter = P.FrameSplitter(P.wire_size(self.config.max_payload) + 16)
+        self._arrivals: deque = deque()
+        self._wire_free = 0.0
+        self._stall_until = 0.0
+        self._dead = False
+        self._last_tag = 0
+
+    def attach(self, transport: Transport) -> None:
+        """Connect a (new) transport; the running loop switches to it."""
+        with self._lock:
+            self._pending_transport = transport
+
+    def start(self, transport: Transport | None = None) -> "SimController":
+        """Run on a daemon thread."""
+        if transport is not None:
+            self.attach(transport)
+        self._thread = threading.Thread(target=self.run, name="heoslice-sim", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """End :meth:`run` and close the transport."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5)
+        if self._transport is not None:
+            self._transport.close()
+
+    def executed_layers(self, job_id: int | None = None) -> list[int]:
+        """Indices of executed layers in execution order (of one job when ``job_id`` is given)."""
+        with self._lock:
+            return [e.layer for e in self.executed if job_id is None or e.job_id == job_id]
+
+    # -- the loop ----------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Serve until :meth:`stop`: read, pace, process, print, report."""
+        next_status = time.monotonic()
+        while not self._stop.is_set():
+            with self._lock:
+                if self._pending_transport is not None:
+                    self._transport = self._pending_transport
+                    self._pending_transport = None
+                    self._splitter = P.FrameSplitter(P.wire_size(self.config.max_payload) + 16)
+                    self._arrivals.clear()
+            transport = self._transport
+            now = time.monotonic()
+            if transport is None or self._dead:
+                time.sleep(0.01)
+                continue
+            wake = [next_status, now + 0.02]
+            if self._arrivals:
+                wake.append(max(self._arrivals[0][0], self._stall_until))
+            if self._printing is not None:
+                wake.append(self._print_end)
+            try:
+                data = transport.recv(max(0.0, min(wake) - now))
+            except OSError:
+                data = b""
+            now = time.monotonic()
+            if data:
+                self._on_bytes(data, now)
+            self._deliver(now)
+            self._drain()
+            self._run_head(time.monotonic())
+            if time.monotonic() >= next_status:
+                self._send_status()
+                next_status = time.monotonic() + self.config.status_interval_s
+
+    def _on_bytes(self, data: bytes, now: float) -> None:
+        """Apply byte faults and give each delimited piece its modelled arrival time."""
+        if self.faults.any_byte_faults:
+            data = self._corrupt(data, self.faults.byte_error_rate, self.faults.byte_drop_rate)
+        byte_time = self.config.byte_time_s
+        start = 0
+        while start < len(data):
+            end = data.find(b"\x00", start)
+            end = len(data) if end < 0 else end + 1
+            piece = data[start:end]
+            self._wire_free = max(self._wire_free, now) + len(piece) * byte_time
+            self._arrivals.append((self._wire_free, piece))
+            start = end
+
+    def _corrupt(self, data: bytes, error_rate: float, drop_rate: float) -> bytes:
+        """``data`` with bytes replaced (probability ``error_rate``) and removed (``drop_rate``)."""
+        buf = np.frombuffer(data, dtype=np.uint8).copy()
+        if error_rate > 0:
+            hit = self._rng.random(buf.size) < error_rate
+            buf[hit] ^= self._rng.integers(1, 256, int(hit.sum()), dtype=np.uint8)
+        if drop_rate > 0:
+            buf = buf[self._rng.random(buf.size) >= drop_rate]
+        return buf.tobytes()
+
+    def _deliver(self, now: float) -> None:
+        """Hand pieces whose modelled arrival time has passed to the frame splitter."""
+        while self._arrivals and self._arrivals[0][0] <= now and now >= self._stall_until:
+            _, piece = self._arrivals.popleft()
+            for item in self._splitter.feed(piece):
+                if isinstance(item, ProtocolError):
+                    self.stats["bad_frames"] += 1
+                    if self.session and self.state != P.STATE_ERROR:
+                        self.stats["naks"] += 1
+                        self._send(P.Nak((self._last_tag + 1) & 0xFFFF, self._credit(), P.NAK_BAD_FRAME))
+                    continue
+                self._on_frame(item, time.monotonic())
+                if self._dead or now < self._stall_until:
+                    break
+
+    def _send(self, message: P.Message, version: int | None = None) -> None:
+        """Encode and write one frame (with byte errors applied on the way out); header.ack = next expected seq."""
+        if self._transport is None or self._dead:
+            return
+        frame = P.message_frame(message, self.session, 0, self.expected,
+                                self.config.version if version is None else version)
+        wire = P.encode_frame(frame)
+        if self.faults.byte_error_rate > 0:
+            wire = self._corrupt(wire, self.faults.byte_error_rate, 0.0)
+        self._transport.send(wire)
+
+    def _credit(self) -> int:
+        """Free receive-buffer bytes: the credit granted to the host."""
+        return self.config.rx_buffer - self._rx_used
+
+    def _send_ack(self) -> None:
+        """Cumulative ACK with the current credit and progress."""
+        self._advertised = self._credit()
+        self._send(P.Ack(self._credit(), self.last_queued, self.last_completed))
+
+    def _send_status(self) -> None:
+        """STATUS: boot id, state, progress, credit, error."""
+        self._advertised = self._credit()
+        self._send(P.Status(self.boot_id, self.state, self.job_id, self.last_completed, self.last_queued,
+                            self._credit(), self.error, self.error_layer))
+
+    # -- frames ------------------------------------------------------------------------
+
+    def _on_frame(self, frame: P.Frame, now: float) -> None:
+        """Apply frame-level faults (drop, delay, duplicate), then handle the frame."""
+        self.stats["frames"] += 1
+        rng, faults = self._rng, self.faults
+        if faults.frame_drop_rate and rng.random() < faults.frame_drop_rate:
+            return
+        if faults.delay_rate and rng.random() < faults.delay_rate:
+            self._stall_until = now + faults.delay_s * self.config.time_scale
+        repeats = 2 if faults.frame_dup_rate and rng.random() < faults.frame_dup_rate else 1
+        for _ in range(repeats):
+            self._handle(frame)
+
+    def _handle(self, frame: P.Frame) -> None:
+        """Dispatch one frame: HELLO and STATUS_REQ always, the rest only in the current session."""
+        if frame.type == P.Hello.TYPE:
+            self._on_hello(frame)
+            return
+        if frame.version != self.config.version:
+            return
+        if frame.type == P.StatusRequest.TYPE:
+            self._send_status()
+            return
+        if self.session == 0 or frame.session != self.session:
+            return  # stale frame of an earlier connection, or nobody said HELLO since boot
+        if frame.type in P.DATA_TYPES:
+            self._on_data(frame)
+        elif frame.type == P.Abort.TYPE:
+            self.stats["aborts"] += 1
+            self._queue.clear()
+            self._rx.clear()
+            self._rx_used = 0
+            self._layer = None
+            self.job_active = False
+            self.state = P.STATE_ABORTED if self.state != P.STATE_ERROR else self.state
+            self._send_status()
+        elif frame.type == P.Pause.TYPE:
+            self._paused = True
+            if self.state == P.STATE_RECEIVING:
+                self.state = P.STATE_PAUSED
+            self._send_status()
+        elif frame.type == P.Resume.TYPE:
+            self._paused = False
+            if self.state == P.STATE_PAUSED:
+                self.state = P.STATE_RECEIVING
+            self._send_status()
+
+    def _on_hello(self, frame: P.Frame) -> None:
+        """Open the host's session (same version only) and answer with HELLO_ACK in our own version."""
+        self.stats["hellos"] += 1
+        if frame.version == self.config.version:
+            try:
+                P.unpack_message(frame.type, frame.payload)
+            except ProtocolError:
+                return
+            self.session = frame.session
+            self.expected = 0
+            self._rx.clear()
+            self._rx_used = 0
+            self._layer = None
+        cfg = self.config
+        reply = P.HelloAck(cfg.version, self.boot_id, self._credit(), cfg.window, cfg.max_payload,
+                           cfg.encodings, cfg.channels, cfg.max_width, cfg.max_height, cfg.dpi_x, cfg.dpi_y,
+                           self.job_id, self.last_completed, self.last_queued, self.state)
+        saved = self.session
+        self.session = frame.session
+        self._send(reply)
+        self.session = saved
+
+    def _on_data(self, frame: P.Frame) -> None:
+        """Go-back-N receiver: accept only the expected seq into the buffer (ACK), NAK gaps, re-ACK duplicates."""
+        if self.state == P.STATE_ERROR:
+            return
+        self._last_tag = frame.ack
+        distance = P.seq_diff(frame.seq, self.expected)
+        if distance < 0:
+            self.stats["duplicates"] += 1
+            self._send_ack()
+            return
+        if distance > 0:
+            self.stats["out_of_order"] += 1
+            self.stats["naks"] += 1
+            self._send(P.Nak(frame.ack, self._credit(), P.NAK_OUT_OF_ORDER))
+            return
+        cost = len(frame.payload) + P.FRAME_OVERHEAD
+        if cost > self._credit():
+            self.stats["naks"] += 1
+            self._send(P.Nak(frame.ack, self._credit(), P.NAK_NO_CREDIT))
+            return
+        try:
+            message = P.unpack_message(frame.type, frame.payload)
+        except ProtocolError:
+            self._fail(P.ERR_BAD_JOB, -1)
+            return
+        if self._lost_data(message):
+            return
+        self.expected = (self.expected + 1) % P.SEQ_MODULUS
+        self._rx.append((message, cost))
+        self._rx_used += cost
+        if self.faults.ack_loss_rate and self._rng.random() < self.faults.ack_loss_rate:
+            self.stats["acks_lost"] += 1
+        else:
+            self._send_ack()
+        if isinstance(message, P.Chunk):
+            self._chunk_faults(message.layer)
+
+    def _lost_data(self, message: P.Message) -> bool:
+        """True when the one-way link fault swallows this data message."""
+        start = self.faults.lose_data_from_layer
+        layer = getattr(message, "layer", None)
+        return start is not None and layer is not None and layer >= start
+
+    def _once(self, name: str, layer: int | None, at: int) -> bool:
+        """True the first time fault ``name`` meets its layer."""
+        if layer is None or layer != at or name in self._fired:
+            return False
+        self._fired.add(name)
+        return True
+
+    def _chunk_faults(self, layer: int) -> None:
+        """Faults that strike while a layer is being received: reset, disconnect, dead link."""
+        faults = self.faults
+        if self._once("reset", faults.reset_at_layer, layer):
+            self._reset()
+        elif self._once("disconnect", faults.disconnect_at_layer, layer):
+            self.stats["disconnects"] += 1
+            if self._transport is not None:
+                self._transport.disconnect(faults.disconnect_s)
+        elif self._once("dead", faults.dead_at_layer, layer):
+            self._dead = True
+            self.died_at = time.monotonic()
+
+    def _reset(self) -> None:
+        """Reboot: the layer on the head completes, everything else in memory is lost; new boot id."""
+        self.stats["resets"] += 1
+        if self._printing is not None:
+            self._finish_layer()
+        self.boot_id = self._new_boot_id()
+        self._power_on()
+        self._send_status()
+
+    def _fail(self, error: int, layer: int) -> None:
+        """Enter the error state (persistent until a reset) and report it."""
+        self.state = P.STATE_ERROR
+        self.error = error
+        self.error_layer = layer
+        self._queue.clear()
+        self._send_status()
+
+    # -- processing the receive buffer -------------------------------------------------
+
+    def _drain(self) -> None:
+        """Apply buffered data frames in order, stopping when the print queue is full."""
+        while self._rx and self.state != P.STATE_ERROR:
+            message, cost = self._rx[0]
+            if isinstance(message, P.Execute) and message.layer >= self.next_execute \
+                    and len(self._queue) >= self.config.print_queue:
+                break
+            self._rx.popleft()
+            self._rx_used -= cost
+            self._apply(message)
+        if self._credit() - self._advertised >= max(self.config.rx_buffer // 4, 1):
+            self._send_ack()
+
+    def _apply(self, message: P.Message) -> None:
+        """Apply one in-order data message to the job, the layer being assembled or the print queue."""
+        cfg = self.config
+        if isinstance(message, P.JobBegin):
+            if (message.channels > cfg.channels or message.width > cfg.max_width
+                    or message.height > cfg.max_height):
+                self._fail(P.ERR_BAD_JOB, message.first_layer)
+                return
+            same = self.job_active and message.job_id == self.job_id and message.first_layer == self.next_execute
+            if not same:
+                self._queue.clear()
+                self.job_id = message.job_id
+                self.next_execute = message.first_layer
+                self.last_queued = message.first_layer - 1
+                self.last_completed = message.first_layer - 1
+                self.layer_count = message.layer_count
+                self.job_active = True
+                self.job_end = False
+            self.state = P.STATE_PAUSED if self._paused else P.STATE_RECEIVING
+            self._send_status()
+        elif not self.job_active:
+            return
+        elif isinstance(message, P.LayerBegin):
+            self._layer = None
+            if message.layer >= self.next_execute and message.channels >= 1:
+                self._layer = _Layer(message.layer, message.channels, message.size, message.crc,
+                                     [bytearray(message.size) for _ in range(message.channels)])
+        elif isinstance(message, P.Chunk):
+            layer = self._layer
+            if layer is None or message.layer != layer.index:
+                return
+            if message.channel >= layer.channels or message.offset + message.raw_len > layer.size:
+                self._fail(P.ERR_LAYER_CRC, message.layer)
+                return
+            try:
+                raw = P.decode_chunk(message.encoding, message.data, message.raw_len)
+            except ProtocolError:
+                self._fail(P.ERR_LAYER_CRC, message.layer)
+                return
+            layer.buffers[message.channel][message.offset:message.offset + len(raw)] = raw
+        elif isinstance(message, P.LayerEnd):
+            layer = self._layer
+            if layer is None or message.layer != layer.index:
+                return
+            actual = P.crc32(b"".join(layer.buffers))
+            if actual != layer.crc:
+                self._fail(P.ERR_LAYER_CRC, layer.index)
+                return
+            layer.crc_received = actual
+            layer.complete = True
+        elif isinstance(message, P.Execute):
+            if message.layer < self.next_execute:
+                return  # already queued or printed: executed once only
+            layer = self._layer
+            if message.layer != self.next_execute or layer is None or layer.index != message.layer \
+                    or not layer.complete:
+                self._fail(P.ERR_OUT_OF_ORDER, message.layer)
+                return
+            self._queue.append((layer.index, layer.crc_received))
+            self.last_queued = layer.index
+            self.next_execute = layer.index + 1
+            self._layer = None
+        elif isinstance(message, P.JobEnd):
+            self.job_end = True
+            self._check_done()
+
+    # -- the head ----------------------------------------------------------------------
+
+    def _run_head(self, now: float) -> None:
+        """Finish the layer on the head when its time is up; start the next queued one unless paused or failed."""
+        if self._printing is not None and now >= self._print_end:
+            self._finish_layer()
+            self._send_status()
+            self._check_done()
+        if self._printing is None and self._queue and not self._paused and self.state != P.STATE_ERROR:
+            index, crc = self._queue[0]
+            if self.faults.fail_at_layer is not None and index >= self.faults.fail_at_layer:
+                self._fail(P.ERR_HARDWARE, index)
+                return
+            self._queue.popleft()
+            self._printing = (index, crc)
+            self._print_end = now + self.config.layer_time_s * self.config.time_scale
+
+    def _finish_layer(self) -> None:
+        """Record the layer on the head as executed."""
+        index, crc = self._printing
+        with self._lock:
+            self.executed.append(ExecutedLayer(self.job_id, index, crc, self.boot_id))
+        self.last_completed = index
+        self._printing = None
+
+    def _check_done(self) -> None:
+        """Report DONE once JOB_END came and the last layer is printed."""
+        if self.job_active and self.job_end and not self._queue and self._printing is None \
+                and self.last_completed == self.layer_count - 1:
+            self.state = P.STATE_DONE
+            self.job_active = False
+            self._send_status()
