@@ -1,0 +1,179 @@
+"""``heoslice color``: assign materials by a distribution function and write a coloured PLY."""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from pathlib import Path
+
+import click
+
+from heoslice.cli.common import echo_warnings, progress_bar
+from heoslice.coloring import ColorSpec, color_mesh, default_output, write_ply
+from heoslice.distribution import FUNCTION_KINDS, REFERENCE_KINDS, make_function
+from heoslice.errors import InputError
+from heoslice.loading import load_mesh
+from heoslice.materials import load_materials, load_shell_materials, resolve_material
+
+EPILOG = """\b
+Examples:
+  heoslice color vase.ply --func linear          # writes vase_linear.ply beside vase.ply
+  heoslice color vase.ply --func sine --periods 3 --to 255,0,0 -o vase_red.ply
+  heoslice color vase.ply --func quadratic --alpha 2 --lambda -0.5 --ascii
+  heoslice color ball.ply --ref point --at 0,0,0 --func linear --range 0 20
+  heoslice color rod.ply --ref axis --direction 1,0,0 --func expr --expr "0.5-0.5*cos(3*pi*r)"
+  heoslice color liver.ply --ref surface --surface lesion.ply --to tumour --materials mats.toml
+  heoslice color liver.ply --shell-colors 1=255,0,0 --max-edge 0.5
+\b
+r is the minimum distance of each vertex to the reference, divided by the largest
+such distance over the model (or mapped from --range R0 R1 mm to 0..1, clipped).
+f(r) is the fraction of the --to material: constant f = lambda (default 1); linear
+f = alpha r + lambda (1, 0); quadratic f = alpha r^2 + beta r + lambda (1, 0, 0);
+sine f = alpha sin(beta r) + lambda (0.5, 2 pi periods, 0.5); expression: a formula
+in r with + - * / **, pi, e and sin cos tan exp log sqrt abs floor min max clip...
+Each vertex gets M1 + clip(f, 0, 1) (M2 - M1) as its colour, and f clipped to
+[0, 1] as the float vertex property 'material'.
+\b
+Materials file (TOML), shared with slice and print:
+  [materials.gel]
+  color = "#f0f0f0"
+  channel = 1
+  [materials.cells]
+  color = "0,255,0"
+  channel = 2
+  [shells]
+  1 = "cells"
+Without one: M1 = 240,240,240 (channel 1) and M2 = 0,255,0 (channel 2).
+"""
+
+
+@contextmanager
+def option(name: str):
+    """Re-raise an InputError from the library with the option it came from in front."""
+    try:
+        yield
+    except InputError as err:
+        raise InputError(f"{name}: {err}") from None
+
+
+def parse_vector(name: str, text: str | None) -> tuple[float, float, float] | None:
+    """'1,0,0' -> (1.0, 0.0, 0.0); InputError naming the option otherwise."""
+    if text is None:
+        return None
+    parts = text.replace(" ", "").strip("()").split(",")
+    try:
+        values = tuple(float(part) for part in parts)
+    except ValueError:
+        values = ()
+    if len(values) != 3:
+        raise InputError(f"{name}: expected three numbers X,Y,Z, got {text!r}")
+    return values  # type: ignore[return-value]
+
+
+def parse_shell_colors(entries: tuple[str, ...], table) -> dict:
+    """('1=tumour', '2=255,0,0') -> {1: Material, 2: Material}."""
+    out = {}
+    for entry in entries:
+        number, sep, spec = entry.partition("=")
+        if not sep or not number.strip().isdigit() or not spec.strip():
+            raise InputError(f"--shell-colors: expected SHELL=MATERIAL (e.g. 1=tumour or 1=255,0,0), got {entry!r}")
+        with option("--shell-colors"):
+            out[int(number)] = resolve_material(spec, table)
+    return out
+
+
+@click.command("color", epilog=EPILOG)
+@click.argument("model", type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
+              help="Output PLY [default: MODEL_FUNC.ply beside MODEL].")
+@click.option("--func", "func_kind", default=None, metavar="|".join(FUNCTION_KINDS),
+              help="Distribution function [default: linear; expression when --expr is given].")
+@click.option("--alpha", type=float, default=None, help="alpha of eq. 3-5.")
+@click.option("--beta", type=float, default=None, help="beta of eq. 4-5.")
+@click.option("--lambda", "lam", type=float, default=None, help="lambda of eq. 2-5.")
+@click.option("--periods", type=float, default=None, help="Sine periods over r = 0..1 (beta = 2 pi periods).")
+@click.option("--expr", "expression", default=None, help="f as a formula in r, e.g. \"r**2*(3-2*r)\".")
+@click.option("--ref", "ref_kind", default="plane", show_default=True, metavar="|".join(REFERENCE_KINDS),
+              help="Reference feature the distance is measured to.")
+@click.option("--at", default=None, metavar="X,Y,Z",
+              help="Point of the plane / axis, or the point [default: lowest point for a plane, "
+                   "bounding-box centre otherwise], mm.")
+@click.option("--normal", default=None, metavar="X,Y,Z", help="Plane normal [default: 0,0,1].")
+@click.option("--direction", default=None, metavar="X,Y,Z", help="Axis direction [default: 0,0,1].")
+@click.option("--surface", "surface_path", type=click.Path(path_type=Path), default=None,
+              help="Mesh whose surface is the reference (with --ref surface).")
+@click.option("--range", "r_range", type=float, nargs=2, default=None, metavar="R0 R1",
+              help="Distances (mm) mapped to r = 0 and r = 1 [default: 0 and the largest distance].")
+@click.option("--from", "m1_text", default=None, metavar="MATERIAL",
+              help="M1 (f <= 0): a material name, #hex or r,g,b [default: first material].")
+@click.option("--to", "m2_text", default=None, metavar="MATERIAL",
+              help="M2 (f >= 1): a material name, #hex or r,g,b [default: second material].")
+@click.option("--materials", "materials_file", type=click.Path(path_type=Path), default=None,
+              help="Materials file (TOML) [default: built-in M1, M2].")
+@click.option("--max-edge", type=float, default=None, metavar="MM",
+              help="Subdivide first so that no edge is longer than this.")
+@click.option("--shell-colors", "shell_colors", multiple=True, metavar="SHELL=MATERIAL",
+              help="Colour a whole shell with a material (repeatable; shells as numbered by heoslice info).")
+@click.option("--ascii", "ascii_ply", is_flag=True, help="Write an ASCII PLY [default: binary].")
+@click.option("--force", is_flag=True, help="Overwrite an existing output file.")
+def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, lam, periods, expression,
+          ref_kind: str, at, normal, direction, surface_path, r_range, m1_text, m2_text, materials_file,
+          max_edge, shell_colors, ascii_ply: bool, force: bool) -> None:
+    """Colour MODEL's vertices by a material distribution function of the distance to a reference.
+
+    The paper's Z-axis modelling (eq. 1-5, Fig. 2): the default reference is the X-Y
+    plane through the model's lowest point, so `--func linear` grades from M1 at the
+    bottom to M2 at the top.
+    """
+    if func_kind is None:
+        func_kind = "expression" if expression is not None else "linear"
+    if func_kind in ("expr", "formula"):
+        func_kind = "expression"
+    with option("--func"):
+        function = make_function(func_kind, alpha=alpha, beta=beta, lam=lam, periods=periods,
+                                 expression=expression)
+    if ref_kind not in REFERENCE_KINDS:
+        raise InputError(f"--ref: unknown reference {ref_kind!r} (choose from {', '.join(REFERENCE_KINDS)})")
+    point = parse_vector("--at", at)
+    plane_normal = parse_vector("--normal", normal)
+    axis_direction = parse_vector("--direction", direction)
+    for name, value, kinds in (("--at", point, ("plane", "point", "axis")), ("--normal", plane_normal, ("plane",)),
+                               ("--direction", axis_direction, ("axis",)),
+                               ("--surface", surface_path, ("surface",))):
+        if value is not None and ref_kind not in kinds:
+            raise InputError(f"{name}: only used with --ref {' or '.join(kinds)}, not --ref {ref_kind}")
+    if ref_kind == "surface" and surface_path is None:
+        raise InputError("--surface: --ref surface needs the reference mesh (--surface PATH); every vertex "
+                         "of the model lies on its own surface, at distance 0")
+    if r_range is not None and not r_range[1] > r_range[0]:
+        raise InputError(f"--range: {r_range[0]:g} {r_range[1]:g} mm is of zero or negative width (need R0 < R1)")
+    if max_edge is not None and not max_edge > 0:
+        raise InputError(f"--max-edge: must be a positive length in mm, got {max_edge:g}")
+    with option("--materials"):
+        table = load_materials(materials_file)
+        file_shells = load_shell_materials(materials_file, table)
+    names = list(table)
+    with option("--from"):
+        m1 = resolve_material(m1_text, table) if m1_text else table[names[0]]
+    with option("--to"):
+        m2 = resolve_material(m2_text, table) if m2_text else table[names[min(1, len(names) - 1)]]
+    shells = {**file_shells, **parse_shell_colors(shell_colors, table)}
+
+    mesh = load_mesh(model)
+    echo_warnings(model, mesh.warnings)
+    spec = ColorSpec(function=function, reference=ref_kind, at=point, normal=plane_normal,
+                     direction=axis_direction, surface=surface_path,
+                     r_range=None if r_range is None else (float(r_range[0]), float(r_range[1])),
+                     m1=m1, m2=m2, max_edge=max_edge, shell_materials=tuple(sorted(shells.items())))
+    labels = {"shells": "--shell-colors" if shell_colors else "--materials", "max_edge": "--max-edge",
+              "surface": "--surface", "reference": "--ref", "function": "--expr" if expression else "--func",
+              "range": "--range" if spec.r_range is not None else f"--ref {ref_kind}"}
+    with progress_bar("colouring", unit="vertices") as progress:
+        colored = color_mesh(mesh, spec, labels, progress)
+    target = output if output is not None else default_output(model, function)
+    write_ply(target, colored, ascii=ascii_ply, force=force)
+    f = colored.material
+    click.echo(f"{target}: {len(colored.vertices)} vertices, {len(colored.faces)} triangles; "
+               f"{function.describe()}; reference {colored.reference.describe()}; "
+               f"r {colored.r.min():.3g}..{colored.r.max():.3g}, f {f.min():.3g}..{f.max():.3g}; "
+               f"{m1.name} -> {m2.name}"
+               + (f"; shells {', '.join(f'{n}={m.name}' for n, m in spec.shell_materials)}" if shells else ""))
