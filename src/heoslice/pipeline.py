@@ -22,7 +22,8 @@ from heoslice import __version__
 from heoslice.contours import Contours, build_contours
 from heoslice.errors import InputError
 from heoslice.loading import Mesh
-from heoslice.rasterising import Grid, grid_for, render_layer
+from heoslice.rasterising import Grid, grid_for, packed_mask, render_layer
+from heoslice.regions import GradeSpec, render_graded
 from heoslice.slicing import interpolate_at, plane_heights, slice_mesh
 from heoslice.stack import (
     COMPRESSIONS,
@@ -41,7 +42,11 @@ from heoslice.stack import (
 
 @dataclass(frozen=True)
 class SliceSpec:
-    """What to slice and how: layer height (mm), resolution (dpi x, y), canvas, encoding, workers."""
+    """What to slice and how: layer height (mm), resolution (dpi x, y), canvas, encoding, workers.
+
+    ``grade`` asks for graded interiors (:mod:`heoslice.regions`), ``channels`` for one
+    droplet mask per material per layer (:mod:`heoslice.halftone`; needs ``grade``).
+    """
 
     layer_height_mm: float = 0.1
     dpi: tuple[float, float] = (600.0, 600.0)
@@ -50,6 +55,8 @@ class SliceSpec:
     compression: str = DEFAULT_COMPRESSION
     jobs: int = 0
     base_color: tuple[int, int, int] = (255, 255, 255)
+    grade: GradeSpec | None = None
+    channels: bool = False
 
     def __post_init__(self):
         if self.compression not in COMPRESSIONS:
@@ -88,10 +95,30 @@ class LayerJob:
     compression: str
     base_color: tuple[int, int, int]
     path: Path
+    graded: "GradedJob | None" = None
 
 
-def render_and_write(job: LayerJob) -> tuple[int, str, int, float, float]:
-    """Render, encode and write one layer. Returns (index, sha256, solid pixels, raster s, encode s)."""
+@dataclass(frozen=True)
+class GradedJob:
+    """The extra a graded layer needs: its loops' signed areas, parents and shells ((l,), within
+    the layer), the contour points' material fractions ((p,) or None), and the channel files."""
+
+    spec: GradeSpec
+    area: np.ndarray
+    parent: np.ndarray
+    loop_shell: np.ndarray | None
+    point_material: np.ndarray | None
+    channel_paths: tuple[Path, ...] | None
+
+
+def render_and_write(job: LayerJob) -> tuple:
+    """Render, encode and write one layer.
+
+    Returns (index, sha256, solid pixels, raster s, encode s, channel entries); the
+    channel entries (graded layers with droplet masks) are (file name, sha256, solid pixels).
+    """
+    if job.graded is not None:
+        return _render_graded_and_write(job)
     started = time.perf_counter()
     image, solid = render_layer(job.points, job.offsets, job.grid, point_colors=job.point_colors,
                                 base_color=job.base_color)
@@ -102,18 +129,58 @@ def render_and_write(job: LayerJob) -> tuple[int, str, int, float, float]:
         data = encode_tiff(image, job.dpi, job.compression)
     encoded = time.perf_counter()
     digest = write_file(job.path, data)
-    return job.index, digest, solid, rendered - started, encoded - rendered
+    return job.index, digest, solid, rendered - started, encoded - rendered, ()
+
+
+def _render_graded_and_write(job: LayerJob) -> tuple:
+    """The graded branch of :func:`render_and_write`: RGBA layer plus one 1-bit TIFF per material."""
+    graded = job.graded
+    started = time.perf_counter()
+    packed = packed_mask(job.points, job.offsets, job.grid)
+    mask = np.unpackbits(packed, axis=1, count=job.grid.width).astype(bool)
+    layer = render_graded(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, mask, job.grid,
+                          graded.spec, job.index, point_colors=job.point_colors,
+                          point_material=graded.point_material, channels=graded.channel_paths is not None)
+    rendered = time.perf_counter()
+    data = encode_tiff(layer.image, job.dpi, job.compression)
+    pieces = []
+    for path, bits in zip(graded.channel_paths or (), layer.masks if layer.masks is not None else ()):
+        pieces.append((path, encode_bilevel_tiff(np.packbits(bits, axis=1), job.grid.width, job.dpi,
+                                                 job.compression), int(np.count_nonzero(bits))))
+    encoded = time.perf_counter()
+    digest = write_file(job.path, data)
+    channels = tuple((path.name, write_file(path, blob), solid) for path, blob, solid in pieces)
+    return job.index, digest, layer.solid, rendered - started, encoded - rendered, channels
 
 
 def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, directory: Path):
     """One LayerJob per layer, built lazily (each carries only its own layer's loops)."""
     colors = None if mesh.colors is None else mesh.colors.astype(np.float64)
+    grade = spec.grade
+    materials = grade.channel_materials() if grade is not None else ()
+    loop_shell = None if grade is None or mesh.shell is None or not len(contours.face) else mesh.shell[contours.face]
     for index in range(len(contours.layer_offsets) - 1):
         first, last = contours.layer_offsets[index], contours.layer_offsets[index + 1]
         start, stop = contours.offsets[first], contours.offsets[last]
         point_colors = None
         if colors is not None:
             point_colors = interpolate_at(colors, contours.point_edge[start:stop], contours.point_t[start:stop])
+        graded = None
+        if grade is not None:
+            parent = contours.parent[first:last]
+            point_material = None
+            if mesh.material is not None:
+                point_material = interpolate_at(mesh.material, contours.point_edge[start:stop],
+                                                contours.point_t[start:stop])
+            graded = GradedJob(
+                spec=grade,
+                area=contours.area[first:last],
+                parent=np.where(parent >= 0, parent - first, -1),
+                loop_shell=None if loop_shell is None else loop_shell[first:last],
+                point_material=point_material,
+                channel_paths=tuple(directory / layer_file_name(index, channel_name(m)) for m in materials)
+                if spec.channels else None,
+            )
         yield LayerJob(
             index=index,
             points=contours.points[start:stop],
@@ -124,7 +191,16 @@ def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, dire
             compression=spec.compression,
             base_color=spec.base_color,
             path=directory / layer_file_name(index),
+            graded=graded,
         )
+
+
+def channel_name(material) -> str:
+    """The file-name suffix of a material's droplet masks: its name with anything but letters,
+    digits and '-' replaced by '-' (e.g. '0,255,0' -> '0-255-0')."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9-]", "-", str(material.name)) or "material"
 
 
 def _run_jobs(jobs, workers: int, on_done: Callable[[tuple], None]) -> None:
@@ -165,11 +241,13 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     contours = build_contours(sections)
     times.contours = time.perf_counter() - started - times.slice
 
-    results: dict[int, tuple[str, int]] = {}
+    if spec.channels and spec.grade is None:
+        raise InputError("--channels needs a graded slice (--grade)")
+    results: dict[int, tuple] = {}
 
     def on_done(result: tuple) -> None:
-        index, digest, solid, raster_s, encode_s = result
-        results[index] = (digest, solid)
+        index, digest, solid, raster_s, encode_s, channels = result
+        results[index] = (digest, solid, channels)
         times.raster += raster_s
         times.encode += encode_s
         if progress is not None:
@@ -191,10 +269,10 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
             "width": grid.width,
             "height": grid.height,
             "origin_mm": [grid.x_left, grid.y_top],
-            "mode": "1" if mesh.colors is None else "RGBA",
+            "mode": "1" if mesh.colors is None and spec.grade is None else "RGBA",
             "compression": spec.compression,
         },
-        "mask": "nonzero" if mesh.colors is None else "alpha",
+        "mask": "nonzero" if mesh.colors is None and spec.grade is None else "alpha",
         "z_range_mm": [float(bounds[0, 2]), float(bounds[1, 2])],
         "warnings": list(mesh.warnings),
         "layers": [
@@ -205,10 +283,38 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
                 "sha256": results[index][0],
                 "solid_pixels": results[index][1],
                 "open_contours": bool(open_layers[index]),
+                **({"channels": _channel_entries(spec.grade, results[index][2])} if spec.channels else {}),
             }
             for index in range(len(z))
         ],
     }
+    if spec.grade is not None:
+        manifest["grading"] = grading_summary(spec.grade)
     write_manifest(directory, manifest)
     times.total = time.perf_counter() - started
     return manifest, times
+
+
+def _channel_entries(grade: GradeSpec, written: tuple) -> list[dict]:
+    """The manifest's per-layer ``channels`` list: material, file, sha256, solid pixels."""
+    return [{"material": material.name, "file": name, "sha256": digest, "solid_pixels": solid}
+            for material, (name, digest, solid) in zip(grade.channel_materials(), written)]
+
+
+def grading_summary(grade: GradeSpec) -> dict:
+    """The manifest's ``grading`` object: what the interiors were graded with, and the materials."""
+    regions = grade.regions
+
+    def material(m):
+        return None if m is None else {"name": m.name, "color": list(m.color), "channel": m.channel}
+
+    return {
+        "function": None if grade.function is None else grade.function.describe(),
+        "target": material(grade.target),
+        "from": material(grade.start),
+        "nozzle_mm": regions.nozzle_mm,
+        "depth_mm": regions.depth_mm,
+        "direction": regions.direction,
+        "offsets": regions.count,
+        "materials": [material(m) for m in grade.channel_materials()],
+    }

@@ -34,12 +34,73 @@ def parse_canvas(text: str | None) -> tuple[float, float] | None:
     return (width, height)
 
 
+def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth, offset_count,
+               direction, materials_file, channels):
+    """The GradeSpec the grading options ask for, or None when none is given (the plain, fast path).
+
+    --channels, --to, --from or a materials file without --grade still build one: the
+    families keep their own (or their shell's) materials, without a gradient.
+    """
+    from heoslice.distribution import make_function
+    from heoslice.materials import load_materials, load_shell_materials, resolve_material
+    from heoslice.regions import GradeSpec, RegionSpec
+
+    if kind is None:
+        given = {"--alpha": alpha, "--beta": beta, "--lambda": lam, "--periods": periods,
+                 "--expression": expression, "--depth": depth, "--offsets": offset_count}
+        stray = [name for name, value in given.items() if value is not None]
+        if stray:
+            raise InputError(f"{', '.join(stray)}: only used with --grade FUNC")
+        if not (channels or target or start or materials_file):
+            return None
+    table = load_materials(materials_file)
+    shells = load_shell_materials(materials_file, table)
+    names = list(table)
+    function = None
+    if kind is not None:
+        try:
+            function = make_function(kind, alpha=alpha, beta=beta, lam=lam, periods=periods, expression=expression)
+        except InputError as err:
+            raise InputError(f"--grade: {err}") from None
+    try:
+        to = resolve_material(target, table) if target else (table[names[1]] if len(names) > 1 and function else None)
+    except InputError as err:
+        raise InputError(f"--to: {err}") from None
+    try:
+        origin = resolve_material(start, table) if start else None
+    except InputError as err:
+        raise InputError(f"--from: {err}") from None
+    to = _known_channel(to, table)
+    origin = _known_channel(origin, table)
+    return GradeSpec(
+        regions=RegionSpec(nozzle_mm=nozzle, depth_mm=depth, direction=direction, count=offset_count),
+        function=function, target=to, start=origin, base=table[names[0]],
+        second=table[names[1]] if len(names) > 1 else None, shells=tuple(sorted(shells.items())),
+    )
+
+
+def _known_channel(material, table):
+    """A colour given on the command line that is a table material's colour is that material."""
+    if material is None or material.channel is not None:
+        return material
+    for known in table.values():
+        if known.color == material.color:
+            return known
+    return material
+
+
 @click.command("slice", epilog="""\b
 Examples:
   heoslice slice vase.ply                       # 0.1 mm layers, 600 dpi, into ./vase_stack/
   heoslice slice liver.ply --layer 0.1 --dpi 600 -o liver_stack
   heoslice slice part.stl --dpi 600x300 --canvas 200x150 --compress packbits
   heoslice slice scan.ply --scale 1000 --json   # a model in metres
+\b
+Graded interiors (the paper's Fig. 3b, 9b):
+  heoslice slice model.ply --grade linear --to 0,255,0 --nozzle 0.2
+  heoslice slice vase.ply --grade linear --to 0,255,0 --offsets 200
+  heoslice slice liver.ply --grade sine --periods 2 --to M2 --depth 10 --channels
+  heoslice slice part.ply --grade linear --from M1 --to M2 --direction out --materials mats.toml
 """)
 @click.argument("model", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
@@ -56,15 +117,48 @@ Examples:
 @click.option("-j", "--jobs", type=int, default=0, show_default=True, help="Worker processes (0 = all cores).")
 @click.option("--force", is_flag=True, help="Overwrite a non-empty output directory.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
+@click.option("--grade", "grade_kind", default=None, metavar="FUNC",
+              help="Grade each layer's interior from the contour's material to --to with this distribution "
+                   "function: constant, linear, quadratic, sine or expression (eq. 2-5).")
+@click.option("--alpha", type=float, default=None, help="alpha of the grading function.")
+@click.option("--beta", type=float, default=None, help="beta of the grading function.")
+@click.option("--lambda", "lam", type=float, default=None, help="lambda of the grading function.")
+@click.option("--periods", type=float, default=None, help="Sine periods over r = 0..1 (instead of --beta).")
+@click.option("--expression", default=None, help="f(r) for --grade expression, e.g. '0.5 - 0.5*cos(2*pi*r)'.")
+@click.option("--to", "target", default=None, metavar="MATERIAL",
+              help="Target material M2 reached at r = 1: a name from the materials file, #hex or r,g,b "
+                   "[default with --grade: the second material, M2].")
+@click.option("--from", "start", default=None, metavar="MATERIAL",
+              help="Start material M1 at the contour [default: the contour's own material].")
+@click.option("--nozzle", type=float, default=0.2, show_default=True,
+              help="Nozzle diameter D_N, mm: N_R = int(L_S / D_N) sub-regions (eq. 8).")
+@click.option("--depth", type=float, default=None,
+              help="Grade to this depth (L_S, mm) from the contour instead of to the inner rings "
+                   "[default: to the holes, or to the deepest point].")
+@click.option("--offsets", "offset_count", type=int, default=None,
+              help="Number of sub-regions N_R instead of eq. 8 (the paper's Fig. 3b used 200).")
+@click.option("--direction", type=click.Choice(["in", "out"]), default="in", show_default=True,
+              help="Offset the outer ring inwards, or the inner rings outwards.")
+@click.option("--materials", "materials_file", type=click.Path(path_type=Path), default=None,
+              help="Materials file (TOML): names, display colours, channels, per-shell materials.")
+@click.option("--channels", is_flag=True,
+              help="Also write one 1-bit droplet mask per material per layer (halftoned fractions).")
 def slice_cmd(model: Path, output: Path | None, layer_height: float, dpi: str, canvas: str | None,
-              margin: float, compression: str, scale: float, jobs: int, force: bool, as_json: bool) -> None:
+              margin: float, compression: str, scale: float, jobs: int, force: bool, as_json: bool,
+              grade_kind: str | None, alpha: float | None, beta: float | None, lam: float | None,
+              periods: float | None, expression: str | None, target: str | None, start: str | None,
+              nozzle: float, depth: float | None, offset_count: int | None, direction: str,
+              materials_file: Path | None, channels: bool) -> None:
     """Slice MODEL (PLY, STL, OBJ, OFF) into one TIFF per layer plus manifest.json.
 
     Layers are cut at their centres, z = z_min + (i + 1/2) x layer; a pixel is solid
     when its centre is inside the model. The stack format is in docs/stack-format.md.
     """
+    grade = grade_spec(grade_kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth,
+                       offset_count, direction, materials_file, channels)
     spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
-                     canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs)
+                     canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
+                     grade=grade, channels=channels)
     if margin < 0:
         raise InputError(f"--margin must not be negative, got {margin}")
     mesh = load_mesh(model)

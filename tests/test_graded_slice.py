@@ -1,0 +1,147 @@
+"""Tests of `heoslice slice` with graded interiors (--grade, --to, --channels, ...): the command as
+documented, the stack it writes, and its refusals of bad options."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import tifffile
+
+from heoslice import procedural
+from heoslice.stack import verify_stack
+
+
+@pytest.fixture(scope="module")
+def ball(tmp_path_factory):
+    """A closed sphere of radius 4 mm as a PLY file."""
+    path = tmp_path_factory.mktemp("mesh") / "ball.ply"
+    procedural.sphere(4.0, subdivisions=3).export(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def organ(tmp_path_factory):
+    """Two shells: a 6 mm ball and a 2 mm lesion inside it, with a materials file naming the lesion's material."""
+    folder = tmp_path_factory.mktemp("organ")
+    path = folder / "organ.ply"
+    procedural.nested_shells(outer=6.0, inner=2.0, offset=(2.0, 0.0, 0.0), subdivisions=3).export(path)
+    materials = folder / "materials.toml"
+    materials.write_text('[materials.gel]\ncolor = "240,240,240"\nchannel = 1\n'
+                         '[materials.cells]\ncolor = "0,255,0"\nchannel = 2\n'
+                         '[materials.tumour]\ncolor = "200,0,0"\nchannel = 3\n'
+                         '[shells]\n1 = "tumour"\n')
+    return path, materials
+
+
+def test_grade_command_as_documented(run_cli, ball, tmp_path):
+    """`heoslice slice model.ply --grade linear --to 0,255,0 --nozzle 0.2` writes a verified RGBA stack whose
+    interior goes from the base material at the contour to green at the centre."""
+    out = tmp_path / "stack"
+    code, stdout, stderr = run_cli("slice", ball, "--grade", "linear", "--to", "0,255,0", "--nozzle", "0.2",
+                                   "--layer", "0.5", "-o", out)
+    assert code == 0, stderr
+    report = verify_stack(out)
+    assert report.ok, report.problems
+    manifest = report.manifest
+    assert manifest["image"]["mode"] == "RGBA" and manifest["mask"] == "alpha"
+    assert manifest["grading"]["function"].startswith("linear")
+    assert manifest["grading"]["target"]["color"] == [0, 255, 0]
+    middle = len(manifest["layers"]) // 2
+    image = tifffile.imread(out / manifest["layers"][middle]["file"])
+    solid = image[..., 3] > 0
+    rows, cols = np.nonzero(solid)
+    centre = image[int(rows.mean()), int(cols.mean())].astype(int)
+    assert tuple(centre[:3]) == pytest.approx((0, 255, 0), abs=40)
+    edge = image[rows.min() + 2, int(cols.mean())].astype(int)
+    assert edge[0] > 150  # near the contour: still mostly the light base material
+
+
+def test_channels_partition_the_solid_pixels(run_cli, ball, tmp_path):
+    """--channels writes one 1-bit mask per material per layer, listed with sha256 and solid pixels in the
+    manifest; the masks are disjoint and together are exactly the layer's solid pixels."""
+    out = tmp_path / "stack"
+    code, _, stderr = run_cli("slice", ball, "--grade", "linear", "--to", "M2", "--layer", "1", "--channels",
+                              "-o", out)
+    assert code == 0, stderr
+    report = verify_stack(out)
+    assert report.ok, report.problems
+    for entry in report.manifest["layers"]:
+        channels = entry["channels"]
+        assert [c["material"] for c in channels] == ["M1", "M2"]
+        masks = [tifffile.imread(out / c["file"]).astype(bool) for c in channels]
+        for c, mask in zip(channels, masks):
+            assert c["solid_pixels"] == int(mask.sum())
+        solid = tifffile.imread(out / entry["file"])[..., 3] > 0
+        assert np.array_equal(masks[0].astype(int) + masks[1].astype(int), solid.astype(int))
+    middle = report.manifest["layers"][len(report.manifest["layers"]) // 2]["channels"]
+    assert middle[1]["solid_pixels"] > 0.3 * (middle[0]["solid_pixels"] + middle[1]["solid_pixels"])
+
+
+def test_altered_channel_file_fails_verification(run_cli, ball, tmp_path):
+    """A droplet mask changed after slicing no longer matches its sha256: verify reports it."""
+    out = tmp_path / "stack"
+    assert run_cli("slice", ball, "--grade", "linear", "--layer", "2", "--channels", "-o", out)[0] == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    victim = out / manifest["layers"][1]["channels"][0]["file"]
+    victim.write_bytes(victim.read_bytes()[:-1] + b"\0")
+    report = verify_stack(out)
+    assert any(victim.name in problem for problem in report.problems)
+
+
+def test_nested_shell_keeps_its_material_through_the_cli(run_cli, organ, tmp_path):
+    """A lesion shell given its own material in the materials file keeps it in every layer it crosses
+    (its droplet channel holds its pixels), while the organ around it is graded."""
+    mesh, materials = organ
+    out = tmp_path / "stack"
+    code, _, stderr = run_cli("slice", mesh, "--grade", "linear", "--to", "cells", "--materials", materials,
+                              "--layer", "0.5", "--channels", "-o", out)
+    assert code == 0, stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    names = [c["material"] for c in manifest["layers"][0]["channels"]]
+    assert names == ["gel", "cells", "tumour"]
+    crossing = [e for e in manifest["layers"] if abs(e["z_mm"]) < 1.5]
+    assert crossing
+    for entry in crossing:
+        image = tifffile.imread(out / entry["file"])
+        tumour = tifffile.imread(out / entry["channels"][2]["file"]).astype(bool)
+        assert entry["channels"][2]["solid_pixels"] > 0
+        assert np.all(image[tumour][:, :3] == (200, 0, 0))
+
+
+def test_default_slice_is_unchanged(run_cli, ball, tmp_path):
+    """Without grading options the stack stays 1-bit, without a grading entry or channels."""
+    out = tmp_path / "stack"
+    assert run_cli("slice", ball, "--layer", "1", "-o", out)[0] == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["image"]["mode"] == "1"
+    assert "grading" not in manifest
+    assert all("channels" not in entry for entry in manifest["layers"])
+
+
+@pytest.mark.parametrize("args, option", [
+    (["--grade", "wavy"], "--grade"),
+    (["--grade", "linear", "--nozzle", "0"], "--nozzle"),
+    (["--grade", "linear", "--depth", "-2"], "--depth"),
+    (["--grade", "linear", "--to", "not-a-colour"], "--to"),
+    (["--grade", "linear", "--from", "#12"], "--from"),
+    (["--alpha", "2"], "--alpha"),
+    (["--grade", "linear", "--offsets", "0"], "--offsets"),
+    (["--grade", "expression", "--expression", "__import__('os')"], "--grade"),
+])
+def test_bad_grading_options_fail_cleanly(run_cli, ball, tmp_path, args, option):
+    """A bad grading option is one line naming it, exit status 2, and no stack left behind."""
+    out = tmp_path / "stack"
+    code, _, stderr = run_cli("slice", ball, *args, "-o", out)
+    assert code == 2
+    assert option in stderr and "Traceback" not in stderr
+    assert len(stderr.strip().splitlines()) == 1
+    assert not (out / "manifest.json").exists()
+
+
+def test_missing_materials_file(run_cli, ball, tmp_path):
+    """A materials file that does not exist is named in a one-line error (exit 2)."""
+    code, _, stderr = run_cli("slice", ball, "--grade", "linear", "--materials", tmp_path / "nope.toml",
+                              "-o", tmp_path / "stack")
+    assert code == 2 and "nope.toml" in stderr

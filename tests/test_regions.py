@@ -1,0 +1,318 @@
+"""Tests of heoslice.regions: eq. 8 band counts, eq. 9-10 weights, sub-regions against analytic
+fields and shapely's round-join offsets, nested shells."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from heoslice.distribution import make_function
+from heoslice.errors import InputError
+from heoslice.materials import DEFAULT_MATERIALS, Material
+from heoslice.rasterising import Grid, solid_mask
+from heoslice.regions import (
+    GradeSpec,
+    RegionSpec,
+    band_count,
+    family_field,
+    layer_families,
+    layer_regions,
+    render_graded,
+    ring_weights,
+    subregion_index,
+)
+
+PX = 25.4 / 600
+
+
+def circle(radius: float, count: int = 720, center=(0.0, 0.0), clockwise: bool = False) -> np.ndarray:
+    """(count, 2) polygon approximating a circle (sag below 1e-4 mm for the radii used)."""
+    angle = np.linspace(0.0, 2 * np.pi, count, endpoint=False)
+    ring = np.column_stack([center[0] + radius * np.cos(angle), center[1] + radius * np.sin(angle)])
+    return ring[::-1] if clockwise else ring
+
+
+def layer(*rings):
+    """(points, offsets, signed areas, parents) of loops given outermost first; a ring's parent is the
+    smallest earlier ring containing its first point."""
+    points = np.concatenate(rings)
+    offsets = np.concatenate([[0], np.cumsum([len(r) for r in rings])])
+    area = np.array([shapely.Polygon(r).area * (1 if shapely.LinearRing(r).is_ccw else -1) for r in rings])
+    parent = np.full(len(rings), -1)
+    for i, ring in enumerate(rings):
+        containing = [j for j in range(i) if shapely.Polygon(rings[j]).contains(shapely.Point(ring[0]))]
+        if containing:
+            parent[i] = min(containing, key=lambda j: abs(area[j]))
+    return points, offsets, area, parent
+
+
+def grid_around(half_mm: float) -> Grid:
+    cells = int(np.ceil(2 * half_mm / PX))
+    return Grid(width=cells, height=cells, x_left=-cells * PX / 2, y_top=cells * PX / 2, px=PX, py=PX)
+
+
+def pixel_centres(grid: Grid, box):
+    r0, r1, c0, c1 = box
+    x = grid.x_left + (np.arange(c0, c1) + 0.5) * grid.px
+    y = grid.y_top - (np.arange(r0, r1) + 0.5) * grid.py
+    return np.meshgrid(x, y)
+
+
+def field_on_mask(points, offsets, area, parent, grid, spec):
+    """(k image over the family box, solid mask over the box, field) of the first family."""
+    family = layer_families(area, parent)[0]
+    field = family_field(points, offsets, family, grid, spec)
+    r0, r1, c0, c1 = field.box
+    mask = solid_mask(points, offsets, grid)[r0:r1, c0:c1]
+    return field.index.astype(np.int64), mask, field
+
+
+def assert_within_one_pixel(k, expected, band_coordinate, mask, slope_px):
+    """Pixels whose sub-region differs from the expected one lie within one pixel of a band boundary."""
+    wrong = mask & (k != expected)
+    distance_px = np.abs(band_coordinate - np.rint(band_coordinate)) / slope_px
+    assert np.all(np.abs(k - expected)[wrong] <= 1)
+    assert np.all(distance_px[wrong] <= 1.0), distance_px[wrong].max()
+    assert wrong.sum() < 0.05 * mask.sum()
+
+
+@given(st.floats(0.01, 500.0), st.floats(0.01, 5.0))
+def test_band_count_is_eq8(length, nozzle):
+    """N_R = int(L_S / D_N) (eq. 8), and never fewer than one sub-region."""
+    assert band_count(length, nozzle) == max(1, int(np.floor(length / nozzle + 1e-9)))
+
+
+def test_band_count_examples():
+    """Rings 6 mm apart with a 0.5 mm nozzle give 12 sub-regions; 0.2 mm in 0.3 mm gives 1."""
+    assert band_count(6.0, 0.5) == 12
+    assert band_count(6.0, 0.2) == 30
+    assert band_count(0.2, 0.3) == 1
+
+
+def test_subregion_index_spans_one_to_count():
+    """k = floor(r N_R) + 1 clipped to 1..N_R: r = 0 is sub-region 1, r >= 1 the last."""
+    assert subregion_index(np.array([0.0, 0.099, 0.1, 0.95, 1.0, 3.0]), 10).tolist() == [1, 1, 2, 10, 10, 10]
+
+
+@settings(max_examples=200)
+@given(st.integers(1, 6).flatmap(lambda beta: st.lists(
+    st.lists(st.floats(0.0, 1e3), min_size=beta, max_size=beta), min_size=1, max_size=20)))
+def test_ring_weights_sum_to_one(rows):
+    """Eq. 10: weights are in [0, 1] and sum to 1 at every point, whatever the distances."""
+    weights = ring_weights(np.array(rows))
+    assert np.all(weights >= -1e-12) and np.all(weights <= 1 + 1e-12)
+    np.testing.assert_allclose(weights.sum(axis=1), 1.0, rtol=1e-9)
+
+
+@given(st.integers(2, 6), st.integers(0, 5), st.lists(st.floats(0.01, 100.0), min_size=6, max_size=6))
+def test_ring_weight_is_one_on_its_ring(beta, ring, others):
+    """A point on ring i (d_i = 0) has w_i = 1 and every other weight 0."""
+    ring = ring % beta
+    d = np.array(others[:beta])
+    d[ring] = 0.0
+    weights = ring_weights(d[None, :])[0]
+    assert weights[ring] == 1.0
+    assert np.all(np.delete(weights, ring) == 0.0)
+
+
+@given(st.lists(st.lists(st.floats(0.05, 50.0), min_size=4, max_size=4), min_size=1, max_size=10))
+def test_ring_weights_equal_the_product_formula(rows):
+    """ring_weights equals eq. 10 written literally with products of distances (moderate values)."""
+    d = np.array(rows)
+    others = np.stack([np.prod(np.delete(d, i, axis=1), axis=1) for i in range(d.shape[1])], axis=1)
+    np.testing.assert_allclose(ring_weights(d), others / others.sum(axis=1, keepdims=True), rtol=1e-9)
+
+
+def test_ring_weights_symmetric_cases():
+    """Equal distances give equal weights; two rings give w = (d2, d1) / (d1 + d2); the weights
+    follow a permutation of the rings; the nearer ring weighs more."""
+    np.testing.assert_allclose(ring_weights(np.full((1, 4), 3.0)), 0.25)
+    np.testing.assert_allclose(ring_weights(np.array([[1.0, 3.0]])), [[0.75, 0.25]])
+    d = np.array([[1.0, 2.0, 4.0]])
+    w = ring_weights(d)
+    np.testing.assert_allclose(ring_weights(d[:, [2, 0, 1]]), w[:, [2, 0, 1]])
+    assert w[0, 0] > w[0, 1] > w[0, 2]
+    # eq. 10 equals inverse-distance weighting: w_i proportional to 1 / d_i
+    np.testing.assert_allclose(w, (1 / d) / (1 / d).sum(), rtol=1e-12)
+
+
+def test_region_spec_refuses_bad_values():
+    """A non-positive nozzle or depth, an unknown direction or a zero count is an InputError naming the option."""
+    with pytest.raises(InputError, match="--nozzle"):
+        RegionSpec(nozzle_mm=0.0)
+    with pytest.raises(InputError, match="--depth"):
+        RegionSpec(depth_mm=-1.0)
+    with pytest.raises(InputError, match="--direction"):
+        RegionSpec(direction="sideways")
+    with pytest.raises(InputError, match="--offsets"):
+        RegionSpec(count=0)
+
+
+def test_annulus_matches_analytic_field_and_eq8_count():
+    """Concentric rings 6 mm apart, 0.49 mm nozzle: N_R = 12 (eq. 8) and every pixel's sub-region is
+    floor(12 (R - rho) / (R - r0)) + 1, the analytic r = d_o / (d_o + d_i), within one pixel."""
+    points, offsets, area, parent = layer(circle(10.0), circle(4.0, clockwise=True))
+    grid = grid_around(10.5)
+    k, mask, field = field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=0.49))
+    assert field.layout.count == 12
+    assert field.layout.length_mm == pytest.approx(6.0, abs=1e-3)
+    x, y = pixel_centres(grid, field.box)
+    rho = np.hypot(x, y)
+    s = 12 * (10.0 - rho) / 6.0
+    expected = np.clip(np.floor(s).astype(np.int64) + 1, 1, 12)
+    assert_within_one_pixel(k, expected, s, mask, slope_px=12 / 6.0 * PX)
+
+
+def test_annulus_band_widths():
+    """Each of the 12 sub-regions of the annulus (6 mm, 0.49 mm nozzle: width 6 / 12 = 0.5 mm) covers the
+    analytic ring area between radii 10 - (k-1) 0.5 and 10 - k 0.5 mm, to within a pixel along its perimeter."""
+    points, offsets, area, parent = layer(circle(10.0), circle(4.0, clockwise=True))
+    grid = grid_around(10.5)
+    k, mask, _ = field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=0.49))
+    counts = np.bincount(k[mask], minlength=13)[1:]
+    outer = 10.0 - 0.5 * np.arange(12)
+    expected = np.pi * (outer ** 2 - (outer - 0.5) ** 2) / PX ** 2
+    tolerance = 2 * np.pi * outer * 2 / PX
+    assert np.all(np.abs(counts - expected) <= tolerance)
+
+
+def test_direction_out_counts_from_the_hole():
+    """--direction out: r = d_i / (d_o + d_i), sub-region 1 touches the hole."""
+    points, offsets, area, parent = layer(circle(10.0), circle(4.0, clockwise=True))
+    grid = grid_around(10.5)
+    k, mask, field = field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=0.49, direction="out"))
+    x, y = pixel_centres(grid, field.box)
+    s = 12 * (np.hypot(x, y) - 4.0) / 6.0
+    expected = np.clip(np.floor(s).astype(np.int64) + 1, 1, 12)
+    assert_within_one_pixel(k, expected, s, mask, slope_px=2.0 * PX)
+
+
+def test_disc_grades_to_its_centre():
+    """A solid disc (no inner ring): L_S is its inradius, r = d / R, so the last sub-region is at the centre."""
+    points, offsets, area, parent = layer(circle(8.0))
+    grid = grid_around(8.5)
+    k, mask, field = field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=0.39))
+    assert field.layout.length_mm == pytest.approx(8.0, abs=0.05)
+    count = field.layout.count
+    assert count == 20
+    x, y = pixel_centres(grid, field.box)
+    s = count * (8.0 - np.hypot(x, y)) / field.layout.length_mm
+    expected = np.clip(np.floor(s).astype(np.int64) + 1, 1, count)
+    assert_within_one_pixel(k, expected, s, mask, slope_px=count / field.layout.length_mm * PX)
+
+
+def test_depth_stops_grading():
+    """With a target depth of 2 mm and a 0.5 mm nozzle, N_R = 4 and everything deeper than 2 mm is sub-region 4."""
+    points, offsets, area, parent = layer(circle(8.0))
+    grid = grid_around(8.5)
+    k, mask, field = field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=0.5, depth_mm=2.0))
+    assert field.layout.count == 4
+    x, y = pixel_centres(grid, field.box)
+    deep = mask & (np.hypot(x, y) < 8.0 - 2.0 - PX)
+    assert np.all(k[deep] == 4)
+    s = 4 * (8.0 - np.hypot(x, y)) / 2.0
+    expected = np.clip(np.floor(s).astype(np.int64) + 1, 1, 4)
+    assert_within_one_pixel(k, expected, s, mask, slope_px=2.0 * PX)
+
+
+def star(points: int = 7, outer: float = 9.0, inner: float = 4.0) -> np.ndarray:
+    """A concave star polygon with sharp convex and reflex corners."""
+    angle = np.linspace(0.0, 2 * np.pi, 2 * points, endpoint=False)
+    radius = np.where(np.arange(2 * points) % 2 == 0, outer, inner)
+    return np.column_stack([radius * np.cos(angle), radius * np.sin(angle)])
+
+
+@pytest.mark.parametrize("shape", ["star", "blob"])
+def test_bands_match_round_join_offsets(shape):
+    """Sub-region k+1.. is exactly the inside of shapely's round-join offset buffer(-k w): pixels that
+    disagree lie within one pixel of the offset's boundary, for every k (irregular, concave shapes)."""
+    if shape == "star":
+        ring = star()
+    else:
+        angle = np.linspace(0, 2 * np.pi, 300, endpoint=False)
+        radius = 8 + 1.5 * np.sin(3 * angle) + 0.7 * np.cos(7 * angle + 1)
+        ring = np.column_stack([radius * np.cos(angle), radius * np.sin(angle)])
+    points, offsets, area, parent = layer(ring)
+    grid = grid_around(10.0)
+    spec = RegionSpec(nozzle_mm=0.3, depth_mm=3.0)
+    k, mask, field = field_on_mask(points, offsets, area, parent, grid, spec)
+    width = 3.0 / field.layout.count
+    polygon = shapely.Polygon(ring)
+    x, y = pixel_centres(grid, field.box)
+    for offset in range(1, field.layout.count):
+        inner = polygon.buffer(-offset * width, join_style="round", quad_segs=64)
+        inside = shapely.contains_xy(inner, x, y)
+        wrong = mask & (inside != (k > offset))
+        if wrong.any():
+            gap = shapely.distance(shapely.points(x[wrong], y[wrong]), inner.boundary)
+            assert gap.max() <= PX, (offset, gap.max() / PX)
+
+
+def test_two_holes_follow_eq10():
+    """A disc with two holes (beta = 3 rings): r = 1 - w_outer of eq. 10 from the three ring distances,
+    N_R from the shortest outer-to-hole distance; checked at every pixel within one pixel."""
+    holes = [circle(2.0, 360, (-4.0, 0.0), clockwise=True), circle(1.5, 360, (4.0, 1.0), clockwise=True)]
+    outer = circle(9.0, 720)
+    points, offsets, area, parent = layer(outer, *holes)
+    grid = grid_around(9.5)
+    k, mask, field = field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=0.25))
+    shortest = min(shapely.distance(shapely.LinearRing(outer), shapely.LinearRing(h)) for h in holes)
+    assert field.layout.count == int(shortest / 0.25)
+    x, y = pixel_centres(grid, field.box)
+    where = shapely.points(x[mask], y[mask])
+    d = np.column_stack([shapely.distance(where, shapely.LinearRing(r)) for r in (outer, *holes)])
+    s = np.zeros(x.shape)
+    s[mask] = (1.0 - ring_weights(d)[:, 0]) * field.layout.count
+    expected = np.clip(np.floor(s).astype(np.int64) + 1, 1, field.layout.count)
+    wrong = mask & (k != expected)
+    assert wrong.sum() < 0.02 * mask.sum()
+    # disagreements sit on band boundaries: moving a pixel's centre by one pixel changes its expected band
+    step = np.gradient(s, axis=(0, 1))
+    slope = np.hypot(step[0], step[1])
+    assert np.all(np.abs(s - np.rint(s))[wrong] <= 1.5 * slope[wrong] + 1e-9)
+
+
+def test_nested_shell_keeps_its_material():
+    """A lesion shell inside an organ (both counter-clockwise) is its own family; its pixels carry the
+    lesion's shell material in the graded image, the organ around it is graded to the target."""
+    organ, lesion = circle(9.0), circle(2.5, 360, (3.0, 1.0))
+    points, offsets, area, parent = layer(organ, lesion)
+    grid = grid_around(9.5)
+    mask = solid_mask(points, offsets, grid)
+    tumour = Material("tumour", (200, 0, 0), 3)
+    spec = GradeSpec(RegionSpec(nozzle_mm=0.5), make_function("linear"), DEFAULT_MATERIALS["M2"], None,
+                     DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"], shells=((1, tumour),))
+    out = render_graded(points, offsets, area, parent, np.array([0, 1]), mask, grid, spec, 0, channels=True)
+    x, y = pixel_centres(grid, (0, grid.height, 0, grid.width))
+    in_lesion = np.hypot(x - 3.0, y - 1.0) < 2.5 - PX
+    assert np.all(out.image[in_lesion][:, :3] == tumour.color)
+    materials = spec.channel_materials()
+    assert out.masks[materials.index(tumour)][in_lesion].all()
+    organ_only = mask & ~in_lesion & (np.hypot(x - 3.0, y - 1.0) > 2.5 + PX)
+    assert not out.masks[materials.index(tumour)][organ_only].any()
+    deep = organ_only & (np.hypot(x, y) < 0.3)
+    near_edge = organ_only & (np.hypot(x, y) > 8.9)
+    assert out.image[deep][:, 1].mean() > out.image[near_edge][:, 1].mean()
+    assert np.all(out.masks.sum(axis=0) == mask)
+
+
+def test_layer_regions_labels_every_solid_pixel_once():
+    """An island in a cavity of a hollow disc is a family of its own: every solid pixel gets a label of
+    exactly the family whose region holds it, empty pixels none."""
+    rings = (circle(9.0), circle(6.0, clockwise=True), circle(3.0))
+    points, offsets, area, parent = layer(*rings)
+    grid = grid_around(9.5)
+    mask = solid_mask(points, offsets, grid)
+    regions = layer_regions(points, offsets, area, parent, mask, grid, RegionSpec(nozzle_mm=0.5))
+    assert len(regions.families) == 2
+    b = regions.box
+    label = regions.label
+    assert np.array_equal(label > 0, mask[b[0]:b[1], b[2]:b[3]])
+    x, y = pixel_centres(grid, b)
+    island = np.hypot(x, y) < 3.0 - PX
+    island_family = [i for i, f in enumerate(regions.families) if f.outer == 2][0]
+    lo, hi = regions.base[island_family], regions.base[island_family + 1]
+    assert np.all((label[island] >= lo) & (label[island] < hi))
