@@ -171,3 +171,13 @@ def test_info_reports_geometry(tmp_path, run_cli):
     assert info["volume_mm3"] == pytest.approx(mesh.volume, rel=1e-6)  # PLY stores float32
     code, out, _ = run_cli("info", model)
     assert code == 0 and "shells:" in out and "watertight:         yes" in out
+
+
+def test_slicing_in_runs_of_planes_gives_the_same_stack(tmp_path):
+    """A tiny segment budget (many runs of planes) writes the same layers as slicing all at once."""
+    model = write_mesh(procedural.torus(10.0, 3.0), tmp_path / "t.ply")
+    mesh = load_mesh(model)
+    whole, _ = slice_to_stack(mesh, tmp_path / "a", SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), jobs=2))
+    runs, _ = slice_to_stack(mesh, tmp_path / "b", SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), jobs=2,
+                                                             max_segments=300))
+    assert [e["sha256"] for e in whole["layers"]] == [e["sha256"] for e in runs["layers"]]

@@ -23,6 +23,9 @@ from heoslice.errors import InputError
 
 SUPPORTED_SUFFIXES = (".ply", ".stl", ".obj", ".off")
 
+#: Largest coordinate magnitude accepted (1000 km in mm): beyond, squares of lengths overflow.
+MAX_COORDINATE = 1e9
+
 #: Name of the per-vertex float property carrying the material fraction in [0, 1].
 MATERIAL_PROPERTY = "material"
 
@@ -263,10 +266,10 @@ def _ascii_rows(path: Path, body: bytes, first_line: int):
 
     too_long = np.flatnonzero(stops - starts > _PLY_MAX_TOKEN)
     if len(too_long):
-        raise InputError(f"{path}: PLY line {line_at(int(starts[too_long[0]]))}: "
+        raise InputError(f"{path}: line {line_at(int(starts[too_long[0]]))}: "
                          f"value longer than {_PLY_MAX_TOKEN} characters")
     if np.any(data > 126):
-        raise InputError(f"{path}: PLY line {line_at(int(np.argmax(data > 126)))}: non-ASCII byte in an ASCII body")
+        raise InputError(f"{path}: line {line_at(int(np.argmax(data > 126)))}: non-ASCII byte in an ASCII body")
     values = None
     if len(starts):
         with warnings.catch_warnings():
@@ -286,7 +289,7 @@ def _ascii_rows(path: Path, body: bytes, first_line: int):
                 bad = int(start)
                 break
         token = body[bad:bad + _PLY_MAX_TOKEN].split()[0].decode("ascii", "replace")
-        raise InputError(f"{path}: PLY line {line_at(bad)}: {token[:40]!r} is not a number")
+        raise InputError(f"{path}: line {line_at(bad)}: {token[:40]!r} is not a number")
     token_line = line_of[starts] if len(starts) else np.zeros(0, dtype=np.int64)
     lines, row_start, row_length = np.unique(token_line, return_index=True, return_counts=True)
     return values, row_start, row_length, lines + first_line
@@ -295,13 +298,15 @@ def _ascii_rows(path: Path, body: bytes, first_line: int):
 def _as_ply_type(path: Path, values: np.ndarray, kind: str, where: np.ndarray, what: str) -> np.ndarray:
     """ASCII values converted to the declared PLY type; fractions and out-of-range integers are refused."""
     if kind[0] == "f":
-        return values.astype(kind)
+        with np.errstate(over="ignore"):  # out of float32 range becomes inf, refused later for coordinates
+            return values.astype(kind)
     info = np.iinfo(kind)
     with np.errstate(invalid="ignore"):
-        bad = ~np.isfinite(values) | (values != np.round(values)) | (values < info.min) | (values > info.max)
+        bad = (~np.isfinite(values) | (values != np.round(values))
+               | (values < float(info.min)) | (values >= float(info.max) + 1.0))  # exact powers of two
     if bad.any():
         first = int(np.argmax(bad))
-        raise InputError(f"{path}: PLY line {where[first]}: {what} {values[first]!r} is not a {np.dtype(kind).name}")
+        raise InputError(f"{path}: line {where[first]}: {what} {values[first]!r} is not a {np.dtype(kind).name}")
     return values.astype(kind)
 
 
@@ -365,6 +370,79 @@ def _fan_triangles(lengths: np.ndarray, flat: np.ndarray) -> tuple[np.ndarray, n
     return triangles.astype(np.int64), polygon
 
 
+def _checked_triangles(path: Path, vertex_count: int, lengths: np.ndarray, flat: np.ndarray):
+    """Fan triangles of polygons after refusing faces with fewer than 3 vertices or indices outside the vertices.
+
+    Returns (triangles (k, 3) int64, polygon of each triangle (k,)).
+    """
+    short = lengths < 3
+    if short.any():
+        bad = int(np.argmax(short))
+        raise InputError(f"{path}: face {bad} has {int(lengths[bad])} vertices (a face needs at least 3)")
+    flat = flat.astype(np.int64)
+    outside = (flat < 0) | (flat >= vertex_count)
+    if outside.any():
+        bad = int(np.repeat(np.arange(len(lengths)), lengths)[np.argmax(outside)])
+        raise InputError(f"{path}: face {bad} refers to vertex {int(flat[np.argmax(outside)])}, "
+                         f"outside 0..{vertex_count - 1}")
+    return _fan_triangles(lengths, flat)
+
+
+def read_off(path: Path):
+    """Read an OFF file (OFF, COFF, NOFF, CNOFF, STOFF; '#' comments) strictly into a trimesh.Trimesh.
+
+    Counts are checked against the rows present; one vertex or face per line; extra
+    values on a row (colours, normals, texture coordinates) are ignored; faces with
+    fewer than 3 vertices, indices outside the vertex list and NaN coordinates are
+    one-line InputErrors. Polygons are fan-triangulated.
+    """
+    import trimesh
+
+    path = Path(path)
+    data = np.frombuffer(path.read_bytes(), dtype=np.uint8).copy()
+    position = np.arange(len(data))
+    last_hash = np.maximum.accumulate(np.where(data == ord("#"), position, -1))
+    last_newline = np.maximum.accumulate(np.where(data == ord("\n"), position, -1))
+    data[(last_hash > last_newline) & (data != ord("\n"))] = ord(" ")  # blank out comments
+    text = data.tobytes()
+    words = text.split(None, 1)
+    keyword = words[0].decode("ascii", "replace") if words else ""
+    if not keyword.endswith("OFF") or keyword[:-3] not in ("", "C", "N", "CN", "NC", "ST", "STC", "STN", "STCN"):
+        raise InputError(f"{path}: not an OFF file (first word {keyword[:20]!r}, expected OFF)")
+    start = text.index(words[0]) + len(words[0])
+    body = b" " * start + text[start:]
+    values, row_start, row_length, row_line = _ascii_rows(path, body, 1)
+    if len(row_start) == 0 or row_length[0] < 2:
+        raise InputError(f"{path}: OFF has no 'vertices faces edges' count line")
+    counts = _as_ply_type(path, values[row_start[0]:row_start[0] + 2], "i8", row_line[[0, 0]], "count")
+    vertex_count, face_count = int(counts[0]), int(counts[1])
+    if vertex_count < 0 or face_count < 0 or 1 + vertex_count + face_count > len(row_start):
+        raise InputError(f"{path}: OFF declares {vertex_count} vertices and {face_count} faces, "
+                         f"but holds {len(row_start) - 1} rows")
+    if 1 + vertex_count + face_count < len(row_start):
+        raise InputError(f"{path}: OFF line {row_line[1 + vertex_count + face_count]}: data after the last face")
+    rows = slice(1, 1 + vertex_count)
+    short = row_length[rows] < 3
+    if short.any():
+        raise InputError(f"{path}: OFF line {row_line[rows][np.argmax(short)]}: a vertex needs 3 coordinates")
+    vertices = values[row_start[rows][:, None] + np.arange(3)]
+    finite = np.isfinite(vertices).all(axis=1)
+    if not finite.all():
+        raise InputError(f"{path}: vertex {int(np.argmin(finite))} has a NaN or infinite coordinate")
+    rows = slice(1 + vertex_count, 1 + vertex_count + face_count)
+    first, length, lines = row_start[rows], row_length[rows], row_line[rows]
+    lengths = _as_ply_type(path, values[first], "i4", lines, "face size").astype(np.int64)
+    over = (lengths < 0) | (1 + lengths > length)
+    if over.any():
+        raise InputError(f"{path}: OFF line {lines[np.argmax(over)]}: face size {lengths[np.argmax(over)]} "
+                         "does not match the values on the line")
+    within = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    flat = _as_ply_type(path, values[np.repeat(first + 1, lengths) + within], "i8",
+                        np.repeat(lines, lengths), "vertex index")
+    triangles, _ = _checked_triangles(path, vertex_count, lengths, flat)
+    return trimesh.Trimesh(vertices, triangles, process=False, validate=False)
+
+
 def _ply_mesh(path: Path, elements: dict[str, dict]):
     """Check the parsed elements and build a trimesh.Trimesh (raw PLY columns kept in metadata['_ply_raw'])."""
     import trimesh
@@ -389,17 +467,7 @@ def _ply_mesh(path: Path, elements: dict[str, dict]):
     lengths, flat = face[key]
     if flat.dtype.kind == "f":
         raise InputError(f"{path}: PLY face property {key!r} holds floats; vertex indices must be integers")
-    short = lengths < 3
-    if short.any():
-        bad = int(np.argmax(short))
-        raise InputError(f"{path}: face {bad} has {int(lengths[bad])} vertices (a face needs at least 3)")
-    flat = flat.astype(np.int64)
-    outside = (flat < 0) | (flat >= len(vertices))
-    if outside.any():
-        bad = int(np.repeat(np.arange(len(lengths)), lengths)[np.argmax(outside)])
-        raise InputError(f"{path}: face {bad} refers to vertex {int(flat[np.argmax(outside)])}, "
-                         f"outside 0..{len(vertices) - 1}")
-    triangles, polygon = _fan_triangles(lengths, flat)
+    triangles, polygon = _checked_triangles(path, len(vertices), lengths, flat)
     scalars = {name: {k: v for k, v in columns.items() if not isinstance(v, tuple)}
                for name, columns in elements.items()}
     face_colors = None
@@ -489,9 +557,34 @@ def _colors_from(loaded, columns: dict[str, np.ndarray], n: int) -> np.ndarray |
 
 
 def _weld(vertices: np.ndarray, faces: np.ndarray):
-    """Merge vertices with identical coordinates. Returns (unique_vertices, faces, first_index)."""
-    unique, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
-    return unique, inverse.reshape(-1)[faces], first
+    """Merge vertices with identical coordinates, keeping first occurrences in order.
+
+    Returns (unique_vertices, faces, first_index): unique vertex j is input vertex
+    first_index[j]. Rows are grouped by a 64-bit hash of their coordinate bits (one
+    integer sort instead of a row-wise one); every row is then compared with its
+    group's first row, and only on a hash collision does the exact row sort run.
+    An already welded mesh comes back unchanged.
+    """
+    rows = np.ascontiguousarray(vertices, dtype=np.float64) + 0.0  # -0.0 and 0.0 weld
+    bits = rows.view(np.uint64)
+    with np.errstate(over="ignore"):
+        key = (bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) \
+            ^ (bits[:, 2] * np.uint64(0x165667B19E3779F9))
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    starts = np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]])
+    group = np.cumsum(starts) - 1
+    leader = order[starts][group]  # first (lowest) index of each row's group, per sorted position
+    if not np.array_equal(rows[order], rows[leader]):
+        _, first, inverse = np.unique(rows, axis=0, return_index=True, return_inverse=True)
+        rank = np.argsort(np.argsort(first))
+        return rows[np.sort(first)], rank[inverse.reshape(-1)][faces], np.sort(first)
+    representative = np.empty(len(rows), dtype=np.int64)
+    representative[order] = leader
+    first = np.nonzero(representative == np.arange(len(rows)))[0]
+    new_index = np.empty(len(rows), dtype=np.int64)
+    new_index[first] = np.arange(len(first))
+    return rows[first], new_index[representative][faces], first
 
 
 def shell_labels(faces: np.ndarray, vertex_count: int) -> np.ndarray:
@@ -523,6 +616,28 @@ def winding_number(point: np.ndarray, triangles: np.ndarray) -> float:
     return float(np.sum(2.0 * np.arctan2(numerator, denominator)) / (4.0 * np.pi))
 
 
+def edge_use_counts(faces: np.ndarray) -> np.ndarray:
+    """How many faces use each distinct undirected edge ((e,) int), from one integer sort."""
+    edges = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    key = np.minimum(edges[:, 0], edges[:, 1]) * (np.int64(faces.max(initial=0)) + 1) \
+        + np.maximum(edges[:, 0], edges[:, 1])
+    key.sort()
+    boundaries = np.concatenate([[0], np.nonzero(key[1:] != key[:-1])[0] + 1, [len(key)]])
+    return np.diff(boundaries)
+
+
+def _topology_notes(faces: np.ndarray) -> list[str]:
+    """Warnings for edges used by one face (holes: the mesh is open) or by more than two (non-manifold)."""
+    uses = edge_use_counts(faces)
+    notes = []
+    boundary, shared = int((uses == 1).sum()), int((uses > 2).sum())
+    if boundary:
+        notes.append(f"open mesh: {boundary} boundary edge(s); slices are closed where the surface has holes")
+    if shared:
+        notes.append(f"non-manifold: {shared} edge(s) shared by more than two faces")
+    return notes
+
+
 def _orient_outward(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Make winding consistent and orientation outward where that is unambiguous.
 
@@ -536,7 +651,8 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray
     shell = shell_labels(faces, len(vertices))
     directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
     directed_key = directed[:, 0] * np.int64(len(vertices)) + directed[:, 1]
-    if len(np.unique(directed_key)) != len(directed_key):
+    directed_key.sort()
+    if np.any(directed_key[1:] == directed_key[:-1]):  # a directed edge used twice: winding flips
         import trimesh
 
         mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
@@ -584,6 +700,8 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
             extra = " (only 'tristrips' elements; convert to triangles first)" if "tristrips" in counts else ""
             raise InputError(f"{path}: the mesh has no faces{extra}")
         loaded = read_ply(path)
+    elif suffix == ".off":
+        loaded = read_off(path)
     else:
         loaded = _read_trimesh(path)
     vertices = np.asarray(loaded.vertices, dtype=np.float64)
@@ -594,13 +712,15 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
         raise InputError(f"{path}: face indices outside the vertex list (0..{len(vertices) - 1})")
     if not np.isfinite(vertices).all():
         raise InputError(f"{path}: vertex coordinates contain NaN or infinite values")
+    if np.abs(vertices).max(initial=0.0) > MAX_COORDINATE:
+        raise InputError(f"{path}: vertex coordinates beyond +-{MAX_COORDINATE:g} (corrupt file, or wrong units)")
     columns = _ply_vertex_columns(loaded)
     colors = _colors_from(loaded, columns, len(vertices))
     material = None
     if MATERIAL_PROPERTY in columns and len(columns[MATERIAL_PROPERTY]) == len(vertices):
         material = np.clip(np.nan_to_num(columns[MATERIAL_PROPERTY].astype(np.float64)), 0.0, 1.0)
 
-    used = np.unique(faces)
+    used = np.nonzero(np.bincount(faces.ravel(), minlength=len(vertices)))[0]
     vertices, faces, first = _weld(vertices[used], np.searchsorted(used, faces))
     if colors is not None:
         colors = colors[used][first]
@@ -620,6 +740,7 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     zero_area = int((area <= 1e-12 * max(float(extent.max()), 1.0) ** 2).sum())
     if zero_area:
         notes.append(f"{zero_area} zero-area face(s)")
+    notes.extend(_topology_notes(faces))
     faces, shell, orient_notes = _orient_outward(vertices, faces)
     notes.extend(orient_notes)
     if extent.max() < 1.0:
@@ -653,8 +774,7 @@ def mesh_info(mesh: Mesh) -> dict:
     import trimesh
 
     tm = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False, validate=False)
-    edges = np.sort(mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, uses = np.unique(edges, axis=0, return_counts=True)
+    uses = edge_use_counts(mesh.faces)
     watertight = bool(np.all(uses == 2))
     return {
         "file": str(mesh.source),

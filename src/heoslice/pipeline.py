@@ -24,7 +24,7 @@ from heoslice.errors import InputError
 from heoslice.loading import Mesh
 from heoslice.rasterising import Grid, grid_for, packed_mask, render_layer
 from heoslice.regions import GradeSpec, render_graded
-from heoslice.slicing import interpolate_at, plane_heights, slice_mesh
+from heoslice.slicing import interpolate_at, plane_chunks, plane_heights, slice_planes
 from heoslice.stack import (
     COMPRESSIONS,
     DEFAULT_COMPRESSION,
@@ -57,6 +57,8 @@ class SliceSpec:
     base_color: tuple[int, int, int] = (255, 255, 255)
     grade: GradeSpec | None = None
     channels: bool = False
+    #: Segments sliced and chained at once; bounds memory (about 200 bytes per segment).
+    max_segments: int = 1_000_000
 
     def __post_init__(self):
         if self.compression not in COMPRESSIONS:
@@ -153,14 +155,16 @@ def _render_graded_and_write(job: LayerJob) -> tuple:
     return job.index, digest, layer.solid, rendered - started, encoded - rendered, channels
 
 
-def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, directory: Path):
-    """One LayerJob per layer, built lazily (each carries only its own layer's loops)."""
+def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, directory: Path,
+               first_layer: int = 0):
+    """One LayerJob per layer of ``contours`` (layer k is stack layer first_layer + k), built lazily."""
     colors = None if mesh.colors is None else mesh.colors.astype(np.float64)
     grade = spec.grade
     materials = grade.channel_materials() if grade is not None else ()
     loop_shell = None if grade is None or mesh.shell is None or not len(contours.face) else mesh.shell[contours.face]
-    for index in range(len(contours.layer_offsets) - 1):
-        first, last = contours.layer_offsets[index], contours.layer_offsets[index + 1]
+    for local in range(len(contours.layer_offsets) - 1):
+        index = first_layer + local
+        first, last = contours.layer_offsets[local], contours.layer_offsets[local + 1]
         start, stop = contours.offsets[first], contours.offsets[last]
         point_colors = None
         if colors is not None:
@@ -203,22 +207,59 @@ def channel_name(material) -> str:
     return re.sub(r"[^A-Za-z0-9-]", "-", str(material.name)) or "material"
 
 
-def _run_jobs(jobs, workers: int, on_done: Callable[[tuple], None]) -> None:
-    """Run render_and_write over jobs, at most 2 x workers in flight; call on_done per result."""
+def render_batch(jobs: tuple[LayerJob, ...]) -> list[tuple]:
+    """render_and_write over a few consecutive layers: one inter-process round trip for all of them."""
+    return [render_and_write(job) for job in jobs]
+
+
+def _batches(jobs, size: int):
+    """Consecutive jobs grouped into tuples of at most ``size``."""
+    batch: list[LayerJob] = []
+    for job in jobs:
+        batch.append(job)
+        if len(batch) == size:
+            yield tuple(batch)
+            batch = []
+    if batch:
+        yield tuple(batch)
+
+
+def _run_jobs(jobs, workers: int, on_done: Callable[[tuple], None], batch_size: int = 4) -> None:
+    """Run render_and_write over jobs in batches, at most 2 x workers batches in flight.
+
+    ``jobs`` is consumed lazily, so slicing of later layers overlaps rendering of
+    earlier ones and only a few layers' data are in flight at any time.
+    """
     if workers <= 1:
         for job in jobs:
             on_done(render_and_write(job))
         return
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork")) as pool:
         pending = set()
-        for job in jobs:
-            pending.add(pool.submit(render_and_write, job))
+        for batch in _batches(jobs, batch_size):
+            pending.add(pool.submit(render_batch, batch))
             if len(pending) >= 2 * workers:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for future in done:
-                    on_done(future.result())
+                    for result in future.result():
+                        on_done(result)
         for future in pending:
-            on_done(future.result())
+            for result in future.result():
+                on_done(result)
+
+
+def _sliced_jobs(mesh: Mesh, z: np.ndarray, grid: Grid, spec: SliceSpec, directory: Path,
+                 times: StageTimes, open_layers: np.ndarray, max_segments: int):
+    """Layer jobs, slicing and chaining the planes run by run (bounded memory, any layer count)."""
+    for start, stop in plane_chunks(mesh.vertices, mesh.faces, z, max_segments):
+        began = time.perf_counter()
+        sections = slice_planes(mesh.vertices, mesh.faces, z, start, stop)
+        sliced = time.perf_counter()
+        contours = build_contours(sections)
+        times.slice += sliced - began
+        times.contours += time.perf_counter() - sliced
+        open_layers[start + contours.layer[contours.closed_by_join]] = True
+        yield from layer_jobs(contours, mesh, grid, spec, directory, first_layer=start)
 
 
 def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool = False,
@@ -236,11 +277,6 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     prepare_directory(directory, force)
     bounds = mesh.bounds
     z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
-    sections = slice_mesh(mesh.vertices, mesh.faces, z)
-    times.slice = time.perf_counter() - started
-    contours = build_contours(sections)
-    times.contours = time.perf_counter() - started - times.slice
-
     if spec.channels and spec.grade is None:
         raise InputError("--channels needs a graded slice (--grade)")
     results: dict[int, tuple] = {}
@@ -253,9 +289,9 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
         if progress is not None:
             progress(len(results), len(z))
 
-    _run_jobs(layer_jobs(contours, mesh, grid, spec, directory), spec.worker_count(), on_done)
     open_layers = np.zeros(len(z), dtype=bool)
-    open_layers[contours.layer[contours.closed_by_join]] = True
+    jobs = _sliced_jobs(mesh, z, grid, spec, directory, times, open_layers, spec.max_segments)
+    _run_jobs(jobs, spec.worker_count(), on_done)
     manifest = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,

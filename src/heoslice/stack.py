@@ -208,8 +208,11 @@ def read_manifest(directory: Path) -> dict:
     if not inside.is_file():
         raise VerifyError(f"{path}: is not a regular file")
     try:
-        with open(inside, "rb") as handle:
-            raw = handle.read(MAX_MANIFEST_BYTES + 1)
+        with open(inside, "rb") as handle:  # read(n) allocates n bytes up front: ask for the file's size only
+            size = os.fstat(handle.fileno()).st_size
+            if size > MAX_MANIFEST_BYTES:
+                raise VerifyError(f"{path}: manifest is larger than {MAX_MANIFEST_BYTES} bytes")
+            raw = handle.read(size + 1)
     except OSError as err:
         raise VerifyError(f"{path}: cannot read ({err.strerror})") from err
     if len(raw) > MAX_MANIFEST_BYTES:
@@ -230,6 +233,12 @@ def read_manifest(directory: Path) -> dict:
     if problem:
         raise VerifyError(f"{path}: {problem}")
     return manifest
+
+
+def _show(value) -> str:
+    """A manifest value for a message: its repr, cut to 40 characters."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _is_int(value) -> bool:
@@ -258,9 +267,9 @@ def _manifest_shape_problem(manifest) -> str | None:
     if not isinstance(manifest, dict):
         return "manifest is not a JSON object"
     if manifest.get("format") != FORMAT_NAME:
-        return f"format is {str(manifest.get('format'))[:40]!r}, expected {FORMAT_NAME!r}"
+        return f"format is {_show(manifest.get('format'))}, expected {FORMAT_NAME!r}"
     if not _is_int(manifest.get("version")) or manifest["version"] != FORMAT_VERSION:
-        return f"version {str(manifest.get('version'))[:40]!r} is not supported (expected {FORMAT_VERSION})"
+        return f"version {_show(manifest.get('version'))} is not supported (expected {FORMAT_VERSION})"
     if manifest.get("complete") is not True:
         return "stack is not complete (interrupted run?)"
     image = manifest.get("image")
@@ -271,10 +280,10 @@ def _manifest_shape_problem(manifest) -> str | None:
         return "image width/height must be positive integers"
     if width * height > MAX_IMAGE_PIXELS:
         return f"image of {width} x {height} pixels exceeds the limit of {MAX_IMAGE_PIXELS}"
-    if image.get("mode", "1") not in IMAGE_MODES:
-        return f"image mode must be one of {', '.join(IMAGE_MODES)}, not {str(image.get('mode'))[:20]!r}"
+    if not isinstance(image.get("mode", "1"), str) or image.get("mode", "1") not in IMAGE_MODES:
+        return f"image mode must be one of {', '.join(IMAGE_MODES)}, not {_show(image.get('mode'))}"
     if manifest.get("mask") not in ("alpha", "nonzero"):
-        return f"mask must be 'alpha' or 'nonzero', not {str(manifest.get('mask'))[:20]!r}"
+        return f"mask must be 'alpha' or 'nonzero', not {_show(manifest.get('mask'))}"
     if manifest["mask"] == "alpha" and image.get("mode", "1") != "RGBA":
         return "mask 'alpha' needs image mode 'RGBA'"
     for key in ("dpi", "pixel_size_mm"):
@@ -295,7 +304,7 @@ def _manifest_shape_problem(manifest) -> str | None:
         if not isinstance(entry, dict):
             return f"layer entry {position} is not an object"
         if not _is_int(entry.get("index")) or entry["index"] != position:
-            return f"layer entry {position} has index {str(entry.get('index'))[:20]!r} (layers must be 0..n-1 in order)"
+            return f"layer entry {position} has index {_show(entry.get('index'))} (layers must be 0..n-1 in order)"
         if not _is_number(entry.get("z_mm")):
             return f"layer {position}: missing or malformed 'z_mm'"
         if not _is_int(entry.get("solid_pixels")):
@@ -443,7 +452,7 @@ def _read_checked(path: Path, name: str, sha256: str | None, manifest: dict, mod
             if size > limit:
                 raise VerifyError(f"{name}: file is {size} bytes, more than its image can need ({limit})")
             handle.seek(0)
-            data = handle.read(limit + 1)
+            data = handle.read(size + 1)
     except OSError as err:
         raise VerifyError(f"{name}: cannot read ({err.strerror})") from err
     if len(data) > limit:
@@ -487,6 +496,26 @@ def read_layer_mask(directory: Path, manifest: dict, index: int) -> np.ndarray:
     return decode_mask(path, manifest, sha256=entry["sha256"], mode=manifest["image"].get("mode", "1"))
 
 
+def read_layer_pixels(directory: Path, manifest: dict, index: int) -> np.ndarray:
+    """Pixels of layer ``index`` as stored: (h, w) bool for mode '1', (h, w, 4) uint8 for 'RGBA'.
+
+    The file must stay inside the stack, match its sha256 and pass the layout checks
+    of :func:`decode_mask` before a pixel is decoded (for previews).
+    """
+    entry = manifest["layers"][index]
+    path = resolve_inside(Path(directory), entry["file"])
+    if path is None:
+        raise VerifyError(f"layer {index}: file {entry['file']!r} lies outside the stack")
+    mode = manifest["image"].get("mode", "1")
+    data = _read_checked(path, path.name, entry["sha256"], manifest, mode)
+    _decode_checked(data, path.name, manifest, mode, None)
+    with _open_tiff(io.BytesIO(data), path.name) as tiff:
+        try:
+            return tiff.pages.first.asarray(maxworkers=1)
+        except Exception as err:  # corrupt strips raise many types
+            raise VerifyError(f"{path.name}: cannot decode ({' '.join(str(err).split())[:120]})") from err
+
+
 def _layer_file_problem(path: Path, name: str, digest: str, solid: int | None, manifest: dict,
                         mode: str | None, check_pixels: bool) -> str | None:
     """Problem of one listed image file (layout, size, hash, solid pixel count), or None."""
@@ -526,6 +555,24 @@ def layer_height_problems(manifest: dict, z_min: float, z_max: float, source: st
     return problems
 
 
+def _channel_problems(directory: Path, manifest: dict, index: int) -> list[str]:
+    """Droplet masks against their layer: every solid pixel in exactly one mask, empty pixels in none."""
+    entry = manifest["layers"][index]
+    solid = read_layer_mask(directory, manifest, index)
+    jets = np.zeros(solid.shape, dtype=np.uint8)
+    for channel in entry["channels"]:
+        jets += decode_mask(resolve_inside(directory, channel["file"]), manifest, sha256=channel["sha256"])
+    problems = []
+    doubled = int(np.count_nonzero(jets > 1))
+    if doubled:
+        problems.append(f"layer {index}: {doubled} pixels are set in more than one droplet mask")
+    unmatched = int(np.count_nonzero((jets > 0) != solid))
+    if unmatched:
+        problems.append(f"layer {index}: {unmatched} pixels where the droplet masks do not cover exactly "
+                        "the layer's solid pixels")
+    return problems
+
+
 def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:
     """Check a stack: manifest, every listed file (inside, present, sha256, size, dpi, solid pixels), extras.
 
@@ -559,6 +606,8 @@ def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:
             problem = _layer_file_problem(path, name, digest, solid, manifest, file_mode, check_pixels)
             if problem:
                 problems.append(f"layer {index}: {problem}")
+        if entry.get("channels") and check_pixels and not any(p.startswith(f"layer {index}:") for p in problems):
+            problems += _channel_problems(directory, manifest, index)
     z_range = manifest.get("z_range_mm")
     if z_range is not None:
         problems += layer_height_problems(manifest, z_range[0], z_range[1], "the manifest's")
@@ -594,6 +643,28 @@ def check_input_path(path: Path) -> Path:
     return path
 
 
+def _strip_codec(compression: str):
+    """bytes -> compressed bytes for one TIFF strip.
+
+    Deflate uses zlib-ng at level 1 when imagecodecs has it: the same zlib stream
+    format at about half the time of zlib (measured on 3827 x 3945 px layers: 1.0 ms
+    and 37 KB against 2.2 ms and 30 KB per layer). Other codecs are tifffile's own.
+    """
+    import tifffile
+
+    if compression == "deflate":
+        try:
+            from imagecodecs import zlibng_encode
+        except ImportError:
+            zlibng_encode = None
+        if zlibng_encode is not None:
+            return lambda data: zlibng_encode(data, level=1)
+    codec = tifffile.TIFF.COMPRESSORS[tifffile.COMPRESSION[COMPRESSIONS[compression].upper()].value]
+    if compression == "deflate":
+        return lambda data: codec(data, level=1)
+    return codec
+
+
 def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float], compression: str,
                         rows_per_strip: int = 64) -> bytes:
     """TIFF bytes of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, MSB first).
@@ -620,10 +691,7 @@ def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float]
         mask = np.unpackbits(packed, axis=1, count=width).astype(bool)
         tifffile.imwrite(buffer, mask, **{k: v for k, v in options.items() if k not in ("shape", "dtype")})
         return buffer.getvalue()
-    tag = tifffile.COMPRESSION[codec_name.upper()].value
-    codec = tifffile.TIFF.COMPRESSORS[tag]
-    arguments = {"level": 1} if compression == "deflate" else {}
-    strips = (codec(packed[row:row + rows_per_strip].tobytes(), **arguments)
-              for row in range(0, height, rows_per_strip))
+    codec = _strip_codec(compression)
+    strips = (codec(packed[row:row + rows_per_strip].tobytes()) for row in range(0, height, rows_per_strip))
     tifffile.imwrite(buffer, data=strips, compression=codec_name, **options)
     return buffer.getvalue()
