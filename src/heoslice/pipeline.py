@@ -9,6 +9,7 @@ does not grow with the number of layers.
 from __future__ import annotations
 
 import os
+import signal
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -24,7 +25,7 @@ from heoslice.errors import InputError
 from heoslice.loading import Mesh
 from heoslice.rasterising import Grid, grid_for, packed_mask, render_layer
 from heoslice.regions import GradeSpec, render_graded
-from heoslice.slicing import interpolate_at, plane_chunks, plane_heights, slice_planes
+from heoslice.slicing import face_z_range, interpolate_at, plane_chunks, plane_heights, slice_planes
 from heoslice.stack import (
     COMPRESSIONS,
     DEFAULT_COMPRESSION,
@@ -57,8 +58,8 @@ class SliceSpec:
     base_color: tuple[int, int, int] = (255, 255, 255)
     grade: GradeSpec | None = None
     channels: bool = False
-    #: Segments sliced and chained at once; bounds memory (about 200 bytes per segment).
-    max_segments: int = 1_000_000
+    #: Segments sliced and chained at once; bounds memory (a few hundred bytes per segment).
+    max_segments: int = 50_000
 
     def __post_init__(self):
         if self.compression not in COMPRESSIONS:
@@ -224,6 +225,11 @@ def _batches(jobs, size: int):
         yield tuple(batch)
 
 
+def _ignore_interrupts() -> None:
+    """Worker initializer: Ctrl-C is the parent's to handle (one 'interrupted' line, no worker tracebacks)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _run_jobs(jobs, workers: int, on_done: Callable[[tuple], None], batch_size: int = 4) -> None:
     """Run render_and_write over jobs in batches, at most 2 x workers batches in flight.
 
@@ -234,7 +240,8 @@ def _run_jobs(jobs, workers: int, on_done: Callable[[tuple], None], batch_size: 
         for job in jobs:
             on_done(render_and_write(job))
         return
-    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork")) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork"),
+                             initializer=_ignore_interrupts) as pool:
         pending = set()
         for batch in _batches(jobs, batch_size):
             pending.add(pool.submit(render_batch, batch))
@@ -251,9 +258,10 @@ def _run_jobs(jobs, workers: int, on_done: Callable[[tuple], None], batch_size: 
 def _sliced_jobs(mesh: Mesh, z: np.ndarray, grid: Grid, spec: SliceSpec, directory: Path,
                  times: StageTimes, open_layers: np.ndarray, max_segments: int):
     """Layer jobs, slicing and chaining the planes run by run (bounded memory, any layer count)."""
+    face_range = face_z_range(mesh.vertices, mesh.faces)
     for start, stop in plane_chunks(mesh.vertices, mesh.faces, z, max_segments):
         began = time.perf_counter()
-        sections = slice_planes(mesh.vertices, mesh.faces, z, start, stop)
+        sections = slice_planes(mesh.vertices, mesh.faces, z, start, stop, face_range)
         sliced = time.perf_counter()
         contours = build_contours(sections)
         times.slice += sliced - began

@@ -213,13 +213,21 @@ def plane_chunks(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
     return list(zip(bounds[:-1], bounds[1:]))
 
 
-def slice_planes(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, start: int, stop: int) -> Sections:
+def slice_planes(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, start: int, stop: int,
+                 face_range: tuple[np.ndarray, np.ndarray] | None = None) -> Sections:
     """Sections of planes z[start:stop] only, from the triangles that can reach them.
 
-    Layer numbers and ``face`` indices in the result are local to the run and to
-    ``faces`` respectively (face indices refer to the full ``faces`` array).
+    Layer numbers in the result are local to the run; ``face`` indices refer to the
+    full ``faces`` array. ``face_range`` ((m,) lowest and highest z per face) may be
+    passed in to avoid recomputing it for every run.
     """
-    face_z = np.asarray(vertices, dtype=np.float64)[np.asarray(faces), 2]
-    reach = np.nonzero((face_z.max(axis=1) >= z[start]) & (face_z.min(axis=1) < z[stop - 1]))[0]
+    low, high = face_range if face_range is not None else face_z_range(vertices, faces)
+    reach = np.nonzero((high >= z[start]) & (low < z[stop - 1]))[0]
     sections = slice_mesh(vertices, np.asarray(faces)[reach], z[start:stop])
     return replace(sections, face=reach[sections.face])
+
+
+def face_z_range(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lowest and highest vertex z of every face ((m,) float each, mm)."""
+    face_z = np.asarray(vertices, dtype=np.float64)[np.asarray(faces), 2]
+    return face_z.min(axis=1), face_z.max(axis=1)
