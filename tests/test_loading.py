@@ -424,3 +424,22 @@ def test_absurd_coordinates_are_refused(tmp_path):
     vertices[3, 2] = 1e300
     path = write(tmp_path, "far.ply", ply_bytes("binary_little_endian", vertices, TETRA_FACES, coord="double"))
     assert "beyond" in one_line_error(path)
+
+
+@pytest.mark.parametrize("window", [16, 61, 1000, 1 << 18])
+def test_row_starts_are_the_same_for_any_window(tmp_path, window):
+    """Finding binary row starts by pointer doubling gives the sequential answer whatever the window size
+    (rows crossing window edges included)."""
+    from heoslice.loading import _binary_row_starts, parse_ply_header
+
+    rng = np.random.default_rng(11)
+    sizes = rng.integers(3, 8, 700)
+    faces = [list(rng.integers(0, 20, size)) for size in sizes]
+    data = ply_bytes("binary_big_endian", rng.uniform(0, 1, (20, 3)), faces, count="ushort")
+    header = parse_ply_header(tmp_path / "x.ply", data)
+    offset = header.body_offset + 20 * 12
+    name, count, props = header.elements[1]
+    starts = _binary_row_starts(tmp_path / "x.ply", np.frombuffer(data, np.uint8), offset, count, name, props, ">",
+                                window=window)
+    expected = offset + np.concatenate([[0], np.cumsum(2 + 4 * sizes)[:-1]])
+    np.testing.assert_array_equal(starts, expected)

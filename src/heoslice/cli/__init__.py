@@ -41,6 +41,15 @@ def _register() -> None:
 
     cli.add_command(info.info)
     cli.add_command(slice_.slice_cmd)
+    from heoslice.cli import verify as verify_
+    cli.add_command(verify_.verify)
+    from heoslice.cli import controller as controller_, print as print_
+    cli.add_command(print_.print_cmd)
+    cli.add_command(controller_.controller)
+    from heoslice.cli import preview as preview_
+    cli.add_command(preview_.preview)
+    from heoslice.cli import color as color_
+    cli.add_command(color_.color)
 
 
 _register()
