@@ -1,0 +1,347 @@
+"""heoslice against PrusaSlicer's SLA export on the same meshes, layer height and pixel pitch (issue 6).
+
+For each mesh, runs ``heoslice slice MESH --layer 0.1 --dpi 600 -o DIR --force`` and
+``prusa-slicer --export-sla --load sla.ini -o out.sl1 MESH`` alternately, ``--repeats``
+times each, and prints the median and min-max wall time, peak memory (largest process,
+as /usr/bin/time -v reports it, and the whole process tree), output size and the ratio
+heoslice / PrusaSlicer. It then checks that both stacks agree: per-layer solid pixel
+counts within 1 %. ``--profile`` adds a cProfile of heoslice on the organ, split by stage.
+
+Examples:
+  python benchmarks/bench_prusa.py --quick                  # smoke test, < 2 minutes
+  python benchmarks/bench_prusa.py                          # the four issue-6 meshes, 2 repeats (~12 min)
+  python benchmarks/bench_prusa.py --meshes vase,organ --repeats 5 --json results.json
+  python benchmarks/bench_prusa.py --mesh liver.stl --profile
+
+PrusaSlicer is not installed by this script; without it heoslice runs alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+import zipfile
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import prusa_meshes  # noqa: E402
+import prusa_profile  # noqa: E402
+import prusa_sla  # noqa: E402
+from prusa_measure import run_measured, size_on_disk, tail  # noqa: E402
+
+import heoslice  # noqa: E402
+from heoslice.stack import read_layer_mask, read_manifest  # noqa: E402
+
+MB = 1024 * 1024
+
+
+def heoslice_base() -> list[str]:
+    """The installed console script next to this Python, else ``python -m heoslice``."""
+    script = Path(sys.executable).with_name("heoslice")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "heoslice"]
+
+
+def heoslice_args(model: Path, output: Path, layer: float, dpi: float, jobs: int) -> list[str]:
+    """Arguments of ``heoslice`` for one benchmark slice."""
+    args = ["slice", str(model), "--layer", f"{layer:g}", "--dpi", f"{dpi:g}", "-o", str(output), "--force"]
+    return args + (["-j", str(jobs)] if jobs else [])
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     epilog="examples:" + __doc__.split("Examples:")[1],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="small, short meshes and 1 repeat: a smoke test")
+    parser.add_argument("--meshes", default=None,
+                        help=f"comma-separated procedural meshes from {','.join(prusa_meshes.FULL)} "
+                             "[default: all, or none when --mesh is given]")
+    parser.add_argument("--mesh", action="append", type=Path, default=[], metavar="PATH",
+                        help="a mesh file to benchmark too (repeatable); non-STL files are converted to binary STL")
+    parser.add_argument("--repeats", type=int, default=None, help="runs per tool and mesh [default: 2, quick: 1]")
+    parser.add_argument("--layer", type=float, default=0.1, help="layer height, mm [0.1]")
+    parser.add_argument("--dpi", type=float, default=600.0, help="resolution, dots per inch [600]")
+    parser.add_argument("-j", "--jobs", type=int, default=0, help="heoslice worker processes [0 = its default]")
+    parser.add_argument("--prusa", default=None, help="PrusaSlicer executable [default: prusa-slicer on PATH]")
+    parser.add_argument("--check-stride", type=int, default=1,
+                        help="compare every N-th layer's pixel counts (decoding PNGs is slow) [1]")
+    parser.add_argument("--profile", action="store_true",
+                        help="also profile heoslice (-j 1, cProfile) on the organ mesh (or the last mesh)")
+    parser.add_argument("--workdir", type=Path, default=None, help="where meshes and outputs go [a temp dir]")
+    parser.add_argument("--json", nargs="?", const="-", default=None, metavar="PATH",
+                        help="also write all results as JSON to PATH ('-' or no value: stdout, instead of the table)")
+    args = parser.parse_args(argv)
+    if args.repeats is None:
+        args.repeats = 1 if args.quick else 2
+    if args.repeats < 1 or args.check_stride < 1:
+        parser.error("--repeats and --check-stride must be at least 1")
+    names = args.meshes.split(",") if args.meshes else ([] if args.mesh else list(prusa_meshes.FULL))
+    unknown = [name for name in names if name not in prusa_meshes.FULL]
+    if unknown:
+        parser.error(f"--meshes: unknown mesh(es) {', '.join(unknown)}; choose from {', '.join(prusa_meshes.FULL)}")
+    missing = [str(path) for path in args.mesh if not path.is_file()]
+    if missing:
+        parser.error(f"--mesh: no such file: {', '.join(missing)}")
+    args.names = names
+    return args
+
+
+def log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def prepare_meshes(args: argparse.Namespace, workdir: Path) -> list[tuple[str, Path, trimesh.Trimesh, Path]]:
+    """(name, binary STL path, mesh, output folder) for every procedural mesh and mesh file asked for."""
+    prepared = []
+    for name in args.names:
+        started = time.perf_counter()
+        mesh = prusa_meshes.build(name, args.quick)
+        path = workdir / name / f"{name}.stl"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        mesh.export(path)
+        log(f"{name}: {len(mesh.faces)} triangles, {' x '.join(f'{e:.1f}' for e in mesh.extents)} mm "
+            f"(made in {time.perf_counter() - started:.1f} s)")
+        prepared.append((name, path, mesh, path.parent))
+    for source in args.mesh:
+        try:
+            mesh = trimesh.load(source, force="mesh")
+        except Exception as err:
+            raise SystemExit(f"--mesh: cannot read {source}: {' '.join(str(err).split())[:200]}") from None
+        name = source.stem
+        folder = workdir / f"file-{len(prepared)}-{name}"
+        folder.mkdir(parents=True, exist_ok=True)
+        path = source if source.suffix.lower() == ".stl" else folder / f"{name}.stl"
+        if path != source:
+            mesh.export(path)
+        log(f"{name}: {len(mesh.faces)} triangles, {' x '.join(f'{e:.1f}' for e in mesh.extents)} mm ({path})")
+        prepared.append((name, path, mesh, folder))
+    return prepared
+
+
+def clear(path: Path) -> None:
+    if path.is_dir():
+        shutil.rmtree(path)
+    elif path.exists():
+        path.unlink()
+
+
+def summarise_runs(runs: list) -> dict:
+    """Median, min and max wall time and the peak memories over the runs; {} when a run failed."""
+    if not runs or any(run.returncode != 0 for run in runs):
+        return {}
+    walls = [run.wall_s for run in runs]
+    trees = [run.tree_pss_mb for run in runs if run.tree_pss_mb is not None]
+    return {"median_s": statistics.median(walls), "min_s": min(walls), "max_s": max(walls),
+            "max_rss_mb": max(run.max_rss_mb for run in runs), "tree_pss_mb": max(trees) if trees else None}
+
+
+def spot_check(stack: Path, manifest: dict) -> list[dict]:
+    """Decode three heoslice layers (first, middle, largest) and compare with the manifest's counts."""
+    solid = [entry["solid_pixels"] for entry in manifest["layers"]]
+    picks = sorted({0, len(solid) // 2, int(np.argmax(solid))})
+    return [{"layer": i, "manifest": solid[i], "decoded": int(np.count_nonzero(read_layer_mask(stack, manifest, i)))}
+            for i in picks]
+
+
+def agreement(stack: Path, sl1: Path, stride: int) -> dict:
+    """Compare heoslice's per-layer solid pixels (manifest, spot-checked by decoding) with the .sl1's PNGs."""
+    manifest = read_manifest(stack)
+    with zipfile.ZipFile(sl1) as archive:
+        total = sum(1 for name in archive.namelist() if name.lower().endswith(".png"))
+        config = archive.read("config.ini").decode(errors="replace") if "config.ini" in archive.namelist() else ""
+    index, solid, grey = prusa_sla.sl1_layer_counts(sl1, stride)
+    result = prusa_sla.compare_counts(manifest, index, solid, grey, total, spot_checks=spot_check(stack, manifest))
+    version = next((line.split("=", 1)[1].strip() for line in config.splitlines()
+                    if line.startswith("prusaSlicerVersion")), None)
+    return {**result.as_dict(), "prusa_version": version, "stride": stride}
+
+
+def bench_mesh(name: str, model: Path, mesh: trimesh.Trimesh, folder: Path, args: argparse.Namespace,
+               prusa: str | None) -> dict:
+    """Alternate heoslice and PrusaSlicer runs on one mesh in ``folder``; summarise and compare their outputs."""
+    stack, sl1, ini = folder / "heoslice_stack", folder / "prusa.sl1", folder / "sla.ini"
+    display = prusa_sla.display_for(mesh.extents[:2], args.dpi)
+    ini.write_text(prusa_sla.sla_ini(display, args.layer, float(mesh.extents[2])))
+    commands = {"heoslice": heoslice_base() + heoslice_args(model, stack, args.layer, args.dpi, args.jobs)}
+    if prusa:
+        commands["prusa"] = prusa_sla.prusa_command(prusa, ini, sl1, model)
+    outputs = {"heoslice": stack, "prusa": sl1}
+    runs: dict[str, list] = {tool: [] for tool in commands}
+    failed: dict[str, str] = {}
+    for repeat in range(args.repeats):
+        for tool, command in commands.items():
+            if tool in failed:
+                continue
+            clear(outputs[tool])
+            run = run_measured(command, folder / f"{tool}-{repeat}.log")
+            runs[tool].append(run)
+            log(f"{name}: {tool} run {repeat + 1}/{args.repeats}: {run.wall_s:.1f} s, "
+                f"max RSS {run.max_rss_mb:.0f} MB, tree PSS {run.tree_pss_mb or 0:.0f} MB"
+                + ("" if run.returncode == 0 else f"  FAILED (exit {run.returncode})"))
+            if run.returncode != 0:
+                failed[tool] = f"exit {run.returncode}: {tail(run.log)}"
+    result = {
+        "mesh": name, "file": str(model), "triangles": int(len(mesh.faces)),
+        "extents_mm": [round(float(e), 3) for e in mesh.extents],
+        "commands": {tool: " ".join(command) for tool, command in commands.items()},
+        "sla_ini": ini.read_text(),
+        "runs": {tool: [{**asdict(run), "log": str(run.log)} for run in tool_runs] for tool, tool_runs in runs.items()},
+        "summary": {tool: summarise_runs(tool_runs) for tool, tool_runs in runs.items()},
+        "failed": failed,
+    }
+    if "heoslice" not in failed:
+        manifest = read_manifest(stack)
+        result["heoslice_image"] = [manifest["image"]["width"], manifest["image"]["height"]]
+        result["heoslice_layers"] = len(manifest["layers"])
+        result["size_bytes"] = {"heoslice": size_on_disk(stack)}
+    if prusa and "prusa" not in failed:
+        result["prusa_image"] = [display.pixels_x, display.pixels_y]
+        result.setdefault("size_bytes", {})["prusa"] = size_on_disk(sl1)
+        if "heoslice" not in failed:
+            started = time.perf_counter()
+            result["agreement"] = agreement(stack, sl1, args.check_stride)
+            log(f"{name}: compared pixel counts in {time.perf_counter() - started:.1f} s")
+    return result
+
+
+def ratio(a: float | None, b: float | None) -> float | None:
+    return a / b if a is not None and b else None
+
+
+def fmt(value, spec: str = ".2f", missing: str = "-") -> str:
+    return missing if value is None else format(value, spec)
+
+
+def pair(h, p, spec: str) -> str:
+    """'h/p' with missing values as '-'."""
+    return f"{fmt(h, spec)}/{fmt(p, spec)}"
+
+
+def timing(s: dict) -> str:
+    return f"{s['median_s']:.1f} [{s['min_s']:.1f}-{s['max_s']:.1f}]" if s else "-"
+
+
+def table(results: list[dict]) -> str:
+    """The timing, memory and size table, and the agreement table."""
+    w = max([9] + [len(r["mesh"]) + 1 for r in results])
+    lines = ["", "Speed, memory, size (wall s median [min-max]; ratio = heoslice / PrusaSlicer; "
+             "RSS = largest process, tree = PSS of all processes):",
+             f"{'mesh':<{w}}{'tris':>9} {'layers h/p':>10}  {'heoslice s':>18}  {'prusa s':>18}  {'ratio':>5}  "
+             f"{'RSS MB h/p':>10} {'ratio':>5}  {'tree MB h/p':>11} {'ratio':>5}  {'size MB h/p':>12} {'ratio':>5}"]
+    for r in results:
+        h, p = r["summary"].get("heoslice", {}), r["summary"].get("prusa", {})
+        size = {tool: value / MB for tool, value in r.get("size_bytes", {}).items()}
+        layers = f"{r.get('heoslice_layers', '-')}/{r.get('agreement', {}).get('layers_prusa', '-')}"
+        lines.append(
+            f"{r['mesh']:<{w}}{r['triangles']:>9} {layers:>10}  {timing(h):>18}  {timing(p):>18}  "
+            f"{fmt(ratio(h.get('median_s'), p.get('median_s'))):>5}  "
+            f"{pair(h.get('max_rss_mb'), p.get('max_rss_mb'), '.0f'):>10} "
+            f"{fmt(ratio(h.get('max_rss_mb'), p.get('max_rss_mb'))):>5}  "
+            f"{pair(h.get('tree_pss_mb'), p.get('tree_pss_mb'), '.0f'):>11} "
+            f"{fmt(ratio(h.get('tree_pss_mb'), p.get('tree_pss_mb'))):>5}  "
+            f"{pair(size.get('heoslice'), size.get('prusa'), '.1f'):>12} "
+            f"{fmt(ratio(size.get('heoslice'), size.get('prusa'))):>5}")
+    agreeing = [r for r in results if "agreement" in r]
+    if agreeing:
+        lines += ["", "Agreement (solid pixels per layer, matched by height; rel = |h - p| / max(h, p)):",
+                  f"{'mesh':<{w}}{'image px h / p':>22}  {'compared':>8}  {'<=1%':>6}  {'median rel':>10}  "
+                  f"{'total h-p':>9}  {'h>p/h<p':>11}  {'grey px':>7}  worst layers (z mm: h vs p)"]
+        for r in agreeing:
+            a = r["agreement"]
+            images = f"{'x'.join(map(str, r['heoslice_image']))} / {'x'.join(map(str, r['prusa_image']))}"
+            worst = "; ".join(f"{w['z_mm']:g}: {w['heoslice']} vs {w['prusa']} ({100 * w['relative']:.2f}%)"
+                              for w in a["worst"][:3])
+            lines.append(f"{r['mesh']:<{w}}{images:>22}  {a['compared']:>8}  {a['within']:>6}  "
+                         f"{100 * a['median_difference']:>9.3f}%  {100 * a['total_difference']:>+8.3f}%  "
+                         f"{a['heoslice_larger']:>5}/{a['prusa_larger']:<5}  {a['grey_pixels']:>7}  {worst}")
+            extra = []
+            partial = [entry for entry in a["only_heoslice"] if entry["partial_top"]]
+            other = [entry for entry in a["only_heoslice"] if not entry["partial_top"]]
+            if partial:
+                extra.append(f"heoslice's partial top layer ({partial[0]['solid_pixels']} px) has no PrusaSlicer layer "
+                             "(it keeps only layers ending at or below the top)")
+            if other:
+                extra.append(f"layers only in heoslice: {other[:5]}")
+            if a["only_prusa"]:
+                extra.append(f"layers only in PrusaSlicer: {a['only_prusa'][:5]}")
+            bad_spots = [s for s in a["spot_checks"] if s["manifest"] != s["decoded"]]
+            extra.append("heoslice manifest counts match decoded TIFFs"
+                         if not bad_spots else f"heoslice manifest vs decoded TIFF MISMATCH: {bad_spots}")
+            extra.append("AGREE (every compared layer within 1 %)" if a["ok"] else "DISAGREE (see worst layers)")
+            lines.append(" " * w + "; ".join(extra))
+    for r in results:
+        for tool, message in r["failed"].items():
+            lines.append(f"{r['mesh']}: {tool} failed: {message}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    prusa = args.prusa or shutil.which("prusa-slicer")
+    if prusa and not (shutil.which(prusa) or Path(prusa).is_file()):
+        log(f"--prusa: {prusa} is not an executable file")
+        return 2
+    if not prusa:
+        log(prusa_sla.INSTALL_HINT)
+    owned_tmp = None
+    if args.workdir is None:
+        owned_tmp = tempfile.TemporaryDirectory(prefix="bench_prusa_")
+        args.workdir_path = Path(owned_tmp.name)
+    else:
+        args.workdir.mkdir(parents=True, exist_ok=True)
+        args.workdir_path = args.workdir
+    started = time.perf_counter()
+    load_start = os.getloadavg()
+    results, profile = [], None
+    try:
+        prepared = prepare_meshes(args, args.workdir_path)
+        for name, model, mesh, folder in prepared:
+            results.append(bench_mesh(name, model, mesh, folder, args, prusa))
+            if owned_tmp is not None:
+                clear(folder / "heoslice_stack")
+                clear(folder / "prusa.sl1")
+        if args.profile and prepared:
+            name, model, _, _ = next((p for p in prepared if p[0] == "organ"), prepared[-1])
+            profile_args = heoslice_args(model, args.workdir_path / "profile_stack", args.layer, args.dpi, 1)
+            log(f"{name}: profiling heoslice -j 1")
+            wall, path = prusa_profile.profile_slice(profile_args, args.workdir_path / "heoslice.prof")
+            summary = prusa_profile.summarise(path)
+            command = f"python -m cProfile -o heoslice.prof -m heoslice {' '.join(profile_args)}"
+            profile = {"mesh": name, "wall_s": wall, "command": command, **summary}
+    finally:
+        if owned_tmp is not None:
+            owned_tmp.cleanup()
+    report = {
+        "argv": sys.argv, "heoslice_version": heoslice.__version__, "prusa": prusa,
+        "cores": len(os.sched_getaffinity(0)), "loadavg_start": load_start, "loadavg_end": os.getloadavg(),
+        "total_s": time.perf_counter() - started, "quick": args.quick, "repeats": args.repeats,
+        "layer_mm": args.layer, "dpi": args.dpi, "meshes": results, "profile": profile,
+    }
+    if args.json not in (None, "-"):
+        Path(args.json).write_text(json.dumps(report, indent=1))
+    if args.json == "-":
+        print(json.dumps(report, indent=1))
+    else:
+        print(table(results))
+        if profile:
+            print()
+            print(prusa_profile.format_summary(profile, profile["wall_s"], profile["command"]))
+        print(f"\n{report['cores']} cores, load average {load_start[0]:.2f} at start, "
+              f"{report['loadavg_end'][0]:.2f} at end; whole run {report['total_s']:.0f} s. "
+              "Figures on a shared machine are noisy: compare ratios from one run.")
+    everything_ok = all(not r["failed"] and r.get("agreement", {"ok": True})["ok"] for r in results)
+    return 0 if everything_ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,89 @@
+"""Benchmark meshes for bench_prusa.py, made by code so the benchmark needs no third-party files.
+
+Every mesh is a closed, outward-oriented trimesh.Trimesh in mm, resting on z = 0.
+The full set follows issue 6 (sphere ~1.3 M triangles, thick vase ~100 k, a part with
+holes and islands, an organ-sized blob 160 x 165 x 200 mm); the quick set is the same
+shapes made small and short, for smoke tests.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import manifold3d
+import numpy as np
+import trimesh
+
+from heoslice import procedural
+
+
+def on_bed(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """The mesh translated so that its lowest point is at z = 0 (x, y unchanged)."""
+    mesh = mesh.copy()
+    mesh.apply_translation([0.0, 0.0, -mesh.bounds[0, 2]])
+    return mesh
+
+
+def sphere(radius: float, count: int) -> trimesh.Trimesh:
+    """A latitude-longitude sphere of about 4 * count**2 triangles (trimesh.creation.uv_sphere)."""
+    return on_bed(procedural.uv_sphere(radius, (count, count)))
+
+
+def thick_vase(height: float, sections: int, rings: int) -> trimesh.Trimesh:
+    """A thick-walled vase of revolution: about 2 * sections * (2 * rings) triangles, ``height`` mm tall."""
+    return on_bed(procedural.vase(height=height, radius=0.3 * height, bulge=0.1 * height, wall=0.05 * height,
+                                  floor=0.06 * height, rings_outer=rings + 3, rings_inner=rings - 3,
+                                  sections=sections))
+
+
+def holes_and_islands(size: tuple[float, float, float], segments: int) -> trimesh.Trimesh:
+    """A plate with a 3 x 2 grid of through holes, a free pin (island) standing in each hole,
+    and a closed spherical cavity holding a free ball: every layer has holes and islands,
+    and the layers through the cavity have an island inside a hole inside the plate.
+
+    Built with manifold3d booleans; size is (x, y, z) in mm.
+    """
+    sx, sy, sz = size
+    hole_r, pin_r = 0.075 * sx, 0.03 * sx
+    plate = manifold3d.Manifold.cube([sx, sy, sz])
+    pins = []
+    for x in (0.19 * sx, 0.44 * sx, 0.69 * sx):
+        for y in (0.3 * sy, 0.7 * sy):
+            plate -= manifold3d.Manifold.cylinder(sz + 2.0, hole_r, circular_segments=segments).translate([x, y, -1.0])
+            pins.append(manifold3d.Manifold.cylinder(sz, pin_r, circular_segments=segments).translate([x, y, 0.0]))
+    cavity_r = min(0.07 * sx, 0.3 * sz, 0.2 * sy)
+    centre = [0.875 * sx, 0.5 * sy, 0.5 * sz]
+    plate -= manifold3d.Manifold.sphere(cavity_r, segments).translate(centre)
+    part = plate
+    for pin in pins:
+        part += pin
+    part += manifold3d.Manifold.sphere(0.5 * cavity_r, segments).translate(centre)
+    mesh = part.to_mesh()
+    return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts), process=False)
+
+
+def organ(extents: tuple[float, float, float], subdivisions: int = 5) -> trimesh.Trimesh:
+    """heoslice.procedural.liver_phantom's organ, stretched to exactly ``extents`` (mm)."""
+    mesh = procedural.liver_phantom(subdivisions=subdivisions)[0].copy()
+    mesh.vertices = (mesh.vertices - mesh.bounds[0]) * (np.asarray(extents, dtype=float) / mesh.extents)
+    return mesh
+
+
+FULL: dict[str, Callable[[], trimesh.Trimesh]] = {
+    "sphere": lambda: sphere(25.0, 570),
+    "vase": lambda: thick_vase(100.0, 512, 49),
+    "holes": lambda: holes_and_islands((80.0, 50.0, 30.0), 256),
+    "organ": lambda: organ((160.0, 165.0, 200.0)),
+}
+
+QUICK: dict[str, Callable[[], trimesh.Trimesh]] = {
+    "sphere": lambda: sphere(10.0, 90),
+    "vase": lambda: thick_vase(20.0, 128, 12),
+    "holes": lambda: holes_and_islands((40.0, 25.0, 10.0), 64),
+    "organ": lambda: organ((32.0, 33.0, 40.0), subdivisions=4),
+}
+
+
+def build(name: str, quick: bool) -> trimesh.Trimesh:
+    """The named benchmark mesh (full or quick set); raises KeyError for an unknown name."""
+    return (QUICK if quick else FULL)[name]()
