@@ -475,15 +475,13 @@ def _checked_triangles(path: Path, vertex_count: int, lengths: np.ndarray, flat:
 
 
 def read_off(path: Path):
-    """Read an OFF file (OFF, COFF, NOFF, CNOFF, STOFF; '#' comments) strictly into a trimesh.Trimesh.
+    """Read an OFF file (OFF, COFF, NOFF, CNOFF, STOFF; '#' comments) strictly into a :func:`raw_mesh`.
 
     Counts are checked against the rows present; one vertex or face per line; extra
     values on a row (colours, normals, texture coordinates) are ignored; faces with
     fewer than 3 vertices, indices outside the vertex list and NaN coordinates are
     one-line InputErrors. Polygons are fan-triangulated.
     """
-    import trimesh
-
     path = Path(path)
     data = np.frombuffer(path.read_bytes(), dtype=np.uint8).copy()
     position = np.arange(len(data))
@@ -526,13 +524,11 @@ def read_off(path: Path):
     flat = _as_ply_type(path, values[np.repeat(first + 1, lengths) + within], "i8",
                         np.repeat(lines, lengths), "vertex index")
     triangles, _ = _checked_triangles(path, vertex_count, lengths, flat)
-    return trimesh.Trimesh(vertices, triangles, process=False, validate=False)
+    return raw_mesh(vertices, triangles)
 
 
 def _ply_mesh(path: Path, elements: dict[str, dict]):
-    """Check the parsed elements and build a trimesh.Trimesh (raw PLY columns kept in metadata['_ply_raw'])."""
-    import trimesh
-
+    """Check the parsed elements and build a :func:`raw_mesh` (raw PLY columns kept in metadata['_ply_raw'])."""
     vertex = elements.get("vertex")
     if vertex is None:
         raise InputError(f"{path}: PLY has no 'vertex' element")
@@ -562,12 +558,11 @@ def _ply_mesh(path: Path, elements: dict[str, dict]):
     raw = {name: {"length": len(next(iter(columns.values()), ())), "data": columns}
            for name, columns in scalars.items()}
     raw["vertex"]["length"] = len(vertices)
-    return trimesh.Trimesh(vertices, triangles, face_colors=face_colors, process=False, validate=False,
-                           metadata={"_ply_raw": raw})
+    return raw_mesh(vertices, triangles, face_colors=face_colors, metadata={"_ply_raw": raw})
 
 
 def read_ply(path: Path):
-    """Read a PLY file (ascii or binary, any byte order) strictly into a trimesh.Trimesh.
+    """Read a PLY file (ascii or binary, any byte order) strictly into a :func:`raw_mesh`.
 
     Every structural flaw is an InputError naming the file and the place: impossible
     element counts (refused before the body is read), truncated or over-long bodies,
@@ -595,6 +590,17 @@ def read_ply(path: Path):
     return _ply_mesh(path, elements)
 
 
+def raw_mesh(vertices: np.ndarray, faces: np.ndarray, *, face_colors: np.ndarray | None = None,
+             metadata: dict | None = None):
+    """What heoslice's own readers return: vertices, faces, optional face colours ((m, 3) uint8)
+    and raw PLY columns in ``metadata['_ply_raw']`` (the attribute names trimesh uses), without
+    importing trimesh."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(vertices=vertices, faces=faces, face_colors=face_colors, metadata=metadata or {},
+                           visual=None)
+
+
 def read_binary_stl(path: Path):
     """A binary STL as a triangle soup (vertices (3m, 3) float64, faces (m, 3)), or None if not binary.
 
@@ -603,8 +609,6 @@ def read_binary_stl(path: Path):
     load time and memory. An 80-byte header may start with 'solid' (a known trap
     for ASCII detection): the size check decides. ASCII STL goes to trimesh.
     """
-    from types import SimpleNamespace
-
     size = path.stat().st_size
     with open(path, "rb") as handle:
         head = handle.read(84)
@@ -618,7 +622,7 @@ def read_binary_stl(path: Path):
     vertices = np.ascontiguousarray(data["corners"]).reshape(-1, 3)  # float32: welded before widening
     del data
     faces = np.arange(3 * count, dtype=np.int64).reshape(-1, 3)
-    return SimpleNamespace(vertices=vertices, faces=faces, metadata={}, visual=None)
+    return raw_mesh(vertices, faces)
 
 
 def _read_trimesh(path: Path):
@@ -663,7 +667,14 @@ def _colors_from(loaded, columns: dict[str, np.ndarray], n: int) -> np.ndarray |
                 rgb = rgb * 255.0
             return np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
         return np.clip(rgb, 0, 255).astype(np.uint8)
-    if getattr(loaded.visual, "kind", None) in ("vertex", "face"):
+    face_colors = getattr(loaded, "face_colors", None)
+    if face_colors is not None:  # per-vertex mean of the faces around it
+        corners = np.asarray(loaded.faces).ravel()
+        uses = np.maximum(np.bincount(corners, minlength=n), 1)
+        sums = [np.bincount(corners, weights=np.repeat(face_colors[:, c].astype(np.float64), 3), minlength=n)
+                for c in range(3)]
+        return np.clip(np.rint(np.column_stack(sums) / uses[:, None]), 0, 255).astype(np.uint8)
+    if getattr(getattr(loaded, "visual", None), "kind", None) in ("vertex", "face"):
         return np.asarray(loaded.visual.vertex_colors)[:, :3].astype(np.uint8)
     return None
 

@@ -31,7 +31,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.ndimage
 
 from heoslice.errors import InputError
 from heoslice.rasterising import Grid, solid_mask
@@ -295,6 +294,8 @@ def lattice_distance(edges: RingEdges, lattice: Lattice):
     its nearest one (scipy's exact EDT, in mm), and :func:`descend_edges` finishes.
     """
     seed, seed_edge = _seed_edges(edges, lattice)
+    import scipy.ndimage  # imported here: ungraded slicing never needs it
+
     index = scipy.ndimage.distance_transform_edt(~seed, sampling=(lattice.dy, lattice.dx),
                                                  return_distances=False, return_indices=True)
     x, y = lattice.centres()

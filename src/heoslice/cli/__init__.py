@@ -8,6 +8,7 @@ and its exit status; any other exception is a bug, shown as one line unless
 
 from __future__ import annotations
 
+import importlib
 import sys
 import traceback
 
@@ -26,7 +27,33 @@ Examples:
 """
 
 
-@click.group(epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"]})
+#: Sub-command name -> "module:attribute"; imported only when that command runs, so
+#: `heoslice slice` does not pay for the printer link and `--help` stays quick.
+COMMANDS = {
+    "info": "heoslice.cli.info:info",
+    "color": "heoslice.cli.color:color",
+    "slice": "heoslice.cli.slice:slice_cmd",
+    "preview": "heoslice.cli.preview:preview",
+    "verify": "heoslice.cli.verify:verify",
+    "print": "heoslice.cli.print:print_cmd",
+    "controller": "heoslice.cli.controller:controller",
+}
+
+
+class LazyGroup(click.Group):
+    """A click group whose sub-commands are imported on first use (click's documented pattern)."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return list(COMMANDS)
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        if name not in COMMANDS:
+            return None
+        module, attribute = COMMANDS[name].split(":")
+        return getattr(importlib.import_module(module), attribute)
+
+
+@click.group(cls=LazyGroup, epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="heoslice")
 @click.option("--debug", is_flag=True, help="Show full tracebacks (for bug reports).")
 @click.pass_context
@@ -34,25 +61,6 @@ def cli(ctx: click.Context, debug: bool) -> None:
     """Slice coloured meshes into graded multi-material layer images and print them."""
     ctx.ensure_object(dict)
     ctx.obj["debug"] = debug
-
-
-def _register() -> None:
-    from heoslice.cli import info, slice as slice_
-
-    cli.add_command(info.info)
-    cli.add_command(slice_.slice_cmd)
-    from heoslice.cli import verify as verify_
-    cli.add_command(verify_.verify)
-    from heoslice.cli import controller as controller_, print as print_
-    cli.add_command(print_.print_cmd)
-    cli.add_command(controller_.controller)
-    from heoslice.cli import preview as preview_
-    cli.add_command(preview_.preview)
-    from heoslice.cli import color as color_
-    cli.add_command(color_.color)
-
-
-_register()
 
 
 def main(argv: list[str] | None = None) -> None:
