@@ -117,6 +117,7 @@ def make_meshes(folder: Path, quick: bool) -> list[Path]:
         "vase": procedural.vase(sections=64 if quick else 256, rings_outer=26 if quick else 100,
                                 rings_inner=22 if quick else 90),
         "sphere": procedural.uv_sphere(25.0, (64, 64) if quick else (256, 256)),
+        "organ": procedural.liver_phantom(scale=0.25 if quick else 1.0, subdivisions=4 if quick else 5)[0],
     }
     paths = []
     for name, mesh in meshes.items():

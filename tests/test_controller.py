@@ -47,8 +47,8 @@ class RawHost:
                         return pair
         raise AssertionError("the controller did not send the expected frame")
 
-    def hello(self):
-        self.send(P.Hello(P.PROTOCOL_VERSION, 1024, P.ALL_ENCODINGS))
+    def hello(self, features=0):
+        self.send(P.Hello(P.PROTOCOL_VERSION, 1024, P.ALL_ENCODINGS, features))
         return self.wait(lambda f, m: isinstance(m, P.HelloAck))[1]
 
     def layer(self, index, data: bytes, crc=None, encoding=P.ENC_RAW):
@@ -154,6 +154,131 @@ def test_go_back_n_replies(host):
     assert frame.ack == 1
 
 
+def gap_then_fill(h: RawHost, data: bytes) -> list[tuple[P.Frame, P.Message]]:
+    """Send job and layer 0 as DATA frames with seq 2 (the first DATA) missing, then seq 2; return the replies
+    to the frames after the gap, in order."""
+    h.send(P.JobBegin(7, 0, 1, 1, 8 * len(data), 1))
+    h.send(P.LayerBegin(0, 1, len(data), P.crc32(data)))
+    h.wait(lambda f, m: isinstance(m, P.Ack) and f.ack == 2)
+    time.sleep(0.05)  # let the controller apply them, so the credit below counts held frames only
+    third = len(data) // 3
+    h.seq = 3
+    start = len(h.received)
+    h.send(P.Data(data[third:2 * third]))
+    h.send(P.Data(data[2 * third:]))
+    h.send(P.LayerEnd(0))
+    h.send(P.Execute(0))
+    h.wait(lambda f, m: sum(isinstance(r, P.Nak) for _, r in h.received[start:]) >= 4)
+    h.send(P.Data(data[:third]), seq=2)
+    h.wait(lambda f, m: isinstance(m, P.Ack) and f.ack in (3, 7))
+    return h.received[start:]
+
+
+@pytest.mark.parametrize("host_offers, controller_offers", [(1, 1), (1, 0), (0, 1)])
+def test_sack_holds_frames_after_a_gap_only_when_negotiated(host, host_offers, controller_offers):
+    """With SACK enabled by both sides, frames after a gap are held (NAKed, reported in ``held``, using credit) and
+    applied once the gap is filled; otherwise (plain go-back-N) they are discarded and must be resent. Either way
+    the layer executes exactly once with the host's CRC."""
+    h = host(SimConfig(**{**FAST, "features": controller_offers}))
+    sack = bool(host_offers and controller_offers)
+    assert h.hello(features=host_offers).features == (P.FEATURE_SACK if sack else 0)
+    data = layer_bytes(0, 90)
+    replies = gap_then_fill(h, data)
+    naks = [(f, m) for f, m in replies if isinstance(m, P.Nak)][:4]
+    assert [(f.ack, m.reason) for f, m in naks] == [(2, P.NAK_OUT_OF_ORDER)] * 4
+    assert [m.tag for f, m in naks] == list(range(h.tag - 4, h.tag))
+    costs = [30 + P.FRAME_OVERHEAD, 30 + P.FRAME_OVERHEAD, 4 + P.FRAME_OVERHEAD, 4 + P.FRAME_OVERHEAD]
+    frame, ack = replies[-1]
+    assert ack.held == 0
+    if sack:
+        assert [m.held for f, m in naks] == [0b1, 0b11, 0b111, 0b1111]
+        assert [m.credit for f, m in naks] == [h.sim.config.rx_buffer - sum(costs[:i + 1]) for i in range(4)]
+        assert frame.ack == 7
+    else:
+        assert all(m.held == 0 for f, m in naks) and frame.ack == 3
+        h.seq = 3
+        h.send(P.Data(data[30:60]))
+        h.send(P.Data(data[60:]))
+        h.send(P.LayerEnd(0))
+        h.send(P.Execute(0))
+    h.send(P.Data(data[30:60]), seq=3)  # a late copy of a frame already applied: a duplicate
+    h.send(P.JobEnd(7), seq=7)
+    h.status(lambda s: s.state == P.STATE_DONE)
+    assert [(e.layer, e.crc) for e in h.sim.executed] == [(0, P.crc32(data))]
+    assert h.sim.stats["duplicates"] >= 1
+
+
+def test_sack_across_the_sequence_wrap(host):
+    """Held bits and the in-order release of held frames follow 16-bit sequence arithmetic across 65535 -> 0."""
+    h = host()
+    h.hello(features=P.FEATURE_SACK)
+    h.sim.expected = 65534
+    data = layer_bytes(4, 60)
+    h.send(P.JobBegin(7, 0, 1, 1, 8 * len(data), 1), seq=65534)
+    h.wait(lambda f, m: isinstance(m, P.Ack) and f.ack == 65535)
+    h.send(P.Data(data[:30]), seq=0)
+    h.send(P.Data(data[30:]), seq=1)
+    h.send(P.LayerEnd(0), seq=2)
+    frame, nak = h.wait(lambda f, m: isinstance(m, P.Nak) and m.held == 0b111)
+    assert frame.ack == 65535
+    h.send(P.LayerBegin(0, 1, len(data), P.crc32(data)), seq=65535)
+    frame, ack = h.wait(lambda f, m: isinstance(m, P.Ack) and f.ack != 65535)
+    assert (frame.ack, ack.held) == (3, 0)
+    h.send(P.Execute(0), seq=3)
+    h.status(lambda s: s.last_completed == 0)
+    assert [(e.layer, e.crc) for e in h.sim.executed] == [(0, P.crc32(data))]
+
+
+def test_held_frames_never_block_the_gap(host):
+    """When held frames leave too little credit for the missing frame, the controller drops the held frames
+    farthest ahead (clearing their ``held`` bits) and takes the missing one: no deadlock; the layer still
+    executes once with the host's CRC."""
+    h = host(SimConfig(**{**FAST, "rx_buffer": 300}))
+    h.hello(features=P.FEATURE_SACK)
+    data = layer_bytes(3, 250)
+    h.send(P.JobBegin(7, 0, 1, 1, 8 * len(data), 1))
+    h.send(P.LayerBegin(0, 1, len(data), P.crc32(data)))
+    h.wait(lambda f, m: isinstance(m, P.Ack) and f.ack == 2)
+    time.sleep(0.05)
+    parts = [data[:70], data[70:130], data[130:190], data[190:]]
+    for seq in (3, 4, 5):
+        h.send(P.Data(parts[seq - 2]), seq=seq)
+    frame, nak = h.wait(lambda f, m: isinstance(m, P.Nak) and m.held == 0b111)
+    assert nak.credit == 300 - 3 * (60 + P.FRAME_OVERHEAD) < 70 + P.FRAME_OVERHEAD
+    h.send(P.Data(parts[0]), seq=2)
+    frame, ack = h.wait(lambda f, m: isinstance(m, P.Ack) and f.ack > 2)
+    assert (frame.ack, ack.held) == (5, 0) and h.sim.stats["held_dropped"] == 1
+    h.send(P.Data(parts[3]), seq=5)
+    h.send(P.LayerEnd(0), seq=6)
+    h.send(P.Execute(0), seq=7)
+    h.status(lambda s: s.last_completed == 0)
+    assert [(e.layer, e.crc) for e in h.sim.executed] == [(0, P.crc32(data))]
+
+
+def test_data_writes_at_the_cursor(host):
+    """DATA writes at the cursor that LAYER_BEGIN sets to 0 and each CHUNK or DATA advances, across channels;
+    a DATA reaching past the layer's end is refused (error 1), nothing executed."""
+    h = host()
+    h.hello()
+    first, second = layer_bytes(1, 20), layer_bytes(2, 20)
+    h.send(P.JobBegin(7, 0, 2, 2, 160, 1))
+    h.send(P.LayerBegin(0, 2, 20, P.crc32(first + second)))
+    code, packed = P.encode_chunk(first[:12], 1 << P.ENC_PACKBITS)
+    h.send(P.Chunk(0, 0, 0, code, 12, packed))
+    h.send(P.Data(first[12:] + second[:5]))
+    h.send(P.Data(second[5:]))
+    h.send(P.LayerEnd(0))
+    h.send(P.Execute(0))
+    h.status(lambda s: s.last_completed == 0)
+    assert [(e.layer, e.crc) for e in h.sim.executed] == [(0, P.crc32(first + second))]
+    h.send(P.LayerBegin(1, 2, 20, 0))
+    h.send(P.Data(bytes(39)))
+    h.send(P.Data(bytes(2)))
+    status = h.status(lambda s: s.state == P.STATE_ERROR)
+    assert (status.error, status.error_layer) == (P.ERR_LAYER_CRC, 1)
+    assert h.sim.executed_layers() == [0]
+
+
 def test_receive_buffer_is_bounded_and_credit_honest(host):
     """With the head paused, the buffer fills: credits fall, and a frame beyond the credit is NAKed (reason 2)."""
     h = host(SimConfig(**{**FAST, "rx_buffer": 600, "print_queue": 1}))
@@ -192,10 +317,10 @@ def test_pause_resume_abort_bypass_the_queue(host):
 
 def test_version_mismatch_is_answered_in_the_controllers_version(host):
     """A controller of another version answers HELLO with its own version and accepts no session."""
-    h = host(SimConfig(**{**FAST, "version": 2}))
-    h.send(P.Hello(1, 1024, 7))
+    h = host(SimConfig(**{**FAST, "version": 1}))
+    h.send(P.Hello(2, 1024, 7, P.FEATURE_SACK))
     frame, ack = h.wait(lambda f, m: isinstance(m, P.HelloAck))
-    assert frame.version == 2 and ack.version == 2
+    assert frame.version == 1 and ack.version == 1 and ack.features == 0
     assert h.sim.session == 0
 
 

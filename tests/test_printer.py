@@ -26,8 +26,8 @@ from heoslice.cli import cli, main
 from heoslice.controller import FaultSpec, FdTransport, SimConfig, SimController, TcpServerTransport
 from heoslice.errors import (ControllerFaultError, ControllerResetError, IncompatibleControllerError, LinkDeadError,
                              PortError, PrintInterrupted, RetryLimitError)
-from heoslice.printer import (LinkTiming, SimConnector, optimal_frame_bytes, print_job, stack_job,
-                              synthetic_job)
+from heoslice.printer import (CHUNK_HEADER, LinkTiming, SimConnector, next_chunk, optimal_frame_bytes, print_job,
+                              random_job, stack_job, synthetic_job)
 
 FAST = dict(baud=1_000_000, layer_time_s=0.0005, status_interval_s=0.2)
 #: A finer read/pacing granularity than the default 5 ms keeps fewer frames in flight at the tests' 100 kB/s.
@@ -87,10 +87,10 @@ def test_clean_print_over_sim_url_and_log(tmp_path, sim_factory):
 
 def test_fault_mix_1000_layers_over_a_pty_pair(sim_factory):
     """1000 layers through a pseudo-terminal under byte errors 1e-3, drops, duplicates, lost acks, delays and one
-    reset mid-layer (then --from-layer): each layer executes exactly once, in order, with the host's CRC, and
-    retransmissions stay bounded."""
+    reset mid-layer (then --from-layer), with a controller offering plain go-back-N only (no SACK): each layer
+    executes exactly once, in order, with the host's CRC, and retransmissions stay bounded."""
     job, get_layer = synthetic_job(1000, 64, 16, seed=1)
-    sim = sim_factory(FaultSpec(**MIX, reset_at_layer=420), seed=11)
+    sim = sim_factory(FaultSpec(**MIX, reset_at_layer=420), seed=11, features=0)
     master, slave = os.openpty()
     tty.setraw(slave)
     sim.start(FdTransport(master))
@@ -102,11 +102,13 @@ def test_fault_mix_1000_layers_over_a_pty_pair(sim_factory):
     assert_exactly_once(sim, job, get_layer)
     assert sim.stats["bad_frames"] > 10 and sim.stats["duplicates"] > 0 and sim.stats["acks_lost"] > 0
     assert result.frames_retransmitted < 3 * result.frames_sent / 4
+    assert not result.sack and result.frames_skipped == 0
 
 
 def test_fault_mix_1000_layers_over_sim_url_with_disconnect(sim_factory):
-    """Over sim:// with the fault mix, a pulled link (same boot id: resumed) and a reset (--from-layer):
-    1000 layers, each exactly once, in order, with the host's CRC; retransmissions bounded."""
+    """Over sim:// with the fault mix, SACK negotiated, a pulled link (same boot id: resumed) and a reset
+    (--from-layer): 1000 layers, each exactly once, in order, with the host's CRC; retransmissions bounded, and
+    frames the controller held after a gap were not resent."""
     job, get_layer = synthetic_job(1000, 64, 16, seed=2)
     sim = sim_factory(FaultSpec(**MIX, disconnect_at_layer=300, disconnect_s=0.2, reset_at_layer=700), seed=12)
     connector = SimConnector(sim)
@@ -114,9 +116,23 @@ def test_fault_mix_1000_layers_over_sim_url_with_disconnect(sim_factory):
     assert reset is not None and sim.stats["disconnects"] == 1 and sim.stats["resets"] == 1
     assert_exactly_once(sim, job, get_layer)
     assert result.frames_retransmitted < 3 * result.frames_sent / 4
+    assert result.sack and result.frames_skipped > 0
 
 
-def test_fault_mix_over_socket_url_with_disconnect(sim_factory):
+@pytest.mark.parametrize("features", [P.FEATURE_SACK, 0])
+def test_incompressible_layers_under_faults_as_data_frames(sim_factory, features):
+    """Incompressible layers go as address-implicit DATA frames (no 12-byte CHUNK header: the payload sent is the
+    layer bytes plus the control messages only) and, under byte errors, drops, duplicates and lost acks, execute
+    exactly once, in order, with the host's CRC, with SACK offered by the host and without it."""
+    job, get_layer = random_job(120, 2, seed=5)
+    sim = sim_factory(FaultSpec(byte_error_rate=2e-3, byte_drop_rate=1e-4, frame_dup_rate=5e-3, ack_loss_rate=0.02),
+                      seed=21)
+    result = print_job("sim://", job, get_layer, connector=SimConnector(sim), timing=TIMING, features=features)
+    assert_exactly_once(sim, job, get_layer)
+    control = len(P.pack_message(P.JobBegin(0, 0, 0, 0, 0, 0))[1]) + 4 + job.layer_count * (13 + 4 + 4)
+    assert result.payload_bytes == result.raw_bytes + control
+    assert sim.stats["bad_frames"] > 10 and result.frames_retransmitted > 0
+    assert result.sack == bool(features) and (result.frames_skipped > 0) == bool(features)
     """Over socket:// (loopback TCP) with the fault mix, a dropped connection is resumed with the same boot id and
     a reset handled with --from-layer: every layer exactly once, in order, with the host's CRC."""
     job, get_layer = synthetic_job(300, 64, 16, seed=4)
@@ -195,10 +211,10 @@ def test_hardware_fault_exit_code(sim_factory):
 
 
 def test_version_mismatch_exit_code(sim_factory):
-    """A controller speaking protocol version 2 is refused with exit 12 and both versions named."""
+    """A controller speaking protocol version 1 (before DATA and SACK) is refused with exit 12, both versions named."""
     job, get_layer = synthetic_job(5, 64, 16)
-    sim = sim_factory(version=2)
-    with pytest.raises(IncompatibleControllerError, match="version 2.*version 1") as info:
+    sim = sim_factory(version=1)
+    with pytest.raises(IncompatibleControllerError, match="version 1.*version 2") as info:
         print_job("sim://", job, get_layer, connector=SimConnector(sim))
     assert info.value.exit_code == 12 and sim.executed == []
 
@@ -252,16 +268,39 @@ def test_interrupt_sends_abort(sim_factory, tmp_path):
 
 
 def test_frame_size_adapts_to_errors():
-    """The chunk size is the full payload on a clean link and shrinks as the byte error rate grows."""
-    sizes = [optimal_frame_bytes(rate, 29, 1050) for rate in (0.0, 1e-4, 1e-3, 1e-2)]
-    assert sizes[0] == 1050 and sizes[0] > sizes[1] > sizes[2] > sizes[3] >= 29 + 64
+    """The frame size is the full payload on a clean link and shrinks as the byte error rate grows; without waste
+    (SACK) it is the closed-form optimum of (1 - h/L)(1 - e)^L, L = (h + sqrt(h^2 + 4h / -ln(1 - e))) / 2, and
+    plain go-back-N (one frame wasted per error) wants smaller frames."""
+    sizes = [optimal_frame_bytes(rate, 16, 1040) for rate in (0.0, 1e-4, 1e-3, 1e-2)]
+    assert sizes[0] == 1040 and sizes[0] > sizes[1] > sizes[2] > sizes[3] >= 16 + 64
+    for rate in (3e-4, 1e-3, 3e-3):
+        closed = (16 + np.sqrt(16 ** 2 + 4 * 16 / -np.log1p(-rate))) / 2
+        sack = optimal_frame_bytes(rate, 16, 1040, waste=0.0)
+        assert abs(sack - closed) <= 1 and optimal_frame_bytes(rate, 16, 1040, waste=1.0) < sack
+
+
+def test_next_chunk_prefers_data_unless_encoding_wins():
+    """Incompressible bytes go as a DATA filling the payload; runs as a CHUNK carrying more raw bytes than a DATA
+    could; a short compressible tail as a CHUNK smaller than the raw bytes; raw-only links always use DATA."""
+    noise = np.random.default_rng(3).integers(0, 256, 5000, dtype=np.uint8).tobytes()
+    message, used = next_chunk(4, 0, noise, 100, 300, P.ALL_ENCODINGS)
+    assert message == P.Data(noise[100:400]) and used == 300
+    runs = bytes(3000) + b"\xff" * 3000
+    message, used = next_chunk(4, 1, runs, 0, 300, P.ALL_ENCODINGS)
+    assert isinstance(message, P.Chunk) and used > 300 and len(message.data) <= 300 - CHUNK_HEADER
+    assert (message.layer, message.channel, message.offset, message.raw_len) == (4, 1, 0, used)
+    assert P.decode_chunk(message.encoding, message.data, used) == runs[:used]
+    message, used = next_chunk(4, 1, runs, 5800, 300, P.ALL_ENCODINGS)
+    assert isinstance(message, P.Chunk) and used == 200 and len(message.data) + CHUNK_HEADER < 200
+    assert next_chunk(4, 1, runs, 0, 300, 1 << P.ENC_RAW) == (P.Data(runs[:300]), 300)
 
 
 # --- the CLI over a real stack ---------------------------------------------------------
 
 
-def make_stack(directory: Path, masks: list[np.ndarray], droplets: list[np.ndarray] | None = None) -> Path:
-    """A stack as docs/stack-format.md describes it (L images 0/255, 600 dpi), with optional droplet channels."""
+def make_stack(directory: Path, masks: list[np.ndarray], droplets: list[list[np.ndarray]] | None = None) -> Path:
+    """A stack as docs/stack-format.md describes it (L images 0/255, 600 dpi), with optional droplet channels
+    (per layer, a list of masks partitioning its solid pixels)."""
     import tifffile
 
     directory.mkdir()
@@ -278,8 +317,10 @@ def make_stack(directory: Path, masks: list[np.ndarray], droplets: list[np.ndarr
                  "sha256": write(f"layer_{index:05d}.tif", mask), "solid_pixels": int(mask.sum()),
                  "open_contours": False}
         if droplets is not None:
-            name = f"layer_{index:05d}_drop.tif"
-            entry["channels"] = [{"file": name, "sha256": write(name, droplets[index])}]
+            entry["channels"] = []
+            for number, drop in enumerate(droplets[index]):
+                name = f"layer_{index:05d}_drop{number}.tif"
+                entry["channels"].append({"file": name, "sha256": write(name, drop)})
         layers.append(entry)
     manifest = {"format": "heoslice-stack", "version": 1, "complete": True, "created_by": "test",
                 "source": {"file": "x.ply", "sha256": "0" * 64}, "layer_height_mm": 0.1, "dpi": [600.0, 600.0],
@@ -299,11 +340,13 @@ def disc_masks(count: int, width: int = 40, height: int = 30) -> list[np.ndarray
 def test_stack_job_sends_solid_mask_and_droplet_channels(tmp_path):
     """A stack's layer becomes channel 0 = packed solid mask, channel 1.. = packed droplet masks."""
     masks = disc_masks(3)
-    drops = [np.roll(m, 2, axis=1) for m in masks]
+    left = np.arange(40) < 20
+    drops = [[m & left, m & ~left] for m in masks]
     job, get_layer = stack_job(make_stack(tmp_path / "s", masks, drops))
-    assert (job.layer_count, job.channels, job.width, job.height) == (3, 2, 40, 30)
-    solid, drop = get_layer(1)
-    assert solid == np.packbits(masks[1], axis=1).tobytes() and drop == np.packbits(drops[1], axis=1).tobytes()
+    assert (job.layer_count, job.channels, job.width, job.height) == (3, 3, 40, 30)
+    solid, *drop = get_layer(1)
+    assert solid == np.packbits(masks[1], axis=1).tobytes()
+    assert drop == [np.packbits(d, axis=1).tobytes() for d in drops[1]]
 
 
 def test_cli_print_verifies_and_prints(tmp_path):
@@ -368,13 +411,18 @@ def test_cli_controller_pty_end_to_end(tmp_path):
         proc.wait(10)
 
 
+def _default_sigint() -> None:
+    """In the child: SIGINT as a terminal delivers it, even when the test runner was started with it ignored."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_cli_ctrl_c_sends_abort_and_exits_130(tmp_path):
     """SIGINT during `heoslice print` sends ABORT, logs it, and exits 130 with one line on stderr."""
     stack = make_stack(tmp_path / "s", disc_masks(30))
     log = tmp_path / "s.print-log.jsonl"
     proc = subprocess.Popen([sys.executable, "-m", "heoslice", "print", str(stack), "--port",
                              "sim://?layer_time_s=0.1&baud=1000000"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
     try:
         end = time.monotonic() + 20
         while time.monotonic() < end and not (log.exists() and '"event": "layer"' in log.read_text()):
@@ -392,7 +440,7 @@ def test_cli_ctrl_c_sends_abort_and_exits_130(tmp_path):
 def test_cli_error_is_one_line_with_exit_code(tmp_path):
     """A controller of another version gives `heoslice: error: ...` on one line and exit 12, no traceback."""
     stack = make_stack(tmp_path / "s", disc_masks(2))
-    result = subprocess.run([sys.executable, "-m", "heoslice", "print", str(stack), "--port", "sim://?version=2"],
+    result = subprocess.run([sys.executable, "-m", "heoslice", "print", str(stack), "--port", "sim://?version=1"],
                             capture_output=True, text=True, timeout=30)
     assert result.returncode == 12
-    assert result.stderr.count("\n") == 1 and result.stderr.startswith("heoslice: error: sim://?version=2: ")
+    assert result.stderr.count("\n") == 1 and result.stderr.startswith("heoslice: error: sim://?version=1: ")

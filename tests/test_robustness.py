@@ -53,7 +53,13 @@ def reference(vase_model, tmp_path_factory) -> dict:
 def heoslice(*args, **popen) -> subprocess.Popen:
     """Start ``python -m heoslice ARGS`` in its own process group (so it and its workers can be killed)."""
     return subprocess.Popen([sys.executable, "-m", "heoslice", *map(str, args)], start_new_session=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_sigint, **popen)
+
+
+def _default_sigint() -> None:
+    """In the child: SIGINT as a terminal delivers it, even when the test runner was started with it ignored."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def layer_count(directory: Path, newer_than: float = 0.0) -> int:

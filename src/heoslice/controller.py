@@ -1,4 +1,4 @@
-"""A simulated printer controller speaking protocol v1, with realistic pacing and seeded faults.
+"""A simulated printer controller speaking protocol v2, with realistic pacing and seeded faults.
 
 The simulator models what the host cannot see on real hardware: a link of ``baud``
 bits/s (10 bits per byte, host -> controller direction paced), a bounded receive
@@ -52,6 +52,7 @@ class SimConfig:
     print_queue: int = 2  # layers held ready beside the one printing
     status_interval_s: float = 0.5  # heartbeat period, real seconds (not scaled)
     version: int = P.PROTOCOL_VERSION
+    features: int = P.ALL_FEATURES  # extensions offered (bit mask, P.FEATURE_*); 0: plain go-back-N
     seed: int = 0
 
     @property
@@ -71,7 +72,7 @@ class FaultSpec:
     ack_loss_rate: float = 0.0  # per accepted frame: applied, but its ACK is not sent
     delay_rate: float = 0.0  # per received frame: processing stalls for delay_s
     delay_s: float = 0.02
-    reset_at_layer: int | None = None  # reboot (new boot id) at the first chunk of this layer, once
+    reset_at_layer: int | None = None  # reboot (new boot id) at the first chunk (CHUNK or DATA) of this layer, once
     disconnect_at_layer: int | None = None  # drop the connection at the first chunk of this layer, once
     disconnect_s: float = 0.2  # how long the link stays down, s
     dead_at_layer: int | None = None  # stop answering for good at the first chunk of this layer
@@ -361,13 +362,14 @@ def pipe_pair(name: str = "sim://") -> tuple[PipePort, PipeTransport]:
 
 @dataclass
 class _Layer:
-    """A layer being received."""
+    """A layer being received: its channels concatenated in ``data`` and the DATA write cursor."""
 
     index: int
     channels: int
     size: int
     crc: int
-    buffers: list = field(default_factory=list)
+    data: bytearray = field(default_factory=bytearray)
+    cursor: int = 0
     complete: bool = False
     crc_received: int = -1  # CRC-32 of the data actually received, set at LAYER_END
 
@@ -381,7 +383,8 @@ class SimController:
         self._rng = np.random.default_rng(config.seed)
         self.executed: list[ExecutedLayer] = []
         self.stats = {"frames": 0, "bad_frames": 0, "duplicates": 0, "out_of_order": 0, "naks": 0,
-                      "acks_lost": 0, "resets": 0, "disconnects": 0, "hellos": 0, "aborts": 0}
+                      "acks_lost": 0, "resets": 0, "disconnects": 0, "hellos": 0, "aborts": 0, "held": 0,
+                      "held_dropped": 0}
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._transport: Transport | None = None
@@ -404,6 +407,7 @@ class SimController:
     def _power_on(self) -> None:
         """State lost on a reset."""
         self.session = 0
+        self.sack = False  # selective acknowledgement negotiated in this session
         self.state = P.STATE_IDLE
         self.error = P.ERR_NONE
         self.error_layer = -1
@@ -415,6 +419,10 @@ class SimController:
         self.last_queued = self.last_completed
         self._rx: deque = deque()
         self._rx_used = 0
+        self._held: dict[int, tuple[P.Message, int]] = {}  # seq -> (message, cost): kept after a gap (SACK)
+        self._held_used = 0
+        self._rx_layer = -1  # layer of the latest layer-bearing data message received (DATA's link fault)
+        self._in_layer = -1  # layer of the latest LAYER_BEGIN taken in order (DATA's layer faults)
         self._advertised = self.config.rx_buffer
         self._layer: _Layer | None = None
         self._queue: deque = deque()
@@ -523,7 +531,8 @@ class SimController:
                     self.stats["bad_frames"] += 1
                     if self.session and self.state != P.STATE_ERROR:
                         self.stats["naks"] += 1
-                        self._send(P.Nak((self._last_tag + 1) & 0xFFFF, self._credit(), P.NAK_BAD_FRAME))
+                        self._send(P.Nak((self._last_tag + 1) & 0xFFFF, self._credit(), P.NAK_BAD_FRAME,
+                                         self._held_mask()))
                     continue
                 self._on_frame(item, time.monotonic())
                 if self._dead or now < self._stall_until:
@@ -541,13 +550,28 @@ class SimController:
         self._transport.send(wire)
 
     def _credit(self) -> int:
-        """Free receive-buffer bytes: the credit granted to the host."""
-        return self.config.rx_buffer - self._rx_used
+        """Free receive-buffer bytes (frames held after a gap occupy it too): the credit granted to the host."""
+        return self.config.rx_buffer - self._rx_used - self._held_used
+
+    def _held_mask(self) -> int:
+        """ACK/NAK ``held``: bit i set when the frame with seq expected + 1 + i is held (SACK)."""
+        mask = 0
+        for seq in self._held:
+            mask |= 1 << (P.seq_diff(seq, self.expected) - 1)
+        return mask
+
+    def _drop_received(self) -> None:
+        """Forget every frame received but not applied, and the layer being assembled."""
+        self._rx.clear()
+        self._rx_used = 0
+        self._held.clear()
+        self._held_used = 0
+        self._layer = None
 
     def _send_ack(self) -> None:
-        """Cumulative ACK with the current credit and progress."""
+        """Cumulative ACK with the current credit, progress and held frames."""
         self._advertised = self._credit()
-        self._send(P.Ack(self._credit(), self.last_queued, self.last_completed))
+        self._send(P.Ack(self._credit(), self.last_queued, self.last_completed, self._held_mask()))
 
     def _send_status(self) -> None:
         """STATUS: boot id, state, progress, credit, error."""
@@ -586,9 +610,7 @@ class SimController:
         elif frame.type == P.Abort.TYPE:
             self.stats["aborts"] += 1
             self._queue.clear()
-            self._rx.clear()
-            self._rx_used = 0
-            self._layer = None
+            self._drop_received()
             self.job_active = False
             self.state = P.STATE_ABORTED if self.state != P.STATE_ERROR else self.state
             self._send_status()
@@ -606,27 +628,34 @@ class SimController:
     def _on_hello(self, frame: P.Frame) -> None:
         """Open the host's session (same version only) and answer with HELLO_ACK in our own version."""
         self.stats["hellos"] += 1
-        if frame.version == self.config.version:
+        cfg = self.config
+        features = 0
+        if frame.version == cfg.version:
             try:
-                P.unpack_message(frame.type, frame.payload)
+                hello = P.unpack_message(frame.type, frame.payload)
             except ProtocolError:
                 return
             self.session = frame.session
             self.expected = 0
-            self._rx.clear()
-            self._rx_used = 0
-            self._layer = None
-        cfg = self.config
+            self._drop_received()
+            features = hello.features & cfg.features
+            self.sack = bool(features & P.FEATURE_SACK)
         reply = P.HelloAck(cfg.version, self.boot_id, self._credit(), cfg.window, cfg.max_payload,
                            cfg.encodings, cfg.channels, cfg.max_width, cfg.max_height, cfg.dpi_x, cfg.dpi_y,
-                           self.job_id, self.last_completed, self.last_queued, self.state)
+                           self.job_id, self.last_completed, self.last_queued, self.state, features)
         saved = self.session
         self.session = frame.session
         self._send(reply)
         self.session = saved
 
     def _on_data(self, frame: P.Frame) -> None:
-        """Go-back-N receiver: accept only the expected seq into the buffer (ACK), NAK gaps, re-ACK duplicates."""
+        """The receiver: take the expected seq into the buffer (ACK), re-ACK duplicates, NAK gaps.
+
+        Plain go-back-N discards a frame ahead of the expected one; with SACK it is held
+        (within ``SACK_SPAN`` and the credit) and applied once the gap is filled; held
+        frames farthest ahead are dropped again when the expected frame needs their room,
+        so they can never block the gap. Every reply carries the held frames in ``held``.
+        """
         if self.state == P.STATE_ERROR:
             return
         self._last_tag = frame.ack
@@ -635,38 +664,69 @@ class SimController:
             self.stats["duplicates"] += 1
             self._send_ack()
             return
+        cost = len(frame.payload) + P.FRAME_OVERHEAD
         if distance > 0:
             self.stats["out_of_order"] += 1
+            if self.sack and distance <= min(P.SACK_SPAN, self.config.window) and frame.seq not in self._held \
+                    and cost <= self._credit():
+                message = self._receive(frame)
+                if message is not None:
+                    self._held[frame.seq] = (message, cost)
+                    self._held_used += cost
+                    self.stats["held"] += 1
             self.stats["naks"] += 1
-            self._send(P.Nak(frame.ack, self._credit(), P.NAK_OUT_OF_ORDER))
+            self._send(P.Nak(frame.ack, self._credit(), P.NAK_OUT_OF_ORDER, self._held_mask()))
             return
-        cost = len(frame.payload) + P.FRAME_OVERHEAD
+        while cost > self._credit() and self._held:
+            _, dropped = self._held.pop(max(self._held, key=lambda seq: P.seq_diff(seq, self.expected)))
+            self._held_used -= dropped
+            self.stats["held_dropped"] += 1
         if cost > self._credit():
             self.stats["naks"] += 1
-            self._send(P.Nak(frame.ack, self._credit(), P.NAK_NO_CREDIT))
+            self._send(P.Nak(frame.ack, self._credit(), P.NAK_NO_CREDIT, self._held_mask()))
             return
-        try:
-            message = P.unpack_message(frame.type, frame.payload)
-        except ProtocolError:
-            self._fail(P.ERR_BAD_JOB, -1)
+        message = self._receive(frame)
+        if message is None:
             return
-        if self._lost_data(message):
+        session = self.session
+        self._accept(message, cost)
+        while self.session == session and self.expected in self._held and not self._dead:
+            message, cost = self._held.pop(self.expected)
+            self._held_used -= cost
+            self._accept(message, cost)
+        if self.session != session or self._dead:
             return
-        self.expected = (self.expected + 1) % P.SEQ_MODULUS
-        self._rx.append((message, cost))
-        self._rx_used += cost
         if self.faults.ack_loss_rate and self._rng.random() < self.faults.ack_loss_rate:
             self.stats["acks_lost"] += 1
         else:
             self._send_ack()
-        if isinstance(message, P.Chunk):
-            self._chunk_faults(message.layer)
 
-    def _lost_data(self, message: P.Message) -> bool:
-        """True when the one-way link fault swallows this data message."""
-        start = self.faults.lose_data_from_layer
+    def _receive(self, frame: P.Frame) -> P.Message | None:
+        """The data message of a frame, or None when it is malformed (job error) or the link fault eats it."""
+        try:
+            message = P.unpack_message(frame.type, frame.payload)
+        except ProtocolError:
+            self._fail(P.ERR_BAD_JOB, -1)
+            return None
         layer = getattr(message, "layer", None)
-        return start is not None and layer is not None and layer >= start
+        if layer is not None:
+            self._rx_layer = layer
+        start = self.faults.lose_data_from_layer
+        if start is not None and self._rx_layer >= start and (layer is not None or isinstance(message, P.Data)):
+            return None
+        return message
+
+    def _accept(self, message: P.Message, cost: int) -> None:
+        """Take the next in-order message into the receive buffer; strike the faults tied to its layer."""
+        self.expected = (self.expected + 1) % P.SEQ_MODULUS
+        self._rx.append((message, cost))
+        self._rx_used += cost
+        if isinstance(message, P.LayerBegin):
+            self._in_layer = message.layer
+        elif isinstance(message, P.Chunk):
+            self._chunk_faults(message.layer)
+        elif isinstance(message, P.Data):
+            self._chunk_faults(self._in_layer)
 
     def _once(self, name: str, layer: int | None, at: int) -> bool:
         """True the first time fault ``name`` meets its layer."""
@@ -746,7 +806,7 @@ class SimController:
             self._layer = None
             if message.layer >= self.next_execute and message.channels >= 1:
                 self._layer = _Layer(message.layer, message.channels, message.size, message.crc,
-                                     [bytearray(message.size) for _ in range(message.channels)])
+                                     bytearray(message.channels * message.size))
         elif isinstance(message, P.Chunk):
             layer = self._layer
             if layer is None or message.layer != layer.index:
@@ -759,12 +819,23 @@ class SimController:
             except ProtocolError:
                 self._fail(P.ERR_LAYER_CRC, message.layer)
                 return
-            layer.buffers[message.channel][message.offset:message.offset + len(raw)] = raw
+            start = message.channel * layer.size + message.offset
+            layer.data[start:start + len(raw)] = raw
+            layer.cursor = start + len(raw)
+        elif isinstance(message, P.Data):
+            layer = self._layer
+            if layer is None:
+                return
+            if layer.cursor + len(message.data) > len(layer.data):
+                self._fail(P.ERR_LAYER_CRC, layer.index)
+                return
+            layer.data[layer.cursor:layer.cursor + len(message.data)] = message.data
+            layer.cursor += len(message.data)
         elif isinstance(message, P.LayerEnd):
             layer = self._layer
             if layer is None or message.layer != layer.index:
                 return
-            actual = P.crc32(b"".join(layer.buffers))
+            actual = P.crc32(layer.data)
             if actual != layer.crc:
                 self._fail(P.ERR_LAYER_CRC, layer.index)
                 return

@@ -2,9 +2,10 @@
 
 A :class:`PrinterLink` drives one job over any pyserial port (a device path, or a URL
 such as ``socket://host:port``; ``sim://?...`` starts the built-in simulator in this
-process): handshake, credit-limited go-back-N sending with paced writes, retransmission
-with backoff and a retry cap, STATUS handling, reconnect and resume while the
-controller keeps its boot id, and a JSON-lines print log. Layers come from a
+process): handshake, credit-limited go-back-N sending with paced writes (passing over
+frames the controller holds when both sides enable SACK), frames sized to the observed
+error rate, retransmission with backoff and a retry cap, STATUS handling, reconnect and
+resume while the controller keeps its boot id, and a JSON-lines print log. Layers come from a
 ``get_layer(index) -> channel payloads`` function, so a resume can re-read any layer;
 :func:`stack_job` builds one from a verified stack. Protocol: ``docs/protocol.md``.
 """
@@ -12,6 +13,7 @@ controller keeps its boot id, and a JSON-lines print log. Layers come from a
 from __future__ import annotations
 
 import datetime as _dt
+import itertools
 import json
 import math
 import time
@@ -30,7 +32,11 @@ from heoslice.errors import (ControllerFaultError, ControllerResetError, Incompa
 LayerSource = Callable[[int], Sequence[bytes]]
 #: Smallest chunk payload the adaptive sizing goes down to, bytes.
 MIN_CHUNK_PAYLOAD = 64
-#: Bytes a CHUNK adds to the frame before its data.
+#: Prior of the byte error estimate: one error in this many bytes until the link shows better (frames
+#: start near 250 bytes and reach the full payload after ~64 KiB sent cleanly). A frame keeps its size
+#: when resent, so opening with full-size frames on a noisy link would resend kilobytes many times.
+ERROR_PRIOR_BYTES = 4096
+#: Bytes a CHUNK adds to the frame before its data (a DATA adds none).
 CHUNK_HEADER = 12
 
 
@@ -93,6 +99,8 @@ class PrintResult:
     reconnects: int
     elapsed_s: float
     boot_id: int
+    frames_skipped: int = 0  # retransmissions saved: frames the controller reported held (SACK)
+    sack: bool = False  # selective acknowledgement negotiated (in the last session)
 
 
 def pack_mask(mask: np.ndarray) -> bytes:
@@ -271,6 +279,7 @@ class _Out:
     sends: int = 0
     wire_end: float = 0.0
     tag: int = 0
+    held: bool = False  # the controller reported it holds this frame (SACK): not resent
 
 
 @dataclass
@@ -282,6 +291,7 @@ class _Counters:
     raw_bytes: int = 0
     frames_sent: int = 0
     retransmitted: int = 0
+    skipped: int = 0
     timeouts: int = 0
     naks: int = 0
     reconnects: int = 0
@@ -294,18 +304,43 @@ class _LinkLost(Exception):
 
 
 def optimal_frame_bytes(error_rate: float, overhead: int, largest: int, waste: float = 1.0) -> int:
-    """Frame size L (bytes) maximising go-back-N efficiency at byte error rate ``e``, within [.., largest].
+    """Frame size L (wire bytes) maximising throughput at byte error rate ``e``, within [.., largest].
 
-    Efficiency = (1 - p) / (1 + waste p) * (1 - overhead / L) with frame error rate
-    p = 1 - (1 - e)^L, where ``waste`` frames are resent in vain after each error.
+    Efficiency = (1 - p) / (1 + waste p) * (L - overhead - L // 254) / L with frame error
+    rate p = 1 - (1 - e)^L, where ``waste`` frames are resent in vain after each error (about
+    1 for plain go-back-N, 0 when the controller holds what follows a gap) and L // 254 is COBS.
     """
     smallest = overhead + MIN_CHUNK_PAYLOAD
     if error_rate <= 0 or largest <= smallest:
         return max(largest, smallest)
     sizes = np.arange(smallest, largest + 1, dtype=float)
     good = np.exp(sizes * math.log1p(-min(error_rate, 0.5)))
-    efficiency = good / (1 + waste * (1 - good)) * (1 - overhead / sizes)
+    efficiency = good / (1 + waste * (1 - good)) * (sizes - overhead - sizes // 254) / sizes
     return int(sizes[int(np.argmax(efficiency))])
+
+
+def next_chunk(layer: int, channel: int, data: bytes, offset: int, payload: int,
+               encodings: int) -> tuple[P.Data | P.Chunk, int]:
+    """The data message carrying ``data`` from ``offset`` in a frame payload of at most ``payload`` bytes.
+
+    A DATA (raw, address implicit) of up to ``payload`` bytes, unless an encoded CHUNK carries
+    more raw bytes, or the same in fewer payload bytes; returns (message, raw bytes carried).
+    """
+    remaining = len(data) - offset
+    raw_span = min(remaining, payload)
+    budget = payload - CHUNK_HEADER
+    span = min(remaining, 0xFFFF, budget * 16)
+    if encodings != 1 << P.ENC_RAW and budget > 0:
+        for _ in range(6):
+            if span < raw_span or span <= 0:
+                break
+            code, encoded = P.encode_chunk(data[offset:offset + span], encodings)
+            if len(encoded) <= budget:
+                if span > raw_span or len(encoded) + CHUNK_HEADER < raw_span:
+                    return P.Chunk(layer, channel, offset, code, span, encoded), span
+                break
+            span = int(span * budget / len(encoded) * 0.9)
+    return P.Data(data[offset:offset + raw_span]), raw_span
 
 
 class PrinterLink:
@@ -313,8 +348,8 @@ class PrinterLink:
 
     def __init__(self, connector, job: JobSpec, get_layer: LayerSource, *, timing: LinkTiming = LinkTiming(),
                  rate_bytes_s: float | None = None, max_payload: int = 1024, encodings: int = P.ALL_ENCODINGS,
-                 log: PrintLog | None = None, on_progress: Callable[[Progress], None] | None = None,
-                 session_seed: int | None = None):
+                 features: int = P.ALL_FEATURES, log: PrintLog | None = None,
+                 on_progress: Callable[[Progress], None] | None = None, session_seed: int | None = None):
         if job.layer_count < 1:
             raise InputError("the job has no layers")
         self.connector, self.job, self.get_layer = connector, job, get_layer
@@ -323,6 +358,7 @@ class PrinterLink:
         self.rate = rate_bytes_s
         self.max_payload = min(max_payload, P.MAX_PAYLOAD_LIMIT)
         self.encodings = encodings | (1 << P.ENC_RAW)
+        self.features = features
         self.log = log or PrintLog(None)
         self.on_progress = on_progress
         self._session_rng = np.random.default_rng(session_seed)
@@ -338,10 +374,10 @@ class PrinterLink:
         self._splitter = P.FrameSplitter()
         self._frames: deque[_Out] = deque()
         self._send_idx = 0
-        self._inflight = 0
         self._next_seq = 0
         self._credit = 0
         self._window = 1
+        self._sack = False
         self._negotiated = 1 << P.ENC_RAW
         self._link_payload = 64
         self._generator: Iterator | None = None
@@ -354,6 +390,7 @@ class PrinterLink:
         self._tag = 0
         self._err_events = 0.0
         self._err_bytes = 0.0
+        self._err_frames = 0.0
         self._budget: int | None = None
         self._budget_age = 0
         self._started = 0.0
@@ -375,7 +412,7 @@ class PrinterLink:
             self._restart_stream(start)
             self.log.write("connected", boot_id=ack.boot_id, controller_state=P.STATE_NAMES.get(ack.state),
                            first_layer=start, encodings=self._negotiated, window=self._window,
-                           rx_buffer=ack.rx_buffer)
+                           rx_buffer=ack.rx_buffer, sack=self._sack)
             self._pump()
         except KeyboardInterrupt:
             self.abort()
@@ -399,7 +436,8 @@ class PrinterLink:
         c = self.counters
         return PrintResult(self.first_layer, self.last_completed, max(0, self.last_completed - self.first_layer + 1),
                            c.bytes_sent, c.payload_bytes, c.raw_bytes, c.frames_sent, c.retransmitted, c.timeouts,
-                           c.naks, c.reconnects, time.monotonic() - self._started, self.boot_id or 0)
+                           c.naks, c.reconnects, time.monotonic() - self._started, self.boot_id or 0, c.skipped,
+                           self._sack)
 
     def abort(self) -> bool:
         """Send ABORT (out of band) until the controller reports it; True when confirmed."""
@@ -467,8 +505,8 @@ class PrinterLink:
     def _handshake(self, deadline: float, first: bool) -> P.HelloAck:
         """HELLO until HELLO_ACK (new session); raise on silence, echo or another protocol version."""
         self.session = int(self._session_rng.integers(1, 1 << 16))
-        hello = P.encode_frame(P.message_frame(P.Hello(P.PROTOCOL_VERSION, self.max_payload, self.encodings),
-                                               self.session))
+        hello = P.encode_frame(P.message_frame(P.Hello(P.PROTOCOL_VERSION, self.max_payload, self.encodings,
+                                                       self.features), self.session))
         next_hello = 0.0
         while True:
             now = time.monotonic()
@@ -512,9 +550,10 @@ class PrinterLink:
             self._reset_detected(ack.boot_id, ack.job_id, ack.last_completed)
         self.hello = ack
         self._negotiated = (ack.encodings & self.encodings) | (1 << P.ENC_RAW)
+        self._sack = bool(ack.features & self.features & P.FEATURE_SACK)
         self._link_payload = max(MIN_CHUNK_PAYLOAD + CHUNK_HEADER, min(self.max_payload, ack.max_payload))
         self._budget = None
-        self._window = max(1, min(ack.window, 0x7FFF))
+        self._window = max(1, min(ack.window, P.SACK_SPAN if self._sack else 0x7FFF))
         self._credit = ack.rx_buffer
         self.state = ack.state
         self._note_progress(ack.last_queued, ack.last_completed)
@@ -609,7 +648,6 @@ class PrinterLink:
         """Begin a fresh data stream (seq 0) at layer ``start``."""
         self._frames.clear()
         self._send_idx = 0
-        self._inflight = 0
         self._next_seq = 0
         self._await_resend = False
         self._stuck = 0
@@ -637,34 +675,28 @@ class PrinterLink:
         yield P.JobEnd(job.job_id), job.layer_count - 1, 0
 
     def _chunk_budget(self) -> int:
-        """Data bytes per CHUNK now: the negotiated maximum, shrunk while bytes are being corrupted.
+        """Payload bytes per data frame now: the negotiated maximum, shrunk while bytes are being corrupted.
 
-        Re-estimated every 32 chunks and after every retransmission round.
+        The byte error rate is estimated from retransmission rounds per byte sent (with the prior
+        of one in ``ERROR_PRIOR_BYTES``) as e = -ln(1 - p) / L, p the rounds per frame of mean
+        size L; the frame size is then chosen by :func:`optimal_frame_bytes`. Re-estimated
+        every 32 chunks and after every retransmission round.
         """
         self._budget_age += 1
         if self._budget is None or self._budget_age >= 32:
-            rate = self._err_events / self._err_bytes if self._err_bytes else 0.0
-            frame = optimal_frame_bytes(rate, P.FRAME_OVERHEAD + CHUNK_HEADER + 3,
-                                        self._link_payload + P.FRAME_OVERHEAD)
-            self._budget = max(MIN_CHUNK_PAYLOAD, frame - P.FRAME_OVERHEAD - CHUNK_HEADER - 3)
+            per_byte = (self._err_events + 1) / (self._err_bytes + ERROR_PRIOR_BYTES)
+            mean = self._err_bytes / self._err_frames if self._err_frames else 1.0
+            rate = -math.log1p(-min(per_byte * mean, 0.5)) / mean
+            frame = optimal_frame_bytes(rate, P.WIRE_OVERHEAD, P.wire_size(self._link_payload),
+                                        waste=0.0 if self._sack else 1.0)
+            self._budget = max(MIN_CHUNK_PAYLOAD, frame - P.WIRE_OVERHEAD - frame // 254)
             self._budget_age = 0
         return self._budget
 
-    def _make_chunk(self, layer: int, channel: int, data: bytes, offset: int) -> tuple[P.Chunk, int]:
-        """The next CHUNK from ``offset``: as many raw bytes as fit the budget once encoded."""
-        budget = min(self._chunk_budget(), self._link_payload - CHUNK_HEADER)
-        remaining = len(data) - offset
-        span = min(remaining, budget)
-        if self._negotiated != 1 << P.ENC_RAW:
-            span = min(remaining, 0xFFFF, budget * 16)
-            for _ in range(6):
-                code, encoded = P.encode_chunk(data[offset:offset + span], self._negotiated)
-                if len(encoded) <= budget:
-                    return P.Chunk(layer, channel, offset, code, span, encoded), span
-                span = max(budget, int(span * budget / len(encoded) * 0.9))
-            span = min(remaining, budget)
-        code, encoded = P.encode_chunk(data[offset:offset + span], self._negotiated)
-        return P.Chunk(layer, channel, offset, code, span, encoded), span
+    def _make_chunk(self, layer: int, channel: int, data: bytes, offset: int) -> tuple[P.Message, int]:
+        """The next DATA or CHUNK from ``offset`` within the current frame budget."""
+        return next_chunk(layer, channel, data, offset, min(self._chunk_budget(), self._link_payload),
+                          self._negotiated)
 
     def _next_frame(self) -> _Out | None:
         """The next frame to transmit: a rewound one, or a new one from the message generator."""
@@ -683,11 +715,24 @@ class PrinterLink:
         self._frames.append(out)
         return out
 
+    def _inflight(self) -> int:
+        """Credit used: costs of the frames sent in this pass that the controller does not report held."""
+        return sum(out.cost for out in itertools.islice(self._frames, self._send_idx) if not out.held)
+
     def _try_send(self, now: float) -> float | None:
-        """Transmit frames the window, credit and pacing allow; return when pacing permits the next one."""
+        """Transmit frames the window, credit and pacing allow; return when pacing permits the next one.
+
+        A frame the controller reports held (SACK) is passed over, not resent.
+        """
         while True:
             out = self._next_frame()
-            if out is None or self._send_idx >= self._window or self._inflight + out.cost > self._credit:
+            if out is None or self._send_idx >= self._window:
+                return None
+            if out.held:
+                self._send_idx += 1
+                self.counters.skipped += 1
+                continue
+            if self._inflight() + out.cost > self._credit:
                 return None
             byte_time = 1.0 / self.rate if self.rate else 0.0
             lead = self.timing.poll_s
@@ -710,31 +755,37 @@ class PrinterLink:
                 c.payload_bytes += out.payload
                 c.raw_bytes += out.raw
             self._err_bytes += len(wire)
+            self._err_frames += 1
             if self._send_idx == 0:
                 self._await_resend = False
             out.sends += 1
             self._send_idx += 1
-            self._inflight += out.cost
 
-    def _on_ack(self, ack_seq: int, credit: int) -> None:
-        """Cumulative acknowledgement of every frame before ``ack_seq``, with fresh credit."""
+    def _on_ack(self, ack_seq: int, credit: int, held: int | None = None) -> None:
+        """Cumulative acknowledgement of every frame before ``ack_seq``, with fresh credit.
+
+        ``held`` (ACK and NAK, with SACK): bit i tells that the controller holds seq ack_seq + 1 + i.
+        """
         progressed = False
         while self._frames and P.seq_diff(ack_seq, self._frames[0].seq) > 0:
-            out = self._frames.popleft()
+            self._frames.popleft()
             if self._send_idx > 0:
                 self._send_idx -= 1
-                self._inflight -= out.cost
             progressed = True
         if progressed:
             self._stuck = 0
             self._backoff = 1
+        if self._frames and P.seq_diff(ack_seq, self._frames[0].seq) == 0:
+            self._frames[0].held = False
+            if held is not None and self._sack:
+                for out in itertools.islice(self._frames, 1, P.SACK_SPAN + 1):
+                    out.held = bool(held >> (P.seq_diff(out.seq, ack_seq) - 1) & 1)
         if not self._frames or P.seq_diff(ack_seq, self._frames[0].seq) == 0 or progressed:
             self._credit = credit
 
     def _go_back(self, reason: str) -> None:
-        """Go-back-N: retransmit every unacknowledged frame; pause the job after too many rounds."""
+        """Go-back-N: retransmit every unacknowledged frame not reported held; pause after too many rounds."""
         self._send_idx = 0
-        self._inflight = 0
         self._await_resend = True
         self._stuck += 1
         self._err_events += 1
@@ -742,6 +793,7 @@ class PrinterLink:
         if self._err_bytes > 1 << 18:
             self._err_bytes /= 2
             self._err_events /= 2
+            self._err_frames /= 2
         if self._stuck >= self.timing.retry_limit:
             head = self._frames[0] if self._frames else None
             paused = self.pause()
@@ -818,10 +870,10 @@ class PrinterLink:
         if frame.session != self.session:
             return
         if isinstance(message, P.Ack):
-            self._on_ack(frame.ack, message.credit)
+            self._on_ack(frame.ack, message.credit, message.held)
             self._note_progress(message.last_queued, message.last_completed)
         elif isinstance(message, P.Nak):
-            self._on_ack(frame.ack, message.credit)
+            self._on_ack(frame.ack, message.credit, message.held)
             self._on_nak(frame.ack, message)
 
     def _finished(self) -> bool:
@@ -855,7 +907,8 @@ class PrinterLink:
 def print_job(port: str, job: JobSpec, get_layer: LayerSource, *, baud: int = 115200,
               from_layer: int | None = None, timing: LinkTiming = LinkTiming(), log_path: Path | None = None,
               on_progress: Callable[[Progress], None] | None = None, connector=None,
-              max_payload: int = 1024, encodings: int = P.ALL_ENCODINGS) -> PrintResult:
+              max_payload: int = 1024, encodings: int = P.ALL_ENCODINGS,
+              features: int = P.ALL_FEATURES) -> PrintResult:
     """Print ``job`` on ``port`` (device path, pyserial URL or ``sim://``); raise a PrinterError subclass on failure."""
     own = connector is None
     connector = connector or connector_for(port, baud)
@@ -863,7 +916,7 @@ def print_job(port: str, job: JobSpec, get_layer: LayerSource, *, baud: int = 11
     log = PrintLog(log_path)
     try:
         link = PrinterLink(connector, job, get_layer, timing=timing, rate_bytes_s=rate, max_payload=max_payload,
-                           encodings=encodings, log=log, on_progress=on_progress)
+                           encodings=encodings, features=features, log=log, on_progress=on_progress)
         return link.run(from_layer)
     finally:
         log.close()
@@ -875,19 +928,17 @@ def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, m
             encodings: int = P.ALL_ENCODINGS, from_layer: int = 0) -> dict:
     """Encode every frame of the job without a port: frames, wire bytes and the time at ``baud`` (8N1), s."""
     frames = wire = raw = 0
-    budget = max_payload - CHUNK_HEADER
     for index in range(from_layer, job.layer_count):
         channels = list(get_layer(index))
         frames += 3
         wire += 3 * P.wire_size(13)
-        for data in channels:
+        for number, data in enumerate(channels):
             raw += len(data)
             offset = 0
             while offset < len(data):
-                span = min(len(data) - offset, budget)
-                _, encoded = P.encode_chunk(data[offset:offset + span], encodings)
+                message, span = next_chunk(index, number, data, offset, max_payload, encodings)
                 frames += 1
-                wire += P.wire_size(CHUNK_HEADER + len(encoded))
+                wire += P.wire_size(len(P.pack_message(message)[1]))
                 offset += span
     return {"layers": job.layer_count - from_layer, "channels": job.channels, "raw_bytes": raw,
             "frames": frames, "wire_bytes": wire, "seconds_at_baud": wire * 10.0 / baud}
@@ -901,4 +952,4 @@ def job_summary(job: JobSpec) -> str:
 
 __all__ = ["JobSpec", "LinkTiming", "Progress", "PrintResult", "PrinterLink", "PrintLog", "print_job", "plan_transfer",
            "stack_job", "synthetic_job", "random_job", "pack_mask", "connector_for", "default_log_path",
-           "SerialConnector", "SimConnector", "optimal_frame_bytes"]
+           "SerialConnector", "SimConnector", "optimal_frame_bytes", "next_chunk"]

@@ -1,4 +1,4 @@
-"""The heoslice printer wire protocol, version 1: pure codecs, no I/O.
+"""The heoslice printer wire protocol, version 2: pure codecs, no I/O.
 
 Specified in ``docs/protocol.md``. A frame is ``COBS(header + payload + CRC-32) + 0x00``;
 the header is ``<BBHHHH`` (version, type, session, seq, ack, payload length), all
@@ -18,14 +18,25 @@ import numpy as np
 
 from heoslice.errors import ProtocolError
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 HEADER = struct.Struct("<BBHHHH")
 CRC = struct.Struct("<I")
-#: Largest payload any version-1 peer may send or accept, bytes.
+#: Largest payload any peer may send or accept, bytes.
 MAX_PAYLOAD_LIMIT = 4096
 #: Bytes of header + CRC around a payload (before COBS and the delimiter).
 FRAME_OVERHEAD = HEADER.size + CRC.size
 SEQ_MODULUS = 1 << 16
+#: Wire bytes a frame adds to its payload when header + payload + CRC is under 254 bytes: header, CRC,
+#: the COBS code byte and the delimiter (one more COBS byte per further 254).
+WIRE_OVERHEAD = FRAME_OVERHEAD + 2
+
+# Protocol extensions offered in HELLO.features and enabled in HELLO_ACK.features (bit masks).
+#: Selective acknowledgement: the controller keeps data frames that arrive after a gap and reports
+#: them in ACK/NAK ``held``; the host skips them when it goes back (docs/protocol.md section 5).
+FEATURE_SACK = 1 << 0
+ALL_FEATURES = FEATURE_SACK
+#: Frames after the next expected one that ``held`` can report (bit i: seq expected + 1 + i).
+SACK_SPAN = 64
 
 # Chunk encodings: the code sent in CHUNK.encoding; the bit ``1 << code`` in HELLO masks.
 ENC_RAW = 0
@@ -202,10 +213,11 @@ class Hello:
     """Host -> controller: open a session (header.session is the new session id)."""
 
     TYPE: ClassVar[int] = 0x01
-    FORMAT: ClassVar[str] = "<BHB"
+    FORMAT: ClassVar[str] = "<BHBB"
     version: int
     max_payload: int
     encodings: int
+    features: int = 0
 
 
 @dataclass(frozen=True)
@@ -213,7 +225,7 @@ class HelloAck:
     """Controller -> host: capabilities and the state a resuming host needs."""
 
     TYPE: ClassVar[int] = 0x02
-    FORMAT: ClassVar[str] = "<BIIHHBBIIffIiiB"
+    FORMAT: ClassVar[str] = "<BIIHHBBIIffIiiBB"
     version: int
     boot_id: int
     rx_buffer: int
@@ -229,6 +241,7 @@ class HelloAck:
     last_completed: int
     last_queued: int
     state: int
+    features: int = 0
 
 
 @dataclass(frozen=True)
@@ -268,6 +281,21 @@ class Chunk:
     offset: int
     encoding: int
     raw_len: int
+    data: bytes = b""
+
+
+@dataclass(frozen=True)
+class Data:
+    """Raw layer bytes written at the layer's write cursor: the compact, address-implicit CHUNK.
+
+    LAYER_BEGIN sets the cursor to 0, each CHUNK to the end of what it wrote, each DATA
+    advances it by its length; the layer's channels are concatenated. Data frames are
+    applied strictly in sequence order, so a DATA's (layer, channel, offset) is fixed by its
+    place in the stream and a retransmission writes the same bytes at the same place.
+    """
+
+    TYPE: ClassVar[int] = 0x16
+    FORMAT: ClassVar[str] = "<"
     data: bytes = b""
 
 
@@ -335,10 +363,11 @@ class Ack:
     """Controller -> host: header.ack = next expected seq (cumulative); free buffer and progress."""
 
     TYPE: ClassVar[int] = 0x30
-    FORMAT: ClassVar[str] = "<Iii"
+    FORMAT: ClassVar[str] = "<IiiQ"
     credit: int
     last_queued: int
     last_completed: int
+    held: int = 0
 
 
 @dataclass(frozen=True)
@@ -346,10 +375,11 @@ class Nak:
     """Controller -> host: header.ack is expected but another frame came; ``tag`` echoes that frame's header.ack."""
 
     TYPE: ClassVar[int] = 0x31
-    FORMAT: ClassVar[str] = "<HIB"
+    FORMAT: ClassVar[str] = "<HIBQ"
     tag: int
     credit: int
     reason: int
+    held: int = 0
 
 
 @dataclass(frozen=True)
@@ -368,13 +398,16 @@ class Status:
     error_layer: int
 
 
-Message = (Hello | HelloAck | JobBegin | LayerBegin | Chunk | LayerEnd | Execute | JobEnd
+Message = (Hello | HelloAck | JobBegin | LayerBegin | Chunk | Data | LayerEnd | Execute | JobEnd
            | Abort | Pause | Resume | StatusRequest | Ack | Nak | Status)
 MESSAGE_TYPES: dict[int, type] = {cls.TYPE: cls for cls in (
-    Hello, HelloAck, JobBegin, LayerBegin, Chunk, LayerEnd, Execute, JobEnd,
+    Hello, HelloAck, JobBegin, LayerBegin, Chunk, Data, LayerEnd, Execute, JobEnd,
     Abort, Pause, Resume, StatusRequest, Ack, Nak, Status)}
 #: Types carried in the sequenced data stream (go-back-N); all others bypass it.
-DATA_TYPES = frozenset({JobBegin.TYPE, LayerBegin.TYPE, Chunk.TYPE, LayerEnd.TYPE, Execute.TYPE, JobEnd.TYPE})
+DATA_TYPES = frozenset({JobBegin.TYPE, LayerBegin.TYPE, Chunk.TYPE, Data.TYPE, LayerEnd.TYPE, Execute.TYPE,
+                        JobEnd.TYPE})
+#: Types whose fixed fields are followed by a variable number of data bytes.
+_VARIABLE_TYPES = frozenset({Chunk.TYPE, Data.TYPE})
 _STRUCTS = {kind: struct.Struct(cls.FORMAT) for kind, cls in MESSAGE_TYPES.items()}
 
 
@@ -386,7 +419,7 @@ def pack_message(message: Message) -> tuple[int, bytes]:
         payload = _STRUCTS[kind].pack(*values)
     except struct.error as err:
         raise ProtocolError(f"cannot pack {type(message).__name__}: {err}") from err
-    if kind == Chunk.TYPE:
+    if kind in _VARIABLE_TYPES:
         payload += message.data
     return kind, payload
 
@@ -397,9 +430,9 @@ def unpack_message(kind: int, payload: bytes) -> Message:
     if cls is None:
         raise ProtocolError(f"unknown message type 0x{kind:02x}")
     layout = _STRUCTS[kind]
-    if kind == Chunk.TYPE:
+    if kind in _VARIABLE_TYPES:
         if len(payload) < layout.size:
-            raise ProtocolError(f"CHUNK payload of {len(payload)} bytes is too short")
+            raise ProtocolError(f"{cls.__name__} payload of {len(payload)} bytes is too short")
         return cls(*layout.unpack_from(payload), data=bytes(payload[layout.size:]))
     if len(payload) != layout.size:
         raise ProtocolError(f"{cls.__name__} payload is {len(payload)} bytes, expected {layout.size}")

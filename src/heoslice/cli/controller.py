@@ -22,7 +22,7 @@ Examples:
 \b
 --set takes any field of SimConfig or FaultSpec (heoslice.controller), e.g.
 frame_drop_rate, frame_dup_rate, ack_loss_rate, disconnect_at_layer, dead_at_layer,
-fail_at_layer, rx_buffer, max_payload, version.
+fail_at_layer, rx_buffer, max_payload, version, features (0: no SACK, plain go-back-N).
 """)
 @click.option("--pty", "use_pty", is_flag=True, help="Serve on a new pseudo-terminal and print its path.")
 @click.option("--listen", default=None, metavar="HOST:PORT",
