@@ -54,12 +54,19 @@ def heoslice(*args, **popen) -> subprocess.Popen:
     """Start ``python -m heoslice ARGS`` in its own process group (so it and its workers can be killed)."""
     return subprocess.Popen([sys.executable, "-m", "heoslice", *map(str, args)], start_new_session=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=_default_sigint, **popen)
+                            preexec_fn=_child_setup(popen.pop("preexec_fn", None)), **popen)
 
 
-def _default_sigint() -> None:
-    """In the child: SIGINT as a terminal delivers it, even when the test runner was started with it ignored."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+def _child_setup(extra=None):
+    """In the child: SIGINT as a terminal delivers it (even when the test runner was started with it
+    ignored), then ``extra`` (e.g. a resource limit)."""
+
+    def setup() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        if extra is not None:
+            extra()
+
+    return setup
 
 
 def layer_count(directory: Path, newer_than: float = 0.0) -> int:
