@@ -443,3 +443,24 @@ def test_row_starts_are_the_same_for_any_window(tmp_path, window):
                                 window=window)
     expected = offset + np.concatenate([[0], np.cumsum(2 + 4 * sizes)[:-1]])
     np.testing.assert_array_equal(starts, expected)
+
+
+@pytest.mark.parametrize("collide", [False, True])
+def test_weld_merges_equal_coordinates_in_first_occurrence_order(monkeypatch, collide):
+    """Equal coordinates (and -0.0 / 0.0) become one vertex, first occurrences keep their order, a welded
+    mesh is unchanged, and the exact fallback gives the same answer when every hash collides."""
+    from heoslice import loading
+
+    if collide:
+        monkeypatch.setattr(loading, "_mix64", lambda x: np.zeros_like(x))
+    rng = np.random.default_rng(5)
+    vertices = rng.integers(-2, 3, (300, 3)).astype(np.float32)
+    vertices[vertices == 0] = -0.0
+    faces = rng.integers(0, 300, (200, 3))
+    unique, welded_faces, first = loading._weld(vertices, faces)
+    np.testing.assert_array_equal(unique[welded_faces], (vertices[faces] + 0.0).astype(np.float64))
+    assert len(unique) == len(np.unique(vertices + 0.0, axis=0))
+    assert np.all(np.diff(first) > 0) and first[0] == 0
+    again, again_faces, _ = loading._weld(unique, welded_faces)
+    np.testing.assert_array_equal(again, unique)
+    np.testing.assert_array_equal(again_faces, welded_faces)

@@ -181,3 +181,19 @@ def test_slicing_in_runs_of_planes_gives_the_same_stack(tmp_path):
     runs, _ = slice_to_stack(mesh, tmp_path / "b", SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), jobs=2,
                                                              max_segments=300))
     assert [e["sha256"] for e in whole["layers"]] == [e["sha256"] for e in runs["layers"]]
+
+
+def test_nested_shells_fill_once_and_verify_against_the_union(tmp_path, run_cli):
+    """A lesion shell inside an organ is filled once: the stack volume is the union's (manifold3d), not
+    the signed sum, and `verify --mesh` accepts it."""
+    from heoslice.loading import signed_volume_mm3, solid_volume_mm3
+
+    mesh = procedural.nested_shells(outer=10.0, inner=4.0, offset=(3.0, 0.0, 0.0), subdivisions=4)
+    model = write_mesh(mesh, tmp_path / "organ.ply")
+    loaded = load_mesh(model)
+    union, exact = solid_volume_mm3(loaded)
+    assert exact and union < 0.99 * signed_volume_mm3(loaded.vertices, loaded.faces)
+    manifest, _ = slice_to_stack(loaded, tmp_path / "stack", SliceSpec(layer_height_mm=0.25, dpi=(254.0, 254.0)))
+    assert stack_volume_mm3(manifest) == pytest.approx(union, rel=5e-3)
+    code, out, err = run_cli("verify", tmp_path / "stack", "--mesh", model)
+    assert code == 0, out + err

@@ -33,7 +33,7 @@ import numpy as np
 from heoslice.distribution import (DistributionFunction, Reference, make_function, make_reference,
                                    normalise, reference_distance, evaluate)
 from heoslice.errors import InputError, OutputError
-from heoslice.loading import MATERIAL_PROPERTY, Mesh, load_mesh
+from heoslice.loading import MATERIAL_PROPERTY, Mesh, load_mesh, shell_labels
 from heoslice.materials import DEFAULT_MATERIALS, Material, blend, to_rgb8
 
 #: Subdivision refuses to make more triangles than this (memory: about 1 KB each on the way).
@@ -120,15 +120,6 @@ def _vertex_shells(faces: np.ndarray, shell: np.ndarray, count: int) -> np.ndarr
     return out
 
 
-def _shell_labels(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Connected-shell label per face, as :func:`heoslice.loading.load_mesh` numbers them."""
-    import trimesh
-
-    mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
-    return np.asarray(trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(faces)),
-                      dtype=np.int64)
-
-
 def material_comment(prefix: str, material: Material) -> str:
     """``heoslice material M1 gel 240,240,240 channel 1`` (the role, name, colour, channel)."""
     channel = "-" if material.channel is None else str(material.channel)
@@ -170,7 +161,7 @@ def color_mesh(mesh: Mesh, spec: ColorSpec, labels: dict[str, str] | None = None
     if spec.max_edge is not None:
         with _step(labels, "max_edge"):
             vertices, faces = _canonical(*subdivide(vertices, faces, spec.max_edge))
-        shell = _shell_labels(vertices, faces)
+        shell = shell_labels(faces)
     surface = None
     if spec.reference == "surface":
         with _step(labels, "surface"):

@@ -66,10 +66,6 @@ class Contours:
         count = len(self.layer_offsets) - 1
         return np.bincount(self.layer, weights=self.area, minlength=count)
 
-    def is_outer(self) -> np.ndarray:
-        """(loops,) bool: counter-clockwise loops, the outer rings of profile families."""
-        return self.area > 0
-
 
 def successors(start_key: np.ndarray, end_key: np.ndarray) -> np.ndarray:
     """For each segment, the index of the segment starting where it ends, or -1 (open chain).

@@ -704,34 +704,73 @@ def _weld(vertices: np.ndarray, faces: np.ndarray):
     bits = rows.view(np.uint32 if rows.dtype == np.float32 else np.uint64)
     with np.errstate(over="ignore"):
         key = _mix64(_mix64(_mix64(bits[:, 0].astype(np.uint64)) ^ bits[:, 1]) ^ bits[:, 2])
-    order = np.argsort(key, kind="stable")
+    order = np.argsort(key)
     sorted_key = key[order]
-    starts = np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]])
-    group = np.cumsum(starts) - 1
-    leader = order[starts][group]  # first (lowest) index of each row's group, per sorted position
-    if not all(np.array_equal(bits[order, axis], bits[leader, axis]) for axis in range(3)):
+    is_start = np.empty(len(key), dtype=bool)
+    is_start[:1] = True
+    np.not_equal(sorted_key[1:], sorted_key[:-1], out=is_start[1:])
+    start_position = np.flatnonzero(is_start)
+    group = np.cumsum(is_start) - 1
+    sorted_rows = bits[order]
+    if not np.array_equal(sorted_rows, sorted_rows[start_position][group]):  # a hash collision
         _, first, inverse = np.unique(rows, axis=0, return_index=True, return_inverse=True)
         rank = np.argsort(np.argsort(first))
         return rows[np.sort(first)].astype(np.float64), rank[inverse.reshape(-1)][faces], np.sort(first)
     representative = np.empty(len(rows), dtype=np.int64)
-    representative[order] = leader
-    first = np.nonzero(representative == np.arange(len(rows)))[0]
+    representative[order] = np.minimum.reduceat(order, start_position)[group]  # lowest index of the group
+    first = np.flatnonzero(representative == np.arange(len(rows)))
     new_index = np.empty(len(rows), dtype=np.int64)
     new_index[first] = np.arange(len(first))
     return rows[first].astype(np.float64), new_index[representative][faces], first
 
 
-def shell_labels(faces: np.ndarray, vertex_count: int) -> np.ndarray:
+@dataclass(frozen=True)
+class EdgeGroups:
+    """The faces' edges (3 per face, face f's at 3f..3f+2) sorted by undirected edge.
+
+    ``order`` ((3m,) int) sorts them; ``starts`` ((e,) int) is where each distinct
+    edge's run begins in that order; ``forward`` ((3m,) bool, sorted) is True where the
+    face walks the edge from its lower to its higher vertex index. Shells, edge use
+    counts and winding consistency all come from this one integer sort.
+    """
+
+    order: np.ndarray
+    starts: np.ndarray
+    forward: np.ndarray
+
+    @property
+    def uses(self) -> np.ndarray:
+        """(e,) int: faces using each distinct edge (1 on a hole's rim, more than 2 if non-manifold)."""
+        return np.diff(np.append(self.starts, len(self.order)))
+
+    @property
+    def winding_consistent(self) -> bool:
+        """No edge is walked twice in the same direction (neighbouring faces agree on orientation)."""
+        forward = np.add.reduceat(self.forward.astype(np.int64), self.starts) if len(self.starts) else 0
+        return bool(np.all(forward <= 1) and np.all(self.uses - forward <= 1))
+
+
+def edge_groups(faces: np.ndarray) -> EdgeGroups:
+    """Group the faces' edges by undirected edge with one integer sort."""
+    edges = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    key = np.minimum(edges[:, 0], edges[:, 1]) * (np.int64(faces.max(initial=0)) + 1) \
+        + np.maximum(edges[:, 0], edges[:, 1])
+    order = np.argsort(key)
+    sorted_key = key[order]
+    starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
+    return EdgeGroups(order=order, starts=starts, forward=(edges[:, 0] < edges[:, 1])[order])
+
+
+def shell_labels(faces: np.ndarray, groups: EdgeGroups | None = None) -> np.ndarray:
     """(m,) int: connected shell of each face, faces being connected through shared edges."""
     import scipy.sparse
     import scipy.sparse.csgraph
 
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    key = edges[:, 0] * np.int64(vertex_count) + edges[:, 1]
-    order = np.argsort(key, kind="stable")
-    same = key[order][1:] == key[order][:-1]
-    owner = order // 3
-    a, b = owner[:-1][same], owner[1:][same]
+    groups = groups if groups is not None else edge_groups(faces)
+    same = np.ones(len(groups.order), dtype=bool)
+    same[groups.starts] = False  # entry i shares its edge with entry i - 1 in sorted order
+    owner = groups.order // 3
+    a, b = owner[:-1][same[1:]], owner[1:][same[1:]]
     graph = scipy.sparse.coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(len(faces), len(faces)))
     return scipy.sparse.csgraph.connected_components(graph, directed=False)[1].astype(np.int64)
 
@@ -751,18 +790,13 @@ def winding_number(point: np.ndarray, triangles: np.ndarray) -> float:
 
 
 def edge_use_counts(faces: np.ndarray) -> np.ndarray:
-    """How many faces use each distinct undirected edge ((e,) int), from one integer sort."""
-    edges = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    key = np.minimum(edges[:, 0], edges[:, 1]) * (np.int64(faces.max(initial=0)) + 1) \
-        + np.maximum(edges[:, 0], edges[:, 1])
-    key.sort()
-    boundaries = np.concatenate([[0], np.nonzero(key[1:] != key[:-1])[0] + 1, [len(key)]])
-    return np.diff(boundaries)
+    """How many faces use each distinct undirected edge ((e,) int)."""
+    return edge_groups(faces).uses
 
 
-def _topology_notes(faces: np.ndarray) -> list[str]:
+def _topology_notes(groups: EdgeGroups) -> list[str]:
     """Warnings for edges used by one face (holes: the mesh is open) or by more than two (non-manifold)."""
-    uses = edge_use_counts(faces)
+    uses = groups.uses
     notes = []
     boundary, shared = int((uses == 1).sum()), int((uses > 2).sum())
     if boundary:
@@ -772,7 +806,8 @@ def _topology_notes(faces: np.ndarray) -> list[str]:
     return notes
 
 
-def _orient_outward(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def _orient_outward(vertices: np.ndarray, faces: np.ndarray,
+                    groups: EdgeGroups) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Make winding consistent and orientation outward where that is unambiguous.
 
     Returns (faces, shell label per face, warnings). Inconsistent winding is fixed by
@@ -782,11 +817,8 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray
     positive volume, such as a lesion inside an organ, is solid and also stays).
     """
     notes: list[str] = []
-    shell = shell_labels(faces, len(vertices))
-    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    directed_key = directed[:, 0] * np.int64(len(vertices)) + directed[:, 1]
-    directed_key.sort()
-    if np.any(directed_key[1:] == directed_key[:-1]):  # a directed edge used twice: winding flips
+    shell = shell_labels(faces, groups)
+    if not groups.winding_consistent:
         import trimesh
 
         mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False)
@@ -880,14 +912,12 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     zero_area = int((area <= 1e-12 * max(float(extent.max()), 1.0) ** 2).sum())
     if zero_area:
         notes.append(f"{zero_area} zero-area face(s)")
-    notes.extend(_topology_notes(faces))
-    faces, shell, orient_notes = _orient_outward(vertices, faces)
+    groups = edge_groups(faces)
+    notes.extend(_topology_notes(groups))
+    faces, shell, orient_notes = _orient_outward(vertices, faces, groups)
     notes.extend(orient_notes)
     if extent.max() < 1.0:
-        notes.append(
-            f"largest extent is {extent.max():.4g}: the model looks like it is in metres; "
-            "heoslice reads coordinates as mm (use --scale 1000)"
-        )
+        notes.append(_metres_note(float(extent.max())))
     return Mesh(
         vertices=vertices,
         faces=faces,
@@ -900,13 +930,63 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     )
 
 
+_METRES_NOTE = "largest extent is "
+
+
+def _metres_note(extent: float) -> str:
+    """The warning for a model whose largest extent (mm as read) is below 1."""
+    return (f"{_METRES_NOTE}{extent:.4g}: the model looks like it is in metres; "
+            "heoslice reads coordinates as mm (use --scale 1000)")
+
+
 def scaled(mesh: Mesh, factor: float) -> Mesh:
     """The same mesh with coordinates multiplied by ``factor`` (e.g. 1000 for metres to mm)."""
     from dataclasses import replace
 
-    if not factor > 0:
-        raise InputError(f"scale must be positive, got {factor}")
-    return replace(mesh, vertices=mesh.vertices * float(factor))
+    if not (np.isfinite(factor) and factor > 0):
+        raise InputError(f"--scale: must be a positive number, got {factor}")
+    vertices = mesh.vertices * float(factor)
+    notes = [note for note in mesh.warnings if not note.startswith(_METRES_NOTE)]
+    extent = float((vertices.max(axis=0) - vertices.min(axis=0)).max())
+    if extent < 1.0:
+        notes.append(_metres_note(extent))
+    return replace(mesh, vertices=vertices, warnings=tuple(notes))
+
+
+def signed_volume_mm3(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Signed volume of a triangle mesh by the divergence theorem, mm^3 (exact for closed outward shells)."""
+    corner = vertices[faces]
+    return float(np.einsum("ij,ij->i", corner[:, 0], np.cross(corner[:, 1], corner[:, 2])).sum() / 6.0)
+
+
+def solid_volume_mm3(mesh: Mesh) -> tuple[float, bool]:
+    """Volume of the solid the slicer fills (non-zero winding), mm^3, and whether it is exact.
+
+    Shells that overlap (a lesion shell inside an organ) count once: when every shell
+    is outward, the volume is manifold3d's union of the shells. With cavities
+    (inward shells) it is the signed volume, exact when shells do not overlap. If
+    manifold3d refuses a shell, the signed volume is returned as not exact.
+    """
+    signed = signed_volume_mm3(mesh.vertices, mesh.faces)
+    shells = int(mesh.shell.max()) + 1 if len(mesh.shell) else 0
+    if shells < 2:
+        return signed, True
+    corner = mesh.vertices[mesh.faces]
+    per_face = np.einsum("ij,ij->i", corner[:, 0], np.cross(corner[:, 1], corner[:, 2])) / 6.0
+    if np.any(np.bincount(mesh.shell, weights=per_face) <= 0):
+        return signed, True
+    import manifold3d
+
+    parts = []
+    for label in range(shells):  # one manifold per shell, then one batched union
+        faces = mesh.faces[mesh.shell == label]
+        used, local = np.unique(faces, return_inverse=True)
+        part = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.ascontiguousarray(mesh.vertices[used]),
+                                                     tri_verts=local.reshape(-1, 3).astype(np.uint64)))
+        if part.status() != manifold3d.Error.NoError:
+            return signed, False
+        parts.append(part)
+    return float(manifold3d.Manifold.batch_boolean(parts, manifold3d.OpType.Add).volume()), True
 
 
 def mesh_info(mesh: Mesh) -> dict:

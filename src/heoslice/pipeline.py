@@ -41,6 +41,12 @@ from heoslice.stack import (
 )
 
 
+MIN_LAYER_MM = 1e-3
+MIN_DPI, MAX_DPI = 1.0, 100_000.0
+#: Most layers one stack may have (a 1 m part at 1 micrometre layers).
+MAX_LAYERS = 1_000_000
+
+
 @dataclass(frozen=True)
 class SliceSpec:
     """What to slice and how: layer height (mm), resolution (dpi x, y), canvas, encoding, workers.
@@ -65,8 +71,24 @@ class SliceSpec:
         if self.compression not in COMPRESSIONS:
             raise InputError(f"--compress: unknown compression {self.compression!r}; "
                              f"choose one of {', '.join(COMPRESSIONS)}")
-        if not self.layer_height_mm > 0:
-            raise InputError(f"--layer: layer height must be positive, got {self.layer_height_mm}")
+        if not (np.isfinite(self.layer_height_mm) and self.layer_height_mm >= MIN_LAYER_MM):
+            raise InputError(f"--layer: layer height must be a number of at least {MIN_LAYER_MM} mm, "
+                             f"got {self.layer_height_mm}")
+        if not (np.isfinite(self.margin_mm) and self.margin_mm >= 0):
+            raise InputError(f"--margin: must be a finite number >= 0, got {self.margin_mm}")
+        if not all(np.isfinite(d) and MIN_DPI <= d <= MAX_DPI for d in self.dpi):
+            raise InputError(f"--dpi: each resolution must be between {MIN_DPI} and {MAX_DPI}, got {self.dpi}")
+        if self.canvas_mm is not None and not all(np.isfinite(v) and v > 0 for v in self.canvas_mm):
+            raise InputError(f"--canvas: width and height must be finite and positive, got {self.canvas_mm}")
+        if self.jobs < 0:
+            raise InputError(f"--jobs: must be 0 (all cores) or more, got {self.jobs}")
+        if self.channels and self.grade is None:
+            raise InputError("--channels needs a graded slice (--grade)")
+        if self.grade is not None:
+            names = [channel_name(material) for material in self.grade.channel_materials()]
+            if len(set(names)) != len(names):
+                raise InputError(f"--materials: material names give the same droplet-mask file names ({names}); "
+                                 "rename them")
 
     def worker_count(self) -> int:
         return self.jobs if self.jobs > 0 else max(1, len(os.sched_getaffinity(0)))
@@ -257,7 +279,7 @@ def _sliced_jobs(mesh: Mesh, z: np.ndarray, grid: Grid, spec: SliceSpec, directo
                  times: StageTimes, open_layers: np.ndarray, max_segments: int):
     """Layer jobs, slicing and chaining the planes run by run (bounded memory, any layer count)."""
     face_range = face_z_range(mesh.vertices, mesh.faces)
-    for start, stop in plane_chunks(mesh.vertices, mesh.faces, z, max_segments):
+    for start, stop in plane_chunks(mesh.vertices, mesh.faces, z, max_segments, face_range):
         began = time.perf_counter()
         sections = slice_planes(mesh.vertices, mesh.faces, z, start, stop, face_range)
         sliced = time.perf_counter()
@@ -280,11 +302,13 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     started = time.perf_counter()
     grid = grid_for(mesh.bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
     check_image_size(grid.width, grid.height)
-    prepare_directory(directory, force)
     bounds = mesh.bounds
+    layers = int(np.ceil((bounds[1, 2] - bounds[0, 2]) / spec.layer_height_mm))
+    if layers > MAX_LAYERS:
+        raise InputError(f"--layer {spec.layer_height_mm} mm gives {layers} layers for this part "
+                         f"(at most {MAX_LAYERS})")
+    prepare_directory(directory, force)
     z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
-    if spec.channels and spec.grade is None:
-        raise InputError("--channels needs a graded slice (--grade)")
     results: dict[int, tuple] = {}
 
     def on_done(result: tuple) -> None:

@@ -120,7 +120,7 @@ def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
     Channel 0 is the solid mask; channels 1.. are the droplet masks of a layer entry's
     ``"channels"`` list when present (layers with fewer channels are padded with empty masks).
     """
-    from heoslice.stack import MANIFEST, decode_mask, load_verified, read_layer_mask, resolve_inside
+    from heoslice.stack import decode_mask, load_verified, read_layer_mask, resolve_inside
 
     directory = Path(directory)
     manifest = load_verified(directory)
@@ -129,14 +129,15 @@ def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
         raise InputError(f"{directory}: the stack has no layers")
     width, height = manifest["image"]["width"], manifest["image"]["height"]
     channels = 1 + max(len(entry.get("channels") or []) for entry in layers)
-    job_id = P.crc32((directory / MANIFEST).read_bytes()) or 1
+    job_id = P.crc32(json.dumps(manifest, sort_keys=True).encode()) or 1
     job = JobSpec(job_id, len(layers), channels, width, height)
     as_nonzero = {**manifest, "mask": "nonzero"}
 
     def get_layer(index: int) -> list[bytes]:
         out = [pack_mask(read_layer_mask(directory, manifest, index))]
         for channel in layers[index].get("channels") or []:
-            out.append(pack_mask(decode_mask(resolve_inside(directory, channel["file"]), as_nonzero)))
+            out.append(pack_mask(decode_mask(resolve_inside(directory, channel["file"]), as_nonzero,
+                                             sha256=channel["sha256"])))
         empty = bytes(job.channel_bytes)
         return out + [empty] * (channels - len(out))
 

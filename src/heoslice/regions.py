@@ -587,24 +587,50 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
     return pixels.reshape(lattice.rows * f, lattice.cols * f)
 
 
+def _closed_candidates(nearest: np.ndarray, edges: RingEdges) -> tuple[np.ndarray, np.ndarray]:
+    """Per cell, its candidate edges: the (n, 9) nearest edges of its and its neighbours' centres with
+    their ring neighbours, without repeats. Returns (candidates (n, k), closed (n, k) bool): a
+    candidate is closed when its previous and next edges are candidates of the same cell too.
+
+    Rows are padded with their first edge; k is the largest number of distinct edges of a cell.
+    """
+    wide = np.sort(np.concatenate([nearest, edges.prev[nearest], edges.next[nearest]], axis=1), axis=1)
+    repeat = np.zeros(wide.shape, dtype=bool)
+    repeat[:, 1:] = wide[:, 1:] == wide[:, :-1]
+    width = int((~repeat).sum(axis=1).max())
+    order = np.argsort(repeat, axis=1, kind="stable")[:, :width]
+    candidates = np.take_along_axis(wide, order, axis=1)
+    padding = np.take_along_axis(repeat, order, axis=1)
+    candidates = np.where(padding, candidates[:, :1], candidates)
+    held = candidates[:, None, :]
+    closed = ((edges.prev[candidates][..., None] == held).any(axis=2)
+              & (edges.next[candidates][..., None] == held).any(axis=2))
+    return candidates, closed
+
+
 def _refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, np.ndarray], grid: Grid,
                   layout: FamilyLayout, ring_sets: list) -> None:
     """Exact k at every pixel of the given cells (where one plane does not fit), in place.
 
-    Each pixel starts from the nearest of the edges nearest to its cell's and the 8
-    neighbouring cells' centres (a medial axis crossing the cell has its sides among
-    them) and walks along the ring to its own nearest edge (:func:`descend_edges`).
-    Distances are unsigned: only the family's own pixels are kept, and there every
-    distance is positive.
+    Each pixel takes the nearest of its cell's candidate edges (:func:`_closed_candidates`:
+    the edges nearest to its cell's and the 8 neighbouring cells' centres, a medial axis
+    crossing the cell has its sides among them, and their ring neighbours). Where that edge's
+    ring neighbours are candidates too, it is a local minimum along the ring, which is
+    what :func:`descend_edges` would stop at; the other pixels walk along the ring from
+    it to their own nearest edge. Distances are unsigned: only the family's own pixels
+    are kept, and there every distance is positive.
     """
     f = lattice.cell
     ci, cj = cells
     v, u = np.meshgrid(np.arange(f), np.arange(f), indexing="ij")
     dx = ((u.ravel() + 0.5) * grid.px).astype(np.float32)
     dy = ((v.ravel() + 0.5) * grid.py).astype(np.float32)
+    qx = (lattice.x0 + cj[:, None] * lattice.dx + dx).ravel()
+    qy = (lattice.y0 - ci[:, None] * lattice.dy - dy).ravel()
     distances = []
-    for rings, candidates in ring_sets:
+    for rings, nearest in ring_sets:
         e = rings.edges
+        candidates, closed = _closed_candidates(nearest, e)
         rx = (lattice.x0 + cj[:, None] * lattice.dx - e.x[candidates]).astype(np.float32)[..., None] + dx
         ry = (lattice.y0 - ci[:, None] * lattice.dy - e.y[candidates]).astype(np.float32)[..., None] - dy
         vx = e.vx[candidates].astype(np.float32)[..., None]
@@ -615,9 +641,11 @@ def _refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, 
         ry -= t * vy
         best = np.argmin(rx * rx + ry * ry, axis=1)
         start = np.take_along_axis(candidates, best, axis=1).ravel()
-        qx = (lattice.x0 + cj[:, None] * lattice.dx + dx).ravel()
-        qy = (lattice.y0 - ci[:, None] * lattice.dy - dy).ravel()
-        distances.append((descend_edges(qx, qy, start, e)[0], None))
+        distance = nearest_on_edges(qx, qy, start[:, None], e)[0]
+        walk = ~np.take_along_axis(closed, best, axis=1).ravel()
+        if walk.any():
+            distance[walk] = descend_edges(qx[walk], qy[walk], start[walk], e)[0]
+        distances.append((distance, None))
     s, _ = _band_coordinate(layout, distances[0], distances[1:], gradients=False)
     rows = (ci[:, None] * f + v.ravel()).ravel()
     cols = (cj[:, None] * f + u.ravel()).ravel()

@@ -186,23 +186,24 @@ def interpolate_at(values: np.ndarray, edge: np.ndarray, t: np.ndarray) -> np.nd
     return lo + weight * (hi - lo)
 
 
-def segments_per_plane(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray) -> np.ndarray:
+def segments_per_plane(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
+                       face_range: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """(L,) int: how many segments each plane will get (triangles with z_min < plane <= z_max)."""
-    face_z = np.asarray(vertices, dtype=np.float64)[np.asarray(faces), 2]
-    first = np.searchsorted(z, face_z.min(axis=1), side="right")
-    stop = np.searchsorted(z, face_z.max(axis=1), side="right")
+    low, high = face_range if face_range is not None else face_z_range(vertices, faces)
+    first = np.searchsorted(z, low, side="right")
+    stop = np.searchsorted(z, high, side="right")
     change = np.bincount(first, minlength=len(z) + 1) - np.bincount(stop, minlength=len(z) + 1)
     return np.cumsum(change)[: len(z)]
 
 
-def plane_chunks(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
-                 max_segments: int = 2_000_000) -> list[tuple[int, int]]:
+def plane_chunks(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, max_segments: int = 50_000,
+                 face_range: tuple[np.ndarray, np.ndarray] | None = None) -> list[tuple[int, int]]:
     """Split the planes into consecutive runs [start, stop) of at most ~max_segments segments each.
 
     Slicing run by run keeps peak memory bounded however many layers a part has
     (a single plane with more segments than the budget is a run of its own).
     """
-    per_plane = segments_per_plane(vertices, faces, z)
+    per_plane = segments_per_plane(vertices, faces, z, face_range)
     total = np.cumsum(per_plane)
     bounds = [0]
     while bounds[-1] < len(z):

@@ -152,7 +152,7 @@ def write_manifest(directory: Path, manifest: dict) -> Path:
     directory = Path(directory)
     target = directory / MANIFEST
     temporary = directory / (MANIFEST + ".tmp")
-    text = json.dumps(manifest, indent=1) + "\n"
+    text = json.dumps(manifest, indent=1, allow_nan=False) + "\n"
     try:
         with _create(temporary) as handle:
             handle.write(text.encode("utf-8"))

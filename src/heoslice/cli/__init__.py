@@ -72,7 +72,9 @@ def main(argv: list[str] | None = None) -> None:
     except click.exceptions.Exit as done:
         sys.exit(done.exit_code)
     except click.ClickException as err:
-        err.show()
+        where = err.ctx.command_path if isinstance(err, click.UsageError) and err.ctx else "heoslice"
+        hint = f" (see '{where} --help')" if isinstance(err, click.UsageError) else ""
+        click.echo(f"heoslice: error: {' '.join(err.format_message().split())}{hint}", err=True)
         sys.exit(err.exit_code)
     except click.exceptions.Abort:
         click.echo("heoslice: interrupted", err=True)

@@ -159,8 +159,6 @@ def slice_cmd(model: Path, output: Path | None, layer_height: float, dpi: str, c
     spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
                      canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
                      grade=grade, channels=channels)
-    if margin < 0:
-        raise InputError(f"--margin must not be negative, got {margin}")
     mesh = load_mesh(model)
     if scale != 1.0:
         mesh = scaled(mesh, scale)

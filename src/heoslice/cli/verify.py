@@ -10,21 +10,8 @@ import click
 import numpy as np
 
 from heoslice.errors import VerifyError
-from heoslice.loading import Mesh, load_mesh, scaled
+from heoslice.loading import Mesh, edge_use_counts, load_mesh, scaled, solid_volume_mm3
 from heoslice.stack import check_input_path, layer_height_problems, stack_volume_mm3, verify_stack
-
-
-def mesh_volume_mm3(vertices: np.ndarray, faces: np.ndarray) -> float:
-    """Signed volume of a triangle mesh (divergence theorem), mm^3; exact for a closed, outward mesh."""
-    corner = vertices[faces]
-    return float(np.einsum("ij,ij->i", corner[:, 0], np.cross(corner[:, 1], corner[:, 2])).sum() / 6.0)
-
-
-def is_watertight(faces: np.ndarray) -> bool:
-    """Every edge is shared by exactly two faces."""
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, uses = np.unique(edges, axis=0, return_counts=True)
-    return bool(np.all(uses == 2))
 
 
 def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float) -> tuple[list[str], list[str], dict]:
@@ -41,17 +28,19 @@ def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float) -> t
     if isinstance(source, dict) and source.get("sha256") not in (None, mesh.sha256):
         warnings.append(f"{model}: not the file this stack was sliced from "
                         f"({source.get('file', '?')}, sha256 differs)")
-    watertight = is_watertight(mesh.faces)
-    mesh_volume = mesh_volume_mm3(mesh.vertices, mesh.faces)
+    watertight = bool(np.all(edge_use_counts(mesh.faces) == 2))
+    mesh_volume, exact = solid_volume_mm3(mesh)
     stack_volume = stack_volume_mm3(manifest)
     relative = (stack_volume - mesh_volume) / abs(mesh_volume) if mesh_volume else float("inf")
     if not abs(relative) <= tolerance:
         line = (f"stack volume {stack_volume:.6g} mm^3 differs from the mesh volume {mesh_volume:.6g} mm^3 "
                 f"by {100 * relative:+.2f} % (tolerance {100 * tolerance:g} %)")
-        if watertight:
+        if watertight and exact:
             problems.append(line)
-        else:
+        elif not watertight:
             warnings.append(f"{line}; the mesh is not watertight, so its volume is only approximate")
+        else:
+            warnings.append(f"{line}; its shells could not be united, so overlaps may count twice")
     z_min, z_max = (float(v) for v in mesh.bounds[:, 2])
     problems += layer_height_problems(manifest, z_min, z_max, "the mesh's")
     summary = {"file": str(model), "scale": scale, "watertight": watertight, "volume_mm3": mesh_volume,
