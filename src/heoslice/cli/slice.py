@@ -124,7 +124,7 @@ Graded interiors (the paper's Fig. 3b, 9b):
 @click.option("--beta", type=float, default=None, help="beta of the grading function.")
 @click.option("--lambda", "lam", type=float, default=None, help="lambda of the grading function.")
 @click.option("--periods", type=float, default=None, help="Sine periods over r = 0..1 (instead of --beta).")
-@click.option("--expression", default=None, help="f(r) for --grade expression, e.g. '0.5 - 0.5*cos(2*pi*r)'.")
+@click.option("--expression", "--expr", "expression", default=None, help="f(r) for --grade expression, e.g. '0.5 - 0.5*cos(2*pi*r)'.")
 @click.option("--to", "target", default=None, metavar="MATERIAL",
               help="Target material M2 reached at r = 1: a name from the materials file, #hex or r,g,b "
                    "[default with --grade: the second material, M2].")
