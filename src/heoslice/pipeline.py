@@ -96,7 +96,7 @@ class SliceSpec:
 
 @dataclass
 class StageTimes:
-    """Seconds spent per stage (raster and encode summed over workers, i.e. CPU seconds)."""
+    """Seconds spent per stage, summed over the runs of planes and the worker processes (CPU seconds)."""
 
     slice: float = 0.0
     contours: float = 0.0
@@ -228,66 +228,88 @@ def channel_name(material) -> str:
     return re.sub(r"[^A-Za-z0-9-]", "-", str(material.name)) or "material"
 
 
-def render_batch(jobs: tuple[LayerJob, ...]) -> list[tuple]:
-    """render_and_write over a few consecutive layers: one inter-process round trip for all of them."""
-    return [render_and_write(job) for job in jobs]
+@dataclass(frozen=True)
+class RunContext:
+    """What every run of planes needs: the mesh, the planes and how to render and write them.
 
-
-def _batches(jobs, size: int):
-    """Consecutive jobs grouped into tuples of at most ``size``."""
-    batch: list[LayerJob] = []
-    for job in jobs:
-        batch.append(job)
-        if len(batch) == size:
-            yield tuple(batch)
-            batch = []
-    if batch:
-        yield tuple(batch)
-
-
-def _ignore_interrupts() -> None:
-    """Worker initializer: Ctrl-C is the parent's to handle (one 'interrupted' line, no worker tracebacks)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _run_jobs(jobs, workers: int, on_done: Callable[[tuple], None], batch_size: int = 4) -> None:
-    """Run render_and_write over jobs in batches, at most 2 x workers batches in flight.
-
-    ``jobs`` is consumed lazily, so slicing of later layers overlaps rendering of
-    earlier ones and only a few layers' data are in flight at any time.
+    Worker processes receive it once, by fork inheritance through the pool's
+    initializer (never pickled), and then only (start, stop) plane indices per task.
     """
+
+    mesh: Mesh
+    z: np.ndarray
+    face_range: tuple[np.ndarray, np.ndarray]
+    grid: Grid
+    spec: SliceSpec
+    directory: Path
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """One run's layers (render_and_write results), its open-contour layers and stage seconds."""
+
+    layers: list
+    open_layers: np.ndarray
+    slice_s: float
+    contours_s: float
+
+
+#: The RunContext of this worker process, set once by :func:`_adopt` (each worker has its own).
+_WORKER_CONTEXT: dict[str, RunContext] = {}
+
+
+def _adopt(context: RunContext) -> None:
+    """Worker initializer: keep the context; Ctrl-C is the parent's to handle (one 'interrupted' line)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _WORKER_CONTEXT["run"] = context
+
+
+def slice_run(context: RunContext, start: int, stop: int) -> RunResult:
+    """Slice, chain, render and write planes z[start:stop]: the whole pipeline for one run of layers."""
+    mesh = context.mesh
+    began = time.perf_counter()
+    sections = slice_planes(mesh.vertices, mesh.faces, context.z, start, stop, context.face_range)
+    sliced = time.perf_counter()
+    contours = build_contours(sections)
+    chained = time.perf_counter()
+    jobs = layer_jobs(contours, mesh, context.grid, context.spec, context.directory, first_layer=start)
+    return RunResult(layers=[render_and_write(job) for job in jobs],
+                     open_layers=start + contours.layer[contours.closed_by_join],
+                     slice_s=sliced - began, contours_s=chained - sliced)
+
+
+def _slice_run_in_worker(start: int, stop: int) -> RunResult:
+    return slice_run(_WORKER_CONTEXT["run"], start, stop)
+
+
+def plane_runs(context: RunContext, max_layers: int = 32) -> list[tuple[int, int]]:
+    """Runs of at most ``spec.max_segments`` segments and ``max_layers`` planes (memory and load balance)."""
+    runs = []
+    for start, stop in plane_chunks(context.mesh.vertices, context.mesh.faces, context.z,
+                                    context.spec.max_segments, context.face_range):
+        runs += [(first, min(first + max_layers, stop)) for first in range(start, stop, max_layers)]
+    return runs
+
+
+def _run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], None]) -> None:
+    """Every run of planes through :func:`slice_run`: in this process, or in ``workers`` forked processes
+    with at most 2 runs each in flight (results arrive in any order; memory stays bounded)."""
+    runs = plane_runs(context)
     if workers <= 1:
-        for job in jobs:
-            on_done(render_and_write(job))
+        for start, stop in runs:
+            on_done(slice_run(context, start, stop))
         return
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork"),
-                             initializer=_ignore_interrupts) as pool:
+                             initializer=_adopt, initargs=(context,)) as pool:
         pending = set()
-        for batch in _batches(jobs, batch_size):
-            pending.add(pool.submit(render_batch, batch))
+        for start, stop in runs:
+            pending.add(pool.submit(_slice_run_in_worker, start, stop))
             if len(pending) >= 2 * workers:
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for future in done:
-                    for result in future.result():
-                        on_done(result)
+                    on_done(future.result())
         for future in pending:
-            for result in future.result():
-                on_done(result)
-
-
-def _sliced_jobs(mesh: Mesh, z: np.ndarray, grid: Grid, spec: SliceSpec, directory: Path,
-                 times: StageTimes, open_layers: np.ndarray, max_segments: int):
-    """Layer jobs, slicing and chaining the planes run by run (bounded memory, any layer count)."""
-    face_range = face_z_range(mesh.vertices, mesh.faces)
-    for start, stop in plane_chunks(mesh.vertices, mesh.faces, z, max_segments, face_range):
-        began = time.perf_counter()
-        sections = slice_planes(mesh.vertices, mesh.faces, z, start, stop, face_range)
-        sliced = time.perf_counter()
-        contours = build_contours(sections)
-        times.slice += sliced - began
-        times.contours += time.perf_counter() - sliced
-        open_layers[start + contours.layer[contours.closed_by_join]] = True
-        yield from layer_jobs(contours, mesh, grid, spec, directory, first_layer=start)
+            on_done(future.result())
 
 
 def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool = False,
@@ -310,18 +332,22 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     prepare_directory(directory, force)
     z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
     results: dict[int, tuple] = {}
+    open_layers = np.zeros(len(z), dtype=bool)
 
-    def on_done(result: tuple) -> None:
-        index, digest, solid, raster_s, encode_s, channels = result
-        results[index] = (digest, solid, channels)
-        times.raster += raster_s
-        times.encode += encode_s
+    def on_done(run: RunResult) -> None:
+        for index, digest, solid, raster_s, encode_s, channels in run.layers:
+            results[index] = (digest, solid, channels)
+            times.raster += raster_s
+            times.encode += encode_s
+        open_layers[run.open_layers] = True
+        times.slice += run.slice_s
+        times.contours += run.contours_s
         if progress is not None:
             progress(len(results), len(z))
 
-    open_layers = np.zeros(len(z), dtype=bool)
-    jobs = _sliced_jobs(mesh, z, grid, spec, directory, times, open_layers, spec.max_segments)
-    _run_jobs(jobs, spec.worker_count(), on_done)
+    context = RunContext(mesh=mesh, z=z, face_range=face_z_range(mesh.vertices, mesh.faces), grid=grid,
+                         spec=spec, directory=directory)
+    _run_all(context, spec.worker_count(), on_done)
     manifest = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
