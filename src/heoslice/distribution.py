@@ -621,17 +621,13 @@ def _descend(points: np.ndarray, index: SurfaceIndex, start_face: np.ndarray) ->
     corner_d = np.einsum("ijk,ijk->ij", gap, gap)
     current = corner[rows, np.argmin(corner_d, axis=1)]
     current_d = corner_d.min(axis=1)
-    active = rows
-    while len(active):
+
+    def vertex_step(active):
         around = index.vertex_neighbours[current[active]]
         diff = points[active, None, :] - vertices[np.maximum(around, 0)]
-        d = np.where(around >= 0, np.einsum("ijk,ijk->ij", diff, diff), np.inf)
-        pick = np.argmin(d, axis=1)
-        d_pick = d[np.arange(len(active)), pick]
-        moved = d_pick < current_d[active]
-        active = active[moved]
-        current[active] = around[moved, pick[moved]]
-        current_d[active] = d_pick[moved]
+        return around, np.where(around >= 0, np.einsum("ijk,ijk->ij", diff, diff), np.inf)
+
+    _walk_downhill(current, current_d, rows, vertex_step)
     ring = index.vertex_faces[current]
     d, region = _face_distance(points, index, ring)
     pick = np.argmin(d, axis=1)
@@ -644,14 +640,27 @@ def _descend(points: np.ndarray, index: SurfaceIndex, start_face: np.ndarray) ->
     from_start = start_d < face_d
     face[from_start], face_d[from_start] = start_face[from_start], start_d[from_start]
     settled &= ~from_start
-    active = np.nonzero(~settled)[0]
-    while len(active):
+
+    def face_step(active):
         around = index.face_neighbours[face[active]]
-        d, _ = _face_distance(points[active], index, around)
+        return around, _face_distance(points[active], index, around)[0]
+
+    _walk_downhill(face, face_d, np.nonzero(~settled)[0], face_step)
+    return face_d
+
+
+def _walk_downhill(position: np.ndarray, distance: np.ndarray, active: np.ndarray, step) -> None:
+    """Move each active walker to its nearest neighbour while that is nearer, in place, all walkers at once.
+
+    ``step(active)`` returns the candidates ((k, c) int, one row per active walker) and
+    their distances ((k, c) float, inf for none); a walker stops when no candidate is
+    nearer than where it stands.
+    """
+    while len(active):
+        around, d = step(active)
         pick = np.argmin(d, axis=1)
         d_pick = d[np.arange(len(active)), pick]
-        moved = d_pick < face_d[active]
+        moved = d_pick < distance[active]
         active = active[moved]
-        face[active] = around[moved, pick[moved]]
-        face_d[active] = d_pick[moved]
-    return face_d
+        position[active] = around[moved, pick[moved]]
+        distance[active] = d_pick[moved]
