@@ -2,6 +2,7 @@
 
     python benchmarks/bench_grading.py             # liver phantom ~160 x 165 mm, 600 dpi (~15 MP/layer)
     python benchmarks/bench_grading.py --quick     # a smaller part, for a smoke test
+    python benchmarks/bench_grading.py --stages    # and CPU ms per stage (a separate, instrumented pass)
 
 The grading step is everything :func:`heoslice.regions.layer_regions` does for one
 layer: from the layer's loops and its solid mask (made by the rasteriser, which the
@@ -20,6 +21,8 @@ timed on --baseline-layers layers; its labels are compared with the fast ones
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import statistics
 import time
 
@@ -56,6 +59,63 @@ def cpu_best(repeats: int, function, *args):
         result = function(*args)
         best = min(best, time.process_time() - started)
     return best, result
+
+
+#: The stages timed by --stages: functions of heoslice.regions (those it has), and shapely's inscribed circle.
+STAGES = ("lattice_distance", "_inside_loops", "_misfit", "_bent", "_all_neighbours", "_expand_planes",
+          "_refine_cells", "_family_mask")
+
+
+@contextlib.contextmanager
+def stage_timers(totals: dict):
+    """Within the block, CPU seconds spent in each of STAGES (and shapely.maximum_inscribed_circle)
+    add up in ``totals``."""
+    import shapely
+
+    from heoslice import regions
+
+    def timed(name, function):
+        @functools.wraps(function)
+        def wrapper(*args, **kwargs):
+            started = time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                totals[name] = totals.get(name, 0.0) + time.process_time() - started
+        return wrapper
+
+    patched = [(regions, name, getattr(regions, name)) for name in STAGES if hasattr(regions, name)]
+    patched.append((shapely, "maximum_inscribed_circle", shapely.maximum_inscribed_circle))
+    try:
+        for module, name, function in patched:
+            setattr(module, name, timed(name, function))
+        yield totals
+    finally:
+        for module, name, function in patched:
+            setattr(module, name, function)
+
+
+def stage_table(inputs, spec, repeats: int) -> dict:
+    """Median over layers (best of ``repeats`` per layer, by total) of CPU ms per stage of layer_regions."""
+    from heoslice.regions import layer_regions
+
+    rows = {}
+    for points, offsets, area, parent, mask, grid in inputs:
+        best = None
+        for _ in range(repeats):
+            totals = {}
+            with stage_timers(totals):
+                started = time.process_time()
+                layer_regions(points, offsets, area, parent, mask, grid, spec)
+                total = time.process_time() - started
+            if best is None or total < best[0]:
+                best = (total, totals)
+        total, totals = best
+        totals["rest (families, seeds, signs, labels)"] = total - sum(totals.values())
+        totals["total"] = total
+        for name, seconds in totals.items():
+            rows.setdefault(name, []).append(1000 * seconds)
+    return {name: statistics.median(values) for name, values in rows.items()}
 
 
 def naive_labels(points, offsets, area, parent, mask, grid, spec, regions):
@@ -102,6 +162,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--baseline-layers", type=int, default=1)
     parser.add_argument("--quick", action="store_true", help="scale 0.4, 3 layers")
+    parser.add_argument("--stages", action="store_true", help="also CPU ms per stage (an instrumented pass)")
     args = parser.parse_args()
     if args.quick:
         args.scale, args.layers = 0.4, 3
@@ -111,7 +172,7 @@ def main() -> None:
 
     contours, z = part_layers(args.scale, args.layers)
     spec = RegionSpec(nozzle_mm=args.nozzle, depth_mm=args.depth)
-    times, pixels, ratios = [], [], []
+    times, pixels, ratios, inputs = [], [], [], []
     print(f"liver phantom x{args.scale}, {args.dpi:g} dpi, nozzle {args.nozzle} mm, "
           f"depth {args.depth or 'to the centre'}; CPU ms, best of {args.repeats}")
     for index in range(args.layers):
@@ -119,6 +180,8 @@ def main() -> None:
         low, high = points.min(axis=0), points.max(axis=0)
         grid = grid_for(np.array([low, high]), (args.dpi, args.dpi), 1.0)
         mask = solid_mask(points, offsets, grid)
+        if args.stages:
+            inputs.append((points, offsets, area, parent, mask, grid))
         seconds, regions = cpu_best(args.repeats, layer_regions, points, offsets, area, parent, mask, grid, spec)
         megapixels = grid.width * grid.height / 1e6
         counts = [f.layout.count for f, fam in zip(regions.fields, regions.families) if not fam.nested]
@@ -139,6 +202,10 @@ def main() -> None:
           f"target <= 30 ms per ~14 MP layer")
     if ratios:
         print(f"speed-up over the naive shapely-buffer-per-band baseline: {statistics.median(ratios):.0f}x")
+    if args.stages:
+        print(f"stages (CPU ms, instrumented pass, median over {len(inputs)} layers):")
+        for name, ms in stage_table(inputs, spec, args.repeats).items():
+            print(f"  {name:40s} {ms:7.1f}")
 
 
 if __name__ == "__main__":

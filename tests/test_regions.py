@@ -20,7 +20,9 @@ from heoslice.regions import (
     family_field,
     layer_families,
     layer_regions,
+    nearest_on_edges,
     render_graded,
+    ring_edges,
     ring_weights,
     subregion_index,
 )
@@ -316,3 +318,40 @@ def test_layer_regions_labels_every_solid_pixel_once():
     island_family = [i for i, f in enumerate(regions.families) if f.outer == 2][0]
     lo, hi = regions.base[island_family], regions.base[island_family + 1]
     assert np.all((label[island] >= lo) & (label[island] < hi))
+
+
+def test_layer_label_is_base_plus_the_family_index_on_solid_pixels():
+    """For a one-family layer, the label (built in place from the family's index) is base + k of an
+    independently computed family_field on solid pixels, and 0 on empty ones."""
+    angle = np.linspace(0, 2 * np.pi, 300, endpoint=False)
+    radius = 8 + 1.5 * np.sin(3 * angle) + 0.7 * np.cos(7 * angle + 1)
+    points, offsets, area, parent = layer(np.column_stack([radius * np.cos(angle), radius * np.sin(angle)]))
+    grid = grid_around(10.0)
+    mask = solid_mask(points, offsets, grid)
+    spec = RegionSpec(nozzle_mm=0.3)
+    regions = layer_regions(points, offsets, area, parent, mask, grid, spec)
+    field = family_field(points, offsets, layer_families(area, parent)[0], grid, spec)
+    r0, r1, c0, c1 = regions.box
+    solid = mask[r0:r1, c0:c1]
+    expected = np.where(solid, field.index.astype(np.int64) + regions.base[0], 0)
+    assert np.array_equal(regions.label, expected)
+    assert regions.label[solid].min() == regions.base[0] + 1
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1))
+def test_nearest_on_edges_matches_shapely(seed):
+    """With every edge of a ring as a candidate, nearest_on_edges gives shapely's distance to the ring, and
+    the foot it returns is that far from the point and on the ring."""
+    rng = np.random.default_rng(seed)
+    count = int(rng.integers(3, 40))
+    angle = np.sort(rng.uniform(0, 2 * np.pi, count))
+    ring = np.column_stack([np.cos(angle), np.sin(angle)]) * rng.uniform(0.5, 5.0, (count, 1))
+    edges = ring_edges(ring, np.array([0, count]), [0])
+    q = rng.uniform(-6.0, 6.0, (50, 2))
+    candidates = np.broadcast_to(np.arange(count), (50, count))
+    distance, fx, fy, edge = nearest_on_edges(q[:, 0], q[:, 1], candidates, edges)
+    line = shapely.LinearRing(ring)
+    np.testing.assert_allclose(distance, shapely.distance(shapely.points(q), line), atol=1e-9)
+    np.testing.assert_allclose(np.hypot(q[:, 0] - fx, q[:, 1] - fy), distance, atol=1e-9)
+    np.testing.assert_allclose(shapely.distance(shapely.points(fx, fy), line), 0.0, atol=1e-9)

@@ -23,7 +23,8 @@ the nearest ring edge is found by scipy's Euclidean distance transform seeded by
 the rings, then measured exactly), one plane per cell, checked against the exact
 values at its corners, expanded to pixels in fixed point; cells the plane does not
 fit within a quarter pixel (medial axis, sharp corners) are evaluated exactly per
-pixel. The solid mask decides which pixels are solid, so the outline is exact.
+pixel (to float32 rounding of the distances: under 1e-5 mm). The solid mask
+decides which pixels are solid, so the outline is exact.
 """
 
 from __future__ import annotations
@@ -189,41 +190,59 @@ def nearest_on_edges(qx: np.ndarray, qy: np.ndarray, candidates: np.ndarray, edg
     """Nearest point on candidate edges for each query point.
 
     qx, qy: (n,) float, mm; candidates: (n, k) int edge indices. Returns (distance (n,),
-    foot x (n,), foot y (n,), edge (n,) the nearest candidate).
+    foot x (n,), foot y (n,), edge (n,) the nearest candidate; the first of equals).
     """
-    rx = qx[:, None] - edges.x[candidates]
-    ry = qy[:, None] - edges.y[candidates]
-    vx = edges.vx[candidates]
-    vy = edges.vy[candidates]
-    t = np.clip((rx * vx + ry * vy) * edges.inv_len2[candidates], 0.0, 1.0)
-    rx -= t * vx
-    ry -= t * vy
-    dist2 = rx * rx + ry * ry
-    best = np.argmin(dist2, axis=1)
-    rows = np.arange(len(qx))
-    dx, dy = rx[rows, best], ry[rows, best]
-    return np.sqrt(dist2[rows, best]), qx - dx, qy - dy, candidates[rows, best]
+    best2 = np.full(len(qx), np.inf)
+    best_rx, best_ry = np.zeros(len(qx)), np.zeros(len(qx))
+    best = candidates[:, 0].copy()
+    for column in range(candidates.shape[1]):
+        e = candidates[:, column]
+        vx, vy = edges.vx[e], edges.vy[e]
+        rx = qx - edges.x[e]
+        ry = qy - edges.y[e]
+        t = rx * vx
+        t += ry * vy
+        t *= edges.inv_len2[e]
+        np.clip(t, 0.0, 1.0, out=t)
+        rx -= t * vx
+        ry -= t * vy
+        dist2 = rx * rx
+        dist2 += ry * ry
+        closer = dist2 < best2
+        if column == 0:
+            best2, best_rx, best_ry = dist2, rx, ry
+            continue
+        np.copyto(best2, dist2, where=closer)
+        np.copyto(best_rx, rx, where=closer)
+        np.copyto(best_ry, ry, where=closer)
+        np.copyto(best, e, where=closer)
+    return np.sqrt(best2), qx - best_rx, qy - best_ry, best
 
 
 def descend_edges(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, edges: RingEdges, steps: int = 512):
     """From a starting edge near the nearest one, walk each point along its ring while a neighbour is closer.
 
     All points walk at once, a step per iteration; the walk ends at a local minimum of
-    the distance along the ring, the nearest edge when the start was in its basin.
+    the distance along the ring, the nearest edge when the start was in its basin. After
+    the first step a point keeps its direction: the edge it came from is farther, so
+    only the next one ahead is measured.
     Returns (distance (n,), foot x (n,), foot y (n,), edge (n,)).
     """
-    distance, fx, fy = (np.empty(len(qx)) for _ in range(3))
-    edge = np.asarray(edge, dtype=np.int64).copy()
-    active = np.arange(len(qx))
-    for _ in range(steps):
-        near = edge[active]
-        candidates = np.stack([near, edges.prev[near], edges.next[near]], axis=1)
-        d, x, y, e = nearest_on_edges(qx[active], qy[active], candidates, edges)
-        distance[active], fx[active], fy[active], edge[active] = d, x, y, e
-        active = active[e != near]
+    edge = np.asarray(edge, dtype=np.int64)
+    ahead_of = edges.next[edge]
+    distance, fx, fy, best = nearest_on_edges(qx, qy, np.stack([edge, edges.prev[edge], ahead_of], axis=1), edges)
+    active = np.nonzero(best != edge)[0]
+    forward = best == ahead_of
+    for _ in range(steps - 1):
         if not len(active):
             break
-    return distance, fx, fy, edge
+        here = best[active]
+        ahead = np.where(forward[active], edges.next[here], edges.prev[here])
+        d, x, y, _ = nearest_on_edges(qx[active], qy[active], ahead[:, None], edges)
+        closer = d < distance[active]
+        active, ahead = active[closer], ahead[closer]
+        distance[active], fx[active], fy[active], best[active] = d[closer], x[closer], y[closer], ahead
+    return distance, fx, fy, best
 
 
 @dataclass(frozen=True)
@@ -413,7 +432,8 @@ class FamilyField:
     """The sub-region index of one family over its pixel box.
 
     ``index``: (rows, cols) int16/int32, k in 1..N_R (valid on the family's solid
-    pixels; the caller masks); ``box`` = (row0, row1, col0, col1) of the grid;
+    pixels; the caller masks; in :class:`LayerRegions` the outermost family's index,
+    when its box is the layer's, is the label array itself); ``box`` = (row0, row1, col0, col1) of the grid;
     ``layout`` its rings and N_R; ``lattice``, and per cell the nearest point on the
     starting rings (``foot`` (2, cells_r, cells_c) mm) and its edge (``edge``
     (cells_r, cells_c) into ``start_edges``), to take the contour's material there.
@@ -506,21 +526,23 @@ def _tolerance(grad: np.ndarray, grid: Grid) -> np.ndarray:
 def _misfit(s: np.ndarray, grad: np.ndarray, solid_side: np.ndarray, lattice: Lattice) -> np.ndarray:
     """How far each cell's plane misses s at the centres of its 8 neighbours on the family's side."""
     misfit = np.zeros_like(s)
-    side = _shifted(solid_side, 0, 0)
+    theirs, side = _neighbours(s), _neighbours(solid_side)
     for di, dj in _AROUND:
-        theirs = _shifted(s, di, dj)
-        predicted = s + grad[..., 0] * (dj * lattice.dx) - grad[..., 1] * (di * lattice.dy)
-        error = np.abs(predicted - theirs)
-        np.maximum(misfit, np.where(_shifted(side, di, dj), error, 0.0), out=misfit)
+        error = s + grad[..., 0] * (dj * lattice.dx) - grad[..., 1] * (di * lattice.dy)
+        error -= theirs(di, dj)
+        np.abs(error, out=error)
+        error *= side(di, dj)
+        np.maximum(misfit, error, out=misfit)
     return misfit
 
 
-def _shifted(values: np.ndarray, di: int, dj: int) -> np.ndarray:
-    """values[i + di, j + dj] for every cell (edge cells repeat their border), by slicing an edge-padded copy."""
+def _neighbours(values: np.ndarray):
+    """A function (di, dj) -> values[i + di, j + dj] for every cell (edge cells repeat their border),
+    slicing one edge-padded copy."""
     pad = [(1, 1), (1, 1)] + [(0, 0)] * (values.ndim - 2)
     padded = np.pad(values, pad, mode="edge")
     rows, cols = values.shape[:2]
-    return padded[1 + di:1 + di + rows, 1 + dj:1 + dj + cols]
+    return lambda di, dj: padded[1 + di:1 + di + rows, 1 + dj:1 + dj + cols]
 
 
 _AROUND = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
@@ -529,8 +551,9 @@ _AROUND = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj]
 def _all_neighbours(flags: np.ndarray) -> np.ndarray:
     """(rows, cols) bool: the flag holds at a cell and at its 8 neighbours."""
     out = flags.copy()
+    shifted = _neighbours(flags)
     for di, dj in _AROUND:
-        out &= _shifted(flags, di, dj)
+        out &= shifted(di, dj)
     return out
 
 
@@ -538,12 +561,12 @@ def _bent(grad: np.ndarray, cell: int) -> np.ndarray:
     """(rows, cols) bool: the field's direction turns between a cell and a neighbour by more than a
     plane can absorb (a kink of angle a misplaces a boundary by about cell * sin(a) / 2 pixels)."""
     length = np.maximum(np.hypot(grad[..., 0], grad[..., 1]), 1e-300)
-    unit = grad / length[..., None]
+    ux, uy = grad[..., 0] / length, grad[..., 1] / length
     limit = np.sqrt(max(0.0, 1.0 - (2.0 * TOLERANCE_PX / cell) ** 2))
     out = np.zeros(grad.shape[:2], dtype=bool)
+    other_x, other_y = _neighbours(ux), _neighbours(uy)
     for di, dj in _AROUND:
-        other = _shifted(unit, di, dj)
-        out |= (unit[..., 0] * other[..., 0] + unit[..., 1] * other[..., 1]) < limit
+        out |= (ux * other_x(di, dj) + uy * other_y(di, dj)) < limit
     return out
 
 
@@ -578,8 +601,10 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
     row_term = np.clip((s + 1.0) * scale, -limit * scale, limit * scale)[:, None, :] \
         - (gy * (grid.py * scale))[:, None, :] * offset[None, :, None]
     col_term = (gx * (grid.px * scale))[:, :, None] * offset[None, None, :]
-    row_fixed = np.rint(np.clip(row_term, -limit * scale, limit * scale)).astype(dtype)
-    col_fixed = np.rint(np.clip(col_term, -limit * scale, limit * scale)).astype(dtype)
+    for term in (row_term, col_term):
+        np.clip(term, -limit * scale, limit * scale, out=term)
+        np.rint(term, out=term)
+    row_fixed, col_fixed = row_term.astype(dtype), col_term.astype(dtype)
     pixels = np.repeat(row_fixed, f, axis=2)
     pixels += col_fixed.reshape(lattice.rows, 1, lattice.cols * f)
     pixels >>= bits
@@ -587,25 +612,66 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
     return pixels.reshape(lattice.rows * f, lattice.cols * f)
 
 
-def _closed_candidates(nearest: np.ndarray, edges: RingEdges) -> tuple[np.ndarray, np.ndarray]:
+def _closed_candidates(nearest: np.ndarray, edges: RingEdges) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per cell, its candidate edges: the (n, 9) nearest edges of its and its neighbours' centres with
-    their ring neighbours, without repeats. Returns (candidates (n, k), closed (n, k) bool): a
-    candidate is closed when its previous and next edges are candidates of the same cell too.
+    their ring neighbours, without repeats.
 
-    Rows are padded with their first edge; k is the largest number of distinct edges of a cell.
+    Returns (candidates (n, k), count (n,), closed (n, k) bool): row i holds count[i]
+    distinct edges first (padded with its first edge); a candidate is closed when its
+    previous and next edges are candidates of the same cell too.
     """
     wide = np.sort(np.concatenate([nearest, edges.prev[nearest], edges.next[nearest]], axis=1), axis=1)
     repeat = np.zeros(wide.shape, dtype=bool)
     repeat[:, 1:] = wide[:, 1:] == wide[:, :-1]
-    width = int((~repeat).sum(axis=1).max())
-    order = np.argsort(repeat, axis=1, kind="stable")[:, :width]
+    count = (~repeat).sum(axis=1)
+    order = np.argsort(repeat, axis=1, kind="stable")[:, :int(count.max())]
     candidates = np.take_along_axis(wide, order, axis=1)
-    padding = np.take_along_axis(repeat, order, axis=1)
-    candidates = np.where(padding, candidates[:, :1], candidates)
-    held = candidates[:, None, :]
-    closed = ((edges.prev[candidates][..., None] == held).any(axis=2)
-              & (edges.next[candidates][..., None] == held).any(axis=2))
-    return candidates, closed
+    candidates = np.where(np.take_along_axis(repeat, order, axis=1), candidates[:, :1], candidates)
+    # membership by binary search among the sorted (cell, edge) keys of the distinct candidates
+    cells = np.arange(len(wide))[:, None] * len(edges.x)
+    keys = (cells + wide)[~repeat]
+    closed = np.ones(candidates.shape, dtype=bool)
+    for neighbour in (edges.prev, edges.next):
+        wanted = cells + neighbour[candidates]
+        found = np.minimum(np.searchsorted(keys, wanted), len(keys) - 1)
+        closed &= keys[found] == wanted
+    return candidates, count, closed
+
+
+def _nearest_candidate(cx: np.ndarray, cy: np.ndarray, dx: np.ndarray, dy: np.ndarray, candidates: np.ndarray,
+                       count: np.ndarray, edges: RingEdges) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel, the slot of its cell's nearest candidate edge and the distance to it:
+    ((n, f*f) int8, (n, f*f) float32 mm).
+
+    Cells (n,) have their top-left corner at (cx, cy) mm and pixel centres at
+    (cx + dx, cy - dy) ((f*f,) float32 mm); row i of ``candidates`` holds count[i] edges,
+    rows sorted by decreasing count so that slot j is a prefix of the cells. Offsets
+    from the cell to an edge are rounded to float32 once (under 1e-5 mm for a part a few
+    hundred mm across, a four-thousandth of a 600 dpi pixel) and small after that.
+    """
+    n, size = len(cx), len(dx)
+    best = np.full((n, size), np.inf, dtype=np.float32)
+    slot = np.zeros((n, size), dtype=np.int8)
+    limits = np.searchsorted(-count, -np.arange(1, candidates.shape[1] + 1), side="right")
+    for j, m in enumerate(limits):
+        e = candidates[:m, j]
+        vx = edges.vx[e].astype(np.float32)[:, None]
+        vy = edges.vy[e].astype(np.float32)[:, None]
+        rx = (cx[:m] - edges.x[e]).astype(np.float32)[:, None] + dx
+        ry = (cy[:m] - edges.y[e]).astype(np.float32)[:, None] - dy
+        t = rx * vx
+        t += ry * vy
+        t *= edges.inv_len2[e].astype(np.float32)[:, None]
+        np.clip(t, 0.0, 1.0, out=t)
+        rx -= t * vx
+        ry -= t * vy
+        rx *= rx
+        ry *= ry
+        rx += ry
+        closer = rx < best[:m]
+        np.copyto(best[:m], rx, where=closer)
+        np.copyto(slot[:m], j, where=closer)
+    return slot, np.sqrt(best)
 
 
 def _refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, np.ndarray], grid: Grid,
@@ -614,42 +680,47 @@ def _refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, 
 
     Each pixel takes the nearest of its cell's candidate edges (:func:`_closed_candidates`:
     the edges nearest to its cell's and the 8 neighbouring cells' centres, a medial axis
-    crossing the cell has its sides among them, and their ring neighbours). Where that edge's
-    ring neighbours are candidates too, it is a local minimum along the ring, which is
-    what :func:`descend_edges` would stop at; the other pixels walk along the ring from
-    it to their own nearest edge. Distances are unsigned: only the family's own pixels
-    are kept, and there every distance is positive.
+    crossing the cell has its sides among them, and their ring neighbours), measured in
+    float32 (:func:`_nearest_candidate`). Where that edge's ring neighbours are candidates
+    too, it is a local minimum along the ring, which is what :func:`descend_edges` would
+    stop at; the other pixels walk along the ring from it to their own nearest edge.
+    Cells are processed with the most candidates first, so each candidate slot is one
+    prefix of the cells (no padding). Distances are unsigned: only the family's own
+    pixels are kept, and there every distance is positive.
     """
     f = lattice.cell
-    ci, cj = cells
     v, u = np.meshgrid(np.arange(f), np.arange(f), indexing="ij")
     dx = ((u.ravel() + 0.5) * grid.px).astype(np.float32)
     dy = ((v.ravel() + 0.5) * grid.py).astype(np.float32)
-    qx = (lattice.x0 + cj[:, None] * lattice.dx + dx).ravel()
-    qy = (lattice.y0 - ci[:, None] * lattice.dy - dy).ravel()
-    distances = []
+    ci, cj = cells
+    distances, order = [], None
     for rings, nearest in ring_sets:
         e = rings.edges
-        candidates, closed = _closed_candidates(nearest, e)
-        rx = (lattice.x0 + cj[:, None] * lattice.dx - e.x[candidates]).astype(np.float32)[..., None] + dx
-        ry = (lattice.y0 - ci[:, None] * lattice.dy - e.y[candidates]).astype(np.float32)[..., None] - dy
-        vx = e.vx[candidates].astype(np.float32)[..., None]
-        vy = e.vy[candidates].astype(np.float32)[..., None]
-        t = (rx * vx + ry * vy) * e.inv_len2[candidates].astype(np.float32)[..., None]
-        np.clip(t, 0.0, 1.0, out=t)
-        rx -= t * vx
-        ry -= t * vy
-        best = np.argmin(rx * rx + ry * ry, axis=1)
-        start = np.take_along_axis(candidates, best, axis=1).ravel()
-        distance = nearest_on_edges(qx, qy, start[:, None], e)[0]
-        walk = ~np.take_along_axis(closed, best, axis=1).ravel()
+        candidates, count, closed = _closed_candidates(nearest, e)
+        if order is None:
+            # cells with more candidates first (one order for every ring set)
+            order = np.argsort(-count, kind="stable")
+            ci, cj = ci[order], cj[order]
+            cx, cy = lattice.x0 + cj * lattice.dx, lattice.y0 - ci * lattice.dy
+            qx = (cx[:, None] + dx).ravel()
+            qy = (cy[:, None] - dy).ravel()
+        candidates, count, closed = candidates[order], count[order], closed[order]
+        if len(distances):
+            ranked = np.argsort(-count, kind="stable")
+            slot, distance = np.empty((len(ci), f * f), dtype=np.int8), np.empty((len(ci), f * f), dtype=np.float32)
+            slot[ranked], distance[ranked] = _nearest_candidate(cx[ranked], cy[ranked], dx, dy, candidates[ranked],
+                                                                count[ranked], e)
+        else:
+            slot, distance = _nearest_candidate(cx, cy, dx, dy, candidates, count, e)
+        start = np.take_along_axis(candidates, slot, axis=1).ravel()
+        distance = distance.ravel().astype(np.float64)
+        walk = ~np.take_along_axis(closed, slot, axis=1).ravel()
         if walk.any():
             distance[walk] = descend_edges(qx[walk], qy[walk], start[walk], e)[0]
         distances.append((distance, None))
     s, _ = _band_coordinate(layout, distances[0], distances[1:], gradients=False)
-    rows = (ci[:, None] * f + v.ravel()).ravel()
-    cols = (cj[:, None] * f + u.ravel()).ravel()
-    index[rows, cols] = np.clip(np.floor(s).astype(np.int64) + 1, 1, layout.count)
+    pixel = ((ci[:, None] * f + v.ravel()) * index.shape[1] + (cj[:, None] * f + u.ravel())).ravel()
+    np.put(index, pixel, np.clip(np.floor(s) + 1, 1, layout.count))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -663,7 +734,8 @@ class LayerRegions:
     ``label`` ((rows, cols) int16/int32 over pixel ``box`` = (row0, row1, col0, col1))
     numbers every solid pixel's sub-region across the layer: family f's sub-region k
     is ``base[f] + k`` (k = 1..N_R; a nested shell keeps its own material: k = 0),
-    0 is empty. ``families``/``fields`` are aligned, outermost first.
+    0 is empty. ``families``/``fields`` are aligned, outermost first (the first field's
+    ``index`` may share the label's memory: it is labelled in place, not copied).
     """
 
     box: tuple[int, int, int, int]
@@ -697,7 +769,12 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     sizes = np.array([1 if family.nested else field.layout.count + 1 for family, field in zip(families, fields)])
     base = np.concatenate([[1], 1 + np.cumsum(sizes)]).astype(np.int64)
     dtype = np.int16 if base[-1] < 32000 else np.int32
-    label = np.zeros((box[1] - box[0], box[3] - box[2]), dtype=dtype)
+    first = fields[0]
+    if first.box == box and first.index.dtype == dtype:
+        # the outermost family spans the layer's box: label its index in place rather than copy ~15 MP
+        label = first.index
+    else:
+        label = np.zeros((box[1] - box[0], box[3] - box[2]), dtype=dtype)
     for number, (family, field) in enumerate(zip(families, fields)):
         r0, r1, c0, c1 = field.box
         if r1 <= r0 or c1 <= c0:
@@ -706,12 +783,12 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
         solid = mask[r0:r1, c0:c1]
         if number == 0:
             # the outermost family covers its box's solid pixels; everything after paints its own region
-            np.add(field.index, base[number], out=target, casting="unsafe")
+            np.add(field.index, dtype(base[number]), out=target, casting="unsafe")
             np.multiply(target, solid, out=target, casting="unsafe")
             continue
         solid = solid & _family_mask(points, offsets, family, grid, field.box)
         value = base[number] if family.nested else field.index + base[number]
-        target[...] = np.where(solid, value, target)
+        np.copyto(target, value, where=solid, casting="unsafe")
     return LayerRegions(box, label, families, fields, base)
 
 
