@@ -806,8 +806,15 @@ def _topology_notes(groups: EdgeGroups) -> list[str]:
     return notes
 
 
-def _orient_outward(vertices: np.ndarray, faces: np.ndarray,
-                    groups: EdgeGroups) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def _face_volumes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per face: area (m,) and signed volume of the tetrahedron with the origin (m,), from one cross product."""
+    v0 = vertices[faces[:, 0]]
+    normal = np.cross(vertices[faces[:, 1]] - v0, vertices[faces[:, 2]] - v0)
+    return 0.5 * np.linalg.norm(normal, axis=1), np.einsum("ij,ij->i", v0, normal) / 6.0
+
+
+def _orient_outward(vertices: np.ndarray, faces: np.ndarray, groups: EdgeGroups,
+                    face_volume: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Make winding consistent and orientation outward where that is unambiguous.
 
     Returns (faces, shell label per face, warnings). Inconsistent winding is fixed by
@@ -827,16 +834,15 @@ def _orient_outward(vertices: np.ndarray, faces: np.ndarray,
         if np.any(fixed != faces):
             notes.append("inconsistent triangle winding was made consistent")
         faces = fixed
-    corner = vertices[faces]
-    signed = np.einsum("ij,ij->i", corner[:, 0], np.cross(corner[:, 1], corner[:, 2])) / 6.0
-    volume = np.bincount(shell, weights=signed)
+        face_volume = _face_volumes(vertices, faces)[1]
+    volume = np.bincount(shell, weights=face_volume)
     if volume.sum() < 0:
         notes.append("normals pointed inward (negative volume); the mesh was turned inside out")
         return faces[:, ::-1].copy(), shell, notes
     flip = np.zeros(len(volume), dtype=bool)
     for label in np.nonzero(volume < 0)[0]:  # one winding query per inverted shell, not per face
         probe = vertices[faces[shell == label][0, 0]]
-        others = corner[shell != label]
+        others = vertices[faces[shell != label]]
         flip[label] = abs(winding_number(probe, others)) < 0.5
     if flip.any():
         faces = faces.copy()
@@ -860,6 +866,15 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     if path.stat().st_size == 0:
         raise InputError(f"{path}: file is empty")
     notes: list[str] = []
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=1) as hasher:  # hashing overlaps parsing (hashlib releases the GIL)
+        digest = hasher.submit(file_sha256, path)
+        return _load_checked(path, suffix, notes, digest)
+
+
+def _load_checked(path: Path, suffix: str, notes: list[str], digest) -> Mesh:
+    """The body of :func:`load_mesh` once the path is known to be a readable mesh file."""
     if suffix == ".ply":
         counts = check_ply_header(path)
         if counts.get("face", 0) == 0:
@@ -907,14 +922,13 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     extent = vertices.max(axis=0) - vertices.min(axis=0)
     if extent[2] <= 0:
         raise InputError(f"{path}: the mesh has zero height (flat in z); nothing to slice")
-    area = np.linalg.norm(np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]],
-                                   vertices[faces[:, 2]] - vertices[faces[:, 0]]), axis=1)
-    zero_area = int((area <= 1e-12 * max(float(extent.max()), 1.0) ** 2).sum())
+    area, face_volume = _face_volumes(vertices, faces)
+    zero_area = int((2.0 * area <= 1e-12 * max(float(extent.max()), 1.0) ** 2).sum())
     if zero_area:
         notes.append(f"{zero_area} zero-area face(s)")
     groups = edge_groups(faces)
     notes.extend(_topology_notes(groups))
-    faces, shell, orient_notes = _orient_outward(vertices, faces, groups)
+    faces, shell, orient_notes = _orient_outward(vertices, faces, groups, face_volume)
     notes.extend(orient_notes)
     if extent.max() < 1.0:
         notes.append(_metres_note(float(extent.max())))
@@ -925,7 +939,7 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
         material=material,
         shell=shell,
         source=path,
-        sha256=file_sha256(path),
+        sha256=digest.result(),
         warnings=tuple(notes),
     )
 
