@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from timing import best_of
 import trimesh
 
 from heoslice.coloring import ColorSpec, color_mesh
@@ -52,16 +53,6 @@ def lesion(triangles: int) -> trimesh.Trimesh:
     torus.apply_transform(trimesh.transformations.rotation_matrix(0.6, [1, 0, 0]))
     torus.apply_translation([20.0, 10.0, 90.0])
     return torus
-
-
-def best_of(repeat: int, run) -> tuple[float, object]:
-    """Smallest wall time of ``repeat`` runs (the machine is shared and noisy), and the last result."""
-    times, result = [], None
-    for _ in range(repeat):
-        start = time.perf_counter()
-        result = run()
-        times.append(time.perf_counter() - start)
-    return min(times), result
 
 
 def python_loop_distances(points: np.ndarray, kind: str) -> list[float]:

@@ -27,6 +27,7 @@ import statistics
 import time
 
 import numpy as np
+from timing import best_of
 
 
 def part_layers(scale: float, count: int):
@@ -51,17 +52,6 @@ def layer_inputs(contours, index: int):
             np.where(parent >= 0, parent - first, -1))
 
 
-def cpu_best(repeats: int, function, *args):
-    """(best CPU seconds, last result) over ``repeats`` calls."""
-    best, result = float("inf"), None
-    for _ in range(repeats):
-        started = time.process_time()
-        result = function(*args)
-        best = min(best, time.process_time() - started)
-    return best, result
-
-
-#: The stages timed by --stages: functions of heoslice.regions (those it has), and shapely's inscribed circle.
 STAGES = ("lattice_distance", "_inside_loops", "_misfit", "_bent", "_all_neighbours", "_expand_planes",
           "_refine_cells", "_family_mask")
 
@@ -182,13 +172,13 @@ def main() -> None:
         mask = solid_mask(points, offsets, grid)
         if args.stages:
             inputs.append((points, offsets, area, parent, mask, grid))
-        seconds, regions = cpu_best(args.repeats, layer_regions, points, offsets, area, parent, mask, grid, spec)
+        seconds, regions = best_of(args.repeats, layer_regions, points, offsets, area, parent, mask, grid, spec, clock=time.process_time)
         megapixels = grid.width * grid.height / 1e6
         counts = [f.layout.count for f, fam in zip(regions.fields, regions.families) if not fam.nested]
         line = (f"layer z={z[index]:7.2f} mm  {high[0] - low[0]:5.1f} x {high[1] - low[1]:5.1f} mm  "
                 f"{megapixels:5.2f} MP  N_R={counts}  grading {1000 * seconds:7.1f} ms")
         if index < args.baseline_layers:
-            base_seconds, naive = cpu_best(1, naive_labels, points, offsets, area, parent, mask, grid, spec, regions)
+            base_seconds, naive = best_of(1, naive_labels, points, offsets, area, parent, mask, grid, spec, regions, clock=time.process_time)
             differ = naive != regions.label
             ratios.append(base_seconds / seconds)
             line += (f"  baseline {1000 * base_seconds:8.1f} ms  ratio {base_seconds / seconds:6.1f}x  "

@@ -21,6 +21,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from timing import best_of
 
 HOSTILE = (b"ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\nproperty float y\n"
            b"property float z\nelement face %d\nproperty list uchar int vertex_indices\nend_header\n")
@@ -34,15 +35,6 @@ def run_measured(args: list[str]) -> tuple[float, int, int]:
     out = subprocess.run([sys.executable, "-c", probe, *args], capture_output=True, text=True, check=True).stdout
     seconds, rss, code = out.split()
     return float(seconds), int(rss), int(code)
-
-
-def best_of(repeats: int, function, *args) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        started = time.perf_counter()
-        function(*args)
-        best = min(best, time.perf_counter() - started)
-    return best
 
 
 def main() -> None:
@@ -73,8 +65,8 @@ def main() -> None:
     for encoding in ("binary", "ascii"):
         path = work / f"sphere_{encoding}.ply"
         path.write_bytes(trimesh.exchange.ply.export_ply(mesh, encoding=encoding))
-        ours = best_of(3, read_ply, path)
-        theirs = best_of(3, lambda p: trimesh.load(p, force="mesh", process=False), path)
+        ours, _ = best_of(3, read_ply, path)
+        theirs, _ = best_of(3, lambda p: trimesh.load(p, force="mesh", process=False), path)
         print(f"{encoding:6s} {len(mesh.faces)} faces: heoslice {ours:.3f} s, trimesh {theirs:.3f} s, "
               f"ratio {ours / theirs:.2f}")
 

@@ -26,16 +26,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-
-def best_of(repeats: int, function, *args):
-    """(best seconds, last result) of calling function(*args) ``repeats`` times."""
-    best, result = float("inf"), None
-    for _ in range(repeats):
-        started = time.perf_counter()
-        result = function(*args)
-        best = min(best, time.perf_counter() - started)
-    return best, result
+from timing import best_of
 
 
 _WRAPPER = (
