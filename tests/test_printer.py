@@ -444,3 +444,15 @@ def test_cli_error_is_one_line_with_exit_code(tmp_path):
                             capture_output=True, text=True, timeout=30)
     assert result.returncode == 12
     assert result.stderr.count("\n") == 1 and result.stderr.startswith("heoslice: error: sim://?version=1: ")
+
+
+def test_dry_run_refuses_a_from_layer_beyond_the_stack(tmp_path, run_cli):
+    """--dry-run applies the same --from-layer range check as a real print: one line, exit 2."""
+    from heoslice import procedural
+
+    model = tmp_path / "ball.ply"
+    model.write_bytes(procedural.sphere(3.0, 2).export(file_type="ply", encoding="binary"))
+    assert run_cli("slice", model, "-o", tmp_path / "s", "--layer", "1", "--dpi", "50")[0] == 0
+    code, out, err = run_cli("print", tmp_path / "s", "--dry-run", "--from-layer", "9999")
+    assert code == 2 and "--from-layer 9999" in err and err.count("\n") == 1
+    assert run_cli("print", tmp_path / "s", "--dry-run", "--from-layer", "2")[0] == 0

@@ -574,8 +574,7 @@ class PrinterLink:
         """Where this run starts: --from-layer, the controller's resume point for this job, or 0."""
         job = self.job
         if from_layer is not None:
-            if not 0 <= from_layer < job.layer_count:
-                raise InputError(f"--from-layer {from_layer} is outside the stack's layers 0..{job.layer_count - 1}")
+            _check_from_layer(job, from_layer)
             return from_layer
         if ack.job_id == job.job_id and ack.state in (P.STATE_RECEIVING, P.STATE_PAUSED):
             self.log.write("resume", layer=ack.last_queued + 1, controller_state=P.STATE_NAMES[ack.state])
@@ -925,9 +924,16 @@ def print_job(port: str, job: JobSpec, get_layer: LayerSource, *, baud: int = 11
             connector.close()
 
 
+def _check_from_layer(job: JobSpec, from_layer: int) -> None:
+    """--from-layer must name a layer of the stack (the same rule for a print and a dry run)."""
+    if not 0 <= from_layer < job.layer_count:
+        raise InputError(f"--from-layer {from_layer} is outside the stack's layers 0..{job.layer_count - 1}")
+
+
 def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, max_payload: int = 1024,
             encodings: int = P.ALL_ENCODINGS, from_layer: int = 0) -> dict:
     """Encode every frame of the job without a port: frames, wire bytes and the time at ``baud`` (8N1), s."""
+    _check_from_layer(job, from_layer)
     frames = wire = raw = 0
     for index in range(from_layer, job.layer_count):
         channels = list(get_layer(index))
