@@ -20,10 +20,12 @@ Where r comes from:
 The field is computed without a Python loop per pixel or per cell: exact distances
 to the rings at the nodes and centres of a coarse lattice (cells of a few pixels;
 the nearest ring edge is found by scipy's Euclidean distance transform seeded by
-the rings, then measured exactly), one plane per cell, checked against the exact
+the rings and a walk along the ring, checked against every edge that can be nearest,
+then measured exactly), one plane per cell, checked against the exact
 values at its corners, expanded to pixels in fixed point; cells the plane does not
 fit within a quarter pixel (medial axis, sharp corners) are evaluated exactly per
-pixel (to float32 rounding of the distances: under 1e-5 mm). The solid mask
+pixel, over every edge that can be nearest to one of their pixels (to float32
+rounding of the distances: under 1e-5 mm). The solid mask
 decides which pixels are solid, so the outline is exact.
 """
 
@@ -310,7 +312,9 @@ def lattice_distance(edges: RingEdges, lattice: Lattice):
     """Exact distance from every cell centre to the rings: (distance, foot x, foot y, edge), each (rows, cols).
 
     The distance transform of the ring-seeded lattice gives each centre an edge near
-    its nearest one (scipy's exact EDT, in mm), and :func:`descend_edges` finishes.
+    its nearest one (scipy's exact EDT, in mm), and :func:`descend_edges` finishes; a
+    walk that stopped at a local minimum along the ring (a bump or corner nearer than
+    its neighbours but not nearest) is found and corrected by :func:`_exact_centres`.
     """
     seed, seed_edge = _seed_edges(edges, lattice)
     import scipy.ndimage  # imported here: ungraded slicing never needs it
@@ -321,7 +325,56 @@ def lattice_distance(edges: RingEdges, lattice: Lattice):
     qx = np.broadcast_to(x, (lattice.rows, lattice.cols)).ravel()
     qy = np.broadcast_to(y[:, None], (lattice.rows, lattice.cols)).ravel()
     found = descend_edges(qx, qy, seed_edge[index[0], index[1]].ravel(), edges)
+    found = _exact_centres(qx, qy, found, edges, lattice)
     return tuple(value.reshape(lattice.rows, lattice.cols) for value in found)
+
+
+#: Lattice cells per side of the blocks whose centres share candidate edges in :func:`_exact_centres`.
+_BLOCK = 4
+
+
+def _exact_centres(qx: np.ndarray, qy: np.ndarray, found: tuple, edges: RingEdges, lattice: Lattice) -> tuple:
+    """The nearest edge of every lattice centre ((rows * cols,) qx, qy mm), given a walk's
+    (distance, foot x, foot y, edge) (a distance to some edge: an upper bound), corrected in place.
+
+    Centres are taken in blocks of _BLOCK x _BLOCK cells: a block's candidates are every
+    edge within U + 2 h of its centre (U an upper bound of its distance, h the half-diagonal
+    of its centres), which hold the nearest edge of each of its centres (the argument of
+    :func:`_refine_cells`). The minimum over them (float32) finds the centres whose walk
+    stopped more than 1e-4 mm (a 400th of a 600 dpi pixel) short; those take their
+    nearest candidate, measured in float64.
+    """
+    distance, fx, fy, best = found
+    b = _BLOCK
+    rows, cols = -(-lattice.rows // b), -(-lattice.cols // b)
+    padded = np.full((rows * b, cols * b), np.inf)
+    padded[:lattice.rows, :lattice.cols] = distance.reshape(lattice.rows, lattice.cols)
+    v, u = (a.ravel() for a in np.meshgrid(np.arange(b), np.arange(b), indexing="ij"))
+    # centres from a block's top-left corner, and from its centre (mm)
+    ox, oy = (u + 0.5) * lattice.dx, (v + 0.5) * lattice.dy
+    away = np.hypot(ox - 0.5 * b * lattice.dx, oy - 0.5 * b * lattice.dy)
+    bound = (padded.reshape(rows, b, cols, b).transpose(0, 2, 1, 3).reshape(rows * cols, b * b) + away).min(axis=1)
+    bi, bj = (a.ravel() for a in np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij"))
+    corner_x, corner_y = lattice.x0 + bj * b * lattice.dx, lattice.y0 - bi * b * lattice.dy
+    block, edge = _edges_within(edges, corner_x + 0.5 * b * lattice.dx, corner_y - 0.5 * b * lattice.dy,
+                                bound + 2.0 * away.max())
+    first = np.searchsorted(block, np.arange(rows * cols + 1))
+    exact = _group_minimum(corner_x[block], corner_y[block], edge, first, ox.astype(np.float32),
+                           oy.astype(np.float32), edges)
+    exact = exact.reshape(rows, cols, b, b).transpose(0, 2, 1, 3).reshape(rows * b, cols * b)
+    short = np.nonzero(exact[:lattice.rows, :lattice.cols].ravel() < distance - 1e-4)[0]
+    if len(short):
+        # each such centre against every candidate of its block, nearest first
+        owner = (short // lattice.cols) // b * cols + (short % lattice.cols) // b
+        count = first[owner + 1] - first[owner]
+        centre = np.repeat(short, count)
+        pair = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count) + np.repeat(first[owner], count)
+        d, x, y, e = nearest_on_edges(qx[centre], qy[centre], edge[pair][:, None], edges)
+        hit = np.nonzero(d == np.repeat(np.minimum.reduceat(d, np.cumsum(count) - count), count))[0]
+        keep = hit[np.concatenate([[True], centre[hit][1:] != centre[hit][:-1]])]
+        fixed = centre[keep]
+        distance[fixed], fx[fixed], fy[fixed], best[fixed] = d[keep], x[keep], y[keep], e[keep]
+    return distance, fx, fy, best
 
 
 def _inside_loops(points: np.ndarray, offsets: np.ndarray, loops, lattice: Lattice) -> np.ndarray:
@@ -510,8 +563,8 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     if refine.any():
         cells = np.nonzero(refine)
         _refine_cells(index, lattice, cells, grid, layout,
-                      [(start, _neighbour_edges(start_at[3], cells))]
-                      + [(rings, _neighbour_edges(at[3], cells)) for rings, at in zip(ends, ends_at)])
+                      [(start, np.abs(start_at[0][cells]))]
+                      + [(rings, np.abs(at[0][cells])) for rings, at in zip(ends, ends_at)])
     row0, row1, col0, col1 = box
     return FamilyField(box=box, index=index[: row1 - row0, : col1 - col0], layout=layout, lattice=lattice,
                        start_edges=start.edges, foot=start_at[2], edge=start_at[3])
@@ -570,15 +623,6 @@ def _bent(grad: np.ndarray, cell: int) -> np.ndarray:
     return out
 
 
-def _neighbour_edges(edge: np.ndarray, cells: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """(n, 9) nearest edges of the given cells' centres and of their 8 neighbours' (clamped at the border)."""
-    rows, cols = edge.shape
-    i, j = cells
-    picks = [edge[np.clip(i + di, 0, rows - 1), np.clip(j + dj, 0, cols - 1)]
-             for di in (-1, 0, 1) for dj in (-1, 0, 1)]
-    return np.stack(picks, axis=1)
-
-
 def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid,
                    flat: np.ndarray, count: int) -> np.ndarray:
     """k = clip(floor(s) + 1, 1, N_R) at every pixel from one plane per cell, in fixed point.
@@ -612,114 +656,96 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
     return pixels.reshape(lattice.rows * f, lattice.cols * f)
 
 
-def _closed_candidates(nearest: np.ndarray, edges: RingEdges) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per cell, its candidate edges: the (n, 9) nearest edges of its and its neighbours' centres with
-    their ring neighbours, without repeats.
+def _edges_within(edges: RingEdges, qx: np.ndarray, qy: np.ndarray,
+                  radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every (query, edge) pair with the edge within radius[i] of point i (qx, qy, radius (n,) mm),
+    sorted by query: (query (m,) int, edge (m,) int). Edges whose boxes meet the query's box
+    (shapely's STRtree), then the exact point-to-segment distance."""
+    import shapely
 
-    Returns (candidates (n, k), count (n,), closed (n, k) bool): row i holds count[i]
-    distinct edges first (padded with its first edge); a candidate is closed when its
-    previous and next edges are candidates of the same cell too.
+    start = np.column_stack([edges.x, edges.y])
+    segments = shapely.linestrings(np.stack([start, start + np.column_stack([edges.vx, edges.vy])], axis=1))
+    query, edge = shapely.STRtree(segments).query(shapely.box(qx - radius, qy - radius, qx + radius, qy + radius))
+    keep = _distance2(qx[query] - edges.x[edge], qy[query] - edges.y[edge], edge, edges) <= radius[query] ** 2
+    query, edge = query[keep], edge[keep]
+    order = np.argsort(query, kind="stable")
+    return query[order], edge[order]
+
+
+def _distance2(rx: np.ndarray, ry: np.ndarray, e: np.ndarray, edges: RingEdges) -> np.ndarray:
+    """Squared distance to edges e ((m,) int) of points at offsets (rx, ry) from their first end
+    ((m,) or (m, k) mm, overwritten and returned), in the offsets' precision."""
+    shape = (-1,) + (1,) * (rx.ndim - 1)
+    vx = edges.vx[e].astype(rx.dtype).reshape(shape)
+    vy = edges.vy[e].astype(rx.dtype).reshape(shape)
+    t = rx * vx
+    t += ry * vy
+    t *= edges.inv_len2[e].astype(rx.dtype).reshape(shape)
+    np.clip(t, 0.0, 1.0, out=t)
+    rx -= t * vx
+    ry -= t * vy
+    rx *= rx
+    ry *= ry
+    rx += ry
+    return rx
+
+
+#: Point-edge distances computed at once in :func:`_group_minimum` (bounds the temporary memory to a few MB).
+_CHUNK = 1 << 18
+
+
+def _group_minimum(bx: np.ndarray, by: np.ndarray, edge: np.ndarray, first: np.ndarray, dx: np.ndarray,
+                   dy: np.ndarray, edges: RingEdges) -> np.ndarray:
+    """Distances from k points per group to the nearest of the group's edges: (g, k) float32 mm.
+
+    Pairs (m,) (base point (bx, by) mm, edge) are sorted by group, group i holding pairs
+    first[i]:first[i + 1] (none empty); its points are (bx + dx, by - dy) ((k,) float32 mm,
+    the same base point throughout a group). Offsets from the base point to an edge are
+    rounded to float32 once (under 1e-5 mm for a part a few hundred mm across, a
+    four-thousandth of a 600 dpi pixel) and small after that. Pairs are taken in chunks of
+    whole groups, each group's minimum by ``np.minimum.reduceat``.
     """
-    wide = np.sort(np.concatenate([nearest, edges.prev[nearest], edges.next[nearest]], axis=1), axis=1)
-    repeat = np.zeros(wide.shape, dtype=bool)
-    repeat[:, 1:] = wide[:, 1:] == wide[:, :-1]
-    count = (~repeat).sum(axis=1)
-    order = np.argsort(repeat, axis=1, kind="stable")[:, :int(count.max())]
-    candidates = np.take_along_axis(wide, order, axis=1)
-    candidates = np.where(np.take_along_axis(repeat, order, axis=1), candidates[:, :1], candidates)
-    # membership by binary search among the sorted (cell, edge) keys of the distinct candidates
-    cells = np.arange(len(wide))[:, None] * len(edges.x)
-    keys = (cells + wide)[~repeat]
-    closed = np.ones(candidates.shape, dtype=bool)
-    for neighbour in (edges.prev, edges.next):
-        wanted = cells + neighbour[candidates]
-        found = np.minimum(np.searchsorted(keys, wanted), len(keys) - 1)
-        closed &= keys[found] == wanted
-    return candidates, count, closed
-
-
-def _nearest_candidate(cx: np.ndarray, cy: np.ndarray, dx: np.ndarray, dy: np.ndarray, candidates: np.ndarray,
-                       count: np.ndarray, edges: RingEdges) -> tuple[np.ndarray, np.ndarray]:
-    """Per pixel, the slot of its cell's nearest candidate edge and the distance to it:
-    ((n, f*f) int8, (n, f*f) float32 mm).
-
-    Cells (n,) have their top-left corner at (cx, cy) mm and pixel centres at
-    (cx + dx, cy - dy) ((f*f,) float32 mm); row i of ``candidates`` holds count[i] edges,
-    rows sorted by decreasing count so that slot j is a prefix of the cells. Offsets
-    from the cell to an edge are rounded to float32 once (under 1e-5 mm for a part a few
-    hundred mm across, a four-thousandth of a 600 dpi pixel) and small after that.
-    """
-    n, size = len(cx), len(dx)
-    best = np.full((n, size), np.inf, dtype=np.float32)
-    slot = np.zeros((n, size), dtype=np.int8)
-    limits = np.searchsorted(-count, -np.arange(1, candidates.shape[1] + 1), side="right")
-    for j, m in enumerate(limits):
-        e = candidates[:m, j]
-        vx = edges.vx[e].astype(np.float32)[:, None]
-        vy = edges.vy[e].astype(np.float32)[:, None]
-        rx = (cx[:m] - edges.x[e]).astype(np.float32)[:, None] + dx
-        ry = (cy[:m] - edges.y[e]).astype(np.float32)[:, None] - dy
-        t = rx * vx
-        t += ry * vy
-        t *= edges.inv_len2[e].astype(np.float32)[:, None]
-        np.clip(t, 0.0, 1.0, out=t)
-        rx -= t * vx
-        ry -= t * vy
-        rx *= rx
-        ry *= ry
-        rx += ry
-        closer = rx < best[:m]
-        np.copyto(best[:m], rx, where=closer)
-        np.copyto(slot[:m], j, where=closer)
-    return slot, np.sqrt(best)
+    groups, size = len(first) - 1, len(dx)
+    cuts = np.unique(np.concatenate([[0], np.searchsorted(first, np.arange(0, first[-1], max(1, _CHUNK // size)),
+                                                          side="right") - 1, [groups]]))
+    best = np.empty((groups, size), dtype=np.float32)
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        pairs = slice(first[a], first[b])
+        e = edge[pairs]
+        rx = (bx[pairs] - edges.x[e]).astype(np.float32)[:, None] + dx
+        ry = (by[pairs] - edges.y[e]).astype(np.float32)[:, None] - dy
+        best[a:b] = np.minimum.reduceat(_distance2(rx, ry, e, edges), first[a:b] - first[a], axis=0)
+    return np.sqrt(best)
 
 
 def _refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, np.ndarray], grid: Grid,
                   layout: FamilyLayout, ring_sets: list) -> None:
     """Exact k at every pixel of the given cells (where one plane does not fit), in place.
 
-    Each pixel takes the nearest of its cell's candidate edges (:func:`_closed_candidates`:
-    the edges nearest to its cell's and the 8 neighbouring cells' centres, a medial axis
-    crossing the cell has its sides among them, and their ring neighbours), measured in
-    float32 (:func:`_nearest_candidate`). Where that edge's ring neighbours are candidates
-    too, it is a local minimum along the ring, which is what :func:`descend_edges` would
-    stop at; the other pixels walk along the ring from it to their own nearest edge.
-    Cells are processed with the most candidates first, so each candidate slot is one
-    prefix of the cells (no padding). Distances are unsigned: only the family's own
-    pixels are kept, and there every distance is positive.
+    ``ring_sets`` pairs each ring set with an upper bound U ((n,) mm) of the exact distance
+    from each cell's centre c to it (any edge's distance will do). A pixel p within h (half
+    the cell's diagonal) of c has its nearest edge within |p - c| + d(p) <= h + (U + h) of
+    c, so a cell's candidates, every edge within U + 2 h of its centre
+    (:func:`_edges_within`), hold the nearest edge of each of its pixels wherever the
+    medial axis runs, and their minimum (:func:`_group_minimum`) is the exact distance.
+    Distances are unsigned: only the family's own pixels are kept, and there every
+    distance is positive.
     """
     f = lattice.cell
-    v, u = np.meshgrid(np.arange(f), np.arange(f), indexing="ij")
-    dx = ((u.ravel() + 0.5) * grid.px).astype(np.float32)
-    dy = ((v.ravel() + 0.5) * grid.py).astype(np.float32)
+    v, u = (a.ravel() for a in np.meshgrid(np.arange(f), np.arange(f), indexing="ij"))
+    dx = ((u + 0.5) * grid.px).astype(np.float32)
+    dy = ((v + 0.5) * grid.py).astype(np.float32)
     ci, cj = cells
-    distances, order = [], None
-    for rings, nearest in ring_sets:
-        e = rings.edges
-        candidates, count, closed = _closed_candidates(nearest, e)
-        if order is None:
-            # cells with more candidates first (one order for every ring set)
-            order = np.argsort(-count, kind="stable")
-            ci, cj = ci[order], cj[order]
-            cx, cy = lattice.x0 + cj * lattice.dx, lattice.y0 - ci * lattice.dy
-            qx = (cx[:, None] + dx).ravel()
-            qy = (cy[:, None] - dy).ravel()
-        candidates, count, closed = candidates[order], count[order], closed[order]
-        if len(distances):
-            ranked = np.argsort(-count, kind="stable")
-            slot, distance = np.empty((len(ci), f * f), dtype=np.int8), np.empty((len(ci), f * f), dtype=np.float32)
-            slot[ranked], distance[ranked] = _nearest_candidate(cx[ranked], cy[ranked], dx, dy, candidates[ranked],
-                                                                count[ranked], e)
-        else:
-            slot, distance = _nearest_candidate(cx, cy, dx, dy, candidates, count, e)
-        start = np.take_along_axis(candidates, slot, axis=1).ravel()
-        distance = distance.ravel().astype(np.float64)
-        walk = ~np.take_along_axis(closed, slot, axis=1).ravel()
-        if walk.any():
-            distance[walk] = descend_edges(qx[walk], qy[walk], start[walk], e)[0]
-        distances.append((distance, None))
+    cx, cy = lattice.x0 + cj * lattice.dx, lattice.y0 - ci * lattice.dy
+    reach = np.hypot(lattice.dx, lattice.dy)
+    distances = []
+    for rings, bound in ring_sets:
+        cell, edge = _edges_within(rings.edges, cx + 0.5 * lattice.dx, cy - 0.5 * lattice.dy, bound + reach)
+        first = np.searchsorted(cell, np.arange(len(ci) + 1))
+        distance = _group_minimum(cx[cell], cy[cell], edge, first, dx, dy, rings.edges)
+        distances.append((distance.ravel().astype(np.float64), None))
     s, _ = _band_coordinate(layout, distances[0], distances[1:], gradients=False)
-    pixel = ((ci[:, None] * f + v.ravel()) * index.shape[1] + (cj[:, None] * f + u.ravel())).ravel()
+    pixel = ((ci[:, None] * f + v) * index.shape[1] + (cj[:, None] * f + u)).ravel()
     np.put(index, pixel, np.clip(np.floor(s) + 1, 1, layout.count))
 
 
