@@ -45,16 +45,17 @@ def test_parse_layers():
             parse_layers(bad, 10)
 
 
-def test_layer_rgb_composites_over_white():
-    """RGBA pixels are shown over white (alpha 0 -> white), 1-bit solid pixels dark grey."""
-    rgba = np.array([[[0, 255, 0, 255], [0, 255, 0, 0]]], dtype=np.uint8)
-    assert layer_rgb(rgba).tolist() == [[[0, 255, 0], [255, 255, 255]]]
+def test_layer_rgb_composites_rgba_over_dark_and_bits_on_white():
+    """RGBA pixels are shown over dark grey (alpha 0 -> (32, 32, 32), white material stays visible);
+    1-bit solid pixels dark grey on white."""
+    rgba = np.array([[[0, 255, 0, 255], [0, 255, 0, 0], [255, 255, 255, 255]]], dtype=np.uint8)
+    assert layer_rgb(rgba).tolist() == [[[0, 255, 0], [32, 32, 32], [255, 255, 255]]]
     bits = np.array([[True, False]])
     assert layer_rgb(bits).tolist() == [[[64, 64, 64], [255, 255, 255]]]
 
 
 def test_preview_one_layer(run_cli, stacks, tmp_path):
-    """`preview STACK --layer N -o F.png` writes the layer at full size: solid pixels coloured, the rest white."""
+    """`preview STACK --layer N -o F.png` writes the layer at full size: solid pixels coloured, the rest dark."""
     _, graded = stacks
     manifest = json.loads((graded / "manifest.json").read_text())
     target = tmp_path / "layer.png"
@@ -62,7 +63,7 @@ def test_preview_one_layer(run_cli, stacks, tmp_path):
     assert code == 0, stderr
     image = np.asarray(Image.open(target))
     assert image.shape == (manifest["image"]["height"], manifest["image"]["width"], 3)
-    assert (image == 255).all(axis=2).any()
+    assert (image == 32).all(axis=2).any()  # empty pixels
     assert (image[..., 1] > image[..., 0] + 50).any()  # green interior
 
 

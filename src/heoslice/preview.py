@@ -2,8 +2,9 @@
 
 Layers are read through :mod:`heoslice.stack`: the manifest is checked, each shown file
 must stay inside the stack and match its sha256 and layout before it is decoded.
-RGBA layers are shown over white (their material colours), 1-bit layers as dark
-solid on white; large layers are reduced (box filter) to fit the requested size.
+RGBA layers are shown in their material colours over dark grey (so a white or light
+material stays visible), 1-bit layers as dark solid on white; large layers are reduced
+(box filter) to fit the requested size.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from heoslice.stack import read_layer_pixels, read_manifest
 #: Colour of solid pixels in 1-bit layers.
 SOLID_GREY = (64, 64, 64)
 BACKGROUND = (255, 255, 255)
+#: Empty pixels behind RGBA layers: dark, since material colours are often white or light.
+RGBA_BACKGROUND = (32, 32, 32)
 
 
 def parse_layers(text: str, count: int) -> list[int]:
@@ -61,7 +64,7 @@ def layer_rgb(pixels: np.ndarray) -> np.ndarray:
         return out
     rgb = pixels[..., :3].astype(np.uint16)
     alpha = pixels[..., 3:4].astype(np.uint16)
-    background = np.asarray(BACKGROUND, dtype=np.uint16)
+    background = np.asarray(RGBA_BACKGROUND, dtype=np.uint16)
     return ((rgb * alpha + background * (255 - alpha) + 127) // 255).astype(np.uint8)
 
 
