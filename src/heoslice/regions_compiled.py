@@ -1,0 +1,323 @@
+"""Compiled inner loops of the grading stage (:mod:`heoslice.regions`), by numba.
+
+The grading step's inner loops have no fast numpy form: gathering, for each group of
+points, the ring edges within its own radius (a walk down a bounding-box hierarchy),
+the nearest of those edges to each point, the expansion of one plane per lattice
+cell to its pixels, and the per-cell fit test. As numpy passes they cost ~100 of a
+~15 MP layer's ~115 ms (``python benchmarks/bench_grading.py --stages``, before);
+compiled, the whole step is under 30 ms. Everything here takes and returns plain
+arrays; the geometry (which points, which radius, why it is enough) is argued in
+:mod:`heoslice.regions`.
+
+Kernels are compiled on first use and cached on disk (numba's ``cache=True``), so
+a process pays the compile (a few seconds) once per installation, not once per run.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+#: Compiled with fast-math's reassociation and contraction (to vectorise), not its no-inf/no-NaN
+#: assumptions: distances start at inf.
+_JIT = {"cache": True, "nogil": True, "error_model": "numpy", "fastmath": {"nsz", "arcp", "contract", "reassoc"}}
+#: Children per node of the edge hierarchy (:func:`edge_tree`).
+_FAN = 8
+
+
+@numba.njit(**_JIT)
+def _candidates(cx, cy, radius, ex, ey, evx, evy, einv, boxes, level_start):  # pragma: no cover - compiled
+    """CSR (start (g+1,), edge (m,)) of the edges within radius[g] of each point (cx[g], cy[g]).
+
+    ``boxes`` are the bounding boxes of a hierarchy (:func:`edge_tree`): level 0 the edges,
+    each level above groups _FAN consecutive nodes of the one below; a node whose box is
+    farther than the radius is skipped with everything under it.
+    """
+    groups = len(cx)
+    levels = len(level_start) - 1
+    start = np.zeros(groups + 1, dtype=np.int64)
+    found = np.empty(max(16 * groups, 16), dtype=np.int64)
+    stack = np.empty((64 * levels + _FAN * levels + 64, 2), dtype=np.int64)
+    n = 0
+    for g in range(groups):
+        r2 = radius[g] * radius[g]
+        top = 0
+        for node in range(level_start[levels] - level_start[levels - 1]):
+            stack[top, 0], stack[top, 1] = levels - 1, node
+            top += 1
+        while top:
+            top -= 1
+            level, node = stack[top, 0], stack[top, 1]
+            box = level_start[level] + node
+            gap_x = max(boxes[box, 0] - cx[g], cx[g] - boxes[box, 2], 0.0)
+            gap_y = max(boxes[box, 1] - cy[g], cy[g] - boxes[box, 3], 0.0)
+            if gap_x * gap_x + gap_y * gap_y > r2:
+                continue
+            if level:
+                below = level_start[level] - level_start[level - 1]
+                for child in range(node * _FAN, min((node + 1) * _FAN, below)):
+                    stack[top, 0], stack[top, 1] = level - 1, child
+                    top += 1
+                continue
+            e = node
+            bx = cx[g] - ex[e]
+            by = cy[g] - ey[e]
+            t = min(max((bx * evx[e] + by * evy[e]) * einv[e], 0.0), 1.0)
+            qx, qy = bx - t * evx[e], by - t * evy[e]
+            if qx * qx + qy * qy > r2:
+                continue
+            if n == len(found):
+                grown = np.empty(2 * n, dtype=np.int64)
+                grown[:n] = found
+                found = grown
+            found[n] = e
+            n += 1
+        start[g + 1] = n
+    return start, found[:n]
+
+
+@numba.njit(**_JIT)
+def _nearest_tracked(cx, cy, ox, oy, start, candidate, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
+    """The nearest of group g's candidate edges to each point (cx[g] + ox[k], cy[g] + oy[k]):
+    (g, k) int32, -1 where none. Compared in float32 from each group's centre (a near tie may
+    pick an edge ~1e-5 mm farther); selects, not branches, so the loop vectorises."""
+    groups, points = len(cx), len(ox)
+    best = np.empty(points, dtype=np.float32)
+    which = np.full((groups, points), -1, dtype=np.int32)
+    for g in range(groups):
+        best[:] = np.inf
+        row_which = which[g]
+        for m in range(start[g], start[g + 1]):
+            e = candidate[m]
+            bx, by = np.float32(cx[g] - ex[e]), np.float32(cy[g] - ey[e])
+            vx, vy, inv = np.float32(evx[e]), np.float32(evy[e]), np.float32(einv[e])
+            edge = np.int32(e)
+            for k in range(points):
+                rx = bx + ox[k]
+                ry = by + oy[k]
+                t = (rx * vx + ry * vy) * inv
+                t = np.float32(0.0) if t < np.float32(0.0) else t
+                t = np.float32(1.0) if t > np.float32(1.0) else t
+                rx -= t * vx
+                ry -= t * vy
+                d2 = rx * rx + ry * ry
+                closer = d2 < best[k]
+                row_which[k] = edge if closer else row_which[k]
+                best[k] = d2 if closer else best[k]
+    return which
+
+
+@numba.njit(**_JIT)
+def _nearest_float32(cx, cy, ox, oy, start, candidate, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
+    """As :func:`_nearest_tracked`, distances only, in float32 from each group's centre (the
+    offsets from a centre to an edge rounded once: under 2e-5 mm within 300 mm)."""
+    groups, points = len(cx), len(ox)
+    best = np.full((groups, points), np.inf, dtype=np.float32)
+    for g in range(groups):
+        row_best = best[g]
+        for m in range(start[g], start[g + 1]):
+            e = candidate[m]
+            bx, by = np.float32(cx[g] - ex[e]), np.float32(cy[g] - ey[e])
+            vx, vy, inv = np.float32(evx[e]), np.float32(evy[e]), np.float32(einv[e])
+            for k in range(points):
+                rx = bx + ox[k]
+                ry = by + oy[k]
+                t = (rx * vx + ry * vy) * inv
+                t = np.float32(0.0) if t < np.float32(0.0) else t
+                t = np.float32(1.0) if t > np.float32(1.0) else t
+                rx -= t * vx
+                ry -= t * vy
+                d2 = rx * rx + ry * ry
+                row_best[k] = d2 if d2 < row_best[k] else row_best[k]
+    return best
+
+
+@numba.njit(**_JIT)
+def _expand_planes(s, gx, gy, cell, px, py, count, out, mask, r0, c0, base):  # pragma: no cover - compiled
+    """out[i*cell + v, j*cell + u] = clip(floor(s_ij + gx_ij x_u - gy_ij y_v) + 1, 1, count) over the
+    part of the lattice that ``out`` covers; x_u, y_v are pixel offsets from the cell centre (mm).
+    With a ``mask`` (not 0 x 0), ``base`` is added and pixels where mask[r0 + row, c0 + col] is
+    False get 0. Per row of cells the column terms are laid out once (float32: s to ~1e-4
+    of a band), so each pixel row is one long branch-free loop."""
+    rows, cols = out.shape
+    masked = mask.shape[0] > 0
+    half = 0.5 * cell
+    column = np.empty(cols, dtype=np.float32)
+    slope = np.empty(cols, dtype=np.float32)
+    low, high, offset = np.float32(1.0), np.float32(count), np.float32(base)
+    for i in range(s.shape[0]):
+        if i * cell >= rows:
+            break
+        for j in range(min(s.shape[1], -(-cols // cell))):
+            for c in range(j * cell, min(cols, (j + 1) * cell)):
+                column[c] = s[i, j] + 1.0 + gx[i, j] * ((c - j * cell + 0.5 - half) * px)
+                slope[c] = gy[i, j] * py
+        for v in range(min(cell, rows - i * cell)):
+            r = i * cell + v
+            down = np.float32(v + 0.5 - half)
+            line = out[r]
+            if masked:
+                keep = mask[r0 + r, c0:c0 + cols]
+                for c in range(cols):
+                    value = column[c] - slope[c] * down
+                    value = low if value < low else value
+                    value = high if value > high else value
+                    line[c] = np.int32((value + offset) * np.float32(keep[c]))
+            else:
+                for c in range(cols):
+                    value = column[c] - slope[c] * down
+                    value = low if value < low else value
+                    value = high if value > high else value
+                    line[c] = np.int32(value)
+    return out
+
+
+@numba.njit(**_JIT)
+def _refine_flags(s, gx, gy, side, candidate, dx, dy, tolerance, limit):  # pragma: no cover - compiled
+    """Cells to evaluate per pixel: candidates whose plane misses s at a neighbour's centre (on
+    the family's side) by more than ``tolerance`` x the slope, or whose gradient turns by more
+    than ``limit`` (a cosine) towards a neighbour while some neighbour is off the family's side.
+    Neighbours past the lattice's border repeat the border cell."""
+    rows, cols = s.shape
+    out = np.zeros((rows, cols), dtype=np.bool_)
+    slope = np.sqrt(gx * gx + gy * gy)
+    length = np.maximum(slope, 1e-300)
+    ux, uy = gx / length, gy / length
+    for i in range(rows):
+        up, down = max(i - 1, 0), min(i + 1, rows - 1)
+        for j in range(cols):
+            if not candidate[i, j]:
+                continue
+            left, right = max(j - 1, 0), min(j + 1, cols - 1)
+            allowed = tolerance * max(slope[i, j], 1e-9)
+            all_side = side[i, j]
+            for ni, di in ((up, -1), (i, 0), (down, 1)):
+                for nj, dj in ((left, -1), (j, 0), (right, 1)):
+                    if not side[ni, nj]:
+                        all_side = False
+                    elif abs(s[i, j] + gx[i, j] * (dj * dx) - gy[i, j] * (di * dy) - s[ni, nj]) > allowed:
+                        out[i, j] = True
+            if out[i, j] or all_side:
+                continue
+            for ni in (up, i, down):
+                for nj in (left, j, right):
+                    if ux[i, j] * ux[ni, nj] + uy[i, j] * uy[ni, nj] < limit:
+                        out[i, j] = True
+    return out
+
+
+@numba.njit(**_JIT)
+def _feet(qx, qy, edge, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
+    """Distance from each point to its given edge, and the nearest point on it (the foot)."""
+    n = len(qx)
+    distance, fx, fy = np.empty(n), np.empty(n), np.empty(n)
+    for i in range(n):
+        e = edge[i]
+        rx, ry = qx[i] - ex[e], qy[i] - ey[e]
+        t = min(max((rx * evx[e] + ry * evy[e]) * einv[e], 0.0), 1.0)
+        fx[i], fy[i] = ex[e] + t * evx[e], ey[e] + t * evy[e]
+        distance[i] = np.sqrt((qx[i] - fx[i]) ** 2 + (qy[i] - fy[i]) ** 2)
+    return distance, fx, fy
+
+
+@numba.njit(**_JIT)
+def _write_cells(index, ci, cj, cell, s, count, mask, r0, c0, base):  # pragma: no cover - compiled
+    """index[ci*cell + v, cj*cell + u] = clip(floor(s) + 1, 1, count) for the pixels of whole cells
+    (s (cells, cell * cell), row-major within a cell) that fall inside ``index``; with a
+    ``mask`` (not 0 x 0), + base on its True pixels (at r0 + row, c0 + col) and 0 elsewhere."""
+    rows, cols = index.shape
+    masked = mask.shape[0] > 0
+    for n in range(len(ci)):
+        for v in range(cell):
+            r = ci[n] * cell + v
+            if r >= rows:
+                break
+            for u in range(cell):
+                c = cj[n] * cell + u
+                if c >= cols:
+                    break
+                k = min(max(np.floor(s[n, v * cell + u]) + 1.0, 1.0), count)
+                if masked:
+                    k = k + base if mask[r0 + r, c0 + c] else 0.0
+                index[r, c] = int(k)
+    return index
+
+
+def edge_tree(x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray):
+    """Bounding-box hierarchy of edges from (x0, y0) to (x1, y1) ((n,) float, mm), given in ring order
+    so that consecutive edges are near each other: (boxes (total, 4) [xmin, ymin, xmax, ymax],
+    level_start (levels + 1,)); level 0 the edges, each level above one box per _FAN boxes
+    below, up to a top level of at most _FAN boxes."""
+    level = np.column_stack([np.minimum(x0, x1), np.minimum(y0, y1), np.maximum(x0, x1), np.maximum(y0, y1)])
+    levels = [level]
+    while len(level) > _FAN:
+        pad = -len(level) % _FAN
+        grouped = np.concatenate([level, np.repeat(level[-1:], pad, axis=0)]).reshape(-1, _FAN, 4)
+        level = np.concatenate([grouped[:, :, :2].min(axis=1), grouped[:, :, 2:].max(axis=1)], axis=1)
+        levels.append(level)
+    sizes = [len(level) for level in levels]
+    return np.ascontiguousarray(np.concatenate(levels)), np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+
+
+def nearest_in_groups(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np.ndarray, oy: np.ndarray,
+                      ex: np.ndarray, ey: np.ndarray, evx: np.ndarray, evy: np.ndarray, einv: np.ndarray,
+                      tree, track: bool = True) -> np.ndarray:
+    """The points (cx[g] + ox[k], cy[g] + oy[k]) against the edges within radius[g] of (cx[g], cy[g]):
+    with ``track`` the nearest edge ((g, k) int32, -1 where none), else the squared distance
+    to it ((g, k) float32, mm^2; inf where none). Both in float32 from the group's centre
+    (see :func:`_nearest_tracked`, :func:`_nearest_float32`).
+
+    Edges run from (ex, ey) by (evx, evy) ((n,) float, mm), einv = 1 / |v|^2 (0 for a
+    zero-length edge); ``tree`` is :func:`edge_tree` of the same edges.
+    """
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731 - one conversion, many arrays
+    cx, cy, ex, ey, evx, evy, einv = (f64(a) for a in (cx, cy, ex, ey, evx, evy, einv))
+    start, candidate = _candidates(cx, cy, f64(radius), ex, ey, evx, evy, einv, *tree)
+    f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
+    if track:
+        return _nearest_tracked(cx, cy, f32(ox), f32(oy), start, candidate, ex, ey, evx, evy, einv)
+    return _nearest_float32(cx, cy, f32(ox), f32(oy), start, candidate, ex, ey, evx, evy, einv)
+
+
+def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: int, px: float, py: float,
+                  count: int, out: np.ndarray, mask: np.ndarray | None = None, origin: tuple[int, int] = (0, 0),
+                  base: int = 0) -> np.ndarray:
+    """Sub-region k = clip(floor(s) + 1, 1, count) at every pixel of ``out`` ((rows, cols) int16/int32,
+    rows <= cells_r * cell) from one plane per lattice cell: s (cells_r, cells_c) at the cell
+    centre, gradient (gx, gy) per mm (y up, rows down). With ``mask`` ((h, w) bool, C order;
+    ``out`` covers rows/columns from ``origin`` of it) the result is k + base on its True
+    pixels and 0 elsewhere: a family's labels in the same pass."""
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
+    return _expand_planes(f64(s), f64(gx), f64(gy), int(cell), float(px), float(py), float(count), out, mask,
+                          int(origin[0]), int(origin[1]), int(base))
+
+
+def refine_flags(s: np.ndarray, grad: np.ndarray, side: np.ndarray, candidate: np.ndarray, dx: float, dy: float,
+                 tolerance: float, limit: float) -> np.ndarray:
+    """(rows, cols) bool: lattice cells whose one plane does not fit (see :func:`_refine_flags`);
+    s (rows, cols), grad (rows, cols, 2) per mm, side/candidate (rows, cols) bool, dx/dy the cell (mm)."""
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    return _refine_flags(f64(s), f64(grad[..., 0]), f64(grad[..., 1]), np.ascontiguousarray(side),
+                         np.ascontiguousarray(candidate), float(dx), float(dy), float(tolerance), float(limit))
+
+
+def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, ex: np.ndarray, ey: np.ndarray, evx: np.ndarray,
+         evy: np.ndarray, einv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distance (n,) mm from points (qx, qy) to the given edges ((n,) int) and the nearest point on each
+    (foot x, foot y (n,) mm); edges as in :func:`nearest_in_groups`."""
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    return _feet(f64(qx), f64(qy), np.ascontiguousarray(edge, dtype=np.int64), f64(ex), f64(ey), f64(evx), f64(evy),
+                 f64(einv))
+
+
+
+def write_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, s: np.ndarray, count: int,
+                mask: np.ndarray | None = None, origin: tuple[int, int] = (0, 0), base: int = 0) -> np.ndarray:
+    """Sub-region k = clip(floor(s) + 1, 1, count) of every pixel of lattice cells (ci, cj) ((n,) int)
+    from per-pixel s ((n, cell * cell), row-major in a cell), in place in ``index``; ``mask``,
+    ``origin`` and ``base`` as in :func:`expand_planes`."""
+    mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
+    return _write_cells(index, np.ascontiguousarray(ci, dtype=np.int64), np.ascontiguousarray(cj, dtype=np.int64),
+                        int(cell), np.ascontiguousarray(s, dtype=np.float64).reshape(len(ci), cell * cell),
+                        float(count), mask, int(origin[0]), int(origin[1]), float(base))
