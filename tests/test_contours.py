@@ -134,3 +134,59 @@ def test_rank_paths_counts_steps_to_the_tail():
     """Pointer jumping gives each node's distance to the end of its path."""
     nxt = np.array([1, 2, 3, -1, 5, -1, -1])
     np.testing.assert_array_equal(_rank_paths(nxt), [3, 2, 1, 0, 1, 0, 0])
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 100_000), size=st.integers(0, 40), distinct=st.integers(1, 12))
+def test_successors_link_the_kth_end_to_the_kth_start_of_a_key(seed, size, distinct):
+    """With repeated keys (non-manifold edges), the k-th segment (in index order) ending on a key links
+    to the k-th segment starting on it, as a brute-force pass over the keys does; small and huge keys alike."""
+    rng = np.random.default_rng(seed)
+    scale = int(rng.choice([1, 10**17]))  # huge keys leave no room to pack the index: the argsort path
+    start = rng.integers(0, distinct, size) * scale
+    end = rng.integers(0, distinct, size) * scale
+    expected = np.full(size, -1)
+    for key in set(end.tolist()):
+        enders, starters = np.flatnonzero(end == key), np.flatnonzero(start == key)
+        for k in range(min(len(enders), len(starters))):
+            expected[enders[k]] = starters[k]
+    np.testing.assert_array_equal(successors(start, end), expected)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 100_000), size=st.integers(1, 200))
+def test_label_chains_name_each_cycle_by_its_smallest_node_and_each_path_by_its_tail(seed, size):
+    """Random disjoint cycles and paths: every node gets its cycle's smallest index, or -1 - the tail of its
+    path, as walking the successor map node by node does."""
+    from heoslice.contours import _label_chains
+
+    rng = np.random.default_rng(seed)
+    nodes = rng.permutation(size)
+    nxt = np.full(size, -1)
+    cuts = np.sort(rng.choice(np.arange(1, size), size=min(size - 1, int(rng.integers(0, 8))), replace=False))
+    for chain in np.split(nodes, cuts):
+        nxt[chain[:-1]] = chain[1:]
+        if rng.random() < 0.5:
+            nxt[chain[-1]] = chain[0]  # a cycle (a single node may be its own successor)
+    expected = np.empty(size, dtype=np.int64)
+    for node in range(size):
+        seen, current = [node], nxt[node]
+        while current >= 0 and current != node:
+            seen.append(current)
+            current = nxt[current]
+        expected[node] = min(seen) if current == node else -1 - seen[-1]
+    key, on_path = _label_chains(nxt)
+    np.testing.assert_array_equal(key, expected)
+    np.testing.assert_array_equal(on_path, expected < 0)
+
+
+def test_contours_without_hierarchy_are_the_same_loops():
+    """hierarchy=False gives the same loops, points and areas, and leaves parent and family out."""
+    mesh = procedural.shell_with_island()
+    z = plane_heights(mesh.vertices[:, 2].min(), mesh.vertices[:, 2].max(), 0.5)
+    sections = slice_mesh(mesh.vertices, mesh.faces, z)
+    full, plain = build_contours(sections), build_contours(sections, hierarchy=False)
+    assert plain.parent is None and plain.family is None and (full.parent >= 0).any()
+    for name in ("points", "point_edge", "point_t", "offsets", "layer", "area", "closed_by_join", "face",
+                 "layer_offsets"):
+        np.testing.assert_array_equal(getattr(plain, name), getattr(full, name))

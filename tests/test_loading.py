@@ -445,14 +445,16 @@ def test_row_starts_are_the_same_for_any_window(tmp_path, window):
     np.testing.assert_array_equal(starts, expected)
 
 
-@pytest.mark.parametrize("collide", [False, True])
+@pytest.mark.parametrize("collide", ["none", "some", "all"])
 def test_weld_merges_equal_coordinates_in_first_occurrence_order(monkeypatch, collide):
     """Equal coordinates (and -0.0 / 0.0) become one vertex, first occurrences keep their order, a welded
-    mesh is unchanged, and the exact fallback gives the same answer when every hash collides."""
+    mesh is unchanged, and the exact regrouping gives the same answer when some or every hash collides."""
     from heoslice import loading
 
-    if collide:
-        monkeypatch.setattr(loading, "_mix64", lambda x: np.zeros_like(x))
+    if collide == "all":
+        monkeypatch.setattr(loading, "_row_hash", lambda bits: np.zeros(len(bits), dtype=np.uint64))
+    elif collide == "some":  # rows with the same x collide whatever their y and z
+        monkeypatch.setattr(loading, "_row_hash", lambda bits: bits[:, 0].astype(np.uint64) << np.uint64(40))
     rng = np.random.default_rng(5)
     vertices = rng.integers(-2, 3, (300, 3)).astype(np.float32)
     vertices[vertices == 0] = -0.0
@@ -461,6 +463,56 @@ def test_weld_merges_equal_coordinates_in_first_occurrence_order(monkeypatch, co
     np.testing.assert_array_equal(unique[welded_faces], (vertices[faces] + 0.0).astype(np.float64))
     assert len(unique) == len(np.unique(vertices + 0.0, axis=0))
     assert np.all(np.diff(first) > 0) and first[0] == 0
+    np.testing.assert_array_equal(unique, vertices[first] + 0.0)
+    assert np.all(first[welded_faces] <= faces)  # each vertex maps to the first occurrence of its coordinates
     again, again_faces, _ = loading._weld(unique, welded_faces)
     np.testing.assert_array_equal(again, unique)
     np.testing.assert_array_equal(again_faces, welded_faces)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 100_000), shells=st.integers(1, 6), shuffle=st.booleans())
+def test_shell_labels_match_scipy_connected_components(seed, shells, shuffle):
+    """Shells are scipy's connected components of the face graph (faces joined by shared edges),
+    numbered alike (by first face), for several touching-at-a-vertex or separate shells in any face order."""
+    import scipy.sparse
+    import scipy.sparse.csgraph
+
+    from heoslice.loading import edge_groups, shell_labels
+
+    rng = np.random.default_rng(seed)
+    parts, offset = [], 0
+    for _ in range(shells):
+        sphere = procedural.sphere(1.0, int(rng.integers(0, 3)))
+        parts.append(sphere.faces + offset)
+        offset += len(sphere.vertices) - int(rng.integers(0, 2))  # shells may share one vertex, never an edge
+    faces = np.concatenate(parts)
+    if shuffle:
+        faces = faces[rng.permutation(len(faces))]
+    groups = edge_groups(faces)
+    same = np.ones(len(groups.order), dtype=bool)
+    same[groups.starts] = False
+    owner = groups.order // 3
+    graph = scipy.sparse.coo_matrix((np.ones(int(same[1:].sum())), (owner[:-1][same[1:]], owner[1:][same[1:]])),
+                                    shape=(len(faces), len(faces)))
+    expected = scipy.sparse.csgraph.connected_components(graph, directed=False)[1]
+    np.testing.assert_array_equal(shell_labels(faces), expected)
+    assert shell_labels(faces).max() + 1 == shells
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 100_000), offset=st.sampled_from([0, 2**31 - 64]))
+def test_edge_groups_group_every_undirected_edge_in_index_order(seed, offset):
+    """Each group is one undirected edge, every face edge is in exactly one group, and within a group the
+    entries are in index order (a packed sort for small vertex indices, an argsort for huge ones)."""
+    from heoslice.loading import edge_groups
+
+    rng = np.random.default_rng(seed)
+    faces = offset + rng.integers(0, int(rng.integers(3, 40)), (int(rng.integers(2, 60)), 3))
+    groups = edge_groups(faces)
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)[groups.order]
+    run = np.cumsum(np.isin(np.arange(len(edges)), groups.starts)) - 1
+    assert np.array_equal(np.sort(groups.order), np.arange(3 * len(faces)))
+    assert all((edges[run == g] == edges[groups.starts[g]]).all() for g in range(len(groups.starts)))
+    assert len({tuple(e) for e in edges[groups.starts]}) == len(groups.starts)
+    assert np.all(np.diff(groups.order)[np.diff(run) == 0] > 0)

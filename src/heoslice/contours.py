@@ -7,9 +7,10 @@ clockwise). Open meshes give open chains, which are closed by joining their ends
 and reported. Loops are then grouped into profile families, the paper's
 O_L = {L_i}, L_i = {C_i,j}: an outer ring with the holes directly inside it.
 
-Everything is vectorised over all layers: loops are found as cycles of the
-successor permutation (scipy's connected components) and ordered by pointer
-jumping, so there is no Python loop per segment.
+Everything is vectorised over all layers: every segment has at most one successor,
+so the loops are the cycles (and open chains) of the successor map; they are
+labelled and ordered by pointer jumping, so there is no Python loop per segment
+(and no graph library to import).
 """
 
 from __future__ import annotations
@@ -17,8 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse
-import scipy.sparse.csgraph
 
 from heoslice.slicing import Sections
 
@@ -35,6 +34,7 @@ class Contours:
     closed by joining its ends), ``parent`` (the smallest loop of the same layer
     containing it, or -1), ``family`` (the outer ring whose family it belongs to) and
     ``face`` (a mesh face the loop was cut from: ``mesh.shell[face]`` names its shell).
+    ``parent`` and ``family`` are None when the contours were built without the hierarchy.
     ``layer_offsets`` ((L+1,) int): loops of layer k are ``layer_offsets[k]:layer_offsets[k+1]``.
     """
 
@@ -45,8 +45,8 @@ class Contours:
     layer: np.ndarray
     area: np.ndarray
     closed_by_join: np.ndarray
-    parent: np.ndarray
-    family: np.ndarray
+    parent: np.ndarray | None
+    family: np.ndarray | None
     face: np.ndarray
     layer_offsets: np.ndarray
 
@@ -72,21 +72,46 @@ def successors(start_key: np.ndarray, end_key: np.ndarray) -> np.ndarray:
 
     Keys are compared exactly; where a non-manifold edge carries several segments,
     the k-th segment ending on it is linked to the k-th segment starting on it.
+    Both key lists are sorted together, once: in each run of equal keys the starts
+    come first, then the ends, each in index order, and the k-th end of a run takes
+    the k-th start of the run.
     """
-    order = np.argsort(start_key, kind="stable")
-    sorted_keys = start_key[order]
-    end_order = np.argsort(end_key, kind="stable")
-    sorted_end = end_key[end_order]
-    group_first = np.searchsorted(sorted_end, sorted_end, side="left")
-    rank = np.empty_like(end_order)
-    rank[end_order] = np.arange(len(end_key)) - group_first
-    position = np.searchsorted(sorted_keys, end_key, side="left") + rank
-    inside = position < len(sorted_keys)
-    nxt = np.full(len(end_key), -1, dtype=np.int64)
-    match = np.zeros(len(end_key), dtype=bool)
-    match[inside] = sorted_keys[position[inside]] == end_key[inside]
-    nxt[match] = order[position[match]]
+    count = len(start_key)
+    keys = np.concatenate([start_key, end_key])
+    order, sorted_keys = _stable_key_sort(keys)
+    position = np.arange(len(keys))
+    is_end = order >= count
+    new_run = np.empty(len(keys), dtype=bool)
+    new_run[:1] = True
+    np.not_equal(sorted_keys[1:], sorted_keys[:-1], out=new_run[1:])
+    run_start = np.maximum.accumulate(np.where(new_run, position, 0))
+    first_end = new_run.copy()
+    first_end[1:] |= ~is_end[:-1]
+    first_end &= is_end
+    first_end = np.maximum.accumulate(np.where(first_end, position, 0))  # of the run, at its ends
+    partner = run_start + position - first_end  # the k-th start of the run, for its k-th end
+    match = is_end & (partner < first_end)
+    nxt = np.full(count, -1, dtype=np.int64)
+    nxt[order[match] - count] = order[partner[match]]
     return nxt
+
+
+def _stable_key_sort(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(order, keys[order]) of non-negative int64 keys, equal keys in index order.
+
+    When the keys leave room, each index is packed below its key and the packed values
+    are sorted with ``np.sort`` (several times faster than a stable ``np.argsort``).
+    """
+    shift = max(int(len(keys) - 1).bit_length(), 1)
+    if len(keys) and int(keys.max()).bit_length() + shift <= 63 and keys.min() >= 0:
+        packed = keys << shift
+        packed |= np.arange(len(keys))
+        packed.sort()
+        sorted_keys = packed >> shift
+        packed &= (1 << shift) - 1
+        return packed, sorted_keys
+    order = np.argsort(keys, kind="stable")
+    return order, keys[order]
 
 
 def _rank_paths(nxt: np.ndarray) -> np.ndarray:
@@ -104,35 +129,61 @@ def _rank_paths(nxt: np.ndarray) -> np.ndarray:
     return hops[:count]
 
 
+def _label_chains(nxt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The chain (cycle or open path) of each node of a successor map, by pointer jumping.
+
+    nxt: (n,) int, each node's successor or -1 (a tail); no node has two predecessors, so
+    the chains are disjoint cycles and paths. Returns (key (n,) int, has_tail (n,) bool):
+    nodes of one chain share a key, which is ``-1 - tail`` on a path and the smallest
+    index of the cycle on a cycle. Each round takes the minimum of a node's key and
+    the key 2**k steps on (a tail's negative key spreads back along its path); the
+    rounds stop when a round changes nothing, which on a cycle happens only once the
+    minimum has gone all the way round: ceil(log2(longest chain)) + 1 rounds.
+    """
+    count = len(nxt)
+    linked = nxt >= 0
+    key = np.arange(count + 1, dtype=np.int64)  # the sentinel ``count`` never lowers a key
+    key[:count][~linked] = -1 - key[:count][~linked]
+    jump = np.append(np.where(linked, nxt, count), count)
+    while True:
+        lower = np.minimum(key, key[jump])
+        if np.array_equal(lower, key):
+            break
+        key = lower
+        jump = jump[jump]
+    return key[:count], key[:count] < 0
+
+
 def chain_loops(sections: Sections) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Order segments into loops.
 
     Returns (segment order (s,) int, loop offsets (loops+1,) int, closed_by_join
-    (loops,) bool). Loops are sorted by layer; within a loop, segments follow each
-    other end to start. Chains that do not close are kept as loops flagged in
-    closed_by_join.
+    (loops,) bool). Loops are sorted by layer, then by their smallest segment
+    index; within a loop, segments follow each other end to start, a cycle
+    from its smallest segment index. Chains that do not close are kept as loops
+    flagged in closed_by_join.
     """
     count = len(sections.layer)
     if count == 0:
         return np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, bool)
     nxt = successors(sections.start_key, sections.end_key)
-    linked = nxt >= 0
-    graph = scipy.sparse.csr_matrix(
-        (np.ones(int(linked.sum()), dtype=np.int8), (np.nonzero(linked)[0], nxt[linked])),
-        shape=(count, count),
-    )
-    components, label = scipy.sparse.csgraph.connected_components(graph, directed=True, connection="weak")
-    # A component with a tail is an open chain; a cycle is cut before its smallest index.
-    has_tail = np.zeros(components, dtype=bool)
-    has_tail[label[~linked]] = True
+    key, on_path = _label_chains(nxt)
+    # Number the chains by their key node (the tail of a path, the smallest index of a cycle).
+    named = np.where(on_path, -1 - key, key)
+    label = np.cumsum(named == np.arange(count)) - 1
+    label = label[named]
+    components = int(label.max()) + 1
     root = np.full(components, count, dtype=np.int64)
     np.minimum.at(root, label, np.arange(count))
+    has_tail = np.zeros(components, dtype=bool)
+    has_tail[label[on_path]] = True
+    # A cycle is cut before its smallest index; a path already has a tail.
     cut = nxt.copy()
-    cut[~has_tail[label] & (nxt == root[label])] = -1
+    cut[~on_path & (nxt == root[label])] = -1
     to_tail = _rank_paths(cut)
     # Place each segment directly: loops sorted by layer, then along the loop from its head.
     size = np.bincount(label, minlength=components)
-    loop_order = np.argsort(sections.layer[root], kind="stable")
+    loop_order = np.lexsort((root, sections.layer[root]))
     offsets = np.zeros(components + 1, dtype=np.int64)
     offsets[1:] = np.cumsum(size[loop_order])
     loop_start = np.empty(components, dtype=np.int64)
@@ -224,8 +275,12 @@ def _drop_repeated_points(points, point_edge, point_t, offsets):
     return points[keep], point_edge[keep], point_t[keep], new_offsets
 
 
-def build_contours(sections: Sections) -> Contours:
-    """Chain all layers' segments into loops and classify them (outer/hole, families)."""
+def build_contours(sections: Sections, hierarchy: bool = True) -> Contours:
+    """Chain all layers' segments into loops and classify them (outer/hole, families).
+
+    ``hierarchy=False`` skips which loop lies in which (``parent``, ``family`` are None):
+    filling a layer by non-zero winding does not need it, only grading does.
+    """
     order, offsets, closed_by_join = chain_loops(sections)
     first_segment = offsets[:-1]
     loop_layer = sections.layer[order[first_segment]] if len(order) else np.zeros(0, np.int64)
@@ -242,7 +297,7 @@ def build_contours(sections: Sections) -> Contours:
     points, point_edge, point_t, offsets = _drop_repeated_points(points, point_edge, point_t, offsets)
 
     area = signed_areas(points, offsets)
-    parent = loop_parents(points, offsets, loop_layer, area)
+    parent = loop_parents(points, offsets, loop_layer, area) if hierarchy else None
     return Contours(
         points=points,
         point_edge=point_edge,
@@ -252,7 +307,7 @@ def build_contours(sections: Sections) -> Contours:
         area=area,
         closed_by_join=closed_by_join,
         parent=parent,
-        family=assign_families(area, parent),
+        family=assign_families(area, parent) if hierarchy else None,
         face=sections.face[order[first_segment]] if len(order) else np.zeros(0, np.int64),
         layer_offsets=np.searchsorted(loop_layer, np.arange(sections.layer_count + 1), side="left"),
     )

@@ -66,7 +66,14 @@ class Mesh:
     @property
     def bounds(self) -> np.ndarray:
         """(2, 3) float: [[x_min, y_min, z_min], [x_max, y_max, z_max]], mm."""
-        return np.array([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+        return column_bounds(self.vertices)
+
+
+def column_bounds(values: np.ndarray) -> np.ndarray:
+    """(2, k) float: per-column minimum and maximum of (n, k) values, column by column
+    (numpy reduces an (n, 3) array along axis 0 ten times slower)."""
+    columns = range(values.shape[1])
+    return np.array([[values[:, i].min() for i in columns], [values[:, i].max() for i in columns]])
 
 
 def file_sha256(path: Path) -> str:
@@ -679,49 +686,91 @@ def _colors_from(loaded, columns: dict[str, np.ndarray], n: int) -> np.ndarray |
     return None
 
 
-def _mix64(x: np.ndarray) -> np.ndarray:
-    """The splitmix64 finaliser: a bijection on uint64 that spreads every input bit over the output."""
-    x = x ^ (x >> np.uint64(30))
-    x = x * np.uint64(0xBF58476D1CE4E5B9)
-    x = x ^ (x >> np.uint64(27))
-    x = x * np.uint64(0x94D049BB133111EB)
-    return x ^ (x >> np.uint64(31))
+#: Odd 64-bit multipliers of the row hash (golden-ratio and xxHash primes).
+_HASH_MULTIPLIERS = (0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0xBF58476D1CE4E5B9)
+
+
+def _row_hash(bits: np.ndarray) -> np.ndarray:
+    """(n,) uint64 hash of the rows of (n, 3) uint32 or uint64 coordinate bits; its high bits are the well-mixed ones.
+
+    Multiplicative hashing per coordinate, xor-ed, then one xor-shift-multiply round
+    so that every input bit reaches the high bits. Collisions only cost time: the
+    weld compares the rows themselves.
+    """
+    k0, k1, k2, k3 = (np.uint64(k) for k in _HASH_MULTIPLIERS)
+    with np.errstate(over="ignore"):
+        key = bits[:, 0] * k0
+        key ^= bits[:, 1] * k1
+        key ^= bits[:, 2] * k2
+        key ^= key >> np.uint64(32)
+        key *= k3
+    return key
+
+
+def _index_bits(count: int) -> int:
+    """Bits that hold every index below ``count`` (at least 1)."""
+    return max(int(count - 1).bit_length(), 1)
+
+
+def _index_sort(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sort (n,) uint64 ``key`` by its high bits, ties by index: (order (n,) int64, sorted high bits (n,) uint64).
+
+    The index is packed into the low :func:`_index_bits` bits of the key and the packed
+    values are sorted with ``np.sort``, several times faster than ``np.argsort`` on
+    millions of keys. Those low bits of the key are dropped, so keys equal in their
+    high bits (not only equal keys) end up together.
+    """
+    shift = _index_bits(len(key))
+    mask = np.uint64((1 << shift) - 1)
+    packed = key & ~mask
+    packed |= np.arange(len(key), dtype=np.uint64)
+    packed.sort()
+    high = packed >> np.uint64(shift)
+    packed &= mask
+    return packed.view(np.int64), high
 
 
 def _weld(vertices: np.ndarray, faces: np.ndarray):
     """Merge vertices with identical coordinates, keeping first occurrences in order.
 
     Returns (unique_vertices, faces, first_index): unique vertex j is input vertex
-    first_index[j]. Rows are grouped by a 64-bit hash of their coordinate bits (one
-    integer sort instead of a row-wise one); every row is then compared with its
-    group's first row, and only on a hash collision does the exact row sort run.
-    An already welded mesh comes back unchanged.
+    first_index[j]. Rows are grouped by a hash of their coordinate bits (one integer
+    sort instead of a row-wise one) and every row is compared with its group's first
+    (lowest-index) row; only rows of groups where the hash collided are then grouped
+    exactly, by a row sort of those rows alone. An already welded mesh comes back unchanged.
     """
     rows = np.ascontiguousarray(vertices)
     if rows.dtype not in (np.float32, np.float64):
         rows = rows.astype(np.float64)
     rows = rows + rows.dtype.type(0.0)  # -0.0 and 0.0 weld
     bits = rows.view(np.uint32 if rows.dtype == np.float32 else np.uint64)
-    with np.errstate(over="ignore"):
-        key = _mix64(_mix64(_mix64(bits[:, 0].astype(np.uint64)) ^ bits[:, 1]) ^ bits[:, 2])
-    order = np.argsort(key)
-    sorted_key = key[order]
-    is_start = np.empty(len(key), dtype=bool)
+    count = len(rows)
+    order, high = _index_sort(_row_hash(bits))
+    is_start = np.empty(count, dtype=bool)
     is_start[:1] = True
-    np.not_equal(sorted_key[1:], sorted_key[:-1], out=is_start[1:])
+    np.not_equal(high[1:], high[:-1], out=is_start[1:])
+    del high
     start_position = np.flatnonzero(is_start)
-    group = np.cumsum(is_start) - 1
-    sorted_rows = bits[order]
-    if not np.array_equal(sorted_rows, sorted_rows[start_position][group]):  # a hash collision
-        _, first, inverse = np.unique(rows, axis=0, return_index=True, return_inverse=True)
-        rank = np.argsort(np.argsort(first))
-        return rows[np.sort(first)].astype(np.float64), rank[inverse.reshape(-1)][faces], np.sort(first)
-    representative = np.empty(len(rows), dtype=np.int64)
-    representative[order] = np.minimum.reduceat(order, start_position)[group]  # lowest index of the group
-    first = np.flatnonzero(representative == np.arange(len(rows)))
-    new_index = np.empty(len(rows), dtype=np.int64)
-    new_index[first] = np.arange(len(first))
-    return rows[first].astype(np.float64), new_index[representative][faces], first
+    group_first = order[start_position]  # ties are in index order: the lowest index of each group
+    is_first = np.zeros(count, dtype=bool)
+    is_first[group_first] = True
+    new_index = np.cumsum(is_first) - 1
+    row_index = np.empty(count, dtype=np.int64)  # the new vertex of every input row
+    row_index[order] = np.repeat(new_index[group_first], np.diff(np.append(start_position, count)))
+    first = np.flatnonzero(is_first)
+    same = np.take(bits[first], row_index, axis=0)
+    if not np.array_equal(same, bits):  # a hash collision: group the collided groups' rows exactly
+        representative = first[row_index]
+        wrong = np.flatnonzero(np.any(same != bits, axis=1))
+        members = np.flatnonzero(np.isin(representative, representative[wrong]))
+        columns = np.column_stack([representative[members].astype(np.uint64), bits[members].astype(np.uint64)])
+        _, lowest, inverse = np.unique(columns, axis=0, return_index=True, return_inverse=True)
+        representative[members] = members[lowest][inverse.reshape(-1)]
+        first = np.flatnonzero(representative == np.arange(count))
+        new_index = np.empty(count, dtype=np.int64)
+        new_index[first] = np.arange(len(first))
+        row_index = new_index[representative]
+    return rows[first].astype(np.float64), row_index[faces], first
 
 
 @dataclass(frozen=True)
@@ -751,28 +800,46 @@ class EdgeGroups:
 
 
 def edge_groups(faces: np.ndarray) -> EdgeGroups:
-    """Group the faces' edges by undirected edge with one integer sort."""
+    """Group the faces' edges by undirected edge with one integer sort (edges of one group in index order)."""
     edges = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    key = np.minimum(edges[:, 0], edges[:, 1]) * (np.int64(faces.max(initial=0)) + 1) \
-        + np.maximum(edges[:, 0], edges[:, 1])
-    order = np.argsort(key)
-    sorted_key = key[order]
+    vertices = int(faces.max(initial=0)) + 1
+    key = np.minimum(edges[:, 0], edges[:, 1]) * np.int64(vertices) + np.maximum(edges[:, 0], edges[:, 1])
+    shift = _index_bits(len(key))
+    if (vertices * vertices - 1).bit_length() + shift <= 64:
+        order, sorted_key = _index_sort(key.view(np.uint64) << np.uint64(shift))
+    else:  # too many vertices to pack the edge index beside the key
+        order = np.argsort(key, kind="stable")
+        sorted_key = key[order]
     starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
     return EdgeGroups(order=order, starts=starts, forward=(edges[:, 0] < edges[:, 1])[order])
 
 
 def shell_labels(faces: np.ndarray, groups: EdgeGroups | None = None) -> np.ndarray:
-    """(m,) int: connected shell of each face, faces being connected through shared edges."""
-    import scipy.sparse
-    import scipy.sparse.csgraph
+    """(m,) int: connected shell of each face, faces being connected through shared edges.
 
+    Shells are numbered in the order of their first face (as scipy's connected
+    components). Found by hooking and pointer jumping: every round, each root label
+    that meets smaller labels across shared edges is pointed at the smallest of them,
+    then every face follows its labels to the root; labels only ever decrease, so each
+    shell ends labelled by its first face. Measured: one round on an ordered 1.3 M-face
+    sphere, eight with its faces shuffled.
+    """
     groups = groups if groups is not None else edge_groups(faces)
     same = np.ones(len(groups.order), dtype=bool)
     same[groups.starts] = False  # entry i shares its edge with entry i - 1 in sorted order
     owner = groups.order // 3
     a, b = owner[:-1][same[1:]], owner[1:][same[1:]]
-    graph = scipy.sparse.coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(len(faces), len(faces)))
-    return scipy.sparse.csgraph.connected_components(graph, directed=False)[1].astype(np.int64)
+    label = np.arange(len(faces), dtype=np.int64)
+    while True:
+        label_a, label_b = label[a], label[b]
+        crossing = label_a != label_b
+        if not crossing.any():
+            break
+        a, b, label_a, label_b = a[crossing], b[crossing], label_a[crossing], label_b[crossing]
+        np.minimum.at(label, np.maximum(label_a, label_b), np.minimum(label_a, label_b))
+        while not np.array_equal(deeper := label[label], label):
+            label = deeper
+    return (np.cumsum(label == np.arange(len(faces))) - 1)[label]
 
 
 def winding_number(point: np.ndarray, triangles: np.ndarray) -> float:
@@ -807,10 +874,20 @@ def _topology_notes(groups: EdgeGroups) -> list[str]:
 
 
 def _face_volumes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per face: area (m,) and signed volume of the tetrahedron with the origin (m,), from one cross product."""
+    """Per face: area (m,) and signed volume of the tetrahedron with the origin (m,), from one cross product.
+
+    The cross product and its length are written out column by column (the same
+    arithmetic as ``np.cross`` and ``np.linalg.norm``, without their short-axis overhead).
+    """
     v0 = vertices[faces[:, 0]]
-    normal = np.cross(vertices[faces[:, 1]] - v0, vertices[faces[:, 2]] - v0)
-    return 0.5 * np.linalg.norm(normal, axis=1), np.einsum("ij,ij->i", v0, normal) / 6.0
+    e1 = vertices[faces[:, 1]] - v0
+    e2 = vertices[faces[:, 2]] - v0
+    normal = np.empty_like(v0)
+    for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
+        np.multiply(e1[:, i], e2[:, j], out=normal[:, k])
+        normal[:, k] -= e1[:, j] * e2[:, i]
+    x, y, z = normal[:, 0], normal[:, 1], normal[:, 2]
+    return 0.5 * np.sqrt(x * x + y * y + z * z), np.einsum("ij,ij->i", v0, normal) / 6.0
 
 
 def _orient_outward(vertices: np.ndarray, faces: np.ndarray, groups: EdgeGroups,
@@ -919,7 +996,8 @@ def _load_checked(path: Path, suffix: str, notes: list[str], digest) -> Mesh:
         faces = faces[~repeated]
         if len(faces) == 0:
             raise InputError(f"{path}: every face is degenerate")
-    extent = vertices.max(axis=0) - vertices.min(axis=0)
+    low, high = column_bounds(vertices)
+    extent = high - low
     if extent[2] <= 0:
         raise InputError(f"{path}: the mesh has zero height (flat in z); nothing to slice")
     area, face_volume = _face_volumes(vertices, faces)
@@ -961,7 +1039,8 @@ def scaled(mesh: Mesh, factor: float) -> Mesh:
         raise InputError(f"--scale: must be a positive number, got {factor}")
     vertices = mesh.vertices * float(factor)
     notes = [note for note in mesh.warnings if not note.startswith(_METRES_NOTE)]
-    extent = float((vertices.max(axis=0) - vertices.min(axis=0)).max())
+    low, high = column_bounds(vertices)
+    extent = float((high - low).max())
     if extent < 1.0:
         notes.append(_metres_note(extent))
     return replace(mesh, vertices=vertices, warnings=tuple(notes))
