@@ -60,20 +60,23 @@ def test_grade_command_as_documented(run_cli, ball, tmp_path):
 
 def test_channels_partition_the_solid_pixels(run_cli, ball, tmp_path):
     """--channels writes one 1-bit mask per material per layer, listed with sha256 and solid pixels in the
-    manifest; the masks are disjoint and together are exactly the layer's solid pixels."""
+    manifest; the layer image is then the 1-bit solid mask, and the masks are disjoint and together
+    are exactly its solid pixels."""
     out = tmp_path / "stack"
     code, _, stderr = run_cli("slice", ball, "--grade", "linear", "--to", "M2", "--layer", "1", "--channels",
                               "-o", out)
     assert code == 0, stderr
     report = verify_stack(out)
     assert report.ok, report.problems
+    assert report.manifest["image"]["mode"] == "1" and report.manifest["mask"] == "nonzero"
     for entry in report.manifest["layers"]:
         channels = entry["channels"]
         assert [c["material"] for c in channels] == ["M1", "M2"]
         masks = [tifffile.imread(out / c["file"]).astype(bool) for c in channels]
         for c, mask in zip(channels, masks):
             assert c["solid_pixels"] == int(mask.sum())
-        solid = tifffile.imread(out / entry["file"])[..., 3] > 0
+        solid = tifffile.imread(out / entry["file"]) != 0
+        assert entry["solid_pixels"] == int(solid.sum())
         assert np.array_equal(masks[0].astype(int) + masks[1].astype(int), solid.astype(int))
     middle = report.manifest["layers"][len(report.manifest["layers"]) // 2]["channels"]
     assert middle[1]["solid_pixels"] > 0.3 * (middle[0]["solid_pixels"] + middle[1]["solid_pixels"])
@@ -91,23 +94,27 @@ def test_altered_channel_file_fails_verification(run_cli, ball, tmp_path):
 
 
 def test_nested_shell_keeps_its_material_through_the_cli(run_cli, organ, tmp_path):
-    """A lesion shell given its own material in the materials file keeps it in every layer it crosses
-    (its droplet channel holds its pixels), while the organ around it is graded."""
+    """A lesion shell given its own material in the materials file keeps it in every layer it crosses:
+    its droplet channel holds exactly the pixels the RGBA rendering (the same slice without
+    --channels) paints in the tumour's colour, while the organ around it is graded."""
     mesh, materials = organ
-    out = tmp_path / "stack"
-    code, _, stderr = run_cli("slice", mesh, "--grade", "linear", "--to", "cells", "--materials", materials,
-                              "--layer", "0.5", "--channels", "-o", out)
+    out, rgba = tmp_path / "stack", tmp_path / "rgba"
+    common = ("--grade", "linear", "--to", "cells", "--materials", materials, "--layer", "0.5")
+    code, _, stderr = run_cli("slice", mesh, *common, "--channels", "-o", out)
     assert code == 0, stderr
+    assert run_cli("slice", mesh, *common, "-o", rgba)[0] == 0
     manifest = json.loads((out / "manifest.json").read_text())
     names = [c["material"] for c in manifest["layers"][0]["channels"]]
     assert names == ["gel", "cells", "tumour"]
     crossing = [e for e in manifest["layers"] if abs(e["z_mm"]) < 1.5]
     assert crossing
     for entry in crossing:
-        image = tifffile.imread(out / entry["file"])
+        image = tifffile.imread(rgba / entry["file"])
         tumour = tifffile.imread(out / entry["channels"][2]["file"]).astype(bool)
         assert entry["channels"][2]["solid_pixels"] > 0
-        assert np.all(image[tumour][:, :3] == (200, 0, 0))
+        assert np.array_equal(tumour, np.all(image[..., :3] == (200, 0, 0), axis=-1) & (image[..., 3] > 0))
+        cells = tifffile.imread(out / entry["channels"][1]["file"]).astype(bool)
+        assert cells.sum() > 0 and not (cells & tumour).any()
 
 
 def test_default_slice_is_unchanged(run_cli, ball, tmp_path):

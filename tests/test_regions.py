@@ -390,3 +390,22 @@ def test_bands_follow_the_exact_distance_where_nearest_edges_are_far_apart(shape
     s = scale * shapely.distance(shapely.points(x, y), shapely.LinearRing(ring))
     expected = np.clip(np.floor(s).astype(np.int64) + 1, 1, field.layout.count)
     assert_within_one_pixel(k, expected, s, mask, slope_px=scale * PX)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1))
+def test_rings_apart_is_shapely_distance(seed):
+    """L_S between an outer ring and the holes inside it is shapely's distance between the rings (to float32
+    rounding of a few hundredths of a micrometre), wherever the closest pair lies (vertex or edge)."""
+    from heoslice.regions import ring_set, rings_apart
+
+    rng = np.random.default_rng(seed)
+    outer = rough_outline(int(rng.integers(0, 2 ** 31)), count=int(rng.integers(20, 400)), radius=10.0)
+    holes = [circle(float(rng.uniform(0.3, 1.5)), int(rng.integers(3, 60)), center=tuple(rng.uniform(-3, 3, 2)),
+                    clockwise=True) for _ in range(int(rng.integers(1, 3)))]
+    holes = [h for i, h in enumerate(holes)
+             if all(shapely.Polygon(h).disjoint(shapely.Polygon(other)) for other in holes[:i])]
+    points, offsets, _, _ = layer(outer, *holes)
+    expected = shapely.distance(shapely.LinearRing(outer), shapely.MultiLineString([np.vstack([h, h[:1]]) for h in holes]))
+    outer_set, holes_set = ring_set(points, offsets, (0,), True), ring_set(points, offsets, range(1, len(holes) + 1), False)
+    assert rings_apart(outer_set, holes_set) == pytest.approx(expected, abs=1e-5)

@@ -24,7 +24,7 @@ from heoslice.contours import Contours, build_contours
 from heoslice.errors import InputError
 from heoslice.loading import Mesh
 from heoslice.rasterising import Grid, grid_for, packed_mask, render_layer
-from heoslice.regions import GradeSpec, render_graded
+from heoslice.regions import GradeSpec, droplet_planes, render_graded
 from heoslice.slicing import face_z_range, interpolate_at, plane_chunks, plane_heights, slice_planes
 from heoslice.stack import (
     COMPRESSIONS,
@@ -156,24 +156,34 @@ def render_and_write(job: LayerJob) -> tuple:
 
 
 def _render_graded_and_write(job: LayerJob) -> tuple:
-    """The graded branch of :func:`render_and_write`: RGBA layer plus one 1-bit TIFF per material."""
+    """The graded branch of :func:`render_and_write`: the RGBA layer, or with droplet masks the
+    1-bit solid layer plus one 1-bit TIFF per material."""
     graded = job.graded
     started = time.perf_counter()
     packed = packed_mask(job.points, job.offsets, job.grid)
-    mask = np.unpackbits(packed, axis=1, count=job.grid.width).astype(bool)
+    mask = np.unpackbits(packed, axis=1, count=job.grid.width).view(bool)
+    if graded.channel_paths is not None:
+        planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, mask,
+                                job.grid, graded.spec, job.index, point_material=graded.point_material,
+                                packed=packed)
+        rendered = time.perf_counter()
+        width = job.grid.width
+        data = encode_bilevel_tiff(packed, width, job.dpi, job.compression)
+        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression), int(np.bitwise_count(plane).sum()))
+                  for path, plane in zip(graded.channel_paths, planes)]
+        encoded = time.perf_counter()
+        solid = int(np.bitwise_count(packed).sum())
+        digest = write_file(job.path, data)
+        channels = tuple((path.name, write_file(path, blob), count) for path, blob, count in pieces)
+        return job.index, digest, solid, rendered - started, encoded - rendered, channels
     layer = render_graded(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, mask, job.grid,
                           graded.spec, job.index, point_colors=job.point_colors,
-                          point_material=graded.point_material, channels=graded.channel_paths is not None)
+                          point_material=graded.point_material)
     rendered = time.perf_counter()
     data = encode_tiff(layer.image, job.dpi, job.compression)
-    pieces = []
-    for path, bits in zip(graded.channel_paths or (), layer.masks if layer.masks is not None else ()):
-        pieces.append((path, encode_bilevel_tiff(np.packbits(bits, axis=1), job.grid.width, job.dpi,
-                                                 job.compression), int(np.count_nonzero(bits))))
     encoded = time.perf_counter()
     digest = write_file(job.path, data)
-    channels = tuple((path.name, write_file(path, blob), solid) for path, blob, solid in pieces)
-    return job.index, digest, layer.solid, rendered - started, encoded - rendered, channels
+    return job.index, digest, layer.solid, rendered - started, encoded - rendered, ()
 
 
 def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, directory: Path,
@@ -270,7 +280,7 @@ def slice_run(context: RunContext, start: int, stop: int) -> RunResult:
     began = time.perf_counter()
     sections = slice_planes(mesh.vertices, mesh.faces, context.z, start, stop, context.face_range)
     sliced = time.perf_counter()
-    contours = build_contours(sections)
+    contours = build_contours(sections, hierarchy=context.spec.grade is not None)
     chained = time.perf_counter()
     jobs = layer_jobs(contours, mesh, context.grid, context.spec, context.directory, first_layer=start)
     return RunResult(layers=[render_and_write(job) for job in jobs],
@@ -361,10 +371,10 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
             "width": grid.width,
             "height": grid.height,
             "origin_mm": [grid.x_left, grid.y_top],
-            "mode": "1" if mesh.colors is None and spec.grade is None else "RGBA",
+            "mode": _image_mode(mesh, spec),
             "compression": spec.compression,
         },
-        "mask": "nonzero" if mesh.colors is None and spec.grade is None else "alpha",
+        "mask": "nonzero" if _image_mode(mesh, spec) == "1" else "alpha",
         "z_range_mm": [float(bounds[0, 2]), float(bounds[1, 2])],
         "warnings": list(mesh.warnings),
         "layers": [
@@ -385,6 +395,12 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     write_manifest(directory, manifest)
     times.total = time.perf_counter() - started
     return manifest, times
+
+
+def _image_mode(mesh: Mesh, spec: SliceSpec) -> str:
+    """The layer images' mode: RGBA for colours (a coloured mesh, graded interiors), except that
+    with droplet masks the layer image is the 1-bit solid mask and the masks carry the materials."""
+    return "RGBA" if (mesh.colors is not None or spec.grade is not None) and not spec.channels else "1"
 
 
 def _channel_entries(grade: GradeSpec, written: tuple) -> list[dict]:

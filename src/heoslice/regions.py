@@ -301,39 +301,78 @@ def nearest_edges(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np.nda
 _BLOCK = 8
 
 
-def lattice_distance(edges: RingEdges, lattice: Lattice, tree: tuple | None = None):
-    """Exact distance from every cell centre to the rings: (distance, foot x, foot y, edge), each (rows, cols).
+@dataclass(frozen=True)
+class BlockBounds:
+    """Distances to a ring set at the centres of blocks of _BLOCK x _BLOCK lattice cells.
 
-    Centres are taken in blocks of _BLOCK x _BLOCK cells. A block's centre C gets an
-    upper bound U of its distance: the distance to the edge of the nearest ring-seeded
-    block (scipy's exact EDT over the blocks). A centre p at a = |p - C| from C has
-    d(p) <= U + a (the distance is 1-Lipschitz), so its nearest edge is within U + 2 a
-    of C: every edge within U + 2 max a of C is a candidate, and the nearest is exact.
+    ``blocks`` is the block lattice; per block ((rows, cols)): ``edge`` the edge of the
+    nearest ring-seeded block, ``upper`` the exact distance to it (an upper bound) and
+    ``distance`` the exact distance to the rings (mm).
     """
+
+    blocks: Lattice
+    edge: np.ndarray
+    upper: np.ndarray
+    distance: np.ndarray
+
+
+def block_bounds(edges: RingEdges, lattice: Lattice, tree: tuple) -> BlockBounds:
+    """Distances at block centres: an upper bound from scipy's exact EDT over the blocks seeded by the
+    rings (the distance to the seeded block's edge), then the exact one (every edge within it)."""
     import scipy.ndimage  # imported here: ungraded slicing never needs it
 
     from heoslice.regions_compiled import feet
 
-    if tree is None:
-        tree = edge_tree(edges)
     b = _BLOCK
     blocks = Lattice(row0=lattice.row0, col0=lattice.col0, cell=lattice.cell * b, rows=-(-lattice.rows // b),
                      cols=-(-lattice.cols // b), x0=lattice.x0, y0=lattice.y0, dx=lattice.dx * b, dy=lattice.dy * b)
     seed, seed_edge = _seed_edges(edges, blocks)
-    index = scipy.ndimage.distance_transform_edt(~seed, sampling=(blocks.dy, blocks.dx),
-                                                 return_distances=False, return_indices=True)
+    index = scipy.ndimage.distance_transform_edt(~seed, sampling=(blocks.dy, blocks.dx), return_distances=False,
+                                                 return_indices=True)
     x, y = blocks.centres()
     cx = np.broadcast_to(x, (blocks.rows, blocks.cols)).ravel()
     cy = np.broadcast_to(y[:, None], (blocks.rows, blocks.cols)).ravel()
-    upper = nearest_on_edges(cx, cy, seed_edge[index[0], index[1]].reshape(-1, 1), edges)[0]
-    v, u = (a.ravel() for a in np.meshgrid(np.arange(b), np.arange(b), indexing="ij"))
-    ox, oy = (u + 0.5 - 0.5 * b) * lattice.dx, -(v + 0.5 - 0.5 * b) * lattice.dy
-    edge = nearest_edges(cx, cy, upper + 2.0 * np.hypot(ox, oy).max(), ox, oy, edges, tree)
-    edge = edge.reshape(blocks.rows, blocks.cols, b, b).transpose(0, 2, 1, 3).reshape(blocks.rows * b, blocks.cols * b)
+    edge = seed_edge[index[0], index[1]].ravel()
+    upper = feet(cx, cy, edge, edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2)[0]
+    squared = nearest_edges(cx, cy, upper * (1 + 1e-9) + 1e-9, np.zeros(1), np.zeros(1), edges, tree, track=False)
+    shape = (blocks.rows, blocks.cols)
+    return BlockBounds(blocks, edge.reshape(shape), upper.reshape(shape),
+                       np.sqrt(squared.ravel(), dtype=np.float64).reshape(shape))
+
+
+def lattice_distance(edges: RingEdges, lattice: Lattice, tree: tuple | None = None,
+                     bounds: BlockBounds | None = None, wanted: np.ndarray | None = None):
+    """Exact distance from every cell centre to the rings: (distance, foot x, foot y, edge), each (rows, cols).
+
+    Centres are taken in blocks of _BLOCK x _BLOCK cells. A block's centre C has an
+    upper bound U of its distance (:func:`block_bounds`). A centre p at a = |p - C| from
+    C has d(p) <= U + a (the distance is 1-Lipschitz), so its nearest edge is within
+    U + 2 a of C: every edge within U + 2 max a of C is a candidate, and the nearest is
+    exact. Blocks not ``wanted`` ((rows, cols) bool over the blocks; default all) are not
+    measured: their centres get the distance to their block's seed edge (an upper bound).
+    """
+    from heoslice.regions_compiled import feet
+
+    if tree is None:
+        tree = edge_tree(edges)
+    if bounds is None:
+        bounds = block_bounds(edges, lattice, tree)
+    blocks, b = bounds.blocks, _BLOCK
+    edge = np.repeat(np.repeat(bounds.edge, b, axis=0), b, axis=1)
+    chosen = np.nonzero(np.ones(bounds.edge.shape, bool) if wanted is None else wanted)
+    if len(chosen[0]):
+        x, y = blocks.centres()
+        cx, cy = x[chosen[1]], y[chosen[0]]
+        v, u = (a.ravel() for a in np.meshgrid(np.arange(b), np.arange(b), indexing="ij"))
+        ox, oy = (u + 0.5 - 0.5 * b) * lattice.dx, -(v + 0.5 - 0.5 * b) * lattice.dy
+        found = nearest_edges(cx, cy, bounds.upper[chosen] + 2.0 * np.hypot(ox, oy).max(), ox, oy, edges, tree)
+        rows = (chosen[0][:, None] * b + v[None, :]).ravel()
+        cols = (chosen[1][:, None] * b + u[None, :]).ravel()
+        edge[rows, cols] = found.ravel()
+    edge = edge[:lattice.rows, :lattice.cols].ravel().astype(np.int64)
     x, y = lattice.centres()
     qx = np.broadcast_to(x, (lattice.rows, lattice.cols)).ravel()
     qy = np.broadcast_to(y[:, None], (lattice.rows, lattice.cols)).ravel()
-    edge = edge[:lattice.rows, :lattice.cols].ravel().astype(np.int64)
     found = feet(qx, qy, edge, edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2) + (edge,)
     return tuple(value.reshape(lattice.rows, lattice.cols) for value in found)
 
@@ -367,16 +406,15 @@ class FamilyLayout:
     length_mm: float
 
 
-def family_layout(points: np.ndarray, offsets: np.ndarray, family: Family, spec: RegionSpec,
-                  inradius: float | None = None) -> FamilyLayout:
+def family_layout(family: Family, spec: RegionSpec, inradius: float | None = None,
+                  apart: float | None = None) -> FamilyLayout:
     """Which rings start and end the grading of a family, and N_R by eq. 8.
 
     L_S is the target depth when given; otherwise the shortest distance between the
-    starting and ending rings; for a family without holes, its largest inscribed
-    distance (``inradius``, mm), so that the target is reached at its deepest point.
+    starting and ending rings (``apart``, mm: :func:`rings_apart` of the outer ring and
+    the holes); for a family without holes, its largest inscribed distance
+    (``inradius``, mm), so that the target is reached at its deepest point.
     """
-    import shapely
-
     holes = family.holes
 
     def count(length: float) -> int:
@@ -388,14 +426,28 @@ def family_layout(points: np.ndarray, offsets: np.ndarray, family: Family, spec:
         start, end = (family.outer,), tuple((hole,) for hole in holes)
     if spec.depth_mm is not None:
         return FamilyLayout(start, (), count(spec.depth_mm), float(spec.depth_mm))
-    if not holes:
-        length = float(inradius or 0.0)
-        return FamilyLayout(start, (), count(length), max(length, 1e-9))
-    outer = shapely.LinearRing(points[offsets[family.outer]:offsets[family.outer + 1]])
-    inner = shapely.MultiLineString([points[offsets[h]:offsets[h + 1]].tolist() + [points[offsets[h]].tolist()]
-                                     for h in holes])
-    length = float(shapely.distance(outer, inner))
-    return FamilyLayout(start, end, count(length), max(length, 1e-9))
+    length = float((apart if holes else inradius) or 0.0)
+    return FamilyLayout(start, end if holes else (), count(length), max(length, 1e-9))
+
+
+def rings_apart(first: RingSet, second: RingSet) -> float:
+    """Shortest distance (mm) between two sets of rings that do not cross.
+
+    It is reached at a vertex of one set (the nearest point of the other can be anywhere
+    on an edge), so it is the least vertex-to-edge distance both ways; the nearest
+    vertex pair (scipy's KD-tree) bounds it, so only edges that close are measured.
+    """
+    from scipy.spatial import cKDTree
+
+    a = np.column_stack([first.edges.x, first.edges.y])
+    b = np.column_stack([second.edges.x, second.edges.y])
+    bound = float(cKDTree(b).query(a, k=1)[0].min()) * (1 + 1e-12) + 1e-12
+    best = bound
+    for where, rings in ((a, second), (b, first)):
+        squared = nearest_edges(where[:, 0], where[:, 1], np.full(len(where), bound), np.zeros(1), np.zeros(1),
+                                rings.edges, rings.tree, track=False)
+        best = min(best, float(np.sqrt(squared.min(initial=np.inf))))
+    return best
 
 
 def _band_coordinate(layout: FamilyLayout, start: tuple, ends: list[tuple], gradients: bool = True):
@@ -480,9 +532,22 @@ def family_box(points: np.ndarray, offsets: np.ndarray, loop: int, grid: Grid) -
     return row0, row1, col0, col1
 
 
-def _signed_centres(rings: RingSet, points: np.ndarray, offsets: np.ndarray, lattice: Lattice):
-    """At every cell centre: signed distance to the rings (> 0 on the family's side), its unit gradient, foot, edge."""
-    distance, fx, fy, edge = lattice_distance(rings.edges, lattice, rings.tree)
+def _far_side(rings: RingSet, points: np.ndarray, offsets: np.ndarray, bounds: BlockBounds,
+              lattice: Lattice) -> np.ndarray:
+    """(rows, cols) bool over the blocks: the block's cells and their neighbours are all off the family's
+    side of the rings (its centre is, by more than half its diagonal plus a cell's diagonal and a
+    half), so nothing there is needed for the family's pixels."""
+    inside = _inside_loops(points, offsets, rings.loops, bounds.blocks)
+    cell = np.hypot(lattice.dx, lattice.dy)
+    margin = 0.5 * np.hypot(bounds.blocks.dx, bounds.blocks.dy) + 1.5 * cell
+    return (inside != rings.encloses) & (bounds.distance > margin)
+
+
+def _signed_centres(rings: RingSet, points: np.ndarray, offsets: np.ndarray, lattice: Lattice,
+                    bounds: BlockBounds | None = None, wanted: np.ndarray | None = None):
+    """At every cell centre: signed distance to the rings (> 0 on the family's side), its unit gradient, foot, edge
+    (exact in the ``wanted`` blocks, see :func:`lattice_distance`)."""
+    distance, fx, fy, edge = lattice_distance(rings.edges, lattice, rings.tree, bounds, wanted)
     inside = _inside_loops(points, offsets, rings.loops, lattice)
     sign = np.where(inside == rings.encloses, 1.0, -1.0)
     x, y = lattice.centres()
@@ -505,10 +570,19 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     box = family_box(points, offsets, family.outer, grid)
     lattice = lattice_for(box, grid)
     outward = spec.direction == "out" and bool(family.holes)
+    made: dict[tuple, RingSet] = {}
+
+    def rings(loops, encloses: bool) -> RingSet:
+        if (tuple(loops), encloses) not in made:
+            made[tuple(loops), encloses] = ring_set(points, offsets, loops, encloses)
+        return made[tuple(loops), encloses]
+
     start_loops = family.holes if outward else (family.outer,)
-    start = ring_set(points, offsets, start_loops, not outward)
-    start_at = _signed_centres(start, points, offsets, lattice)
+    start = rings(start_loops, not outward)
+    start_bounds = block_bounds(start.edges, lattice, start.tree)
+    far = [_far_side(start, points, offsets, start_bounds, lattice)]
     if not pixels:
+        start_at = _signed_centres(start, points, offsets, lattice, start_bounds, ~far[0])
         return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
                            lattice=lattice, start_edges=start.edges, foot=start_at[2], edge=start_at[3])
     inradius = None
@@ -517,9 +591,17 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
 
         outline = shapely.Polygon(points[offsets[family.outer]:offsets[family.outer + 1]])
         inradius = float(shapely.maximum_inscribed_circle(outline, 0.5 * min(grid.px, grid.py)).length)
-    layout = family_layout(points, offsets, family, spec, inradius)
-    ends = [ring_set(points, offsets, loops, outward) for loops in layout.end]
-    ends_at = [_signed_centres(rings, points, offsets, lattice) for rings in ends]
+    apart = None
+    if family.holes and spec.depth_mm is None:
+        apart = rings_apart(rings((family.outer,), not outward), rings(family.holes, outward))
+    layout = family_layout(family, spec, inradius, apart)
+    ends = [rings(loops, outward) for loops in layout.end]
+    ends_bounds = [block_bounds(rings.edges, lattice, rings.tree) for rings in ends]
+    far += [_far_side(rings, points, offsets, bounds, lattice) for rings, bounds in zip(ends, ends_bounds)]
+    wanted = ~np.logical_or.reduce(far)
+    start_at = _signed_centres(start, points, offsets, lattice, start_bounds, wanted)
+    ends_at = [_signed_centres(rings, points, offsets, lattice, bounds, wanted)
+               for rings, bounds in zip(ends, ends_bounds)]
     s, grad = _band_coordinate(layout, start_at[:2], [at[:2] for at in ends_at])
 
     # a cell may hold solid pixels when its centre is within half a diagonal of the family's side
@@ -797,38 +879,13 @@ def _family_sources(spec: GradeSpec, shell, point_material):
     return None, point_material is not None and spec.second is not None
 
 
-def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, parent: np.ndarray,
-                  loop_shell: np.ndarray | None, mask: np.ndarray, grid: Grid, spec: GradeSpec, layer: int, *,
-                  point_colors: np.ndarray | None = None, point_material: np.ndarray | None = None,
-                  channels: bool = False) -> GradedLayer:
-    """Render one graded layer (Fig. 9b): sub-regions by :func:`layer_regions`, each family's
-    interior blended from its contour's material to the target by eq. 1, contour pixels
-    in the contour's colours, and optionally the droplet masks (:mod:`heoslice.halftone`).
-
-    points (p, 2) mm, offsets (l+1,), area/parent/loop_shell (l,) of the layer's loops;
-    mask (h, w) bool its solid pixels; point_colors (p, 3) float 0..255 and
-    point_material (p,) in [0, 1] the attributes interpolated at the contour points.
-    """
-    import time
-
-    from heoslice.distribution import evaluate
-    from heoslice.halftone import droplet_masks
-    from heoslice.rasterising import paint_contour
-
-    started = time.process_time()
-    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions)
-    grading_seconds = time.process_time() - started
-    solid = int(np.count_nonzero(mask))
-    image = np.zeros((grid.height, grid.width, 4), dtype=np.uint8)
+def _family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_colors, point_material):
+    """Per family, what its interior starts from at each lattice cell (its contour's material, or
+    its shell's, or --from): colour ((cells_r, cells_c, 3) int16 0..255) and the mix of the
+    K channel materials ((cells_r, cells_c, K) float, summing to 1)."""
     materials = spec.channel_materials()
-    masks = np.zeros((len(materials), grid.height, grid.width), dtype=bool) if channels else None
-    if not regions.fields:
-        return GradedLayer(image, solid, masks, grading_seconds)
-
-    fractions = (label_fractions(regions, lambda r: evaluate(spec.function, r))
-                 if spec.function is not None and spec.target is not None else np.zeros(regions.label_count))
-    colors, mixes = [], []
     position = {(m.name, m.color): i for i, m in enumerate(materials)}
+    colors, mixes = [], []
     for family, field in zip(regions.families, regions.fields):
         shell = None if loop_shell is None else loop_shell[family.outer]
         own, use_fraction = _family_sources(spec, shell, point_material)
@@ -856,7 +913,48 @@ def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
             color = contour_values(field, point_colors)
         colors.append(np.clip(np.rint(color), 0, 255).astype(np.int16))
         mixes.append(mix)
+    return colors, mixes
 
+
+def _target_fractions(regions: LayerRegions, spec: GradeSpec) -> np.ndarray:
+    """Fraction of the target material per label ((label_count,) float; zeros without a gradient)."""
+    from heoslice.distribution import evaluate
+
+    if spec.function is None or spec.target is None:
+        return np.zeros(regions.label_count)
+    return label_fractions(regions, lambda r: evaluate(spec.function, r))
+
+
+def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, parent: np.ndarray,
+                  loop_shell: np.ndarray | None, mask: np.ndarray, grid: Grid, spec: GradeSpec, layer: int, *,
+                  point_colors: np.ndarray | None = None, point_material: np.ndarray | None = None,
+                  channels: bool = False) -> GradedLayer:
+    """Render one graded layer (Fig. 9b): sub-regions by :func:`layer_regions`, each family's
+    interior blended from its contour's material to the target by eq. 1, contour pixels
+    in the contour's colours, and optionally the droplet masks (:mod:`heoslice.halftone`).
+
+    points (p, 2) mm, offsets (l+1,), area/parent/loop_shell (l,) of the layer's loops;
+    mask (h, w) bool its solid pixels; point_colors (p, 3) float 0..255 and
+    point_material (p,) in [0, 1] the attributes interpolated at the contour points.
+    """
+    import time
+
+    from heoslice.halftone import droplet_masks
+    from heoslice.rasterising import paint_contour
+
+    started = time.process_time()
+    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions)
+    grading_seconds = time.process_time() - started
+    solid = int(np.count_nonzero(mask))
+    image = np.zeros((grid.height, grid.width, 4), dtype=np.uint8)
+    materials = spec.channel_materials()
+    masks = np.zeros((len(materials), grid.height, grid.width), dtype=bool) if channels else None
+    if not regions.fields:
+        return GradedLayer(image, solid, masks, grading_seconds)
+
+    fractions = _target_fractions(regions, spec)
+    colors, mixes = _family_starts(regions, spec, loop_shell, point_colors, point_material)
+    position = {(m.name, m.color): i for i, m in enumerate(materials)}
     b = regions.box
     label = regions.label
     inside = label > 0
@@ -886,3 +984,42 @@ def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
         chosen[position[(spec.base.name, spec.base.color)]] |= stray
         masks[:, b[0]:b[1], b[2]:b[3]] = chosen
     return GradedLayer(image, solid, masks, grading_seconds)
+
+
+def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, parent: np.ndarray,
+                   loop_shell: np.ndarray | None, mask: np.ndarray, grid: Grid, spec: GradeSpec, layer: int, *,
+                   point_material: np.ndarray | None = None, packed: np.ndarray | None = None) -> np.ndarray:
+    """The droplet masks of one graded layer, bit-packed: (K, height, ceil(width / 8)) uint8, rows MSB first.
+
+    The same masks as ``render_graded(..., channels=True).masks`` (the same sub-regions,
+    mixes and ordered dither, :mod:`heoslice.halftone`), without the RGBA image and in one
+    compiled pass over the layer's pixels: the fast path of ``slice --channels``.
+    Arguments as :func:`render_graded`; mask (h, w) bool, ``packed`` the same mask bit-packed
+    (:func:`heoslice.rasterising.packed_mask`) when the caller has it.
+    """
+    from heoslice.halftone import layer_tile
+    from heoslice.regions_compiled import droplet_bits
+
+    materials = spec.channel_materials()
+    planes = np.zeros((len(materials), grid.height, -(-grid.width // 8)), dtype=np.uint8)
+    packed = np.packbits(mask, axis=1) if packed is None else packed
+    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions)
+    position = {(m.name, m.color): i for i, m in enumerate(materials)}
+    base_channel = position[(spec.base.name, spec.base.color)]
+    if not regions.fields:
+        return droplet_bits(np.zeros((0, 0), np.int16), (0, 0), packed, np.zeros(1, np.int64), np.zeros(1),
+                            np.zeros((0, 5), np.int64), np.zeros(0), np.zeros(len(materials)),
+                            layer_tile(layer), base_channel, planes)
+    _, mixes = _family_starts(regions, spec, loop_shell, None, point_material)
+    target_mix = np.zeros(len(materials))
+    if spec.target is not None and spec.function is not None:
+        target_mix[position[(spec.target.name, spec.target.color)]] = 1.0
+    family_of_label = np.zeros(regions.label_count, dtype=np.int64)
+    for number in range(len(regions.fields)):
+        family_of_label[regions.base[number]:regions.base[number + 1]] = number
+    sizes = np.array([mix.size for mix in mixes])
+    layout = np.array([(field.box[0], field.box[2], field.lattice.cell, field.lattice.cols, start)
+                       for field, start in zip(regions.fields, np.cumsum(sizes) - sizes)], dtype=np.int64)
+    return droplet_bits(regions.label, regions.box[::2], packed, family_of_label, _target_fractions(regions, spec),
+                        layout, np.concatenate([mix.ravel() for mix in mixes]), target_mix, layer_tile(layer),
+                        base_channel, planes)

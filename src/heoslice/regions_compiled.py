@@ -243,6 +243,64 @@ def _write_cells(index, ci, cj, cell, s, count, mask, r0, c0, base):  # pragma: 
     return index
 
 
+@numba.njit(**_JIT)
+def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixes, target, tile, base_channel,
+                  planes):  # pragma: no cover - compiled
+    """Set one bit per solid pixel in the plane of the material it jets (see :func:`droplet_bits`).
+
+    Walks the packed solid mask a byte (8 pixels) at a time, skipping empty bytes, and
+    writes each output byte once; a family's lattice cell is found by one division per
+    run of pixels in the same family and cell."""
+    channels = planes.shape[0]
+    wrap = tile.shape[0] - 1
+    rows, cols = label.shape
+    mix = np.empty(channels, dtype=np.float32)
+    bits = np.zeros(channels, dtype=np.uint8)
+    zero, one = np.float32(0.0), np.float32(1.0)
+    for row in range(packed.shape[0]):
+        thresholds = tile[row & wrap]
+        r = row - r0
+        labelled = 0 <= r < rows
+        family, cell_end, start = -1, -1, 0
+        for byte in range(packed.shape[1]):
+            solid = packed[row, byte]
+            if solid == 0:
+                continue
+            bits[:] = 0
+            for bit in range(8):
+                if not (solid >> (7 - bit)) & 1:
+                    continue
+                col = byte * 8 + bit
+                c = col - c0
+                number = label[r, c] if labelled and 0 <= c < cols else 0
+                if number <= 0:
+                    bits[base_channel] |= np.uint8(0x80 >> bit)
+                    continue
+                if family_of_label[number] != family or col >= cell_end:
+                    family = family_of_label[number]
+                    cell = layout[family, 2]
+                    j = (col - layout[family, 1]) // cell
+                    cell_end = layout[family, 1] + (j + 1) * cell
+                    start = layout[family, 4] + (((row - layout[family, 0]) // cell) * layout[family, 3] + j) * channels
+                f = fraction[number]
+                total = zero
+                for m in range(channels):
+                    mix[m] = mixes[start + m] + f * (target[m] - mixes[start + m])
+                    total += mix[m]
+                t = thresholds[col & wrap] * (total if total > zero else one)
+                chosen = channels - 1
+                running = zero
+                for m in range(channels - 1):
+                    running += mix[m]
+                    if t < running:
+                        chosen = m
+                        break
+                bits[chosen] |= np.uint8(0x80 >> bit)
+            for m in range(channels):
+                planes[m, row, byte] = bits[m]
+    return planes
+
+
 def edge_tree(x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray):
     """Bounding-box hierarchy of edges from (x0, y0) to (x1, y1) ((n,) float, mm), given in ring order
     so that consecutive edges are near each other: (boxes (total, 4) [xmin, ymin, xmax, ymax],
@@ -321,3 +379,26 @@ def write_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, s:
     return _write_cells(index, np.ascontiguousarray(ci, dtype=np.int64), np.ascontiguousarray(cj, dtype=np.int64),
                         int(cell), np.ascontiguousarray(s, dtype=np.float64).reshape(len(ci), cell * cell),
                         float(count), mask, int(origin[0]), int(origin[1]), float(base))
+
+
+def droplet_bits(label: np.ndarray, origin: tuple[int, int], packed: np.ndarray, family_of_label: np.ndarray,
+                 fraction: np.ndarray, layout: np.ndarray, mixes: np.ndarray, target: np.ndarray, tile: np.ndarray,
+                 base_channel: int, planes: np.ndarray) -> np.ndarray:
+    """Halftone a labelled layer into bit-packed droplet masks, in place in ``planes`` ((K, h, ceil(w/8)) uint8).
+
+    label ((rows, cols) int, 0 empty) covers the layer from pixel ``origin``; a labelled
+    pixel's mix is its family's start mix at its lattice cell (``mixes`` flat, family f's
+    cells from layout[f, 4], cells of layout[f, 2] pixels from row layout[f, 0], column
+    layout[f, 1], layout[f, 3] cells per row) moved by fraction[label] towards ``target``
+    (eq. 1); the pixel jets the first material whose running sum of the mix exceeds the
+    ordered-dither threshold ``tile``[row % n, col % n] (n a power of two) times the mix's total
+    (:func:`heoslice.halftone.choose_materials`, in the same float32 arithmetic, so the
+    masks agree bit for bit). ``packed`` is the layer's solid mask ((h, ceil(w/8)) uint8,
+    rows MSB first, padding bits clear); its solid pixels without a label jet
+    ``base_channel``.
+    """
+    return _droplet_bits(np.ascontiguousarray(label), int(origin[0]), int(origin[1]), np.ascontiguousarray(packed),
+                         np.ascontiguousarray(family_of_label, dtype=np.int64),
+                         np.ascontiguousarray(fraction, dtype=np.float32), np.ascontiguousarray(layout, dtype=np.int64),
+                         np.ascontiguousarray(mixes, dtype=np.float32), np.ascontiguousarray(target, dtype=np.float32),
+                         np.ascontiguousarray(tile, dtype=np.float32), int(base_channel), planes)
