@@ -6,11 +6,12 @@ import json
 
 import numpy as np
 import pytest
+import tifffile
 from PIL import Image
 
 from heoslice import procedural
 from heoslice.errors import InputError
-from heoslice.preview import layer_rgb, parse_layers
+from heoslice.preview import channels_rgb, layer_rgb, parse_layers
 
 
 @pytest.fixture(scope="module")
@@ -31,6 +32,30 @@ def stacks(tmp_path_factory):
         run(["slice", str(mesh), "--layer", "1", "-o", str(folder / name), *extra])
         assert (folder / name / "manifest.json").is_file()
     return folder / "plain", folder / "graded"
+
+
+@pytest.fixture(scope="module")
+def channels_stack(tmp_path_factory):
+    """A graded stack with droplet masks (--channels, white M1 to green M2) of a 4 mm ball, 1 mm layers."""
+    from heoslice.cli import main
+
+    folder = tmp_path_factory.mktemp("channels")
+    mesh = folder / "ball.ply"
+    procedural.sphere(4.0, subdivisions=3).export(mesh)
+    try:
+        main(["slice", str(mesh), "--layer", "1", "--grade", "linear", "--to", "0,255,0", "--channels",
+              "-o", str(folder / "stack")])
+    except SystemExit as done:
+        assert done.code in (0, None)
+    return folder / "stack"
+
+
+def copy_stack(source, target):
+    """A copy of a stack directory's files (to alter)."""
+    target.mkdir()
+    for item in source.iterdir():
+        (target / item.name).write_bytes(item.read_bytes())
+    return target
 
 
 def test_parse_layers():
@@ -99,3 +124,80 @@ def test_preview_refuses_altered_and_missing(run_cli, stacks, tmp_path):
     assert run_cli("preview", plain, "--layer", "999", "-o", tmp_path / "y.png")[0] == 2
     assert run_cli("preview", tmp_path, "--layer", "0", "-o", tmp_path / "z.png")[0] == 4
     assert run_cli("preview", plain, "--layer", "1", "-o", tmp_path / "z.jpg")[0] == 2
+
+
+def test_channels_rgb_paints_each_mask_in_its_colour():
+    """Each set pixel of mask m takes colour m; pixels in no mask are the dark RGBA background."""
+    masks = np.array([[[True, False, False]], [[False, True, False]]])
+    colors = np.array([[240, 240, 240], [0, 255, 0]], dtype=np.uint8)
+    assert channels_rgb(masks, colors).tolist() == [[[240, 240, 240], [0, 255, 0], [32, 32, 32]]]
+
+
+def test_preview_channels_in_material_colours(run_cli, channels_stack, tmp_path):
+    """A layer with droplet masks previews at full size with every set pixel of material m's mask (read
+    independently with tifffile) in grading.materials[m].color and every other pixel dark; both
+    materials occur in the layer, so the check covers both colours."""
+    manifest = json.loads((channels_stack / "manifest.json").read_text())
+    assert manifest["image"]["mode"] == "1"
+    index = len(manifest["layers"]) // 2
+    target = tmp_path / "layer.png"
+    code, _, stderr = run_cli("preview", channels_stack, "--layer", index, "-o", target)
+    assert code == 0, stderr
+    image = np.asarray(Image.open(target).convert("RGB"))
+    colors = {m["name"]: m["color"] for m in manifest["grading"]["materials"]}
+    covered = np.zeros(image.shape[:2], dtype=bool)
+    for channel in manifest["layers"][index]["channels"]:
+        mask = tifffile.imread(channels_stack / channel["file"]).astype(bool)
+        assert mask.any()
+        assert (image[mask] == colors[channel["material"]]).all()
+        covered |= mask
+    assert (image[~covered] == 32).all()
+
+
+def test_preview_channels_reduced_and_sheet(run_cli, channels_stack, tmp_path):
+    """Reduced previews box-filter the composed colours (a dithered white/green mix stays greenish-light,
+    never the grey of a plain 1-bit layer); a contact sheet of a --channels stack is written."""
+    small = tmp_path / "small.png"
+    assert run_cli("preview", channels_stack, "--layer", "4", "--size", "32", "-o", small)[0] == 0
+    pixels = np.asarray(Image.open(small).convert("RGB")).astype(int)
+    assert max(pixels.shape[:2]) == 32
+    assert (pixels[..., 1] > pixels[..., 0] + 30).any()
+    sheet = tmp_path / "sheet.png"
+    code, _, stderr = run_cli("preview", channels_stack, "--sheet", "--layers", "2:6", "--tile", "64",
+                              "--columns", "2", "-o", sheet)
+    assert code == 0, stderr
+    image = np.asarray(Image.open(sheet).convert("RGB")).astype(int)
+    assert image.shape == (2 * (64 + 14 + 4) + 4, 2 * (64 + 4) + 4, 3)
+    assert (image[..., 1] > image[..., 0] + 30).sum() > 100
+
+
+def test_preview_refuses_altered_channels(run_cli, channels_stack, tmp_path):
+    """An altered droplet mask fails its sha256 check, for one layer and for a sheet (exit 4, one line,
+    no PNG); masks that do not cover the layer's solid pixels once each, or a material without a
+    colour in grading.materials, are refused the same way."""
+    copy = copy_stack(channels_stack, tmp_path / "copy")
+    manifest = json.loads((copy / "manifest.json").read_text())
+    victim = copy / manifest["layers"][2]["channels"][1]["file"]
+    data = bytearray(victim.read_bytes())
+    data[-1] ^= 0xFF
+    victim.write_bytes(bytes(data))
+    for args in (("--layer", "2"), ("--sheet", "--layers", "0:4")):
+        code, _, stderr = run_cli("preview", copy, *args, "-o", tmp_path / "x.png")
+        assert code == 4 and "sha256" in stderr and victim.name in stderr, stderr
+        assert len(stderr.strip().splitlines()) == 1
+        assert not (tmp_path / "x.png").exists()
+    assert run_cli("preview", copy, "--layer", "3", "-o", tmp_path / "ok.png")[0] == 0
+
+    swapped = copy_stack(channels_stack, tmp_path / "swapped")
+    manifest = json.loads((swapped / "manifest.json").read_text())
+    manifest["layers"][3]["channels"][1] = manifest["layers"][1]["channels"][1]
+    (swapped / "manifest.json").write_text(json.dumps(manifest))
+    code, _, stderr = run_cli("preview", swapped, "--layer", "3", "-o", tmp_path / "y.png")
+    assert code == 4 and "droplet masks do not cover" in stderr and len(stderr.strip().splitlines()) == 1
+
+    uncoloured = copy_stack(channels_stack, tmp_path / "uncoloured")
+    manifest = json.loads((uncoloured / "manifest.json").read_text())
+    manifest["grading"]["materials"][0]["color"] = "white"
+    (uncoloured / "manifest.json").write_text(json.dumps(manifest))
+    code, _, stderr = run_cli("preview", uncoloured, "--layer", "3", "-o", tmp_path / "z.png")
+    assert code == 4 and "grading.materials" in stderr and len(stderr.strip().splitlines()) == 1

@@ -516,6 +516,23 @@ def read_layer_pixels(directory: Path, manifest: dict, index: int) -> np.ndarray
             raise VerifyError(f"{path.name}: cannot decode ({' '.join(str(err).split())[:120]})") from err
 
 
+def read_layer_channels(directory: Path, manifest: dict, index: int) -> np.ndarray:
+    """Droplet masks of layer ``index``: (channels, height, width) bool, in the manifest's channel order.
+
+    Each file must stay inside the stack, match its sha256 and pass the layout checks
+    of :func:`decode_mask` before it is decoded (for previews).
+    """
+    channels = manifest["layers"][index].get("channels", [])
+    image = manifest["image"]
+    masks = np.zeros((len(channels), image["height"], image["width"]), dtype=bool)
+    for number, channel in enumerate(channels):
+        path = resolve_inside(Path(directory), channel["file"])
+        if path is None:
+            raise VerifyError(f"layer {index}: file {channel['file']!r} lies outside the stack")
+        masks[number] = decode_mask(path, manifest, sha256=channel["sha256"])
+    return masks
+
+
 def _layer_file_problem(path: Path, name: str, digest: str, solid: int | None, manifest: dict,
                         mode: str | None, check_pixels: bool) -> str | None:
     """Problem of one listed image file (layout, size, hash, solid pixel count), or None."""

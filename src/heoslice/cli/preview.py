@@ -35,7 +35,8 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
     """Write a PNG of one layer of STACK (or a contact sheet with --sheet).
 
     Files are checked against the manifest (inside the stack, sha256, size) before
-    they are decoded. Coloured layers are shown over dark grey; 1-bit layers dark on white.
+    they are decoded. Coloured layers are shown over dark grey, layers with droplet masks
+    (slice --channels) in their materials' colours over dark grey; other 1-bit layers dark on white.
     """
     from heoslice.preview import contact_sheet, layer_image, parse_layers
 
