@@ -6,12 +6,17 @@ times each, and prints the median and min-max wall time, peak memory (largest pr
 as /usr/bin/time -v reports it, and the whole process tree), output size and the ratio
 heoslice / PrusaSlicer. It then checks that both stacks agree: per-layer solid pixel
 counts within 1 %. ``--profile`` adds a cProfile of heoslice on the organ, split by stage.
+``--graded`` also times a graded stack with droplet masks (``GRADED_ARGS`` added to the
+same heoslice command) in the same alternation, reports its ratio to PrusaSlicer's
+one-material time, and checks that its layers' solid pixels equal the one-material
+stack's.
 
 Examples:
   python benchmarks/bench_prusa.py --quick                  # smoke test, < 2 minutes
   python benchmarks/bench_prusa.py                          # the four issue-6 meshes, 2 repeats (~12 min)
   python benchmarks/bench_prusa.py --meshes vase,organ --repeats 5 --json results.json
   python benchmarks/bench_prusa.py --mesh liver.stl --profile
+  python benchmarks/bench_prusa.py --meshes vase --graded   # graded + droplet masks vs one-material PrusaSlicer
 
 PrusaSlicer is not installed by this script; without it heoslice runs alone.
 """
@@ -44,6 +49,8 @@ import heoslice  # noqa: E402
 from heoslice.stack import read_layer_mask, read_manifest  # noqa: E402
 
 MB = 1024 * 1024
+#: What ``--graded`` adds to the heoslice command: the paper's Fig. 3b grading with droplet masks.
+GRADED_ARGS = ["--grade", "linear", "--to", "0,255,0", "--nozzle", "0.2", "--channels"]
 
 
 def heoslice_base() -> list[str]:
@@ -77,6 +84,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="compare every N-th layer's pixel counts (decoding PNGs is slow) [1]")
     parser.add_argument("--profile", action="store_true",
                         help="also profile heoslice (-j 1, cProfile) on the organ mesh (or the last mesh)")
+    parser.add_argument("--graded", action="store_true",
+                        help=f"also time heoslice with {' '.join(GRADED_ARGS)} (ratio to PrusaSlicer's one-material time)")
     parser.add_argument("--workdir", type=Path, default=None, help="where meshes and outputs go [a temp dir]")
     parser.add_argument("--json", nargs="?", const="-", default=None, metavar="PATH",
                         help="also write all results as JSON to PATH ('-' or no value: stdout, instead of the table)")
@@ -172,10 +181,13 @@ def bench_mesh(name: str, model: Path, mesh: trimesh.Trimesh, folder: Path, args
     stack, sl1, ini = folder / "heoslice_stack", folder / "prusa.sl1", folder / "sla.ini"
     display = prusa_sla.display_for(mesh.extents[:2], args.dpi)
     ini.write_text(prusa_sla.sla_ini(display, args.layer, float(mesh.extents[2])))
+    graded = folder / "graded_stack"
     commands = {"heoslice": heoslice_base() + heoslice_args(model, stack, args.layer, args.dpi, args.jobs)}
+    if args.graded:
+        commands["graded"] = heoslice_base() + heoslice_args(model, graded, args.layer, args.dpi, args.jobs) + GRADED_ARGS
     if prusa:
         commands["prusa"] = prusa_sla.prusa_command(prusa, ini, sl1, model)
-    outputs = {"heoslice": stack, "prusa": sl1}
+    outputs = {"heoslice": stack, "prusa": sl1, "graded": graded}
     runs: dict[str, list] = {tool: [] for tool in commands}
     failed: dict[str, str] = {}
     for repeat in range(args.repeats):
@@ -204,6 +216,11 @@ def bench_mesh(name: str, model: Path, mesh: trimesh.Trimesh, folder: Path, args
         result["heoslice_image"] = [manifest["image"]["width"], manifest["image"]["height"]]
         result["heoslice_layers"] = len(manifest["layers"])
         result["size_bytes"] = {"heoslice": size_on_disk(stack)}
+    if args.graded and "graded" not in failed and "heoslice" not in failed:
+        graded_manifest = read_manifest(graded)
+        plain = [entry["solid_pixels"] for entry in read_manifest(stack)["layers"]]
+        result["graded_same_solid"] = plain == [entry["solid_pixels"] for entry in graded_manifest["layers"]]
+        result.setdefault("size_bytes", {})["graded"] = size_on_disk(graded)
     if prusa and "prusa" not in failed:
         result["prusa_image"] = [display.pixels_x, display.pixels_y]
         result.setdefault("size_bytes", {})["prusa"] = size_on_disk(sl1)
@@ -251,6 +268,20 @@ def table(results: list[dict]) -> str:
             f"{fmt(ratio(h.get('tree_pss_mb'), p.get('tree_pss_mb'))):>5}  "
             f"{pair(size.get('heoslice'), size.get('prusa'), '.1f'):>12} "
             f"{fmt(ratio(size.get('heoslice'), size.get('prusa'))):>5}")
+    graded = [r for r in results if "graded" in r["summary"]]
+    if graded:
+        lines += ["", f"Graded with droplet masks (heoslice ... {' '.join(GRADED_ARGS)}) against PrusaSlicer's "
+                  "one-material stack:",
+                  f"{'mesh':<{w}}{'graded s':>18}  {'prusa s':>18}  {'ratio':>5}  {'RSS MB g/p':>10}  "
+                  f"{'size MB g/p':>12}  solid pixels = one-material stack's"]
+        for r in graded:
+            g, p = r["summary"]["graded"], r["summary"].get("prusa", {})
+            size = {tool: value / MB for tool, value in r.get("size_bytes", {}).items()}
+            lines.append(f"{r['mesh']:<{w}}{timing(g):>18}  {timing(p):>18}  "
+                         f"{fmt(ratio(g.get('median_s'), p.get('median_s'))):>5}  "
+                         f"{pair(g.get('max_rss_mb'), p.get('max_rss_mb'), '.0f'):>10}  "
+                         f"{pair(size.get('graded'), size.get('prusa'), '.1f'):>12}  "
+                         f"{ {True: 'yes', False: 'NO'}.get(r.get('graded_same_solid'), '-')}")
     agreeing = [r for r in results if "agreement" in r]
     if agreeing:
         lines += ["", "Agreement (solid pixels per layer, matched by height; rel = |h - p| / max(h, p)):",
@@ -309,6 +340,7 @@ def main(argv: list[str] | None = None) -> int:
             results.append(bench_mesh(name, model, mesh, folder, args, prusa))
             if owned_tmp is not None:
                 clear(folder / "heoslice_stack")
+                clear(folder / "graded_stack")
                 clear(folder / "prusa.sl1")
         if args.profile and prepared:
             name, model, _, _ = next((p for p in prepared if p[0] == "organ"), prepared[-1])
@@ -339,7 +371,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{report['cores']} cores, load average {load_start[0]:.2f} at start, "
               f"{report['loadavg_end'][0]:.2f} at end; whole run {report['total_s']:.0f} s. "
               "Figures on a shared machine are noisy: compare ratios from one run.")
-    everything_ok = all(not r["failed"] and r.get("agreement", {"ok": True})["ok"] for r in results)
+    everything_ok = all(not r["failed"] and r.get("agreement", {"ok": True})["ok"] and r.get("graded_same_solid", True)
+                        for r in results)
     return 0 if everything_ok else 1
 
 

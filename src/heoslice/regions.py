@@ -1009,17 +1009,52 @@ def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, pa
     if not regions.fields:
         return droplet_bits(np.zeros((0, 0), np.int16), (0, 0), packed, np.zeros(1, np.int64), np.zeros(1),
                             np.zeros((0, 5), np.int64), np.zeros(0), np.zeros(len(materials)),
-                            layer_tile(layer), base_channel, planes)
+                            layer_tile(layer), base_channel, planes, np.full((1, 1), -1, np.int8))
     _, mixes = _family_starts(regions, spec, loop_shell, None, point_material)
     target_mix = np.zeros(len(materials))
     if spec.target is not None and spec.function is not None:
         target_mix[position[(spec.target.name, spec.target.color)]] = 1.0
+    fractions = _target_fractions(regions, spec)
     family_of_label = np.zeros(regions.label_count, dtype=np.int64)
     for number in range(len(regions.fields)):
         family_of_label[regions.base[number]:regions.base[number + 1]] = number
     sizes = np.array([mix.size for mix in mixes])
     layout = np.array([(field.box[0], field.box[2], field.lattice.cell, field.lattice.cols, start)
                        for field, start in zip(regions.fields, np.cumsum(sizes) - sizes)], dtype=np.int64)
-    return droplet_bits(regions.label, regions.box[::2], packed, family_of_label, _target_fractions(regions, spec),
+    return droplet_bits(regions.label, regions.box[::2], packed, family_of_label, fractions,
                         layout, np.concatenate([mix.ravel() for mix in mixes]), target_mix, layer_tile(layer),
-                        base_channel, planes)
+                        base_channel, planes, _choice_table(regions, mixes, fractions, target_mix))
+
+
+def _choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.ndarray,
+                  target_mix: np.ndarray) -> np.ndarray:
+    """The channel each label jets at each of the 256 dither thresholds ((labels, 256) int8), for the
+    labels of families whose start mix is the same at every cell (-1 for the others, which
+    are halftoned per pixel). Computed in choose_materials' float32 arithmetic, so a pixel's
+    channel is the same either way; it turns the per-pixel mix into one table look-up."""
+    from heoslice.halftone import TILE
+
+    count = TILE * TILE
+    table = np.full((regions.label_count, count), -1, dtype=np.int8)
+    levels = ((np.arange(count) + 0.5) / count).astype(np.float32)
+    target = target_mix.astype(np.float32)
+    for number, mix in enumerate(mixes):
+        flat = mix.reshape(-1, mix.shape[-1]).astype(np.float32)
+        if not len(flat) or (flat != flat[0]).any():
+            continue
+        labels = np.arange(regions.base[number], regions.base[number + 1])
+        share = flat[0] + fractions.astype(np.float32)[labels, None] * (target - flat[0])
+        total = np.zeros(len(labels), dtype=np.float32)
+        for column in share.T:
+            total += column
+        threshold = levels[None, :] * np.where(total > 0, total, np.float32(1.0))[:, None]
+        chosen = np.full(threshold.shape, share.shape[1] - 1, dtype=np.int8)
+        running = np.zeros(len(labels), dtype=np.float32)
+        undecided = np.ones(threshold.shape, dtype=bool)
+        for channel in range(share.shape[1] - 1):
+            running += share[:, channel]
+            here = undecided & (threshold < running[:, None])
+            chosen[here] = channel
+            undecided &= ~here
+        table[labels] = chosen
+    return table

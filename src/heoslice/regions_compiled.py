@@ -245,7 +245,7 @@ def _write_cells(index, ci, cj, cell, s, count, mask, r0, c0, base):  # pragma: 
 
 @numba.njit(**_JIT)
 def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixes, target, tile, base_channel,
-                  planes):  # pragma: no cover - compiled
+                  planes, table, level):  # pragma: no cover - compiled
     """Set one bit per solid pixel in the plane of the material it jets (see :func:`droplet_bits`).
 
     Walks the packed solid mask a byte (8 pixels) at a time, skipping empty bytes, and
@@ -275,6 +275,10 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
                 number = label[r, c] if labelled and 0 <= c < cols else 0
                 if number <= 0:
                     bits[base_channel] |= np.uint8(0x80 >> bit)
+                    continue
+                looked_up = table[number, level[row & wrap, col & wrap]]
+                if looked_up >= 0:
+                    bits[looked_up] |= np.uint8(0x80 >> bit)
                     continue
                 if family_of_label[number] != family or col >= cell_end:
                     family = family_of_label[number]
@@ -383,7 +387,7 @@ def write_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, s:
 
 def droplet_bits(label: np.ndarray, origin: tuple[int, int], packed: np.ndarray, family_of_label: np.ndarray,
                  fraction: np.ndarray, layout: np.ndarray, mixes: np.ndarray, target: np.ndarray, tile: np.ndarray,
-                 base_channel: int, planes: np.ndarray) -> np.ndarray:
+                 base_channel: int, planes: np.ndarray, table: np.ndarray) -> np.ndarray:
     """Halftone a labelled layer into bit-packed droplet masks, in place in ``planes`` ((K, h, ceil(w/8)) uint8).
 
     label ((rows, cols) int, 0 empty) covers the layer from pixel ``origin``; a labelled
@@ -395,10 +399,14 @@ def droplet_bits(label: np.ndarray, origin: tuple[int, int], packed: np.ndarray,
     (:func:`heoslice.halftone.choose_materials`, in the same float32 arithmetic, so the
     masks agree bit for bit). ``packed`` is the layer's solid mask ((h, ceil(w/8)) uint8,
     rows MSB first, padding bits clear); its solid pixels without a label jet
-    ``base_channel``.
+    ``base_channel``. ``table`` ((labels, n * n) int8) short-cuts all that for a label
+    whose entry at the pixel's threshold level (its rank in ``tile``) is not -1.
     """
+    size = tile.shape[0]
+    level = np.rint(np.asarray(tile, dtype=np.float64) * size * size - 0.5).astype(np.int64)
     return _droplet_bits(np.ascontiguousarray(label), int(origin[0]), int(origin[1]), np.ascontiguousarray(packed),
                          np.ascontiguousarray(family_of_label, dtype=np.int64),
                          np.ascontiguousarray(fraction, dtype=np.float32), np.ascontiguousarray(layout, dtype=np.int64),
                          np.ascontiguousarray(mixes, dtype=np.float32), np.ascontiguousarray(target, dtype=np.float32),
-                         np.ascontiguousarray(tile, dtype=np.float32), int(base_channel), planes)
+                         np.ascontiguousarray(tile, dtype=np.float32), int(base_channel), planes,
+                         np.ascontiguousarray(table, dtype=np.int8), level)
