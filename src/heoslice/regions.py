@@ -428,14 +428,15 @@ def rings_apart(first: RingSet, second: RingSet) -> float:
     """Shortest distance (mm) between two sets of rings that do not cross.
 
     It is reached at a vertex of one set (the nearest point of the other can be anywhere
-    on an edge), so it is the least vertex-to-edge distance both ways; the nearest
-    vertex pair (scipy's KD-tree) bounds it, so only edges that close are measured.
+    on an edge), so it is the least vertex-to-edge distance both ways; the nearest pair
+    among a sample of vertices bounds it, so only edges that close are measured.
     """
-    from scipy.spatial import cKDTree
-
     a = np.column_stack([first.edges.x, first.edges.y])
     b = np.column_stack([second.edges.x, second.edges.y])
-    bound = float(cKDTree(b).query(a, k=1)[0].min()) * (1 + 1e-12) + 1e-12
+    sample_a, sample_b = a[::max(1, len(a) // 64)], b[::max(1, len(b) // 1024)]
+    across = sample_a[:, 0, None] - sample_b[None, :, 0]
+    along = sample_a[:, 1, None] - sample_b[None, :, 1]
+    bound = float(np.sqrt((across * across + along * along).min())) * (1 + 1e-12) + 1e-12
     best = bound
     for where, rings in ((a, second), (b, first)):
         squared = nearest_edges(where[:, 0], where[:, 1], np.full(len(where), bound), np.zeros(1), np.zeros(1),
@@ -526,29 +527,40 @@ def family_box(points: np.ndarray, offsets: np.ndarray, loop: int, grid: Grid) -
     return row0, row1, col0, col1
 
 
-def _far_side(rings: RingSet, points: np.ndarray, offsets: np.ndarray, bounds: BlockBounds,
-              lattice: Lattice) -> np.ndarray:
+def _far_side(rings: RingSet, inside: np.ndarray, bounds: BlockBounds, lattice: Lattice) -> np.ndarray:
     """(rows, cols) bool over the blocks: the block's cells and their neighbours are all off the family's
-    side of the rings (its centre is, by more than half its diagonal plus a cell's diagonal and a
-    half, measured exactly where the upper bound allows it), so nothing there is needed."""
-    inside = _inside_loops(points, offsets, rings.loops, bounds.blocks)
-    margin = 0.5 * np.hypot(bounds.blocks.dx, bounds.blocks.dy) + 1.5 * np.hypot(lattice.dx, lattice.dy)
-    far = (inside != rings.encloses) & (bounds.upper > margin)
+    side of the rings, so nothing there is needed for the family's pixels.
+
+    Each block is judged at one of its cells (``inside``: (rows, cols) bool over the
+    lattice, cell centres inside the rings): off the family's side by more than the way
+    to the block's farthest cell centre plus a cell's diagonal and a half, measured
+    exactly where the block's upper bound allows it.
+    """
+    b = _BLOCK
+    first_r, first_c = np.arange(bounds.blocks.rows) * b, np.arange(bounds.blocks.cols) * b
+    rep_r = np.minimum(first_r + b // 2, lattice.rows - 1)
+    rep_c = np.minimum(first_c + b // 2, lattice.cols - 1)
+    span_r = np.maximum(rep_r - first_r, np.minimum(first_r + b - 1, lattice.rows - 1) - rep_r) * lattice.dy
+    span_c = np.maximum(rep_c - first_c, np.minimum(first_c + b - 1, lattice.cols - 1) - rep_c) * lattice.dx
+    margin = np.hypot(span_r[:, None], span_c[None, :]) + 1.5 * np.hypot(lattice.dx, lattice.dy)
+    x, y = lattice.centres()
+    bx, by = bounds.blocks.centres()
+    reach = bounds.upper + np.hypot((x[rep_c] - bx)[None, :], (y[rep_r] - by)[:, None])
+    far = (inside[np.ix_(rep_r, rep_c)] != rings.encloses) & (reach > margin)
     if far.any():
-        x, y = bounds.blocks.centres()
         rows, cols = np.nonzero(far)
-        squared = nearest_edges(x[cols], y[rows], bounds.upper[far] * (1 + 1e-9) + 1e-9, np.zeros(1), np.zeros(1),
-                                rings.edges, rings.tree, track=False)
-        far[rows, cols] = squared.ravel() > margin * margin
+        squared = nearest_edges(x[rep_c[cols]], y[rep_r[rows]], reach[far] * (1 + 1e-9) + 1e-9, np.zeros(1),
+                                np.zeros(1), rings.edges, rings.tree, track=False)
+        far[rows, cols] = squared.ravel() > margin[far] ** 2
     return far
 
 
-def _signed_centres(rings: RingSet, points: np.ndarray, offsets: np.ndarray, lattice: Lattice,
-                    bounds: BlockBounds | None = None, wanted: np.ndarray | None = None):
+def _signed_centres(rings: RingSet, inside: np.ndarray, lattice: Lattice, bounds: BlockBounds | None = None,
+                    wanted: np.ndarray | None = None):
     """At every cell centre: signed distance to the rings (> 0 on the family's side), its unit gradient, foot, edge
-    (exact in the ``wanted`` blocks, see :func:`lattice_distance`)."""
+    (exact in the ``wanted`` blocks, see :func:`lattice_distance`); ``inside``: (rows, cols) bool, the
+    cell centres inside the rings."""
     distance, fx, fy, edge = lattice_distance(rings.edges, lattice, rings.tree, bounds, wanted)
-    inside = _inside_loops(points, offsets, rings.loops, lattice)
     sign = np.where(inside == rings.encloses, 1.0, -1.0)
     x, y = lattice.centres()
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -580,9 +592,10 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     start_loops = family.holes if outward else (family.outer,)
     start = rings(start_loops, not outward)
     start_bounds = block_bounds(start.edges, lattice)
-    far = [_far_side(start, points, offsets, start_bounds, lattice)]
+    start_inside = _inside_loops(points, offsets, start.loops, lattice)
+    far = [_far_side(start, start_inside, start_bounds, lattice)]
     if not pixels:
-        start_at = _signed_centres(start, points, offsets, lattice, start_bounds, ~far[0])
+        start_at = _signed_centres(start, start_inside, lattice, start_bounds, ~far[0])
         return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
                            lattice=lattice, start_edges=start.edges, foot=start_at[2], edge=start_at[3])
     inradius = None
@@ -597,11 +610,12 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     layout = family_layout(family, spec, inradius, apart)
     ends = [rings(loops, outward) for loops in layout.end]
     ends_bounds = [block_bounds(rings.edges, lattice) for rings in ends]
-    far += [_far_side(rings, points, offsets, bounds, lattice) for rings, bounds in zip(ends, ends_bounds)]
+    ends_inside = [_inside_loops(points, offsets, rings.loops, lattice) for rings in ends]
+    far += [_far_side(*args, lattice) for args in zip(ends, ends_inside, ends_bounds)]
     wanted = ~np.logical_or.reduce(far)
-    start_at = _signed_centres(start, points, offsets, lattice, start_bounds, wanted)
-    ends_at = [_signed_centres(rings, points, offsets, lattice, bounds, wanted)
-               for rings, bounds in zip(ends, ends_bounds)]
+    start_at = _signed_centres(start, start_inside, lattice, start_bounds, wanted)
+    ends_at = [_signed_centres(rings, inside, lattice, bounds, wanted)
+               for rings, inside, bounds in zip(ends, ends_inside, ends_bounds)]
     s, grad = _band_coordinate(layout, start_at[:2], [at[:2] for at in ends_at])
 
     # a cell may hold solid pixels when its centre is within half a diagonal of the family's side
