@@ -623,7 +623,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     touched = np.logical_and.reduce([start_at[0] >= reach] + [at[0] >= reach for at in ends_at])
     solid_side = np.logical_and.reduce([start_at[0] >= 0] + [at[0] >= 0 for at in ends_at])
     beyond = (s >= layout.count + 2.0) | ~touched
-    refine = _refine(s, grad, solid_side, touched & ~beyond, lattice, grid)
+    refine = _refine(s, grad, solid_side, touched & ~beyond, lattice, grid, layout.count)
     row0, row1, col0, col1 = box
     index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, (row1 - row0, col1 - col0), mask, label_base)
     if refine.any():
@@ -636,21 +636,24 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
 
 
 def _refine(s: np.ndarray, grad: np.ndarray, side: np.ndarray, candidate: np.ndarray, lattice: Lattice,
-            grid: Grid) -> np.ndarray:
+            grid: Grid, count: int) -> np.ndarray:
     """(rows, cols) bool: candidate cells where one plane does not place the sub-region boundaries
     within TOLERANCE_PX pixels, so they are evaluated per pixel.
 
     A plane that misses s at a neighbour's centre (on the family's side) by more than
     twice TOLERANCE_PX pixels at the local slope misses it at the shared border by more
-    than TOLERANCE_PX; where the field's direction turns between a cell and a neighbour
-    by an angle a, a plane misplaces a boundary by about cell * sin(a) / 2 pixels, which
-    matters next to the family's border (elsewhere the misfit test sees it).
+    than TOLERANCE_PX, which matters only if a boundary (an integer of s) can lie in the
+    cell: not where the plane's range over the cell, widened by that miss, holds one
+    sub-region (where eq. 10's field flattens out, a tiny slope makes every miss "large").
+    Where the field's direction turns between a cell and a neighbour by an angle a, a
+    plane misplaces a boundary by about cell * sin(a) / 2 pixels, which matters next to
+    the family's border (elsewhere the misfit test sees it).
     """
     from heoslice.regions_compiled import refine_flags
 
     tolerance = 2.0 * TOLERANCE_PX * min(grid.px, grid.py)
     limit = np.sqrt(max(0.0, 1.0 - (2.0 * TOLERANCE_PX / lattice.cell) ** 2))
-    return refine_flags(s, grad, side, candidate, lattice.dx, lattice.dy, tolerance, limit)
+    return refine_flags(s, grad, side, candidate, lattice.dx, lattice.dy, tolerance, limit, count)
 
 
 def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid, flat: np.ndarray, count: int,

@@ -76,6 +76,18 @@ def _candidates(cx, cy, radius, ex, ey, evx, evy, einv, boxes, level_start):  # 
     return start, found[:n]
 
 
+@numba.njit(inline="always", **_JIT)
+def _squared(rx, ry, vx, vy, inv):  # pragma: no cover - compiled
+    """Squared distance from the offset (rx, ry) (from an edge's first end) to the edge (vx, vy), 1/|v|^2 = inv;
+    float32 in, float32 out, written with selects so that the loops calling it vectorise."""
+    t = (rx * vx + ry * vy) * inv
+    t = np.float32(0.0) if t < np.float32(0.0) else t
+    t = np.float32(1.0) if t > np.float32(1.0) else t
+    rx -= t * vx
+    ry -= t * vy
+    return rx * rx + ry * ry
+
+
 @numba.njit(**_JIT)
 def _nearest_tracked(cx, cy, ox, oy, start, candidate, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
     """The nearest of group g's candidate edges to each point (cx[g] + ox[k], cy[g] + oy[k]):
@@ -93,14 +105,7 @@ def _nearest_tracked(cx, cy, ox, oy, start, candidate, ex, ey, evx, evy, einv): 
             vx, vy, inv = np.float32(evx[e]), np.float32(evy[e]), np.float32(einv[e])
             edge = np.int32(e)
             for k in range(points):
-                rx = bx + ox[k]
-                ry = by + oy[k]
-                t = (rx * vx + ry * vy) * inv
-                t = np.float32(0.0) if t < np.float32(0.0) else t
-                t = np.float32(1.0) if t > np.float32(1.0) else t
-                rx -= t * vx
-                ry -= t * vy
-                d2 = rx * rx + ry * ry
+                d2 = _squared(bx + ox[k], by + oy[k], vx, vy, inv)
                 closer = d2 < best[k]
                 row_which[k] = edge if closer else row_which[k]
                 best[k] = d2 if closer else best[k]
@@ -120,14 +125,7 @@ def _nearest_float32(cx, cy, ox, oy, start, candidate, ex, ey, evx, evy, einv): 
             bx, by = np.float32(cx[g] - ex[e]), np.float32(cy[g] - ey[e])
             vx, vy, inv = np.float32(evx[e]), np.float32(evy[e]), np.float32(einv[e])
             for k in range(points):
-                rx = bx + ox[k]
-                ry = by + oy[k]
-                t = (rx * vx + ry * vy) * inv
-                t = np.float32(0.0) if t < np.float32(0.0) else t
-                t = np.float32(1.0) if t > np.float32(1.0) else t
-                rx -= t * vx
-                ry -= t * vy
-                d2 = rx * rx + ry * ry
+                d2 = _squared(bx + ox[k], by + oy[k], vx, vy, inv)
                 row_best[k] = d2 if d2 < row_best[k] else row_best[k]
     return best
 
@@ -173,10 +171,12 @@ def _expand_planes(s, gx, gy, cell, px, py, count, out, mask, r0, c0, base):  # 
 
 
 @numba.njit(**_JIT)
-def _refine_flags(s, gx, gy, side, candidate, dx, dy, tolerance, limit):  # pragma: no cover - compiled
+def _refine_flags(s, gx, gy, side, candidate, dx, dy, tolerance, limit, count):  # pragma: no cover - compiled
     """Cells to evaluate per pixel: candidates whose plane misses s at a neighbour's centre (on
-    the family's side) by more than ``tolerance`` x the slope, or whose gradient turns by more
-    than ``limit`` (a cosine) towards a neighbour while some neighbour is off the family's side.
+    the family's side) by more than ``tolerance`` x the slope, unless the plane's range over
+    the cell widened by the largest such miss holds no sub-region boundary (one k = clip(floor(s)
+    + 1, 1, count) throughout: a slow or saturated field); or whose gradient turns by more than
+    ``limit`` (a cosine) towards a neighbour while some neighbour is off the family's side.
     Neighbours past the lattice's border repeat the border cell."""
     rows, cols = s.shape
     out = np.zeros((rows, cols), dtype=np.bool_)
@@ -191,12 +191,18 @@ def _refine_flags(s, gx, gy, side, candidate, dx, dy, tolerance, limit):  # prag
             left, right = max(j - 1, 0), min(j + 1, cols - 1)
             allowed = tolerance * max(slope[i, j], 1e-9)
             all_side = side[i, j]
+            worst = 0.0
             for ni, di in ((up, -1), (i, 0), (down, 1)):
                 for nj, dj in ((left, -1), (j, 0), (right, 1)):
                     if not side[ni, nj]:
                         all_side = False
-                    elif abs(s[i, j] + gx[i, j] * (dj * dx) - gy[i, j] * (di * dy) - s[ni, nj]) > allowed:
-                        out[i, j] = True
+                    else:
+                        worst = max(worst, abs(s[i, j] + gx[i, j] * (dj * dx) - gy[i, j] * (di * dy) - s[ni, nj]))
+            if worst > allowed:
+                reach = 0.5 * (abs(gx[i, j]) * dx + abs(gy[i, j]) * dy) + worst
+                low = min(max(np.floor(s[i, j] - reach) + 1.0, 1.0), count)
+                high = min(max(np.floor(s[i, j] + reach) + 1.0, 1.0), count)
+                out[i, j] = low != high
             if out[i, j] or all_side:
                 continue
             for ni in (up, i, down):
@@ -356,12 +362,14 @@ def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: int, px: 
 
 
 def refine_flags(s: np.ndarray, grad: np.ndarray, side: np.ndarray, candidate: np.ndarray, dx: float, dy: float,
-                 tolerance: float, limit: float) -> np.ndarray:
+                 tolerance: float, limit: float, count: int) -> np.ndarray:
     """(rows, cols) bool: lattice cells whose one plane does not fit (see :func:`_refine_flags`);
-    s (rows, cols), grad (rows, cols, 2) per mm, side/candidate (rows, cols) bool, dx/dy the cell (mm)."""
+    s (rows, cols), grad (rows, cols, 2) per mm, side/candidate (rows, cols) bool, dx/dy the cell (mm),
+    count N_R."""
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     return _refine_flags(f64(s), f64(grad[..., 0]), f64(grad[..., 1]), np.ascontiguousarray(side),
-                         np.ascontiguousarray(candidate), float(dx), float(dy), float(tolerance), float(limit))
+                         np.ascontiguousarray(candidate), float(dx), float(dy), float(tolerance), float(limit),
+                         float(count))
 
 
 def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, ex: np.ndarray, ey: np.ndarray, evx: np.ndarray,
