@@ -623,9 +623,19 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     touched = np.logical_and.reduce([start_at[0] >= reach] + [at[0] >= reach for at in ends_at])
     solid_side = np.logical_and.reduce([start_at[0] >= 0] + [at[0] >= 0 for at in ends_at])
     beyond = (s >= layout.count + 2.0) | ~touched
-    refine = _refine(s, grad, solid_side, touched & ~beyond, lattice, grid, layout.count)
+    # eq. 10's field bends everywhere, so its cells get a quadratic where it fits better than a plane;
+    # one ring's distance field bends only at its medial axis, where a quadratic does not help
+    hessian = _hessian(grad, lattice) if layout.end else None
+    refine = _refine(s, grad, solid_side, touched & ~beyond, lattice, grid, layout.count, hessian)
     row0, row1, col0, col1 = box
     index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, (row1 - row0, col1 - col0), mask, label_base)
+    if hessian is not None:
+        curved = np.nonzero(hessian.any(axis=-1) & ~beyond & ~refine)
+        if len(curved[0]):
+            from heoslice.regions_compiled import curve_cells
+
+            curve_cells(index, curved[0], curved[1], lattice.cell, s, grad, hessian, grid.px, grid.py, layout.count,
+                        mask, (lattice.row0, lattice.col0), label_base)
     if refine.any():
         cells = np.nonzero(refine)
         _refine_cells(index, lattice, cells, grid, layout,
@@ -635,10 +645,25 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
                        start_edges=start.edges, foot=start_at[2], edge=start_at[3])
 
 
+def _hessian(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
+    """(rows, cols, 3) s_xx, s_xy, s_yy per mm^2 at the cell centres: central differences of the exact
+    gradients ((rows, cols, 2) per mm, y up) of neighbouring centres (one-sided at the border;
+    zero along an axis the lattice is one cell wide in)."""
+    hessian = np.zeros(grad.shape[:2] + (3,))
+    if grad.shape[0] > 1:
+        hessian[..., 2] = np.gradient(grad[..., 1], -lattice.dy, axis=0)
+        hessian[..., 1] = np.gradient(grad[..., 0], -lattice.dy, axis=0)
+    if grad.shape[1] > 1:
+        hessian[..., 0] = np.gradient(grad[..., 0], lattice.dx, axis=1)
+        hessian[..., 1] = 0.5 * (hessian[..., 1] + np.gradient(grad[..., 1], lattice.dx, axis=1))
+    return hessian
+
+
 def _refine(s: np.ndarray, grad: np.ndarray, side: np.ndarray, candidate: np.ndarray, lattice: Lattice,
-            grid: Grid, count: int) -> np.ndarray:
-    """(rows, cols) bool: candidate cells where one plane does not place the sub-region boundaries
-    within TOLERANCE_PX pixels, so they are evaluated per pixel.
+            grid: Grid, count: int, hessian: np.ndarray | None = None) -> np.ndarray:
+    """(rows, cols) bool: candidate cells where one plane (or, with a ``hessian``, one quadratic:
+    whichever fits better; the Hessian is zeroed where the plane does) does not place the
+    sub-region boundaries within TOLERANCE_PX pixels, so they are evaluated per pixel.
 
     A plane that misses s at a neighbour's centre (on the family's side) by more than
     twice TOLERANCE_PX pixels at the local slope misses it at the shared border by more
@@ -653,7 +678,7 @@ def _refine(s: np.ndarray, grad: np.ndarray, side: np.ndarray, candidate: np.nda
 
     tolerance = 2.0 * TOLERANCE_PX * min(grid.px, grid.py)
     limit = np.sqrt(max(0.0, 1.0 - (2.0 * TOLERANCE_PX / lattice.cell) ** 2))
-    return refine_flags(s, grad, side, candidate, lattice.dx, lattice.dy, tolerance, limit, count)
+    return refine_flags(s, grad, side, candidate, lattice.dx, lattice.dy, tolerance, limit, count, hessian)
 
 
 def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid, flat: np.ndarray, count: int,

@@ -171,14 +171,18 @@ def _expand_planes(s, gx, gy, cell, px, py, count, out, mask, r0, c0, base):  # 
 
 
 @numba.njit(**_JIT)
-def _refine_flags(s, gx, gy, side, candidate, dx, dy, tolerance, limit, count):  # pragma: no cover - compiled
-    """Cells to evaluate per pixel: candidates whose plane misses s at a neighbour's centre (on
-    the family's side) by more than ``tolerance`` x the slope, unless the plane's range over
-    the cell widened by the largest such miss holds no sub-region boundary (one k = clip(floor(s)
-    + 1, 1, count) throughout: a slow or saturated field); or whose gradient turns by more than
-    ``limit`` (a cosine) towards a neighbour while some neighbour is off the family's side.
-    Neighbours past the lattice's border repeat the border cell."""
+def _refine_flags(s, gx, gy, hxx, hxy, hyy, side, candidate, dx, dy, tolerance, limit,
+                  count):  # pragma: no cover - compiled
+    """Cells to evaluate per pixel: candidates whose plane (s, gradient) misses s at a neighbour's
+    centre (on the family's side) by more than ``tolerance`` x the slope, and so does their
+    quadratic when a Hessian is given (hxx, hxy, hyy not 0 x 0; zeroed in place where the plane
+    fits, or fits at least as well), unless the better model's range over the cell widened by its largest
+    miss holds no sub-region boundary (one k = clip(floor(s) + 1, 1, count) throughout: a slow
+    or saturated field); or whose gradient turns by more than ``limit`` (a cosine) towards a
+    neighbour while some neighbour is off the family's side. Neighbours past the lattice's
+    border repeat the border cell."""
     rows, cols = s.shape
+    curved = hxx.shape[0] > 0
     out = np.zeros((rows, cols), dtype=np.bool_)
     slope = np.sqrt(gx * gx + gy * gy)
     length = np.maximum(slope, 1e-300)
@@ -191,17 +195,30 @@ def _refine_flags(s, gx, gy, side, candidate, dx, dy, tolerance, limit, count): 
             left, right = max(j - 1, 0), min(j + 1, cols - 1)
             allowed = tolerance * max(slope[i, j], 1e-9)
             all_side = side[i, j]
-            worst = 0.0
+            flat, bent = 0.0, 0.0
             for ni, di in ((up, -1), (i, 0), (down, 1)):
                 for nj, dj in ((left, -1), (j, 0), (right, 1)):
                     if not side[ni, nj]:
                         all_side = False
-                    else:
-                        worst = max(worst, abs(s[i, j] + gx[i, j] * (dj * dx) - gy[i, j] * (di * dy) - s[ni, nj]))
+                        continue
+                    ex, ey = dj * dx, -di * dy
+                    guess = s[i, j] + gx[i, j] * ex + gy[i, j] * ey
+                    flat = max(flat, abs(guess - s[ni, nj]))
+                    if curved:
+                        guess += 0.5 * (hxx[i, j] * ex * ex + hyy[i, j] * ey * ey) + hxy[i, j] * ex * ey
+                        bent = max(bent, abs(guess - s[ni, nj]))
+            worst = flat
+            reach = 0.5 * (abs(gx[i, j]) * dx + abs(gy[i, j]) * dy)
+            if curved:
+                if allowed < flat and bent < flat:
+                    worst = bent
+                    reach += 0.125 * (abs(hxx[i, j]) * dx * dx + 2.0 * abs(hxy[i, j]) * dx * dy
+                                      + abs(hyy[i, j]) * dy * dy)
+                else:
+                    hxx[i, j], hxy[i, j], hyy[i, j] = 0.0, 0.0, 0.0
             if worst > allowed:
-                reach = 0.5 * (abs(gx[i, j]) * dx + abs(gy[i, j]) * dy) + worst
-                low = min(max(np.floor(s[i, j] - reach) + 1.0, 1.0), count)
-                high = min(max(np.floor(s[i, j] + reach) + 1.0, 1.0), count)
+                low = min(max(np.floor(s[i, j] - reach - worst) + 1.0, 1.0), count)
+                high = min(max(np.floor(s[i, j] + reach + worst) + 1.0, 1.0), count)
                 out[i, j] = low != high
             if out[i, j] or all_side:
                 continue
@@ -224,6 +241,34 @@ def _feet(qx, qy, edge, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
         fx[i], fy[i] = ex[e] + t * evx[e], ey[e] + t * evy[e]
         distance[i] = np.sqrt((qx[i] - fx[i]) ** 2 + (qy[i] - fy[i]) ** 2)
     return distance, fx, fy
+
+
+@numba.njit(**_JIT)
+def _curve_cells(index, ci, cj, cell, s, gx, gy, hxx, hxy, hyy, px, py, count, mask, r0, c0,
+                 base):  # pragma: no cover - compiled
+    """Rewrite whole cells (ci, cj) from their quadratics (see :func:`curve_cells`)."""
+    rows, cols = index.shape
+    masked = mask.shape[0] > 0
+    half = 0.5 * cell
+    for n in range(len(ci)):
+        i, j = ci[n], cj[n]
+        for v in range(cell):
+            r = i * cell + v
+            if r >= rows:
+                break
+            y = -(v + 0.5 - half) * py
+            for u in range(cell):
+                c = j * cell + u
+                if c >= cols:
+                    break
+                x = (u + 0.5 - half) * px
+                value = (s[i, j] + gx[i, j] * x + gy[i, j] * y
+                         + 0.5 * (hxx[i, j] * x * x + hyy[i, j] * y * y) + hxy[i, j] * x * y)
+                k = min(max(np.floor(value) + 1.0, 1.0), count)
+                if masked:
+                    k = k + base if mask[r0 + r, c0 + c] else 0.0
+                index[r, c] = int(k)
+    return index
 
 
 @numba.njit(**_JIT)
@@ -362,14 +407,20 @@ def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: int, px: 
 
 
 def refine_flags(s: np.ndarray, grad: np.ndarray, side: np.ndarray, candidate: np.ndarray, dx: float, dy: float,
-                 tolerance: float, limit: float, count: int) -> np.ndarray:
-    """(rows, cols) bool: lattice cells whose one plane does not fit (see :func:`_refine_flags`);
-    s (rows, cols), grad (rows, cols, 2) per mm, side/candidate (rows, cols) bool, dx/dy the cell (mm),
-    count N_R."""
+                 tolerance: float, limit: float, count: int, hessian: np.ndarray | None = None) -> np.ndarray:
+    """(rows, cols) bool: lattice cells whose plane (and quadratic, with a ``hessian``) does not fit
+    (see :func:`_refine_flags`); s (rows, cols), grad (rows, cols, 2) per mm, side/candidate
+    (rows, cols) bool, dx/dy the cell (mm), count N_R; hessian (rows, cols, 3) s_xx, s_xy, s_yy
+    per mm^2, zeroed in place where the plane fits at least as well."""
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
-    return _refine_flags(f64(s), f64(grad[..., 0]), f64(grad[..., 1]), np.ascontiguousarray(side),
-                         np.ascontiguousarray(candidate), float(dx), float(dy), float(tolerance), float(limit),
-                         float(count))
+    parts = [f64(hessian[..., k]) for k in range(3)] if hessian is not None else [np.zeros((0, 0))] * 3
+    out = _refine_flags(f64(s), f64(grad[..., 0]), f64(grad[..., 1]), *parts, np.ascontiguousarray(side),
+                        np.ascontiguousarray(candidate), float(dx), float(dy), float(tolerance), float(limit),
+                        float(count))
+    if hessian is not None:
+        for k in range(3):
+            hessian[..., k] = parts[k]
+    return out
 
 
 def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, ex: np.ndarray, ey: np.ndarray, evx: np.ndarray,
@@ -418,3 +469,18 @@ def droplet_bits(label: np.ndarray, origin: tuple[int, int], packed: np.ndarray,
                          np.ascontiguousarray(mixes, dtype=np.float32), np.ascontiguousarray(target, dtype=np.float32),
                          np.ascontiguousarray(tile, dtype=np.float32), int(base_channel), planes,
                          np.ascontiguousarray(table, dtype=np.int8), level)
+
+
+def curve_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, s: np.ndarray, grad: np.ndarray,
+                hessian: np.ndarray, px: float, py: float, count: int, mask: np.ndarray | None = None,
+                origin: tuple[int, int] = (0, 0), base: int = 0) -> np.ndarray:
+    """Sub-region k of every pixel of lattice cells (ci, cj) ((n,) int) from the cell's quadratic
+    s + g.d + d.H.d / 2 (s (rows, cols), grad (rows, cols, 2) per mm, hessian (rows, cols, 3)
+    s_xx, s_xy, s_yy per mm^2; d the pixel's offset from the cell centre, y up), in place;
+    ``mask``, ``origin`` and ``base`` as in :func:`expand_planes`."""
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
+    return _curve_cells(index, np.ascontiguousarray(ci, dtype=np.int64), np.ascontiguousarray(cj, dtype=np.int64),
+                        int(cell), f64(s), f64(grad[..., 0]), f64(grad[..., 1]), f64(hessian[..., 0]),
+                        f64(hessian[..., 1]), f64(hessian[..., 2]), float(px), float(py), float(count), mask,
+                        int(origin[0]), int(origin[1]), float(base))
