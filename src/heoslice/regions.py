@@ -1051,7 +1051,7 @@ def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, pa
     if not regions.fields:
         return droplet_bits(np.zeros((0, 0), np.int16), (0, 0), packed, np.zeros(1, np.int64), np.zeros(1),
                             np.zeros((0, 5), np.int64), np.zeros(0), np.zeros(len(materials)),
-                            layer_tile(layer), base_channel, planes, np.full((1, 1), -1, np.int8))
+                            layer_tile(layer), base_channel, planes, np.full((1, 256), base_channel, np.int8))
     _, mixes = _family_starts(regions, spec, loop_shell, None, point_material)
     target_mix = np.zeros(len(materials))
     if spec.target is not None and spec.function is not None:
@@ -1063,9 +1063,11 @@ def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, pa
     sizes = np.array([mix.size for mix in mixes])
     layout = np.array([(field.box[0], field.box[2], field.lattice.cell, field.lattice.cols, start)
                        for field, start in zip(regions.fields, np.cumsum(sizes) - sizes)], dtype=np.int64)
+    table = _choice_table(regions, mixes, fractions, target_mix)
+    table[0] = base_channel
     return droplet_bits(regions.label, regions.box[::2], packed, family_of_label, fractions,
                         layout, np.concatenate([mix.ravel() for mix in mixes]), target_mix, layer_tile(layer),
-                        base_channel, planes, _choice_table(regions, mixes, fractions, target_mix))
+                        base_channel, planes, table)
 
 
 def _choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.ndarray,

@@ -299,60 +299,72 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
                   planes, table, level):  # pragma: no cover - compiled
     """Set one bit per solid pixel in the plane of the material it jets (see :func:`droplet_bits`).
 
-    Walks the packed solid mask a byte (8 pixels) at a time, skipping empty bytes, and
-    writes each output byte once; a family's lattice cell is found by one division per
-    run of pixels in the same family and cell."""
+    Row by row, over the row's non-empty solid bytes: each pixel's channel from the label's
+    table (label 0 and pixels outside the labels take the base channel), the general
+    per-pixel mix only where the table has no entry, then each channel's bytes packed from
+    the channels and masked by the solid byte."""
     channels = planes.shape[0]
     wrap = tile.shape[0] - 1
     rows, cols = label.shape
+    chosen = np.empty(packed.shape[1] * 8, dtype=np.int8)
     mix = np.empty(channels, dtype=np.float32)
-    bits = np.zeros(channels, dtype=np.uint8)
     zero, one = np.float32(0.0), np.float32(1.0)
     for row in range(packed.shape[0]):
-        thresholds = tile[row & wrap]
+        solid = packed[row]
+        first, last = 0, len(solid) - 1
+        while first <= last and solid[first] == 0:
+            first += 1
+        if first > last:
+            continue
+        while solid[last] == 0:
+            last -= 1
+        low, high = first * 8, last * 8 + 8
+        chosen[low:high] = base_channel
         r = row - r0
-        labelled = 0 <= r < rows
-        family, cell_end, start = -1, -1, 0
-        for byte in range(packed.shape[1]):
-            solid = packed[row, byte]
-            if solid == 0:
-                continue
-            bits[:] = 0
-            for bit in range(8):
-                if not (solid >> (7 - bit)) & 1:
+        if 0 <= r < rows:
+            line, levels = label[r], level[row & wrap]
+            start_col, stop_col = max(low, c0), min(high, c0 + cols)
+            missing = False
+            for byte in range(start_col // 8, (stop_col + 7) // 8):
+                if solid[byte] == 0:
                     continue
-                col = byte * 8 + bit
-                c = col - c0
-                number = label[r, c] if labelled and 0 <= c < cols else 0
-                if number <= 0:
-                    bits[base_channel] |= np.uint8(0x80 >> bit)
-                    continue
-                looked_up = table[number, level[row & wrap, col & wrap]]
-                if looked_up >= 0:
-                    bits[looked_up] |= np.uint8(0x80 >> bit)
-                    continue
-                if family_of_label[number] != family or col >= cell_end:
+                for col in range(max(byte * 8, start_col), min(byte * 8 + 8, stop_col)):
+                    got = table[line[col - c0], levels[col & wrap]]
+                    chosen[col] = got
+                    missing = missing or got < 0
+            if missing:
+                thresholds = tile[row & wrap]
+                for col in range(start_col, stop_col):
+                    if chosen[col] >= 0 or not (solid[col >> 3] >> (7 - (col & 7))) & 1:
+                        continue
+                    number = line[col - c0]
                     family = family_of_label[number]
                     cell = layout[family, 2]
                     j = (col - layout[family, 1]) // cell
-                    cell_end = layout[family, 1] + (j + 1) * cell
                     start = layout[family, 4] + (((row - layout[family, 0]) // cell) * layout[family, 3] + j) * channels
-                f = fraction[number]
-                total = zero
-                for m in range(channels):
-                    mix[m] = mixes[start + m] + f * (target[m] - mixes[start + m])
-                    total += mix[m]
-                t = thresholds[col & wrap] * (total if total > zero else one)
-                chosen = channels - 1
-                running = zero
-                for m in range(channels - 1):
-                    running += mix[m]
-                    if t < running:
-                        chosen = m
-                        break
-                bits[chosen] |= np.uint8(0x80 >> bit)
-            for m in range(channels):
-                planes[m, row, byte] = bits[m]
+                    f = fraction[number]
+                    total = zero
+                    for m in range(channels):
+                        mix[m] = mixes[start + m] + f * (target[m] - mixes[start + m])
+                        total += mix[m]
+                    t = thresholds[col & wrap] * (total if total > zero else one)
+                    pick = channels - 1
+                    running = zero
+                    for m in range(channels - 1):
+                        running += mix[m]
+                        if t < running:
+                            pick = m
+                            break
+                    chosen[col] = pick
+        for m in range(channels):
+            plane = planes[m, row]
+            for byte in range(first, last + 1):
+                if solid[byte] == 0:
+                    continue
+                value = 0
+                for bit in range(8):
+                    value |= (chosen[byte * 8 + bit] == m) * (128 >> bit)
+                plane[byte] = value & solid[byte]
     return planes
 
 
@@ -459,7 +471,8 @@ def droplet_bits(label: np.ndarray, origin: tuple[int, int], packed: np.ndarray,
     masks agree bit for bit). ``packed`` is the layer's solid mask ((h, ceil(w/8)) uint8,
     rows MSB first, padding bits clear); its solid pixels without a label jet
     ``base_channel``. ``table`` ((labels, n * n) int8) short-cuts all that for a label
-    whose entry at the pixel's threshold level (its rank in ``tile``) is not -1.
+    whose entry at the pixel's threshold level (its rank in ``tile``) is not -1; its row 0
+    (no label) must hold ``base_channel``.
     """
     size = tile.shape[0]
     level = np.rint(np.asarray(tile, dtype=np.float64) * size * size - 0.5).astype(np.int64)
