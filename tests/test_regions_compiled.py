@@ -4,11 +4,20 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from heoslice.regions import ring_edges
-from heoslice.regions_compiled import _candidates, edge_tree, expand_planes, feet, nearest_in_groups, write_cells
+from heoslice.regions_compiled import (
+    _candidates,
+    curve_cells,
+    edge_tree,
+    expand_planes,
+    feet,
+    nearest_in_groups,
+    write_cells,
+)
 
 
 def random_rings(rng, rings: int):
@@ -130,3 +139,53 @@ def test_write_cells_fills_whole_cells_inside_the_image():
     untouched[0:3, 3:6] = False
     untouched[6, 6:8] = False
     assert (index[untouched] == -5).all()
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.booleans())
+def test_curve_cells_is_the_quadratic_formula(seed, masked):
+    """curve_cells writes clip(floor(s + g.d + d.H.d / 2) + 1, 1, count) at every pixel of the given cells
+    (d the pixel's offset from the cell centre, y up), + base on mask pixels and 0 off them, and
+    leaves every other pixel alone."""
+    rng = np.random.default_rng(seed)
+    cell, rows, cols, count, base = 6, 4, 5, 30, 3
+    s = rng.uniform(-2, count + 2, (rows, cols))
+    grad = rng.uniform(-4, 4, (rows, cols, 2))
+    hessian = rng.uniform(-9, 9, (rows, cols, 3))
+    px = py = 0.05
+    index = np.full((rows * cell - 2, cols * cell - 1), -7, dtype=np.int32)
+    mask = rng.random(index.shape) < 0.6 if masked else None
+    ci, cj = np.array([0, 3, 2]), np.array([1, 4, 0])
+    curve_cells(index, ci, cj, cell, s, grad, hessian, px, py, count, mask, (0, 0), base)
+    r, c = np.indices(index.shape)
+    i, j = r // cell, c // cell
+    x = (c - j * cell + 0.5 - cell / 2) * px
+    y = -(r - i * cell + 0.5 - cell / 2) * py
+    g, h = grad[i, j], hessian[i, j]
+    value = s[i, j] + g[..., 0] * x + g[..., 1] * y + 0.5 * (h[..., 0] * x * x + h[..., 2] * y * y) + h[..., 1] * x * y
+    expected = np.clip(np.floor(value) + 1, 1, count)
+    if masked:
+        expected = np.where(mask, expected + base, 0)
+    chosen = np.zeros((rows, cols), bool)
+    chosen[ci, cj] = True
+    inside = chosen[i, j]
+    clear = np.abs(value - np.rint(value)) > 1e-9
+    assert np.array_equal(index[inside & clear], expected[inside & clear])
+    assert (index[~inside] == -7).all()
+
+
+@pytest.mark.parametrize("count", [1, 3, 8, 9, 64, 65, 513])
+def test_edge_tree_keeps_every_edge_at_any_size(count):
+    """However many edges (one level, an exact multiple of the fan-out, one more), a radius that reaches
+    all of them from far away gathers each edge exactly once."""
+    angle = np.linspace(0, 2 * np.pi, count + 1)
+    x0, y0 = np.cos(angle[:-1]), np.sin(angle[:-1])
+    x1, y1 = np.cos(angle[1:]), np.sin(angle[1:])
+    boxes, level_start = edge_tree(x0, y0, x1, y1)
+    assert level_start[-1] == len(boxes) and level_start[1] == count
+    vx, vy = x1 - x0, y1 - y0
+    length2 = vx * vx + vy * vy
+    inv = np.divide(1.0, length2, out=np.zeros_like(length2), where=length2 > 0)
+    start, found = _candidates(np.array([50.0]), np.array([0.0]), np.array([100.0]), x0, y0, vx, vy, inv, boxes,
+                               level_start)
+    assert sorted(found.tolist()) == list(range(count))

@@ -66,7 +66,9 @@ def choose_materials(fractions: np.ndarray, solid: np.ndarray, layer: int,
     count = fractions.shape[0]
     if count == 0:
         raise ValueError("at least one material is needed")
-    total = fractions.sum(axis=0)
+    total = np.zeros(fractions.shape[1:], dtype=np.float32)
+    for fraction in fractions:  # summed in order (numpy's pairwise sum would round differently)
+        total += fraction
     threshold = thresholds(solid.shape, layer, origin) * np.where(total > 0, total, 1.0)
     chosen = np.full(solid.shape, count - 1, dtype=np.int8)
     running = np.zeros(solid.shape, dtype=np.float32)

@@ -18,14 +18,16 @@ Where r comes from:
   distance apart the sub-regions are again equidistant offsets.
 
 The field is computed without a Python loop per pixel or per cell: exact distances
-to the rings at the centres of a coarse lattice (cells of about 0.5 mm), one plane
-per cell, expanded to pixels; cells whose plane does not place the sub-region
-boundaries within TOLERANCE_PX pixels of the exact ones (medial axis, sharp corners,
-the family's border) are evaluated exactly per pixel. "Exact" means the nearest of
-every edge that can be nearest (a bound argued where it is used), measured in
-float32 from a nearby centre (under 2e-5 mm). Candidate gathering and the per-pixel
-loops are compiled (:mod:`heoslice.regions_compiled`). The solid mask decides which
-pixels are solid, so the outline is exact.
+to the rings at the centres of a coarse lattice (cells of about 0.5 mm; blocks of
+cells wholly off the family's side are skipped), one plane per cell (a quadratic
+where eq. 10's field bends and fits it better), expanded to pixels; cells where
+neither places the sub-region boundaries within TOLERANCE_PX pixels of the exact
+ones (medial axis, sharp corners, the family's border) are evaluated exactly per
+pixel. "Exact" means the nearest of every edge that can be nearest (a bound argued
+where it is used), measured in float32 from a nearby centre (under 2e-5 mm).
+Candidate gathering and the per-pixel loops are compiled
+(:mod:`heoslice.regions_compiled`). The solid mask decides which pixels are solid,
+so the outline is exact.
 """
 
 from __future__ import annotations
@@ -148,9 +150,8 @@ def layer_families(area: np.ndarray, parent: np.ndarray) -> list[Family]:
 class RingEdges:
     """The edges of some closed rings, flattened: edge i runs from (x[i], y[i]) by (vx[i], vy[i]) (mm).
 
-    ``inv_len2`` is 1 / |v|^2 (0 for a zero-length edge), ``prev``/``next`` the
-    neighbouring edge of the same ring, ``ring`` the ring (position in the list given),
-    ``first``/``second`` the indices of its end points in the layer's points.
+    ``inv_len2`` is 1 / |v|^2 (0 for a zero-length edge), ``ring`` the ring (position in
+    the list given), ``first``/``second`` the indices of its end points in the layer's points.
     """
 
     x: np.ndarray
@@ -158,8 +159,6 @@ class RingEdges:
     vx: np.ndarray
     vy: np.ndarray
     inv_len2: np.ndarray
-    prev: np.ndarray
-    next: np.ndarray
     ring: np.ndarray
     first: np.ndarray
     second: np.ndarray
@@ -180,42 +179,8 @@ def ring_edges(points: np.ndarray, offsets: np.ndarray, loops) -> RingEdges:
     length2 = vec[:, 0] ** 2 + vec[:, 1] ** 2
     inv = np.divide(1.0, length2, out=np.zeros_like(length2), where=length2 > 0)
     return RingEdges(x=points[index, 0].copy(), y=points[index, 1].copy(), vx=vec[:, 0].copy(),
-                     vy=vec[:, 1].copy(), inv_len2=inv, prev=begin + (local - 1) % size,
-                     next=begin + (local + 1) % size, ring=np.repeat(np.arange(len(loops)), sizes),
+                     vy=vec[:, 1].copy(), inv_len2=inv, ring=np.repeat(np.arange(len(loops)), sizes),
                      first=index, second=following)
-
-
-def nearest_on_edges(qx: np.ndarray, qy: np.ndarray, candidates: np.ndarray, edges: RingEdges):
-    """Nearest point on candidate edges for each query point.
-
-    qx, qy: (n,) float, mm; candidates: (n, k) int edge indices. Returns (distance (n,),
-    foot x (n,), foot y (n,), edge (n,) the nearest candidate; the first of equals).
-    """
-    best2 = np.full(len(qx), np.inf)
-    best_rx, best_ry = np.zeros(len(qx)), np.zeros(len(qx))
-    best = candidates[:, 0].copy()
-    for column in range(candidates.shape[1]):
-        e = candidates[:, column]
-        vx, vy = edges.vx[e], edges.vy[e]
-        rx = qx - edges.x[e]
-        ry = qy - edges.y[e]
-        t = rx * vx
-        t += ry * vy
-        t *= edges.inv_len2[e]
-        np.clip(t, 0.0, 1.0, out=t)
-        rx -= t * vx
-        ry -= t * vy
-        dist2 = rx * rx
-        dist2 += ry * ry
-        closer = dist2 < best2
-        if column == 0:
-            best2, best_rx, best_ry = dist2, rx, ry
-            continue
-        np.copyto(best2, dist2, where=closer)
-        np.copyto(best_rx, rx, where=closer)
-        np.copyto(best_ry, ry, where=closer)
-        np.copyto(best, e, where=closer)
-    return np.sqrt(best2), qx - best_rx, qy - best_ry, best
 
 
 @dataclass(frozen=True)
@@ -279,11 +244,11 @@ def _seed_edges(edges: RingEdges, lattice: Lattice) -> tuple[np.ndarray, np.ndar
     return seed.reshape(lattice.rows, lattice.cols), nearest.reshape(lattice.rows, lattice.cols)
 
 
-def edge_tree(edges: RingEdges) -> tuple:
+def ring_tree(edges: RingEdges) -> tuple:
     """A bounding-box hierarchy over the edges (ring order), for :func:`nearest_edges`."""
-    from heoslice.regions_compiled import edge_tree as tree
+    from heoslice.regions_compiled import edge_tree
 
-    return tree(edges.x, edges.y, edges.x + edges.vx, edges.y + edges.vy)
+    return edge_tree(edges.x, edges.y, edges.x + edges.vx, edges.y + edges.vy)
 
 
 def nearest_edges(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np.ndarray, oy: np.ndarray,
@@ -350,7 +315,7 @@ def lattice_distance(edges: RingEdges, lattice: Lattice, tree: tuple | None = No
     from heoslice.regions_compiled import feet
 
     if tree is None:
-        tree = edge_tree(edges)
+        tree = ring_tree(edges)
     if bounds is None:
         bounds = block_bounds(edges, lattice)
     blocks, b = bounds.blocks, _BLOCK
@@ -492,7 +457,7 @@ class RingSet:
 def ring_set(points: np.ndarray, offsets: np.ndarray, loops, encloses: bool) -> RingSet:
     """The ring set of some loops of a layer, with its edges and their bounding-box hierarchy."""
     edges = ring_edges(points, offsets, loops)
-    return RingSet(tuple(loops), edges, encloses, edge_tree(edges))
+    return RingSet(tuple(loops), edges, encloses, ring_tree(edges))
 
 
 @dataclass(frozen=True)
@@ -606,7 +571,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
         inradius = float(shapely.maximum_inscribed_circle(outline, 0.5 * min(grid.px, grid.py)).length)
     apart = None
     if family.holes and spec.depth_mm is None:
-        apart = rings_apart(rings((family.outer,), not outward), rings(family.holes, outward))
+        apart = rings_apart(rings((family.outer,), True), rings(family.holes, False))
     layout = family_layout(family, spec, inradius, apart)
     ends = [rings(loops, outward) for loops in layout.end]
     ends_bounds = [block_bounds(rings.edges, lattice) for rings in ends]
@@ -622,7 +587,9 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     reach = -0.5 * np.hypot(lattice.dx, lattice.dy)
     touched = np.logical_and.reduce([start_at[0] >= reach] + [at[0] >= reach for at in ends_at])
     solid_side = np.logical_and.reduce([start_at[0] >= 0] + [at[0] >= 0 for at in ends_at])
-    beyond = (s >= layout.count + 2.0) | ~touched
+    # deep enough that every pixel of the cell is in the last sub-region (s >= N_R - 1 throughout)
+    half_diagonal = 0.5 * np.hypot(lattice.dx, lattice.dy)
+    beyond = (s - np.hypot(grad[..., 0], grad[..., 1]) * half_diagonal >= layout.count) | ~touched
     # eq. 10's field bends everywhere, so its cells get a quadratic where it fits better than a plane;
     # one ring's distance field bends only at its medial axis, where a quadratic does not help
     hessian = _hessian(grad, lattice) if layout.end else None
@@ -655,7 +622,8 @@ def _hessian(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
         hessian[..., 1] = np.gradient(grad[..., 0], -lattice.dy, axis=0)
     if grad.shape[1] > 1:
         hessian[..., 0] = np.gradient(grad[..., 0], lattice.dx, axis=1)
-        hessian[..., 1] = 0.5 * (hessian[..., 1] + np.gradient(grad[..., 1], lattice.dx, axis=1))
+        across = np.gradient(grad[..., 1], lattice.dx, axis=1)
+        hessian[..., 1] = 0.5 * (hessian[..., 1] + across) if grad.shape[0] > 1 else across
     return hessian
 
 
@@ -991,7 +959,10 @@ def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     image = np.zeros((grid.height, grid.width, 4), dtype=np.uint8)
     materials = spec.channel_materials()
     masks = np.zeros((len(materials), grid.height, grid.width), dtype=bool) if channels else None
+    base_channel = materials.index(spec.base)
     if not regions.fields:
+        if channels:
+            masks[base_channel] = mask
         return GradedLayer(image, solid, masks, grading_seconds)
 
     fractions = _target_fractions(regions, spec)
@@ -1022,9 +993,9 @@ def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
             target_mix = np.zeros(len(materials), dtype=np.float32)
             target_mix[position[(spec.target.name, spec.target.color)]] = 1.0
             fraction += np.take(fractions.astype(np.float32), label)[..., None] * (target_mix - fraction)
-        chosen = droplet_masks(np.moveaxis(fraction, -1, 0), inside, layer, origin=(b[0], b[2]))
-        chosen[position[(spec.base.name, spec.base.color)]] |= stray
-        masks[:, b[0]:b[1], b[2]:b[3]] = chosen
+        masks[:, b[0]:b[1], b[2]:b[3]] = droplet_masks(np.moveaxis(fraction, -1, 0), inside, layer, origin=(b[0], b[2]))
+        # solid pixels no family labels (a broken mesh), inside the box or not, jet the base material
+        masks[base_channel] |= mask & ~masks.any(axis=0)
     return GradedLayer(image, solid, masks, grading_seconds)
 
 

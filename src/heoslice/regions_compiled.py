@@ -21,8 +21,12 @@ import numpy as np
 #: Compiled with fast-math's reassociation and contraction (to vectorise), not its no-inf/no-NaN
 #: assumptions: distances start at inf.
 _JIT = {"cache": True, "nogil": True, "error_model": "numpy", "fastmath": {"nsz", "arcp", "contract", "reassoc"}}
+#: The halftone reproduces heoslice.halftone's float32 arithmetic exactly: no contraction or reassociation.
+_EXACT = {"cache": True, "nogil": True, "error_model": "numpy"}
 #: Children per node of the edge hierarchy (:func:`edge_tree`).
 _FAN = 8
+#: Candidate (group, edge) pairs gathered at most at once by :func:`nearest_in_groups` (8 bytes each).
+_PAIRS = 1 << 23
 
 
 @numba.njit(**_JIT)
@@ -180,7 +184,7 @@ def _refine_flags(s, gx, gy, hxx, hxy, hyy, side, candidate, dx, dy, tolerance, 
     miss holds no sub-region boundary (one k = clip(floor(s) + 1, 1, count) throughout: a slow
     or saturated field); or whose gradient turns by more than ``limit`` (a cosine) towards a
     neighbour while some neighbour is off the family's side. Neighbours past the lattice's
-    border repeat the border cell."""
+    border are left out of the fit test and repeat the border cell in the turn test."""
     rows, cols = s.shape
     curved = hxx.shape[0] > 0
     out = np.zeros((rows, cols), dtype=np.bool_)
@@ -198,6 +202,8 @@ def _refine_flags(s, gx, gy, hxx, hxy, hyy, side, candidate, dx, dy, tolerance, 
             flat, bent = 0.0, 0.0
             for ni, di in ((up, -1), (i, 0), (down, 1)):
                 for nj, dj in ((left, -1), (j, 0), (right, 1)):
+                    if (ni == i and di != 0) or (nj == j and dj != 0):
+                        continue  # past the lattice's border: the cell itself, nothing to compare
                     if not side[ni, nj]:
                         all_side = False
                         continue
@@ -294,7 +300,7 @@ def _write_cells(index, ci, cj, cell, s, count, mask, r0, c0, base):  # pragma: 
     return index
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_EXACT)
 def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixes, target, tile, base_channel,
                   planes, table, level):  # pragma: no cover - compiled
     """Set one bit per solid pixel in the plane of the material it jets (see :func:`droplet_bits`).
@@ -396,12 +402,18 @@ def nearest_in_groups(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np
     zero-length edge); ``tree`` is :func:`edge_tree` of the same edges.
     """
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731 - one conversion, many arrays
-    cx, cy, ex, ey, evx, evy, einv = (f64(a) for a in (cx, cy, ex, ey, evx, evy, einv))
-    start, candidate = _candidates(cx, cy, f64(radius), ex, ey, evx, evy, einv, *tree)
     f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
-    if track:
-        return _nearest_tracked(cx, cy, f32(ox), f32(oy), start, candidate, ex, ey, evx, evy, einv)
-    return _nearest_float32(cx, cy, f32(ox), f32(oy), start, candidate, ex, ey, evx, evy, einv)
+    cx, cy, radius, ex, ey, evx, evy, einv = (f64(a) for a in (cx, cy, radius, ex, ey, evx, evy, einv))
+    ox, oy = f32(ox), f32(oy)
+    parts = []
+    # groups deep inside a round part gather most of its edges: a bounded number at a time
+    step = max(1, _PAIRS // max(1, len(ex)))
+    for first in range(0, max(len(cx), 1), step):
+        group = slice(first, first + step)
+        start, candidate = _candidates(cx[group], cy[group], radius[group], ex, ey, evx, evy, einv, *tree)
+        kernel = _nearest_tracked if track else _nearest_float32
+        parts.append(kernel(cx[group], cy[group], ox, oy, start, candidate, ex, ey, evx, evy, einv))
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: int, px: float, py: float,
@@ -412,6 +424,8 @@ def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: int, px: 
     centre, gradient (gx, gy) per mm (y up, rows down). With ``mask`` ((h, w) bool, C order;
     ``out`` covers rows/columns from ``origin`` of it) the result is k + base on its True
     pixels and 0 elsewhere: a family's labels in the same pass."""
+    if out.shape[0] > np.shape(s)[0] * cell or out.shape[1] > np.shape(s)[1] * cell:
+        raise ValueError(f"expand_planes: {out.shape} pixels exceed {np.shape(s)} cells of {cell}")
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
     return _expand_planes(f64(s), f64(gx), f64(gy), int(cell), float(px), float(py), float(count), out, mask,
@@ -471,8 +485,9 @@ def droplet_bits(label: np.ndarray, origin: tuple[int, int], packed: np.ndarray,
     masks agree bit for bit). ``packed`` is the layer's solid mask ((h, ceil(w/8)) uint8,
     rows MSB first, padding bits clear); its solid pixels without a label jet
     ``base_channel``. ``table`` ((labels, n * n) int8) short-cuts all that for a label
-    whose entry at the pixel's threshold level (its rank in ``tile``) is not -1; its row 0
-    (no label) must hold ``base_channel``.
+    whose entry at the pixel's threshold level is not -1 (the level of threshold t is
+    t n^2 - 1/2: the tile holds the ordered-dither values (k + 1/2) / n^2); its row 0 (no
+    label) must hold ``base_channel``.
     """
     size = tile.shape[0]
     level = np.rint(np.asarray(tile, dtype=np.float64) * size * size - 0.5).astype(np.int64)
