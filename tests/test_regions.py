@@ -452,3 +452,53 @@ def test_droplet_planes_are_render_graded_masks_bit_for_bit(per_vertex):
         assert np.array_equal(got, expected)
         assert np.array_equal(got.sum(axis=0), mask.astype(int))
         assert all(plane.any() for plane in got[[0, 2, 3]])
+
+
+@pytest.mark.parametrize("radius", [0.05, 0.12, 0.3])
+def test_family_smaller_than_a_cell_is_labelled_like_its_pixels(radius):
+    """A family smaller than one lattice cell (a pin a few pixels across) still labels exactly its solid
+    pixels, each with its band by the exact distance to the ring (within one pixel)."""
+    points, offsets, area, parent = layer(circle(radius, 64, (0.37, -0.21)))
+    grid = grid_around(1.0)
+    mask = solid_mask(points, offsets, grid)
+    spec = RegionSpec(nozzle_mm=0.02)
+    regions = layer_regions(points, offsets, area, parent, mask, grid, spec)
+    r0, r1, c0, c1 = regions.box
+    solid = mask[r0:r1, c0:c1]
+    assert mask.sum() == solid.sum() > 0
+    assert np.array_equal(regions.label > 0, solid)
+    field = regions.fields[0]
+    count = field.layout.count
+    x, y = pixel_centres(grid, regions.box)
+    d = shapely.distance(shapely.points(x, y), shapely.LinearRing(circle(radius, 64, (0.37, -0.21))))
+    s = count * d / field.layout.length_mm
+    expected = np.clip(np.floor(s).astype(np.int64) + 1, 1, count)
+    k = regions.label.astype(np.int64) - regions.base[0]
+    wrong = solid & (k != expected)
+    # (a handful of pixels: no share of wrong ones to bound, only their distance to a band boundary)
+    assert np.all(np.abs(k - expected)[wrong] <= 1)
+    assert np.all(np.abs(s - np.rint(s))[wrong] <= count / field.layout.length_mm * PX)
+
+
+def test_many_materials_halftone_like_render_graded():
+    """With eight or more droplet materials (shells of their own, per-vertex fractions), the fast droplet
+    path still equals render_graded's masks bit for bit and partitions the solid pixels."""
+    from heoslice.regions import droplet_planes
+
+    rings = [circle(9.0)] + [circle(0.8, 90, (3.0 * np.cos(a), 3.0 * np.sin(a))) for a in np.linspace(0, 6, 8)]
+    points, offsets, area, parent = layer(*rings)
+    grid = grid_around(9.5)
+    mask = solid_mask(points, offsets, grid)
+    shells = np.arange(len(rings))
+    own = tuple((i, Material(f"s{i}", (10 * i, 200 - 10 * i, 7 * i), i + 3)) for i in range(1, len(rings)))
+    spec = GradeSpec(RegionSpec(nozzle_mm=0.3), make_function("quadratic"), Material("green", (0, 255, 0)), None,
+                     DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"], shells=own)
+    assert len(spec.channel_materials()) >= 8
+    point_material = np.random.default_rng(1).uniform(0, 1, len(points))
+    for index in (0, 3):
+        expected = render_graded(points, offsets, area, parent, shells, mask, grid, spec, index, channels=True,
+                                 point_material=point_material).masks
+        got = np.unpackbits(droplet_planes(points, offsets, area, parent, shells, mask, grid, spec, index,
+                                           point_material=point_material), axis=2, count=grid.width).astype(bool)
+        assert np.array_equal(got, expected)
+        assert np.array_equal(got.sum(axis=0), mask.astype(int))

@@ -32,6 +32,8 @@ so the outline is exact.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -467,9 +469,10 @@ class FamilyField:
     ``index``: (rows, cols) int16/int32, k in 1..N_R (valid on the family's solid
     pixels; the caller masks; in :class:`LayerRegions` the outermost family's index,
     when its box is the layer's, is the label array itself); ``box`` = (row0, row1, col0, col1) of the grid;
-    ``layout`` its rings and N_R; ``lattice``, and per cell the nearest point on the
-    starting rings (``foot`` (2, cells_r, cells_c) mm) and its edge (``edge``
-    (cells_r, cells_c) into ``start_edges``), to take the contour's material there.
+    ``layout`` its rings and N_R; ``lattice``; ``nearest()`` gives per cell the nearest point
+    on the starting rings (foot (2, cells_r, cells_c) mm) and its edge ((cells_r, cells_c)
+    into ``start_edges``), to take the contour's material there (measured on first call
+    for a nested shell, whose own material usually makes it unneeded).
     """
 
     box: tuple[int, int, int, int]
@@ -477,8 +480,7 @@ class FamilyField:
     layout: FamilyLayout
     lattice: Lattice
     start_edges: RingEdges
-    foot: np.ndarray
-    edge: np.ndarray
+    nearest: Callable[[], tuple[np.ndarray, np.ndarray]]
 
 
 def family_box(points: np.ndarray, offsets: np.ndarray, loop: int, grid: Grid) -> tuple[int, int, int, int]:
@@ -556,13 +558,19 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
 
     start_loops = family.holes if outward else (family.outer,)
     start = rings(start_loops, not outward)
+    if not pixels:
+        @functools.cache
+        def nearest():
+            bounds = block_bounds(start.edges, lattice)
+            inside = _inside_loops(points, offsets, start.loops, lattice)
+            at = _signed_centres(start, inside, lattice, bounds, ~_far_side(start, inside, bounds, lattice))
+            return at[2], at[3]
+
+        return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
+                           lattice=lattice, start_edges=start.edges, nearest=nearest)
     start_bounds = block_bounds(start.edges, lattice)
     start_inside = _inside_loops(points, offsets, start.loops, lattice)
     far = [_far_side(start, start_inside, start_bounds, lattice)]
-    if not pixels:
-        start_at = _signed_centres(start, start_inside, lattice, start_bounds, ~far[0])
-        return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
-                           lattice=lattice, start_edges=start.edges, foot=start_at[2], edge=start_at[3])
     inradius = None
     if not family.holes and spec.depth_mm is None:
         import shapely
@@ -609,7 +617,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
                       [(start, np.abs(start_at[0][cells]))]
                       + [(rings, np.abs(at[0][cells])) for rings, at in zip(ends, ends_at)], mask, label_base)
     return FamilyField(box=box, index=index, layout=layout, lattice=lattice,
-                       start_edges=start.edges, foot=start_at[2], edge=start_at[3])
+                       start_edges=start.edges, nearest=lambda: (start_at[2], start_at[3]))
 
 
 def _hessian(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
@@ -791,9 +799,8 @@ def contour_values(field: FamilyField, values: np.ndarray) -> np.ndarray:
     """Per-point values ((p,) or (p, c)) of the layer's loops taken at each cell's nearest
     starting-ring point, interpolated along its edge: (cells_r, cells_c[, c]) float."""
     edges = field.start_edges
-    edge = field.edge
-    t = ((field.foot[0] - edges.x[edge]) * edges.vx[edge]
-         + (field.foot[1] - edges.y[edge]) * edges.vy[edge]) * edges.inv_len2[edge]
+    foot, edge = field.nearest()
+    t = ((foot[0] - edges.x[edge]) * edges.vx[edge] + (foot[1] - edges.y[edge]) * edges.vy[edge]) * edges.inv_len2[edge]
     t = np.clip(t, 0.0, 1.0)
     values = np.asarray(values, dtype=np.float64)
     low, high = values[edges.first[edge]], values[edges.second[edge]]
@@ -905,7 +912,7 @@ def _family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_col
             start = spec.start
         else:
             start = None
-        cells = field.edge.shape
+        cells = (field.lattice.rows, field.lattice.cols)
         mix = np.zeros((*cells, len(materials)))
         if start is not None:
             mix[..., position[(start.name, start.color)]] = 1.0

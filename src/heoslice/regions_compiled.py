@@ -183,8 +183,10 @@ def _refine_flags(s, gx, gy, hxx, hxy, hyy, side, candidate, dx, dy, tolerance, 
     fits, or fits at least as well), unless the better model's range over the cell widened by its largest
     miss holds no sub-region boundary (one k = clip(floor(s) + 1, 1, count) throughout: a slow
     or saturated field); or whose gradient turns by more than ``limit`` (a cosine) towards a
-    neighbour while some neighbour is off the family's side. Neighbours past the lattice's
-    border are left out of the fit test and repeat the border cell in the turn test."""
+    neighbour while some neighbour is off the family's side; or that have no neighbour on the
+    family's side at all (nothing checks their plane: a family about a cell wide). Neighbours
+    past the lattice's border repeat the border cell (offset as a neighbour would be, so a
+    border cell's plane is checked against its own centre value)."""
     rows, cols = s.shape
     curved = hxx.shape[0] > 0
     out = np.zeros((rows, cols), dtype=np.bool_)
@@ -199,14 +201,13 @@ def _refine_flags(s, gx, gy, hxx, hxy, hyy, side, candidate, dx, dy, tolerance, 
             left, right = max(j - 1, 0), min(j + 1, cols - 1)
             allowed = tolerance * max(slope[i, j], 1e-9)
             all_side = side[i, j]
-            flat, bent = 0.0, 0.0
+            flat, bent, compared = 0.0, 0.0, 0
             for ni, di in ((up, -1), (i, 0), (down, 1)):
                 for nj, dj in ((left, -1), (j, 0), (right, 1)):
-                    if (ni == i and di != 0) or (nj == j and dj != 0):
-                        continue  # past the lattice's border: the cell itself, nothing to compare
                     if not side[ni, nj]:
                         all_side = False
                         continue
+                    compared += di != 0 or dj != 0
                     ex, ey = dj * dx, -di * dy
                     guess = s[i, j] + gx[i, j] * ex + gy[i, j] * ey
                     flat = max(flat, abs(guess - s[ni, nj]))
@@ -226,6 +227,8 @@ def _refine_flags(s, gx, gy, hxx, hxy, hyy, side, candidate, dx, dy, tolerance, 
                 low = min(max(np.floor(s[i, j] - reach - worst) + 1.0, 1.0), count)
                 high = min(max(np.floor(s[i, j] + reach + worst) + 1.0, 1.0), count)
                 out[i, j] = low != high
+            if compared == 0:
+                out[i, j] = True  # no neighbour on the family's side to check the plane against
             if out[i, j] or all_side:
                 continue
             for ni in (up, i, down):
