@@ -502,3 +502,27 @@ def test_many_materials_halftone_like_render_graded():
                                            point_material=point_material), axis=2, count=grid.width).astype(bool)
         assert np.array_equal(got, expected)
         assert np.array_equal(got.sum(axis=0), mask.astype(int))
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.sampled_from(["in", "out"]))
+def test_skipping_blocks_off_the_family_changes_no_label(seed, direction):
+    """Lattice blocks judged wholly off the family's side are not measured; labelling with every block
+    measured gives the same labels at every pixel (random bumpy outlines with one or two holes)."""
+    from unittest import mock
+
+    from heoslice import regions
+
+    rng = np.random.default_rng(seed)
+    outer = rough_outline(int(rng.integers(0, 2 ** 31)), count=400, radius=9.0)
+    holes = [circle(float(rng.uniform(0.5, 2.0)), 120, (float(x), float(y)), clockwise=True)
+             for x, y in ((-3.5, rng.uniform(-2, 2)), (3.5, rng.uniform(-2, 2)))[: int(rng.integers(1, 3))]]
+    points, offsets, area, parent = layer(outer, *holes)
+    grid = grid_around(11.0)
+    mask = solid_mask(points, offsets, grid)
+    spec = RegionSpec(nozzle_mm=0.25, direction=direction)
+    culled = layer_regions(points, offsets, area, parent, mask, grid, spec)
+    never_far = regions._far_side
+    with mock.patch.object(regions, "_far_side", lambda *args: np.zeros_like(never_far(*args))):
+        full = layer_regions(points, offsets, area, parent, mask, grid, spec)
+    assert np.array_equal(culled.label, full.label)
