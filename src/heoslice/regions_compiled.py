@@ -2,8 +2,9 @@
 
 The grading step's inner loops have no fast numpy form: gathering, for each group of
 points, the ring edges within its own radius (a walk down a bounding-box hierarchy),
-the nearest of those edges to each point, the expansion of one plane per lattice
-cell to its pixels, and the per-cell fit test. As numpy passes they cost ~100 of a
+the nearest of those edges to each point, the expansion of one plane (or quadratic)
+per lattice cell to its pixels, the per-cell fit test, and the halftoning of a
+labelled layer into droplet masks. As numpy passes they cost ~100 of a
 ~15 MP layer's ~115 ms (``python benchmarks/bench_grading.py --stages``, before);
 compiled, the whole step is under 30 ms. Everything here takes and returns plain
 arrays; the geometry (which points, which radius, why it is enough) is argued in
