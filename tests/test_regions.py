@@ -238,16 +238,18 @@ def test_shallow_depth_with_many_bands_stays_exact(nozzle, count, depth):
 
 def test_layer_without_families_jets_the_base_material():
     """Solid pixels no family labels (here: a lone clockwise ring, a broken mesh) still get exactly one
-    material, the base one, in both the fast droplet path and render_graded."""
+    material, the base one, in the fast droplet path, render_graded and the numpy composition."""
     from heoslice.regions import droplet_planes
 
     points, offsets, area, parent = layer(circle(3.0, clockwise=True))
     grid = grid_around(3.5)
     mask = solid_mask(circle(3.0), np.array([0, 720]), grid)  # solid pixels, but the only loop is a hole
     spec = GradeSpec(RegionSpec(), make_function("linear"), DEFAULT_MATERIALS["M2"], None, DEFAULT_MATERIALS["M1"])
-    masks = render_graded(points, offsets, area, parent, None, mask, grid, spec, 0, channels=True).masks
+    masks = composed_masks(points, offsets, area, parent, None, mask, grid, spec, 0)
     planes = np.unpackbits(droplet_planes(points, offsets, area, parent, None, mask, grid, spec, 0), axis=2,
                            count=grid.width).astype(bool)
+    assert np.array_equal(render_graded(points, offsets, area, parent, None, mask, grid, spec, 0,
+                                        channels=True).masks, planes)
     assert mask.any()
     assert np.array_equal(masks, planes)
     assert np.array_equal(masks[0], mask) and not masks[1:].any()
@@ -425,12 +427,39 @@ def test_rings_apart_is_shapely_distance(seed):
     assert rings_apart(outer_set, holes_set) == pytest.approx(expected, abs=1e-5)
 
 
+def composed_masks(points, offsets, area, parent, shells, mask, grid, spec, layer, point_material=None):
+    """The droplet masks composed in numpy from their definition, an independent reference for the compiled
+    path: each labelled pixel's mix is its family's start mix at its lattice cell (paint_cells) moved by
+    its sub-region's fraction towards the target (eq. 1), halftoned by heoslice.halftone.droplet_masks;
+    solid pixels outside every family jet the base material."""
+    from heoslice.halftone import droplet_masks
+    from heoslice.regions import _family_starts, _target_fractions, paint_cells
+
+    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions)
+    materials = spec.channel_materials()
+    masks = np.zeros((len(materials), grid.height, grid.width), dtype=bool)
+    if regions.fields:
+        _, mixes = _family_starts(regions, spec, shells, None, point_material)
+        fraction = paint_cells(regions, mixes)
+        if spec.target is not None and spec.function is not None:
+            target_mix = np.zeros(len(materials), dtype=np.float32)
+            target_mix[materials.index(spec.target)] = 1.0
+            share = np.take(_target_fractions(regions, spec).astype(np.float32), regions.label)
+            fraction += share[..., None] * (target_mix - fraction)
+        b = regions.box
+        masks[:, b[0]:b[1], b[2]:b[3]] = droplet_masks(np.moveaxis(fraction, -1, 0), regions.label > 0, layer,
+                                                       origin=(b[0], b[2]))
+    masks[materials.index(spec.base)] |= mask & ~masks.any(axis=0)
+    return masks
+
+
 @pytest.mark.parametrize("per_vertex", [False, True])
 def test_droplet_planes_are_render_graded_masks_bit_for_bit(per_vertex):
     """The fast droplet path (one compiled pass, a per-label table where a family's start mix is uniform)
-    gives exactly render_graded's masks: an organ with a hole, an island in the hole and a lesion
-    shell of its own material, on two layers; with per-vertex material fractions every family's
-    start mix varies by cell, so the per-pixel branch is exercised too."""
+    gives exactly the masks composed in numpy from their definition (and render_graded's): an organ
+    with a hole, an island in the hole and a lesion shell of its own material, on two layers; with
+    per-vertex material fractions every family's start mix varies by cell, so the per-pixel branch
+    is exercised too."""
     from heoslice.regions import droplet_planes
 
     organ, hole, island, lesion = (circle(9.0), circle(3.0, 240, (-3.0, -2.0), clockwise=True),
@@ -444,12 +473,13 @@ def test_droplet_planes_are_render_graded_masks_bit_for_bit(per_vertex):
     shells = np.array([0, 0, 2, 3])
     point_material = np.random.default_rng(0).uniform(0, 1, len(points)) if per_vertex else None
     for index in (0, 7):
-        expected = render_graded(points, offsets, area, parent, shells, mask, grid, spec, index, channels=True,
-                                 point_material=point_material).masks
+        expected = composed_masks(points, offsets, area, parent, shells, mask, grid, spec, index, point_material)
         planes = droplet_planes(points, offsets, area, parent, shells, mask, grid, spec, index,
                                 point_material=point_material)
         got = np.unpackbits(planes, axis=2, count=grid.width).astype(bool)
         assert np.array_equal(got, expected)
+        assert np.array_equal(render_graded(points, offsets, area, parent, shells, mask, grid, spec, index,
+                                            channels=True, point_material=point_material).masks, got)
         assert np.array_equal(got.sum(axis=0), mask.astype(int))
         assert all(plane.any() for plane in got[[0, 2, 3]])
 
@@ -482,7 +512,7 @@ def test_family_smaller_than_a_cell_is_labelled_like_its_pixels(radius):
 
 def test_many_materials_halftone_like_render_graded():
     """With eight or more droplet materials (shells of their own, per-vertex fractions), the fast droplet
-    path still equals render_graded's masks bit for bit and partitions the solid pixels."""
+    path still equals the masks composed in numpy bit for bit and partitions the solid pixels."""
     from heoslice.regions import droplet_planes
 
     rings = [circle(9.0)] + [circle(0.8, 90, (3.0 * np.cos(a), 3.0 * np.sin(a))) for a in np.linspace(0, 6, 8)]
@@ -496,8 +526,7 @@ def test_many_materials_halftone_like_render_graded():
     assert len(spec.channel_materials()) >= 8
     point_material = np.random.default_rng(1).uniform(0, 1, len(points))
     for index in (0, 3):
-        expected = render_graded(points, offsets, area, parent, shells, mask, grid, spec, index, channels=True,
-                                 point_material=point_material).masks
+        expected = composed_masks(points, offsets, area, parent, shells, mask, grid, spec, index, point_material)
         got = np.unpackbits(droplet_planes(points, offsets, area, parent, shells, mask, grid, spec, index,
                                            point_material=point_material), axis=2, count=grid.width).astype(bool)
         assert np.array_equal(got, expected)

@@ -956,7 +956,6 @@ def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     """
     import time
 
-    from heoslice.halftone import droplet_masks
     from heoslice.rasterising import paint_contour
 
     started = time.process_time()
@@ -964,17 +963,15 @@ def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     grading_seconds = time.process_time() - started
     solid = int(np.count_nonzero(mask))
     image = np.zeros((grid.height, grid.width, 4), dtype=np.uint8)
-    materials = spec.channel_materials()
-    masks = np.zeros((len(materials), grid.height, grid.width), dtype=bool) if channels else None
-    base_channel = materials.index(spec.base)
+    masks = None
+    if channels:
+        planes = _droplet_planes_of(regions, spec, loop_shell, point_material, np.packbits(mask, axis=1), grid, layer)
+        masks = np.unpackbits(planes, axis=2, count=grid.width).view(bool)
     if not regions.fields:
-        if channels:
-            masks[base_channel] = mask
         return GradedLayer(image, solid, masks, grading_seconds)
 
     fractions = _target_fractions(regions, spec)
-    colors, mixes = _family_starts(regions, spec, loop_shell, point_colors, point_material)
-    position = {(m.name, m.color): i for i, m in enumerate(materials)}
+    colors, _ = _family_starts(regions, spec, loop_shell, point_colors, point_material)
     b = regions.box
     label = regions.label
     inside = label > 0
@@ -994,15 +991,6 @@ def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     view[stray] = (*spec.base.color, 255)
     if point_colors is not None:
         paint_contour(image, mask, points, point_colors, grid)
-    if channels:
-        fraction = paint_cells(regions, mixes)
-        if spec.target is not None:
-            target_mix = np.zeros(len(materials), dtype=np.float32)
-            target_mix[position[(spec.target.name, spec.target.color)]] = 1.0
-            fraction += np.take(fractions.astype(np.float32), label)[..., None] * (target_mix - fraction)
-        masks[:, b[0]:b[1], b[2]:b[3]] = droplet_masks(np.moveaxis(fraction, -1, 0), inside, layer, origin=(b[0], b[2]))
-        # solid pixels no family labels (a broken mesh), inside the box or not, jet the base material
-        masks[base_channel] |= mask & ~masks.any(axis=0)
     return GradedLayer(image, solid, masks, grading_seconds)
 
 
@@ -1011,19 +999,27 @@ def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, pa
                    point_material: np.ndarray | None = None, packed: np.ndarray | None = None) -> np.ndarray:
     """The droplet masks of one graded layer, bit-packed: (K, height, ceil(width / 8)) uint8, rows MSB first.
 
-    The same masks as ``render_graded(..., channels=True).masks`` (the same sub-regions,
-    mixes and ordered dither, :mod:`heoslice.halftone`), without the RGBA image and in one
-    compiled pass over the layer's pixels: the fast path of ``slice --channels``.
-    Arguments as :func:`render_graded`; mask (h, w) bool, ``packed`` the same mask bit-packed
-    (:func:`heoslice.rasterising.packed_mask`) when the caller has it.
+    Each solid pixel's mix is its family's start mix at its lattice cell moved by its
+    sub-region's fraction towards the target (eq. 1), halftoned by the ordered dither of
+    :mod:`heoslice.halftone` (in its float32 arithmetic), in one compiled pass over the
+    layer's pixels, without the RGBA image: the path of ``slice --channels`` (and of
+    ``render_graded(..., channels=True)``). Solid pixels outside every family jet the base
+    material. Arguments as :func:`render_graded`; mask (h, w) bool, ``packed`` the same mask
+    bit-packed (:func:`heoslice.rasterising.packed_mask`) when the caller has it.
     """
+    packed = np.packbits(mask, axis=1) if packed is None else packed
+    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions)
+    return _droplet_planes_of(regions, spec, loop_shell, point_material, packed, grid, layer)
+
+
+def _droplet_planes_of(regions: LayerRegions, spec: GradeSpec, loop_shell, point_material, packed: np.ndarray,
+                       grid: Grid, layer: int) -> np.ndarray:
+    """:func:`droplet_planes` of a layer whose sub-regions are already known."""
     from heoslice.halftone import layer_tile
     from heoslice.regions_compiled import droplet_bits
 
     materials = spec.channel_materials()
     planes = np.zeros((len(materials), grid.height, -(-grid.width // 8)), dtype=np.uint8)
-    packed = np.packbits(mask, axis=1) if packed is None else packed
-    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions)
     position = {(m.name, m.color): i for i, m in enumerate(materials)}
     base_channel = position[(spec.base.name, spec.base.color)]
     if not regions.fields:
