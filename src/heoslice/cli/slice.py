@@ -142,7 +142,8 @@ Graded interiors (the paper's Fig. 3b, 9b):
 @click.option("--materials", "materials_file", type=click.Path(path_type=Path), default=None,
               help="Materials file (TOML): names, display colours, channels, per-shell materials.")
 @click.option("--channels", is_flag=True,
-              help="Also write one 1-bit droplet mask per material per layer (halftoned fractions).")
+              help="Write one 1-bit droplet mask per material per layer (halftoned fractions); "
+                   "the layer image is then the 1-bit solid mask.")
 def slice_cmd(model: Path, output: Path | None, layer_height: float, dpi: str, canvas: str | None,
               margin: float, compression: str, scale: float, jobs: int, force: bool, as_json: bool,
               grade_kind: str | None, alpha: float | None, beta: float | None, lam: float | None,
