@@ -189,3 +189,105 @@ def test_edge_tree_keeps_every_edge_at_any_size(count):
     start, found = _candidates(np.array([50.0]), np.array([0.0]), np.array([100.0]), x0, y0, vx, vy, inv, boxes,
                                level_start)
     assert sorted(found.tolist()) == list(range(count))
+
+
+def random_halftone_case(rng, channels: int, height: int, width: int, label_dtype):
+    """A random droplet_bits input: solid pixels in runs, a label box that covers only part of them (offset,
+    clipped), a few families of random per-cell start mixes, and a choice table whose entries are a
+    random channel or -1 (per pixel mix) per label and level, row 0 the base channel."""
+    solid = np.repeat(rng.random((height, -(-width // 3))) < 0.7, 3, axis=1)[:, :width]
+    r0, c0 = int(rng.integers(0, height)), int(rng.integers(0, width))
+    rows, cols = int(rng.integers(0, height - r0 + 1)), int(rng.integers(0, width - c0 + 1))
+    families, per_family = int(rng.integers(1, 4)), int(rng.integers(1, 6))
+    count = 1 + families * per_family
+    label = np.repeat(rng.integers(0, count, (rows, -(-cols // 4))), 4, axis=1)[:, :cols].astype(label_dtype)
+    family_of_label = np.concatenate([[0], np.repeat(np.arange(families), per_family)]).astype(np.int64)
+    layout, mixes = [], []
+    for _ in range(families):
+        cell = int(rng.integers(1, 9))
+        grid_rows, grid_cols = -(-max(rows, 1) // cell), -(-max(cols, 1) // cell)
+        mix = rng.random((grid_rows * grid_cols, channels)) * (rng.random((grid_rows * grid_cols, channels)) < 0.8)
+        layout.append((r0, c0, cell, grid_cols, sum(m.size for m in mixes)))
+        mixes.append(mix.ravel())
+    base = int(rng.integers(0, channels))
+    table = rng.integers(0, channels, (count, 256)).astype(np.int8)
+    per_pixel = rng.random(count) < 0.4
+    table[per_pixel] = -1
+    table[rng.random((count, 256)) < 0.1] = -1
+    table[0] = base
+    return dict(solid=solid, label=label, origin=(r0, c0), family_of_label=family_of_label,
+                fraction=rng.random(count).astype(np.float32), layout=np.array(layout, dtype=np.int64),
+                mixes=np.concatenate(mixes).astype(np.float32),
+                target=np.eye(channels, dtype=np.float32)[int(rng.integers(0, channels))], base=base, table=table)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.sampled_from([1, 2, 3, 4, 5, 9]), st.integers(1, 40), st.integers(1, 70),
+       st.sampled_from([np.int16, np.int32]))
+def test_droplet_bits_is_the_per_pixel_choice_packed(seed, channels, height, width, label_dtype):
+    """droplet_bits equals np.packbits of the brute-force per-pixel choice: outside the label box and on
+    label 0 the base channel, else the table entry at the pixel's dither level, else (entry -1)
+    choose_materials of the pixel's eq. 1 mix; for any number of channels (one to nine, over one
+    pattern word or several), widths not a multiple of 8 or 16, label boxes covering part of the solid;
+    and it writes only the bytes that hold a solid pixel."""
+    from heoslice.halftone import choose_materials, layer_tile
+    from heoslice.regions_compiled import droplet_bits
+
+    rng = np.random.default_rng(seed)
+    case = random_halftone_case(rng, channels, height, width, label_dtype)
+    solid, label, (r0, c0), table = case["solid"], case["label"], case["origin"], case["table"]
+    layer = int(rng.integers(0, 1000))
+    tile = layer_tile(layer)
+    level = np.rint(tile * 256 - 0.5).astype(np.int64)
+    rows, cols = label.shape
+    r, c = np.indices(solid.shape)
+    inside = (r >= r0) & (r < r0 + rows) & (c >= c0) & (c < c0 + cols)
+    number = np.zeros(solid.shape, dtype=np.int64)
+    number[inside] = label[r[inside] - r0, c[inside] - c0]
+    entry = table[number, level[r % 16, c % 16]].astype(np.int64)
+    family = case["family_of_label"][number]
+    cell_row, cell_col, cell, per_row, start = np.moveaxis(case["layout"][family], -1, 0)
+    first = start + (((r - cell_row) // cell) * per_row + (c - cell_col) // cell) * channels
+    start_mix = case["mixes"][np.where(inside & (entry < 0), first, 0)[None] + np.arange(channels)[:, None, None]]
+    f = case["fraction"][number][None]
+    mix = start_mix + f * (case["target"][:, None, None] - start_mix)
+    chosen = np.where(inside & (entry >= 0), entry, case["base"])
+    chosen = np.where(inside & (entry < 0), choose_materials(mix, solid, layer), chosen)
+    expected = np.packbits((chosen[None] == np.arange(channels)[:, None, None]) & solid[None], axis=2)
+
+    args = (label, (r0, c0), np.packbits(solid, axis=1), case["family_of_label"], case["fraction"], case["layout"],
+            case["mixes"], case["target"], tile, case["base"])
+    got = droplet_bits(*args, np.zeros_like(expected), table)
+    assert np.array_equal(got, expected)
+    junk = rng.integers(0, 256, expected.shape, dtype=np.uint8)
+    got = droplet_bits(*args, junk.copy(), table)
+    written = np.packbits(solid, axis=1).astype(bool)[None].repeat(channels, axis=0)
+    assert np.array_equal(got[written], expected[written])
+    assert np.array_equal(got[~written], junk[~written])
+
+
+@pytest.mark.parametrize("size", [1, 2, 4, 8, 16, 32, 64])
+def test_droplet_bits_follows_a_dither_tile_of_any_size(size):
+    """With an ordered-dither tile of any power-of-two size n (smaller than the 16-pixel pattern block,
+    or larger: several blocks per tile row), each labelled pixel jets table[label, level] at its level
+    bayer[row % n, col % n] (levels (k + 1/2) / n^2), exactly as a per-pixel look-up."""
+    from heoslice.halftone import bayer_matrix
+    from heoslice.regions_compiled import droplet_bits
+
+    rng = np.random.default_rng(size)
+    channels, height, width = 3, 70, 133
+    solid = rng.random((height, width)) < 0.9
+    label = rng.integers(0, 20, (height - 5, width - 9)).astype(np.int16)
+    table = rng.integers(0, channels, (20, size * size)).astype(np.int8)
+    table[0] = 1
+    bayer = bayer_matrix(size)
+    r, c = np.indices(solid.shape)
+    number = np.zeros(solid.shape, dtype=np.int64)
+    number[2:2 + label.shape[0], 7:7 + label.shape[1]] = label
+    chosen = table[number, bayer[r % size, c % size]]
+    expected = np.packbits((chosen[None] == np.arange(channels)[:, None, None]) & solid[None], axis=2)
+    planes = np.zeros_like(expected)
+    got = droplet_bits(label, (2, 7), np.packbits(solid, axis=1), np.zeros(20, np.int64), np.zeros(20),
+                       np.zeros((1, 5), np.int64), np.zeros(channels), np.zeros(channels),
+                       (bayer + 0.5) / (size * size), 1, planes, table)
+    assert np.array_equal(got, expected)

@@ -209,6 +209,13 @@ class Lattice:
                 self.y0 - (np.arange(self.rows) + 0.5) * self.dy)
 
 
+def _padded(lattice: Lattice) -> Lattice:
+    """The lattice grown by one cell on every side (cell (i, j) of ``lattice`` is its cell (i + 1, j + 1))."""
+    return Lattice(row0=lattice.row0 - lattice.cell, col0=lattice.col0 - lattice.cell, cell=lattice.cell,
+                   rows=lattice.rows + 2, cols=lattice.cols + 2, x0=lattice.x0 - lattice.dx,
+                   y0=lattice.y0 + lattice.dy, dx=lattice.dx, dy=lattice.dy)
+
+
 def lattice_for(box: tuple[int, int, int, int], grid: Grid) -> Lattice:
     """A lattice covering pixel rows box[0]:box[1] and columns box[2]:box[3] of ``grid``."""
     cell = int(np.clip(round(_CELL_MM / max(grid.px, grid.py)), 4, 16))
@@ -416,29 +423,41 @@ def _band_coordinate(layout: FamilyLayout, start: tuple, ends: list[tuple], grad
     """s = r * N_R (and its gradient) from (signed distance, gradient) to the starting rings and each ending ring.
 
     One ring set: s = d N_R / L_S. Several: r = 1 - w_start of eq. 10, which divided
-    through by the product of all d is r = u / (1 + u) with u = d_start * sum_end 1 / d_k:
-    smooth across the starting ring (u = 0 there, negative outside), so one plane per
-    cell also fits cells the contour crosses. Distances (...) mm, gradients (..., 2) or
-    None when ``gradients`` is False.
+    through by the product of all d is r = u / (1 + u), u = d_start * sum_end 1 / d_k.
+    Taken with the ending ring m nearest in |d| as r = d_start A / (d_m + d_start A),
+    A = 1 + d_m * sum_{k != m} 1 / d_k, it has no pole on any ring: with signed distances
+    (< 0 off the family's side) s continues smoothly across the rings, so the lattice
+    cells a contour crosses are fitted and checked like any other. Where the continuation
+    passes a pole (d_m + d_start A <= 0, deep off the family's side) s is NaN. Distances
+    (...) mm, gradients (..., 2) or None when ``gradients`` is False.
     """
     d0, g0 = start
     if not layout.end:
         scale = layout.count / layout.length_mm
         return d0 * scale, (g0 * scale if gradients else None)
-    tiny = 1e-9
-    total = np.zeros_like(d0)
-    for d, _ in ends:
-        total = total + 1.0 / np.maximum(d, tiny)
-    u = d0 * total
-    denominator = np.maximum(1.0 + u, tiny)
-    s = u / denominator * layout.count
-    if not gradients:
-        return s, None
-    grad_total = np.zeros_like(g0)
-    for d, g in ends:
-        grad_total = grad_total - g * (1.0 / np.maximum(d, tiny) ** 2)[..., None]
-    grad_u = g0 * total[..., None] + d0[..., None] * grad_total
-    return s, grad_u * (layout.count / denominator ** 2)[..., None]
+    tiny = 1e-12
+    d = np.stack([dk for dk, _ in ends])
+    nearest = np.argmin(np.abs(d), axis=0)[None]
+    dm = np.take_along_axis(d, nearest, axis=0)[0]
+    other = np.arange(len(ends)).reshape((-1,) + (1,) * d0.ndim) != nearest
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = np.where(other, 1.0 / np.where(np.abs(d) < tiny, tiny, d), 0.0)
+        rest = inverse.sum(axis=0)
+        a = 1.0 + dm * rest
+        numerator = d0 * a
+        denominator = dm + numerator
+        usable = denominator > 0
+        s = np.where(usable, numerator / np.where(usable, denominator, 1.0), np.nan) * layout.count
+        if not gradients:
+            return s, None
+        gm = np.take_along_axis(np.stack([g for _, g in ends]), nearest[..., None], axis=0)[0]
+        grad_rest = -sum(np.where(other[k][..., None], g * (inverse[k] ** 2)[..., None], 0.0)
+                         for k, (_, g) in enumerate(ends))
+        grad_a = gm * rest[..., None] + dm[..., None] * grad_rest
+        grad_numerator = g0 * a[..., None] + d0[..., None] * grad_a
+        scale = np.where(usable, layout.count / np.where(usable, denominator, 1.0) ** 2, np.nan)
+        grad = (dm[..., None] * grad_numerator - numerator[..., None] * gm) * scale[..., None]
+    return s, grad
 
 
 # ---------------------------------------------------------------------------------------------
@@ -568,9 +587,11 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
 
         return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
                            lattice=lattice, start_edges=start.edges, nearest=nearest)
-    start_bounds = block_bounds(start.edges, lattice)
-    start_inside = _inside_loops(points, offsets, start.loops, lattice)
-    far = [_far_side(start, start_inside, start_bounds, lattice)]
+    # measured on the lattice padded by a cell, so that every cell of the family has its eight neighbours
+    padded = _padded(lattice)
+    start_bounds = block_bounds(start.edges, padded)
+    start_inside = _inside_loops(points, offsets, start.loops, padded)
+    far = [_far_side(start, start_inside, start_bounds, padded)]
     inradius = None
     if not family.holes and spec.depth_mm is None:
         import shapely
@@ -582,42 +603,45 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
         apart = rings_apart(rings((family.outer,), True), rings(family.holes, False))
     layout = family_layout(family, spec, inradius, apart)
     ends = [rings(loops, outward) for loops in layout.end]
-    ends_bounds = [block_bounds(rings.edges, lattice) for rings in ends]
-    ends_inside = [_inside_loops(points, offsets, rings.loops, lattice) for rings in ends]
-    far += [_far_side(*args, lattice) for args in zip(ends, ends_inside, ends_bounds)]
+    ends_bounds = [block_bounds(rings.edges, padded) for rings in ends]
+    ends_inside = [_inside_loops(points, offsets, rings.loops, padded) for rings in ends]
+    far += [_far_side(*args, padded) for args in zip(ends, ends_inside, ends_bounds)]
     wanted = ~np.logical_or.reduce(far)
-    start_at = _signed_centres(start, start_inside, lattice, start_bounds, wanted)
-    ends_at = [_signed_centres(rings, inside, lattice, bounds, wanted)
+    start_at = _signed_centres(start, start_inside, padded, start_bounds, wanted)
+    ends_at = [_signed_centres(rings, inside, padded, bounds, wanted)
                for rings, inside, bounds in zip(ends, ends_inside, ends_bounds)]
     s, grad = _band_coordinate(layout, start_at[:2], [at[:2] for at in ends_at])
 
     # a cell may hold solid pixels when its centre is within half a diagonal of the family's side
     reach = -0.5 * np.hypot(lattice.dx, lattice.dy)
     touched = np.logical_and.reduce([start_at[0] >= reach] + [at[0] >= reach for at in ends_at])
-    solid_side = np.logical_and.reduce([start_at[0] >= 0] + [at[0] >= 0 for at in ends_at])
+    touched[[0, -1], :] = touched[:, [0, -1]] = False
     # deep enough that every pixel of the cell is in the last sub-region (s >= N_R - 1 throughout)
     half_diagonal = 0.5 * np.hypot(lattice.dx, lattice.dy)
     beyond = (s - np.hypot(grad[..., 0], grad[..., 1]) * half_diagonal >= layout.count) | ~touched
-    # eq. 10's field bends everywhere, so its cells get a quadratic where it fits better than a plane;
-    # one ring's distance field bends only at its medial axis, where a quadratic does not help
-    hessian = _hessian(grad, lattice) if layout.end else None
-    refine = _refine(s, grad, solid_side, touched & ~beyond, lattice, grid, layout.count, hessian)
+    # a cell gets a quadratic where it fits better than a plane: eq. 10's field bends everywhere, one ring's
+    # distance field around its medial axis (the centre of a disc)
+    hessian = _hessian(grad, padded)
+    candidate = touched & ~beyond
+    refine = _refine(s, grad, candidate, padded, grid, layout.count, hessian)
+    inner = (slice(1, -1), slice(1, -1))
+    s, grad, hessian, beyond, candidate, refine = (a[inner] for a in (s, grad, hessian, beyond, candidate, refine))
     row0, row1, col0, col1 = box
     index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, (row1 - row0, col1 - col0), mask, label_base)
-    if hessian is not None:
-        curved = np.nonzero(hessian.any(axis=-1) & ~beyond & ~refine)
-        if len(curved[0]):
-            from heoslice.regions_compiled import curve_cells
+    curved = np.nonzero(hessian.any(axis=-1) & candidate & ~refine)
+    if len(curved[0]):
+        from heoslice.regions_compiled import curve_cells
 
-            curve_cells(index, curved[0], curved[1], lattice.cell, s, grad, hessian, grid.px, grid.py, layout.count,
-                        mask, (lattice.row0, lattice.col0), label_base)
+        curve_cells(index, curved[0], curved[1], lattice.cell, s, grad, hessian, grid.px, grid.py, layout.count,
+                    mask, (lattice.row0, lattice.col0), label_base)
     if refine.any():
         cells = np.nonzero(refine)
         _refine_cells(index, lattice, cells, grid, layout,
-                      [(start, np.abs(start_at[0][cells]))]
-                      + [(rings, np.abs(at[0][cells])) for rings, at in zip(ends, ends_at)], mask, label_base)
+                      [(start, np.abs(start_at[0][inner][cells]))]
+                      + [(rings, np.abs(at[0][inner][cells])) for rings, at in zip(ends, ends_at)], mask, label_base)
+    foot, edge = start_at[2][:, 1:-1, 1:-1], start_at[3][inner]
     return FamilyField(box=box, index=index, layout=layout, lattice=lattice,
-                       start_edges=start.edges, nearest=lambda: (start_at[2], start_at[3]))
+                       start_edges=start.edges, nearest=lambda: (foot, edge))
 
 
 def _hessian(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
@@ -635,26 +659,30 @@ def _hessian(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
     return hessian
 
 
-def _refine(s: np.ndarray, grad: np.ndarray, side: np.ndarray, candidate: np.ndarray, lattice: Lattice,
-            grid: Grid, count: int, hessian: np.ndarray | None = None) -> np.ndarray:
+def _refine(s: np.ndarray, grad: np.ndarray, candidate: np.ndarray, lattice: Lattice, grid: Grid, count: int,
+            hessian: np.ndarray | None = None) -> np.ndarray:
     """(rows, cols) bool: candidate cells where one plane (or, with a ``hessian``, one quadratic:
     whichever fits better; the Hessian is zeroed where the plane does) does not place the
     sub-region boundaries within TOLERANCE_PX pixels, so they are evaluated per pixel.
 
-    A plane that misses s at a neighbour's centre (on the family's side) by more than
-    twice TOLERANCE_PX pixels at the local slope misses it at the shared border by more
-    than TOLERANCE_PX, which matters only if a boundary (an integer of s) can lie in the
-    cell: not where the plane's range over the cell, widened by that miss, holds one
-    sub-region (where eq. 10's field flattens out, a tiny slope makes every miss "large").
-    Where the field's direction turns between a cell and a neighbour by an angle a, a
-    plane misplaces a boundary by about cell * sin(a) / 2 pixels, which matters next to
-    the family's border (elsewhere the misfit test sees it).
+    A plane that misses s at a neighbour's centre by more than twice TOLERANCE_PX pixels
+    at the local slope misses it at the shared border by more than TOLERANCE_PX, which
+    matters only if a boundary (an integer of s) can lie in the cell: not where the
+    plane's range over the cell, widened by that miss, holds one sub-region (where eq.
+    10's field flattens out, a tiny slope makes every miss "large"). Neighbours off the
+    family's side count too: s continues smoothly across the rings (signed distances,
+    :func:`_band_coordinate`), and where that continuation bends (outside a corner, past
+    another part of the ring) it only makes the test stricter. Where some neighbour has no
+    s (past a pole of eq. 10's continuation) and the field's direction turns towards a
+    neighbour by an angle a, a plane misplaces a boundary by about cell * sin(a) / 2
+    pixels, which the misfit test may not see: such cells are refined too.
     """
     from heoslice.regions_compiled import refine_flags
 
     tolerance = 2.0 * TOLERANCE_PX * min(grid.px, grid.py)
     limit = np.sqrt(max(0.0, 1.0 - (2.0 * TOLERANCE_PX / lattice.cell) ** 2))
-    return refine_flags(s, grad, side, candidate, lattice.dx, lattice.dy, tolerance, limit, count, hessian)
+    known = np.isfinite(s) & np.isfinite(grad).all(axis=-1)
+    return refine_flags(s, grad, known, candidate, lattice.dx, lattice.dy, tolerance, limit, count, hessian)
 
 
 def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid, flat: np.ndarray, count: int,
@@ -664,9 +692,10 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
     value throughout. With the layer's ``mask``: k + label_base on solid pixels, else 0."""
     from heoslice.regions_compiled import expand_planes
 
-    s = np.where(flat, np.clip(s, -1.0, count - 0.5), s)
-    gx = np.where(flat, 0.0, grad[..., 0])
-    gy = np.where(flat, 0.0, grad[..., 1])
+    known = np.isfinite(s) & np.isfinite(grad).all(axis=-1)
+    s = np.where(known, np.where(flat, np.clip(s, -1.0, count - 0.5), s), 0.0)
+    gx = np.where(flat | ~known, 0.0, grad[..., 0])
+    gy = np.where(flat | ~known, 0.0, grad[..., 1])
     out = np.empty(shape, dtype=np.int16 if count + label_base < 32000 else np.int32)
     return expand_planes(s, gx, gy, lattice.cell, grid.px, grid.py, count, out, mask,
                          (lattice.row0, lattice.col0), label_base)
