@@ -436,27 +436,31 @@ def _band_coordinate(layout: FamilyLayout, start: tuple, ends: list[tuple], grad
         scale = layout.count / layout.length_mm
         return d0 * scale, (g0 * scale if gradients else None)
     tiny = 1e-12
-    d = np.stack([dk for dk, _ in ends])
-    nearest = np.argmin(np.abs(d), axis=0)[None]
-    dm = np.take_along_axis(d, nearest, axis=0)[0]
-    other = np.arange(len(ends)).reshape((-1,) + (1,) * d0.ndim) != nearest
+    # the nearest ending ring m so far, and sum_{k != m} 1 / d_k (with its gradient) over the others
+    dm, gm = ends[0]
+    rest = np.zeros_like(d0)
+    grad_rest = np.zeros_like(g0) if gradients else None
     with np.errstate(divide="ignore", invalid="ignore"):
-        inverse = np.where(other, 1.0 / np.where(np.abs(d) < tiny, tiny, d), 0.0)
-        rest = inverse.sum(axis=0)
+        for d, g in ends[1:]:
+            closer = np.abs(d) < np.abs(dm)
+            farther = np.where(closer, dm, d)
+            inverse = 1.0 / np.where(np.abs(farther) < tiny, tiny, farther)
+            rest = rest + inverse
+            dm = np.where(closer, d, dm)
+            if gradients:
+                grad_rest = grad_rest - np.where(closer[..., None], gm, g) * (inverse * inverse)[..., None]
+                gm = np.where(closer[..., None], g, gm)
         a = 1.0 + dm * rest
         numerator = d0 * a
         denominator = dm + numerator
         usable = denominator > 0
-        s = np.where(usable, numerator / np.where(usable, denominator, 1.0), np.nan) * layout.count
+        scale = np.where(usable, 1.0 / np.where(usable, denominator, 1.0), np.nan) * layout.count
+        s = numerator * scale
         if not gradients:
             return s, None
-        gm = np.take_along_axis(np.stack([g for _, g in ends]), nearest[..., None], axis=0)[0]
-        grad_rest = -sum(np.where(other[k][..., None], g * (inverse[k] ** 2)[..., None], 0.0)
-                         for k, (_, g) in enumerate(ends))
         grad_a = gm * rest[..., None] + dm[..., None] * grad_rest
         grad_numerator = g0 * a[..., None] + d0[..., None] * grad_a
-        scale = np.where(usable, layout.count / np.where(usable, denominator, 1.0) ** 2, np.nan)
-        grad = (dm[..., None] * grad_numerator - numerator[..., None] * gm) * scale[..., None]
+        grad = (dm[..., None] * grad_numerator - numerator[..., None] * gm) * (scale * scale / layout.count)[..., None]
     return s, grad
 
 
@@ -623,12 +627,17 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     # distance field around its medial axis (the centre of a disc)
     hessian = _hessian(grad, padded)
     candidate = touched & ~beyond
-    refine = _refine(s, grad, candidate, padded, grid, layout.count, hessian)
+    known = np.isfinite(s) & np.isfinite(grad[..., 0]) & np.isfinite(grad[..., 1])
+    refine = _refine(s, grad, known, candidate, padded, grid, layout.count, hessian)
     inner = (slice(1, -1), slice(1, -1))
-    s, grad, hessian, beyond, candidate, refine = (a[inner] for a in (s, grad, hessian, beyond, candidate, refine))
+    s, grad, hessian, beyond, candidate, refine, known = (
+        a[inner] for a in (s, grad, hessian, beyond, candidate, refine, known))
+    # cells without s are refined or hold no solid pixel: expanded from 0
+    s, grad = np.where(known, s, 0.0), np.where(known[..., None], grad, 0.0)
     row0, row1, col0, col1 = box
     index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, (row1 - row0, col1 - col0), mask, label_base)
-    curved = np.nonzero(hessian.any(axis=-1) & candidate & ~refine)
+    curved = np.nonzero(((hessian[..., 0] != 0) | (hessian[..., 1] != 0) | (hessian[..., 2] != 0))
+                        & candidate & ~refine)
     if len(curved[0]):
         from heoslice.regions_compiled import curve_cells
 
@@ -659,8 +668,8 @@ def _hessian(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
     return hessian
 
 
-def _refine(s: np.ndarray, grad: np.ndarray, candidate: np.ndarray, lattice: Lattice, grid: Grid, count: int,
-            hessian: np.ndarray | None = None) -> np.ndarray:
+def _refine(s: np.ndarray, grad: np.ndarray, known: np.ndarray, candidate: np.ndarray, lattice: Lattice, grid: Grid,
+            count: int, hessian: np.ndarray | None = None) -> np.ndarray:
     """(rows, cols) bool: candidate cells where one plane (or, with a ``hessian``, one quadratic:
     whichever fits better; the Hessian is zeroed where the plane does) does not place the
     sub-region boundaries within TOLERANCE_PX pixels, so they are evaluated per pixel.
@@ -672,8 +681,8 @@ def _refine(s: np.ndarray, grad: np.ndarray, candidate: np.ndarray, lattice: Lat
     10's field flattens out, a tiny slope makes every miss "large"). Neighbours off the
     family's side count too: s continues smoothly across the rings (signed distances,
     :func:`_band_coordinate`), and where that continuation bends (outside a corner, past
-    another part of the ring) it only makes the test stricter. Where some neighbour has no
-    s (past a pole of eq. 10's continuation) and the field's direction turns towards a
+    another part of the ring) it only makes the test stricter. Where some neighbour's s is
+    not ``known`` (past a pole of eq. 10's continuation) and the field's direction turns towards a
     neighbour by an angle a, a plane misplaces a boundary by about cell * sin(a) / 2
     pixels, which the misfit test may not see: such cells are refined too.
     """
@@ -681,7 +690,6 @@ def _refine(s: np.ndarray, grad: np.ndarray, candidate: np.ndarray, lattice: Lat
 
     tolerance = 2.0 * TOLERANCE_PX * min(grid.px, grid.py)
     limit = np.sqrt(max(0.0, 1.0 - (2.0 * TOLERANCE_PX / lattice.cell) ** 2))
-    known = np.isfinite(s) & np.isfinite(grad).all(axis=-1)
     return refine_flags(s, grad, known, candidate, lattice.dx, lattice.dy, tolerance, limit, count, hessian)
 
 
@@ -692,10 +700,9 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
     value throughout. With the layer's ``mask``: k + label_base on solid pixels, else 0."""
     from heoslice.regions_compiled import expand_planes
 
-    known = np.isfinite(s) & np.isfinite(grad).all(axis=-1)
-    s = np.where(known, np.where(flat, np.clip(s, -1.0, count - 0.5), s), 0.0)
-    gx = np.where(flat | ~known, 0.0, grad[..., 0])
-    gy = np.where(flat | ~known, 0.0, grad[..., 1])
+    s = np.where(flat, np.clip(s, -1.0, count - 0.5), s)
+    gx = np.where(flat, 0.0, grad[..., 0])
+    gy = np.where(flat, 0.0, grad[..., 1])
     out = np.empty(shape, dtype=np.int16 if count + label_base < 32000 else np.int32)
     return expand_planes(s, gx, gy, lattice.cell, grid.px, grid.py, count, out, mask,
                          (lattice.row0, lattice.col0), label_base)
