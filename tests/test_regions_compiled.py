@@ -151,7 +151,7 @@ def test_curve_cells_is_the_quadratic_formula(seed, masked):
     cell, rows, cols, count, base = 6, 4, 5, 30, 3
     s = rng.uniform(-2, count + 2, (rows, cols))
     grad = rng.uniform(-4, 4, (rows, cols, 2))
-    hessian = rng.uniform(-9, 9, (rows, cols, 3))
+    hessian = rng.uniform(-9, 9, (3, rows, cols))
     px = py = 0.05
     index = np.full((rows * cell - 2, cols * cell - 1), -7, dtype=np.int32)
     mask = rng.random(index.shape) < 0.6 if masked else None
@@ -161,8 +161,8 @@ def test_curve_cells_is_the_quadratic_formula(seed, masked):
     i, j = r // cell, c // cell
     x = (c - j * cell + 0.5 - cell / 2) * px
     y = -(r - i * cell + 0.5 - cell / 2) * py
-    g, h = grad[i, j], hessian[i, j]
-    value = s[i, j] + g[..., 0] * x + g[..., 1] * y + 0.5 * (h[..., 0] * x * x + h[..., 2] * y * y) + h[..., 1] * x * y
+    g, h = grad[i, j], hessian[:, i, j]
+    value = s[i, j] + g[..., 0] * x + g[..., 1] * y + 0.5 * (h[0] * x * x + h[2] * y * y) + h[1] * x * y
     expected = np.clip(np.floor(value) + 1, 1, count)
     if masked:
         expected = np.where(mask, expected + base, 0)

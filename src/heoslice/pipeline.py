@@ -23,7 +23,7 @@ from heoslice import __version__
 from heoslice.contours import Contours, build_contours
 from heoslice.errors import InputError
 from heoslice.loading import Mesh
-from heoslice.rasterising import Grid, grid_for, packed_mask, render_layer
+from heoslice.rasterising import Grid, count_solid, grid_for, packed_mask, render_layer
 from heoslice.regions import GradeSpec, droplet_planes, render_graded
 from heoslice.slicing import face_z_range, interpolate_at, plane_chunks, plane_heights, slice_planes
 from heoslice.stack import (
@@ -169,10 +169,10 @@ def _render_graded_and_write(job: LayerJob) -> tuple:
         rendered = time.perf_counter()
         width = job.grid.width
         data = encode_bilevel_tiff(packed, width, job.dpi, job.compression)
-        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression), int(np.bitwise_count(plane).sum()))
+        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression), count_solid(plane))
                   for path, plane in zip(graded.channel_paths, planes)]
         encoded = time.perf_counter()
-        solid = int(np.bitwise_count(packed).sum())
+        solid = count_solid(packed)
         digest = write_file(job.path, data)
         channels = tuple((path.name, write_file(path, blob), count) for path, blob, count in pieces)
         return job.index, digest, solid, rendered - started, encoded - rendered, channels

@@ -630,14 +630,14 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     known = np.isfinite(s) & np.isfinite(grad[..., 0]) & np.isfinite(grad[..., 1])
     refine = _refine(s, grad, known, candidate, padded, grid, layout.count, hessian)
     inner = (slice(1, -1), slice(1, -1))
-    s, grad, hessian, beyond, candidate, refine, known = (
-        a[inner] for a in (s, grad, hessian, beyond, candidate, refine, known))
-    # cells without s are refined or hold no solid pixel: expanded from 0
-    s, grad = np.where(known, s, 0.0), np.where(known[..., None], grad, 0.0)
+    s, grad, beyond, candidate, refine, known = (a[inner] for a in (s, grad, beyond, candidate, refine, known))
+    hessian = hessian[:, 1:-1, 1:-1]
+    if not known.all():
+        # cells without s are refined or hold no solid pixel: expanded from 0
+        s, grad = np.where(known, s, 0.0), np.where(known[..., None], grad, 0.0)
     row0, row1, col0, col1 = box
     index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, (row1 - row0, col1 - col0), mask, label_base)
-    curved = np.nonzero(((hessian[..., 0] != 0) | (hessian[..., 1] != 0) | (hessian[..., 2] != 0))
-                        & candidate & ~refine)
+    curved = np.nonzero((hessian != 0).any(axis=0) & candidate & ~refine)
     if len(curved[0]):
         from heoslice.regions_compiled import curve_cells
 
@@ -654,17 +654,17 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
 
 
 def _hessian(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
-    """(rows, cols, 3) s_xx, s_xy, s_yy per mm^2 at the cell centres: central differences of the exact
+    """(3, rows, cols) s_xx, s_xy, s_yy per mm^2 at the cell centres: central differences of the exact
     gradients ((rows, cols, 2) per mm, y up) of neighbouring centres (one-sided at the border;
     zero along an axis the lattice is one cell wide in)."""
-    hessian = np.zeros(grad.shape[:2] + (3,))
+    hessian = np.zeros((3,) + grad.shape[:2])
     if grad.shape[0] > 1:
-        hessian[..., 2] = np.gradient(grad[..., 1], -lattice.dy, axis=0)
-        hessian[..., 1] = np.gradient(grad[..., 0], -lattice.dy, axis=0)
+        hessian[2] = np.gradient(grad[..., 1], -lattice.dy, axis=0)
+        hessian[1] = np.gradient(grad[..., 0], -lattice.dy, axis=0)
     if grad.shape[1] > 1:
-        hessian[..., 0] = np.gradient(grad[..., 0], lattice.dx, axis=1)
+        hessian[0] = np.gradient(grad[..., 0], lattice.dx, axis=1)
         across = np.gradient(grad[..., 1], lattice.dx, axis=1)
-        hessian[..., 1] = 0.5 * (hessian[..., 1] + across) if grad.shape[0] > 1 else across
+        hessian[1] = 0.5 * (hessian[1] + across) if grad.shape[0] > 1 else across
     return hessian
 
 
@@ -932,13 +932,14 @@ def _family_sources(spec: GradeSpec, shell, point_material):
     return None, point_material is not None and spec.second is not None
 
 
-def _family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_colors, point_material):
+def _family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_colors, point_material,
+                   colors: bool = True):
     """Per family, what its interior starts from at each lattice cell (its contour's material, or
-    its shell's, or --from): colour ((cells_r, cells_c, 3) int16 0..255) and the mix of the
-    K channel materials ((cells_r, cells_c, K) float, summing to 1)."""
+    its shell's, or --from): colour ((cells_r, cells_c, 3) int16 0..255; None without ``colors``)
+    and the mix of the K channel materials ((cells_r, cells_c, K) float, summing to 1)."""
     materials = spec.channel_materials()
     position = {(m.name, m.color): i for i, m in enumerate(materials)}
-    colors, mixes = [], []
+    starts, mixes = [], []
     for family, field in zip(regions.families, regions.fields):
         shell = None if loop_shell is None else loop_shell[family.outer]
         own, use_fraction = _family_sources(spec, shell, point_material)
@@ -952,7 +953,7 @@ def _family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_col
         mix = np.zeros((*cells, len(materials)))
         if start is not None:
             mix[..., position[(start.name, start.color)]] = 1.0
-            color = np.broadcast_to(np.asarray(start.color, dtype=np.float64), (*cells, 3))
+            color = np.asarray(start.color, dtype=np.float64)
         elif use_fraction:
             m = np.clip(contour_values(field, point_material), 0.0, 1.0)
             mix[..., position[(spec.base.name, spec.base.color)]] = 1.0 - m
@@ -961,12 +962,15 @@ def _family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_col
                      + np.asarray(spec.second.color, dtype=np.float64) * m[..., None])
         else:
             mix[..., position[(spec.base.name, spec.base.color)]] = 1.0
-            color = np.broadcast_to(np.asarray(spec.base.color, dtype=np.float64), (*cells, 3))
+            color = np.asarray(spec.base.color, dtype=np.float64)
+        mixes.append(mix)
+        if not colors:
+            starts.append(None)
+            continue
         if point_colors is not None and start is None:
             color = contour_values(field, point_colors)
-        colors.append(np.clip(np.rint(color), 0, 255).astype(np.int16))
-        mixes.append(mix)
-    return colors, mixes
+        starts.append(np.broadcast_to(np.clip(np.rint(color), 0, 255).astype(np.int16), (*cells, 3)))
+    return starts, mixes
 
 
 def _target_fractions(regions: LayerRegions, spec: GradeSpec) -> np.ndarray:
@@ -1062,7 +1066,7 @@ def _droplet_planes_of(regions: LayerRegions, spec: GradeSpec, loop_shell, point
         return droplet_bits(np.zeros((0, 0), np.int16), (0, 0), packed, np.zeros(1, np.int64), np.zeros(1),
                             np.zeros((0, 5), np.int64), np.zeros(0), np.zeros(len(materials)),
                             layer_tile(layer), base_channel, planes, np.full((1, 256), base_channel, np.int8))
-    _, mixes = _family_starts(regions, spec, loop_shell, None, point_material)
+    _, mixes = _family_starts(regions, spec, loop_shell, None, point_material, colors=False)
     target_mix = np.zeros(len(materials))
     if spec.target is not None and spec.function is not None:
         target_mix[position[(spec.target.name, spec.target.color)]] = 1.0

@@ -499,16 +499,15 @@ def refine_flags(s: np.ndarray, grad: np.ndarray, known: np.ndarray, candidate: 
                  tolerance: float, limit: float, count: int, hessian: np.ndarray | None = None) -> np.ndarray:
     """(rows, cols) bool: lattice cells whose plane (and quadratic, with a ``hessian``) does not fit
     (see :func:`_refine_flags`); s (rows, cols), grad (rows, cols, 2) per mm, known/candidate
-    (rows, cols) bool, dx/dy the cell (mm), count N_R; hessian (rows, cols, 3) s_xx, s_xy, s_yy
+    (rows, cols) bool, dx/dy the cell (mm), count N_R; hessian (3, rows, cols) s_xx, s_xy, s_yy
     per mm^2, zeroed in place where the plane fits at least as well."""
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
-    parts = [f64(hessian[..., k]) for k in range(3)] if hessian is not None else [np.zeros((0, 0))] * 3
-    out = _refine_flags(f64(s), f64(grad[..., 0]), f64(grad[..., 1]), *parts, np.ascontiguousarray(known),
-                        np.ascontiguousarray(candidate), float(dx), float(dy), float(tolerance), float(limit),
-                        float(count))
-    if hessian is not None:
-        for k in range(3):
-            hessian[..., k] = parts[k]
+    parts = f64(hessian) if hessian is not None else np.zeros((3, 0, 0))
+    out = _refine_flags(f64(s), f64(grad[..., 0]), f64(grad[..., 1]), parts[0], parts[1], parts[2],
+                        np.ascontiguousarray(known), np.ascontiguousarray(candidate), float(dx), float(dy),
+                        float(tolerance), float(limit), float(count))
+    if hessian is not None and parts is not hessian:
+        hessian[...] = parts
     return out
 
 
@@ -571,12 +570,12 @@ def curve_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, s:
                 hessian: np.ndarray, px: float, py: float, count: int, mask: np.ndarray | None = None,
                 origin: tuple[int, int] = (0, 0), base: int = 0) -> np.ndarray:
     """Sub-region k of every pixel of lattice cells (ci, cj) ((n,) int) from the cell's quadratic
-    s + g.d + d.H.d / 2 (s (rows, cols), grad (rows, cols, 2) per mm, hessian (rows, cols, 3)
+    s + g.d + d.H.d / 2 (s (rows, cols), grad (rows, cols, 2) per mm, hessian (3, rows, cols)
     s_xx, s_xy, s_yy per mm^2; d the pixel's offset from the cell centre, y up), in place;
     ``mask``, ``origin`` and ``base`` as in :func:`expand_planes`."""
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
     return _curve_cells(index, np.ascontiguousarray(ci, dtype=np.int64), np.ascontiguousarray(cj, dtype=np.int64),
-                        int(cell), f64(s), f64(grad[..., 0]), f64(grad[..., 1]), f64(hessian[..., 0]),
-                        f64(hessian[..., 1]), f64(hessian[..., 2]), float(px), float(py), float(count), mask,
+                        int(cell), f64(s), f64(grad[..., 0]), f64(grad[..., 1]), f64(hessian[0]),
+                        f64(hessian[1]), f64(hessian[2]), float(px), float(py), float(count), mask,
                         int(origin[0]), int(origin[1]), float(base))
