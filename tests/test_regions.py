@@ -616,3 +616,79 @@ def test_many_holes_follow_eq10_at_every_pixel(seed, hole_count, nozzle, directi
     # known on both sides; at the outline, one-sided)
     distance_px = np.abs(s - np.rint(s))[wrong] / np.nan_to_num(slope_px[wrong], nan=np.inf)
     assert np.all(distance_px <= 1.0), distance_px.max()
+
+
+def rectangle_with_a_row_of_holes(gap: float = 0.093, radius: float = 0.41, spacing: float = 1.07,
+                                  turn: float = 1.14) -> list[np.ndarray]:
+    """An 8 x 4 mm rectangle (turned by ``turn`` rad) with a row of clockwise circular holes ``gap`` mm
+    inside its upper edge: eq. 10's continuation outside that edge meets a pole (d_m + d_start A = 0,
+    :func:`heoslice.regions._band_coordinate`) about ``gap`` mm off the family, within a lattice cell."""
+    outer = np.asarray(shapely.box(-4.0, -2.0, 4.0, 2.0).segmentize(0.05).exterior.coords)[:-1]
+    if not shapely.LinearRing(outer).is_ccw:
+        outer = outer[::-1]
+    centres = np.arange(-3.5 + radius, 3.7 - radius, spacing)
+    holes = [circle(radius, 90, (float(x), 2.0 - gap - radius), clockwise=True) for x in centres]
+    turning = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+    return [ring @ turning.T for ring in [outer, *holes]]
+
+
+@pytest.mark.parametrize("count", [None, 20])
+def test_cells_beside_a_pole_of_eq10_get_labels_of_the_exact_field(count):
+    """Every solid pixel of a family whose eq. 10 continuation is NaN (past a pole) next to its border
+    cells gets a sub-region in 1..N_R, the exact eq. 10 one (shapely distances) except within one pixel of
+    a band boundary. A border cell with a NaN neighbour gets a NaN Hessian (central differences of the
+    neighbour's NaN gradient); the fit test must not take that quadratic as a fit (it did, and its pixels
+    were labelled 0, i.e. empty, in layer_regions)."""
+    rings = rectangle_with_a_row_of_holes()
+    points, offsets, area, parent = layer(*rings)
+    grid = grid_around(4.6)
+    spec = RegionSpec(nozzle_mm=0.25, count=count)
+    k, mask, field = field_on_mask(points, offsets, area, parent, grid, spec)
+    n = field.layout.count
+    assert np.all((k[mask] >= 1) & (k[mask] <= n)), np.unique(k[mask])
+    x, y = pixel_centres(grid, field.box)
+    where = shapely.points(x[mask], y[mask])
+    d = np.column_stack([shapely.distance(where, shapely.LinearRing(r)) for r in rings])
+    s = np.full(x.shape, np.nan)
+    s[mask] = (1.0 - ring_weights(d)[:, 0]) * n
+    expected = np.clip(np.floor(np.nan_to_num(s)).astype(np.int64) + 1, 1, n)
+    wrong = mask & (k != expected)
+    assert np.all(np.abs(k - expected)[wrong] <= 1)
+    rows, cols = np.gradient(s)
+    distance_px = np.abs(s - np.rint(s))[wrong] / np.nan_to_num(np.hypot(rows, cols)[wrong], nan=np.inf)
+    assert np.all(distance_px <= 1.0), distance_px.max()
+    labels = layer_regions(points, offsets, area, parent, solid_mask(points, offsets, grid), grid, spec)
+    b = labels.box
+    assert np.all(labels.label[solid_mask(points, offsets, grid)[b[0]:b[1], b[2]:b[3]]] > 0)
+
+
+def notched_circle(radius: float = 3.0, depth: float = 0.06, width: float = 0.04, count: int = 16,
+                   seed: int = 2) -> np.ndarray:
+    """(p, 2) a circle with ``count`` small triangular notches (``depth`` x ``width`` mm, a pixel or two)
+    cut inwards at random angles: features smaller than a lattice cell that no cell centre may see."""
+    rng = np.random.default_rng(seed)
+    shape = shapely.Point(0.0, 0.0).buffer(radius, 256)
+    for angle in rng.uniform(0.0, 2 * np.pi, count):
+        out = np.array([np.cos(angle), np.sin(angle)])
+        across = np.array([-out[1], out[0]]) * width / 2
+        shape = shape.difference(shapely.Polygon([1.01 * radius * out + across, 1.01 * radius * out - across,
+                                                  (radius - depth) * out]))
+    ring = np.asarray(shape.exterior.coords)[:-1]
+    return ring if shapely.LinearRing(ring).is_ccw else ring[::-1]
+
+
+def test_notches_smaller_than_a_cell_move_the_bands_near_them():
+    """Every solid pixel of a disc with notches a pixel or two deep has the sub-region of its exact distance
+    to the outline (shapely), except pixels within one pixel of a band boundary: a notch moves the first
+    band boundaries by up to its depth around it, which a plane or quadratic fitted to the lattice centres
+    does not see (cells on the outline were refined by the turn rule before eq. 10's continuation; since,
+    labels came out up to 1.4 px off beside three notches)."""
+    ring = notched_circle()
+    points, offsets, area, parent = layer(ring)
+    grid = grid_around(3.5)
+    k, mask, field = field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=0.1))
+    x, y = pixel_centres(grid, field.box)
+    scale = field.layout.count / field.layout.length_mm
+    s = scale * shapely.distance(shapely.points(x, y), shapely.LinearRing(ring))
+    expected = np.clip(np.floor(s).astype(np.int64) + 1, 1, field.layout.count)
+    assert_within_one_pixel(k, expected, s, mask, slope_px=scale * PX)

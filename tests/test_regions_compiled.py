@@ -11,12 +11,12 @@ from hypothesis import strategies as st
 from heoslice.regions import ring_edges
 from heoslice.regions_compiled import (
     _candidates,
+    band_cells,
     curve_cells,
     edge_tree,
     expand_planes,
     feet,
     nearest_in_groups,
-    write_cells,
 )
 
 
@@ -125,20 +125,48 @@ def test_expand_planes_is_the_plane_formula(seed, cell, masked):
     assert np.array_equal(out[clear], expected[clear])
 
 
-def test_write_cells_fills_whole_cells_inside_the_image():
-    """write_cells sets every pixel of the given cells from its own s, clips to 1..count, skips pixels past
-    the image's edge and leaves other cells alone."""
-    cell = 3
-    index = np.full((7, 8), -5, dtype=np.int32)
-    ci, cj = np.array([0, 2]), np.array([1, 2])
-    s = np.stack([np.arange(9.0) - 2.0, np.full(9, 99.0)])
-    write_cells(index, ci, cj, cell, s, 5)
-    assert np.array_equal(index[0:3, 3:6].ravel(), np.clip(np.floor(s[0]) + 1, 1, 5))
-    assert (index[6, 6:8] == 5).all()  # cell (2, 2) covers rows 6..8 and columns 6..8: only (6, 6..7) exist
-    untouched = np.ones(index.shape, dtype=bool)
-    untouched[0:3, 3:6] = False
-    untouched[6, 6:8] = False
-    assert (index[untouched] == -5).all()
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 5), st.booleans())
+def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked):
+    """band_cells writes, at every pixel of the given cells, clip(floor(s) + 1, 1, count) of s from
+    regions._band_coordinate (eq. 10 for two or more ring sets, d count / length for one) of each
+    ring set's distance there: its quadratic where the cell's model is given, the measured value where
+    it is NaN; + base on mask pixels and 0 off them; pixels past the image and other cells untouched."""
+    from heoslice.regions import FamilyLayout, _band_coordinate
+
+    rng = np.random.default_rng(seed)
+    cell, rows, cols, count, length, base = 5, 4, 5, int(rng.integers(1, 40)), 3.0, 3
+    px = py = 0.05
+    index = np.full((rows * cell - 2, cols * cell - 1), -7, dtype=np.int32)
+    mask = rng.random(index.shape) < 0.6 if masked else None
+    ci, cj = np.array([0, 3, 2, 3]), np.array([1, 4, 0, 0])
+    models = np.column_stack([rng.uniform(0.2, 6.0, (sets, 4)).ravel()] + [rng.uniform(-1, 1, sets * 4)
+                                                                          for _ in range(5)]).reshape(sets, 4, 6)
+    models[rng.random((sets, 4)) < 0.4] = np.nan
+    measured = rng.uniform(0.05, 6.0, (sets, 4, cell * cell))
+    band_cells(index, ci, cj, cell, px, py, models, measured, count, length, mask, (0, 0), base)
+    v, u = np.divmod(np.arange(cell * cell), cell)
+    x, y = (u + 0.5 - cell / 2) * px, -(v + 0.5 - cell / 2) * py
+    m = models[..., None]
+    quadratic = (m[..., 0, :] + m[..., 1, :] * x + m[..., 2, :] * y + 0.5 * (m[..., 3, :] * x * x + m[..., 5, :] * y * y)
+                 + m[..., 4, :] * x * y)
+    d = np.where(np.isnan(models[..., :1]), measured, quadratic)
+    layout = FamilyLayout((0,), tuple((k,) for k in range(1, sets)), count, length)
+    s, _ = _band_coordinate(layout, (d[0], None), [(dk, None) for dk in d[1:]], gradients=False)
+    s = np.where(np.isnan(s), count, s)
+    expected = np.clip(np.floor(s) + 1, 1, count)
+    clear = np.abs(s - np.rint(s)) > 1e-9
+    written = np.zeros(index.shape, dtype=bool)
+    for n in range(len(ci)):
+        for k in range(cell * cell):
+            r, c = ci[n] * cell + v[k], cj[n] * cell + u[k]
+            if r >= index.shape[0] or c >= index.shape[1]:
+                continue
+            written[r, c] = True
+            want = expected[n, k] if mask is None else (expected[n, k] + base if mask[r, c] else 0)
+            if clear[n, k]:
+                assert index[r, c] == want, (n, k, s[n, k])
+    assert (index[~written] == -7).all()
 
 
 @settings(max_examples=20, deadline=None)
@@ -221,30 +249,22 @@ def random_halftone_case(rng, channels: int, height: int, width: int, label_dtyp
                 target=np.eye(channels, dtype=np.float32)[int(rng.integers(0, channels))], base=base, table=table)
 
 
-@settings(max_examples=40, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.sampled_from([1, 2, 3, 4, 5, 9]), st.integers(1, 40), st.integers(1, 70),
-       st.sampled_from([np.int16, np.int32]))
-def test_droplet_bits_is_the_per_pixel_choice_packed(seed, channels, height, width, label_dtype):
-    """droplet_bits equals np.packbits of the brute-force per-pixel choice: outside the label box and on
-    label 0 the base channel, else the table entry at the pixel's dither level, else (entry -1)
-    choose_materials of the pixel's eq. 1 mix; for any number of channels (one to nine, over one
-    pattern word or several), widths not a multiple of 8 or 16, label boxes covering part of the solid;
-    and it writes only the bytes that hold a solid pixel."""
-    from heoslice.halftone import choose_materials, layer_tile
+def assert_droplet_bits_are_the_per_pixel_choice(rng, case: dict, channels: int, tile: np.ndarray, level: np.ndarray,
+                                                 layer: int) -> None:
+    """droplet_bits on ``case`` equals np.packbits of the brute-force per-pixel choice (the table entry at the
+    pixel's dither ``level``, choose_materials of its eq. 1 mix where that is -1, the base channel outside
+    the labels and on label 0), and it leaves every byte without a solid pixel as it was."""
+    from heoslice.halftone import choose_materials
     from heoslice.regions_compiled import droplet_bits
 
-    rng = np.random.default_rng(seed)
-    case = random_halftone_case(rng, channels, height, width, label_dtype)
     solid, label, (r0, c0), table = case["solid"], case["label"], case["origin"], case["table"]
-    layer = int(rng.integers(0, 1000))
-    tile = layer_tile(layer)
-    level = np.rint(tile * 256 - 0.5).astype(np.int64)
+    size = level.shape[0]
     rows, cols = label.shape
     r, c = np.indices(solid.shape)
     inside = (r >= r0) & (r < r0 + rows) & (c >= c0) & (c < c0 + cols)
     number = np.zeros(solid.shape, dtype=np.int64)
     number[inside] = label[r[inside] - r0, c[inside] - c0]
-    entry = table[number, level[r % 16, c % 16]].astype(np.int64)
+    entry = table[number, level[r % size, c % size]].astype(np.int64)
     family = case["family_of_label"][number]
     cell_row, cell_col, cell, per_row, start = np.moveaxis(case["layout"][family], -1, 0)
     first = start + (((r - cell_row) // cell) * per_row + (c - cell_col) // cell) * channels
@@ -257,13 +277,31 @@ def test_droplet_bits_is_the_per_pixel_choice_packed(seed, channels, height, wid
 
     args = (label, (r0, c0), np.packbits(solid, axis=1), case["family_of_label"], case["fraction"], case["layout"],
             case["mixes"], case["target"], tile, case["base"])
-    got = droplet_bits(*args, np.zeros_like(expected), table)
-    assert np.array_equal(got, expected)
+    assert np.array_equal(droplet_bits(*args, np.zeros_like(expected), table), expected)
     junk = rng.integers(0, 256, expected.shape, dtype=np.uint8)
     got = droplet_bits(*args, junk.copy(), table)
     written = np.packbits(solid, axis=1).astype(bool)[None].repeat(channels, axis=0)
     assert np.array_equal(got[written], expected[written])
     assert np.array_equal(got[~written], junk[~written])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.sampled_from([1, 2, 3, 4, 5, 9]), st.integers(1, 40), st.integers(1, 70),
+       st.sampled_from([np.int16, np.int32]))
+def test_droplet_bits_is_the_per_pixel_choice_packed(seed, channels, height, width, label_dtype):
+    """droplet_bits equals np.packbits of the brute-force per-pixel choice: outside the label box and on
+    label 0 the base channel, else the table entry at the pixel's dither level, else (entry -1)
+    choose_materials of the pixel's eq. 1 mix; for any number of channels (one to nine, over one
+    pattern word or several), widths not a multiple of 8 or 16, label boxes covering part of the solid;
+    and it writes only the bytes that hold a solid pixel."""
+    from heoslice.halftone import layer_tile
+
+    rng = np.random.default_rng(seed)
+    case = random_halftone_case(rng, channels, height, width, label_dtype)
+    layer = int(rng.integers(0, 1000))
+    tile = layer_tile(layer)
+    level = np.rint(tile * 256 - 0.5).astype(np.int64)
+    assert_droplet_bits_are_the_per_pixel_choice(rng, case, channels, tile, level, layer)
 
 
 @pytest.mark.parametrize("size", [1, 2, 4, 8, 16, 32, 64])
@@ -291,3 +329,62 @@ def test_droplet_bits_follows_a_dither_tile_of_any_size(size):
                        np.zeros((1, 5), np.int64), np.zeros(channels), np.zeros(channels),
                        (bayer + 0.5) / (size * size), 1, planes, table)
     assert np.array_equal(got, expected)
+
+
+def wide_halftone_case(rng, channels: int, missing: str, entries: int):
+    """A droplet_bits input with rows of many 16-pixel chunks inside the labels: label bands of 1-12 pixels,
+    solid pixels with empty stretches (whole empty bytes and chunks), the label box a little inside the
+    solid; the table ((labels, entries) int8) has no -1 ('none'), all -1 for one family's labels as a
+    family of per-cell mixes gets ('labels'), or -1 at scattered entries ('entries')."""
+    height, width = 12, 16 * 23 + 5
+    solid = rng.random((height, width)) < 0.95
+    for start in rng.integers(0, width, 6):
+        solid[:, start:start + int(rng.integers(8, 40))] = False
+    r0, c0 = int(rng.integers(0, 3)), int(rng.integers(0, 20))
+    rows, cols = height - r0 - int(rng.integers(0, 3)), width - c0 - int(rng.integers(0, 20))
+    families, per_family = 3, 4
+    count = 1 + families * per_family
+    runs = rng.integers(1, 13, cols)
+    label = np.repeat(rng.integers(0, count, (rows, cols)), runs, axis=1)[:, :cols].astype(np.int16)
+    family_of_label = np.concatenate([[0], np.repeat(np.arange(families), per_family)]).astype(np.int64)
+    layout, mixes = [], []
+    for _ in range(families):
+        cell = int(rng.integers(1, 9))
+        grid_rows, grid_cols = -(-rows // cell), -(-cols // cell)
+        layout.append((r0, c0, cell, grid_cols, sum(m.size for m in mixes)))
+        mixes.append(rng.random(grid_rows * grid_cols * channels))
+    base = int(rng.integers(0, channels))
+    table = rng.integers(0, channels, (count, entries)).astype(np.int8)
+    if missing == "labels":
+        table[family_of_label == int(rng.integers(0, families))] = -1
+    elif missing == "entries":
+        table[rng.random((count, entries)) < 0.02] = -1
+    table[0] = base
+    return dict(solid=solid, label=label, origin=(r0, c0), family_of_label=family_of_label,
+                fraction=rng.random(count).astype(np.float32), layout=np.array(layout, dtype=np.int64),
+                mixes=np.concatenate(mixes).astype(np.float32),
+                target=np.eye(channels, dtype=np.float32)[int(rng.integers(0, channels))], base=base, table=table)
+
+
+@pytest.mark.parametrize("channels", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("size", [4, 16, 32])
+@settings(max_examples=6, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), missing=st.sampled_from(["none", "labels", "entries"]))
+def test_droplet_bits_is_the_per_pixel_choice_along_wide_rows(channels, size, seed, missing):
+    """Along rows of many 16-pixel chunks inside the labels, droplet_bits is the brute-force per-pixel choice
+    (the table entry at the pixel's level of the n x n dither tile, choose_materials of the eq. 1 mix
+    where it is -1, the base channel outside the labels) for one to five channels (two, the last
+    plane the solid less the first; up to four, one pattern word), whether no label lacks an entry,
+    a whole family does (stretches of per-pixel mixes between table look-ups) or scattered entries
+    do (with the 16 x 16 tile of choose_materials; other tile sizes without -1 entries, several pattern
+    blocks per tile row at 32); bytes without a solid pixel are left as they were."""
+    from heoslice.halftone import bayer_matrix, layer_tile
+
+    rng = np.random.default_rng(seed)
+    layer = int(rng.integers(0, 1000))
+    if size != 16:
+        missing = "none"
+    tile = layer_tile(layer) if size == 16 else (bayer_matrix(size) + 0.5) / (size * size)
+    level = np.rint(tile * size * size - 0.5).astype(np.int64)
+    case = wide_halftone_case(rng, channels, missing, size * size)
+    assert_droplet_bits_are_the_per_pixel_choice(rng, case, channels, tile, level, layer)

@@ -17,14 +17,18 @@ Where r comes from:
   point is decided by both contours together (Fig. 1), and for rings a constant
   distance apart the sub-regions are again equidistant offsets.
 
-The field is computed without a Python loop per pixel or per cell: exact distances
-to the rings at the centres of a coarse lattice (cells of about 0.5 mm; blocks of
-cells wholly off the family's side are skipped), one plane per cell (a quadratic
-where eq. 10's field bends and fits it better), expanded to pixels; cells where
-neither places the sub-region boundaries within TOLERANCE_PX pixels of the exact
-ones (medial axis, sharp corners, the family's border) are evaluated exactly per
-pixel. "Exact" means the nearest of every edge that can be nearest (a bound argued
-where it is used), measured in float32 from a nearby centre (under 2e-5 mm).
+The field is computed without a Python loop per pixel or per cell: exact signed
+distances to the rings at the centres of a coarse lattice (cells of about 0.5 mm,
+padded by one cell; blocks of cells wholly off the family's side are skipped), one
+plane per cell (a quadratic where the field bends and that fits better), checked
+against the eight neighbouring centres (across the rings too: s continues smoothly
+there) and expanded to pixels. Cells where neither places the sub-region boundaries
+within TOLERANCE_PX pixels of the exact ones (medial axis, sharp corners) are
+evaluated per pixel: eq. 10 from each ring's distance there, measured exactly or, in
+an eq. 10 family, taken from that ring's own quadratic where it fits well enough
+(:func:`_ring_models`: each ring's distance is smooth away from its medial axis).
+"Exact" means the nearest of every edge that can be nearest (a bound argued where it
+is used), measured in float32 from a nearby centre (under 2e-5 mm).
 Candidate gathering and the per-pixel loops are compiled
 (:mod:`heoslice.regions_compiled`). The solid mask decides which pixels are solid,
 so the outline is exact.
@@ -628,7 +632,12 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     hessian = _hessian(grad, padded)
     candidate = touched & ~beyond
     known = np.isfinite(s) & np.isfinite(grad[..., 0]) & np.isfinite(grad[..., 1])
-    refine = _refine(s, grad, known, candidate, padded, grid, layout.count, hessian)
+    side = np.logical_and.reduce([start_at[0] >= 0] + [at[0] >= 0 for at in ends_at])
+    refine = _refine(s, grad, known, side, candidate, padded, grid, layout.count, hessian)
+    refined = np.nonzero(refine)  # never on the padded lattice's border: its cells are no candidates
+    models = [None] * (1 + len(ends))
+    if layout.end and len(refined[0]):
+        models = _ring_models(layout, [start_at[:2]] + [at[:2] for at in ends_at], grad, padded, grid, refined)
     inner = (slice(1, -1), slice(1, -1))
     s, grad, beyond, candidate, refine, known = (a[inner] for a in (s, grad, beyond, candidate, refine, known))
     hessian = hessian[:, 1:-1, 1:-1]
@@ -643,11 +652,11 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
 
         curve_cells(index, curved[0], curved[1], lattice.cell, s, grad, hessian, grid.px, grid.py, layout.count,
                     mask, (lattice.row0, lattice.col0), label_base)
-    if refine.any():
-        cells = np.nonzero(refine)
+    if len(refined[0]):
+        cells = (refined[0] - 1, refined[1] - 1)
         _refine_cells(index, lattice, cells, grid, layout,
-                      [(start, np.abs(start_at[0][inner][cells]))]
-                      + [(rings, np.abs(at[0][inner][cells])) for rings, at in zip(ends, ends_at)], mask, label_base)
+                      [(rings, np.abs(at[0][inner][cells]), model)
+                       for rings, at, model in zip([start] + ends, [start_at] + ends_at, models)], mask, label_base)
     foot, edge = start_at[2][:, 1:-1, 1:-1], start_at[3][inner]
     return FamilyField(box=box, index=index, layout=layout, lattice=lattice,
                        start_edges=start.edges, nearest=lambda: (foot, edge))
@@ -656,7 +665,8 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
 def _hessian(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
     """(3, rows, cols) s_xx, s_xy, s_yy per mm^2 at the cell centres: central differences of the exact
     gradients ((rows, cols, 2) per mm, y up) of neighbouring centres (one-sided at the border;
-    zero along an axis the lattice is one cell wide in)."""
+    zero along an axis the lattice is one cell wide in, and all zero where a neighbour's
+    gradient is unknown (past a pole of eq. 10's continuation): no quadratic there)."""
     hessian = np.zeros((3,) + grad.shape[:2])
     if grad.shape[0] > 1:
         hessian[2] = np.gradient(grad[..., 1], -lattice.dy, axis=0)
@@ -665,11 +675,12 @@ def _hessian(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
         hessian[0] = np.gradient(grad[..., 0], lattice.dx, axis=1)
         across = np.gradient(grad[..., 1], lattice.dx, axis=1)
         hessian[1] = 0.5 * (hessian[1] + across) if grad.shape[0] > 1 else across
+    hessian[:, ~np.isfinite(hessian).all(axis=0)] = 0.0
     return hessian
 
 
-def _refine(s: np.ndarray, grad: np.ndarray, known: np.ndarray, candidate: np.ndarray, lattice: Lattice, grid: Grid,
-            count: int, hessian: np.ndarray | None = None) -> np.ndarray:
+def _refine(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np.ndarray, candidate: np.ndarray,
+            lattice: Lattice, grid: Grid, count: int, hessian: np.ndarray | None = None) -> np.ndarray:
     """(rows, cols) bool: candidate cells where one plane (or, with a ``hessian``, one quadratic:
     whichever fits better; the Hessian is zeroed where the plane does) does not place the
     sub-region boundaries within TOLERANCE_PX pixels, so they are evaluated per pixel.
@@ -681,16 +692,18 @@ def _refine(s: np.ndarray, grad: np.ndarray, known: np.ndarray, candidate: np.nd
     10's field flattens out, a tiny slope makes every miss "large"). Neighbours off the
     family's side count too: s continues smoothly across the rings (signed distances,
     :func:`_band_coordinate`), and where that continuation bends (outside a corner, past
-    another part of the ring) it only makes the test stricter. Where some neighbour's s is
-    not ``known`` (past a pole of eq. 10's continuation) and the field's direction turns towards a
-    neighbour by an angle a, a plane misplaces a boundary by about cell * sin(a) / 2
-    pixels, which the misfit test may not see: such cells are refined too.
+    another part of the ring) it only makes the test stricter. Next to the outline (some
+    neighbour off the family's ``side``, or its s not ``known``: past a pole of eq. 10's
+    continuation) features smaller than a cell (a notch, a sharp corner) hide between the
+    centres; there, where the field's direction turns towards a neighbour by an angle a,
+    a plane misplaces a boundary by about cell * sin(a) / 2 pixels, which the misfit test
+    may not see: such cells are refined too.
     """
     from heoslice.regions_compiled import refine_flags
 
     tolerance = 2.0 * TOLERANCE_PX * min(grid.px, grid.py)
     limit = np.sqrt(max(0.0, 1.0 - (2.0 * TOLERANCE_PX / lattice.cell) ** 2))
-    return refine_flags(s, grad, known, candidate, lattice.dx, lattice.dy, tolerance, limit, count, hessian)
+    return refine_flags(s, grad, known, side, candidate, lattice.dx, lattice.dy, tolerance, limit, count, hessian)
 
 
 def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid, flat: np.ndarray, count: int,
@@ -708,20 +721,89 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
                          (lattice.row0, lattice.col0), label_base)
 
 
+def _ring_models(layout: FamilyLayout, fields: list[tuple], grad: np.ndarray, lattice: Lattice, grid: Grid,
+                 cells: tuple[np.ndarray, np.ndarray]) -> list[np.ndarray]:
+    """Per ring set of an eq. 10 family, a quadratic of its signed distance over each given cell
+    ((n, 6): d, d_x, d_y, d_xx, d_xy, d_yy at the centre, mm), NaN where the exact distance
+    must be measured per pixel instead.
+
+    eq. 10's s bends where no plane or quadratic of s fits, yet each ring's own distance
+    is smooth there unless the cell holds that ring's medial axis. A ring's quadratic
+    (exact value and gradient, the Hessian from its neighbours' gradients) that misses
+    the exact distance at the eight neighbouring centres by m_j moves s by at most about
+    |ds/dd_j| m_j / 2 inside the cell (linear growth, the worst case: a kink), and s off
+    by e moves a boundary by e / |grad s| mm; so rings are modelled, cheapest
+    first, while the sum of |ds/dd_j| m_j (|ds/dd_j| the largest, |grad s| the smallest
+    over the cell and its neighbours) stays within TOLERANCE_PX pixels of s; the others
+    are measured. ``fields`` are (signed distance, gradient) over the (padded) ``lattice``
+    of the starting rings then each ending ring, ``grad`` s's gradient there; ``cells``
+    index that lattice and are not on its border.
+    """
+    ci, cj = cells
+    steps = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)]
+    ex = np.array([dj * lattice.dx for _, dj in steps])[:, None]
+    ey = np.array([-di * lattice.dy for di, _ in steps])[:, None]
+    # each ring set's distance at every cell and its eight neighbours: (9, n)
+    near = [np.stack([d[ci + di, cj + dj] for di, dj in steps]) for d, _ in fields]
+    models, misses = [], []
+    for (d, g), around in zip(fields, near):
+        hxx = (g[ci, cj + 1, 0] - g[ci, cj - 1, 0]) / (2 * lattice.dx)
+        hyy = (g[ci - 1, cj, 1] - g[ci + 1, cj, 1]) / (2 * lattice.dy)
+        hxy = 0.5 * ((g[ci - 1, cj, 0] - g[ci + 1, cj, 0]) / (2 * lattice.dy)
+                     + (g[ci, cj + 1, 1] - g[ci, cj - 1, 1]) / (2 * lattice.dx))
+        model = np.column_stack([d[ci, cj], g[ci, cj, 0], g[ci, cj, 1], hxx, hxy, hyy])
+        guess = model[:, 0] + model[:, 1] * ex + model[:, 2] * ey + 0.5 * (hxx * ex * ex + hyy * ey * ey) + hxy * ex * ey
+        misses.append(np.abs(guess - around).max(axis=0))
+        models.append(model)
+    sensitivity = _band_sensitivities(layout, near[0], near[1:])
+    cost = np.stack([np.abs(ds).max(axis=0) * miss for ds, miss in zip(sensitivity, misses)])
+    cost = np.where(np.isfinite(cost) & np.stack([np.isfinite(m).all(axis=1) for m in models]), cost, np.inf)
+    steepness = np.hypot(grad[..., 0], grad[..., 1])
+    weakest = np.stack([steepness[ci + di, cj + dj] for di, dj in steps]).min(axis=0)
+    budget = np.where(np.isfinite(weakest), TOLERANCE_PX * min(grid.px, grid.py) * weakest, 0.0)
+    order = np.argsort(cost, axis=0)
+    running = np.cumsum(np.take_along_axis(cost, order, axis=0), axis=0)
+    modelled = np.zeros(cost.shape, dtype=bool)
+    np.put_along_axis(modelled, order, running <= budget, axis=0)
+    return [np.where(use[:, None], model, np.nan) for model, use in zip(models, modelled)]
+
+
+def _band_sensitivities(layout: FamilyLayout, d0: np.ndarray, ends: list[np.ndarray]) -> list[np.ndarray]:
+    """ds/dd_j of eq. 10's band coordinate for the starting rings and each ending ring (same shapes as the
+    distances). With m the ending ring nearest in |d|, D = d_m + d0 A (:func:`_band_coordinate`):
+    ds/dd0 = N_R A d_m / D^2, ds/dd_m = -N_R d0 / D^2, ds/dd_k = -N_R d0 d_m^2 / (d_k^2 D^2); NaN past a pole."""
+    tiny = 1e-12
+    d = np.stack(ends)
+    nearest = np.argmin(np.abs(d), axis=0)[None]
+    dm = np.take_along_axis(d, nearest, axis=0)[0]
+    other = np.arange(len(ends)).reshape((-1,) + (1,) * d0.ndim) != nearest
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = np.where(other, 1.0 / np.where(np.abs(d) < tiny, tiny, d), 0.0)
+        a = 1.0 + dm * inverse.sum(axis=0)
+        denominator = dm + d0 * a
+        scale = np.where(denominator > 0, layout.count / np.where(denominator > 0, denominator, 1.0) ** 2, np.nan)
+        out = [a * dm * scale]
+        for k in range(len(ends)):
+            out.append(np.where(other[k], -d0 * dm * dm * inverse[k] * inverse[k], -d0) * scale)
+    return out
+
+
 def _refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, np.ndarray], grid: Grid,
                   layout: FamilyLayout, ring_sets: list, mask: np.ndarray | None = None, label_base: int = 0) -> None:
-    """Exact k at every pixel of the given cells (where one plane does not fit), in place (with the
-    layer's ``mask``, labels as :func:`_expand_planes` writes them).
+    """k at every pixel of the given cells (where one plane or quadratic of s does not fit), in place
+    (with the layer's ``mask``, labels as :func:`_expand_planes` writes them), from every ring
+    set's distance at the pixel: exact, or from the ring's own quadratic where it fits.
 
-    ``ring_sets`` pairs each ring set with an upper bound U ((n,) mm) of the exact distance
-    from each cell's centre c to it (any edge's distance will do). A pixel p within h (half
+    ``ring_sets`` holds per ring set (rings, U, model): U ((n,) mm) an upper bound of the exact
+    distance from each cell's centre c to it (any edge's distance will do), ``model`` None or
+    (n, 6) per cell (:func:`_ring_models`; NaN rows: measure). A pixel p within h (half
     the cell's diagonal) of c has its nearest edge within |p - c| + d(p) <= h + (U + h) of
     c, so a cell's candidates, every edge within U + 2 h of its centre, hold the nearest
     edge of each of its pixels wherever the medial axis runs, and their minimum
-    (:func:`nearest_edges`) is the exact distance. Distances are unsigned: only the
-    family's own pixels are kept, and there every distance is positive.
+    (:func:`nearest_edges`) is the exact distance. Measured distances are unsigned, modelled
+    ones signed: only the family's own pixels are kept, and there every distance is positive.
     """
-    from heoslice.regions_compiled import write_cells
+    from heoslice.regions_compiled import band_cells
 
     f = lattice.cell
     v, u = (a.ravel() for a in np.meshgrid(np.arange(f), np.arange(f), indexing="ij"))
@@ -730,12 +812,18 @@ def _refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, 
     ci, cj = cells
     cx, cy = lattice.x0 + (cj + 0.5) * lattice.dx, lattice.y0 - (ci + 0.5) * lattice.dy
     reach = np.hypot(lattice.dx, lattice.dy)
-    distances = []
-    for rings, bound in ring_sets:
-        squared = nearest_edges(cx, cy, bound + reach, ox, oy, rings.edges, rings.tree, track=False)
-        distances.append((np.sqrt(squared.ravel(), dtype=np.float64), None))
-    s, _ = _band_coordinate(layout, distances[0], distances[1:], gradients=False)
-    write_cells(index, ci, cj, f, s, layout.count, mask, (lattice.row0, lattice.col0), label_base)
+    models = np.full((len(ring_sets), len(ci), 6), np.nan)
+    measured = np.zeros((len(ring_sets), len(ci), f * f))
+    for j, (rings, bound, model) in enumerate(ring_sets):
+        if model is not None:
+            models[j] = model
+        measure = np.isnan(models[j, :, 0])
+        if measure.any():
+            squared = nearest_edges(cx[measure], cy[measure], bound[measure] + reach, ox, oy, rings.edges, rings.tree,
+                                    track=False)
+            measured[j, measure] = np.sqrt(squared, dtype=np.float64)
+    band_cells(index, ci, cj, f, grid.px, grid.py, models, measured, layout.count, layout.length_mm, mask,
+               (lattice.row0, lattice.col0), label_base)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -3,8 +3,9 @@
 The grading step's inner loops have no fast numpy form: gathering, for each group of
 points, the ring edges within its own radius (a walk down a bounding-box hierarchy),
 the nearest of those edges to each point, the expansion of one plane (or quadratic)
-per lattice cell to its pixels, the per-cell fit test, and the halftoning of a
-labelled layer into droplet masks. As numpy passes they cost ~100 of a
+per lattice cell to its pixels, the per-cell fit test, eq. 10 per pixel of the cells
+no plane fits (from each ring's quadratic or measured distance), and the halftoning
+of a labelled layer into droplet masks. As numpy passes they cost ~100 of a
 ~15 MP layer's ~115 ms (``python benchmarks/bench_grading.py --stages``, before);
 compiled, the whole step is under 30 ms. Everything here takes and returns plain
 arrays; the geometry (which points, which radius, why it is enough) is argued in
@@ -176,7 +177,7 @@ def _expand_planes(s, gx, gy, cell, px, py, count, out, mask, r0, c0, base):  # 
 
 
 @numba.njit(**_JIT)
-def _refine_flags(s, gx, gy, hxx, hxy, hyy, known, candidate, dx, dy, tolerance, limit,
+def _refine_flags(s, gx, gy, hxx, hxy, hyy, known, side, candidate, dx, dy, tolerance, limit,
                   count):  # pragma: no cover - compiled
     """Cells to evaluate per pixel: candidates whose plane (s, gradient) misses s at a neighbour's
     centre (where s is ``known``) by more than ``tolerance`` x the slope, and so does their
@@ -184,8 +185,9 @@ def _refine_flags(s, gx, gy, hxx, hxy, hyy, known, candidate, dx, dy, tolerance,
     fits, or fits at least as well), unless the better model's range over the cell widened by its largest
     miss holds no sub-region boundary (one k = clip(floor(s) + 1, 1, count) throughout: a slow
     or saturated field); or whose gradient turns by more than ``limit`` (a cosine) towards a
-    neighbour while some neighbour's s is not known; or whose own s is not known, or no
-    neighbour's (nothing checks their plane). Neighbours past the lattice's border repeat the
+    neighbour while some neighbour is off the family's ``side`` or its s is not known (next to
+    the outline, where features smaller than a cell hide between centres); or whose own s is
+    not known, or no neighbour's (nothing checks their plane). Neighbours past the lattice's border repeat the
     border cell (offset as a neighbour would be, so a border cell's plane is checked against
     its own centre value)."""
     rows, cols = s.shape
@@ -204,12 +206,13 @@ def _refine_flags(s, gx, gy, hxx, hxy, hyy, known, candidate, dx, dy, tolerance,
                 out[i, j] = True
                 continue
             allowed = tolerance * max(slope[i, j], 1e-9)
-            all_known = True
+            all_inside = True
             flat, bent, compared = 0.0, 0.0, 0
             for ni, di in ((up, -1), (i, 0), (down, 1)):
                 for nj, dj in ((left, -1), (j, 0), (right, 1)):
+                    all_inside = all_inside and side[ni, nj]
                     if not known[ni, nj]:
-                        all_known = False
+                        all_inside = False
                         continue
                     compared += di != 0 or dj != 0
                     ex, ey = dj * dx, -di * dy
@@ -233,7 +236,7 @@ def _refine_flags(s, gx, gy, hxx, hxy, hyy, known, candidate, dx, dy, tolerance,
                 out[i, j] = low != high
             if compared == 0:
                 out[i, j] = True  # no neighbour to check the plane against
-            if out[i, j] or all_known:
+            if out[i, j] or all_inside:
                 continue
             for ni in (up, i, down):
                 for nj in (left, j, right):
@@ -285,26 +288,109 @@ def _curve_cells(index, ci, cj, cell, s, gx, gy, hxx, hxy, hyy, px, py, count, m
 
 
 @numba.njit(**_JIT)
-def _write_cells(index, ci, cj, cell, s, count, mask, r0, c0, base):  # pragma: no cover - compiled
-    """index[ci*cell + v, cj*cell + u] = clip(floor(s) + 1, 1, count) for the pixels of whole cells
-    (s (cells, cell * cell), row-major within a cell) that fall inside ``index``; with a
-    ``mask`` (not 0 x 0), + base on its True pixels (at r0 + row, c0 + col) and 0 elsewhere."""
+def _band_cells(index, ci, cj, cell, px, py, models, measured, count, length, mask, r0, c0,
+                base):  # pragma: no cover - compiled
+    """Sub-region k of every pixel of whole cells (ci, cj) from each ring set's distance there: the
+    ring's quadratic models[j, n] (d, d_x, d_y, d_xx, d_xy, d_yy at the cell centre) or, where
+    its d is NaN, measured[j, n, pixel]; s by eq. 10 (pole-free form of regions._band_coordinate)
+    with ring set 0 starting, or s = d_0 count / length with one ring set."""
     rows, cols = index.shape
     masked = mask.shape[0] > 0
+    sets = models.shape[0]
+    half = 0.5 * cell
+    tiny = 1e-12
+    d = np.empty(sets)
     for n in range(len(ci)):
         for v in range(cell):
             r = ci[n] * cell + v
             if r >= rows:
                 break
+            y = -(v + 0.5 - half) * py
             for u in range(cell):
                 c = cj[n] * cell + u
                 if c >= cols:
                     break
-                k = min(max(np.floor(s[n, v * cell + u]) + 1.0, 1.0), count)
+                x = (u + 0.5 - half) * px
+                for j in range(sets):
+                    if np.isnan(models[j, n, 0]):
+                        d[j] = measured[j, n, v * cell + u]
+                    else:
+                        d[j] = (models[j, n, 0] + models[j, n, 1] * x + models[j, n, 2] * y
+                                + 0.5 * (models[j, n, 3] * x * x + models[j, n, 5] * y * y) + models[j, n, 4] * x * y)
+                if sets == 1:
+                    s = d[0] * count / length
+                else:
+                    m = 1
+                    for j in range(2, sets):
+                        if abs(d[j]) < abs(d[m]):
+                            m = j
+                    rest = 0.0
+                    for j in range(1, sets):
+                        if j != m:
+                            rest += 1.0 / (d[j] if abs(d[j]) >= tiny else tiny)
+                    numerator = d[0] * (1.0 + d[m] * rest)
+                    denominator = d[m] + numerator
+                    s = count * numerator / denominator if denominator > 0 else count
+                k = min(max(np.floor(s) + 1.0, 1.0), count)
                 if masked:
                     k = k + base if mask[r0 + r, c0 + c] else 0.0
                 index[r, c] = int(k)
     return index
+
+
+@numba.njit(**_EXACT)
+def _droplet_run(line, solid, pattern, first, planes, count, channels):  # pragma: no cover - compiled
+    """The common case of :func:`_droplet_bits`: ``count`` chunks of 16 pixels of a row, from chunk
+    ``first``, all inside the labels, K <= 4 channels (one pattern word: ``pattern`` (blocks,
+    labels) int64 at the row's tile phase); ``line`` (labels), ``solid`` and ``planes`` ((K,
+    bytes)) start at chunk ``first``. Returns how many chunks it wrote: it stops before the first
+    one with a solid pixel whose label has no table entry (left to the per-pixel mix). A small
+    kernel of its own, so the 16-pixel loop keeps its registers; K = 2 writes the second plane
+    as the solid byte less the first."""
+    wrap = pattern.shape[0] - 1
+    if channels == 2:
+        for k in range(count):
+            high = np.int64(solid[2 * k])
+            low = np.int64(solid[2 * k + 1])
+            mask = (high << 8) | low
+            if mask == 0:
+                continue
+            block = np.uint64((first + k) & wrap)
+            value = np.int64(0)
+            for j in range(16):
+                value |= pattern[block, line[16 * k + j]] & (np.int64(0x10001) << (15 - j))
+            if (value >> 16) & mask:
+                return k
+            value &= mask
+            if high:
+                planes[0, 2 * k] = value >> 8
+                planes[1, 2 * k] = high ^ (value >> 8)
+            if low:
+                planes[0, 2 * k + 1] = value & 255
+                planes[1, 2 * k + 1] = low ^ (value & 255)
+        return count
+    spread = np.int64(0x0001000100010001)
+    for k in range(count):
+        high = np.int64(solid[2 * k])
+        low = np.int64(solid[2 * k + 1])
+        mask = (high << 8) | low
+        if mask == 0:
+            continue
+        block = np.uint64((first + k) & wrap)
+        value = np.int64(0)
+        for j in range(16):
+            value |= pattern[block, line[16 * k + j]] & (spread << (15 - j))
+        if (value >> (16 * (channels - 1))) & mask:
+            return k
+        union = np.int64(0)
+        for m in range(channels):
+            v = mask & ~union if m == channels - 1 else (value >> (16 * m)) & mask
+            if high:
+                planes[m, 2 * k] = v >> 8
+            if low:
+                planes[m, 2 * k + 1] = v & 255
+            union |= v
+    return count
 
 
 @numba.njit(**_EXACT)
@@ -317,7 +403,10 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
     and one more for the columns without a table entry, four fields to an int64 word. A row
     is then halftoned 16 pixels at a time, OR-ing each pixel's word masked to its own column
     (no branch, no compare per channel); the last channel's byte is the solid byte less the
-    others', and the pixels without a table entry take the general per-pixel mix."""
+    others', and the pixels without a table entry take the general per-pixel mix. With one
+    word (K <= 4), the chunks inside the labels go to :func:`_droplet_run` until one has such
+    a pixel; after it, the run resumes past the next chunk without any (no call per chunk
+    along a family of per-pixel mixes)."""
     channels = planes.shape[0]
     size = tile.shape[0]
     wrap = size - 1
@@ -326,7 +415,7 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
     rows, cols = label.shape
     width = packed.shape[1]
     spread = np.int64(0x0001000100010001)
-    pattern = np.empty((size, blocks, words, table.shape[0]), dtype=np.int64)
+    pattern = np.empty((size, words, blocks, table.shape[0]), dtype=np.int64)
     for number in range(table.shape[0]):
         entries = table[number]
         for phase in range(size):
@@ -337,7 +426,7 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
                         got = np.int64(entries[level[phase, (block * 16 + j) & wrap]])
                         slot = channels - 1 if got < 0 else got
                         value |= np.int64(got != channels - 1 and slot >> 2 == w) << (16 * (slot & 3) + 15 - j)
-                    pattern[phase, block, w, number] = value
+                    pattern[phase, w, block, number] = value
     outside = np.zeros(words, dtype=np.int64)
     if base_channel < channels - 1:
         outside[base_channel >> 2] = np.int64(0xFFFF) << (16 * (base_channel & 3))
@@ -375,25 +464,36 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
         left, right = (c0, c0 + cols) if inside else (0, 0)
         phase = row & wrap
         thresholds = tile[phase]
-        for chunk in range(first >> 1, (last >> 1) + 1):
+        chunk, end = first >> 1, (last >> 1) + 1
+        run_from, run_to = end, end
+        if words == 1 and inside:
+            run_from = max(chunk, (c0 + 15) >> 4)
+            run_to = min(end, (c0 + cols) >> 4, width >> 1)
+        while chunk < end:
+            if chunk == run_from < run_to:
+                chunk += _droplet_run(line[16 * chunk - c0:], solid[2 * chunk:], pattern[phase, 0], chunk,
+                                      planes[:, row, 2 * chunk:], run_to - chunk, channels)
+                run_from = chunk + 1
+                continue
             high = np.int64(solid[2 * chunk])
             low = np.int64(solid[2 * chunk + 1]) if 2 * chunk + 1 < width else np.int64(0)
             mask = (high << 8) | low
             if mask == 0:
+                chunk += 1
                 continue
             col = chunk * 16
             block = chunk & (blocks - 1)
             if left <= col and col + 16 <= right:
                 pixels = line[col - c0:col - c0 + 16]
                 for w in range(words):
-                    bits = pattern[phase, block, w]
+                    bits = pattern[phase, w, block]
                     value = np.int64(0)
                     for j in range(16):
                         value |= bits[pixels[j]] & (spread << (15 - j))
                     acc[w] = value
             else:
                 for w in range(words):
-                    bits = pattern[phase, block, w]
+                    bits = pattern[phase, w, block]
                     value = np.int64(0)
                     for j in range(16):
                         c = col + j
@@ -434,6 +534,9 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
                 union |= value
             if missing:
                 extra[:] = 0
+                if run_from == chunk + 1:
+                    run_from += 1
+            chunk += 1
     return planes
 
 
@@ -495,16 +598,18 @@ def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: int, px: 
                           int(origin[0]), int(origin[1]), int(base))
 
 
-def refine_flags(s: np.ndarray, grad: np.ndarray, known: np.ndarray, candidate: np.ndarray, dx: float, dy: float,
-                 tolerance: float, limit: float, count: int, hessian: np.ndarray | None = None) -> np.ndarray:
+def refine_flags(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np.ndarray, candidate: np.ndarray,
+                 dx: float, dy: float, tolerance: float, limit: float, count: int,
+                 hessian: np.ndarray | None = None) -> np.ndarray:
     """(rows, cols) bool: lattice cells whose plane (and quadratic, with a ``hessian``) does not fit
-    (see :func:`_refine_flags`); s (rows, cols), grad (rows, cols, 2) per mm, known/candidate
+    (see :func:`_refine_flags`); s (rows, cols), grad (rows, cols, 2) per mm, known/side/candidate
     (rows, cols) bool, dx/dy the cell (mm), count N_R; hessian (3, rows, cols) s_xx, s_xy, s_yy
     per mm^2, zeroed in place where the plane fits at least as well."""
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     parts = f64(hessian) if hessian is not None else np.zeros((3, 0, 0))
     out = _refine_flags(f64(s), f64(grad[..., 0]), f64(grad[..., 1]), parts[0], parts[1], parts[2],
-                        np.ascontiguousarray(known), np.ascontiguousarray(candidate), float(dx), float(dy),
+                        np.ascontiguousarray(known), np.ascontiguousarray(side), np.ascontiguousarray(candidate),
+                        float(dx), float(dy),
                         float(tolerance), float(limit), float(count))
     if hessian is not None and parts is not hessian:
         hessian[...] = parts
@@ -521,15 +626,20 @@ def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, ex: np.ndarray, ey: n
 
 
 
-def write_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, s: np.ndarray, count: int,
-                mask: np.ndarray | None = None, origin: tuple[int, int] = (0, 0), base: int = 0) -> np.ndarray:
-    """Sub-region k = clip(floor(s) + 1, 1, count) of every pixel of lattice cells (ci, cj) ((n,) int)
-    from per-pixel s ((n, cell * cell), row-major in a cell), in place in ``index``; ``mask``,
-    ``origin`` and ``base`` as in :func:`expand_planes`."""
+def band_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, px: float, py: float,
+               models: np.ndarray, measured: np.ndarray, count: int, length: float, mask: np.ndarray | None = None,
+               origin: tuple[int, int] = (0, 0), base: int = 0) -> np.ndarray:
+    """Sub-region k = clip(floor(s) + 1, 1, count) of every pixel of lattice cells (ci, cj) ((n,) int), in
+    place, from per ring set (starting rings first) either a quadratic of its distance per cell
+    (models (sets, n, 6): d, d_x, d_y, d_xx, d_xy, d_yy, mm, at the cell centre; pixel offsets
+    from the centre y up) or, where models[j, n, 0] is NaN, the distance at each pixel
+    (measured (sets, n, cell * cell), row-major in a cell); s by eq. 10 for two or more ring
+    sets, d count / length for one; ``mask``, ``origin`` and ``base`` as in :func:`expand_planes`."""
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
-    return _write_cells(index, np.ascontiguousarray(ci, dtype=np.int64), np.ascontiguousarray(cj, dtype=np.int64),
-                        int(cell), np.ascontiguousarray(s, dtype=np.float64).reshape(len(ci), cell * cell),
-                        float(count), mask, int(origin[0]), int(origin[1]), float(base))
+    return _band_cells(index, np.ascontiguousarray(ci, dtype=np.int64), np.ascontiguousarray(cj, dtype=np.int64),
+                       int(cell), float(px), float(py), f64(models), f64(measured), float(count), float(length), mask,
+                       int(origin[0]), int(origin[1]), float(base))
 
 
 def droplet_bits(label: np.ndarray, origin: tuple[int, int], packed: np.ndarray, family_of_label: np.ndarray,
@@ -550,8 +660,8 @@ def droplet_bits(label: np.ndarray, origin: tuple[int, int], packed: np.ndarray,
     whose entry at the pixel's threshold level is not -1 (the level of threshold t is
     t n^2 - 1/2: the tile holds the ordered-dither values (k + 1/2) / n^2); its row 0 (no
     label) must hold ``base_channel``. Labels are read as unsigned (none is negative); bytes
-    of ``planes`` without a solid pixel are left as they are. About 1 ns per solid pixel where
-    the table has entries (an organ layer of ``slice --channels``), ~20 ns where it has none.
+    of ``planes`` without a solid pixel are left as they are. About 0.55 ns per solid pixel where
+    the table has entries (an organ layer of ``slice --channels``, K = 2), ~20 ns where it has none.
     """
     size = tile.shape[0]
     level = np.rint(np.asarray(tile, dtype=np.float64) * size * size - 0.5).astype(np.int64)
