@@ -17,6 +17,7 @@ from heoslice.regions_compiled import (
     expand_planes,
     feet,
     nearest_in_groups,
+    refine_flags,
 )
 
 
@@ -167,6 +168,76 @@ def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked
             if clear[n, k]:
                 assert index[r, c] == want, (n, k, s[n, k])
     assert (index[~written] == -7).all()
+
+
+def sampled_field(function, rows: int = 12, cols: int = 14, step: float = 0.5):
+    """s, its gradient ((rows, cols, 2), y up) and the Hessian from regions._hessian ((3, rows, cols)) of
+    ``function(x, y) -> (s, s_x, s_y)`` sampled at lattice centres ``step`` mm apart."""
+    from heoslice.regions import Lattice, _hessian
+
+    lattice = Lattice(row0=0, col0=0, cell=12, rows=rows, cols=cols, x0=0.0, y0=rows * step, dx=step, dy=step)
+    x, y = lattice.centres()
+    s, gx, gy = (np.broadcast_to(np.asarray(a, dtype=float), (rows, cols)) for a in function(x[None, :], y[:, None]))
+    grad = np.stack([gx, gy], axis=-1)
+    return s.copy(), grad, _hessian(grad, lattice), lattice
+
+
+def flags_of(s, grad, hessian, lattice, known=None, side=None, tolerance=0.042, count=1000):
+    """refine_flags over every inner cell (the border ring of cells is no candidate), all known and on side
+    unless given; the tolerance one pixel of 0.042 mm; the turn limit of a 12-pixel cell."""
+    candidate = np.zeros(s.shape, dtype=bool)
+    candidate[1:-1, 1:-1] = True
+    known = np.ones(s.shape, dtype=bool) if known is None else known
+    side = np.ones(s.shape, dtype=bool) if side is None else side
+    limit = np.sqrt(1.0 - (1.0 / 12) ** 2)
+    return refine_flags(s, grad, known, side, candidate, lattice.dx, lattice.dy, tolerance, limit, count, hessian)
+
+
+def test_refine_flags_keeps_planes_and_quadratics_that_fit_and_refines_kinks():
+    """A plane fits everywhere: nothing refined, every Hessian zeroed (the plane fits at least as well). A
+    quadratic field the plane misses (by far more than the tolerance): nothing refined, its Hessian (exact:
+    central differences of a quadratic's gradients) kept. A ridge
+    (s = 40 - 8 |x - x0|, a medial axis): the cells within a cell of it are refined, the others not."""
+    s, grad, hessian, lattice = sampled_field(lambda x, y: (3.0 + 5.0 * x - 2.0 * y, 5.0, -2.0))
+    hessian[:] = 1.0
+    assert not flags_of(s, grad, hessian, lattice).any()
+    assert (hessian[:, 1:-1, 1:-1] == 0).all()
+
+    s, grad, hessian, lattice = sampled_field(lambda x, y: (x * x + 3 * x * y + 20 * y, 2 * x + 3 * y, 3 * x + 20))
+    exact = hessian.copy()
+    assert not flags_of(s, grad, hessian, lattice, tolerance=1e-3).any()  # the plane misses by far more
+    np.testing.assert_allclose(hessian[:, 1:-1, 1:-1], exact[:, 1:-1, 1:-1])
+    np.testing.assert_allclose(exact[:, 1:-1, 1:-1], np.array([2.0, 3.0, 0.0])[:, None, None] * np.ones((1, 10, 12)),
+                               atol=1e-9)
+
+    x0 = 3.6
+    s, grad, hessian, lattice = sampled_field(lambda x, y: (40.0 - 8.0 * np.abs(x - x0), -8.0 * np.sign(x - x0), 0.0))
+    flags = flags_of(s, grad, hessian, lattice)
+    x, _ = lattice.centres()
+    beside = np.abs(x - x0) < lattice.dx  # the cell holding the kink and the one whose neighbour lies past it
+    assert flags[1:-1, 1:-1][:, beside[1:-1]].all()
+    assert not flags[1:-1, 1:-1][:, ~beside[1:-1]].any()
+
+
+def test_refine_flags_checks_cells_next_to_unknown_or_off_side_neighbours():
+    """A cell whose own s is unknown is refined; next to the outline (a neighbour off the family's side or
+    with s unknown) a cell whose direction turns by more than the limit towards a neighbour is refined
+    even where its plane fits the known centres, and one whose direction does not turn is not."""
+    # a radial field about a point just off the lattice: the direction turns by ~0.2 rad per cell near it
+    cx, cy = -0.1, 3.0
+    def radial(x, y):
+        r = np.hypot(x - cx, y - cy)
+        return r, (x - cx) / r, (y - cy) / r
+    s, grad, hessian, lattice = sampled_field(radial)
+    side = np.ones(s.shape, dtype=bool)
+    side[:, :2] = False
+    flags = flags_of(s, grad, hessian.copy(), lattice, side=side, tolerance=1e6)
+    assert flags[5:7, 2].all()  # beside the off-side columns, the turn is large: refined although planes "fit"
+    assert not flags_of(s, grad, hessian.copy(), lattice, tolerance=1e6).any()  # all on side: the turn is not checked
+    known = np.ones(s.shape, dtype=bool)
+    known[6, 8] = False
+    flags = flags_of(*sampled_field(lambda x, y: (x + y, 1.0, 1.0))[:3], lattice, known=known)
+    assert flags[6, 8] and flags.sum() == 1  # a straight field: only the unknown cell itself
 
 
 @settings(max_examples=20, deadline=None)
