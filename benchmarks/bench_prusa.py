@@ -316,13 +316,12 @@ def table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def warm_kernel_cache(model: Path, output: Path) -> None:
-    """One untimed graded slice of a few layers, so that numba's on-disk cache holds the grading
-    kernels before the timed runs (the first graded run after installing or changing heoslice
-    compiles them, a one-off ~10 s per process that is not the steady state being compared)."""
+def warm_kernel_cache(model: Path, height: float, output: Path) -> None:
+    """One untimed graded slice of three layers of ``model`` (``height`` mm tall), so that numba's on-disk
+    cache holds the grading kernels before the timed runs (the first graded run after installing or
+    changing heoslice compiles them, a one-off ~10 s per process, not the steady state compared)."""
     log("warming numba's kernel cache with a 3-layer graded slice")
-    z = trimesh.load_mesh(model).extents[2]
-    args = heoslice_args(model, output, max(z / 3, 0.1), 50.0, 1) + GRADED_ARGS
+    args = heoslice_args(model, output, max(height / 3, 0.1), 50.0, 1) + GRADED_ARGS
     run_measured(heoslice_base() + args, output.with_suffix(".log"))
     clear(output)
 
@@ -348,7 +347,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         prepared = prepare_meshes(args, args.workdir_path)
         if args.graded and prepared:
-            warm_kernel_cache(prepared[0][1], args.workdir_path / "warm_stack")
+            _, model, mesh, _ = prepared[0]
+            warm_kernel_cache(model, float(mesh.extents[2]), args.workdir_path / "warm_stack")
         for name, model, mesh, folder in prepared:
             results.append(bench_mesh(name, model, mesh, folder, args, prusa))
             if owned_tmp is not None:
