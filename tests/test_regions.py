@@ -152,6 +152,18 @@ def test_region_spec_refuses_bad_values():
         RegionSpec(count=0)
 
 
+def assert_bands_follow_the_exact_distance(ring: np.ndarray, grid: Grid, nozzle: float) -> None:
+    """The one-ring family of ``ring`` labels every solid pixel with the sub-region of its exact distance to
+    the ring (shapely), except pixels within one pixel of a band boundary (:func:`assert_within_one_pixel`)."""
+    points, offsets, area, parent = layer(ring)
+    k, mask, field = field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=nozzle))
+    x, y = pixel_centres(grid, field.box)
+    scale = field.layout.count / field.layout.length_mm
+    s = scale * shapely.distance(shapely.points(x, y), shapely.LinearRing(ring))
+    expected = np.clip(np.floor(s).astype(np.int64) + 1, 1, field.layout.count)
+    assert_within_one_pixel(k, expected, s, mask, slope_px=scale * PX)
+
+
 def test_annulus_matches_analytic_field_and_eq8_count():
     """Concentric rings 6 mm apart, 0.49 mm nozzle: N_R = 12 (eq. 8) and every pixel's sub-region is
     floor(12 (R - rho) / (R - r0)) + 1, the analytic r = d_o / (d_o + d_i), within one pixel."""
@@ -398,14 +410,7 @@ def test_bands_follow_the_exact_distance_where_nearest_edges_are_far_apart(shape
         ring = rough_outline(int(shape[5:]))
     else:
         ring = rough_outline(int(shape[6:]), count=400, amplitude=0.3, modes=12)
-    points, offsets, area, parent = layer(ring)
-    grid = grid_around(float(np.abs(ring).max()) + 0.5)
-    k, mask, field = field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=0.2))
-    x, y = pixel_centres(grid, field.box)
-    scale = field.layout.count / field.layout.length_mm
-    s = scale * shapely.distance(shapely.points(x, y), shapely.LinearRing(ring))
-    expected = np.clip(np.floor(s).astype(np.int64) + 1, 1, field.layout.count)
-    assert_within_one_pixel(k, expected, s, mask, slope_px=scale * PX)
+    assert_bands_follow_the_exact_distance(ring, grid_around(float(np.abs(ring).max()) + 0.5), 0.2)
 
 
 @settings(max_examples=30, deadline=None)
@@ -683,12 +688,4 @@ def test_notches_smaller_than_a_cell_move_the_bands_near_them():
     band boundaries by up to its depth around it, which a plane or quadratic fitted to the lattice centres
     does not see (cells on the outline were refined by the turn rule before eq. 10's continuation; since,
     labels came out up to 1.4 px off beside three notches)."""
-    ring = notched_circle()
-    points, offsets, area, parent = layer(ring)
-    grid = grid_around(3.5)
-    k, mask, field = field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=0.1))
-    x, y = pixel_centres(grid, field.box)
-    scale = field.layout.count / field.layout.length_mm
-    s = scale * shapely.distance(shapely.points(x, y), shapely.LinearRing(ring))
-    expected = np.clip(np.floor(s).astype(np.int64) + 1, 1, field.layout.count)
-    assert_within_one_pixel(k, expected, s, mask, slope_px=scale * PX)
+    assert_bands_follow_the_exact_distance(notched_circle(), grid_around(3.5), 0.1)
