@@ -338,6 +338,16 @@ def _band_cells(index, ci, cj, cell, px, py, models, measured, count, length, ma
     return index
 
 
+@numba.njit(inline="always", **_EXACT)
+def _chunk_word(words, line, k, spread):  # pragma: no cover - compiled
+    """The pattern word of chunk k (16 pixels of ``line``): each pixel's label word (``words`` by label)
+    masked to its own column in every 16-bit field (``spread``: a 1 in the low bit of each field used)."""
+    value = np.int64(0)
+    for j in range(16):
+        value |= words[line[16 * k + j]] & (spread << (15 - j))
+    return value
+
+
 @numba.njit(**_EXACT)
 def _droplet_run(line, solid, pattern, first, planes, count, channels):  # pragma: no cover - compiled
     """The common case of :func:`_droplet_bits`: ``count`` chunks of 16 pixels of a row, from chunk
@@ -355,10 +365,7 @@ def _droplet_run(line, solid, pattern, first, planes, count, channels):  # pragm
             mask = (high << 8) | low
             if mask == 0:
                 continue
-            block = np.uint64((first + k) & wrap)
-            value = np.int64(0)
-            for j in range(16):
-                value |= pattern[block, line[16 * k + j]] & (np.int64(0x10001) << (15 - j))
+            value = _chunk_word(pattern[np.uint64((first + k) & wrap)], line, k, np.int64(0x10001))
             if (value >> 16) & mask:
                 return k
             value &= mask
@@ -376,10 +383,7 @@ def _droplet_run(line, solid, pattern, first, planes, count, channels):  # pragm
         mask = (high << 8) | low
         if mask == 0:
             continue
-        block = np.uint64((first + k) & wrap)
-        value = np.int64(0)
-        for j in range(16):
-            value |= pattern[block, line[16 * k + j]] & (spread << (15 - j))
+        value = _chunk_word(pattern[np.uint64((first + k) & wrap)], line, k, spread)
         if (value >> (16 * (channels - 1))) & mask:
             return k
         union = np.int64(0)
