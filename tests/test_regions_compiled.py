@@ -240,6 +240,30 @@ def test_refine_flags_checks_cells_next_to_unknown_or_off_side_neighbours():
     assert flags[6, 8] and flags.sum() == 1  # a straight field: only the unknown cell itself
 
 
+def test_refine_flags_lets_a_quadratic_explain_a_round_outlines_turn():
+    """Beside the outline of a round hole 6 mm across (12 cells), the direction turns by ~5 degrees per cell,
+    past a 12-pixel cell's limit: a plane is refined there, but the quadratic, whose gradient follows the
+    turn to every neighbour, is kept (its Hessian too) and nothing is refined. With its Hessian's sign
+    flipped (a quadratic turning the other way) the same cells are refined again."""
+    cx, cy = -5.7, 3.0
+
+    def around_hole(x, y):
+        r = np.hypot(x - cx, y - cy)
+        return r - 6.0, (x - cx) / r, (y - cy) / r
+
+    s, grad, hessian, lattice = sampled_field(around_hole)
+    side = np.ones(s.shape, dtype=bool)
+    side[:, :1] = False
+    beside = np.zeros(s.shape, dtype=bool)
+    beside[1:-1, 1] = True
+    planes = flags_of(s, grad, None, lattice, side=side)
+    assert planes[beside].sum() >= 4  # the plane's direction misses the neighbours' by more than the limit
+    kept = hessian.copy()
+    assert not flags_of(s, grad, kept, lattice, side=side)[beside].any()
+    np.testing.assert_allclose(kept[:, beside], hessian[:, beside])
+    assert (flags_of(s, grad, -hessian, lattice, side=side) == planes)[beside].all()
+
+
 @settings(max_examples=20, deadline=None)
 @given(st.integers(0, 2 ** 32 - 1), st.booleans())
 def test_curve_cells_is_the_quadratic_formula(seed, masked):

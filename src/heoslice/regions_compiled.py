@@ -176,20 +176,46 @@ def _expand_planes(s, gx, gy, cell, px, py, count, out, mask, r0, c0, base):  # 
     return out
 
 
+@numba.njit(inline="always", **_JIT)
+def _boundary_within(s, spread, miss, count):  # pragma: no cover - compiled
+    """Whether a sub-region boundary (k = clip(floor(s) + 1, 1, count) changing) can lie within ``spread``
+    plus ``miss`` of the value ``s``."""
+    low = min(max(np.floor(s - spread - miss) + 1.0, 1.0), count)
+    high = min(max(np.floor(s + spread + miss) + 1.0, 1.0), count)
+    return low != high
+
+
+@numba.njit(inline="always", **_JIT)
+def _turns(ux, uy, gx, gy, hx, hm, hy, i, j, rows, cols, dx, dy, limit):  # pragma: no cover - compiled
+    """Whether the model's gradient (g + H e, e the offset to a neighbour's centre) points away from some
+    neighbour's own direction (u, unit) by more than ``limit`` (a cosine); H = 0 for a plane."""
+    for ni in range(max(i - 1, 0), min(i + 2, rows)):
+        for nj in range(max(j - 1, 0), min(j + 2, cols)):
+            ex, ey = (nj - j) * dx, -(ni - i) * dy
+            mx = gx + hx * ex + hm * ey
+            my = gy + hm * ex + hy * ey
+            length = max(np.sqrt(mx * mx + my * my), 1e-300)
+            if (mx * ux[ni, nj] + my * uy[ni, nj]) / length < limit:
+                return True
+    return False
+
+
 @numba.njit(**_JIT)
 def _refine_flags(s, gx, gy, hxx, hxy, hyy, known, side, candidate, dx, dy, tolerance, limit,
                   count):  # pragma: no cover - compiled
     """Cells to evaluate per pixel: candidates whose plane (s, gradient) misses s at a neighbour's
     centre (where s is ``known``) by more than ``tolerance`` x the slope, and so does their
     quadratic when a Hessian is given (hxx, hxy, hyy not 0 x 0; zeroed in place where the plane
-    fits, or fits at least as well), unless the better model's range over the cell widened by its largest
-    miss holds no sub-region boundary (one k = clip(floor(s) + 1, 1, count) throughout: a slow
-    or saturated field); or whose gradient turns by more than ``limit`` (a cosine) towards a
-    neighbour while some neighbour is off the family's ``side`` or its s is not known (next to
-    the outline, where features smaller than a cell hide between centres); or whose own s is
-    not known, or no neighbour's (nothing checks their plane). Neighbours past the lattice's border repeat the
+    is kept), unless the better model's range over the cell widened by its largest miss holds no
+    sub-region boundary (one k = clip(floor(s) + 1, 1, count) throughout: a slow or saturated
+    field); or, while some neighbour is off the family's ``side`` or its s is not known (next to
+    the outline, where features smaller than a cell hide between centres), whose model's gradient
+    turns by more than ``limit`` (a cosine) from a neighbour's direction: the plane's own
+    direction, or else (where the quadratic fits the values too) the quadratic's gradient at that
+    neighbour, so that a round outline's steady turn is no reason to refine; or whose own s is not known, or no
+    neighbour's (nothing checks their plane). Neighbours past the lattice's border repeat the
     border cell (offset as a neighbour would be, so a border cell's plane is checked against
-    its own centre value)."""
+    its own centre value; the turn test skips them)."""
     rows, cols = s.shape
     curved = hxx.shape[0] > 0
     out = np.zeros((rows, cols), dtype=np.bool_)
@@ -208,6 +234,7 @@ def _refine_flags(s, gx, gy, hxx, hxy, hyy, known, side, candidate, dx, dy, tole
             allowed = tolerance * max(slope[i, j], 1e-9)
             all_inside = True
             flat, bent, compared = 0.0, 0.0, 0
+            hx, hm, hy = (hxx[i, j], hxy[i, j], hyy[i, j]) if curved else (0.0, 0.0, 0.0)
             for ni, di in ((up, -1), (i, 0), (down, 1)):
                 for nj, dj in ((left, -1), (j, 0), (right, 1)):
                     all_inside = all_inside and side[ni, nj]
@@ -218,30 +245,24 @@ def _refine_flags(s, gx, gy, hxx, hxy, hyy, known, side, candidate, dx, dy, tole
                     ex, ey = dj * dx, -di * dy
                     guess = s[i, j] + gx[i, j] * ex + gy[i, j] * ey
                     flat = max(flat, abs(guess - s[ni, nj]))
-                    if curved:
-                        guess += 0.5 * (hxx[i, j] * ex * ex + hyy[i, j] * ey * ey) + hxy[i, j] * ex * ey
-                        bent = max(bent, abs(guess - s[ni, nj]))
-            worst = flat
+                    guess += 0.5 * (hx * ex * ex + hy * ey * ey) + hm * ex * ey
+                    bent = max(bent, abs(guess - s[ni, nj]))
             reach = 0.5 * (abs(gx[i, j]) * dx + abs(gy[i, j]) * dy)
-            if curved:
-                if allowed < flat and bent < flat:
-                    worst = bent
-                    reach += 0.125 * (abs(hxx[i, j]) * dx * dx + 2.0 * abs(hxy[i, j]) * dx * dy
-                                      + abs(hyy[i, j]) * dy * dy)
-                else:
-                    hxx[i, j], hxy[i, j], hyy[i, j] = 0.0, 0.0, 0.0
-            if worst > allowed:
-                low = min(max(np.floor(s[i, j] - reach - worst) + 1.0, 1.0), count)
-                high = min(max(np.floor(s[i, j] + reach + worst) + 1.0, 1.0), count)
-                out[i, j] = low != high
-            if compared == 0:
-                out[i, j] = True  # no neighbour to check the plane against
-            if out[i, j] or all_inside:
-                continue
-            for ni in (up, i, down):
-                for nj in (left, j, right):
-                    if ux[i, j] * ux[ni, nj] + uy[i, j] * uy[ni, nj] < limit:
-                        out[i, j] = True
+            bend = 0.125 * (abs(hx) * dx * dx + 2.0 * abs(hm) * dx * dy + abs(hy) * dy * dy)
+            quadratic = curved and allowed < flat and bent < flat
+            if quadratic:
+                refine = bent > allowed and _boundary_within(s[i, j], reach + bend, bent, count)
+            else:
+                refine = flat > allowed and _boundary_within(s[i, j], reach, flat, count)
+            refine = refine or compared == 0  # no neighbour to check the plane against
+            if not refine and not all_inside and _turns(ux, uy, gx[i, j], gy[i, j], 0.0, 0.0, 0.0, i, j, rows, cols,
+                                                        dx, dy, limit):
+                quadratic = (curved and not (bent > allowed and _boundary_within(s[i, j], reach + bend, bent, count))
+                             and not _turns(ux, uy, gx[i, j], gy[i, j], hx, hm, hy, i, j, rows, cols, dx, dy, limit))
+                refine = not quadratic
+            out[i, j] = refine
+            if curved and not quadratic:
+                hxx[i, j], hxy[i, j], hyy[i, j] = 0.0, 0.0, 0.0
     return out
 
 
