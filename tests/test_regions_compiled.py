@@ -49,32 +49,61 @@ def tree_of(edges):
 
 @settings(max_examples=25, deadline=None)
 @given(st.integers(0, 2 ** 32 - 1), st.integers(1, 4))
-def test_candidates_are_exactly_the_edges_within_the_radius(seed, rings):
-    """The hierarchy walk returns every edge within each point's radius, once, and no other
-    (brute force over all edges; the hierarchy must not lose edges in any subtree)."""
+def test_candidates_are_exactly_the_chunks_within_the_radius(seed, rings):
+    """The hierarchy walk returns, once each, exactly the chunks (runs of eight edges) whose bounding box
+    comes within each point's radius, so every edge within the radius is in one of them (brute force over
+    all edges; the hierarchy must not lose edges in any subtree)."""
     rng = np.random.default_rng(seed)
     edges = random_rings(rng, rings)
     qx, qy = rng.uniform(-80, 80, 40), rng.uniform(-80, 80, 40)
     radius = rng.uniform(0.0, 60.0, 40)
-    start, found = _candidates(qx, qy, radius, edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2, *tree_of(edges))
+    boxes, level_start, _ = tree_of(edges)
+    start, found = _candidates(qx, qy, radius, boxes, level_start)
+    chunk = np.arange(len(edges.x)) // 8
+    x0, x1 = np.minimum(edges.x, edges.x + edges.vx), np.maximum(edges.x, edges.x + edges.vx)
+    y0, y1 = np.minimum(edges.y, edges.y + edges.vy), np.maximum(edges.y, edges.y + edges.vy)
+    low = np.column_stack([np.minimum.reduceat(x0, np.arange(0, len(x0), 8)), np.minimum.reduceat(y0, np.arange(0, len(y0), 8))])
+    high = np.column_stack([np.maximum.reduceat(x1, np.arange(0, len(x1), 8)), np.maximum.reduceat(y1, np.arange(0, len(y1), 8))])
     within = brute_squared(qx, qy, edges) <= radius[:, None] ** 2
     for g in range(40):
         got = found[start[g]:start[g + 1]]
         assert len(got) == len(set(got.tolist()))
+        gap = np.maximum(np.maximum(low - [qx[g], qy[g]], [qx[g], qy[g]] - high), 0.0)
         # points exactly on the radius may go either way in rounding; the test radii are random
-        assert set(got.tolist()) == set(np.nonzero(within[g])[0].tolist())
+        assert set(got.tolist()) == set(np.nonzero(np.hypot(gap[:, 0], gap[:, 1]) <= radius[g])[0].tolist())
+        assert set(chunk[within[g]].tolist()) <= set(got.tolist())
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 5))
+def test_chunk_capsules_hold_their_edges(seed, rings):
+    """Every point of every edge lies within its chunk's capsule: within the radius of the chord from the
+    chunk's first edge's start to its last edge's end (the lower bound the nearest-edge search prunes by)."""
+    rng = np.random.default_rng(seed)
+    edges = random_rings(rng, rings)
+    capsules = tree_of(edges)[2]
+    assert len(capsules) == -(-len(edges.x) // 8)
+    t = np.linspace(0.0, 1.0, 7)
+    px = (edges.x[:, None] + t * edges.vx[:, None]).ravel()
+    py = (edges.y[:, None] + t * edges.vy[:, None]).ravel()
+    c = capsules[np.repeat(np.arange(len(edges.x)) // 8, len(t))]
+    u = np.clip(((px - c[:, 0]) * c[:, 2] + (py - c[:, 1]) * c[:, 3]) * c[:, 4], 0.0, 1.0)
+    gap = np.hypot(px - c[:, 0] - u * c[:, 2], py - c[:, 1] - u * c[:, 3])
+    assert (gap <= c[:, 5]).all()
 
 
 @settings(max_examples=25, deadline=None)
 @given(st.integers(0, 2 ** 32 - 1))
 def test_nearest_in_groups_matches_brute_force(seed):
     """With a radius that holds every point's nearest edge, the group kernel finds the nearest edge
-    (within float32 rounding, 2e-5 mm) and its distance, for points around each group centre."""
+    (within float32 rounding, 2e-5 mm) and its distance, for points around each group centre (spread
+    up to 0.1-8 mm from it, so that chunks are pruned per point and by the group's farthest point)."""
     rng = np.random.default_rng(seed)
     edges = random_rings(rng, int(rng.integers(1, 4)))
-    groups, points = 30, 16
+    groups, points = 30, 64
     cx, cy = rng.uniform(-60, 60, groups), rng.uniform(-60, 60, groups)
-    ox, oy = rng.uniform(-1.0, 1.0, points), rng.uniform(-1.0, 1.0, points)
+    spread = rng.choice([0.1, 1.0, 8.0])
+    ox, oy = rng.uniform(-spread, spread, points), rng.uniform(-spread, spread, points)
     qx = (cx[:, None] + ox[None, :]).ravel()
     qy = (cy[:, None] + oy[None, :]).ravel()
     exact = np.sqrt(brute_squared(qx, qy, edges).min(axis=1)).reshape(groups, points)
@@ -299,19 +328,15 @@ def test_curve_cells_is_the_quadratic_formula(seed, masked):
 
 @pytest.mark.parametrize("count", [1, 3, 8, 9, 64, 65, 513])
 def test_edge_tree_keeps_every_edge_at_any_size(count):
-    """However many edges (one level, an exact multiple of the fan-out, one more), a radius that reaches
-    all of them from far away gathers each edge exactly once."""
+    """However many edges (fewer than the fan-out, an exact multiple of it, one more), a radius that reaches
+    all of them from far away gathers each chunk exactly once, and the chunks hold every edge once."""
     angle = np.linspace(0, 2 * np.pi, count + 1)
     x0, y0 = np.cos(angle[:-1]), np.sin(angle[:-1])
     x1, y1 = np.cos(angle[1:]), np.sin(angle[1:])
-    boxes, level_start = edge_tree(x0, y0, x1, y1)
-    assert level_start[-1] == len(boxes) and level_start[1] == count
-    vx, vy = x1 - x0, y1 - y0
-    length2 = vx * vx + vy * vy
-    inv = np.divide(1.0, length2, out=np.zeros_like(length2), where=length2 > 0)
-    start, found = _candidates(np.array([50.0]), np.array([0.0]), np.array([100.0]), x0, y0, vx, vy, inv, boxes,
-                               level_start)
-    assert sorted(found.tolist()) == list(range(count))
+    boxes, level_start, capsules = edge_tree(x0, y0, x1, y1)
+    assert level_start[-1] == len(boxes) and level_start[1] == count and level_start[2] - level_start[1] == len(capsules)
+    start, found = _candidates(np.array([50.0]), np.array([0.0]), np.array([100.0]), boxes, level_start)
+    assert sorted(found.tolist()) == list(range(-(-count // 8)))
 
 
 def random_halftone_case(rng, channels: int, height: int, width: int, label_dtype):

@@ -27,13 +27,14 @@ _JIT = {"cache": True, "nogil": True, "error_model": "numpy", "fastmath": {"nsz"
 _EXACT = {"cache": True, "nogil": True, "error_model": "numpy"}
 #: Children per node of the edge hierarchy (:func:`edge_tree`).
 _FAN = 8
-#: Candidate (group, edge) pairs gathered at most at once by :func:`nearest_in_groups` (8 bytes each).
+#: Candidate (group, chunk) pairs gathered at most at once by :func:`nearest_in_groups` (8 bytes each).
 _PAIRS = 1 << 23
 
 
 @numba.njit(**_JIT)
-def _candidates(cx, cy, radius, ex, ey, evx, evy, einv, boxes, level_start):  # pragma: no cover - compiled
-    """CSR (start (g+1,), edge (m,)) of the edges within radius[g] of each point (cx[g], cy[g]).
+def _candidates(cx, cy, radius, boxes, level_start):  # pragma: no cover - compiled
+    """CSR (start (g+1,), chunk (m,)) of the chunks (runs of _FAN consecutive edges, the hierarchy's
+    level 1) whose bounding box comes within radius[g] of each point (cx[g], cy[g]).
 
     ``boxes`` are the bounding boxes of a hierarchy (:func:`edge_tree`): level 0 the edges,
     each level above groups _FAN consecutive nodes of the one below; a node whose box is
@@ -59,24 +60,17 @@ def _candidates(cx, cy, radius, ex, ey, evx, evy, einv, boxes, level_start):  # 
             gap_y = max(boxes[box, 1] - cy[g], cy[g] - boxes[box, 3], 0.0)
             if gap_x * gap_x + gap_y * gap_y > r2:
                 continue
-            if level:
+            if level > 1:
                 below = level_start[level] - level_start[level - 1]
                 for child in range(node * _FAN, min((node + 1) * _FAN, below)):
                     stack[top, 0], stack[top, 1] = level - 1, child
                     top += 1
                 continue
-            e = node
-            bx = cx[g] - ex[e]
-            by = cy[g] - ey[e]
-            t = min(max((bx * evx[e] + by * evy[e]) * einv[e], 0.0), 1.0)
-            qx, qy = bx - t * evx[e], by - t * evy[e]
-            if qx * qx + qy * qy > r2:
-                continue
             if n == len(found):
                 grown = np.empty(2 * n, dtype=np.int64)
                 grown[:n] = found
                 found = grown
-            found[n] = e
+            found[n] = node
             n += 1
         start[g + 1] = n
     return start, found[:n]
@@ -95,45 +89,71 @@ def _squared(rx, ry, vx, vy, inv):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _nearest_tracked(cx, cy, ox, oy, start, candidate, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
-    """The nearest of group g's candidate edges to each point (cx[g] + ox[k], cy[g] + oy[k]):
-    (g, k) int32, -1 where none. Compared in float32 from each group's centre (a near tie may
-    pick an edge ~1e-5 mm farther); selects, not branches, so the loop vectorises."""
-    groups, points = len(cx), len(ox)
-    best = np.empty(points, dtype=np.float32)
-    which = np.full((groups, points), -1, dtype=np.int32)
-    for g in range(groups):
-        best[:] = np.inf
-        row_which = which[g]
-        for m in range(start[g], start[g + 1]):
-            e = candidate[m]
-            bx, by = np.float32(cx[g] - ex[e]), np.float32(cy[g] - ey[e])
-            vx, vy, inv = np.float32(evx[e]), np.float32(evy[e]), np.float32(einv[e])
-            edge = np.int32(e)
-            for k in range(points):
-                d2 = _squared(bx + ox[k], by + oy[k], vx, vy, inv)
-                closer = d2 < best[k]
-                row_which[k] = edge if closer else row_which[k]
-                best[k] = d2 if closer else best[k]
-    return which
+def _nearest_in_chunks(cx, cy, ox, oy, start, chunk, capsules, ex, ey, evx, evy, einv,
+                       track):  # pragma: no cover - compiled
+    """The nearest edge of group g's candidate chunks to each point (cx[g] + ox[k], cy[g] + oy[k]):
+    (squared distance (g, k) float32, inf where none; edge (g, k) int32, -1 where none, or
+    (0, 0) without ``track``).
 
-
-@numba.njit(**_JIT)
-def _nearest_float32(cx, cy, ox, oy, start, candidate, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
-    """As :func:`_nearest_tracked`, distances only, in float32 from each group's centre (the
-    offsets from a centre to an edge rounded once: under 2e-5 mm within 300 mm)."""
-    groups, points = len(cx), len(ox)
+    Chunks are visited nearest first by a lower bound of their distance from the group's
+    centre (their capsule's: chord distance less radius); a chunk is skipped when no
+    point's capsule distance beats its best so far, and the rest once even the farthest
+    point (``reach`` from the centre) cannot be nearer to them than its best. Compared in
+    float32 from each group's centre (a near tie may pick an edge ~1e-5 mm farther);
+    selects, not branches, so the loops over points vectorise.
+    """
+    groups, points, edges = len(cx), len(ox), len(ex)
+    reach = 0.0
+    for k in range(points):
+        reach = max(reach, np.sqrt(np.float64(ox[k]) ** 2 + np.float64(oy[k]) ** 2))
     best = np.full((groups, points), np.inf, dtype=np.float32)
+    which = np.full((groups, points) if track else (0, 0), -1, dtype=np.int32)
+    near = np.empty(points, dtype=np.float32)
     for g in range(groups):
+        first, count = start[g], start[g + 1] - start[g]
+        bound = np.empty(count)
+        for n in range(count):
+            c = chunk[first + n]
+            rx, ry = cx[g] - capsules[c, 0], cy[g] - capsules[c, 1]
+            t = min(max((rx * capsules[c, 2] + ry * capsules[c, 3]) * capsules[c, 4], 0.0), 1.0)
+            qx, qy = rx - t * capsules[c, 2], ry - t * capsules[c, 3]
+            bound[n] = np.sqrt(qx * qx + qy * qy) - capsules[c, 5]
         row_best = best[g]
-        for m in range(start[g], start[g + 1]):
-            e = candidate[m]
-            bx, by = np.float32(cx[g] - ex[e]), np.float32(cy[g] - ey[e])
-            vx, vy, inv = np.float32(evx[e]), np.float32(evy[e]), np.float32(einv[e])
+        near[:] = np.inf
+        farthest = np.inf
+        for n in np.argsort(bound):
+            if bound[n] - reach > farthest:
+                break
+            c = chunk[first + n]
+            bx, by = np.float32(cx[g] - capsules[c, 0]), np.float32(cy[g] - capsules[c, 1])
+            vx, vy = np.float32(capsules[c, 2]), np.float32(capsules[c, 3])
+            inv, radius = np.float32(capsules[c, 4]), np.float32(capsules[c, 5])
+            needed = 0
             for k in range(points):
-                d2 = _squared(bx + ox[k], by + oy[k], vx, vy, inv)
-                row_best[k] = d2 if d2 < row_best[k] else row_best[k]
-    return best
+                gap = np.sqrt(_squared(bx + ox[k], by + oy[k], vx, vy, inv)) - radius
+                needed += gap < near[k]
+            if not needed:
+                continue
+            for e in range(c * _FAN, min(c * _FAN + _FAN, edges)):
+                bx, by = np.float32(cx[g] - ex[e]), np.float32(cy[g] - ey[e])
+                vx, vy, inv = np.float32(evx[e]), np.float32(evy[e]), np.float32(einv[e])
+                if track:
+                    row_which = which[g]
+                    edge = np.int32(e)
+                    for k in range(points):
+                        d2 = _squared(bx + ox[k], by + oy[k], vx, vy, inv)
+                        closer = d2 < row_best[k]
+                        row_which[k] = edge if closer else row_which[k]
+                        row_best[k] = d2 if closer else row_best[k]
+                else:
+                    for k in range(points):
+                        d2 = _squared(bx + ox[k], by + oy[k], vx, vy, inv)
+                        row_best[k] = d2 if d2 < row_best[k] else row_best[k]
+            farthest = 0.0
+            for k in range(points):
+                near[k] = np.sqrt(row_best[k])
+                farthest = max(farthest, np.float64(near[k]))
+    return best, which
 
 
 @numba.njit(**_JIT)
@@ -568,26 +588,58 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
 def edge_tree(x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray):
     """Bounding-box hierarchy of edges from (x0, y0) to (x1, y1) ((n,) float, mm), given in ring order
     so that consecutive edges are near each other: (boxes (total, 4) [xmin, ymin, xmax, ymax],
-    level_start (levels + 1,)); level 0 the edges, each level above one box per _FAN boxes
-    below, up to a top level of at most _FAN boxes."""
+    level_start (levels + 1,), capsules); level 0 the edges, each level above one box per
+    _FAN boxes below, up to a top level of at most _FAN boxes (level 1 always: the chunks of
+    :func:`_candidates`). ``capsules`` ((chunks, 6): x, y, vx, vy, 1/|v|^2, radius, mm) hold
+    each chunk's edges within ``radius`` of the chord from its first edge's start to its
+    last edge's end (a chunk of a smooth ring: within its sagitta), so the chord's distance
+    less the radius is a lower bound of the chunk's (:func:`_nearest_in_chunks`)."""
     level = np.column_stack([np.minimum(x0, x1), np.minimum(y0, y1), np.maximum(x0, x1), np.maximum(y0, y1)])
     levels = [level]
-    while len(level) > _FAN:
+    while len(levels) == 1 or len(level) > _FAN:
         pad = -len(level) % _FAN
         grouped = np.concatenate([level, np.repeat(level[-1:], pad, axis=0)]).reshape(-1, _FAN, 4)
         level = np.concatenate([grouped[:, :, :2].min(axis=1), grouped[:, :, 2:].max(axis=1)], axis=1)
         levels.append(level)
     sizes = [len(level) for level in levels]
-    return np.ascontiguousarray(np.concatenate(levels)), np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    return (np.ascontiguousarray(np.concatenate(levels)), np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+            _chunk_capsules(f64(x0), f64(y0), f64(x1), f64(y1)))
+
+
+@numba.njit(**_JIT)
+def _chunk_capsules(x0, y0, x1, y1):  # pragma: no cover - compiled
+    """(chunks, 6) per run of _FAN consecutive edges: its chord (start x, y, vector, 1/|v|^2, 0 if
+    zero-length) and the largest distance of its edges' ends from the chord, widened by 1e-4 mm
+    for float32 comparisons (see :func:`edge_tree`)."""
+    count = len(x0)
+    chunks = -(-count // _FAN)
+    out = np.empty((chunks, 6))
+    for c in range(chunks):
+        first, last = c * _FAN, min(c * _FAN + _FAN, count) - 1
+        ox, oy = x0[first], y0[first]
+        vx, vy = x1[last] - ox, y1[last] - oy
+        length2 = vx * vx + vy * vy
+        inv = 1.0 / length2 if length2 > 0 else 0.0
+        gap = 0.0
+        for e in range(first, last + 1):
+            for px, py in ((x0[e], y0[e]), (x1[e], y1[e])):
+                rx, ry = px - ox, py - oy
+                t = min(max((rx * vx + ry * vy) * inv, 0.0), 1.0)
+                gap = max(gap, np.sqrt((rx - t * vx) ** 2 + (ry - t * vy) ** 2))
+        out[c, 0], out[c, 1], out[c, 2], out[c, 3], out[c, 4] = ox, oy, vx, vy, inv
+        out[c, 5] = gap * (1 + 1e-9) + 1e-4
+    return out
 
 
 def nearest_in_groups(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np.ndarray, oy: np.ndarray,
                       ex: np.ndarray, ey: np.ndarray, evx: np.ndarray, evy: np.ndarray, einv: np.ndarray,
                       tree, track: bool = True) -> np.ndarray:
-    """The points (cx[g] + ox[k], cy[g] + oy[k]) against the edges within radius[g] of (cx[g], cy[g]):
-    with ``track`` the nearest edge ((g, k) int32, -1 where none), else the squared distance
-    to it ((g, k) float32, mm^2; inf where none). Both in float32 from the group's centre
-    (see :func:`_nearest_tracked`, :func:`_nearest_float32`).
+    """The points (cx[g] + ox[k], cy[g] + oy[k]) against the edges of the chunks within radius[g] of
+    (cx[g], cy[g]) (every edge within the radius, and maybe a few beyond: exact wherever the
+    radius holds each point's nearest edge): with ``track`` the nearest edge ((g, k) int32, -1
+    where none), else the squared distance to it ((g, k) float32, mm^2; inf where none). Both in
+    float32 from the group's centre (see :func:`_nearest_in_chunks`).
 
     Edges run from (ex, ey) by (evx, evy) ((n,) float, mm), einv = 1 / |v|^2 (0 for a
     zero-length edge); ``tree`` is :func:`edge_tree` of the same edges.
@@ -596,14 +648,16 @@ def nearest_in_groups(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np
     f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
     cx, cy, radius, ex, ey, evx, evy, einv = (f64(a) for a in (cx, cy, radius, ex, ey, evx, evy, einv))
     ox, oy = f32(ox), f32(oy)
+    boxes, level_start, capsules = tree
     parts = []
-    # groups deep inside a round part gather most of its edges: a bounded number at a time
-    step = max(1, _PAIRS // max(1, len(ex)))
+    # groups deep inside a round part gather most of its chunks: a bounded number at a time
+    step = max(1, _PAIRS // max(1, len(capsules)))
     for first in range(0, max(len(cx), 1), step):
         group = slice(first, first + step)
-        start, candidate = _candidates(cx[group], cy[group], radius[group], ex, ey, evx, evy, einv, *tree)
-        kernel = _nearest_tracked if track else _nearest_float32
-        parts.append(kernel(cx[group], cy[group], ox, oy, start, candidate, ex, ey, evx, evy, einv))
+        start, chunk = _candidates(cx[group], cy[group], radius[group], boxes, level_start)
+        best, which = _nearest_in_chunks(cx[group], cy[group], ox, oy, start, chunk, capsules, ex, ey, evx, evy, einv,
+                                         track)
+        parts.append(which if track else best)
     return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
