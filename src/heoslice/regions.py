@@ -49,6 +49,8 @@ from heoslice.rasterising import Grid, solid_mask
 TOLERANCE_PX = 0.5
 #: Target lattice cell size, mm (cells are a whole number of pixels, 4 to 16).
 _CELL_MM = 0.5
+#: Families whose box pixels x ring sets are at most this get every pixel's exact distance, no lattice fit.
+DIRECT_PIXELS = 25_000
 DIRECTIONS = ("in", "out")
 
 
@@ -585,21 +587,17 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
 
     start_loops = family.holes if outward else (family.outer,)
     start = rings(start_loops, not outward)
-    if not pixels:
-        @functools.cache
-        def nearest():
-            bounds = block_bounds(start.edges, lattice)
-            inside = _inside_loops(points, offsets, start.loops, lattice)
-            at = _signed_centres(start, inside, lattice, bounds, ~_far_side(start, inside, bounds, lattice))
-            return at[2], at[3]
 
+    @functools.cache
+    def nearest():
+        bounds = block_bounds(start.edges, lattice)
+        inside = _inside_loops(points, offsets, start.loops, lattice)
+        at = _signed_centres(start, inside, lattice, bounds, ~_far_side(start, inside, bounds, lattice))
+        return at[2], at[3]
+
+    if not pixels:
         return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
                            lattice=lattice, start_edges=start.edges, nearest=nearest)
-    # measured on the lattice padded by a cell, so that every cell of the family has its eight neighbours
-    padded = _padded(lattice)
-    start_bounds = block_bounds(start.edges, padded)
-    start_inside = _inside_loops(points, offsets, start.loops, padded)
-    far = [_far_side(start, start_inside, start_bounds, padded)]
     inradius = None
     if not family.holes and spec.depth_mm is None:
         import shapely
@@ -611,6 +609,16 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
         apart = rings_apart(rings((family.outer,), True), rings(family.holes, False))
     layout = family_layout(family, spec, inradius, apart)
     ends = [rings(loops, outward) for loops in layout.end]
+    row0, row1, col0, col1 = box
+    if (row1 - row0) * (col1 - col0) * (1 + len(ends)) <= DIRECT_PIXELS:
+        index = _exact_index(lattice, grid, layout, [start] + ends, (row1 - row0, col1 - col0), mask, label_base)
+        return FamilyField(box=box, index=index, layout=layout, lattice=lattice, start_edges=start.edges,
+                           nearest=nearest)
+    # measured on the lattice padded by a cell, so that every cell of the family has its eight neighbours
+    padded = _padded(lattice)
+    start_bounds = block_bounds(start.edges, padded)
+    start_inside = _inside_loops(points, offsets, start.loops, padded)
+    far = [_far_side(start, start_inside, start_bounds, padded)]
     ends_bounds = [block_bounds(rings.edges, padded) for rings in ends]
     ends_inside = [_inside_loops(points, offsets, rings.loops, padded) for rings in ends]
     far += [_far_side(*args, padded) for args in zip(ends, ends_inside, ends_bounds)]
@@ -644,7 +652,6 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     if not known.all():
         # cells without s are refined or hold no solid pixel: expanded from 0
         s, grad = np.where(known, s, 0.0), np.where(known[..., None], grad, 0.0)
-    row0, row1, col0, col1 = box
     index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, (row1 - row0, col1 - col0), mask, label_base)
     curved = np.nonzero((hessian != 0).any(axis=0) & candidate & ~refine)
     if len(curved[0]):
@@ -660,6 +667,28 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     foot, edge = start_at[2][:, 1:-1, 1:-1], start_at[3][inner]
     return FamilyField(box=box, index=index, layout=layout, lattice=lattice,
                        start_edges=start.edges, nearest=lambda: (foot, edge))
+
+
+def _exact_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: list[RingSet],
+                 shape: tuple[int, int], mask: np.ndarray | None = None, label_base: int = 0) -> np.ndarray:
+    """k at every pixel of a small family's box ((rows, cols), labelled like :func:`_expand_planes`),
+    each from its exact distance to every ring set (:func:`_refine_cells` over every cell).
+
+    Below DIRECT_PIXELS (box pixels x ring sets) this beats fitting the lattice, whose fixed
+    cost (~2.5 ms a family) dominates a small island's; each cell's bound is its distance
+    to a ring set's first point."""
+    index = np.empty(shape, dtype=_index_dtype(layout.count + label_base))
+    ci, cj = (a.ravel() for a in np.indices((lattice.rows, lattice.cols)))
+    x, y = lattice.centres()
+    bounds = [np.hypot(x[cj] - rings.edges.x[0], y[ci] - rings.edges.y[0]) for rings in ring_sets]
+    _refine_cells(index, lattice, (ci, cj), grid, layout, [(rings, bound, None) for rings, bound in zip(ring_sets, bounds)],
+                  mask, label_base)
+    return index
+
+
+def _index_dtype(largest: int) -> type:
+    """int16 for labels up to 32000, else int32."""
+    return np.int16 if largest < 32000 else np.int32
 
 
 def _hessian(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
@@ -716,7 +745,7 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
     s = np.where(flat, np.clip(s, -1.0, count - 0.5), s)
     gx = np.where(flat, 0.0, grad[..., 0])
     gy = np.where(flat, 0.0, grad[..., 1])
-    out = np.empty(shape, dtype=np.int16 if count + label_base < 32000 else np.int32)
+    out = np.empty(shape, dtype=_index_dtype(count + label_base))
     return expand_planes(s, gx, gy, lattice.cell, grid.px, grid.py, count, out, mask,
                          (lattice.row0, lattice.col0), label_base)
 
@@ -873,7 +902,7 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     box = (int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
     sizes = np.array([1 if family.nested else field.layout.count + 1 for family, field in zip(families, fields)])
     base = np.concatenate([[1], 1 + np.cumsum(sizes)]).astype(np.int64)
-    dtype = np.int16 if base[-1] < 32000 else np.int32
+    dtype = _index_dtype(int(base[-1]))
     first = fields[0]
     if first.box == box and first.index.dtype == dtype:
         # the outermost family spans the layer's box: its labels are the layer's, no copy of ~15 MP
