@@ -156,6 +156,49 @@ def _nearest_in_chunks(cx, cy, ox, oy, start, chunk, capsules, ex, ey, evx, evy,
     return best, which
 
 
+@numba.njit(inline="always", **_JIT)
+def _point_to_edge(px, py, ex, ey, vx, vy, inv):  # pragma: no cover - compiled
+    """Distance (float64) from a point to the edge from (ex, ey) by (vx, vy), 1/|v|^2 = inv."""
+    rx, ry = px - ex, py - ey
+    t = min(max((rx * vx + ry * vy) * inv, 0.0), 1.0)
+    return np.sqrt((rx - t * vx) ** 2 + (ry - t * vy) ** 2)
+
+
+@numba.njit(**_JIT)
+def _chords_apart(a, b):  # pragma: no cover - compiled
+    """Distance between two capsules' chords (rows of :func:`_chunk_capsules`): 0 where they cross,
+    else the least of each end's distance to the other chord."""
+    ax1, ay1, bx1, by1 = a[0] + a[2], a[1] + a[3], b[0] + b[2], b[1] + b[3]
+    side_a0 = a[2] * (b[1] - a[1]) - a[3] * (b[0] - a[0])
+    side_a1 = a[2] * (by1 - a[1]) - a[3] * (bx1 - a[0])
+    side_b0 = b[2] * (a[1] - b[1]) - b[3] * (a[0] - b[0])
+    side_b1 = b[2] * (ay1 - b[1]) - b[3] * (ax1 - b[0])
+    if side_a0 * side_a1 <= 0.0 and side_b0 * side_b1 <= 0.0:
+        return 0.0
+    return min(_point_to_edge(a[0], a[1], b[0], b[1], b[2], b[3], b[4]),
+               _point_to_edge(ax1, ay1, b[0], b[1], b[2], b[3], b[4]),
+               _point_to_edge(b[0], b[1], a[0], a[1], a[2], a[3], a[4]),
+               _point_to_edge(bx1, by1, a[0], a[1], a[2], a[3], a[4]))
+
+
+@numba.njit(**_JIT)
+def _chunks_apart(start, candidate, cap_a, cap_b, a, b, best):  # pragma: no cover - compiled
+    """Least vertex-to-edge distance, both ways, between each chunk of edge set ``a`` and its candidate
+    chunks of ``b`` (CSR start, candidate), where their capsules can come closer than ``best``
+    (an upper bound, returned if nothing is closer). ``a``, ``b``: (n, 5) x, y, vx, vy, 1/|v|^2."""
+    na, nb = len(a), len(b)
+    for i in range(len(cap_a)):
+        for m in range(start[i], start[i + 1]):
+            j = candidate[m]
+            if _chords_apart(cap_a[i], cap_b[j]) - cap_a[i, 5] - cap_b[j, 5] >= best:
+                continue
+            for e in range(i * _FAN, min(i * _FAN + _FAN, na)):
+                for f in range(j * _FAN, min(j * _FAN + _FAN, nb)):
+                    best = min(best, _point_to_edge(a[e, 0], a[e, 1], b[f, 0], b[f, 1], b[f, 2], b[f, 3], b[f, 4]),
+                               _point_to_edge(b[f, 0], b[f, 1], a[e, 0], a[e, 1], a[e, 2], a[e, 3], a[e, 4]))
+    return best
+
+
 @numba.njit(**_JIT)
 def _expand_planes(s, gx, gy, cell, px, py, count, out, mask, r0, c0, base):  # pragma: no cover - compiled
     """out[i*cell + v, j*cell + u] = clip(floor(s_ij + gx_ij x_u - gy_ij y_v) + 1, 1, count) over the
@@ -659,6 +702,19 @@ def nearest_in_groups(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np
                                          track)
         parts.append(which if track else best)
     return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def edge_sets_apart(a: np.ndarray, tree_a, b: np.ndarray, tree_b, bound: float) -> float:
+    """Least vertex-to-edge distance (mm) both ways between two edge sets ((n, 5) x, y, vx, vy, 1/|v|^2,
+    each with its :func:`edge_tree`), given an upper bound ``bound`` of it (returned if nothing is closer):
+    chunk pairs whose capsules cannot come that close are skipped (:func:`_chunks_apart`)."""
+    capsules_a, capsules_b = tree_a[2], tree_b[2]
+    centre_x = capsules_a[:, 0] + 0.5 * capsules_a[:, 2]
+    centre_y = capsules_a[:, 1] + 0.5 * capsules_a[:, 3]
+    reach = 0.5 * np.hypot(capsules_a[:, 2], capsules_a[:, 3]) + capsules_a[:, 5]
+    start, candidate = _candidates(centre_x, centre_y, bound + reach, tree_b[0], tree_b[1])
+    return float(_chunks_apart(start, candidate, capsules_a, capsules_b, np.ascontiguousarray(a, dtype=np.float64),
+                               np.ascontiguousarray(b, dtype=np.float64), float(bound)))
 
 
 def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: int, px: float, py: float,
