@@ -249,22 +249,24 @@ def _boundary_within(s, spread, miss, count):  # pragma: no cover - compiled
 
 
 @numba.njit(inline="always", **_JIT)
-def _turns(ux, uy, gx, gy, hx, hm, hy, i, j, rows, cols, dx, dy, limit):  # pragma: no cover - compiled
+def _turns(grad, gx, gy, hx, hm, hy, i, j, dx, dy, limit):  # pragma: no cover - compiled
     """Whether the model's gradient (g + H e, e the offset to a neighbour's centre) points away from some
-    neighbour's own direction (u, unit) by more than ``limit`` (a cosine); H = 0 for a plane."""
+    neighbour's own direction (grad there, normalised) by more than ``limit`` (a cosine); H = 0 for a plane."""
+    rows, cols = grad.shape[0], grad.shape[1]
     for ni in range(max(i - 1, 0), min(i + 2, rows)):
         for nj in range(max(j - 1, 0), min(j + 2, cols)):
             ex, ey = (nj - j) * dx, -(ni - i) * dy
             mx = gx + hx * ex + hm * ey
             my = gy + hm * ex + hy * ey
-            length = max(np.sqrt(mx * mx + my * my), 1e-300)
-            if (mx * ux[ni, nj] + my * uy[ni, nj]) / length < limit:
+            nx, ny = grad[ni, nj, 0], grad[ni, nj, 1]
+            scale = max(np.sqrt(mx * mx + my * my), 1e-300) * max(np.sqrt(nx * nx + ny * ny), 1e-300)
+            if mx * nx + my * ny < limit * scale:
                 return True
     return False
 
 
 @numba.njit(**_JIT)
-def _refine_flags(s, gx, gy, hxx, hxy, hyy, known, side, candidate, dx, dy, tolerance, limit,
+def _refine_flags(s, grad, hxx, hxy, hyy, known, side, candidate, dx, dy, tolerance, limit,
                   count):  # pragma: no cover - compiled
     """Cells to evaluate per pixel: candidates whose plane (s, gradient) misses s at a neighbour's
     centre (where s is ``known``) by more than ``tolerance`` x the slope, and so does their
@@ -282,46 +284,44 @@ def _refine_flags(s, gx, gy, hxx, hxy, hyy, known, side, candidate, dx, dy, tole
     rows, cols = s.shape
     curved = hxx.shape[0] > 0
     out = np.zeros((rows, cols), dtype=np.bool_)
-    slope = np.sqrt(gx * gx + gy * gy)
-    length = np.maximum(slope, 1e-300)
-    ux, uy = gx / length, gy / length
     for i in range(rows):
-        up, down = max(i - 1, 0), min(i + 1, rows - 1)
         for j in range(cols):
             if not candidate[i, j]:
                 continue
-            left, right = max(j - 1, 0), min(j + 1, cols - 1)
             if not known[i, j]:
                 out[i, j] = True
                 continue
-            allowed = tolerance * max(slope[i, j], 1e-9)
+            gx, gy, centre = grad[i, j, 0], grad[i, j, 1], s[i, j]
+            slope = np.sqrt(gx * gx + gy * gy)
+            allowed = tolerance * max(slope, 1e-9)
             all_inside = True
             flat, bent, compared = 0.0, 0.0, 0
             hx, hm, hy = (hxx[i, j], hxy[i, j], hyy[i, j]) if curved else (0.0, 0.0, 0.0)
-            for ni, di in ((up, -1), (i, 0), (down, 1)):
-                for nj, dj in ((left, -1), (j, 0), (right, 1)):
+            for di in range(-1, 2):
+                ni = min(max(i + di, 0), rows - 1)
+                ey = -di * dy
+                for dj in range(-1, 2):
+                    nj = min(max(j + dj, 0), cols - 1)
                     all_inside = all_inside and side[ni, nj]
                     if not known[ni, nj]:
                         all_inside = False
                         continue
                     compared += di != 0 or dj != 0
-                    ex, ey = dj * dx, -di * dy
-                    guess = s[i, j] + gx[i, j] * ex + gy[i, j] * ey
-                    flat = max(flat, abs(guess - s[ni, nj]))
-                    guess += 0.5 * (hx * ex * ex + hy * ey * ey) + hm * ex * ey
-                    bent = max(bent, abs(guess - s[ni, nj]))
-            reach = 0.5 * (abs(gx[i, j]) * dx + abs(gy[i, j]) * dy)
+                    ex = dj * dx
+                    guess = centre + gx * ex + gy * ey - s[ni, nj]
+                    flat = max(flat, abs(guess))
+                    bent = max(bent, abs(guess + 0.5 * (hx * ex * ex + hy * ey * ey) + hm * ex * ey))
+            reach = 0.5 * (abs(gx) * dx + abs(gy) * dy)
             bend = 0.125 * (abs(hx) * dx * dx + 2.0 * abs(hm) * dx * dy + abs(hy) * dy * dy)
             quadratic = curved and allowed < flat and bent < flat
             if quadratic:
-                refine = bent > allowed and _boundary_within(s[i, j], reach + bend, bent, count)
+                refine = bent > allowed and _boundary_within(centre, reach + bend, bent, count)
             else:
-                refine = flat > allowed and _boundary_within(s[i, j], reach, flat, count)
+                refine = flat > allowed and _boundary_within(centre, reach, flat, count)
             refine = refine or compared == 0  # no neighbour to check the plane against
-            if not refine and not all_inside and _turns(ux, uy, gx[i, j], gy[i, j], 0.0, 0.0, 0.0, i, j, rows, cols,
-                                                        dx, dy, limit):
-                quadratic = (curved and not (bent > allowed and _boundary_within(s[i, j], reach + bend, bent, count))
-                             and not _turns(ux, uy, gx[i, j], gy[i, j], hx, hm, hy, i, j, rows, cols, dx, dy, limit))
+            if not refine and not all_inside and _turns(grad, gx, gy, 0.0, 0.0, 0.0, i, j, dx, dy, limit):
+                quadratic = (curved and not (bent > allowed and _boundary_within(centre, reach + bend, bent, count))
+                             and not _turns(grad, gx, gy, hx, hm, hy, i, j, dx, dy, limit))
                 refine = not quadratic
             out[i, j] = refine
             if curved and not quadratic:
@@ -742,7 +742,7 @@ def refine_flags(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np.nd
     per mm^2, zeroed in place where the plane fits at least as well."""
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     parts = f64(hessian) if hessian is not None else np.zeros((3, 0, 0))
-    out = _refine_flags(f64(s), f64(grad[..., 0]), f64(grad[..., 1]), parts[0], parts[1], parts[2],
+    out = _refine_flags(f64(s), f64(grad), parts[0], parts[1], parts[2],
                         np.ascontiguousarray(known), np.ascontiguousarray(side), np.ascontiguousarray(candidate),
                         float(dx), float(dy),
                         float(tolerance), float(limit), float(count))
