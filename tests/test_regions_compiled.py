@@ -16,6 +16,7 @@ from heoslice.regions_compiled import (
     edge_tree,
     expand_planes,
     feet,
+    hessian_of,
     nearest_in_groups,
     refine_flags,
 )
@@ -291,6 +292,27 @@ def test_refine_flags_lets_a_quadratic_explain_a_round_outlines_turn():
     assert not flags_of(s, grad, kept, lattice, side=side)[beside].any()
     np.testing.assert_allclose(kept[:, beside], hessian[:, beside])
     assert (flags_of(s, grad, -hessian, lattice, side=side) == planes)[beside].all()
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 7), (6, 1), (2, 2), (30, 41)])
+def test_hessian_of_is_numpys_gradient_of_the_gradients(shape):
+    """s_xx, s_xy, s_yy are numpy.gradient's differences of the gradients (central inside, one-sided at the
+    border, y up while rows go down; s_xy the mean of both cross differences), zero along an axis one cell
+    wide, and all three zero at every cell where any is not finite (a NaN gradient beside it)."""
+    rng = np.random.default_rng(sum(shape))
+    grad = rng.normal(size=shape + (2,))
+    grad[rng.random(shape) < 0.1] = np.nan
+    dx, dy = 0.5, 0.4
+    expected = np.zeros((3,) + shape)
+    if shape[0] > 1:
+        expected[2] = np.gradient(grad[..., 1], -dy, axis=0)
+        expected[1] = np.gradient(grad[..., 0], -dy, axis=0)
+    if shape[1] > 1:
+        expected[0] = np.gradient(grad[..., 0], dx, axis=1)
+        across = np.gradient(grad[..., 1], dx, axis=1)
+        expected[1] = 0.5 * (expected[1] + across) if shape[0] > 1 else across
+    expected[:, ~np.isfinite(expected).all(axis=0)] = 0.0
+    np.testing.assert_allclose(hessian_of(grad, dx, dy), expected, rtol=1e-12, atol=1e-12)
 
 
 @settings(max_examples=20, deadline=None)

@@ -694,16 +694,9 @@ def _hessian(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
     gradients ((rows, cols, 2) per mm, y up) of neighbouring centres (one-sided at the border;
     zero along an axis the lattice is one cell wide in, and all zero where a neighbour's
     gradient is unknown (past a pole of eq. 10's continuation): no quadratic there)."""
-    hessian = np.zeros((3,) + grad.shape[:2])
-    if grad.shape[0] > 1:
-        hessian[2] = np.gradient(grad[..., 1], -lattice.dy, axis=0)
-        hessian[1] = np.gradient(grad[..., 0], -lattice.dy, axis=0)
-    if grad.shape[1] > 1:
-        hessian[0] = np.gradient(grad[..., 0], lattice.dx, axis=1)
-        across = np.gradient(grad[..., 1], lattice.dx, axis=1)
-        hessian[1] = 0.5 * (hessian[1] + across) if grad.shape[0] > 1 else across
-    hessian[:, ~np.isfinite(hessian).all(axis=0)] = 0.0
-    return hessian
+    from heoslice.regions_compiled import hessian_of
+
+    return hessian_of(grad, lattice.dx, lattice.dy)
 
 
 def _refine(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np.ndarray, candidate: np.ndarray,

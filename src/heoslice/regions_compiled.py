@@ -329,6 +329,36 @@ def _refine_flags(s, grad, hxx, hxy, hyy, known, side, candidate, dx, dy, tolera
     return out
 
 
+@numba.njit(inline="always", **_JIT)
+def _difference(lower, upper, steps, step):  # pragma: no cover - compiled
+    """(upper - lower) / (steps * step), as numpy.gradient takes it (central inside, one-sided at a border)."""
+    return (upper - lower) / (steps * step)
+
+
+@numba.njit(**_JIT)
+def _hessian_of(grad, dx, dy):  # pragma: no cover - compiled
+    """(3, rows, cols) s_xx, s_xy, s_yy from the gradients (rows, cols, 2) at centres dx, dy apart (rows
+    downwards, y up): numpy.gradient's differences, zero along an axis one cell wide, all zero where
+    any is not finite (see regions._hessian)."""
+    rows, cols = grad.shape[0], grad.shape[1]
+    out = np.zeros((3, rows, cols))
+    for i in range(rows):
+        up, down = max(i - 1, 0), min(i + 1, rows - 1)
+        for j in range(cols):
+            left, right = max(j - 1, 0), min(j + 1, cols - 1)
+            hyy = hyx = hxx = hxy = 0.0
+            if rows > 1:
+                hyy = _difference(grad[up, j, 1], grad[down, j, 1], down - up, -dy)
+                hyx = _difference(grad[up, j, 0], grad[down, j, 0], down - up, -dy)
+            if cols > 1:
+                hxx = _difference(grad[i, left, 0], grad[i, right, 0], right - left, dx)
+                hxy = _difference(grad[i, left, 1], grad[i, right, 1], right - left, dx)
+                hyx = 0.5 * (hyx + hxy) if rows > 1 else hxy
+            if np.isfinite(hxx) and np.isfinite(hyx) and np.isfinite(hyy):
+                out[0, i, j], out[1, i, j], out[2, i, j] = hxx, hyx, hyy
+    return out
+
+
 @numba.njit(**_JIT)
 def _feet(qx, qy, edge, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
     """Distance from each point to its given edge, and the nearest point on it (the foot)."""
@@ -749,6 +779,12 @@ def refine_flags(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np.nd
     if hessian is not None and parts is not hessian:
         hessian[...] = parts
     return out
+
+
+def hessian_of(grad: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    """(3, rows, cols) s_xx, s_xy, s_yy per mm^2 from gradients (rows, cols, 2) per mm at lattice centres
+    dx, dy (mm) apart (compiled :func:`_hessian_of`)."""
+    return _hessian_of(np.ascontiguousarray(grad, dtype=np.float64), float(dx), float(dy))
 
 
 def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, ex: np.ndarray, ey: np.ndarray, evx: np.ndarray,
