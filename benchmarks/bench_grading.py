@@ -52,7 +52,7 @@ def layer_inputs(contours, index: int):
             np.where(parent >= 0, parent - first, -1))
 
 
-STAGES = ("lattice_distance", "_inside_loops", "_refine", "_expand_planes", "_refine_cells", "_family_mask")
+STAGES = ("lattice_edges", "_inside_loops", "_refine", "_expand_planes", "_refine_cells", "_family_mask")
 
 
 @contextlib.contextmanager

@@ -19,6 +19,7 @@ from heoslice.regions_compiled import (
     hessian_of,
     nearest_in_groups,
     refine_flags,
+    signed_feet,
 )
 
 
@@ -292,6 +293,29 @@ def test_refine_flags_lets_a_quadratic_explain_a_round_outlines_turn():
     assert not flags_of(s, grad, kept, lattice, side=side)[beside].any()
     np.testing.assert_allclose(kept[:, beside], hessian[:, beside])
     assert (flags_of(s, grad, -hessian, lattice, side=side) == planes)[beside].all()
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.booleans())
+def test_signed_feet_are_the_distance_to_the_given_edge_signed_by_side(seed, encloses):
+    """At each lattice centre, the foot and distance are those of its given edge (feet), the distance is
+    negated where ``inside`` differs from ``encloses``, and the gradient is the unit vector from the foot
+    to the centre times that sign."""
+    rng = np.random.default_rng(seed)
+    edges = random_rings(rng, int(rng.integers(1, 4)))
+    rows, cols, dx, dy, x0, y0 = 7, 9, 0.7, 0.6, -3.0, 2.0
+    edge = rng.integers(0, len(edges.x), (rows, cols))
+    inside = rng.random((rows, cols)) < 0.5
+    signed, gradient, foot = signed_feet(edge, x0, y0, dx, dy, edges.x, edges.y, edges.vx, edges.vy,
+                                         edges.inv_len2, inside, encloses)
+    qx = np.broadcast_to(x0 + (np.arange(cols) + 0.5) * dx, (rows, cols)).ravel()
+    qy = np.broadcast_to((y0 - (np.arange(rows) + 0.5) * dy)[:, None], (rows, cols)).ravel()
+    distance, fx, fy = feet(qx, qy, edge.ravel(), edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2)
+    sign = np.where(inside.ravel() == encloses, 1.0, -1.0)
+    np.testing.assert_allclose(signed.ravel(), sign * distance, atol=1e-12)
+    np.testing.assert_allclose(foot.reshape(2, -1), np.stack([fx, fy]), atol=1e-12)
+    unit = np.stack([qx - fx, qy - fy], axis=1) / distance[:, None] * sign[:, None]
+    np.testing.assert_allclose(gradient.reshape(-1, 2), unit, atol=1e-9)
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (1, 7), (6, 1), (2, 2), (30, 41)])

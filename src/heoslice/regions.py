@@ -277,7 +277,7 @@ def nearest_edges(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np.nda
                              track)
 
 
-#: Lattice cells per side of the blocks whose centres share candidate edges in :func:`lattice_distance`.
+#: Lattice cells per side of the blocks whose centres share candidate edges in :func:`lattice_edges`.
 _BLOCK = 8
 
 
@@ -316,19 +316,17 @@ def block_bounds(edges: RingEdges, lattice: Lattice) -> BlockBounds:
     return BlockBounds(blocks, edge.reshape(shape), upper.reshape(shape))
 
 
-def lattice_distance(edges: RingEdges, lattice: Lattice, tree: tuple | None = None,
-                     bounds: BlockBounds | None = None, wanted: np.ndarray | None = None):
-    """Exact distance from every cell centre to the rings: (distance, foot x, foot y, edge), each (rows, cols).
+def lattice_edges(edges: RingEdges, lattice: Lattice, tree: tuple | None = None,
+                  bounds: BlockBounds | None = None, wanted: np.ndarray | None = None) -> np.ndarray:
+    """The nearest edge of the rings to every cell centre ((rows, cols) int).
 
     Centres are taken in blocks of _BLOCK x _BLOCK cells. A block's centre C has an
     upper bound U of its distance (:func:`block_bounds`). A centre p at a = |p - C| from
     C has d(p) <= U + a (the distance is 1-Lipschitz), so its nearest edge is within
     U + 2 a of C: every edge within U + 2 max a of C is a candidate, and the nearest is
     exact. Blocks not ``wanted`` ((rows, cols) bool over the blocks; default all) are not
-    measured: their centres get the distance to their block's seed edge (an upper bound).
+    measured: their centres get their block's seed edge (its distance an upper bound).
     """
-    from heoslice.regions_compiled import feet
-
     if tree is None:
         tree = ring_tree(edges)
     if bounds is None:
@@ -343,12 +341,7 @@ def lattice_distance(edges: RingEdges, lattice: Lattice, tree: tuple | None = No
         edge[chosen] = nearest_edges(x[chosen[1]], y[chosen[0]], bounds.upper[chosen] + 2.0 * np.hypot(ox, oy).max(),
                                      ox, oy, edges, tree)
     edge = edge.reshape(blocks.rows, blocks.cols, b, b).transpose(0, 2, 1, 3).reshape(blocks.rows * b, blocks.cols * b)
-    edge = edge[:lattice.rows, :lattice.cols].ravel().astype(np.int64)
-    x, y = lattice.centres()
-    qx = np.broadcast_to(x, (lattice.rows, lattice.cols)).ravel()
-    qy = np.broadcast_to(y[:, None], (lattice.rows, lattice.cols)).ravel()
-    found = feet(qx, qy, edge, edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2) + (edge,)
-    return tuple(value.reshape(lattice.rows, lattice.cols) for value in found)
+    return edge[:lattice.rows, :lattice.cols]
 
 
 def _inside_loops(points: np.ndarray, offsets: np.ndarray, loops, lattice: Lattice) -> np.ndarray:
@@ -552,15 +545,14 @@ def _far_side(rings: RingSet, inside: np.ndarray, bounds: BlockBounds, lattice: 
 def _signed_centres(rings: RingSet, inside: np.ndarray, lattice: Lattice, bounds: BlockBounds | None = None,
                     wanted: np.ndarray | None = None):
     """At every cell centre: signed distance to the rings (> 0 on the family's side), its unit gradient, foot, edge
-    (exact in the ``wanted`` blocks, see :func:`lattice_distance`); ``inside``: (rows, cols) bool, the
+    (exact in the ``wanted`` blocks, see :func:`lattice_edges`); ``inside``: (rows, cols) bool, the
     cell centres inside the rings."""
-    distance, fx, fy, edge = lattice_distance(rings.edges, lattice, rings.tree, bounds, wanted)
-    sign = np.where(inside == rings.encloses, 1.0, -1.0)
-    x, y = lattice.centres()
-    with np.errstate(invalid="ignore", divide="ignore"):
-        scale = np.where(distance > 0, sign / distance, 0.0)
-    gradient = np.stack([(x[None, :] - fx) * scale, (y[:, None] - fy) * scale], axis=-1)
-    return sign * distance, gradient, np.stack([fx, fy]), edge
+    from heoslice.regions_compiled import signed_feet
+
+    edge = lattice_edges(rings.edges, lattice, rings.tree, bounds, wanted)
+    e = rings.edges
+    return signed_feet(edge, lattice.x0, lattice.y0, lattice.dx, lattice.dy, e.x, e.y, e.vx, e.vy, e.inv_len2,
+                       inside, rings.encloses) + (edge,)
 
 
 def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid,

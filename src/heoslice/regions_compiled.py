@@ -360,6 +360,31 @@ def _hessian_of(grad, dx, dy):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
+def _signed_feet(edge, x0, y0, dx, dy, ex, ey, evx, evy, einv, inside, encloses):  # pragma: no cover - compiled
+    """At every lattice centre (x0 + (j + 1/2) dx, y0 - (i + 1/2) dy): signed distance to its edge
+    (> 0 where ``inside`` equals ``encloses``), its unit gradient (0 on the edge) and the foot."""
+    rows, cols = edge.shape
+    signed = np.empty((rows, cols))
+    gradient = np.empty((rows, cols, 2))
+    foot = np.empty((2, rows, cols))
+    for i in range(rows):
+        y = y0 - (i + 0.5) * dy
+        for j in range(cols):
+            x = x0 + (j + 0.5) * dx
+            e = edge[i, j]
+            rx, ry = x - ex[e], y - ey[e]
+            t = min(max((rx * evx[e] + ry * evy[e]) * einv[e], 0.0), 1.0)
+            fx, fy = ex[e] + t * evx[e], ey[e] + t * evy[e]
+            distance = np.sqrt((x - fx) ** 2 + (y - fy) ** 2)
+            sign = 1.0 if inside[i, j] == encloses else -1.0
+            scale = sign / distance if distance > 0 else 0.0
+            signed[i, j] = sign * distance
+            gradient[i, j, 0], gradient[i, j, 1] = (x - fx) * scale, (y - fy) * scale
+            foot[0, i, j], foot[1, i, j] = fx, fy
+    return signed, gradient, foot
+
+
+@numba.njit(**_JIT)
 def _feet(qx, qy, edge, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
     """Distance from each point to its given edge, and the nearest point on it (the foot)."""
     n = len(qx)
@@ -785,6 +810,17 @@ def hessian_of(grad: np.ndarray, dx: float, dy: float) -> np.ndarray:
     """(3, rows, cols) s_xx, s_xy, s_yy per mm^2 from gradients (rows, cols, 2) per mm at lattice centres
     dx, dy (mm) apart (compiled :func:`_hessian_of`)."""
     return _hessian_of(np.ascontiguousarray(grad, dtype=np.float64), float(dx), float(dy))
+
+
+def signed_feet(edge: np.ndarray, x0: float, y0: float, dx: float, dy: float, ex: np.ndarray, ey: np.ndarray,
+                evx: np.ndarray, evy: np.ndarray, einv: np.ndarray, inside: np.ndarray,
+                encloses: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(signed distance (rows, cols) mm, unit gradient (rows, cols, 2), foot (2, rows, cols) mm) of every
+    centre of a lattice (x0, y0 its top-left corner, dx, dy its cells, mm) from its nearest edge ``edge``
+    ((rows, cols) int); > 0 where ``inside`` ((rows, cols) bool) equals ``encloses`` (compiled)."""
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    return _signed_feet(np.ascontiguousarray(edge, dtype=np.int64), float(x0), float(y0), float(dx), float(dy),
+                        f64(ex), f64(ey), f64(evx), f64(evy), f64(einv), np.ascontiguousarray(inside), bool(encloses))
 
 
 def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, ex: np.ndarray, ey: np.ndarray, evx: np.ndarray,
