@@ -12,6 +12,7 @@ from heoslice.regions import ring_edges
 from heoslice.regions_compiled import (
     _candidates,
     band_cells,
+    band_field,
     curve_cells,
     edge_tree,
     expand_planes,
@@ -160,11 +161,12 @@ def test_expand_planes_is_the_plane_formula(seed, cell, masked):
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2 ** 32 - 1), st.integers(1, 5), st.booleans())
 def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked):
-    """band_cells writes, at every pixel of the given cells, clip(floor(s) + 1, 1, count) of s from
-    regions._band_coordinate (eq. 10 for two or more ring sets, d count / length for one) of each
-    ring set's distance there: its quadratic where the cell's model is given, the measured value where
-    it is NaN; + base on mask pixels and 0 off them; pixels past the image and other cells untouched."""
-    from heoslice.regions import FamilyLayout, _band_coordinate
+    """band_cells writes, at every pixel of the given cells, clip(floor(s) + 1, 1, count) of s by eq. 10
+    (s = (1 - w_start) count from regions.ring_weights for two or more ring sets, d count / length for
+    one) of each ring set's distance there: its quadratic where the cell's model is given, the measured
+    value where it is NaN; + base on mask pixels and 0 off them; pixels past the image and other cells
+    untouched."""
+    from heoslice.regions import ring_weights
 
     rng = np.random.default_rng(seed)
     cell, rows, cols, count, length, base = 5, 4, 5, int(rng.integers(1, 40)), 3.0, 3
@@ -183,9 +185,10 @@ def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked
     quadratic = (m[..., 0, :] + m[..., 1, :] * x + m[..., 2, :] * y + 0.5 * (m[..., 3, :] * x * x + m[..., 5, :] * y * y)
                  + m[..., 4, :] * x * y)
     d = np.where(np.isnan(models[..., :1]), measured, quadratic)
-    layout = FamilyLayout((0,), tuple((k,) for k in range(1, sets)), count, length)
-    s, _ = _band_coordinate(layout, (d[0], None), [(dk, None) for dk in d[1:]], gradients=False)
-    s = np.where(np.isnan(s), count, s)
+    if sets == 1:
+        s = d[0] * count / length
+    else:
+        s = (1.0 - ring_weights(np.moveaxis(d, 0, -1).reshape(-1, sets))[:, 0].reshape(d.shape[1:])) * count
     expected = np.clip(np.floor(s) + 1, 1, count)
     clear = np.abs(s - np.rint(s)) > 1e-9
     written = np.zeros(index.shape, dtype=bool)
@@ -337,6 +340,45 @@ def test_hessian_of_is_numpys_gradient_of_the_gradients(shape):
         expected[1] = 0.5 * (expected[1] + across) if shape[0] > 1 else across
     expected[:, ~np.isfinite(expected).all(axis=0)] = 0.0
     np.testing.assert_allclose(hessian_of(grad, dx, dy), expected, rtol=1e-12, atol=1e-12)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 6))
+def test_band_field_is_eq10_and_its_gradient(seed, sets):
+    """With distances to circles (signed, > 0 on the family's side: inside the first, outside the others),
+    band_field's s is (1 - w_start) N_R of eq. 10 (regions.ring_weights) wherever every distance is
+    positive, its gradient matches central differences of s, and s is NaN where the continuation passes
+    its pole (d_m + d_start A <= 0)."""
+    from heoslice.regions import ring_weights
+
+    rng = np.random.default_rng(seed)
+    centres = np.vstack([[0.0, 0.0], rng.uniform(-5, 5, (sets - 1, 2))])
+    radii = np.concatenate([[9.0], rng.uniform(0.3, 1.5, sets - 1)])
+    count = int(rng.integers(2, 30))
+
+    def field(x, y):
+        rho = np.hypot(x[None] - centres[:, 0, None, None], y[None] - centres[:, 1, None, None])
+        sign = np.where(np.arange(sets) == 0, -1.0, 1.0)[:, None, None]
+        d = sign * (rho - radii[:, None, None])
+        g = np.stack([x[None] - centres[:, 0, None, None], y[None] - centres[:, 1, None, None]], axis=-1)
+        return d, g * (sign / rho)[..., None]
+
+    x, y = np.meshgrid(np.linspace(-8, 8, 23), np.linspace(-8, 8, 19))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d, g = field(x, y)
+    s, grad = band_field(d, g, count)
+    positive = (d > 0).all(axis=0)
+    expected = (1.0 - ring_weights(np.moveaxis(d, 0, -1)[positive])[:, 0]) * count
+    np.testing.assert_allclose(s[positive], expected, rtol=1e-9)
+    h = 1e-6
+    numeric_x = (band_field(*field(x + h, y), count)[0] - band_field(*field(x - h, y), count)[0]) / (2 * h)
+    numeric_y = (band_field(*field(x, y + h), count)[0] - band_field(*field(x, y - h), count)[0]) / (2 * h)
+    smooth = positive & np.isfinite(g).all(axis=(0, 3))  # not at a circle's centre, where its gradient is 0 / 0
+    np.testing.assert_allclose(grad[smooth, 0], numeric_x[smooth], rtol=1e-4, atol=1e-4 * count)
+    np.testing.assert_allclose(grad[smooth, 1], numeric_y[smooth], rtol=1e-4, atol=1e-4 * count)
+    far = np.full((sets, 1, 1), 1.0)
+    far[0] = -50.0  # deep off the family's side: d_m + d_start A = 1 - 50 A < 0
+    assert np.isnan(band_field(far, np.zeros((sets, 1, 1, 2)), count)[0]).all()
 
 
 @settings(max_examples=20, deadline=None)

@@ -416,8 +416,8 @@ def rings_apart(first: RingSet, second: RingSet) -> float:
     return edge_sets_apart(a, first.tree, b, second.tree, bound)
 
 
-def _band_coordinate(layout: FamilyLayout, start: tuple, ends: list[tuple], gradients: bool = True):
-    """s = r * N_R (and its gradient) from (signed distance, gradient) to the starting rings and each ending ring.
+def _band_coordinate(layout: FamilyLayout, start: tuple, ends: list[tuple]) -> tuple[np.ndarray, np.ndarray]:
+    """s = r * N_R and its gradient from (signed distance, gradient) to the starting rings and each ending ring.
 
     One ring set: s = d N_R / L_S. Several: r = 1 - w_start of eq. 10, which divided
     through by the product of all d is r = u / (1 + u), u = d_start * sum_end 1 / d_k.
@@ -426,39 +426,16 @@ def _band_coordinate(layout: FamilyLayout, start: tuple, ends: list[tuple], grad
     (< 0 off the family's side) s continues smoothly across the rings, so the lattice
     cells a contour crosses are fitted and checked like any other. Where the continuation
     passes a pole (d_m + d_start A <= 0, deep off the family's side) s is NaN. Distances
-    (...) mm, gradients (..., 2) or None when ``gradients`` is False.
+    (rows, cols) mm, gradients (rows, cols, 2); several ring sets compiled
+    (:func:`heoslice.regions_compiled.band_field`).
     """
+    from heoslice.regions_compiled import band_field
+
     d0, g0 = start
     if not layout.end:
         scale = layout.count / layout.length_mm
-        return d0 * scale, (g0 * scale if gradients else None)
-    tiny = 1e-12
-    # the nearest ending ring m so far, and sum_{k != m} 1 / d_k (with its gradient) over the others
-    dm, gm = ends[0]
-    rest = np.zeros_like(d0)
-    grad_rest = np.zeros_like(g0) if gradients else None
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for d, g in ends[1:]:
-            closer = np.abs(d) < np.abs(dm)
-            farther = np.where(closer, dm, d)
-            inverse = 1.0 / np.where(np.abs(farther) < tiny, tiny, farther)
-            rest = rest + inverse
-            dm = np.where(closer, d, dm)
-            if gradients:
-                grad_rest = grad_rest - np.where(closer[..., None], gm, g) * (inverse * inverse)[..., None]
-                gm = np.where(closer[..., None], g, gm)
-        a = 1.0 + dm * rest
-        numerator = d0 * a
-        denominator = dm + numerator
-        usable = denominator > 0
-        scale = np.where(usable, 1.0 / np.where(usable, denominator, 1.0), np.nan) * layout.count
-        s = numerator * scale
-        if not gradients:
-            return s, None
-        grad_a = gm * rest[..., None] + dm[..., None] * grad_rest
-        grad_numerator = g0 * a[..., None] + d0[..., None] * grad_a
-        grad = (dm[..., None] * grad_numerator - numerator[..., None] * gm) * (scale * scale / layout.count)[..., None]
-    return s, grad
+        return d0 * scale, g0 * scale
+    return band_field(np.stack([d0] + [d for d, _ in ends]), np.stack([g0] + [g for _, g in ends]), layout.count)
 
 
 # ---------------------------------------------------------------------------------------------

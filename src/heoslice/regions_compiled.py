@@ -426,6 +426,59 @@ def _curve_cells(index, ci, cj, cell, s, gx, gy, hxx, hxy, hyy, px, py, count, m
     return index
 
 
+@numba.njit(inline="always", **_JIT)
+def _nearest_end(d, sets):  # pragma: no cover - compiled
+    """Index m (1..sets-1) of the ending ring set nearest in |d| (the first of equals), d (sets,) mm."""
+    m = 1
+    for j in range(2, sets):
+        if abs(d[j]) < abs(d[m]):
+            m = j
+    return m
+
+
+@numba.njit(inline="always", **_JIT)
+def _inverse(value):  # pragma: no cover - compiled
+    """1 / d, with |d| below 1e-12 taken as 1e-12 (a pixel on a ring)."""
+    return 1.0 / (value if abs(value) >= 1e-12 else 1e-12)
+
+
+@numba.njit(**_JIT)
+def _band_field(d, g, count):  # pragma: no cover - compiled
+    """s of eq. 10 (pole-free form, regions._band_coordinate) and its gradient at every lattice
+    centre, from the signed distances d (sets, rows, cols) and their gradients g (sets, rows,
+    cols, 2) of the starting ring set (0) and each ending one; NaN past a pole."""
+    sets, rows, cols = d.shape
+    s = np.empty((rows, cols))
+    grad = np.empty((rows, cols, 2))
+    here = np.empty(sets)
+    for i in range(rows):
+        for j in range(cols):
+            for k in range(sets):
+                here[k] = d[k, i, j]
+            m = _nearest_end(here, sets)
+            rest, rest_x, rest_y = 0.0, 0.0, 0.0
+            for k in range(1, sets):
+                if k != m:
+                    inverse = _inverse(here[k])
+                    rest += inverse
+                    rest_x -= g[k, i, j, 0] * inverse * inverse
+                    rest_y -= g[k, i, j, 1] * inverse * inverse
+            dm, d0 = here[m], here[0]
+            a = 1.0 + dm * rest
+            numerator = d0 * a
+            denominator = dm + numerator
+            if not denominator > 0:
+                s[i, j], grad[i, j, 0], grad[i, j, 1] = np.nan, np.nan, np.nan
+                continue
+            scale = count / denominator
+            s[i, j] = numerator * scale
+            for axis, rest_axis in ((0, rest_x), (1, rest_y)):
+                grad_a = g[m, i, j, axis] * rest + dm * rest_axis
+                grad_numerator = g[0, i, j, axis] * a + d0 * grad_a
+                grad[i, j, axis] = (dm * grad_numerator - numerator * g[m, i, j, axis]) * scale / denominator
+    return s, grad
+
+
 @numba.njit(**_JIT)
 def _band_cells(index, ci, cj, cell, px, py, models, measured, count, length, mask, r0, c0,
                 base):  # pragma: no cover - compiled
@@ -437,7 +490,6 @@ def _band_cells(index, ci, cj, cell, px, py, models, measured, count, length, ma
     masked = mask.shape[0] > 0
     sets = models.shape[0]
     half = 0.5 * cell
-    tiny = 1e-12
     d = np.empty(sets)
     for n in range(len(ci)):
         for v in range(cell):
@@ -459,14 +511,11 @@ def _band_cells(index, ci, cj, cell, px, py, models, measured, count, length, ma
                 if sets == 1:
                     s = d[0] * count / length
                 else:
-                    m = 1
-                    for j in range(2, sets):
-                        if abs(d[j]) < abs(d[m]):
-                            m = j
+                    m = _nearest_end(d, sets)
                     rest = 0.0
                     for j in range(1, sets):
                         if j != m:
-                            rest += 1.0 / (d[j] if abs(d[j]) >= tiny else tiny)
+                            rest += _inverse(d[j])
                     numerator = d[0] * (1.0 + d[m] * rest)
                     denominator = d[m] + numerator
                     s = count * numerator / denominator if denominator > 0 else count
@@ -831,6 +880,14 @@ def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, ex: np.ndarray, ey: n
     return _feet(f64(qx), f64(qy), np.ascontiguousarray(edge, dtype=np.int64), f64(ex), f64(ey), f64(evx), f64(evy),
                  f64(einv))
 
+
+
+def band_field(d: np.ndarray, g: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(s (rows, cols), its gradient (rows, cols, 2) per mm) of eq. 10 at lattice centres from the signed
+    distances d (sets, rows, cols) mm and gradients g (sets, rows, cols, 2) of the starting ring set
+    and each ending one (two or more sets; compiled :func:`_band_field`)."""
+    return _band_field(np.ascontiguousarray(d, dtype=np.float64), np.ascontiguousarray(g, dtype=np.float64),
+                       float(count))
 
 
 def band_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, px: float, py: float,
