@@ -683,12 +683,14 @@ def _strip_codec(compression: str):
 
 
 def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float], compression: str,
-                        rows_per_strip: int = 64) -> bytes:
+                        rows_per_strip: int = 256) -> bytes:
     """TIFF bytes of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, MSB first).
 
     The strips are compressed here, straight from the packed bits, with tifffile's
     own codec for the chosen compression, and handed to tifffile already encoded:
-    the mask is never expanded to one byte per pixel.
+    the mask is never expanded to one byte per pixel. Strips of 256 rows (~120 KB of
+    bits at 3800 px) cost a fifth less to write than 64 (0.86 -> 0.65 ms for a
+    1937 x 1937 px droplet mask, deflate).
     """
     import tifffile
 
