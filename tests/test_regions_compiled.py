@@ -137,15 +137,16 @@ def test_nearest_in_groups_reports_no_edge_beyond_the_radius():
 def test_expand_planes_is_the_plane_formula(seed, cell, masked):
     """Each pixel gets clip(floor(s + gx x - gy y) + 1, 1, count) of its cell's plane (x, y its offset
     from the cell centre), except where s sits within float32 rounding of an integer; with a
-    mask, + base on its pixels and 0 off them."""
+    mask, + base on its pixels and 0 off them; every pixel of an empty cell 0."""
     rng = np.random.default_rng(seed)
     rows, cols, count, base = int(rng.integers(1, 6)), int(rng.integers(1, 6)), int(rng.integers(1, 50)), 7
     s = rng.uniform(-3, count + 3, (rows, cols))
     gx, gy = rng.uniform(-3, 3, (rows, cols)), rng.uniform(-3, 3, (rows, cols))
+    empty = rng.random((rows, cols)) < 0.3
     px, py = 0.04, 0.05
     shape = (rows * cell - int(rng.integers(0, cell)), cols * cell - int(rng.integers(0, cell)))
     mask = rng.random((shape[0] + 5, shape[1] + 4)) < 0.7 if masked else None
-    out = expand_planes(s, gx, gy, cell, px, py, count, np.empty(shape, np.int16), mask, (3, 2), base)
+    out = expand_planes(s, gx, gy, cell, px, py, count, np.full(shape, -5, np.int16), mask, (3, 2), base, empty)
     r, c = np.indices(shape)
     i, j = r // cell, c // cell
     x = (c - j * cell + 0.5 - cell / 2) * px
@@ -154,7 +155,8 @@ def test_expand_planes_is_the_plane_formula(seed, cell, masked):
     expected = np.clip(np.floor(value) + 1, 1, count)
     if masked:
         expected = np.where(mask[3:3 + shape[0], 2:2 + shape[1]], expected + base, 0)
-    clear = np.abs(value - np.rint(value)) > 1e-3
+    expected = np.where(empty[i, j], 0, expected)
+    clear = (np.abs(value - np.rint(value)) > 1e-3) | empty[i, j]
     assert np.array_equal(out[clear], expected[clear])
 
 

@@ -614,12 +614,14 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     if layout.end and len(refined[0]):
         models = _ring_models(layout, [start_at[:2]] + [at[:2] for at in ends_at], grad, padded, grid, refined)
     inner = (slice(1, -1), slice(1, -1))
-    s, grad, beyond, candidate, refine, known = (a[inner] for a in (s, grad, beyond, candidate, refine, known))
+    s, grad, beyond, candidate, refine, known, touched = (a[inner] for a in (s, grad, beyond, candidate, refine, known,
+                                                                             touched))
     hessian = hessian[:, 1:-1, 1:-1]
     if not known.all():
         # cells without s are refined or hold no solid pixel: expanded from 0
         s, grad = np.where(known, s, 0.0), np.where(known[..., None], grad, 0.0)
-    index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, (row1 - row0, col1 - col0), mask, label_base)
+    index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, (row1 - row0, col1 - col0), mask, label_base,
+                           ~touched)
     curved = np.nonzero((hessian != 0).any(axis=0) & candidate & ~refine)
     if len(curved[0]):
         from heoslice.regions_compiled import curve_cells
@@ -696,10 +698,12 @@ def _refine(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np.ndarray
 
 
 def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid, flat: np.ndarray, count: int,
-                   shape: tuple[int, int], mask: np.ndarray | None = None, label_base: int = 0) -> np.ndarray:
+                   shape: tuple[int, int], mask: np.ndarray | None = None, label_base: int = 0,
+                   empty: np.ndarray | None = None) -> np.ndarray:
     """k = clip(floor(s) + 1, 1, N_R) at every pixel of the family's box ((rows, cols) int16, int32
     past 32000 labels) from one plane per cell (compiled); a ``flat`` cell takes its centre's
-    value throughout. With the layer's ``mask``: k + label_base on solid pixels, else 0."""
+    value throughout, an ``empty`` one (none of the family's pixels) 0. With the layer's
+    ``mask``: k + label_base on solid pixels, else 0."""
     from heoslice.regions_compiled import expand_planes
 
     s = np.where(flat, np.clip(s, -1.0, count - 0.5), s)
@@ -707,7 +711,7 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
     gy = np.where(flat, 0.0, grad[..., 1])
     out = np.empty(shape, dtype=_index_dtype(count + label_base))
     return expand_planes(s, gx, gy, lattice.cell, grid.px, grid.py, count, out, mask,
-                         (lattice.row0, lattice.col0), label_base)
+                         (lattice.row0, lattice.col0), label_base, empty)
 
 
 def _ring_models(layout: FamilyLayout, fields: list[tuple], grad: np.ndarray, lattice: Lattice, grid: Grid,

@@ -200,43 +200,68 @@ def _chunks_apart(start, candidate, cap_a, cap_b, a, b, best):  # pragma: no cov
 
 
 @numba.njit(**_JIT)
-def _expand_planes(s, gx, gy, cell, px, py, count, out, mask, r0, c0, base):  # pragma: no cover - compiled
+def _expand_planes(s, gx, gy, empty, cell, px, py, count, out, mask, r0, c0, base):  # pragma: no cover - compiled
     """out[i*cell + v, j*cell + u] = clip(floor(s_ij + gx_ij x_u - gy_ij y_v) + 1, 1, count) over the
     part of the lattice that ``out`` covers; x_u, y_v are pixel offsets from the cell centre (mm).
     With a ``mask`` (not 0 x 0), ``base`` is added and pixels where mask[r0 + row, c0 + col] is
-    False get 0. Per row of cells the column terms are laid out once (float32: s to ~1e-4
-    of a band), so each pixel row is one long branch-free loop."""
+    False get 0. ``empty`` cells (no pixel of the family) get 0 without evaluating. Per row of
+    cells the column terms are laid out once (float32: s to ~1e-4 of a band), so each pixel
+    row is a few long branch-free loops, one per run of cells that are not empty."""
     rows, cols = out.shape
     masked = mask.shape[0] > 0
     half = 0.5 * cell
     column = np.empty(cols, dtype=np.float32)
     slope = np.empty(cols, dtype=np.float32)
+    span_from = np.empty(s.shape[1] + 1, dtype=np.int64)
+    span_to = np.empty(s.shape[1] + 1, dtype=np.int64)
     low, high, offset = np.float32(1.0), np.float32(count), np.float32(base)
     for i in range(s.shape[0]):
         if i * cell >= rows:
             break
+        spans = 0
         for j in range(min(s.shape[1], -(-cols // cell))):
-            for c in range(j * cell, min(cols, (j + 1) * cell)):
+            if empty[i, j]:
+                continue
+            first, last = j * cell, min(cols, (j + 1) * cell)
+            if spans and span_to[spans - 1] == first:
+                span_to[spans - 1] = last
+            else:
+                span_from[spans], span_to[spans] = first, last
+                spans += 1
+            for c in range(first, last):
                 column[c] = s[i, j] + 1.0 + gx[i, j] * ((c - j * cell + 0.5 - half) * px)
                 slope[c] = gy[i, j] * py
         for v in range(min(cell, rows - i * cell)):
             r = i * cell + v
             down = np.float32(v + 0.5 - half)
             line = out[r]
-            if masked:
-                keep = mask[r0 + r, c0:c0 + cols]
-                for c in range(cols):
-                    value = column[c] - slope[c] * down
-                    value = low if value < low else value
-                    value = high if value > high else value
-                    line[c] = np.int32((value + offset) * np.float32(keep[c]))
-            else:
-                for c in range(cols):
-                    value = column[c] - slope[c] * down
-                    value = low if value < low else value
-                    value = high if value > high else value
-                    line[c] = np.int32(value)
+            keep = mask[r0 + r, c0:c0 + cols] if masked else mask[0, 0:0]
+            done = 0
+            for n in range(spans):
+                lo, hi = span_from[n], span_to[n]
+                line[done:lo] = 0
+                done = hi
+                _expand_run(line[lo:hi], column[lo:hi], slope[lo:hi], keep[lo:hi] if masked else keep, down, low,
+                            high, offset, masked)
+            line[done:] = 0
     return out
+
+
+@numba.njit(inline="always", **_JIT)
+def _expand_run(line, column, slope, keep, down, low, high, offset, masked):  # pragma: no cover - compiled
+    """One run of a pixel row in :func:`_expand_planes`: a branch-free loop that vectorises."""
+    if masked:
+        for c in range(len(line)):
+            value = column[c] - slope[c] * down
+            value = low if value < low else value
+            value = high if value > high else value
+            line[c] = np.int32((value + offset) * np.float32(keep[c]))
+    else:
+        for c in range(len(line)):
+            value = column[c] - slope[c] * down
+            value = low if value < low else value
+            value = high if value > high else value
+            line[c] = np.int32(value)
 
 
 @numba.njit(inline="always", **_JIT)
@@ -823,17 +848,19 @@ def edge_sets_apart(a: np.ndarray, tree_a, b: np.ndarray, tree_b, bound: float) 
 
 def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: int, px: float, py: float,
                   count: int, out: np.ndarray, mask: np.ndarray | None = None, origin: tuple[int, int] = (0, 0),
-                  base: int = 0) -> np.ndarray:
+                  base: int = 0, empty: np.ndarray | None = None) -> np.ndarray:
     """Sub-region k = clip(floor(s) + 1, 1, count) at every pixel of ``out`` ((rows, cols) int16/int32,
     rows <= cells_r * cell) from one plane per lattice cell: s (cells_r, cells_c) at the cell
     centre, gradient (gx, gy) per mm (y up, rows down). With ``mask`` ((h, w) bool, C order;
     ``out`` covers rows/columns from ``origin`` of it) the result is k + base on its True
-    pixels and 0 elsewhere: a family's labels in the same pass."""
+    pixels and 0 elsewhere: a family's labels in the same pass. ``empty`` ((cells_r, cells_c)
+    bool) cells are written 0 throughout."""
     if out.shape[0] > np.shape(s)[0] * cell or out.shape[1] > np.shape(s)[1] * cell:
         raise ValueError(f"expand_planes: {out.shape} pixels exceed {np.shape(s)} cells of {cell}")
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
-    return _expand_planes(f64(s), f64(gx), f64(gy), int(cell), float(px), float(py), float(count), out, mask,
+    empty = np.zeros(np.shape(s), dtype=np.bool_) if empty is None else np.ascontiguousarray(empty, dtype=np.bool_)
+    return _expand_planes(f64(s), f64(gx), f64(gy), empty, int(cell), float(px), float(py), float(count), out, mask,
                           int(origin[0]), int(origin[1]), int(base))
 
 
