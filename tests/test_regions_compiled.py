@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -18,6 +19,7 @@ from heoslice.regions_compiled import (
     expand_planes,
     feet,
     hessian_of,
+    inside_centres,
     nearest_in_groups,
     refine_flags,
     signed_feet,
@@ -321,6 +323,38 @@ def test_signed_feet_are_the_distance_to_the_given_edge_signed_by_side(seed, enc
     np.testing.assert_allclose(foot.reshape(2, -1), np.stack([fx, fy]), atol=1e-12)
     unit = np.stack([qx - fx, qy - fy], axis=1) / distance[:, None] * sign[:, None]
     np.testing.assert_allclose(gradient.reshape(-1, 2), unit, atol=1e-9)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 4), st.booleans())
+def test_inside_centres_is_the_solid_mask_of_disjoint_rings(seed, rings, clockwise):
+    """For disjoint star-shaped rings of either orientation, the lattice centres inside them are the pixels
+    rasterising.solid_mask fills on the same grid (an independent scanline rasteriser), centres on an
+    edge aside."""
+    from heoslice.rasterising import Grid, solid_mask
+
+    rng = np.random.default_rng(seed)
+    loops = []
+    for k in range(rings):
+        count = int(rng.integers(3, 60))
+        angle = np.sort(rng.uniform(0, 2 * np.pi, count))
+        radius = rng.uniform(0.5, 4.0) * rng.uniform(0.5, 1.0, count)
+        loop = np.array([10.0 * k, 0.0]) + np.column_stack([radius * np.cos(angle), radius * np.sin(angle)])
+        loops.append(loop[::-1] if clockwise else loop)
+    points = np.concatenate(loops)
+    offsets = np.concatenate([[0], np.cumsum([len(loop) for loop in loops])])
+    edges = ring_edges(points, offsets, list(range(rings)))
+    grid = Grid(width=int(rng.integers(20, 120)), height=int(rng.integers(10, 60)), x_left=-5.0, y_top=5.0,
+                px=float(rng.uniform(0.1, 0.6)), py=float(rng.uniform(0.1, 0.6)))
+    inside = inside_centres(edges.x, edges.y, edges.vx, edges.vy, grid.x_left, grid.y_top, grid.px, grid.py,
+                            grid.height, grid.width)
+    forward = [loop if shapely.LinearRing(loop).is_ccw else loop[::-1] for loop in loops]
+    expected = solid_mask(np.concatenate(forward), offsets, grid)
+    x = grid.x_left + (np.arange(grid.width) + 0.5) * grid.px
+    y = grid.y_top - (np.arange(grid.height) + 0.5) * grid.py
+    near = shapely.distance(shapely.points(*np.meshgrid(x, y)), shapely.MultiLineString(
+        [np.vstack([loop, loop[:1]]) for loop in loops])) < 1e-9
+    assert np.array_equal(inside[~near], expected[~near])
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (1, 7), (6, 1), (2, 2), (30, 41)])

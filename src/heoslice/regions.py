@@ -344,19 +344,14 @@ def lattice_edges(edges: RingEdges, lattice: Lattice, tree: tuple | None = None,
     return edge[:lattice.rows, :lattice.cols]
 
 
-def _inside_loops(points: np.ndarray, offsets: np.ndarray, loops, lattice: Lattice) -> np.ndarray:
-    """(rows, cols) bool: cell centres inside any of the loops (each taken counter-clockwise)."""
-    rings = [points[offsets[loop]:offsets[loop + 1]] for loop in loops]
-    rings = [ring if _area(ring) > 0 else ring[::-1] for ring in rings]
-    sizes = np.array([len(ring) for ring in rings])
-    grid = Grid(width=lattice.cols, height=lattice.rows, x_left=lattice.x0, y_top=lattice.y0,
-                px=lattice.dx, py=lattice.dy)
-    return solid_mask(np.concatenate(rings), np.concatenate([[0], np.cumsum(sizes)]), grid)
+def _inside_loops(rings: RingSet, lattice: Lattice) -> np.ndarray:
+    """(rows, cols) bool: cell centres inside any of the ring set's loops (a family's holes, or its outer
+    ring: they neither cross nor nest, so the parity of crossings decides)."""
+    from heoslice.regions_compiled import inside_centres
 
-
-def _area(ring: np.ndarray) -> float:
-    """Signed (shoelace) area of one ring ((p, 2) float, mm), > 0 counter-clockwise."""
-    return 0.5 * float(np.sum(ring[:, 0] * np.roll(ring[:, 1], -1) - np.roll(ring[:, 0], -1) * ring[:, 1]))
+    e = rings.edges
+    return inside_centres(e.x, e.y, e.vx, e.vy, lattice.x0, lattice.y0, lattice.dx, lattice.dy, lattice.rows,
+                          lattice.cols)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -558,7 +553,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     @functools.cache
     def nearest():
         bounds = block_bounds(start.edges, lattice)
-        inside = _inside_loops(points, offsets, start.loops, lattice)
+        inside = _inside_loops(start, lattice)
         at = _signed_centres(start, inside, lattice, bounds, ~_far_side(start, inside, bounds, lattice))
         return at[2], at[3]
 
@@ -584,10 +579,10 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     # measured on the lattice padded by a cell, so that every cell of the family has its eight neighbours
     padded = _padded(lattice)
     start_bounds = block_bounds(start.edges, padded)
-    start_inside = _inside_loops(points, offsets, start.loops, padded)
+    start_inside = _inside_loops(start, padded)
     far = [_far_side(start, start_inside, start_bounds, padded)]
     ends_bounds = [block_bounds(rings.edges, padded) for rings in ends]
-    ends_inside = [_inside_loops(points, offsets, rings.loops, padded) for rings in ends]
+    ends_inside = [_inside_loops(rings, padded) for rings in ends]
     far += [_far_side(*args, padded) for args in zip(ends, ends_inside, ends_bounds)]
     wanted = ~np.logical_or.reduce(far)
     start_at = _signed_centres(start, start_inside, padded, start_bounds, wanted)

@@ -410,6 +410,34 @@ def _signed_feet(edge, x0, y0, dx, dy, ex, ey, evx, evy, einv, inside, encloses)
 
 
 @numba.njit(**_JIT)
+def _inside_centres(ex, ey, evx, evy, x0, y0, dx, dy, rows, cols):  # pragma: no cover - compiled
+    """(rows, cols) bool: lattice centres (x0 + (j + 1/2) dx, y0 - (i + 1/2) dy) inside the closed rings
+    whose edges run from (ex, ey) by (evx, evy), by the parity of the edges crossed to their left
+    (each edge half-open in y)."""
+    flips = np.zeros((rows, cols + 1), dtype=np.uint8)
+    for e in range(len(ex)):
+        if evy[e] == 0.0:
+            continue
+        low, high = min(ey[e], ey[e] + evy[e]), max(ey[e], ey[e] + evy[e])
+        first = max(int(np.ceil((y0 - high) / dy - 0.5)) - 1, 0)
+        last = min(int(np.floor((y0 - low) / dy - 0.5)) + 1, rows - 1)
+        for i in range(first, last + 1):
+            y = y0 - (i + 0.5) * dy
+            if y < low or y >= high:
+                continue
+            x = ex[e] + (y - ey[e]) / evy[e] * evx[e]
+            k = min(max(int(np.ceil((x - x0) / dx - 0.5)), 0), cols)
+            flips[i, k] ^= 1
+    inside = np.empty((rows, cols), dtype=np.bool_)
+    for i in range(rows):
+        parity = 0
+        for j in range(cols):
+            parity ^= flips[i, j]
+            inside[i, j] = parity == 1
+    return inside
+
+
+@numba.njit(**_JIT)
 def _feet(qx, qy, edge, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
     """Distance from each point to its given edge, and the nearest point on it (the foot)."""
     n = len(qx)
@@ -897,6 +925,16 @@ def signed_feet(edge: np.ndarray, x0: float, y0: float, dx: float, dy: float, ex
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     return _signed_feet(np.ascontiguousarray(edge, dtype=np.int64), float(x0), float(y0), float(dx), float(dy),
                         f64(ex), f64(ey), f64(evx), f64(evy), f64(einv), np.ascontiguousarray(inside), bool(encloses))
+
+
+def inside_centres(ex: np.ndarray, ey: np.ndarray, evx: np.ndarray, evy: np.ndarray, x0: float, y0: float,
+                   dx: float, dy: float, rows: int, cols: int) -> np.ndarray:
+    """(rows, cols) bool: the centres of a lattice (x0, y0 its top-left corner, dx, dy its cells, mm) inside
+    the closed rings of the edges from (ex, ey) by (evx, evy) ((n,) mm), even-odd: inside any of
+    them when they neither cross nor nest (compiled :func:`_inside_centres`)."""
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    return _inside_centres(f64(ex), f64(ey), f64(evx), f64(evy), float(x0), float(y0), float(dx), float(dy),
+                           int(rows), int(cols))
 
 
 def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, ex: np.ndarray, ey: np.ndarray, evx: np.ndarray,
