@@ -817,17 +817,32 @@ def edge_tree(x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray):
     each chunk's edges within ``radius`` of the chord from its first edge's start to its
     last edge's end (a chunk of a smooth ring: within its sagitta), so the chord's distance
     less the radius is a lower bound of the chunk's (:func:`_nearest_in_chunks`)."""
-    level = np.column_stack([np.minimum(x0, x1), np.minimum(y0, y1), np.maximum(x0, x1), np.maximum(y0, y1)])
-    levels = [level]
-    while len(levels) == 1 or len(level) > _FAN:
-        pad = -len(level) % _FAN
-        grouped = np.concatenate([level, np.repeat(level[-1:], pad, axis=0)]).reshape(-1, _FAN, 4)
-        level = np.concatenate([grouped[:, :, :2].min(axis=1), grouped[:, :, 2:].max(axis=1)], axis=1)
-        levels.append(level)
-    sizes = [len(level) for level in levels]
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
-    return (np.ascontiguousarray(np.concatenate(levels)), np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
-            _chunk_capsules(f64(x0), f64(y0), f64(x1), f64(y1)))
+    x0, y0, x1, y1 = f64(x0), f64(y0), f64(x1), f64(y1)
+    sizes = [len(x0)]
+    while len(sizes) == 1 or sizes[-1] > _FAN:
+        sizes.append(-(-sizes[-1] // _FAN))
+    level_start = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    return _tree_boxes(x0, y0, x1, y1, level_start), level_start, _chunk_capsules(x0, y0, x1, y1)
+
+
+@numba.njit(**_JIT)
+def _tree_boxes(x0, y0, x1, y1, level_start):  # pragma: no cover - compiled
+    """(level_start[-1], 4) boxes of :func:`edge_tree`: the edges', then each level's over _FAN below."""
+    boxes = np.empty((level_start[-1], 4))
+    for e in range(len(x0)):
+        boxes[e, 0], boxes[e, 1] = min(x0[e], x1[e]), min(y0[e], y1[e])
+        boxes[e, 2], boxes[e, 3] = max(x0[e], x1[e]), max(y0[e], y1[e])
+    for level in range(1, len(level_start) - 1):
+        below, first = level_start[level - 1], level_start[level]
+        for node in range(level_start[level + 1] - first):
+            lo, hi = below + node * _FAN, min(below + node * _FAN + _FAN, first)
+            box = boxes[first + node]
+            box[0], box[1], box[2], box[3] = boxes[lo, 0], boxes[lo, 1], boxes[lo, 2], boxes[lo, 3]
+            for child in range(lo + 1, hi):
+                box[0], box[1] = min(box[0], boxes[child, 0]), min(box[1], boxes[child, 1])
+                box[2], box[3] = max(box[2], boxes[child, 2]), max(box[3], boxes[child, 3])
+    return boxes
 
 
 @numba.njit(**_JIT)
