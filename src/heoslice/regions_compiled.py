@@ -477,28 +477,34 @@ def _feet(qx, qy, edge, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
 @numba.njit(**_JIT)
 def _curve_cells(index, ci, cj, cell, s, gx, gy, hxx, hxy, hyy, px, py, count, mask, r0, c0,
                  base):  # pragma: no cover - compiled
-    """Rewrite whole cells (ci, cj) from their quadratics (see :func:`curve_cells`)."""
+    """Rewrite whole cells (ci, cj) from their quadratics (see :func:`curve_cells`): along each pixel
+    row of a cell the quadratic is A + (B + C x) x, one branch-free loop."""
     rows, cols = index.shape
     masked = mask.shape[0] > 0
     half = 0.5 * cell
+    offsets = (np.arange(cell) + 0.5 - half) * px
     for n in range(len(ci)):
         i, j = ci[n], cj[n]
-        for v in range(cell):
+        height, width = min(cell, rows - i * cell), min(cell, cols - j * cell)
+        if height <= 0 or width <= 0:
+            continue
+        c = 0.5 * hxx[i, j]
+        for v in range(height):
             r = i * cell + v
-            if r >= rows:
-                break
             y = -(v + 0.5 - half) * py
-            for u in range(cell):
-                c = j * cell + u
-                if c >= cols:
-                    break
-                x = (u + 0.5 - half) * px
-                value = (s[i, j] + gx[i, j] * x + gy[i, j] * y
-                         + 0.5 * (hxx[i, j] * x * x + hyy[i, j] * y * y) + hxy[i, j] * x * y)
-                k = min(max(np.floor(value) + 1.0, 1.0), count)
-                if masked:
-                    k = k + base if mask[r0 + r, c0 + c] else 0.0
-                index[r, c] = int(k)
+            a = s[i, j] + 1.0 + gy[i, j] * y + 0.5 * hyy[i, j] * y * y
+            b = gx[i, j] + hxy[i, j] * y
+            line = index[r, j * cell:j * cell + width]
+            if masked:
+                keep = mask[r0 + r, c0 + j * cell:c0 + j * cell + width]
+                for u in range(width):
+                    x = offsets[u]
+                    value = min(max(np.floor(a + (b + c * x) * x), 1.0), count)
+                    line[u] = int((value + base) * keep[u])
+            else:
+                for u in range(width):
+                    x = offsets[u]
+                    line[u] = int(min(max(np.floor(a + (b + c * x) * x), 1.0), count))
     return index
 
 
