@@ -567,44 +567,59 @@ def _band_cells(index, ci, cj, cell, px, py, models, measured, count, length, ma
     """Sub-region k of every pixel of whole cells (ci, cj) from each ring set's distance there: the
     ring's quadratic models[j, n] (d, d_x, d_y, d_xx, d_xy, d_yy at the cell centre) or, where
     its d is NaN, measured[j, n, pixel]; s by eq. 10 (pole-free form of regions._band_coordinate)
-    with ring set 0 starting, or s = d_0 count / length with one ring set."""
+    with ring set 0 starting, or s = d_0 count / length with one ring set. Per cell, each ring
+    set's distances fill a row of pixels, and eq. 10 runs over the cell's pixels with the
+    nearest ending ring kept as a running minimum (the first of equals), so the loops vectorise."""
     rows, cols = index.shape
     masked = mask.shape[0] > 0
     sets = models.shape[0]
     half = 0.5 * cell
-    d = np.empty(sets)
+    pixels = cell * cell
+    x = np.empty(pixels)
+    y = np.empty(pixels)
+    for p in range(pixels):
+        x[p] = (p % cell + 0.5 - half) * px
+        y[p] = -(p // cell + 0.5 - half) * py
+    d = np.empty((sets, pixels))
+    nearest = np.empty(pixels)
+    rest = np.empty(pixels)
+    s = np.empty(pixels)
     for n in range(len(ci)):
-        for v in range(cell):
-            r = ci[n] * cell + v
-            if r >= rows:
-                break
-            y = -(v + 0.5 - half) * py
-            for u in range(cell):
-                c = cj[n] * cell + u
-                if c >= cols:
-                    break
-                x = (u + 0.5 - half) * px
-                for j in range(sets):
-                    if np.isnan(models[j, n, 0]):
-                        d[j] = measured[j, n, v * cell + u]
-                    else:
-                        d[j] = (models[j, n, 0] + models[j, n, 1] * x + models[j, n, 2] * y
-                                + 0.5 * (models[j, n, 3] * x * x + models[j, n, 5] * y * y) + models[j, n, 4] * x * y)
-                if sets == 1:
-                    s = d[0] * count / length
-                else:
-                    m = _nearest_end(d, sets)
-                    rest = 0.0
-                    for j in range(1, sets):
-                        if j != m:
-                            rest += _inverse(d[j])
-                    numerator = d[0] * (1.0 + d[m] * rest)
-                    denominator = d[m] + numerator
-                    s = count * numerator / denominator if denominator > 0 else count
-                k = min(max(np.floor(s) + 1.0, 1.0), count)
-                if masked:
-                    k = k + base if mask[r0 + r, c0 + c] else 0.0
-                index[r, c] = int(k)
+        for j in range(sets):
+            model = models[j, n]
+            if np.isnan(model[0]):
+                d[j] = measured[j, n]
+            else:
+                for p in range(pixels):
+                    d[j, p] = (model[0] + model[1] * x[p] + model[2] * y[p]
+                               + 0.5 * (model[3] * x[p] * x[p] + model[5] * y[p] * y[p]) + model[4] * x[p] * y[p])
+        if sets == 1:
+            for p in range(pixels):
+                s[p] = d[0, p] * count / length
+        else:
+            nearest[:] = d[1]
+            rest[:] = 0.0
+            for j in range(2, sets):
+                for p in range(pixels):
+                    closer = abs(d[j, p]) < abs(nearest[p])
+                    rest[p] += _inverse(nearest[p] if closer else d[j, p])
+                    nearest[p] = d[j, p] if closer else nearest[p]
+            for p in range(pixels):
+                numerator = d[0, p] * (1.0 + nearest[p] * rest[p])
+                denominator = nearest[p] + numerator
+                s[p] = count * numerator / denominator if denominator > 0 else count
+        height, width = min(cell, rows - ci[n] * cell), min(cell, cols - cj[n] * cell)
+        for v in range(height):
+            r, c = ci[n] * cell + v, cj[n] * cell
+            line = index[r, c:c + width]
+            if masked:
+                keep = mask[r0 + r, c0 + c:c0 + c + width]
+                for u in range(width):
+                    k = min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count)
+                    line[u] = int((k + base) * keep[u])
+            else:
+                for u in range(width):
+                    line[u] = int(min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count))
     return index
 
 
