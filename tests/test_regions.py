@@ -409,6 +409,25 @@ def test_layer_label_is_base_plus_the_family_index_on_solid_pixels():
     assert regions.label[solid].min() == regions.base[0] + 1
 
 
+def test_layer_labels_from_the_packed_mask_alone_agree_on_solid_pixels():
+    """Built from the bit-packed solid mask only, the layer's labels equal those built with the bool mask on
+    every solid pixel (an organ with a hole, an island in it and a nested lesion; box columns not on byte
+    boundaries), the families and label bases the same."""
+    organ, hole, island, lesion = (circle(9.0), circle(3.0, 240, (-3.0, -2.0), clockwise=True),
+                                   circle(1.0, 120, (-3.0, -2.0)), circle(2.0, 200, (4.0, 2.0)))
+    points, offsets, area, parent = layer(organ, hole, island, lesion)
+    grid = grid_around(9.7)
+    mask = solid_mask(points, offsets, grid)
+    spec = RegionSpec(nozzle_mm=0.3)
+    masked = layer_regions(points, offsets, area, parent, mask, grid, spec)
+    packed = layer_regions(points, offsets, area, parent, None, grid, spec, np.packbits(mask, axis=1))
+    assert packed.box == masked.box and np.array_equal(packed.base, masked.base)
+    r0, r1, c0, c1 = masked.box
+    solid = mask[r0:r1, c0:c1]
+    assert np.array_equal(packed.label[solid], masked.label[solid])
+    assert (masked.label[~solid] == 0).all() and packed.label[solid].min() > 0
+
+
 def rough_outline(seed: int, count: int = 900, radius: float = 6.0, amplitude: float = 0.6,
                   modes: int = 40) -> np.ndarray:
     """(count, 2) a star-shaped outline whose radius is a random sum of ``modes`` harmonics (mm): many
@@ -507,6 +526,8 @@ def test_droplet_planes_are_render_graded_masks_bit_for_bit(per_vertex):
                                 point_material=point_material)
         got = np.unpackbits(planes, axis=2, count=grid.width).astype(bool)
         assert np.array_equal(got, expected)
+        assert np.array_equal(droplet_planes(points, offsets, area, parent, shells, None, grid, spec, index,
+                                             point_material=point_material, packed=np.packbits(mask, axis=1)), planes)
         assert np.array_equal(render_graded(points, offsets, area, parent, shells, mask, grid, spec, index,
                                             channels=True, point_material=point_material).masks, got)
         assert np.array_equal(got.sum(axis=0), mask.astype(int))

@@ -140,7 +140,7 @@ def test_nearest_in_groups_reports_no_edge_beyond_the_radius():
 def test_expand_planes_is_the_plane_formula(seed, cell, masked):
     """Each pixel gets clip(floor(s + gx x - gy y) + 1, 1, count) of its cell's plane (x, y its offset
     from the cell centre), except where s sits within float32 rounding of an integer; with a
-    mask, + base on its pixels and 0 off them; every pixel of an empty cell 0."""
+    mask, 0 off its pixels; + base on the others; every pixel of an empty cell 0."""
     rng = np.random.default_rng(seed)
     rows, cols, count, base = int(rng.integers(1, 6)), int(rng.integers(1, 6)), int(rng.integers(1, 50)), 7
     s = rng.uniform(-3, count + 3, (rows, cols))
@@ -156,8 +156,9 @@ def test_expand_planes_is_the_plane_formula(seed, cell, masked):
     y = (r - i * cell + 0.5 - cell / 2) * py
     value = s[i, j] + gx[i, j] * x - gy[i, j] * y
     expected = np.clip(np.floor(value) + 1, 1, count)
+    expected = expected + base
     if masked:
-        expected = np.where(mask[3:3 + shape[0], 2:2 + shape[1]], expected + base, 0)
+        expected = np.where(mask[3:3 + shape[0], 2:2 + shape[1]], expected, 0)
     expected = np.where(empty[i, j], 0, expected)
     clear = (np.abs(value - np.rint(value)) > 1e-3) | empty[i, j]
     assert np.array_equal(out[clear], expected[clear])
@@ -169,7 +170,7 @@ def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked
     """band_cells writes, at every pixel of the given cells, clip(floor(s) + 1, 1, count) of s by eq. 10
     (s = (1 - w_start) count from regions.ring_weights for two or more ring sets, d count / length for
     one) of each ring set's distance there: its quadratic where the cell's model is given, the measured
-    value where it is NaN; + base on mask pixels and 0 off them; pixels past the image and other cells
+    value where it is NaN; + base, and 0 off the mask's pixels; pixels past the image and other cells
     untouched."""
     from heoslice.regions import ring_weights
 
@@ -203,7 +204,7 @@ def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked
             if r >= index.shape[0] or c >= index.shape[1]:
                 continue
             written[r, c] = True
-            want = expected[n, k] if mask is None else (expected[n, k] + base if mask[r, c] else 0)
+            want = expected[n, k] + base if mask is None or mask[r, c] else 0
             if clear[n, k]:
                 assert index[r, c] == want, (n, k, s[n, k])
     assert (index[~written] == -7).all()
@@ -459,7 +460,7 @@ def test_band_field_is_eq10_and_its_gradient(seed, sets):
 @given(st.integers(0, 2 ** 32 - 1), st.booleans())
 def test_curve_cells_is_the_quadratic_formula(seed, masked):
     """curve_cells writes clip(floor(s + g.d + d.H.d / 2) + 1, 1, count) at every pixel of the given cells
-    (d the pixel's offset from the cell centre, y up), + base on mask pixels and 0 off them, and
+    (d the pixel's offset from the cell centre, y up), + base, and 0 off the mask's pixels, and
     leaves every other pixel alone."""
     rng = np.random.default_rng(seed)
     cell, rows, cols, count, base = 6, 4, 5, 30, 3
@@ -477,9 +478,9 @@ def test_curve_cells_is_the_quadratic_formula(seed, masked):
     y = -(r - i * cell + 0.5 - cell / 2) * py
     g, h = grad[i, j], hessian[:, i, j]
     value = s[i, j] + g[..., 0] * x + g[..., 1] * y + 0.5 * (h[0] * x * x + h[2] * y * y) + h[1] * x * y
-    expected = np.clip(np.floor(value) + 1, 1, count)
+    expected = np.clip(np.floor(value) + 1, 1, count) + base
     if masked:
-        expected = np.where(mask, expected + base, 0)
+        expected = np.where(mask, expected, 0)
     chosen = np.zeros((rows, cols), bool)
     chosen[ci, cj] = True
     inside = chosen[i, j]

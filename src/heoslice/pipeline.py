@@ -161,9 +161,8 @@ def _render_graded_and_write(job: LayerJob) -> tuple:
     graded = job.graded
     started = time.perf_counter()
     packed = packed_mask(job.points, job.offsets, job.grid)
-    mask = np.unpackbits(packed, axis=1, count=job.grid.width).view(bool)
     if graded.channel_paths is not None:
-        planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, mask,
+        planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, None,
                                 job.grid, graded.spec, job.index, point_material=graded.point_material,
                                 packed=packed)
         rendered = time.perf_counter()
@@ -176,6 +175,7 @@ def _render_graded_and_write(job: LayerJob) -> tuple:
         digest = write_file(job.path, data)
         channels = tuple((path.name, write_file(path, blob), count) for path, blob, count in pieces)
         return job.index, digest, solid, rendered - started, encoded - rendered, channels
+    mask = np.unpackbits(packed, axis=1, count=job.grid.width).view(bool)
     layer = render_graded(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, mask, job.grid,
                           graded.spec, job.index, point_colors=job.point_colors,
                           point_material=graded.point_material)

@@ -817,13 +817,17 @@ class LayerRegions:
 
 
 def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, parent: np.ndarray,
-                  mask: np.ndarray, grid: Grid, spec: RegionSpec) -> LayerRegions:
+                  mask: np.ndarray | None, grid: Grid, spec: RegionSpec, packed: np.ndarray | None = None
+                  ) -> LayerRegions:
     """Sub-regions of one layer: loops (points (p, 2) mm, offsets (l+1,), signed areas and parents
     (l,) within the layer) and the layer's solid mask ((height, width) bool).
 
     Families are painted outermost first, each over its own solid pixels; a family
     inside another family's solid (a nested shell) is painted after it, so the inner
-    shell wins where shells overlap.
+    shell wins where shells overlap. Without the bool ``mask``, from the ``packed`` one
+    only (:func:`heoslice.rasterising.packed_mask`; the droplet masks' path, which reads
+    labels only where the layer is solid), the outermost family labels its whole box:
+    pixels off the solid there hold labels too.
     """
     families = tuple(layer_families(area, parent))
     if not families:
@@ -853,10 +857,19 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
             if label is not first.index:
                 np.copyto(target, first.index, casting="unsafe")
             continue
-        solid = mask[r0:r1, c0:c1] & _family_mask(points, offsets, family, grid, field.box)
+        solid = _solid_in(mask, packed, field.box) & _family_mask(points, offsets, family, grid, field.box)
         value = base[number] if family.nested else field.index + base[number]
         np.copyto(target, value, where=solid, casting="unsafe")
     return LayerRegions(box, label, families, fields, base)
+
+
+def _solid_in(mask: np.ndarray | None, packed: np.ndarray | None, box: tuple[int, int, int, int]) -> np.ndarray:
+    """(rows, cols) bool: the layer's solid pixels in a pixel box, from the bool mask or else the packed one."""
+    r0, r1, c0, c1 = box
+    if mask is not None:
+        return mask[r0:r1, c0:c1]
+    bits = np.unpackbits(packed[r0:r1, c0 // 8:-(-c1 // 8)], axis=1).view(bool)
+    return bits[:, c0 % 8:c0 % 8 + c1 - c0]
 
 
 def _family_mask(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid,
@@ -1086,7 +1099,7 @@ def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
 
 
 def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, parent: np.ndarray,
-                   loop_shell: np.ndarray | None, mask: np.ndarray, grid: Grid, spec: GradeSpec, layer: int, *,
+                   loop_shell: np.ndarray | None, mask: np.ndarray | None, grid: Grid, spec: GradeSpec, layer: int, *,
                    point_material: np.ndarray | None = None, packed: np.ndarray | None = None) -> np.ndarray:
     """The droplet masks of one graded layer, bit-packed: (K, height, ceil(width / 8)) uint8, rows MSB first.
 
@@ -1096,10 +1109,11 @@ def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, pa
     layer's pixels, without the RGBA image: the path of ``slice --channels`` (and of
     ``render_graded(..., channels=True)``). Solid pixels outside every family jet the base
     material. Arguments as :func:`render_graded`; mask (h, w) bool, ``packed`` the same mask
-    bit-packed (:func:`heoslice.rasterising.packed_mask`) when the caller has it.
+    bit-packed (:func:`heoslice.rasterising.packed_mask`) when the caller has it; with it, the
+    mask may be None (no per-pixel mask built or read: :func:`layer_regions`).
     """
     packed = np.packbits(mask, axis=1) if packed is None else packed
-    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions)
+    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions, packed)
     return _droplet_planes_of(regions, spec, loop_shell, point_material, packed, grid, layer)
 
 

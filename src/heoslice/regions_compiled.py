@@ -202,9 +202,9 @@ def _chunks_apart(start, candidate, cap_a, cap_b, a, b, best):  # pragma: no cov
 @numba.njit(**_JIT)
 def _expand_planes(s, gx, gy, empty, cell, px, py, count, out, mask, r0, c0, base):  # pragma: no cover - compiled
     """out[i*cell + v, j*cell + u] = clip(floor(s_ij + gx_ij x_u - gy_ij y_v) + 1, 1, count) over the
-    part of the lattice that ``out`` covers; x_u, y_v are pixel offsets from the cell centre (mm).
-    With a ``mask`` (not 0 x 0), ``base`` is added and pixels where mask[r0 + row, c0 + col] is
-    False get 0. ``empty`` cells (no pixel of the family) get 0 without evaluating. Per row of
+    part of the lattice that ``out`` covers; x_u, y_v are pixel offsets from the cell centre (mm),
+    plus ``base``; with a ``mask`` (not 0 x 0), pixels where mask[r0 + row, c0 + col] is False get
+    0. ``empty`` cells (no pixel of the family) get 0 without evaluating. Per row of
     cells the column terms are laid out once (float32: s to ~1e-4 of a band), so each pixel
     row is a few long branch-free loops, one per run of cells that are not empty."""
     rows, cols = out.shape
@@ -261,7 +261,7 @@ def _expand_run(line, column, slope, keep, down, low, high, offset, masked):  # 
             value = column[c] - slope[c] * down
             value = low if value < low else value
             value = high if value > high else value
-            line[c] = np.int32(value)
+            line[c] = np.int32(value + offset)
 
 
 @numba.njit(inline="always", **_JIT)
@@ -504,7 +504,7 @@ def _curve_cells(index, ci, cj, cell, s, gx, gy, hxx, hxy, hyy, px, py, count, m
             else:
                 for u in range(width):
                     x = offsets[u]
-                    line[u] = int(min(max(np.floor(a + (b + c * x) * x), 1.0), count))
+                    line[u] = int(min(max(np.floor(a + (b + c * x) * x), 1.0), count) + base)
     return index
 
 
@@ -619,7 +619,7 @@ def _band_cells(index, ci, cj, cell, px, py, models, measured, count, length, ma
                     line[u] = int((k + base) * keep[u])
             else:
                 for u in range(width):
-                    line[u] = int(min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count))
+                    line[u] = int(min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count) + base)
     return index
 
 
@@ -938,10 +938,10 @@ def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: int, px: 
                   base: int = 0, empty: np.ndarray | None = None) -> np.ndarray:
     """Sub-region k = clip(floor(s) + 1, 1, count) at every pixel of ``out`` ((rows, cols) int16/int32,
     rows <= cells_r * cell) from one plane per lattice cell: s (cells_r, cells_c) at the cell
-    centre, gradient (gx, gy) per mm (y up, rows down). With ``mask`` ((h, w) bool, C order;
-    ``out`` covers rows/columns from ``origin`` of it) the result is k + base on its True
-    pixels and 0 elsewhere: a family's labels in the same pass. ``empty`` ((cells_r, cells_c)
-    bool) cells are written 0 throughout."""
+    centre, gradient (gx, gy) per mm (y up, rows down), plus ``base``: a family's labels in the
+    same pass. With ``mask`` ((h, w) bool, C order; ``out`` covers rows/columns from ``origin``
+    of it) pixels where it is False get 0. ``empty`` ((cells_r, cells_c) bool) cells are written
+    0 throughout."""
     if out.shape[0] > np.shape(s)[0] * cell or out.shape[1] > np.shape(s)[1] * cell:
         raise ValueError(f"expand_planes: {out.shape} pixels exceed {np.shape(s)} cells of {cell}")
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
