@@ -695,6 +695,31 @@ def test_exact_per_pixel_bands_are_the_exact_distances(ring):
                                                limit_px=0.01)
 
 
+@pytest.mark.parametrize("direction", ["in", "out"])
+def test_a_plate_of_pores_follows_eq10_at_every_pixel(direction):
+    """A scaffold-like plate pierced by a 4 x 4 grid of round pores 1 mm apart (every pore coupled to every
+    pixel by eq. 10, most of them far from any one cell, where per-cell quadratics of their distances
+    stand in for measuring them) labels every solid pixel like shapely's exact eq. 10, except within one
+    pixel of a band boundary."""
+    pores = [circle(1.0, 128, (3.0 * i, 3.0 * j), clockwise=True) for i in range(4) for j in range(4)]
+    plate = np.array([[-2.0, -2.0], [11.0, -2.0], [11.0, 11.0], [-2.0, 11.0]])
+    points, offsets, area, parent = layer(plate, *pores)
+    grid = Grid(width=340, height=340, x_left=-2.6, y_top=11.6, px=PX, py=PX)
+    k, mask, field = field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=0.1, direction=direction))
+    x, y = pixel_centres(grid, field.box)
+    where = shapely.points(x[mask], y[mask])
+    d = np.column_stack([shapely.distance(where, shapely.LinearRing(r)) for r in (plate, *pores)])
+    if direction == "in":
+        r = 1.0 - ring_weights(d)[:, 0]
+    else:
+        r = d[:, 1:].min(axis=1) / (d[:, 1:].min(axis=1) + d[:, 0])
+    s = np.full(x.shape, np.nan)
+    s[mask] = r * field.layout.count
+    expected = np.clip(np.floor(np.nan_to_num(s)).astype(np.int64) + 1, 1, field.layout.count)
+    rows, cols = np.gradient(s)
+    assert_within_one_pixel(k, expected, np.nan_to_num(s), mask, np.nan_to_num(np.hypot(rows, cols), nan=np.inf))
+
+
 def rectangle_with_a_row_of_holes(gap: float = 0.093, radius: float = 0.41, spacing: float = 1.07,
                                   turn: float = 1.14) -> list[np.ndarray]:
     """An 8 x 4 mm rectangle (turned by ``turn`` rad) with a row of clockwise circular holes ``gap`` mm

@@ -697,8 +697,9 @@ def _ring_models(layout: FamilyLayout, fields: list[tuple], grad: np.ndarray, la
     |ds/dd_j| m_j / 2 inside the cell (linear growth, the worst case: a kink), and s off
     by e moves a boundary by e / |grad s| mm; so rings are modelled, cheapest
     first, while the sum of |ds/dd_j| m_j (|ds/dd_j| the largest, |grad s| the smallest
-    over the cell and its neighbours) stays within TOLERANCE_PX pixels of s; the others
-    are measured. ``fields`` are (signed distance, gradient) over the (padded) ``lattice``
+    over the cell and its neighbours, or a bound of it over the cell's pixels on the family's
+    side where smaller: it holds beside a pole of eq. 10's continuation too) stays within
+    TOLERANCE_PX pixels of s; the others are measured. ``fields`` are (signed distance, gradient) over the (padded) ``lattice``
     of the starting rings then each ending ring, ``grad`` s's gradient there; ``cells``
     index that lattice and are not on its border.
     """
@@ -718,11 +719,23 @@ def _ring_models(layout: FamilyLayout, fields: list[tuple], grad: np.ndarray, la
         guess = model[:, 0] + model[:, 1] * ex + model[:, 2] * ey + 0.5 * (hxx * ex * ex + hyy * ey * ey) + hxy * ex * ey
         misses.append(np.abs(guess - around).max(axis=0))
         models.append(model)
-    sensitivity = _band_sensitivities(layout, near[0], near[1:])
-    cost = np.stack([np.abs(ds).max(axis=0) * miss for ds, miss in zip(sensitivity, misses)])
+    steepest = np.stack([np.abs(ds).max(axis=0) for ds in _band_sensitivities(layout, near[0], near[1:])])
+    # on the family's side (every d >= 0, so A >= 1 and D >= d_m + d0 A): |ds/dd0| <= N_R / (4 d0) and, for every
+    # ending ring k, |ds/dd_k| <= N_R d_m / (4 d_k^2); over the cell's pixels (within h of its centre) these
+    # bound the sensitivities where the neighbours' values say nothing (off the side, past a pole of the
+    # continuation), and where they do, the smaller of the two is taken
+    h = 0.5 * np.hypot(lattice.dx, lattice.dy)
+    centre = np.abs(np.stack([around[4] for around in near]))
+    nearest = centre[1:].min(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        below = np.maximum(centre - h, 0.0)
+        bound = layout.count * np.concatenate([1.0 / (4.0 * below[:1]), (nearest + h) / (4.0 * below[1:] ** 2)])
+        steepest = np.fmin(steepest, bound)
+        cost = np.where(np.isfinite(steepest), steepest, np.inf) * np.stack(misses)
     cost = np.where(np.isfinite(cost) & np.stack([np.isfinite(m).all(axis=1) for m in models]), cost, np.inf)
     steepness = np.hypot(grad[..., 0], grad[..., 1])
-    weakest = np.stack([steepness[ci + di, cj + dj] for di, dj in steps]).min(axis=0)
+    around = np.stack([steepness[ci + di, cj + dj] for di, dj in steps])
+    weakest = np.where(np.isfinite(around), around, np.inf).min(axis=0)
     budget = np.where(np.isfinite(weakest), TOLERANCE_PX * min(grid.px, grid.py) * weakest, 0.0)
     order = np.argsort(cost, axis=0)
     running = np.cumsum(np.take_along_axis(cost, order, axis=0), axis=0)
