@@ -170,7 +170,7 @@ def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked
     """band_cells writes, at every pixel of the given cells, clip(floor(s) + 1, 1, count) of s by eq. 10
     (s = (1 - w_start) count from regions.ring_weights for two or more ring sets, d count / length for
     one) of each ring set's distance there: its quadratic where the cell's model is given, the measured
-    value where it is NaN; + base, and 0 off the mask's pixels; pixels past the image and other cells
+    value (from its slot in a packed array) where it is NaN; + base, and 0 off the mask's pixels; pixels past the image and other cells
     untouched."""
     from heoslice.regions import ring_weights
 
@@ -183,8 +183,12 @@ def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked
     models = np.column_stack([rng.uniform(0.2, 6.0, (sets, 4)).ravel()] + [rng.uniform(-1, 1, sets * 4)
                                                                           for _ in range(5)]).reshape(sets, 4, 6)
     models[rng.random((sets, 4)) < 0.4] = np.nan
-    measured = rng.uniform(0.05, 6.0, (sets, 4, cell * cell))
-    band_cells(index, ci, cj, cell, px, py, models, measured, count, length, mask, (0, 0), base)
+    measured = rng.uniform(0.05, 6.0, (sets, 4, cell * cell)).astype(np.float32).astype(np.float64)
+    # the measured rows are handed over packed, in a shuffled order, and found through their slots
+    order = rng.permutation(sets * 4)
+    slot = np.argsort(order).reshape(sets, 4)
+    band_cells(index, ci, cj, cell, px, py, models, measured.reshape(sets * 4, -1)[order], slot, count, length, mask,
+               (0, 0), base)
     v, u = np.divmod(np.arange(cell * cell), cell)
     x, y = (u + 0.5 - cell / 2) * px, -(v + 0.5 - cell / 2) * py
     m = models[..., None]

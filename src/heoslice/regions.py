@@ -51,6 +51,8 @@ TOLERANCE_PX = 0.5
 _CELL_MM = 0.5
 #: Families whose box pixels x ring sets are at most this get every pixel's exact distance, no lattice fit.
 DIRECT_PIXELS = 25_000
+#: Most per-pixel distances measured and held at once when cells are evaluated per pixel (float32: 16 MB).
+_MEASURED_VALUES = 1 << 22
 DIRECTIONS = ("in", "out")
 
 
@@ -785,21 +787,27 @@ def _refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, 
     v, u = (a.ravel() for a in np.meshgrid(np.arange(f), np.arange(f), indexing="ij"))
     ox = (u + 0.5 - 0.5 * f) * grid.px
     oy = -(v + 0.5 - 0.5 * f) * grid.py
-    ci, cj = cells
-    cx, cy = lattice.x0 + (cj + 0.5) * lattice.dx, lattice.y0 - (ci + 0.5) * lattice.dy
     reach = np.hypot(lattice.dx, lattice.dy)
-    models = np.full((len(ring_sets), len(ci), 6), np.nan)
-    measured = np.zeros((len(ring_sets), len(ci), f * f))
-    for j, (rings, bound, model) in enumerate(ring_sets):
-        if model is not None:
-            models[j] = model
-        measure = np.isnan(models[j, :, 0])
-        if measure.any():
-            squared = nearest_edges(cx[measure], cy[measure], bound[measure] + reach, ox, oy, rings.edges, rings.tree,
-                                    track=False)
-            measured[j, measure] = np.sqrt(squared, dtype=np.float64)
-    band_cells(index, ci, cj, f, grid.px, grid.py, models, measured, layout.count, layout.length_mm, mask,
-               (lattice.row0, lattice.col0), label_base)
+    # cells in batches, so that the measured distances held at once stay within _MEASURED_VALUES
+    step = max(1, _MEASURED_VALUES // (len(ring_sets) * f * f))
+    for first in range(0, len(cells[0]), step):
+        ci, cj = (a[first:first + step] for a in cells)
+        cx, cy = lattice.x0 + (cj + 0.5) * lattice.dx, lattice.y0 - (ci + 0.5) * lattice.dy
+        models = np.full((len(ring_sets), len(ci), 6), np.nan)
+        slot = np.full((len(ring_sets), len(ci)), -1, dtype=np.int64)
+        measured = []
+        for j, (rings, bound, model) in enumerate(ring_sets):
+            if model is not None:
+                models[j] = model[first:first + step]
+            measure = np.isnan(models[j, :, 0])
+            if measure.any():
+                squared = nearest_edges(cx[measure], cy[measure], bound[first:first + step][measure] + reach, ox, oy,
+                                        rings.edges, rings.tree, track=False)
+                slot[j, measure] = sum(len(part) for part in measured) + np.arange(len(squared))
+                measured.append(np.sqrt(squared))
+        measured = np.concatenate(measured) if measured else np.zeros((0, f * f), dtype=np.float32)
+        band_cells(index, ci, cj, f, grid.px, grid.py, models, measured, slot, layout.count, layout.length_mm, mask,
+                   (lattice.row0, lattice.col0), label_base)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -562,11 +562,11 @@ def _band_field(d, g, count):  # pragma: no cover - compiled
 
 
 @numba.njit(**_JIT)
-def _band_cells(index, ci, cj, cell, px, py, models, measured, count, length, mask, r0, c0,
+def _band_cells(index, ci, cj, cell, px, py, models, measured, slot, count, length, mask, r0, c0,
                 base):  # pragma: no cover - compiled
     """Sub-region k of every pixel of whole cells (ci, cj) from each ring set's distance there: the
     ring's quadratic models[j, n] (d, d_x, d_y, d_xx, d_xy, d_yy at the cell centre) or, where
-    its d is NaN, measured[j, n, pixel]; s by eq. 10 (pole-free form of regions._band_coordinate)
+    its d is NaN, measured[slot[j, n], pixel]; s by eq. 10 (pole-free form of regions._band_coordinate)
     with ring set 0 starting, or s = d_0 count / length with one ring set. Per cell, each ring
     set's distances fill a row of pixels, and eq. 10 runs over the cell's pixels with the
     nearest ending ring kept as a running minimum (the first of equals), so the loops vectorise."""
@@ -588,7 +588,7 @@ def _band_cells(index, ci, cj, cell, px, py, models, measured, count, length, ma
         for j in range(sets):
             model = models[j, n]
             if np.isnan(model[0]):
-                d[j] = measured[j, n]
+                d[j] = measured[slot[j, n]]
             else:
                 for p in range(pixels):
                     d[j, p] = (model[0] + model[1] * x[p] + model[2] * y[p]
@@ -1025,18 +1025,20 @@ def band_field(d: np.ndarray, g: np.ndarray, count: int) -> tuple[np.ndarray, np
 
 
 def band_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, px: float, py: float,
-               models: np.ndarray, measured: np.ndarray, count: int, length: float, mask: np.ndarray | None = None,
-               origin: tuple[int, int] = (0, 0), base: int = 0) -> np.ndarray:
+               models: np.ndarray, measured: np.ndarray, slot: np.ndarray, count: int, length: float,
+               mask: np.ndarray | None = None, origin: tuple[int, int] = (0, 0), base: int = 0) -> np.ndarray:
     """Sub-region k = clip(floor(s) + 1, 1, count) of every pixel of lattice cells (ci, cj) ((n,) int), in
     place, from per ring set (starting rings first) either a quadratic of its distance per cell
     (models (sets, n, 6): d, d_x, d_y, d_xx, d_xy, d_yy, mm, at the cell centre; pixel offsets
     from the centre y up) or, where models[j, n, 0] is NaN, the distance at each pixel
-    (measured (sets, n, cell * cell), row-major in a cell); s by eq. 10 for two or more ring
-    sets, d count / length for one; ``mask``, ``origin`` and ``base`` as in :func:`expand_planes`."""
+    (measured[slot[j, n]], measured (m, cell * cell) row-major in a cell, slot (sets, n) int);
+    s by eq. 10 for two or more ring sets, d count / length for one; ``mask``, ``origin`` and
+    ``base`` as in :func:`expand_planes`."""
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
     return _band_cells(index, np.ascontiguousarray(ci, dtype=np.int64), np.ascontiguousarray(cj, dtype=np.int64),
-                       int(cell), float(px), float(py), f64(models), f64(measured), float(count), float(length), mask,
+                       int(cell), float(px), float(py), f64(models), np.ascontiguousarray(measured, dtype=np.float32),
+                       np.ascontiguousarray(slot, dtype=np.int64), float(count), float(length), mask,
                        int(origin[0]), int(origin[1]), float(base))
 
 
