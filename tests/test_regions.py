@@ -779,6 +779,35 @@ def notched_circle(radius: float = 3.0, depth: float = 0.06, width: float = 0.04
     return ring if shapely.LinearRing(ring).is_ccw else ring[::-1]
 
 
+def slotted_circle(radius: float, count: int = 15, width_px: float = 2.0, depth_px: float = 1.0,
+                   seed: int = 1098) -> np.ndarray:
+    """(p, 2) a circle with ``count`` rectangular slots ``width_px`` pixels wide and ``depth_px`` deep cut
+    inwards at random angles (their corners are the ring's vertices; no lattice centre may see them)."""
+    shape = shapely.Point(0.0, 0.0).buffer(radius, 256)
+    width, depth = width_px * PX, depth_px * PX
+    for angle in np.random.default_rng(seed).uniform(0.0, 2 * np.pi, count):
+        out = np.array([np.cos(angle), np.sin(angle)])
+        across = np.array([-out[1], out[0]]) * width / 2
+        shape = shape.difference(shapely.Polygon([1.05 * radius * out + across, 1.05 * radius * out - across,
+                                                  (radius - depth) * out - across, (radius - depth) * out + across]))
+    ring = np.asarray(shape.exterior.coords)[:-1]
+    return ring if shapely.LinearRing(ring).is_ccw else ring[::-1]
+
+
+@pytest.mark.parametrize("radius", [1.8, 2.5])
+def test_slots_smaller_than_a_cell_beside_a_round_outline_move_the_bands_near_them(radius):
+    """On a disc a few millimetres across (its outline turns ~5-8 degrees from cell to cell, so cells beside
+    it may keep a quadratic that follows the turn), slots two pixels wide and one deep still move the first
+    bands to within one pixel of the exact distance (shapely): the quadratic is kept only where it gives s
+    = 0 at the outline's vertices around the cell, and a slot's corners are vertices (without that check a
+    pixel came out 1.015 px from its boundary at r = 2.5 mm)."""
+    ring = slotted_circle(radius)
+    low, high = ring.min(axis=0) - 0.3, ring.max(axis=0) + 0.3
+    size = int(np.ceil((high[0] - low[0]) / PX))
+    grid = Grid(width=size, height=size, x_left=float(low[0]), y_top=float(high[1]), px=PX, py=PX)
+    assert_bands_follow_the_exact_distance(ring, grid, 0.12)
+
+
 def test_notches_smaller_than_a_cell_move_the_bands_near_them():
     """Every solid pixel of a disc with notches a pixel or two deep has the sub-region of its exact distance
     to the outline (shapely), except pixels within one pixel of a band boundary: a notch moves the first

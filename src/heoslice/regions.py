@@ -580,7 +580,8 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     candidate = touched & ~beyond
     known = np.isfinite(s) & np.isfinite(grad[..., 0]) & np.isfinite(grad[..., 1])
     side = np.logical_and.reduce([start_at[0] >= 0] + [at[0] >= 0 for at in ends_at])
-    refine = _refine(s, grad, known, side, candidate, padded, grid, layout.count, hessian)
+    vertices = _ring_vertices([(start, 0.0)] + [(rings, float(layout.count)) for rings in ends], padded)
+    refine = _refine(s, grad, known, side, candidate, padded, grid, layout.count, hessian, vertices)
     refined = np.nonzero(refine)  # never on the padded lattice's border: its cells are no candidates
     models = [None] * (1 + len(ends))
     if layout.end and len(refined[0]):
@@ -643,9 +644,10 @@ def _hessian(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
 
 
 def _refine(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np.ndarray, candidate: np.ndarray,
-            lattice: Lattice, grid: Grid, count: int, hessian: np.ndarray | None = None) -> np.ndarray:
+            lattice: Lattice, grid: Grid, count: int, hessian: np.ndarray | None = None,
+            vertices: tuple | None = None) -> np.ndarray:
     """(rows, cols) bool: candidate cells where one plane (or, with a ``hessian``, one quadratic:
-    whichever fits better; the Hessian is zeroed where the plane does) does not place the
+    whichever fits better; the Hessian is zeroed where the plane is kept) does not place the
     sub-region boundaries within TOLERANCE_PX pixels, so they are evaluated per pixel.
 
     A plane that misses s at a neighbour's centre by more than twice TOLERANCE_PX pixels
@@ -660,13 +662,32 @@ def _refine(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np.ndarray
     continuation) features smaller than a cell (a notch, a sharp corner) hide between the
     centres; there, where the field's direction turns towards a neighbour by an angle a,
     a plane misplaces a boundary by about cell * sin(a) / 2 pixels, which the misfit test
-    may not see: such cells are refined too.
+    may not see: such cells are refined, unless the quadratic's own gradient follows the
+    turn to every neighbour and it gives the exact s (0 on a starting ring, N_R on an ending
+    one) within TOLERANCE_PX at the ring ``vertices`` around the cell (:func:`_ring_vertices`):
+    a round outline's steady turn, not a hidden notch, whose tip is a vertex.
     """
     from heoslice.regions_compiled import refine_flags
 
     tolerance = 2.0 * TOLERANCE_PX * min(grid.px, grid.py)
     limit = np.sqrt(max(0.0, 1.0 - (2.0 * TOLERANCE_PX / lattice.cell) ** 2))
-    return refine_flags(s, grad, known, side, candidate, lattice.dx, lattice.dy, tolerance, limit, count, hessian)
+    return refine_flags(s, grad, known, side, candidate, lattice.dx, lattice.dy, tolerance, limit, count, hessian,
+                        vertices)
+
+
+def _ring_vertices(ring_sets: list[tuple[RingSet, float]], lattice: Lattice) -> tuple:
+    """The vertices of the given ring sets, each with the exact s on its rings, grouped by the lattice
+    cell holding them: (start (rows * cols + 1,) int, x, y, s, x0, y0) for :func:`_refine`."""
+    x = np.concatenate([rings.edges.x for rings, _ in ring_sets])
+    y = np.concatenate([rings.edges.y for rings, _ in ring_sets])
+    s = np.concatenate([np.full(len(rings.edges.x), value) for rings, value in ring_sets])
+    col = np.floor((x - lattice.x0) / lattice.dx).astype(np.int64)
+    row = np.floor((lattice.y0 - y) / lattice.dy).astype(np.int64)
+    keep = (col >= 0) & (col < lattice.cols) & (row >= 0) & (row < lattice.rows)
+    key = (row * lattice.cols + col)[keep]
+    order = np.argsort(key, kind="stable")
+    start = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=lattice.rows * lattice.cols))])
+    return start, x[keep][order], y[keep][order], s[keep][order], lattice.x0, lattice.y0
 
 
 def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid, flat: np.ndarray, count: int,

@@ -290,9 +290,28 @@ def _turns(grad, gx, gy, hx, hm, hy, i, j, dx, dy, limit):  # pragma: no cover -
     return False
 
 
+@numba.njit(inline="always", **_JIT)
+def _vertices_fit(vstart, vx, vy, vs, i, j, rows, cols, x0, y0, dx, dy, centre, gx, gy, hx, hm, hy,
+                  allowed):  # pragma: no cover - compiled
+    """Whether the quadratic of cell (i, j) gives, at every ring vertex in the cells around it (CSR
+    vstart over the lattice's cells, positions vx, vy, exact s there vs), s within ``allowed``."""
+    if len(vstart) == 0:
+        return True
+    cx, cy = x0 + (j + 0.5) * dx, y0 - (i + 0.5) * dy
+    for ni in range(max(i - 1, 0), min(i + 2, rows)):
+        for nj in range(max(j - 1, 0), min(j + 2, cols)):
+            cell = ni * cols + nj
+            for v in range(vstart[cell], vstart[cell + 1]):
+                ex, ey = vx[v] - cx, vy[v] - cy
+                guess = centre + gx * ex + gy * ey + 0.5 * (hx * ex * ex + hy * ey * ey) + hm * ex * ey
+                if abs(guess - vs[v]) > allowed:
+                    return False
+    return True
+
+
 @numba.njit(**_JIT)
 def _refine_flags(s, grad, hxx, hxy, hyy, known, side, candidate, dx, dy, tolerance, limit,
-                  count):  # pragma: no cover - compiled
+                  count, vstart, vx, vy, vs, x0, y0):  # pragma: no cover - compiled
     """Cells to evaluate per pixel: candidates whose plane (s, gradient) misses s at a neighbour's
     centre (where s is ``known``) by more than ``tolerance`` x the slope, and so does their
     quadratic when a Hessian is given (hxx, hxy, hyy not 0 x 0; zeroed in place where the plane
@@ -301,8 +320,11 @@ def _refine_flags(s, grad, hxx, hxy, hyy, known, side, candidate, dx, dy, tolera
     field); or, while some neighbour is off the family's ``side`` or its s is not known (next to
     the outline, where features smaller than a cell hide between centres), whose model's gradient
     turns by more than ``limit`` (a cosine) from a neighbour's direction: the plane's own
-    direction, or else (where the quadratic fits the values too) the quadratic's gradient at that
-    neighbour, so that a round outline's steady turn is no reason to refine; or whose own s is not known, or no
+    direction, or else (where the quadratic fits the values too, and gives s within half the
+    tolerance at the ring vertices around the cell: vstart, vx, vy, vs, a CSR over the cells of
+    the lattice whose top-left corner is x0, y0; a notch's tip or a slot's corners are vertices)
+    the quadratic's gradient at that neighbour, so that a round outline's steady turn is no
+    reason to refine; or whose own s is not known, or no
     neighbour's (nothing checks their plane). Neighbours past the lattice's border repeat the
     border cell (offset as a neighbour would be, so a border cell's plane is checked against
     its own centre value; the turn test skips them)."""
@@ -346,7 +368,9 @@ def _refine_flags(s, grad, hxx, hxy, hyy, known, side, candidate, dx, dy, tolera
             refine = refine or compared == 0  # no neighbour to check the plane against
             if not refine and not all_inside and _turns(grad, gx, gy, 0.0, 0.0, 0.0, i, j, dx, dy, limit):
                 quadratic = (curved and not (bent > allowed and _boundary_within(centre, reach + bend, bent, count))
-                             and not _turns(grad, gx, gy, hx, hm, hy, i, j, dx, dy, limit))
+                             and not _turns(grad, gx, gy, hx, hm, hy, i, j, dx, dy, limit)
+                             and _vertices_fit(vstart, vx, vy, vs, i, j, rows, cols, x0, y0, dx, dy, centre, gx, gy,
+                                               hx, hm, hy, 0.5 * allowed))
                 refine = not quadratic
             out[i, j] = refine
             if curved and not quadratic:
@@ -953,17 +977,22 @@ def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: int, px: 
 
 def refine_flags(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np.ndarray, candidate: np.ndarray,
                  dx: float, dy: float, tolerance: float, limit: float, count: int,
-                 hessian: np.ndarray | None = None) -> np.ndarray:
+                 hessian: np.ndarray | None = None, vertices: tuple | None = None) -> np.ndarray:
     """(rows, cols) bool: lattice cells whose plane (and quadratic, with a ``hessian``) does not fit
     (see :func:`_refine_flags`); s (rows, cols), grad (rows, cols, 2) per mm, known/side/candidate
     (rows, cols) bool, dx/dy the cell (mm), count N_R; hessian (3, rows, cols) s_xx, s_xy, s_yy
-    per mm^2, zeroed in place where the plane fits at least as well."""
+    per mm^2, zeroed in place where the plane is kept. ``vertices``: (start (rows * cols + 1,),
+    x, y, s, x0, y0), the ring vertices in each cell (a CSR), their exact s, and the lattice's
+    top-left corner (mm); None: no vertex check."""
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     parts = f64(hessian) if hessian is not None else np.zeros((3, 0, 0))
+    if vertices is None:
+        vertices = (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), np.zeros(0), 0.0, 0.0)
+    vstart, vx, vy, vs, x0, y0 = vertices
     out = _refine_flags(f64(s), f64(grad), parts[0], parts[1], parts[2],
                         np.ascontiguousarray(known), np.ascontiguousarray(side), np.ascontiguousarray(candidate),
-                        float(dx), float(dy),
-                        float(tolerance), float(limit), float(count))
+                        float(dx), float(dy), float(tolerance), float(limit), float(count),
+                        np.ascontiguousarray(vstart, dtype=np.int64), f64(vx), f64(vy), f64(vs), float(x0), float(y0))
     if hessian is not None and parts is not hessian:
         hessian[...] = parts
     return out
