@@ -3,6 +3,7 @@ fields and shapely's round-join offsets, nested shells."""
 
 from __future__ import annotations
 
+import contextlib
 from contextlib import contextmanager
 
 import numpy as np
@@ -777,6 +778,24 @@ def notched_circle(radius: float = 3.0, depth: float = 0.06, width: float = 0.04
                                                   (radius - depth) * out]))
     ring = np.asarray(shape.exterior.coords)[:-1]
     return ring if shapely.LinearRing(ring).is_ccw else ring[::-1]
+
+
+@pytest.mark.parametrize("exact", [False, True])
+def test_rings_with_repeated_points_are_labelled_like_without_them(exact):
+    """A ring whose points repeat (zero-length edges, as a mesh with doubled vertices slices into) and a hole
+    with a run of nine equal points label every pixel as the same rings without the repeats do, on the
+    lattice and on the exact per-pixel path (the lattice's edge seeds divided 0 by 0 on such an edge)."""
+    outer, hole = circle(6.0, 300), circle(2.0, 120, (1.0, 0.5), clockwise=True)
+    doubled = np.repeat(outer, np.where(np.arange(len(outer)) % 7 == 0, 2, 1), axis=0)
+    stuck = np.concatenate([hole[:40], np.repeat(hole[40:41], 8, axis=0), hole[40:]])
+    grid = grid_around(6.5)
+    labels = []
+    for rings in ((outer, hole), (doubled, stuck)):
+        points, offsets, area, parent = layer(*rings)
+        with exact_per_pixel() if exact else contextlib.nullcontext():
+            labels.append(field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=0.25))[:2])
+    (clean, mask), (repeated, _) = labels
+    assert np.array_equal(clean[mask], repeated[mask])
 
 
 def slotted_circle(radius: float, count: int = 15, width_px: float = 2.0, depth_px: float = 1.0,

@@ -441,7 +441,8 @@ class FamilyField:
     ``layout`` its rings and N_R; ``lattice``; ``nearest()`` gives per cell the nearest point
     on the starting rings (foot (2, cells_r, cells_c) mm) and its edge ((cells_r, cells_c)
     into ``start_edges``), to take the contour's material there (measured on first call
-    for a nested shell, whose own material usually makes it unneeded).
+    for a nested shell, whose own material usually makes it unneeded, and for a small family
+    labelled from exact distances, :func:`_exact_index`).
     """
 
     box: tuple[int, int, int, int]

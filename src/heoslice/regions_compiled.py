@@ -114,10 +114,8 @@ def _nearest_in_chunks(cx, cy, ox, oy, start, chunk, capsules, ex, ey, evx, evy,
         bound = np.empty(count)
         for n in range(count):
             c = chunk[first + n]
-            rx, ry = cx[g] - capsules[c, 0], cy[g] - capsules[c, 1]
-            t = min(max((rx * capsules[c, 2] + ry * capsules[c, 3]) * capsules[c, 4], 0.0), 1.0)
-            qx, qy = rx - t * capsules[c, 2], ry - t * capsules[c, 3]
-            bound[n] = np.sqrt(qx * qx + qy * qy) - capsules[c, 5]
+            bound[n] = _point_to_edge(cx[g], cy[g], capsules[c, 0], capsules[c, 1], capsules[c, 2], capsules[c, 3],
+                                      capsules[c, 4]) - capsules[c, 5]
         row_best = best[g]
         near[:] = np.inf
         farthest = np.inf
@@ -361,13 +359,14 @@ def _refine_flags(s, grad, hxx, hxy, hyy, known, side, candidate, dx, dy, tolera
             reach = 0.5 * (abs(gx) * dx + abs(gy) * dy)
             bend = 0.125 * (abs(hx) * dx * dx + 2.0 * abs(hm) * dx * dy + abs(hy) * dy * dy)
             quadratic = curved and allowed < flat and bent < flat
+            bent_misses = bent > allowed and _boundary_within(centre, reach + bend, bent, count)
             if quadratic:
-                refine = bent > allowed and _boundary_within(centre, reach + bend, bent, count)
+                refine = bent_misses
             else:
                 refine = flat > allowed and _boundary_within(centre, reach, flat, count)
             refine = refine or compared == 0  # no neighbour to check the plane against
             if not refine and not all_inside and _turns(grad, gx, gy, 0.0, 0.0, 0.0, i, j, dx, dy, limit):
-                quadratic = (curved and not (bent > allowed and _boundary_within(centre, reach + bend, bent, count))
+                quadratic = (curved and not bent_misses
                              and not _turns(grad, gx, gy, hx, hm, hy, i, j, dx, dy, limit)
                              and _vertices_fit(vstart, vx, vy, vs, i, j, rows, cols, x0, y0, dx, dy, centre, gx, gy,
                                                hx, hm, hy, 0.5 * allowed))
@@ -907,9 +906,7 @@ def _chunk_capsules(x0, y0, x1, y1):  # pragma: no cover - compiled
         gap = 0.0
         for e in range(first, last + 1):
             for px, py in ((x0[e], y0[e]), (x1[e], y1[e])):
-                rx, ry = px - ox, py - oy
-                t = min(max((rx * vx + ry * vy) * inv, 0.0), 1.0)
-                gap = max(gap, np.sqrt((rx - t * vx) ** 2 + (ry - t * vy) ** 2))
+                gap = max(gap, _point_to_edge(px, py, ox, oy, vx, vy, inv))
         out[c, 0], out[c, 1], out[c, 2], out[c, 3], out[c, 4] = ox, oy, vx, vy, inv
         out[c, 5] = gap * (1 + 1e-9) + 1e-4
     return out
