@@ -66,10 +66,11 @@ def test_candidates_are_exactly_the_chunks_within_the_radius(seed, rings):
     boxes, level_start, _ = tree_of(edges)
     start, found = _candidates(qx, qy, radius, boxes, level_start)
     chunk = np.arange(len(edges.x)) // 8
+    first = np.arange(0, len(edges.x), 8)
     x0, x1 = np.minimum(edges.x, edges.x + edges.vx), np.maximum(edges.x, edges.x + edges.vx)
     y0, y1 = np.minimum(edges.y, edges.y + edges.vy), np.maximum(edges.y, edges.y + edges.vy)
-    low = np.column_stack([np.minimum.reduceat(x0, np.arange(0, len(x0), 8)), np.minimum.reduceat(y0, np.arange(0, len(y0), 8))])
-    high = np.column_stack([np.maximum.reduceat(x1, np.arange(0, len(x1), 8)), np.maximum.reduceat(y1, np.arange(0, len(y1), 8))])
+    low = np.column_stack([np.minimum.reduceat(x0, first), np.minimum.reduceat(y0, first)])
+    high = np.column_stack([np.maximum.reduceat(x1, first), np.maximum.reduceat(y1, first)])
     within = brute_squared(qx, qy, edges) <= radius[:, None] ** 2
     for g in range(40):
         got = found[start[g]:start[g + 1]]
@@ -170,8 +171,8 @@ def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked
     """band_cells writes, at every pixel of the given cells, clip(floor(s) + 1, 1, count) of s by eq. 10
     (s = (1 - w_start) count from regions.ring_weights for two or more ring sets, d count / length for
     one) of each ring set's distance there: its quadratic where the cell's model is given, the measured
-    value (from its slot in a packed array) where it is NaN; + base, and 0 off the mask's pixels; pixels past the image and other cells
-    untouched."""
+    value (from its slot in a packed array) where it is NaN; + base, and 0 off the mask's pixels;
+    pixels past the image and other cells untouched."""
     from heoslice.regions import ring_weights
 
     rng = np.random.default_rng(seed)
@@ -501,7 +502,8 @@ def test_edge_tree_keeps_every_edge_at_any_size(count):
     x0, y0 = np.cos(angle[:-1]), np.sin(angle[:-1])
     x1, y1 = np.cos(angle[1:]), np.sin(angle[1:])
     boxes, level_start, capsules = edge_tree(x0, y0, x1, y1)
-    assert level_start[-1] == len(boxes) and level_start[1] == count and level_start[2] - level_start[1] == len(capsules)
+    assert level_start[-1] == len(boxes) and level_start[1] == count
+    assert level_start[2] - level_start[1] == len(capsules)
     start, found = _candidates(np.array([50.0]), np.array([0.0]), np.array([100.0]), boxes, level_start)
     assert sorted(found.tolist()) == list(range(-(-count // 8)))
 

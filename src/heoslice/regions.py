@@ -624,8 +624,8 @@ def _exact_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: 
     ci, cj = (a.ravel() for a in np.indices((lattice.rows, lattice.cols)))
     x, y = lattice.centres()
     bounds = [np.hypot(x[cj] - rings.edges.x[0], y[ci] - rings.edges.y[0]) for rings in ring_sets]
-    _refine_cells(index, lattice, (ci, cj), grid, layout, [(rings, bound, None) for rings, bound in zip(ring_sets, bounds)],
-                  mask, label_base)
+    _refine_cells(index, lattice, (ci, cj), grid, layout,
+                  [(rings, bound, None) for rings, bound in zip(ring_sets, bounds)], mask, label_base)
     return index
 
 
@@ -723,9 +723,9 @@ def _ring_models(layout: FamilyLayout, fields: list[tuple], grad: np.ndarray, la
     first, while the sum of |ds/dd_j| m_j (|ds/dd_j| the largest, |grad s| the smallest
     over the cell and its neighbours, or a bound of it over the cell's pixels on the family's
     side where smaller: it holds beside a pole of eq. 10's continuation too) stays within
-    TOLERANCE_PX pixels of s; the others are measured. ``fields`` are (signed distance, gradient) over the (padded) ``lattice``
-    of the starting rings then each ending ring, ``grad`` s's gradient there; ``cells``
-    index that lattice and are not on its border.
+    TOLERANCE_PX pixels of s; the others are measured. ``fields`` are (signed distance,
+    gradient) over the (padded) ``lattice`` of the starting rings then each ending ring,
+    ``grad`` s's gradient there; ``cells`` index that lattice and are not on its border.
     """
     ci, cj = cells
     steps = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)]
