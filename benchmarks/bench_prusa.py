@@ -9,7 +9,12 @@ counts within 1 %. ``--profile`` adds a cProfile of heoslice on the organ, split
 ``--graded`` also times a graded stack with droplet masks (``GRADED_ARGS`` added to the
 same heoslice command) in the same alternation, reports its ratio to PrusaSlicer's
 one-material time, and checks that its layers' solid pixels equal the one-material
-stack's; one untimed 3-layer graded slice first fills numba's kernel cache.
+stack's; one untimed 3-layer graded slice first fills numba's kernel cache. Every run
+writes to a new path, and everything written so far is flushed to disk (os.sync) before
+it: no run pays for another's writeback, and outputs are deleted only when the benchmark
+ends (kept with --workdir; ext4 skips inodes deleted in the last half minute when it allocates new ones, so a
+stack's thousands of files created right after deleting another's cost heoslice up to
+2 s of system time on the graded vase; PrusaSlicer writes one file).
 
 Examples:
   python benchmarks/bench_prusa.py --quick                  # smoke test, < 2 minutes
@@ -178,34 +183,42 @@ def agreement(stack: Path, sl1: Path, stride: int) -> dict:
 def bench_mesh(name: str, model: Path, mesh: trimesh.Trimesh, folder: Path, args: argparse.Namespace,
                prusa: str | None) -> dict:
     """Alternate heoslice and PrusaSlicer runs on one mesh in ``folder``; summarise and compare their outputs."""
-    stack, sl1, ini = folder / "heoslice_stack", folder / "prusa.sl1", folder / "sla.ini"
+    ini = folder / "sla.ini"
     display = prusa_sla.display_for(mesh.extents[:2], args.dpi)
     ini.write_text(prusa_sla.sla_ini(display, args.layer, float(mesh.extents[2])))
-    graded = folder / "graded_stack"
-    commands = {"heoslice": heoslice_base() + heoslice_args(model, stack, args.layer, args.dpi, args.jobs)}
-    if args.graded:
-        commands["graded"] = heoslice_base() + heoslice_args(model, graded, args.layer, args.dpi, args.jobs) + GRADED_ARGS
-    if prusa:
-        commands["prusa"] = prusa_sla.prusa_command(prusa, ini, sl1, model)
-    outputs = {"heoslice": stack, "prusa": sl1, "graded": graded}
-    runs: dict[str, list] = {tool: [] for tool in commands}
+    tools = ["heoslice"] + (["graded"] if args.graded else []) + (["prusa"] if prusa else [])
+
+    def output(tool: str, repeat: int) -> Path:
+        """Where one run writes: a new path per tool and repeat (see the module docstring)."""
+        return folder / {"heoslice": f"heoslice_stack-{repeat}", "graded": f"graded_stack-{repeat}",
+                         "prusa": f"prusa-{repeat}.sl1"}[tool]
+
+    def command(tool: str, repeat: int) -> list[str]:
+        if tool == "prusa":
+            return prusa_sla.prusa_command(prusa, ini, output(tool, repeat), model)
+        extra = GRADED_ARGS if tool == "graded" else []
+        return heoslice_base() + heoslice_args(model, output(tool, repeat), args.layer, args.dpi, args.jobs) + extra
+
+    runs: dict[str, list] = {tool: [] for tool in tools}
     failed: dict[str, str] = {}
     for repeat in range(args.repeats):
-        for tool, command in commands.items():
+        for tool in tools:
             if tool in failed:
                 continue
-            clear(outputs[tool])
-            run = run_measured(command, folder / f"{tool}-{repeat}.log")
+            os.sync()
+            run = run_measured(command(tool, repeat), folder / f"{tool}-{repeat}.log")
             runs[tool].append(run)
             log(f"{name}: {tool} run {repeat + 1}/{args.repeats}: {run.wall_s:.1f} s, "
                 f"max RSS {run.max_rss_mb:.0f} MB, tree PSS {run.tree_pss_mb or 0:.0f} MB"
                 + ("" if run.returncode == 0 else f"  FAILED (exit {run.returncode})"))
             if run.returncode != 0:
                 failed[tool] = f"exit {run.returncode}: {tail(run.log)}"
+    last = {tool: output(tool, len(runs[tool]) - 1) for tool in tools}
+    stack, graded, sl1 = last["heoslice"], last.get("graded"), last.get("prusa")
     result = {
         "mesh": name, "file": str(model), "triangles": int(len(mesh.faces)),
         "extents_mm": [round(float(e), 3) for e in mesh.extents],
-        "commands": {tool: " ".join(command) for tool, command in commands.items()},
+        "commands": {tool: " ".join(command(tool, 0)) for tool in tools},
         "sla_ini": ini.read_text(),
         "runs": {tool: [{**asdict(run), "log": str(run.log)} for run in tool_runs] for tool, tool_runs in runs.items()},
         "summary": {tool: summarise_runs(tool_runs) for tool, tool_runs in runs.items()},
@@ -351,10 +364,6 @@ def main(argv: list[str] | None = None) -> int:
             warm_kernel_cache(model, float(mesh.extents[2]), args.workdir_path / "warm_stack")
         for name, model, mesh, folder in prepared:
             results.append(bench_mesh(name, model, mesh, folder, args, prusa))
-            if owned_tmp is not None:
-                clear(folder / "heoslice_stack")
-                clear(folder / "graded_stack")
-                clear(folder / "prusa.sl1")
         if args.profile and prepared:
             name, model, _, _ = next((p for p in prepared if p[0] == "organ"), prepared[-1])
             profile_args = heoslice_args(model, args.workdir_path / "profile_stack", args.layer, args.dpi, 1)
