@@ -12,9 +12,10 @@ one-material time, and checks that its layers' solid pixels equal the one-materi
 stack's; one untimed 3-layer graded slice first fills numba's kernel cache. Every run
 writes to a new path, and everything written so far is flushed to disk (os.sync) before
 it: no run pays for another's writeback, and outputs are deleted only when the benchmark
-ends (kept with --workdir; ext4 skips inodes deleted in the last half minute when it allocates new ones, so a
-stack's thousands of files created right after deleting another's cost heoslice up to
-2 s of system time on the graded vase; PrusaSlicer writes one file).
+ends (kept with --workdir). ext4 skips inodes deleted in the last half minute when it
+allocates new ones, so a stack's thousands of files created right after deleting
+another's cost heoslice up to 2 s of system time on the graded vase (PrusaSlicer writes
+one file).
 
 Examples:
   python benchmarks/bench_prusa.py --quick                  # smoke test, < 2 minutes
