@@ -656,6 +656,14 @@ def _chunk_word(words, line, k, spread):  # pragma: no cover - compiled
     return value
 
 
+@numba.njit(inline="always", **_EXACT)
+def _chunk_solid(solid, k):  # pragma: no cover - compiled
+    """(high byte, low byte, 16-bit mask) of chunk k's solid pixels, from the packed solid row ``solid``."""
+    high = np.int64(solid[2 * k])
+    low = np.int64(solid[2 * k + 1])
+    return high, low, (high << 8) | low
+
+
 @numba.njit(**_EXACT)
 def _droplet_run(line, solid, pattern, first, planes, count, channels):  # pragma: no cover - compiled
     """The common case of :func:`_droplet_bits`: ``count`` chunks of 16 pixels of a row, from chunk
@@ -668,9 +676,7 @@ def _droplet_run(line, solid, pattern, first, planes, count, channels):  # pragm
     wrap = pattern.shape[0] - 1
     if channels == 2:
         for k in range(count):
-            high = np.int64(solid[2 * k])
-            low = np.int64(solid[2 * k + 1])
-            mask = (high << 8) | low
+            high, low, mask = _chunk_solid(solid, k)
             if mask == 0:
                 continue
             value = _chunk_word(pattern[np.uint64((first + k) & wrap)], line, k, np.int64(0x10001))
@@ -686,9 +692,7 @@ def _droplet_run(line, solid, pattern, first, planes, count, channels):  # pragm
         return count
     spread = np.int64(0x0001000100010001)
     for k in range(count):
-        high = np.int64(solid[2 * k])
-        low = np.int64(solid[2 * k + 1])
-        mask = (high << 8) | low
+        high, low, mask = _chunk_solid(solid, k)
         if mask == 0:
             continue
         value = _chunk_word(pattern[np.uint64((first + k) & wrap)], line, k, spread)
