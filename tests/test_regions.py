@@ -21,6 +21,7 @@ from heoslice.regions import (
     GradeSpec,
     RegionSpec,
     band_count,
+    contour_values,
     family_field,
     layer_families,
     layer_regions,
@@ -834,3 +835,32 @@ def test_notches_smaller_than_a_cell_move_the_bands_near_them():
     does not see (cells on the outline were refined by the turn rule before eq. 10's continuation; since,
     labels came out up to 1.4 px off beside three notches)."""
     assert_bands_follow_the_exact_distance(notched_circle(), grid_around(3.5), 0.1)
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1))
+def test_contour_values_interpolate_between_the_layers_points_where_edges_span_several(seed):
+    """A ring with points put on its edges (left out of the edges, :func:`ring_edges`) and a value at every
+    point: the value taken at each cell's nearest ring point is the one interpolated along the ring between
+    the points on either side of it (shapely's position along the ring, numpy's interp), as if no point
+    had been left out."""
+    rng = np.random.default_rng(seed)
+    corners = circle(4.0, int(rng.integers(5, 40)))
+    ring = []
+    for i, corner in enumerate(corners):
+        ring.append(corner)
+        following = corners[(i + 1) % len(corners)]
+        ring += [corner + t * (following - corner) for t in np.sort(rng.uniform(0.01, 0.99, rng.integers(0, 4)))]
+    ring = np.array(ring)
+    values = rng.uniform(0.0, 1.0, (len(ring), 2))
+    points, offsets, area, parent = layer(ring)
+    field = family_field(points, offsets, layer_families(area, parent)[0], grid_around(4.5), RegionSpec())
+    assert len(field.start_edges.x) == len(corners)
+    got = contour_values(field, values)
+    foot, _ = field.nearest()
+    closed = shapely.LineString(np.vstack([ring, ring[:1]]))
+    along = shapely.line_locate_point(closed, shapely.points(foot[0].ravel(), foot[1].ravel()))
+    knots = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(np.vstack([ring, ring[:1]]), axis=0).T))])
+    for column in range(2):
+        expected = np.interp(along, knots, np.append(values[:, column], values[0, column]))
+        np.testing.assert_allclose(got[..., column].ravel(), expected, atol=1e-9)

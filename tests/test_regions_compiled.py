@@ -24,6 +24,7 @@ from heoslice.regions_compiled import (
     refine_flags,
     seed_cells,
     signed_feet,
+    straight_runs,
 )
 
 
@@ -677,3 +678,62 @@ def test_droplet_bits_is_the_per_pixel_choice_along_wide_rows(channels, size, se
     level = np.rint(tile * size * size - 0.5).astype(np.int64)
     case = wide_halftone_case(rng, channels, missing, size * size)
     assert_droplet_bits_are_the_per_pixel_choice(rng, case, channels, tile, level, layer)
+
+
+def polygon_with_points_on_its_edges(rng, count: int, extra: int):
+    """(ring (n, 2), original (n,) bool): a convex polygon whose vertices turn by at least 0.05 rad (each
+    lies >= 1e-3 mm off its neighbours' chord) with ``extra`` points put on random edges (at most three
+    per edge, some of them repeats of a vertex)."""
+    gaps = rng.uniform(0.05, 1.0, count)
+    angle = np.cumsum(gaps / gaps.sum() * 2 * np.pi * 0.999)
+    radius = rng.uniform(1.0, 30.0)
+    vertices = radius * np.column_stack([np.cos(angle), np.sin(angle)]) + rng.uniform(-50, 50, 2)
+    ring, original = [], []
+    per_edge = np.bincount(rng.integers(0, count, extra), minlength=count).clip(0, 3)
+    for i in range(count):
+        ring.append(vertices[i])
+        original.append(True)
+        following = vertices[(i + 1) % count]
+        for t in np.sort(rng.choice([0.0, *rng.uniform(0.01, 0.99, 3)], per_edge[i], replace=False)):
+            ring.append(vertices[i] + t * (following - vertices[i]))
+            original.append(False)
+    return np.array(ring), np.array(original)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(3, 60), st.integers(0, 80))
+def test_straight_runs_leave_out_exactly_the_points_on_the_polygons_edges(seed, count, extra):
+    """Points put on a polygon's edges (and repeated vertices) are left out and its vertices kept, so the
+    edges are the polygon's own; each point's knot places it on the kept edge it lies on, in ring order."""
+    rng = np.random.default_rng(seed)
+    rings = [polygon_with_points_on_its_edges(rng, count, extra), polygon_with_points_on_its_edges(rng, 5, 9)]
+    points = np.concatenate([ring for ring, _ in rings])
+    offsets = np.concatenate([[0], np.cumsum([len(ring) for ring, _ in rings])])
+    keep, _, _ = straight_runs(points[:, 0], points[:, 1], np.diff(offsets), 1e-5)
+    # a repeated vertex may stand for the vertex: the same place
+    assert np.array_equal(points[keep], points[np.concatenate([original for _, original in rings])])
+    edges = ring_edges(points, offsets, [0, 1])
+    assert np.array_equal(edges.first, np.flatnonzero(keep))
+    assert np.all(np.diff(edges.knots) >= 0)
+    assert np.array_equal(np.sort(edges.knot_point[np.diff(np.r_[edges.knots, np.inf]) >= 0]),
+                          np.sort(edges.knot_point))
+    on = np.minimum(np.floor(edges.knots - np.repeat([0, 1], [len(rings[0][0]) + 1, len(rings[1][0]) + 1])),
+                    len(edges.x) - 1).astype(np.int64)
+    inner = np.ones(len(edges.knots), dtype=bool)
+    inner[[len(rings[0][0]), -1]] = False  # the closing knots sit at their ring's last edge's end
+    t = edges.knots - np.floor(edges.knots)
+    place = np.column_stack([edges.x[on] + t * edges.vx[on], edges.y[on] + t * edges.vy[on]])
+    np.testing.assert_allclose(place[inner], points[edges.knot_point[inner]], atol=1e-9)
+
+
+def test_straight_runs_keep_every_point_of_a_fine_curve_and_break_long_straight_runs():
+    """A circle's points (each 2.3 micrometres off its neighbours' chord) are all kept; a straight side of
+    40 points keeps one point in every 17 and its corner (runs of at most 16 are left out, so the work stays bounded)."""
+    angle = np.linspace(0, 2 * np.pi, 513)[:-1]
+    fine = 30.0 * np.column_stack([np.cos(angle), np.sin(angle)])
+    keep, _, _ = straight_runs(fine[:, 0], fine[:, 1], np.array([len(fine)]), 1e-5)
+    assert keep.all()
+    side = np.column_stack([np.linspace(0.0, 39.0, 40), np.zeros(40)])
+    square = np.concatenate([side, [[40.0, 0.0], [40.0, 40.0], [0.0, 40.0]]])
+    keep, _, _ = straight_runs(square[:, 0], square[:, 1], np.array([len(square)]), 1e-5)
+    assert np.array_equal(np.flatnonzero(keep[:41]), [0, 17, 34, 40])  # 40: the corner

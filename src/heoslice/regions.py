@@ -156,12 +156,21 @@ def layer_families(area: np.ndarray, parent: np.ndarray) -> list[Family]:
 # Exact distances to rings
 
 
+#: Largest distance (mm) of a ring point from the edge that replaces it for it to be left out of the ring's edges.
+_STRAIGHT_MM = 1e-5
+
+
 @dataclass(frozen=True)
 class RingEdges:
     """The edges of some closed rings, flattened: edge i runs from (x[i], y[i]) by (vx[i], vy[i]) (mm).
 
     ``inv_len2`` is 1 / |v|^2 (0 for a zero-length edge), ``ring`` the ring (position in
     the list given), ``first``/``second`` the indices of its end points in the layer's points.
+    Points on the straight line between their neighbours (a plane crossing the diagonal of a
+    flat quad, repeated points) are left out: an edge may span several of the layer's
+    points. ``knots`` ((m,) float) places every point of the rings, and each ring's first
+    point again at its end, along the edges: edge i + ring[i] + t at fraction t of edge i;
+    ``knot_point`` ((m,) int) is that point's index in the layer's points.
     """
 
     x: np.ndarray
@@ -172,25 +181,31 @@ class RingEdges:
     ring: np.ndarray
     first: np.ndarray
     second: np.ndarray
+    knots: np.ndarray
+    knot_point: np.ndarray
 
 
 def ring_edges(points: np.ndarray, offsets: np.ndarray, loops) -> RingEdges:
-    """Edges of the given loops (indices into offsets) of a layer's points ((p, 2) float, mm)."""
+    """Edges of the given loops (indices into offsets) of a layer's points ((p, 2) float, mm), without
+    points within _STRAIGHT_MM of the straight line between their neighbours
+    (:func:`heoslice.regions_compiled.straight_runs`)."""
+    from heoslice.regions_compiled import straight_runs
+
     loops = np.asarray(loops, dtype=np.int64)
-    first = offsets[loops]
-    sizes = offsets[loops + 1] - first
-    total = int(sizes.sum())
-    begin = np.repeat(np.cumsum(sizes) - sizes, sizes)
-    size = np.repeat(sizes, sizes)
-    local = np.arange(total) - begin
-    index = np.repeat(first, sizes) + local
-    following = np.repeat(first, sizes) + (local + 1) % size
+    begin = offsets[loops]
+    sizes = offsets[loops + 1] - begin
+    every = np.repeat(begin - (np.cumsum(sizes) - sizes), sizes) + np.arange(int(sizes.sum()))
+    keep, knots, knot_at = straight_runs(points[every, 0], points[every, 1], sizes, _STRAIGHT_MM)
+    index = every[keep]
+    counts = np.bincount(np.repeat(np.arange(len(loops)), sizes)[keep], minlength=len(loops))
+    first_kept = np.repeat(np.cumsum(counts) - counts, counts)
+    following = index[first_kept + (np.arange(len(index)) - first_kept + 1) % np.repeat(counts, counts)]
     vec = points[following] - points[index]
     length2 = vec[:, 0] ** 2 + vec[:, 1] ** 2
     inv = np.divide(1.0, length2, out=np.zeros_like(length2), where=length2 > 0)
     return RingEdges(x=points[index, 0].copy(), y=points[index, 1].copy(), vx=vec[:, 0].copy(),
-                     vy=vec[:, 1].copy(), inv_len2=inv, ring=np.repeat(np.arange(len(loops)), sizes),
-                     first=index, second=following)
+                     vy=vec[:, 1].copy(), inv_len2=inv, ring=np.repeat(np.arange(len(loops)), counts), first=index,
+                     second=following, knots=knots, knot_point=every[knot_at])
 
 
 @dataclass(frozen=True)
@@ -940,16 +955,16 @@ def family_of(regions: LayerRegions) -> list[np.ndarray]:
 
 def contour_values(field: FamilyField, values: np.ndarray) -> np.ndarray:
     """Per-point values ((p,) or (p, c)) of the layer's loops taken at each cell's nearest
-    starting-ring point, interpolated along its edge: (cells_r, cells_c[, c]) float."""
+    starting-ring point, interpolated between the layer's points on either side of it
+    (an edge may span several, :class:`RingEdges`): (cells_r, cells_c[, c]) float."""
     edges = field.start_edges
     foot, edge = field.nearest()
     t = ((foot[0] - edges.x[edge]) * edges.vx[edge] + (foot[1] - edges.y[edge]) * edges.vy[edge]) * edges.inv_len2[edge]
-    t = np.clip(t, 0.0, 1.0)
-    values = np.asarray(values, dtype=np.float64)
-    low, high = values[edges.first[edge]], values[edges.second[edge]]
-    if values.ndim == 2:
-        t = t[..., None]
-    return low + t * (high - low)
+    at = edge + edges.ring[edge] + np.clip(t, 0.0, 1.0)
+    values = np.asarray(values, dtype=np.float64)[edges.knot_point]
+    if values.ndim == 1:
+        return np.interp(at, edges.knots, values)
+    return np.stack([np.interp(at, edges.knots, column) for column in values.T], axis=-1)
 
 
 def paint_cells(regions: LayerRegions, per_family: list[np.ndarray], dtype=np.float32) -> np.ndarray:

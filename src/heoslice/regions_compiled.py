@@ -856,6 +856,74 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
     return planes
 
 
+@numba.njit(**_JIT)
+def _straight_runs(x, y, size, tolerance2, longest):  # pragma: no cover - compiled
+    """(keep (n,) bool, knots (n + rings,), knot_at (n + rings,)) of :func:`straight_runs`."""
+    n, rings = len(x), len(size)
+    keep = np.ones(n, dtype=np.bool_)
+    knots = np.empty(n + rings)
+    knot_at = np.empty(n + rings, dtype=np.int64)
+    begin = 0
+    edge = 0
+    for k in range(rings):
+        end = begin + size[k]
+        if size[k] > 3:
+            a = begin
+            for i in range(begin + 1, end):
+                c = i + 1 if i + 1 < end else begin
+                fits = i - a <= longest
+                vx, vy = x[c] - x[a], y[c] - y[a]
+                length2 = vx * vx + vy * vy
+                inv = 1.0 / length2 if length2 > 0.0 else 0.0
+                for j in range(a + 1, i + 1):
+                    if not fits:
+                        break
+                    rx, ry = x[j] - x[a], y[j] - y[a]
+                    t = min(max((rx * vx + ry * vy) * inv, 0.0), 1.0)
+                    fits = (rx - t * vx) ** 2 + (ry - t * vy) ** 2 <= tolerance2
+                if fits:
+                    keep[i] = False
+                else:
+                    a = i
+            if keep[begin:end].sum() < 3:
+                keep[begin:end] = True
+        following = begin
+        for i in range(end - 1, begin - 1, -1):
+            knot_at[i + k] = following
+            if keep[i]:
+                following = i
+        last = -1.0
+        for i in range(begin, end):
+            if keep[i]:
+                a, c = i, knot_at[i + k]
+                position = float(edge + k)
+                edge += 1
+            else:
+                vx, vy = x[c] - x[a], y[c] - y[a]
+                length2 = vx * vx + vy * vy
+                t = ((x[i] - x[a]) * vx + (y[i] - y[a]) * vy) / length2 if length2 > 0.0 else 0.0
+                position = edge - 1 + k + min(max(t, 0.0), 1.0)
+            last = max(last, position)
+            knots[i + k] = last
+            knot_at[i + k] = i
+        knots[end + k] = edge + k
+        knot_at[end + k] = begin
+        begin = end
+    return keep, knots, knot_at
+
+
+def straight_runs(x: np.ndarray, y: np.ndarray, size: np.ndarray, tolerance: float,
+                  longest: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points of closed rings ((n,) mm, ring k the next size[k] points) that can be left out because
+    every point of their run lies within ``tolerance`` of the segment between the kept points on
+    either side (runs of at most ``longest`` points; a ring's first point and rings left with fewer
+    than three points are kept): keep (n,) bool, and each point's place along the kept edges,
+    knots (n + rings,) = edge + ring + fraction along it, with each ring's first point again at
+    its end (knot_at (n + rings,): which point)."""
+    x, y = np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64)
+    return _straight_runs(x, y, np.ascontiguousarray(size, dtype=np.int64), float(tolerance) ** 2, int(longest))
+
+
 def edge_tree(x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray):
     """Bounding-box hierarchy of edges from (x0, y0) to (x1, y1) ((n,) float, mm), given in ring order
     so that consecutive edges are near each other: (boxes (total, 4) [xmin, ymin, xmax, ymax],
