@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import manifold3d
 import numpy as np
 import trimesh
 
@@ -36,32 +35,6 @@ def thick_vase(height: float, sections: int, rings: int) -> trimesh.Trimesh:
                                   sections=sections))
 
 
-def holes_and_islands(size: tuple[float, float, float], segments: int) -> trimesh.Trimesh:
-    """A plate with a 3 x 2 grid of through holes, a free pin (island) standing in each hole,
-    and a closed spherical cavity holding a free ball: every layer has holes and islands,
-    and the layers through the cavity have an island inside a hole inside the plate.
-
-    Built with manifold3d booleans; size is (x, y, z) in mm.
-    """
-    sx, sy, sz = size
-    hole_r, pin_r = 0.075 * sx, 0.03 * sx
-    plate = manifold3d.Manifold.cube([sx, sy, sz])
-    pins = []
-    for x in (0.19 * sx, 0.44 * sx, 0.69 * sx):
-        for y in (0.3 * sy, 0.7 * sy):
-            plate -= manifold3d.Manifold.cylinder(sz + 2.0, hole_r, circular_segments=segments).translate([x, y, -1.0])
-            pins.append(manifold3d.Manifold.cylinder(sz, pin_r, circular_segments=segments).translate([x, y, 0.0]))
-    cavity_r = min(0.07 * sx, 0.3 * sz, 0.2 * sy)
-    centre = [0.875 * sx, 0.5 * sy, 0.5 * sz]
-    plate -= manifold3d.Manifold.sphere(cavity_r, segments).translate(centre)
-    part = plate
-    for pin in pins:
-        part += pin
-    part += manifold3d.Manifold.sphere(0.5 * cavity_r, segments).translate(centre)
-    mesh = part.to_mesh()
-    return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts), process=False)
-
-
 def organ(extents: tuple[float, float, float], subdivisions: int = 5) -> trimesh.Trimesh:
     """heoslice.procedural.liver_phantom's organ, stretched to exactly ``extents`` (mm)."""
     mesh = procedural.liver_phantom(subdivisions=subdivisions)[0].copy()
@@ -72,14 +45,14 @@ def organ(extents: tuple[float, float, float], subdivisions: int = 5) -> trimesh
 FULL: dict[str, Callable[[], trimesh.Trimesh]] = {
     "sphere": lambda: sphere(25.0, 570),
     "vase": lambda: thick_vase(100.0, 512, 49),
-    "holes": lambda: holes_and_islands((80.0, 50.0, 30.0), 256),
+    "holes": lambda: procedural.holes_and_islands((80.0, 50.0, 30.0), 256),
     "organ": lambda: organ((160.0, 165.0, 200.0)),
 }
 
 QUICK: dict[str, Callable[[], trimesh.Trimesh]] = {
     "sphere": lambda: sphere(10.0, 90),
     "vase": lambda: thick_vase(20.0, 128, 12),
-    "holes": lambda: holes_and_islands((40.0, 25.0, 10.0), 64),
+    "holes": lambda: procedural.holes_and_islands((40.0, 25.0, 10.0), 64),
     "organ": lambda: organ((32.0, 33.0, 40.0), subdivisions=4),
 }
 

@@ -152,3 +152,33 @@ def test_missing_materials_file(run_cli, ball, tmp_path):
     code, _, stderr = run_cli("slice", ball, "--grade", "linear", "--materials", tmp_path / "nope.toml",
                               "-o", tmp_path / "stack")
     assert code == 2 and "nope.toml" in stderr
+
+
+def test_extruded_layers_reuse_their_sub_regions_and_write_the_same_stack(tmp_path, monkeypatch):
+    """A plate with holes, pins and a cavity (the benchmark's part, small): its layers away from the cavity
+    are alike, and slicing with droplet masks measures far fewer families than layers times families while
+    writing every layer and channel file byte for byte as layers graded one by one, each afresh."""
+    from heoslice import pipeline, regions
+    from heoslice.distribution import make_function
+    from heoslice.loading import load_mesh
+    from heoslice.materials import DEFAULT_MATERIALS, Material
+
+    path = tmp_path / "plate.ply"
+    procedural.holes_and_islands((20.0, 12.5, 4.0), 48).export(path)
+    mesh = load_mesh(path)
+    grade = regions.GradeSpec(regions.RegionSpec(nozzle_mm=0.3), make_function("linear"),
+                              Material("green", (0, 255, 0)), None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
+    spec = pipeline.SliceSpec(layer_height_mm=0.2, dpi=(300.0, 300.0), grade=grade, channels=True, jobs=1)
+    measured = []
+    family_field = regions.family_field
+    monkeypatch.setattr(regions, "family_field", lambda *args, **kwargs: measured.append(1) or family_field(
+        *args, **kwargs))
+    reused, _ = pipeline.slice_to_stack(mesh, tmp_path / "reused", spec)
+    with_reuse = len(measured)
+    render_and_write = pipeline.render_and_write
+    monkeypatch.setattr(pipeline, "render_and_write", lambda job, reuse=None: render_and_write(job))
+    fresh, _ = pipeline.slice_to_stack(mesh, tmp_path / "fresh", spec)
+    assert with_reuse < 0.4 * (len(measured) - with_reuse)
+    assert [(e["sha256"], e["channels"]) for e in reused["layers"]] == [(e["sha256"], e["channels"])
+                                                                       for e in fresh["layers"]]
+    assert verify_stack(tmp_path / "reused").ok

@@ -864,3 +864,56 @@ def test_contour_values_interpolate_between_the_layers_points_where_edges_span_s
     for column in range(2):
         expected = np.interp(along, knots, np.append(values[:, column], values[0, column]))
         np.testing.assert_allclose(got[..., column].ravel(), expected, atol=1e-9)
+
+
+def with_points_on_its_edges(ring: np.ndarray, rng, start: int) -> np.ndarray:
+    """``ring`` with a point put at a random place on every edge, starting ``start`` points on (a slice of an
+    extruded wall: a plane crossing each quad's diagonal at its own height)."""
+    following = np.roll(ring, -1, axis=0)
+    between = ring + rng.uniform(0.05, 0.95, (len(ring), 1)) * (following - ring)
+    return np.roll(np.column_stack([ring, between]).reshape(-1, 2), -start, axis=0)
+
+
+def test_layers_of_an_extruded_part_reuse_the_fields_of_families_they_share(monkeypatch):
+    """Layer after layer with the same vertices (the straight points moved, the rings starting elsewhere, other
+    material fractions at the points), the droplet masks with ``reuse`` are those measured afresh, and no
+    family is measured again; a hole moved by a nanometre has its family measured again, the island beside
+    it not; on a layer whose rings all change nothing of the previous layer is kept; a shell inside the
+    plate moved leaves no label behind in the plate's reused field."""
+    from heoslice.regions import droplet_planes
+
+    plate = np.array([[-9.0, -6.0], [9.0, -6.0], [9.0, 6.0], [-9.0, 6.0]])
+    holes = [circle(2.5, 96, (-4.0, 0.0), clockwise=True), circle(2.0, 80, (3.5, 1.0), clockwise=True)]
+    island = circle(1.0, 64, (-4.0, 0.0))
+    grid = grid_around(9.5)
+    spec = GradeSpec(RegionSpec(nozzle_mm=0.3), make_function("linear"), Material("green", (0, 255, 0)),
+                     None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
+    measured = []
+    original = regions.family_field
+    monkeypatch.setattr(regions, "family_field", lambda *args, **kwargs: measured.append(1) or original(*args,
+                                                                                                         **kwargs))
+    rng = np.random.default_rng(5)
+    reuse: dict = {}
+
+    def both(rings, index):
+        points, offsets, area, parent = layer(*(with_points_on_its_edges(ring, rng, int(rng.integers(0, 9)))
+                                                for ring in rings))
+        packed = np.packbits(solid_mask(points, offsets, grid), axis=1)
+        material = rng.uniform(0, 1, len(points))
+        args = (points, offsets, area, parent, None, None, grid, spec, index)
+        before = len(measured)
+        kept = droplet_planes(*args, point_material=material, packed=packed, reuse=reuse)
+        count = len(measured) - before
+        assert np.array_equal(kept, droplet_planes(*args, point_material=material, packed=packed))
+        return count
+
+    assert both([plate, *holes, island], 0) == 2
+    assert both([plate, *holes, island], 1) == 0
+    assert both([plate, *holes, island], 2) == 0
+    assert both([plate, holes[0], holes[1] + [1e-6, 0.0], island], 3) == 1
+    assert both([plate + 0.5, holes[0] + 0.5, holes[1] + 0.5, island + 0.5], 4) == 2
+    assert len(reuse) == 2
+    # a shell inside the plate's solid paints over the plate's labels: moved, it must leave none behind
+    lesion = circle(1.2, 64, (4.0, -3.5))
+    assert both([plate, *holes, lesion], 5) == 2
+    assert both([plate, *holes, lesion + [0.0, 0.4]], 6) == 1

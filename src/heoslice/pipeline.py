@@ -134,14 +134,16 @@ class GradedJob:
     channel_paths: tuple[Path, ...] | None
 
 
-def render_and_write(job: LayerJob) -> tuple:
+def render_and_write(job: LayerJob, reuse: dict | None = None) -> tuple:
     """Render, encode and write one layer.
 
     Returns (index, sha256, solid pixels, raster s, encode s, channel entries); the
     channel entries (graded layers with droplet masks) are (file name, sha256, solid pixels).
+    A graded layer takes the sub-regions of families it shares with the layer rendered
+    before it with the same ``reuse`` dict (:func:`heoslice.regions.layer_regions`).
     """
     if job.graded is not None:
-        return _render_graded_and_write(job)
+        return _render_graded_and_write(job, reuse)
     started = time.perf_counter()
     image, solid = render_layer(job.points, job.offsets, job.grid, point_colors=job.point_colors,
                                 base_color=job.base_color)
@@ -155,7 +157,7 @@ def render_and_write(job: LayerJob) -> tuple:
     return job.index, digest, solid, rendered - started, encoded - rendered, ()
 
 
-def _render_graded_and_write(job: LayerJob) -> tuple:
+def _render_graded_and_write(job: LayerJob, reuse: dict | None) -> tuple:
     """The graded branch of :func:`render_and_write`: the RGBA layer, or with droplet masks the
     1-bit solid layer plus one 1-bit TIFF per material."""
     graded = job.graded
@@ -164,7 +166,7 @@ def _render_graded_and_write(job: LayerJob) -> tuple:
     if graded.channel_paths is not None:
         planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, None,
                                 job.grid, graded.spec, job.index, point_material=graded.point_material,
-                                packed=packed)
+                                packed=packed, reuse=reuse)
         rendered = time.perf_counter()
         width = job.grid.width
         data = encode_bilevel_tiff(packed, width, job.dpi, job.compression)
@@ -178,7 +180,7 @@ def _render_graded_and_write(job: LayerJob) -> tuple:
     mask = np.unpackbits(packed, axis=1, count=job.grid.width).view(bool)
     layer = render_graded(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, mask, job.grid,
                           graded.spec, job.index, point_colors=job.point_colors,
-                          point_material=graded.point_material)
+                          point_material=graded.point_material, reuse=reuse)
     rendered = time.perf_counter()
     data = encode_tiff(layer.image, job.dpi, job.compression)
     encoded = time.perf_counter()
@@ -283,7 +285,8 @@ def slice_run(context: RunContext, start: int, stop: int) -> RunResult:
     contours = build_contours(sections, hierarchy=context.spec.grade is not None)
     chained = time.perf_counter()
     jobs = layer_jobs(contours, mesh, context.grid, context.spec, context.directory, first_layer=start)
-    return RunResult(layers=[render_and_write(job) for job in jobs],
+    reuse: dict = {}  # the last layer's sub-regions, for families the next one shares (an extruded part)
+    return RunResult(layers=[render_and_write(job, reuse) for job in jobs],
                      open_layers=start + contours.layer[contours.closed_by_join],
                      slice_s=sliced - began, contours_s=chained - sliced)
 

@@ -106,6 +106,37 @@ def thin_wall(thickness: float = 0.02, height: float = 5.0, length: float = 20.0
     return box((length, thickness, height), origin=(-length / 2, -thickness / 2, 0.0))
 
 
+def holes_and_islands(size: tuple[float, float, float], segments: int) -> trimesh.Trimesh:
+    """A plate with a 3 x 2 grid of through holes, a free pin (island) standing in each hole,
+    and a closed spherical cavity holding a free ball: every layer has holes and islands,
+    and the layers through the cavity have an island inside a hole inside the plate.
+
+    Built with manifold3d booleans (imported here: only this part needs them); size is (x, y, z)
+    in mm. The benchmark's part with holes and islands; away from the cavity its layers are
+    an extrusion's, all alike.
+    """
+    import manifold3d
+
+    sx, sy, sz = size
+    hole_r, pin_r = 0.075 * sx, 0.03 * sx
+    plate = manifold3d.Manifold.cube([sx, sy, sz])
+    pins = []
+    for x in (0.19 * sx, 0.44 * sx, 0.69 * sx):
+        for y in (0.3 * sy, 0.7 * sy):
+            hole = manifold3d.Manifold.cylinder(sz + 2.0, hole_r, circular_segments=segments)
+            plate -= hole.translate([x, y, -1.0])
+            pins.append(manifold3d.Manifold.cylinder(sz, pin_r, circular_segments=segments).translate([x, y, 0.0]))
+    cavity_r = min(0.07 * sx, 0.3 * sz, 0.2 * sy)
+    centre = [0.875 * sx, 0.5 * sy, 0.5 * sz]
+    plate -= manifold3d.Manifold.sphere(cavity_r, segments).translate(centre)
+    part = plate
+    for pin in pins:
+        part += pin
+    part += manifold3d.Manifold.sphere(0.5 * cavity_r, segments).translate(centre)
+    mesh = part.to_mesh()
+    return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts), process=False)
+
+
 def liver_phantom(scale: float = 1.0, subdivisions: int = 5) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
     """A smooth liver-like blob (about 160 x 165 x 200 mm at scale 1) and a lesion shell inside it.
 

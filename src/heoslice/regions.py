@@ -31,14 +31,17 @@ an eq. 10 family, taken from that ring's own quadratic where it fits well enough
 is used), measured in float32 from a nearby centre (under 2e-5 mm).
 Candidate gathering and the per-pixel loops are compiled
 (:mod:`heoslice.regions_compiled`). The solid mask decides which pixels are solid,
-so the outline is exact.
+so the outline is exact. Rings are measured without their points on the straight line
+between their neighbours (where a plane crosses a flat quad's diagonal), so the layers
+of an extruded part have the same edges and a family may take the previous layer's
+field (:func:`layer_regions`' ``reuse``).
 """
 
 from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -168,9 +171,10 @@ class RingEdges:
     the list given), ``first``/``second`` the indices of its end points in the layer's points.
     Points on the straight line between their neighbours (a plane crossing the diagonal of a
     flat quad, repeated points) are left out: an edge may span several of the layer's
-    points. ``knots`` ((m,) float) places every point of the rings, and each ring's first
-    point again at its end, along the edges: edge i + ring[i] + t at fraction t of edge i;
-    ``knot_point`` ((m,) int) is that point's index in the layer's points.
+    points. Each ring's edges start at its lowest point in x, then y, wherever its points
+    start. ``knots`` ((m,) float) places every point of the rings, and each ring's first
+    edge's start again at its end, along the edges: edge i + ring[i] + t at fraction t of
+    edge i; ``knot_point`` ((m,) int) is that point's index in the layer's points.
     """
 
     x: np.ndarray
@@ -185,18 +189,35 @@ class RingEdges:
     knot_point: np.ndarray
 
 
+def _loop_points(offsets: np.ndarray, loops: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The indices of the given loops' points in the layer, loop after loop ((n,) int), and their sizes ((l,))."""
+    begin = offsets[loops]
+    sizes = offsets[loops + 1] - begin
+    return np.repeat(begin - (np.cumsum(sizes) - sizes), sizes) + np.arange(int(sizes.sum())), sizes
+
+
+def ring_geometry(points: np.ndarray, offsets: np.ndarray, loops) -> bytes:
+    """The given loops' points without straight ones (what :func:`ring_edges` keeps) and their counts, as
+    bytes: equal for two layers exactly when their edges are (an extruded part's layers)."""
+    from heoslice.regions_compiled import straight_runs
+
+    every, sizes = _loop_points(offsets, np.asarray(loops, dtype=np.int64))
+    keep, order, _, _ = straight_runs(points[every, 0], points[every, 1], sizes, _STRAIGHT_MM)
+    kept = np.bincount(np.repeat(np.arange(len(sizes)), sizes)[keep], minlength=len(sizes))
+    return (np.ascontiguousarray(points[every[order[keep[order]]]], dtype=np.float64).tobytes()
+            + kept.astype(np.int64).tobytes())
+
+
 def ring_edges(points: np.ndarray, offsets: np.ndarray, loops) -> RingEdges:
     """Edges of the given loops (indices into offsets) of a layer's points ((p, 2) float, mm), without
-    points within _STRAIGHT_MM of the straight line between their neighbours
-    (:func:`heoslice.regions_compiled.straight_runs`)."""
+    points within _STRAIGHT_MM of the straight line between their neighbours, each ring's from its
+    lowest point in x then y round (:func:`heoslice.regions_compiled.straight_runs`)."""
     from heoslice.regions_compiled import straight_runs
 
     loops = np.asarray(loops, dtype=np.int64)
-    begin = offsets[loops]
-    sizes = offsets[loops + 1] - begin
-    every = np.repeat(begin - (np.cumsum(sizes) - sizes), sizes) + np.arange(int(sizes.sum()))
-    keep, knots, knot_at = straight_runs(points[every, 0], points[every, 1], sizes, _STRAIGHT_MM)
-    index = every[keep]
+    every, sizes = _loop_points(offsets, loops)
+    keep, order, knots, knot_at = straight_runs(points[every, 0], points[every, 1], sizes, _STRAIGHT_MM)
+    index = every[order[keep[order]]]
     counts = np.bincount(np.repeat(np.arange(len(loops)), sizes)[keep], minlength=len(loops))
     first_kept = np.repeat(np.cumsum(counts) - counts, counts)
     following = index[first_kept + (np.arange(len(index)) - first_kept + 1) % np.repeat(counts, counts)]
@@ -468,10 +489,9 @@ class FamilyField:
     nearest: Callable[[], tuple[np.ndarray, np.ndarray]]
 
 
-def family_box(points: np.ndarray, offsets: np.ndarray, loop: int, grid: Grid) -> tuple[int, int, int, int]:
-    """Pixel box (row0, row1, col0, col1) of the pixel centres inside a loop's bounding box."""
-    ring = points[offsets[loop]:offsets[loop + 1]]
-    low, high = ring.min(axis=0), ring.max(axis=0)
+def family_box(edges: RingEdges, grid: Grid) -> tuple[int, int, int, int]:
+    """Pixel box (row0, row1, col0, col1) of the pixel centres inside the bounding box of a ring's edges."""
+    low, high = (edges.x.min(), edges.y.min()), (edges.x.max(), edges.y.max())
     col0 = int(np.clip(np.floor((low[0] - grid.x_left) / grid.px - 0.5), 0, grid.width))
     col1 = int(np.clip(np.ceil((high[0] - grid.x_left) / grid.px + 0.5), 0, grid.width))
     row0 = int(np.clip(np.floor((grid.y_top - high[1]) / grid.py - 0.5), 0, grid.height))
@@ -530,15 +550,18 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     is then empty and N_R is 1. With the layer's solid ``mask`` ((h, w) bool) ``index``
     holds labels instead: k + label_base on solid pixels, 0 elsewhere.
     """
-    box = family_box(points, offsets, family.outer, grid)
-    lattice = lattice_for(box, grid)
-    outward = spec.direction == "out" and bool(family.holes)
     made: dict[tuple, RingSet] = {}
 
     def rings(loops, encloses: bool) -> RingSet:
         if (tuple(loops), encloses) not in made:
             made[tuple(loops), encloses] = ring_set(points, offsets, loops, encloses)
         return made[tuple(loops), encloses]
+
+    # everything below reads the rings' edges only, not their straight points (so a layer may reuse another's)
+    outer = rings((family.outer,), True)
+    box = family_box(outer.edges, grid)
+    lattice = lattice_for(box, grid)
+    outward = spec.direction == "out" and bool(family.holes)
 
     start_loops = family.holes if outward else (family.outer,)
     start = rings(start_loops, not outward)
@@ -557,11 +580,11 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     if not family.holes and spec.depth_mm is None:
         import shapely
 
-        outline = shapely.Polygon(points[offsets[family.outer]:offsets[family.outer + 1]])
+        outline = shapely.Polygon(np.column_stack([outer.edges.x, outer.edges.y]))
         inradius = float(shapely.maximum_inscribed_circle(outline, 0.5 * min(grid.px, grid.py)).length)
     apart = None
     if family.holes and spec.depth_mm is None:
-        apart = rings_apart(rings((family.outer,), True), rings(family.holes, False))
+        apart = rings_apart(outer, rings(family.holes, False))
     layout = family_layout(family, spec, inradius, apart)
     ends = [rings(loops, outward) for loops in layout.end]
     row0, row1, col0, col1 = box
@@ -875,8 +898,8 @@ class LayerRegions:
 
 
 def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, parent: np.ndarray,
-                  mask: np.ndarray | None, grid: Grid, spec: RegionSpec, packed: np.ndarray | None = None
-                  ) -> LayerRegions:
+                  mask: np.ndarray | None, grid: Grid, spec: RegionSpec, packed: np.ndarray | None = None,
+                  reuse: dict | None = None) -> LayerRegions:
     """Sub-regions of one layer: loops (points (p, 2) mm, offsets (l+1,), signed areas and parents
     (l,) within the layer) and the layer's solid mask ((height, width) bool).
 
@@ -886,22 +909,37 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     only (:func:`heoslice.rasterising.packed_mask`; the droplet masks' path, which reads
     labels only where the layer is solid), the outermost family labels its whole box:
     pixels off the solid there hold labels too.
+
+    ``reuse`` (a dict the caller keeps from layer to layer, same grid and spec) holds the
+    previous layer's fields by their rings' edges (:func:`ring_geometry`): a family whose
+    edges are the same, value for value (an extruded part), takes its field from there.
     """
     families = tuple(layer_families(area, parent))
     if not families:
         return LayerRegions((0, 0, 0, 0), np.zeros((0, 0), np.int16), (), (), np.ones(1, np.int64))
     # the outermost family (label base 1) is labelled by its own expansion, saving a pass over ~15 MP
-    fields = tuple(family_field(points, offsets, family, grid, spec, pixels=not family.nested,
-                                mask=None if number or family.nested else mask, label_base=0 if number else 1)
-                   for number, family in enumerate(families))
+    masks = [None if number or family.nested else mask for number, family in enumerate(families)]
+    keys = [None if reuse is None or family_mask is not None else
+            (family.nested, int(number == 0), ring_geometry(points, offsets, (family.outer, *family.holes)))
+            for number, (family, family_mask) in enumerate(zip(families, masks))]
+    if reuse is not None:
+        for stale in set(reuse) - set(keys):
+            del reuse[stale]  # freed before this layer's fields are made
+    fields = tuple(_layer_field(points, offsets, family, grid, spec, family_mask, 0 if number else 1,
+                                None if key is None else reuse.get(key))
+                   for number, (family, family_mask, key) in enumerate(zip(families, masks, keys)))
+    if reuse is not None:
+        reuse.clear()
+        reuse.update((key, field) for key, field in zip(keys, fields) if key is not None)
     boxes = np.array([field.box for field in fields])
     box = (int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
     sizes = np.array([1 if family.nested else field.layout.count + 1 for family, field in zip(families, fields)])
     base = np.concatenate([[1], 1 + np.cumsum(sizes)]).astype(np.int64)
     dtype = _index_dtype(int(base[-1]))
     first = fields[0]
-    if first.box == box and first.index.dtype == dtype:
-        # the outermost family spans the layer's box: its labels are the layer's, no copy of ~15 MP
+    if first.box == box and first.index.dtype == dtype and (reuse is None or len(fields) == 1):
+        # the outermost family spans the layer's box: its labels are the layer's, no copy of ~15 MP (unless
+        # other families paint over them and the field may serve the next layer)
         label = first.index
     else:
         label = np.zeros((box[1] - box[0], box[3] - box[2]), dtype=dtype)
@@ -919,6 +957,18 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
         value = base[number] if family.nested else field.index + base[number]
         np.copyto(target, value, where=solid, casting="unsafe")
     return LayerRegions(box, label, families, fields, base)
+
+
+def _layer_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid, spec: RegionSpec,
+                 mask: np.ndarray | None, label_base: int, same: FamilyField | None) -> FamilyField:
+    """One family's field for :func:`layer_regions`: measured, or ``same``, the previous layer's field of a
+    family with the same rings' edges, with this layer's start edges and loop numbers."""
+    if same is None:
+        return family_field(points, offsets, family, grid, spec, pixels=not family.nested, mask=mask,
+                            label_base=label_base)
+    loops = family_layout(family, spec)
+    return replace(same, start_edges=ring_edges(points, offsets, loops.start),
+                   layout=replace(same.layout, start=loops.start, end=loops.end if same.layout.end else ()))
 
 
 def _solid_in(mask: np.ndarray | None, packed: np.ndarray | None, box: tuple[int, int, int, int]) -> np.ndarray:
@@ -1107,21 +1157,22 @@ def _target_fractions(regions: LayerRegions, spec: GradeSpec) -> np.ndarray:
 def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, parent: np.ndarray,
                   loop_shell: np.ndarray | None, mask: np.ndarray, grid: Grid, spec: GradeSpec, layer: int, *,
                   point_colors: np.ndarray | None = None, point_material: np.ndarray | None = None,
-                  channels: bool = False) -> GradedLayer:
+                  channels: bool = False, reuse: dict | None = None) -> GradedLayer:
     """Render one graded layer (Fig. 9b): sub-regions by :func:`layer_regions`, each family's
     interior blended from its contour's material to the target by eq. 1, contour pixels
     in the contour's colours, and optionally the droplet masks (:mod:`heoslice.halftone`).
 
     points (p, 2) mm, offsets (l+1,), area/parent/loop_shell (l,) of the layer's loops;
     mask (h, w) bool its solid pixels; point_colors (p, 3) float 0..255 and
-    point_material (p,) in [0, 1] the attributes interpolated at the contour points.
+    point_material (p,) in [0, 1] the attributes interpolated at the contour points; ``reuse``
+    as :func:`layer_regions`.
     """
     import time
 
     from heoslice.rasterising import paint_contour
 
     started = time.process_time()
-    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions)
+    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions, reuse=reuse)
     grading_seconds = time.process_time() - started
     solid = int(np.count_nonzero(mask))
     image = np.zeros((grid.height, grid.width, 4), dtype=np.uint8)
@@ -1158,7 +1209,8 @@ def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
 
 def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, parent: np.ndarray,
                    loop_shell: np.ndarray | None, mask: np.ndarray | None, grid: Grid, spec: GradeSpec, layer: int, *,
-                   point_material: np.ndarray | None = None, packed: np.ndarray | None = None) -> np.ndarray:
+                   point_material: np.ndarray | None = None, packed: np.ndarray | None = None,
+                   reuse: dict | None = None) -> np.ndarray:
     """The droplet masks of one graded layer, bit-packed: (K, height, ceil(width / 8)) uint8, rows MSB first.
 
     Each solid pixel's mix is its family's start mix at its lattice cell moved by its
@@ -1168,10 +1220,10 @@ def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, pa
     ``render_graded(..., channels=True)``). Solid pixels outside every family jet the base
     material. Arguments as :func:`render_graded`; mask (h, w) bool, ``packed`` the same mask
     bit-packed (:func:`heoslice.rasterising.packed_mask`) when the caller has it; with it, the
-    mask may be None (no per-pixel mask built or read: :func:`layer_regions`).
+    mask may be None (no per-pixel mask built or read: :func:`layer_regions`); ``reuse`` as there.
     """
     packed = np.packbits(mask, axis=1) if packed is None else packed
-    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions, packed)
+    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions, packed, reuse)
     return _droplet_planes_of(regions, spec, loop_shell, point_material, packed, grid, layer)
 
 

@@ -856,70 +856,98 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
     return planes
 
 
+@numba.njit(inline="always", **_JIT)
+def _off_segment2(x, y, j, a, c):  # pragma: no cover - compiled
+    """Squared distance (mm^2) from point j to the segment from point a to point c."""
+    vx, vy = x[c] - x[a], y[c] - y[a]
+    length2 = vx * vx + vy * vy
+    rx, ry = x[j] - x[a], y[j] - y[a]
+    t = min(max((rx * vx + ry * vy) / length2, 0.0), 1.0) if length2 > 0.0 else 0.0
+    return (rx - t * vx) ** 2 + (ry - t * vy) ** 2
+
+
 @numba.njit(**_JIT)
 def _straight_runs(x, y, size, tolerance2, longest):  # pragma: no cover - compiled
-    """(keep (n,) bool, knots (n + rings,), knot_at (n + rings,)) of :func:`straight_runs`."""
+    """(keep (n,) bool, order (n,), knots (n + rings,), knot_at (n + rings,)) of :func:`straight_runs`."""
     n, rings = len(x), len(size)
     keep = np.ones(n, dtype=np.bool_)
+    order = np.empty(n, dtype=np.int64)
     knots = np.empty(n + rings)
     knot_at = np.empty(n + rings, dtype=np.int64)
     begin = 0
     edge = 0
     for k in range(rings):
-        end = begin + size[k]
-        if size[k] > 3:
-            a = begin
-            for i in range(begin + 1, end):
-                c = i + 1 if i + 1 < end else begin
-                fits = i - a <= longest
-                vx, vy = x[c] - x[a], y[c] - y[a]
-                length2 = vx * vx + vy * vy
-                inv = 1.0 / length2 if length2 > 0.0 else 0.0
-                for j in range(a + 1, i + 1):
+        m = size[k]
+        end = begin + m
+        # the ring's lowest point in x then y (the first of equal ones) is a corner of its convex hull: walks
+        # and edges start there, so that where the ring starts (say where a plane crosses a quad's diagonal)
+        # decides nothing
+        anchor = 0
+        for i in range(1, m):
+            if x[begin + i] < x[begin + anchor] or (x[begin + i] == x[begin + anchor]
+                                                    and y[begin + i] < y[begin + anchor]):
+                anchor = i
+        if m > 3:
+            a = anchor
+            for step in range(1, m):
+                i = (anchor + step) % m
+                c = (i + 1) % m
+                run = (i - a) % m
+                fits = run <= longest
+                for back in range(run):
                     if not fits:
                         break
-                    rx, ry = x[j] - x[a], y[j] - y[a]
-                    t = min(max((rx * vx + ry * vy) * inv, 0.0), 1.0)
-                    fits = (rx - t * vx) ** 2 + (ry - t * vy) ** 2 <= tolerance2
+                    fits = _off_segment2(x, y, begin + (a + 1 + back) % m, begin + a, begin + c) <= tolerance2
                 if fits:
-                    keep[i] = False
+                    keep[begin + i] = False
                 else:
                     a = i
             if keep[begin:end].sum() < 3:
                 keep[begin:end] = True
-        following = begin
-        for i in range(end - 1, begin - 1, -1):
-            knot_at[i + k] = following
-            if keep[i]:
+        # knots from the anchor round the ring: each point at its edge + ring + fraction along the edge
+        following = anchor
+        ahead = np.empty(m, dtype=np.int64)
+        for step in range(m - 1, -1, -1):
+            i = (anchor + step) % m
+            ahead[i] = following
+            if keep[begin + i]:
                 following = i
         last = -1.0
-        for i in range(begin, end):
-            if keep[i]:
-                a, c = i, knot_at[i + k]
+        a = anchor
+        for step in range(m):
+            i = (anchor + step) % m
+            order[begin + step] = begin + i
+            if keep[begin + i]:
+                a = i
                 position = float(edge + k)
                 edge += 1
             else:
-                vx, vy = x[c] - x[a], y[c] - y[a]
+                c = ahead[a]
+                vx, vy = x[begin + c] - x[begin + a], y[begin + c] - y[begin + a]
                 length2 = vx * vx + vy * vy
-                t = ((x[i] - x[a]) * vx + (y[i] - y[a]) * vy) / length2 if length2 > 0.0 else 0.0
+                rx, ry = x[begin + i] - x[begin + a], y[begin + i] - y[begin + a]
+                t = (rx * vx + ry * vy) / length2 if length2 > 0.0 else 0.0
                 position = edge - 1 + k + min(max(t, 0.0), 1.0)
             last = max(last, position)
-            knots[i + k] = last
-            knot_at[i + k] = i
+            knots[begin + k + step] = last
+            knot_at[begin + k + step] = begin + i
         knots[end + k] = edge + k
-        knot_at[end + k] = begin
+        knot_at[end + k] = begin + anchor
         begin = end
-    return keep, knots, knot_at
+    return keep, order, knots, knot_at
 
 
-def straight_runs(x: np.ndarray, y: np.ndarray, size: np.ndarray, tolerance: float,
-                  longest: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def straight_runs(x: np.ndarray, y: np.ndarray, size: np.ndarray, tolerance: float, longest: int = 16
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points of closed rings ((n,) mm, ring k the next size[k] points) that can be left out because
     every point of their run lies within ``tolerance`` of the segment between the kept points on
-    either side (runs of at most ``longest`` points; a ring's first point and rings left with fewer
-    than three points are kept): keep (n,) bool, and each point's place along the kept edges,
-    knots (n + rings,) = edge + ring + fraction along it, with each ring's first point again at
-    its end (knot_at (n + rings,): which point)."""
+    either side (runs of at most ``longest`` points; rings that would keep fewer than three points
+    keep all), walked from each ring's anchor, its lowest point in x then y (always kept).
+
+    Returns keep (n,) bool; order (n,), the points ring by ring from each anchor round (the kept
+    ones in this order are the edges' starts); knots (n + rings,), each point's place along the
+    edges so numbered, edge + ring + fraction along it, from each ring's anchor round to it again
+    (knot_at (n + rings,): which point)."""
     x, y = np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64)
     return _straight_runs(x, y, np.ascontiguousarray(size, dtype=np.int64), float(tolerance) ** 2, int(longest))
 
