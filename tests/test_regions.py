@@ -876,10 +876,10 @@ def with_points_on_its_edges(ring: np.ndarray, rng, start: int) -> np.ndarray:
 
 def test_layers_of_an_extruded_part_reuse_the_fields_of_families_they_share(monkeypatch):
     """Layer after layer with the same vertices (the straight points moved, the rings starting elsewhere, other
-    material fractions at the points), the droplet masks with ``reuse`` are those measured afresh, and no
-    family is measured again; a hole moved by a nanometre has its family measured again, the island beside
-    it not; on a layer whose rings all change nothing of the previous layer is kept; a shell inside the
-    plate moved leaves no label behind in the plate's reused field."""
+    material fractions at the points), the droplet masks and RGBA images with ``reuse`` are those measured
+    afresh, and no family is measured again; a hole moved by a nanometre has its family measured again,
+    the island beside it not; on a layer whose rings all change nothing of the previous layer is kept; a
+    shell inside the plate moved leaves no label behind in the plate's reused field."""
     from heoslice.regions import droplet_planes
 
     plate = np.array([[-9.0, -6.0], [9.0, -6.0], [9.0, 6.0], [-9.0, 6.0]])
@@ -894,6 +894,7 @@ def test_layers_of_an_extruded_part_reuse_the_fields_of_families_they_share(monk
                                                                                                          **kwargs))
     rng = np.random.default_rng(5)
     reuse: dict = {}
+    reuse_rgba: dict = {}  # render_graded's own: its outermost family, labelled on the mask, is never kept
 
     def both(rings, index):
         points, offsets, area, parent = layer(*(with_points_on_its_edges(ring, rng, int(rng.integers(0, 9)))
@@ -905,6 +906,10 @@ def test_layers_of_an_extruded_part_reuse_the_fields_of_families_they_share(monk
         kept = droplet_planes(*args, point_material=material, packed=packed, reuse=reuse)
         count = len(measured) - before
         assert np.array_equal(kept, droplet_planes(*args, point_material=material, packed=packed))
+        mask = np.unpackbits(packed, axis=1, count=grid.width).view(bool)
+        rgba = (points, offsets, area, parent, None, mask, grid, spec, index)
+        assert np.array_equal(render_graded(*rgba, point_material=material, reuse=reuse_rgba).image,
+                              render_graded(*rgba, point_material=material).image)
         return count
 
     assert both([plate, *holes, island], 0) == 2

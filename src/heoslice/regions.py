@@ -940,7 +940,7 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     base = np.concatenate([[1], 1 + np.cumsum(sizes)]).astype(np.int64)
     dtype = _index_dtype(int(base[-1]))
     first = fields[0]
-    if first.box == box and first.index.dtype == dtype and (reuse is None or len(fields) == 1):
+    if first.box == box and first.index.dtype == dtype and (keys[0] is None or len(fields) == 1):
         # the outermost family spans the layer's box: its labels are the layer's, no copy of ~15 MP (unless
         # other families paint over them and the field may serve the next layer)
         label = first.index
