@@ -922,3 +922,28 @@ def test_layers_of_an_extruded_part_reuse_the_fields_of_families_they_share(monk
     lesion = circle(1.2, 64, (4.0, -3.5))
     assert both([plate, *holes, lesion], 5) == 2
     assert both([plate, *holes, lesion + [0.0, 0.4]], 6) == 1
+
+
+def test_holes_that_stay_while_another_shrinks_are_measured_once(monkeypatch):
+    """A plate whose big hole shrinks layer by layer (more of the lattice is wanted each time) while its outline
+    and small hole stay: only the shrinking hole's lattice passes are made again, the others' are taken from
+    the layer before and completed where newly wanted, and the droplet masks equal those measured afresh."""
+    from heoslice.regions import droplet_planes
+
+    plate = np.array([[-20.0, -14.0], [20.0, -14.0], [20.0, 14.0], [-20.0, 14.0]])
+    small = circle(1.5, 64, (14.0, 8.0), clockwise=True)
+    grid = grid_around(20.5)
+    spec = GradeSpec(RegionSpec(nozzle_mm=0.3), make_function("linear"), Material("green", (0, 255, 0)),
+                     None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
+    passes = []
+    ring_measures = regions._ring_measures
+    monkeypatch.setattr(regions, "_ring_measures", lambda *args: passes.append(1) or ring_measures(*args))
+    reuse: dict = {}
+    for index, radius in enumerate([11.0, 10.0, 8.5, 7.0]):
+        points, offsets, area, parent = layer(plate, circle(radius, 200, (-6.0, 0.0), clockwise=True), small)
+        packed = np.packbits(solid_mask(points, offsets, grid), axis=1)
+        args = (points, offsets, area, parent, None, None, grid, spec, index)
+        before = len(passes)
+        kept = droplet_planes(*args, packed=packed, reuse=reuse)
+        assert len(passes) - before == (3 if index == 0 else 1)
+        assert np.array_equal(kept, droplet_planes(*args, packed=packed))

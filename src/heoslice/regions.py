@@ -34,7 +34,7 @@ Candidate gathering and the per-pixel loops are compiled
 so the outline is exact. Rings are measured without their points on the straight line
 between their neighbours (where a plane crosses a flat quad's diagonal), so the layers
 of an extruded part have the same edges and a family may take the previous layer's
-field (:func:`layer_regions`' ``reuse``).
+field, or a ring set its lattice passes (:func:`layer_regions`' ``reuse``).
 """
 
 from __future__ import annotations
@@ -462,12 +462,64 @@ class RingSet:
     edges: RingEdges
     encloses: bool
     tree: tuple
+    key: tuple = ()
 
 
 def ring_set(points: np.ndarray, offsets: np.ndarray, loops, encloses: bool) -> RingSet:
     """The ring set of some loops of a layer, with its edges and their bounding-box hierarchy."""
     edges = ring_edges(points, offsets, loops)
     return RingSet(tuple(loops), edges, encloses, ring_tree(edges))
+
+
+@dataclass(frozen=True)
+class RingMeasures:
+    """One ring set's passes over a family's padded lattice: its block bounds, the cell centres inside
+    it, the blocks off the family's side of it (``far``), and the exact nearest edge ((rows, cols) int)
+    of the cells of the blocks measured so far (``done``, (block rows, block cols) bool; elsewhere
+    ``edge`` means nothing). A pure function
+    of the ring set's edges and the lattice, so a layer with the same edges (an extruded hole) reuses it."""
+
+    bounds: BlockBounds
+    inside: np.ndarray
+    far: np.ndarray
+    edge: np.ndarray
+    done: np.ndarray
+
+
+def _ring_measures(rings: RingSet, lattice: Lattice) -> RingMeasures:
+    """A ring set's RingMeasures on a lattice, no block's edges measured yet."""
+    bounds = block_bounds(rings.edges, lattice)
+    inside = _inside_loops(rings, lattice)
+    far = _far_side(rings, inside, bounds, lattice)
+    return RingMeasures(bounds, inside, far, np.zeros((lattice.rows, lattice.cols), dtype=np.int64),
+                        np.zeros(far.shape, dtype=bool))
+
+
+def _measured_centres(rings: RingSet, measures: RingMeasures, lattice: Lattice, wanted: np.ndarray
+                      ) -> tuple[tuple, RingMeasures]:
+    """:func:`_signed_centres` over the ``wanted`` blocks ((block rows, block cols) bool), measuring only
+    the blocks ``measures`` does not hold yet: (the same arrays, the measures with them)."""
+    from heoslice.regions_compiled import signed_feet
+
+    if not measures.done.any():
+        edge = lattice_edges(rings.edges, lattice, rings.tree, measures.bounds, wanted)
+        measures = replace(measures, edge=edge, done=wanted)
+    else:
+        todo = wanted & ~measures.done
+        if todo.any():
+            fresh = lattice_edges(rings.edges, lattice, rings.tree, measures.bounds, todo)
+            measures = replace(measures, edge=np.where(_block_cells(todo, lattice), fresh, measures.edge),
+                               done=measures.done | todo)
+        seeds = lattice_edges(rings.edges, lattice, rings.tree, measures.bounds, np.zeros_like(wanted))
+        edge = np.where(_block_cells(wanted, lattice), measures.edge, seeds)
+    e = rings.edges
+    return signed_feet(edge, lattice.x0, lattice.y0, lattice.dx, lattice.dy, e.x, e.y, e.vx, e.vy, e.inv_len2,
+                       measures.inside, rings.encloses) + (edge,), measures
+
+
+def _block_cells(blocks: np.ndarray, lattice: Lattice) -> np.ndarray:
+    """(rows, cols) bool over the lattice's cells from (block rows, block cols) bool over its blocks."""
+    return np.repeat(np.repeat(blocks, _BLOCK, axis=0), _BLOCK, axis=1)[:lattice.rows, :lattice.cols]
 
 
 @dataclass(frozen=True)
@@ -545,19 +597,28 @@ def _signed_centres(rings: RingSet, inside: np.ndarray, lattice: Lattice, bounds
 
 def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid,
                  spec: RegionSpec, pixels: bool = True, mask: np.ndarray | None = None,
-                 label_base: int = 0) -> FamilyField:
+                 label_base: int = 0, measured: tuple[dict, dict] | None = None) -> FamilyField:
     """Sub-region index k (1..N_R) at every pixel of a family's box (see the module docstring).
 
     With ``pixels`` False only the lattice is measured (a nested shell, which keeps its
     own material, needs its cells' nearest contour points but no sub-regions): ``index``
     is then empty and N_R is 1. With the layer's solid ``mask`` ((h, w) bool) ``index``
     holds labels instead: k + label_base on solid pixels, 0 elsewhere.
+
+    ``measured`` (before, now): what ring sets with these very edges cost on the previous
+    layer (their edge trees and lattice passes, :class:`RingMeasures`), read from ``before``;
+    this family's are added to ``now`` (:func:`layer_regions` keeps them a layer).
     """
     made: dict[tuple, RingSet] = {}
+    measured_before, measured_now = measured if measured is not None else ({}, {})
 
     def rings(loops, encloses: bool) -> RingSet:
         if (tuple(loops), encloses) not in made:
-            made[tuple(loops), encloses] = ring_set(points, offsets, loops, encloses)
+            edges = ring_edges(points, offsets, loops)
+            key = (encloses, edges.x.tobytes(), edges.y.tobytes(), edges.ring.tobytes())
+            tree = measured_before.get(key) or measured_now.get(key) or ring_tree(edges)
+            measured_now[key] = tree
+            made[tuple(loops), encloses] = RingSet(tuple(loops), edges, encloses, tree, key)
         return made[tuple(loops), encloses]
 
     # everything below reads the rings' edges only, not their straight points (so a layer may reuse another's)
@@ -597,16 +658,11 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
                            nearest=nearest)
     # measured on the lattice padded by a cell, so that every cell of the family has its eight neighbours
     padded = _padded(lattice)
-    start_bounds = block_bounds(start.edges, padded)
-    start_inside = _inside_loops(start, padded)
-    far = [_far_side(start, start_inside, start_bounds, padded)]
-    ends_bounds = [block_bounds(rings.edges, padded) for rings in ends]
-    ends_inside = [_inside_loops(rings, padded) for rings in ends]
-    far += [_far_side(*args, padded) for args in zip(ends, ends_inside, ends_bounds)]
-    wanted = ~np.logical_or.reduce(far)
-    start_at = _signed_centres(start, start_inside, padded, start_bounds, wanted)
-    ends_at = [_signed_centres(rings, inside, padded, bounds, wanted)
-               for rings, inside, bounds in zip(ends, ends_inside, ends_bounds)]
+    measures = [measured_before.get((rings.key, padded)) or _ring_measures(rings, padded) for rings in [start] + ends]
+    wanted = ~np.logical_or.reduce([m.far for m in measures])
+    centres = [_measured_centres(rings, m, padded, wanted) for rings, m in zip([start] + ends, measures)]
+    measured_now.update(((rings.key, padded), m) for rings, (_, m) in zip([start] + ends, centres))
+    start_at, ends_at = centres[0][0], [at for at, _ in centres[1:]]
     s, grad = _band_coordinate(layout, start_at[:2], [at[:2] for at in ends_at])
 
     # a cell may hold solid pixels when its centre is within half a diagonal of the family's side
@@ -915,7 +971,9 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
 
     ``reuse`` (a dict the caller keeps from layer to layer, same grid and spec) holds the
     previous layer's fields by their rings' edges (:func:`ring_geometry`): a family whose
-    edges are the same, value for value (an extruded part), takes its field from there.
+    edges are the same, value for value (an extruded part), takes its field from there; a
+    family measured afresh takes the edge trees and lattice passes of its ring sets that
+    are the same (holes that stay while another changes, :class:`RingMeasures`).
     """
     families = tuple(layer_families(area, parent))
     if not families:
@@ -925,15 +983,16 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     keys = [None if reuse is None or family_mask is not None else
             (family.nested, int(number == 0), ring_geometry(points, offsets, (family.outer, *family.holes)))
             for number, (family, family_mask) in enumerate(zip(families, masks))]
-    if reuse is not None:
-        for stale in set(reuse) - set(keys):
-            del reuse[stale]  # freed before this layer's fields are made
+    before: dict = {} if reuse is None else reuse.setdefault("fields", {})
+    for stale in set(before) - set(keys):
+        del before[stale]  # freed before this layer's fields are made
+    measured = ({} if reuse is None else reuse.get("rings", {}), {})
     fields = tuple(_layer_field(points, offsets, family, grid, spec, family_mask, 0 if number else 1,
-                                None if key is None else reuse.get(key))
+                                None if key is None else before.get(key), measured)
                    for number, (family, family_mask, key) in enumerate(zip(families, masks, keys)))
     if reuse is not None:
-        reuse.clear()
-        reuse.update((key, field) for key, field in zip(keys, fields) if key is not None)
+        reuse["fields"] = {key: field for key, field in zip(keys, fields) if key is not None}
+        reuse["rings"] = measured[1]
     boxes = np.array([field.box for field in fields])
     box = (int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
     sizes = np.array([1 if family.nested else field.layout.count + 1 for family, field in zip(families, fields)])
@@ -963,12 +1022,14 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
 
 
 def _layer_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid, spec: RegionSpec,
-                 mask: np.ndarray | None, label_base: int, same: FamilyField | None) -> FamilyField:
-    """One family's field for :func:`layer_regions`: measured, or ``same``, the previous layer's field of a
-    family with the same rings' edges, with this layer's start edges and loop numbers."""
+                 mask: np.ndarray | None, label_base: int, same: FamilyField | None,
+                 measured: tuple[dict, dict]) -> FamilyField:
+    """One family's field for :func:`layer_regions`: measured (``measured`` as :func:`family_field`), or
+    ``same``, the previous layer's field of a family with the same rings' edges, with this layer's start
+    edges and loop numbers."""
     if same is None:
         return family_field(points, offsets, family, grid, spec, pixels=not family.nested, mask=mask,
-                            label_base=label_base)
+                            label_base=label_base, measured=measured)
     loops = family_layout(family, spec)
     return replace(same, start_edges=ring_edges(points, offsets, loops.start),
                    layout=replace(same.layout, start=loops.start, end=loops.end if same.layout.end else ()))
