@@ -190,3 +190,16 @@ def test_contours_without_hierarchy_are_the_same_loops():
     for name in ("points", "point_edge", "point_t", "offsets", "layer", "area", "closed_by_join", "face",
                  "layer_offsets"):
         np.testing.assert_array_equal(getattr(plain, name), getattr(full, name))
+
+
+def test_overlapping_loops_of_a_broken_mesh_get_parents_that_end():
+    """Two loops that cross (a self-intersecting mesh), each holding the other's first vertex: only the larger
+    can be the smaller's parent, so the parents form no cycle (they did, and grading hung following them)."""
+    from heoslice.contours import loop_parents
+
+    small = np.array([[10.0, 10.0], [0.0, 10.0], [0.0, 0.0], [10.0, 0.0]])
+    large = np.array([[0.5, 0.5], [10.7, 0.5], [10.7, 10.7], [0.5, 10.7]])
+    points = np.concatenate([small, large])
+    area = np.array([shapely.Polygon(small).area, shapely.Polygon(large).area])
+    parent = loop_parents(points, np.array([0, 4, 8]), np.array([0, 0]), area)
+    assert list(parent) == [1, -1]

@@ -947,3 +947,20 @@ def test_holes_that_stay_while_another_shrinks_are_measured_once(monkeypatch):
         kept = droplet_planes(*args, packed=packed, reuse=reuse)
         assert len(passes) - before == (3 if index == 0 else 1)
         assert np.array_equal(kept, droplet_planes(*args, packed=packed))
+
+
+def test_layer_families_end_on_a_cycle_of_parents():
+    """A parent array with a cycle (a broken hierarchy) gives families instead of a walk up the parents that never
+    ends (an alarm fails the test rather than hanging it)."""
+    import signal
+
+    def stuck(*_):
+        raise TimeoutError("layer_families did not return")
+
+    signal.signal(signal.SIGALRM, stuck)
+    signal.alarm(10)
+    try:
+        families = layer_families(np.array([0.759, -0.7588, 0.5]), np.array([1, 0, 2]))
+    finally:
+        signal.alarm(0)
+    assert [family.outer for family in families] == [0, 2]

@@ -209,7 +209,8 @@ def loop_parents(points: np.ndarray, offsets: np.ndarray, layer: np.ndarray, are
 
     Loops of one layer do not cross, so one vertex decides containment; shapely's
     STRtree answers all loops at once (layers are shifted apart in x so that only
-    loops of the same layer meet).
+    loops of the same layer meet). Where loops do cross (a self-intersecting mesh), a
+    parent is still larger in area than its child, so following parents always ends.
     """
     import shapely
 
@@ -230,8 +231,11 @@ def loop_parents(points: np.ndarray, offsets: np.ndarray, layer: np.ndarray, are
     polygons = shapely.polygons(rings)
     probes = shapely.points(shifted[offsets[usable]])
     inner, outer = shapely.STRtree(polygons).query(probes, predicate="within")
-    keep = inner != outer
-    inner, outer = usable[inner[keep]], usable[outer[keep]]
+    inner, outer = usable[inner], usable[outer]
+    # a container is larger: loops that overlap without nesting (a self-intersecting mesh) may each hold the
+    # other's first vertex, and a cycle of parents would never end
+    keep = np.abs(area[outer]) > np.abs(area[inner])
+    inner, outer = inner[keep], outer[keep]
     if len(inner) == 0:
         return parent
     order = np.lexsort((np.abs(area[outer]), inner))

@@ -151,7 +151,9 @@ def layer_families(area: np.ndarray, parent: np.ndarray) -> list[Family]:
     for loop in outer:
         holes = tuple(int(h) for h in np.nonzero((parent == loop) & (area < 0))[0])
         depth, up, nested = 0, parent[loop], bool(parent[loop] >= 0 and area[parent[loop]] > 0)
-        while up >= 0:
+        for _ in range(len(parent)):  # at most every loop: a cycle of parents (a broken hierarchy) ends too
+            if up < 0:
+                break
             depth += area[up] > 0
             up = parent[up]
         families.append(Family(int(loop), holes, nested, int(depth)))
