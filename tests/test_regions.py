@@ -964,3 +964,39 @@ def test_layer_families_end_on_a_cycle_of_parents():
     finally:
         signal.alarm(0)
     assert [family.outer for family in families] == [0, 2]
+
+
+@pytest.mark.parametrize("case", [
+    dict(radius=4.929553957831061, count=19, width_px=1.0810259490069523, depth_px=1.8423039142734026,
+         seed=1320720311, nozzle=0.15),
+    dict(radius=4.919592804775299, count=12, width_px=1.4799149950599941, depth_px=1.609244560496816,
+         seed=1063433706, nozzle=0.25),
+    dict(radius=5.863585269053118, count=24, width_px=1.7783848765776338, depth_px=1.5563520939222553,
+         seed=1585793302, nozzle=0.15)])
+def test_slotted_discs_a_centimetre_across_keep_their_bands_within_a_pixel(case):
+    """Discs ~10 mm across with slots one or two pixels wide (the review's sweep): every band within a pixel of
+    the exact distance. Their reflex corners crease the field, so they keep 0.5 mm cells; fitted on 0.68 mm
+    cells, pixels 1.2-1.3 px from their boundary came out in the next band."""
+    case = dict(case)
+    nozzle = case.pop("nozzle")
+    ring = slotted_circle(**case)
+    low, high = ring.min(axis=0) - 0.3, ring.max(axis=0) + 0.3
+    size = int(np.ceil((high[0] - low[0]) / PX))
+    grid = Grid(width=size, height=size, x_left=float(low[0]), y_top=float(high[1]), px=PX, py=PX)
+    assert_bands_follow_the_exact_distance(ring, grid, nozzle)
+
+
+def test_only_families_of_one_or_two_convex_rings_get_the_wider_cells():
+    """At 600 dpi a disc and a tube's wall (two circles) are fitted on 16-pixel cells (~0.68 mm), a disc with a
+    slot, a square with a notch and a plate with two holes on 12-pixel cells (~0.5 mm)."""
+    grid = grid_around(10.0)
+    square = np.array([[-6.0, -6.0], [6.0, -6.0], [6.0, 6.0], [-6.0, 6.0]])
+    notched = np.array([[-6.0, -6.0], [6.0, -6.0], [6.0, 6.0], [0.5, 6.0], [0.0, 5.0], [-0.5, 6.0], [-6.0, 6.0]])
+    cases = {16: [(circle(6.0),), (circle(6.0), circle(3.0, 200, (1.0, 0.0), clockwise=True)), (square,)],
+             12: [(slotted_circle(6.0, count=3),), (notched,),
+                  (square, circle(1.0, 64, (-3.0, 0.0), clockwise=True), circle(1.0, 64, (3.0, 0.0), clockwise=True))]}
+    for cell, shapes in cases.items():
+        for rings in shapes:
+            points, offsets, area, parent = layer(*rings)
+            field = family_field(points, offsets, layer_families(area, parent)[0], grid, RegionSpec())
+            assert field.lattice.cell == cell, len(rings)

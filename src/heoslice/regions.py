@@ -52,8 +52,9 @@ from heoslice.rasterising import Grid, solid_mask
 TOLERANCE_PX = 0.5
 #: Target lattice cell size, mm (cells are a whole number of pixels, 4 to 16).
 _CELL_MM = 0.5
-#: The same for families of one or two rings (a solid, a ring with one hole): without creases where
-#: the nearest of several holes changes, their fields fit larger cells, which cost less.
+#: The same for families of one or two convex rings (a disc, a tube's wall): their fields have no
+#: creases but the deep medial axis (none where the nearest of several holes changes, none beside a
+#: reflex corner), so they fit larger cells, which cost less.
 _WIDE_CELL_MM = 0.68
 #: Families whose box pixels x ring sets are at most this get every pixel's exact distance, no lattice fit.
 DIRECT_PIXELS = 25_000
@@ -192,6 +193,18 @@ class RingEdges:
     second: np.ndarray
     knots: np.ndarray
     knot_point: np.ndarray
+
+
+def _convex(edges: RingEdges) -> bool:
+    """Whether every ring of the edges turns one way only (no reflex vertex; turns under 1e-9 rad ignored)."""
+    last = np.r_[np.flatnonzero(np.diff(edges.ring)), len(edges.ring) - 1]
+    first = np.r_[0, last[:-1] + 1]
+    following = np.arange(1, len(edges.ring) + 1)
+    following[last] = first
+    cross = edges.vx * edges.vy[following] - edges.vy * edges.vx[following]
+    scale = np.sqrt(edges.inv_len2 * edges.inv_len2[following])
+    turn = np.sign(np.where(np.abs(cross * scale) > 1e-9, cross, 0.0))
+    return bool(np.all(np.minimum.reduceat(turn, first) * np.maximum.reduceat(turn, first) >= 0))
 
 
 def _loop_points(offsets: np.ndarray, loops: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -626,7 +639,9 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     # everything below reads the rings' edges only, not their straight points (so a layer may reuse another's)
     outer = rings((family.outer,), True)
     box = family_box(outer.edges, grid)
-    lattice = lattice_for(box, grid, _CELL_MM if len(family.holes) > 1 else _WIDE_CELL_MM)
+    smooth = len(family.holes) <= 1 and _convex(outer.edges) and (not family.holes
+                                                                  or _convex(rings(family.holes, False).edges))
+    lattice = lattice_for(box, grid, _WIDE_CELL_MM if smooth else _CELL_MM)
     outward = spec.direction == "out" and bool(family.holes)
 
     start_loops = family.holes if outward else (family.outer,)
