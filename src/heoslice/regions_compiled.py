@@ -889,17 +889,22 @@ def _straight_runs(x, y, size, tolerance2, longest):  # pragma: no cover - compi
                 anchor = i
         if m > 3:
             a = anchor
+            bound = 0.0  # the run's points before i lie within this of the segment from a to i
             for step in range(1, m):
                 i = (anchor + step) % m
                 c = (i + 1) % m
                 run = (i - a) % m
-                fits = run <= longest
-                for back in range(run):
-                    if not fits:
-                        break
-                    fits = _off_segment2(x, y, begin + (a + 1 + back) % m, begin + a, begin + c) <= tolerance2
-                if fits:
+                # that segment lies within i's distance of the one from a to c (they share a), so the run's
+                # points lie within the sum of it: no recheck while the run is straight however long
+                reach = np.sqrt(_off_segment2(x, y, begin + i, begin + a, begin + c)) + (bound if run > 1 else 0.0)
+                if reach * reach > tolerance2 and run <= longest:
+                    reach = 0.0
+                    for back in range(run):
+                        reach = max(reach, _off_segment2(x, y, begin + (a + 1 + back) % m, begin + a, begin + c))
+                    reach = np.sqrt(reach)
+                if reach * reach <= tolerance2:
                     keep[begin + i] = False
+                    bound = reach
                 else:
                     a = i
             if keep[begin:end].sum() < 3:
@@ -941,8 +946,10 @@ def straight_runs(x: np.ndarray, y: np.ndarray, size: np.ndarray, tolerance: flo
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points of closed rings ((n,) mm, ring k the next size[k] points) that can be left out because
     every point of their run lies within ``tolerance`` of the segment between the kept points on
-    either side (runs of at most ``longest`` points; rings that would keep fewer than three points
-    keep all), walked from each ring's anchor, its lowest point in x then y (always kept).
+    either side (rings that would keep fewer than three points keep all), walked from each ring's
+    anchor, its lowest point in x then y (always kept). A run is bounded as it grows (exactly
+    straight runs of any length cost one test per point) and rechecked point by point only while
+    at most ``longest`` points long: a slowly bending run stops there.
 
     Returns keep (n,) bool; order (n,), the points ring by ring from each anchor round (the kept
     ones in this order are the edges' starts); knots (n + rings,), each point's place along the
