@@ -471,7 +471,8 @@ def _band_coordinate(layout: FamilyLayout, start: tuple, ends: list[tuple]) -> t
 @dataclass(frozen=True)
 class RingSet:
     """Rings whose nearest one gives a distance: loops (within the layer), their edges, and whether
-    the family's region is inside them (an outer ring) or outside (holes)."""
+    the family's region is inside them (an outer ring) or outside (holes); ``key`` (encloses and the
+    edges as bytes, made by :func:`family_field`) finds what another layer measured of the same rings."""
 
     loops: tuple[int, ...]
     edges: RingEdges
@@ -620,9 +621,10 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     is then empty and N_R is 1. With the layer's solid ``mask`` ((h, w) bool) ``index``
     holds labels instead: k + label_base on solid pixels, 0 elsewhere.
 
-    ``measured`` (before, now): what ring sets with these very edges cost on the previous
-    layer (their edge trees and lattice passes, :class:`RingMeasures`), read from ``before``;
-    this family's are added to ``now`` (:func:`layer_regions` keeps them a layer).
+    ``measured`` (before, now): what the previous layer measured of ring sets with these
+    very edges, read from ``before``: their edge trees (by RingSet.key) and lattice passes
+    (:class:`RingMeasures`, by key and lattice); this family's go into ``now``
+    (:func:`layer_regions` keeps them a layer).
     """
     made: dict[tuple, RingSet] = {}
     measured_before, measured_now = measured if measured is not None else ({}, {})

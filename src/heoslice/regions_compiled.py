@@ -4,8 +4,9 @@ The grading step's inner loops have no fast numpy form: gathering, for each grou
 points, the ring edges within its own radius (a walk down a bounding-box hierarchy),
 the nearest of those edges to each point, the expansion of one plane (or quadratic)
 per lattice cell to its pixels, the per-cell fit test, eq. 10 per pixel of the cells
-no plane fits (from each ring's quadratic or measured distance), and the halftoning
-of a labelled layer into droplet masks. As numpy passes they cost ~100 of a
+no plane fits (from each ring's quadratic or measured distance), the halftoning
+of a labelled layer into droplet masks, and the walk that leaves a ring's straight
+points out of its edges. As numpy passes they cost ~100 of a
 ~15 MP layer's ~115 ms (``python benchmarks/bench_grading.py --stages``, before);
 compiled, the whole step is under 30 ms. Everything here takes and returns plain
 arrays; the geometry (which points, which radius, why it is enough) is argued in
@@ -857,17 +858,15 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
 
 
 @numba.njit(inline="always", **_JIT)
-def _off_segment2(x, y, j, a, c):  # pragma: no cover - compiled
-    """Squared distance (mm^2) from point j to the segment from point a to point c."""
+def _off_segment(x, y, j, a, c):  # pragma: no cover - compiled
+    """Distance (mm) from point j to the segment from point a to point c."""
     vx, vy = x[c] - x[a], y[c] - y[a]
     length2 = vx * vx + vy * vy
-    rx, ry = x[j] - x[a], y[j] - y[a]
-    t = min(max((rx * vx + ry * vy) / length2, 0.0), 1.0) if length2 > 0.0 else 0.0
-    return (rx - t * vx) ** 2 + (ry - t * vy) ** 2
+    return _point_to_edge(x[j], y[j], x[a], y[a], vx, vy, 1.0 / length2 if length2 > 0.0 else 0.0)
 
 
 @numba.njit(**_JIT)
-def _straight_runs(x, y, size, tolerance2, longest):  # pragma: no cover - compiled
+def _straight_runs(x, y, size, tolerance, longest):  # pragma: no cover - compiled
     """(keep (n,) bool, order (n,), knots (n + rings,), knot_at (n + rings,)) of :func:`straight_runs`."""
     n, rings = len(x), len(size)
     keep = np.ones(n, dtype=np.bool_)
@@ -896,13 +895,12 @@ def _straight_runs(x, y, size, tolerance2, longest):  # pragma: no cover - compi
                 run = (i - a) % m
                 # that segment lies within i's distance of the one from a to c (they share a), so the run's
                 # points lie within the sum of it: no recheck while the run is straight however long
-                reach = np.sqrt(_off_segment2(x, y, begin + i, begin + a, begin + c)) + (bound if run > 1 else 0.0)
-                if reach * reach > tolerance2 and run <= longest:
+                reach = _off_segment(x, y, begin + i, begin + a, begin + c) + (bound if run > 1 else 0.0)
+                if reach > tolerance and run <= longest:
                     reach = 0.0
                     for back in range(run):
-                        reach = max(reach, _off_segment2(x, y, begin + (a + 1 + back) % m, begin + a, begin + c))
-                    reach = np.sqrt(reach)
-                if reach * reach <= tolerance2:
+                        reach = max(reach, _off_segment(x, y, begin + (a + 1 + back) % m, begin + a, begin + c))
+                if reach <= tolerance:
                     keep[begin + i] = False
                     bound = reach
                 else:
@@ -956,7 +954,7 @@ def straight_runs(x: np.ndarray, y: np.ndarray, size: np.ndarray, tolerance: flo
     edges so numbered, edge + ring + fraction along it, from each ring's anchor round to it again
     (knot_at (n + rings,): which point)."""
     x, y = np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64)
-    return _straight_runs(x, y, np.ascontiguousarray(size, dtype=np.int64), float(tolerance) ** 2, int(longest))
+    return _straight_runs(x, y, np.ascontiguousarray(size, dtype=np.int64), float(tolerance), int(longest))
 
 
 def edge_tree(x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray):
