@@ -641,10 +641,14 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     # everything below reads the rings' edges only, not their straight points (so a layer may reuse another's)
     outer = rings((family.outer,), True)
     box = family_box(outer.edges, grid)
-    smooth = len(family.holes) <= 1 and _convex(outer.edges) and (not family.holes
-                                                                  or _convex(rings(family.holes, False).edges))
-    lattice = lattice_for(box, grid, _WIDE_CELL_MM if smooth else _CELL_MM)
+    row0, row1, col0, col1 = box
     outward = spec.direction == "out" and bool(family.holes)
+    # a small family takes every pixel's exact distance to each ring set (family_layout's ends and its start)
+    end_sets = 0 if spec.depth_mm is not None or not family.holes else 1 if outward else len(family.holes)
+    direct = pixels and (row1 - row0) * (col1 - col0) * (1 + end_sets) <= DIRECT_PIXELS
+    smooth = (not direct and len(family.holes) <= 1 and _convex(outer.edges)
+              and (not family.holes or _convex(rings(family.holes, False).edges)))
+    lattice = lattice_for(box, grid, _WIDE_CELL_MM if smooth else _CELL_MM)
 
     start_loops = family.holes if outward else (family.outer,)
     start = rings(start_loops, not outward)
@@ -670,8 +674,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
         apart = rings_apart(outer, rings(family.holes, False))
     layout = family_layout(family, spec, inradius, apart)
     ends = [rings(loops, outward) for loops in layout.end]
-    row0, row1, col0, col1 = box
-    if (row1 - row0) * (col1 - col0) * (1 + len(ends)) <= DIRECT_PIXELS:
+    if direct:
         index = _exact_index(lattice, grid, layout, [start] + ends, (row1 - row0, col1 - col0), mask, label_base)
         return FamilyField(box=box, index=index, layout=layout, lattice=lattice, start_edges=start.edges,
                            nearest=nearest)
