@@ -855,7 +855,7 @@ def test_contour_values_interpolate_between_the_layers_points_where_edges_span_s
     values = rng.uniform(0.0, 1.0, (len(ring), 2))
     points, offsets, area, parent = layer(ring)
     field = family_field(points, offsets, layer_families(area, parent)[0], grid_around(4.5), RegionSpec())
-    assert len(field.start_edges.x) == len(corners)
+    assert len(field.start_edges().x) == len(corners)
     got = contour_values(field, values)
     foot, _ = field.nearest()
     closed = shapely.LineString(np.vstack([ring, ring[:1]]))

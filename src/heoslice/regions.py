@@ -547,16 +547,17 @@ class FamilyField:
     when its box is the layer's, is the label array itself); ``box`` = (row0, row1, col0, col1) of the grid;
     ``layout`` its rings and N_R; ``lattice``; ``nearest()`` gives per cell the nearest point
     on the starting rings (foot (2, cells_r, cells_c) mm) and its edge ((cells_r, cells_c)
-    into ``start_edges``), to take the contour's material there (measured on first call
-    for a nested shell, whose own material usually makes it unneeded, and for a small family
-    labelled from exact distances, :func:`_exact_index`).
+    into ``start_edges()``, the starting rings' edges in this layer's points), to take the
+    contour's material there (measured on first call for a nested shell, whose own material
+    usually makes it unneeded, and for a small family labelled from exact distances,
+    :func:`_exact_index`; ``start_edges()`` made on first call for a field another layer measured).
     """
 
     box: tuple[int, int, int, int]
     index: np.ndarray
     layout: FamilyLayout
     lattice: Lattice
-    start_edges: RingEdges
+    start_edges: Callable[[], RingEdges]
     nearest: Callable[[], tuple[np.ndarray, np.ndarray]]
 
 
@@ -662,7 +663,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
 
     if not pixels:
         return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
-                           lattice=lattice, start_edges=start.edges, nearest=nearest)
+                           lattice=lattice, start_edges=lambda: start.edges, nearest=nearest)
     inradius = None
     if not family.holes and spec.depth_mm is None:
         import shapely
@@ -676,7 +677,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     ends = [rings(loops, outward) for loops in layout.end]
     if direct:
         index = _exact_index(lattice, grid, layout, [start] + ends, (row1 - row0, col1 - col0), mask, label_base)
-        return FamilyField(box=box, index=index, layout=layout, lattice=lattice, start_edges=start.edges,
+        return FamilyField(box=box, index=index, layout=layout, lattice=lattice, start_edges=lambda: start.edges,
                            nearest=nearest)
     # measured on the lattice padded by a cell, so that every cell of the family has its eight neighbours
     padded = _padded(lattice)
@@ -728,7 +729,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
                        for rings, at, model in zip([start] + ends, [start_at] + ends_at, models)], mask, label_base)
     foot, edge = start_at[2][:, 1:-1, 1:-1], start_at[3][inner]
     return FamilyField(box=box, index=index, layout=layout, lattice=lattice,
-                       start_edges=start.edges, nearest=lambda: (foot, edge))
+                       start_edges=lambda: start.edges, nearest=lambda: (foot, edge))
 
 
 def _exact_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: list[RingSet],
@@ -1053,7 +1054,9 @@ def _layer_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
         return family_field(points, offsets, family, grid, spec, pixels=not family.nested, mask=mask,
                             label_base=label_base, measured=measured)
     loops = family_layout(family, spec)
-    return replace(same, start_edges=ring_edges(points, offsets, loops.start),
+    # only contours with colours or material fractions read them (contour_values)
+    start_edges = functools.cache(lambda: ring_edges(points, offsets, loops.start))
+    return replace(same, start_edges=start_edges,
                    layout=replace(same.layout, start=loops.start, end=loops.end if same.layout.end else ()))
 
 
@@ -1093,7 +1096,7 @@ def contour_values(field: FamilyField, values: np.ndarray) -> np.ndarray:
     """Per-point values ((p,) or (p, c)) of the layer's loops taken at each cell's nearest
     starting-ring point, interpolated between the layer's points on either side of it
     (an edge may span several, :class:`RingEdges`): (cells_r, cells_c[, c]) float."""
-    edges = field.start_edges
+    edges = field.start_edges()
     foot, edge = field.nearest()
     t = ((foot[0] - edges.x[edge]) * edges.vx[edge] + (foot[1] - edges.y[edge]) * edges.vy[edge]) * edges.inv_len2[edge]
     at = edge + edges.ring[edge] + np.clip(t, 0.0, 1.0)
