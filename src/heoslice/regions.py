@@ -214,36 +214,42 @@ def _loop_points(offsets: np.ndarray, loops: np.ndarray) -> tuple[np.ndarray, np
     return np.repeat(begin - (np.cumsum(sizes) - sizes), sizes) + np.arange(int(sizes.sum())), sizes
 
 
-def ring_geometry(points: np.ndarray, offsets: np.ndarray, loops) -> bytes:
-    """The given loops' points without straight ones (what :func:`ring_edges` keeps) and their counts, as
-    bytes: equal for two layers exactly when their edges are (an extruded part's layers)."""
+def _kept_points(points: np.ndarray, offsets: np.ndarray, loops) -> tuple:
+    """The given loops' points left as edge starts (:func:`heoslice.regions_compiled.straight_runs`):
+    (their indices in the layer in edge order, kept per loop, the loops' points in order, knots, knot_at)."""
     from heoslice.regions_compiled import straight_runs
 
-    every, sizes = _loop_points(offsets, np.asarray(loops, dtype=np.int64))
-    keep, order, _, _ = straight_runs(points[every, 0], points[every, 1], sizes, _STRAIGHT_MM)
-    kept = np.bincount(np.repeat(np.arange(len(sizes)), sizes)[keep], minlength=len(sizes))
-    return (np.ascontiguousarray(points[every[order[keep[order]]]], dtype=np.float64).tobytes()
-            + kept.astype(np.int64).tobytes())
+    loops = np.asarray(loops, dtype=np.int64)
+    every, sizes = _loop_points(offsets, loops)
+    keep, order, knots, knot_at = straight_runs(points[every, 0], points[every, 1], sizes, _STRAIGHT_MM)
+    counts = np.bincount(np.repeat(np.arange(len(loops)), sizes)[keep], minlength=len(loops))
+    return every[order[keep[order]]], counts, every, knots, knot_at
+
+
+def ring_geometry(points: np.ndarray, offsets: np.ndarray, loops) -> tuple[bytes, bytes, bytes]:
+    """The given loops' edges (what :func:`ring_edges` keeps) as bytes, the same as their RingEdges'
+    :func:`_edges_key`: equal for two layers exactly when their edges are (an extruded part's layers)."""
+    index, counts, _, _, _ = _kept_points(points, offsets, loops)
+    return points[index, 0].tobytes(), points[index, 1].tobytes(), np.repeat(np.arange(len(counts)), counts).tobytes()
+
+
+def _edges_key(edges: RingEdges) -> tuple[bytes, bytes, bytes]:
+    """Edges as bytes (starts x and y, ring of each edge): the key of what another layer measured of them."""
+    return edges.x.tobytes(), edges.y.tobytes(), edges.ring.tobytes()
 
 
 def ring_edges(points: np.ndarray, offsets: np.ndarray, loops) -> RingEdges:
     """Edges of the given loops (indices into offsets) of a layer's points ((p, 2) float, mm), without
     points within _STRAIGHT_MM of the straight line between their neighbours, each ring's from its
     lowest point in x then y round (:func:`heoslice.regions_compiled.straight_runs`)."""
-    from heoslice.regions_compiled import straight_runs
-
-    loops = np.asarray(loops, dtype=np.int64)
-    every, sizes = _loop_points(offsets, loops)
-    keep, order, knots, knot_at = straight_runs(points[every, 0], points[every, 1], sizes, _STRAIGHT_MM)
-    index = every[order[keep[order]]]
-    counts = np.bincount(np.repeat(np.arange(len(loops)), sizes)[keep], minlength=len(loops))
+    index, counts, every, knots, knot_at = _kept_points(points, offsets, loops)
     first_kept = np.repeat(np.cumsum(counts) - counts, counts)
     following = index[first_kept + (np.arange(len(index)) - first_kept + 1) % np.repeat(counts, counts)]
     vec = points[following] - points[index]
     length2 = vec[:, 0] ** 2 + vec[:, 1] ** 2
     inv = np.divide(1.0, length2, out=np.zeros_like(length2), where=length2 > 0)
     return RingEdges(x=points[index, 0].copy(), y=points[index, 1].copy(), vx=vec[:, 0].copy(),
-                     vy=vec[:, 1].copy(), inv_len2=inv, ring=np.repeat(np.arange(len(loops)), counts), first=index,
+                     vy=vec[:, 1].copy(), inv_len2=inv, ring=np.repeat(np.arange(len(counts)), counts), first=index,
                      second=following, knots=knots, knot_point=every[knot_at])
 
 
@@ -513,8 +519,10 @@ def _ring_measures(rings: RingSet, lattice: Lattice) -> RingMeasures:
 
 def _measured_centres(rings: RingSet, measures: RingMeasures, lattice: Lattice, wanted: np.ndarray
                       ) -> tuple[tuple, RingMeasures]:
-    """:func:`_signed_centres` over the ``wanted`` blocks ((block rows, block cols) bool), measuring only
-    the blocks ``measures`` does not hold yet: (the same arrays, the measures with them)."""
+    """At every cell centre: signed distance to the rings (> 0 on the family's side), its unit gradient, foot
+    and edge, exact in the ``wanted`` blocks ((block rows, block cols) bool; elsewhere from the block's seed
+    edge, :func:`lattice_edges`), measuring only the blocks ``measures`` does not hold yet: ((signed, gradient,
+    foot, edge), the measures with them)."""
     from heoslice.regions_compiled import signed_feet
 
     if not measures.done.any():
@@ -599,19 +607,6 @@ def _far_side(rings: RingSet, inside: np.ndarray, bounds: BlockBounds, lattice: 
     return far
 
 
-def _signed_centres(rings: RingSet, inside: np.ndarray, lattice: Lattice, bounds: BlockBounds | None = None,
-                    wanted: np.ndarray | None = None):
-    """At every cell centre: signed distance to the rings (> 0 on the family's side), its unit gradient, foot, edge
-    (exact in the ``wanted`` blocks, see :func:`lattice_edges`); ``inside``: (rows, cols) bool, the
-    cell centres inside the rings."""
-    from heoslice.regions_compiled import signed_feet
-
-    edge = lattice_edges(rings.edges, lattice, rings.tree, bounds, wanted)
-    e = rings.edges
-    return signed_feet(edge, lattice.x0, lattice.y0, lattice.dx, lattice.dy, e.x, e.y, e.vx, e.vy, e.inv_len2,
-                       inside, rings.encloses) + (edge,)
-
-
 def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid,
                  spec: RegionSpec, pixels: bool = True, mask: np.ndarray | None = None,
                  label_base: int = 0, measured: tuple[dict, dict] | None = None) -> FamilyField:
@@ -633,7 +628,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     def rings(loops, encloses: bool) -> RingSet:
         if (tuple(loops), encloses) not in made:
             edges = ring_edges(points, offsets, loops)
-            key = (encloses, edges.x.tobytes(), edges.y.tobytes(), edges.ring.tobytes())
+            key = (encloses, *_edges_key(edges))
             tree = measured_before.get(key) or measured_now.get(key) or ring_tree(edges)
             measured_now[key] = tree
             made[tuple(loops), encloses] = RingSet(tuple(loops), edges, encloses, tree, key)
@@ -656,9 +651,8 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
 
     @functools.cache
     def nearest():
-        bounds = block_bounds(start.edges, lattice)
-        inside = _inside_loops(start, lattice)
-        at = _signed_centres(start, inside, lattice, bounds, ~_far_side(start, inside, bounds, lattice))
+        measures = _ring_measures(start, lattice)
+        at, _ = _measured_centres(start, measures, lattice, ~measures.far)
         return at[2], at[3]
 
     if not pixels:
