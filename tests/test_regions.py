@@ -430,6 +430,79 @@ def test_layer_labels_from_the_packed_mask_alone_agree_on_solid_pixels():
     assert (masked.label[~solid] == 0).all() and packed.label[solid].min() > 0
 
 
+
+ISLAND_LAYOUTS = {
+    # an island well inside a hole of the plate: its box holds none of the plate's pixels
+    "roomy hole": [circle(9.0), circle(4.0, 240, (-3.0, 0.0), clockwise=True), circle(1.5, 120, (-3.0, 0.0))],
+    # the island's box reaches past its hole into the plate
+    "tight hole": [circle(9.0), circle(2.0, 240, (-3.0, 0.0), clockwise=True), circle(1.9, 120, (-3.0, 0.0))],
+    # two islands in one hole, each box holding a corner of the other island
+    "crowded hole": [circle(9.0), circle(6.0, 360, (0.0, 0.0), clockwise=True), circle(1.5, 120, (-1.2, -1.2)),
+                     circle(1.5, 120, (1.2, 1.2))],
+    # an island with a hole of its own holding another island; the outer island's box reaches into the plate
+    "island in an island": [circle(9.0), circle(5.0, 360, clockwise=True), circle(4.0, 240),
+                            circle(2.5, 180, clockwise=True), circle(1.0, 90)],
+}
+
+
+def family_membership(points, offsets, regions, grid) -> np.ndarray:
+    """(rows, cols) int over the regions' box: the number of the family whose polygon (outer ring less
+    its holes, shapely) holds each pixel centre, -1 where none does."""
+    x, y = pixel_centres(grid, regions.box)
+    owner = np.full(x.shape, -1)
+    for number, family in enumerate(regions.families):
+        ring = [points[offsets[loop]:offsets[loop + 1]] for loop in (family.outer, *family.holes)]
+        owner[shapely.contains_xy(shapely.Polygon(ring[0], ring[1:]), x, y)] = number
+    return owner
+
+
+@pytest.mark.parametrize("name", sorted(ISLAND_LAYOUTS))
+def test_islands_are_labelled_exactly_with_or_without_rasterising_their_rings(name, monkeypatch):
+    """Every solid pixel carries a label of the family whose polygon holds it (shapely), and the labels
+    are the same when every island rasterises its rings again (regions._family_mask) as when an island
+    alone in its box (regions._alone_in_box) takes the layer's solid pixels there as its own."""
+    points, offsets, area, parent = layer(*ISLAND_LAYOUTS[name])
+    grid = grid_around(9.5)
+    mask = solid_mask(points, offsets, grid)
+    spec = RegionSpec(nozzle_mm=0.4)
+    labelled = layer_regions(points, offsets, area, parent, None, grid, spec, np.packbits(mask, axis=1))
+    solid = mask[labelled.box[0]:labelled.box[1], labelled.box[2]:labelled.box[3]]
+    owner = family_membership(points, offsets, labelled, grid)
+    label_family = np.searchsorted(labelled.base, labelled.label, side="right") - 1
+    assert np.array_equal(label_family[solid], owner[solid])
+    monkeypatch.setattr(regions, "_alone_in_box", lambda *args: False)
+    rasterised = layer_regions(points, offsets, area, parent, None, grid, spec, np.packbits(mask, axis=1))
+    assert np.array_equal(rasterised.label[solid], labelled.label[solid])
+
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2 ** 31), st.floats(-12.0, 12.0), st.floats(-12.0, 12.0))
+def test_ring_clearance_is_shapelys_distance_to_the_ring(seed, x, y):
+    """_ring_clearance, which decides whether an island is alone in its box, is the distance from the
+    point to the closed ring (shapely), inside it or out."""
+    ring = rough_outline(seed, count=int(np.random.default_rng(seed).integers(3, 200)))
+    expected = shapely.distance(shapely.Point(x, y), shapely.LinearRing(ring))
+    assert regions._ring_clearance(ring, np.array([x, y])) == pytest.approx(expected, abs=1e-9)
+
+def test_only_islands_alone_in_their_box_skip_rasterising_their_rings(monkeypatch):
+    """The island of a roomy hole and the inner island of an island in an island take the solid pixels of
+    their box as theirs; an island whose box reaches into the plate, two islands each in the other's box,
+    and the hollow island (the plate's pixels lie in its box) rasterise their rings."""
+    rasterised = []
+    real = regions._family_mask
+    monkeypatch.setattr(regions, "_family_mask",
+                        lambda points, offsets, family, *rest: rasterised.append(family.outer)
+                        or real(points, offsets, family, *rest))
+    expected = {"roomy hole": [], "tight hole": [2], "crowded hole": [3], "island in an island": [2]}
+    for name, rings in ISLAND_LAYOUTS.items():
+        rasterised.clear()
+        points, offsets, area, parent = layer(*rings)
+        grid = grid_around(9.5)
+        mask = solid_mask(points, offsets, grid)
+        layer_regions(points, offsets, area, parent, mask, grid, RegionSpec(nozzle_mm=0.4))
+        assert rasterised == expected[name], name
+
 def rough_outline(seed: int, count: int = 900, radius: float = 6.0, amplitude: float = 0.6,
                   modes: int = 40) -> np.ndarray:
     """(count, 2) a star-shaped outline whose radius is a random sum of ``modes`` harmonics (mm): many

@@ -61,6 +61,9 @@ DIRECT_PIXELS = 25_000
 #: Most per-pixel distances measured and held at once when cells are evaluated per pixel (float32: 16 MB).
 _MEASURED_VALUES = 1 << 22
 DIRECTIONS = ("in", "out")
+#: How far inside a hole (mm) the disc around an island's pixel centres must lie for :func:`_alone_in_box`:
+#: far beyond the rounding of the rasteriser's inside test.
+_HOLE_MARGIN_MM = 1e-6
 
 
 @dataclass(frozen=True)
@@ -1032,7 +1035,10 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
             if label is not first.index:
                 np.copyto(target, first.index, casting="unsafe")
             continue
-        solid = _solid_in(mask, packed, field.box) & _family_mask(points, offsets, family, grid, field.box)
+        solid = _solid_in(mask, packed, field.box)
+        earlier = (families[:number], fields[:number])
+        if not _alone_in_box(points, offsets, parent, family, field.box, *earlier, grid):
+            solid = solid & _family_mask(points, offsets, family, grid, field.box)
         value = base[number] if family.nested else field.index + base[number]
         np.copyto(target, value, where=solid, casting="unsafe")
     return LayerRegions(box, label, families, fields, base)
@@ -1061,6 +1067,46 @@ def _solid_in(mask: np.ndarray | None, packed: np.ndarray | None, box: tuple[int
         return mask[r0:r1, c0:c1]
     bits = np.unpackbits(packed[r0:r1, c0 // 8:-(-c1 // 8)], axis=1).view(bool)
     return bits[:, c0 % 8:c0 % 8 + c1 - c0]
+
+
+def _alone_in_box(points: np.ndarray, offsets: np.ndarray, parent: np.ndarray, family: Family,
+                  box: tuple[int, int, int, int], earlier: tuple[Family, ...], fields: tuple[FamilyField, ...],
+                  grid: Grid) -> bool:
+    """True when no family painted before ``family`` (``earlier``, with their ``fields``) has a pixel in
+    its pixel ``box``: each one's box misses it, or the disc around the box's pixel centres lies inside
+    the hole of that family that holds ``family`` (an ancestor of its outer ring by ``parent``). Then the
+    layer's solid pixels in the box are the family's own and its islands' (painted after it, over their
+    own pixels), and its rings need no rasterising again: an island standing in a hole, a pin in a plate.
+
+    The disc touches no ring of that hole, so all of it is on the side of the hole that the family's
+    own points are on."""
+    r0, r1, c0, c1 = box
+    left, right = grid.x_left + (c0 + 0.5) * grid.px, grid.x_left + (c1 - 0.5) * grid.px
+    top, bottom = grid.y_top - (r0 + 0.5) * grid.py, grid.y_top - (r1 - 0.5) * grid.py
+    centre = np.array([0.5 * (left + right), 0.5 * (top + bottom)])
+    reach = 0.5 * np.hypot(right - left, top - bottom) + _HOLE_MARGIN_MM
+    ancestors, loop = [], family.outer
+    while parent[loop] >= 0 and len(ancestors) < len(parent):
+        loop = int(parent[loop])
+        ancestors.append(loop)
+    for other, field in zip(earlier, fields):
+        e0, e1, f0, f1 = field.box
+        if e1 <= r0 or r1 <= e0 or f1 <= c0 or c1 <= f0:
+            continue
+        hole = next((loop for loop in ancestors if loop in other.holes), None)
+        if hole is None or _ring_clearance(points[offsets[hole]:offsets[hole + 1]], centre) <= reach:
+            return False
+    return True
+
+
+def _ring_clearance(ring: np.ndarray, point: np.ndarray) -> float:
+    """Distance (mm) from a point ((2,) mm) to a closed ring's edges ((n, 2) mm)."""
+    x, y = ring[:, 0] - point[0], ring[:, 1] - point[1]
+    dx, dy = np.roll(x, -1) - x, np.roll(y, -1) - y
+    along = dx * dx + dy * dy
+    t = np.clip(-(x * dx + y * dy) / np.where(along > 0, along, 1.0), 0.0, 1.0)
+    gx, gy = x + t * dx, y + t * dy
+    return float(np.sqrt((gx * gx + gy * gy).min()))
 
 
 def _family_mask(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid,
