@@ -22,6 +22,7 @@ from heoslice.regions_compiled import (
     inside_centres,
     nearest_in_groups,
     refine_flags,
+    ring_models,
     seed_cells,
     signed_feet,
     straight_runs,
@@ -461,6 +462,154 @@ def test_band_field_is_eq10_and_its_gradient(seed, sets):
     far[0] = -50.0  # deep off the family's side: d_m + d_start A = 1 - 50 A < 0
     assert np.isnan(band_field(far, np.zeros((sets, 1, 1, 2)), count)[0]).all()
 
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 6))
+def test_band_sensitivities_are_the_partial_derivatives_of_eq10(seed, sets):
+    """_band_sensitivities' ds/dd_j at a point (distances to the starting and each ending ring set, some
+    near zero or negative) match central differences of band_field's s in each distance, and are all
+    NaN where s is (past the continuation's pole)."""
+    from heoslice.regions_compiled import _band_sensitivities
+
+    rng = np.random.default_rng(seed)
+    count = float(rng.integers(1, 40))
+    d = rng.uniform(-0.5, 8.0, sets) * rng.choice([1.0, 1e-3], sets, p=[0.8, 0.2])
+    out = np.empty(sets)
+    _band_sensitivities(d, sets, count, out)
+
+    def s(values):
+        return band_field(values[:, None, None], np.zeros((sets, 1, 1, 2)), count)[0][0, 0]
+
+    if np.isnan(s(d)):
+        assert np.isnan(out).all()
+        return
+    h = 1e-7
+    for j in range(sets):
+        step = np.zeros(sets)
+        step[j] = h
+        if np.isnan(s(d + step)) or np.isnan(s(d - step)) or min(abs(d[1:] - d[1:][:, None])[~np.eye(sets - 1, dtype=bool)],
+                                                                 default=np.inf) < 2 * h:
+            continue  # the nearest ending ring would change within the step
+        numeric = (s(d + step) - s(d - step)) / (2 * h)
+        assert out[j] == pytest.approx(numeric, rel=1e-4, abs=1e-4 * count)
+
+
+def numpy_ring_models(d, g, grad, ci, cj, dx, dy, count, h, tolerance):
+    """regions._ring_models' choice written as numpy passes over all cells at once (the formulation the
+    compiled kernel replaced): models (sets, n, 6), NaN rows where the ring set is measured."""
+    steps = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)]
+    ex = np.array([dj * dx for _, dj in steps])[:, None]
+    ey = np.array([-di * dy for di, _ in steps])[:, None]
+    near = [np.stack([dk[ci + di, cj + dj] for di, dj in steps]) for dk in d]
+    models, misses = [], []
+    for gk, around in zip(g, near):
+        hxx = (gk[ci, cj + 1, 0] - gk[ci, cj - 1, 0]) / (2 * dx)
+        hyy = (gk[ci - 1, cj, 1] - gk[ci + 1, cj, 1]) / (2 * dy)
+        hxy = 0.5 * ((gk[ci - 1, cj, 0] - gk[ci + 1, cj, 0]) / (2 * dy) + (gk[ci, cj + 1, 1] - gk[ci, cj - 1, 1]) / (2 * dx))
+        model = np.column_stack([around[4], gk[ci, cj, 0], gk[ci, cj, 1], hxx, hxy, hyy])
+        guess = model[:, 0] + model[:, 1] * ex + model[:, 2] * ey + 0.5 * (hxx * ex * ex + hyy * ey * ey) + hxy * ex * ey
+        misses.append(np.abs(guess - around).max(axis=0))
+        models.append(model)
+    stacked = np.stack(near)  # (sets, 9, n)
+    ends = stacked[1:]
+    nearest_end = np.argmin(np.abs(ends), axis=0)[None]
+    dm = np.take_along_axis(ends, nearest_end, axis=0)[0]
+    other = np.arange(len(ends))[:, None, None] != nearest_end
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = np.where(other, 1.0 / np.where(np.abs(ends) < 1e-12, 1e-12, ends), 0.0)
+        a = 1.0 + dm * inverse.sum(axis=0)
+        denominator = dm + stacked[0] * a
+        scale = np.where(denominator > 0, count / np.where(denominator > 0, denominator, 1.0) ** 2, np.nan)
+        ds = [a * dm * scale] + [np.where(other[k], -stacked[0] * dm * dm * inverse[k] ** 2, -stacked[0]) * scale
+                                 for k in range(len(ends))]
+        steepest = np.stack([np.abs(x).max(axis=0) for x in ds])
+        centre = np.abs(stacked[:, 4])
+        below = np.maximum(centre - h, 0.0)
+        bound = count * np.concatenate([1.0 / (4.0 * below[:1]), (centre[1:].min(axis=0) + h) / (4.0 * below[1:] ** 2)])
+        steepest = np.fmin(steepest, bound)
+        cost = np.where(np.isfinite(steepest), steepest, np.inf) * np.stack(misses)
+    cost = np.where(np.isfinite(cost) & np.stack([np.isfinite(m).all(axis=1) for m in models]), cost, np.inf)
+    steepness = np.hypot(grad[..., 0], grad[..., 1])
+    around = np.stack([steepness[ci + di, cj + dj] for di, dj in steps])
+    weakest = np.where(np.isfinite(around), around, np.inf).min(axis=0)
+    budget = np.where(np.isfinite(weakest), tolerance * weakest, 0.0)
+    order = np.argsort(cost, axis=0, kind="stable")
+    running = np.cumsum(np.take_along_axis(cost, order, axis=0), axis=0)
+    modelled = np.zeros(cost.shape, dtype=bool)
+    np.put_along_axis(modelled, order, running <= budget, axis=0)
+    return np.stack([np.where(use[:, None], model, np.nan) for model, use in zip(models, modelled)])
+
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 6), st.floats(0.0, 0.2))
+def test_ring_models_is_the_numpy_formulation_on_any_fields(seed, sets, unknown):
+    """On random distance fields (either sign, some near zero; a share ``unknown`` of the gradients NaN) the compiled ring_models and the numpy formulation model the same ring sets in the same cells
+    with the same quadratics: every branch (bounds, poles, ties, NaN) as numpy's passes take it."""
+    rng = np.random.default_rng(seed)
+    rows, cols = int(rng.integers(3, 12)), int(rng.integers(3, 12))
+    d = rng.uniform(-1.0, 6.0, (sets, rows, cols)) * rng.choice([1.0, 1e-3], (sets, rows, cols), p=[0.9, 0.1])
+    g = rng.normal(size=(sets, rows, cols, 2))
+    grad = rng.normal(size=(rows, cols, 2)) * rng.uniform(0.1, 30.0)
+    for a in (g, grad):  # distances are always measured; a gradient is 0 / 0 on a ring, s's NaN past a pole
+        a[rng.random(a.shape) < unknown] = np.nan
+    ci, cj = (x.ravel() for x in np.meshgrid(np.arange(1, rows - 1), np.arange(1, cols - 1), indexing="ij"))
+    dx, dy, count = rng.uniform(0.2, 0.7), rng.uniform(0.2, 0.7), float(rng.integers(1, 60))
+    h = 0.5 * np.hypot(dx, dy)
+    tolerance = rng.choice([0.02, 2.0, 200.0])
+    expected = numpy_ring_models(d, g, grad, ci, cj, dx, dy, count, h, tolerance)
+    models = ring_models(d, g, grad, ci, cj, dx, dy, count, h, tolerance)
+    np.testing.assert_array_equal(np.isnan(models), np.isnan(expected))
+    np.testing.assert_allclose(models, expected, rtol=1e-9, atol=1e-12)
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 5))
+def test_ring_models_is_the_numpy_formulation(seed, holes):
+    """On the lattices of plates with 1 to 5 random holes (graded to the holes, eq. 10), the compiled
+    ring_models picks the same ring sets to model in the same cells as the numpy formulation, with the
+    same quadratics."""
+    from heoslice import regions
+    from heoslice.rasterising import Grid
+
+    rng = np.random.default_rng(seed)
+    angle = np.linspace(0, 2 * np.pi, 400, endpoint=False)
+    radius = 9.0 + 0.8 * np.sin(3 * angle + rng.uniform(0, 6))
+    rings = [np.column_stack([radius * np.cos(angle), radius * np.sin(angle)])]
+    for k in range(holes):
+        centre = np.array([np.cos(2 * np.pi * k / holes), np.sin(2 * np.pi * k / holes)]) * (4.0 if holes > 1 else 0)
+        r = rng.uniform(0.6, 1.6)
+        a = np.linspace(0, 2 * np.pi, int(rng.integers(12, 200)), endpoint=False)[::-1]
+        rings.append(centre + rng.uniform(-0.3, 0.3, 2) + np.column_stack([r * np.cos(a), r * np.sin(a)]))
+    points = np.concatenate(rings)
+    offsets = np.concatenate([[0], np.cumsum([len(r) for r in rings])])
+    px = 25.4 / 600
+    cells = int(np.ceil(21 / px))
+    grid = Grid(width=cells, height=cells, x_left=-cells * px / 2, y_top=cells * px / 2, px=px, py=px)
+    calls = []
+    compiled = regions._ring_models
+
+    def recorded(layout, d, g, grad, lattice, grid_, refined):
+        models = compiled(layout, d, g, grad, lattice, grid_, refined)
+        calls.append((layout, d, g, grad, lattice, refined, models))
+        return models
+
+    regions._ring_models = recorded
+    try:
+        family = regions.Family(outer=0, holes=tuple(range(1, holes + 1)), nested=False, depth=0)
+        regions.family_field(points, offsets, family, grid, regions.RegionSpec(nozzle_mm=0.2))
+    finally:
+        regions._ring_models = compiled
+    assert calls
+    layout, d, g, grad, lattice, (ci, cj), models = calls[0]
+    assert len(ci)
+    h = 0.5 * np.hypot(lattice.dx, lattice.dy)
+    expected = numpy_ring_models(d, g, grad, ci, cj, lattice.dx, lattice.dy, layout.count, h,
+                                 regions.TOLERANCE_PX * px)
+    np.testing.assert_array_equal(np.isnan(np.stack(models)[..., 0]), np.isnan(expected[..., 0]))
+    np.testing.assert_allclose(np.stack(models), expected, rtol=1e-9, atol=1e-12)
+    direct = ring_models(d, g, grad, ci, cj, lattice.dx, lattice.dy, layout.count, h, regions.TOLERANCE_PX * px)
+    np.testing.assert_array_equal(direct, np.stack(models))
 
 @settings(max_examples=20, deadline=None)
 @given(st.integers(0, 2 ** 32 - 1), st.booleans())

@@ -451,8 +451,9 @@ def rings_apart(first: RingSet, second: RingSet) -> float:
     return edge_sets_apart(a, first.tree, b, second.tree, bound)
 
 
-def _band_coordinate(layout: FamilyLayout, start: tuple, ends: list[tuple]) -> tuple[np.ndarray, np.ndarray]:
-    """s = r * N_R and its gradient from (signed distance, gradient) to the starting rings and each ending ring.
+def _band_coordinate(layout: FamilyLayout, d: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """s = r * N_R and its gradient from the signed distances d and gradients g to the starting rings (d[0])
+    and each ending ring.
 
     One ring set: s = d N_R / L_S. Several: r = 1 - w_start of eq. 10, which divided
     through by the product of all d is r = u / (1 + u), u = d_start * sum_end 1 / d_k.
@@ -461,16 +462,15 @@ def _band_coordinate(layout: FamilyLayout, start: tuple, ends: list[tuple]) -> t
     (< 0 off the family's side) s continues smoothly across the rings, so the lattice
     cells a contour crosses are fitted and checked like any other. Where the continuation
     passes a pole (d_m + d_start A <= 0, deep off the family's side) s is NaN. Distances
-    (rows, cols) mm, gradients (rows, cols, 2); several ring sets compiled
+    (sets, rows, cols) mm, gradients (sets, rows, cols, 2); several ring sets compiled
     (:func:`heoslice.regions_compiled.band_field`).
     """
     from heoslice.regions_compiled import band_field
 
-    d0, g0 = start
     if not layout.end:
         scale = layout.count / layout.length_mm
-        return d0 * scale, g0 * scale
-    return band_field(np.stack([d0] + [d for d, _ in ends]), np.stack([g0] + [g for _, g in ends]), layout.count)
+        return d[0] * scale, g[0] * scale
+    return band_field(d, g, layout.count)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -683,7 +683,9 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     centres = [_measured_centres(rings, m, padded, wanted) for rings, m in zip([start] + ends, measures)]
     measured_now.update(((rings.key, padded), m) for rings, (_, m) in zip([start] + ends, centres))
     start_at, ends_at = centres[0][0], [at for at, _ in centres[1:]]
-    s, grad = _band_coordinate(layout, start_at[:2], [at[:2] for at in ends_at])
+    d = np.stack([start_at[0]] + [at[0] for at in ends_at])
+    g = np.stack([start_at[1]] + [at[1] for at in ends_at])
+    s, grad = _band_coordinate(layout, d, g)
 
     # a cell may hold solid pixels when its centre is within half a diagonal of the family's side
     reach = -0.5 * np.hypot(lattice.dx, lattice.dy)
@@ -703,7 +705,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     refined = np.nonzero(refine)  # never on the padded lattice's border: its cells are no candidates
     models = [None] * (1 + len(ends))
     if layout.end and len(refined[0]):
-        models = _ring_models(layout, [start_at[:2]] + [at[:2] for at in ends_at], grad, padded, grid, refined)
+        models = _ring_models(layout, d, g, grad, padded, grid, refined)
     inner = (slice(1, -1), slice(1, -1))
     s, grad, beyond, candidate, refine, known, touched = (a[inner] for a in (s, grad, beyond, candidate, refine, known,
                                                                              touched))
@@ -825,8 +827,8 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
                          (lattice.row0, lattice.col0), label_base, empty)
 
 
-def _ring_models(layout: FamilyLayout, fields: list[tuple], grad: np.ndarray, lattice: Lattice, grid: Grid,
-                 cells: tuple[np.ndarray, np.ndarray]) -> list[np.ndarray]:
+def _ring_models(layout: FamilyLayout, d: np.ndarray, g: np.ndarray, grad: np.ndarray, lattice: Lattice, grid: Grid,
+                  cells: tuple[np.ndarray, np.ndarray]) -> list[np.ndarray]:
     """Per ring set of an eq. 10 family, a quadratic of its signed distance over each given cell
     ((n, 6): d, d_x, d_y, d_xx, d_xy, d_yy at the centre, mm), NaN where the exact distance
     must be measured per pixel instead.
@@ -840,69 +842,19 @@ def _ring_models(layout: FamilyLayout, fields: list[tuple], grad: np.ndarray, la
     first, while the sum of |ds/dd_j| m_j (|ds/dd_j| the largest, |grad s| the smallest
     over the cell and its neighbours, or a bound of it over the cell's pixels on the family's
     side where smaller: it holds beside a pole of eq. 10's continuation too) stays within
-    TOLERANCE_PX pixels of s; the others are measured. ``fields`` are (signed distance,
-    gradient) over the (padded) ``lattice`` of the starting rings then each ending ring,
-    ``grad`` s's gradient there; ``cells`` index that lattice and are not on its border.
+    TOLERANCE_PX pixels of s; the others are measured. The bounds: on the family's side every d >= 0, so
+    A >= 1 and D >= d_m + d_0 A (:func:`_band_coordinate`), whence |ds/dd_0| <= N_R / (4 d_0) and, for
+    every ending ring k, |ds/dd_k| <= N_R d_m / (4 d_k^2), taken over the cell's pixels (within half a
+    diagonal h of its centre: d - h, d_m + h). ``d`` (sets, rows, cols) mm and ``g`` (sets, rows, cols, 2) are
+    the signed distance and gradient over the (padded) ``lattice`` of the starting rings then each ending
+    ring, ``grad`` s's gradient there; ``cells`` index that lattice and are not on its border. Compiled
+    (:func:`heoslice.regions_compiled.ring_models`).
     """
-    ci, cj = cells
-    steps = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)]
-    ex = np.array([dj * lattice.dx for _, dj in steps])[:, None]
-    ey = np.array([-di * lattice.dy for di, _ in steps])[:, None]
-    # each ring set's distance at every cell and its eight neighbours: (9, n)
-    near = [np.stack([d[ci + di, cj + dj] for di, dj in steps]) for d, _ in fields]
-    models, misses = [], []
-    for (d, g), around in zip(fields, near):
-        hxx = (g[ci, cj + 1, 0] - g[ci, cj - 1, 0]) / (2 * lattice.dx)
-        hyy = (g[ci - 1, cj, 1] - g[ci + 1, cj, 1]) / (2 * lattice.dy)
-        hxy = 0.5 * ((g[ci - 1, cj, 0] - g[ci + 1, cj, 0]) / (2 * lattice.dy)
-                     + (g[ci, cj + 1, 1] - g[ci, cj - 1, 1]) / (2 * lattice.dx))
-        model = np.column_stack([d[ci, cj], g[ci, cj, 0], g[ci, cj, 1], hxx, hxy, hyy])
-        guess = model[:, 0] + model[:, 1] * ex + model[:, 2] * ey + 0.5 * (hxx * ex * ex + hyy * ey * ey) + hxy * ex * ey
-        misses.append(np.abs(guess - around).max(axis=0))
-        models.append(model)
-    steepest = np.stack([np.abs(ds).max(axis=0) for ds in _band_sensitivities(layout, near[0], near[1:])])
-    # on the family's side (every d >= 0, so A >= 1 and D >= d_m + d0 A): |ds/dd0| <= N_R / (4 d0) and, for every
-    # ending ring k, |ds/dd_k| <= N_R d_m / (4 d_k^2); over the cell's pixels (within h of its centre) these
-    # bound the sensitivities where the neighbours' values say nothing (off the side, past a pole of the
-    # continuation), and where they do, the smaller of the two is taken
-    h = 0.5 * np.hypot(lattice.dx, lattice.dy)
-    centre = np.abs(np.stack([around[4] for around in near]))
-    nearest = centre[1:].min(axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        below = np.maximum(centre - h, 0.0)
-        bound = layout.count * np.concatenate([1.0 / (4.0 * below[:1]), (nearest + h) / (4.0 * below[1:] ** 2)])
-        steepest = np.fmin(steepest, bound)
-        cost = np.where(np.isfinite(steepest), steepest, np.inf) * np.stack(misses)
-    cost = np.where(np.isfinite(cost) & np.stack([np.isfinite(m).all(axis=1) for m in models]), cost, np.inf)
-    steepness = np.hypot(grad[..., 0], grad[..., 1])
-    around = np.stack([steepness[ci + di, cj + dj] for di, dj in steps])
-    weakest = np.where(np.isfinite(around), around, np.inf).min(axis=0)
-    budget = np.where(np.isfinite(weakest), TOLERANCE_PX * min(grid.px, grid.py) * weakest, 0.0)
-    order = np.argsort(cost, axis=0)
-    running = np.cumsum(np.take_along_axis(cost, order, axis=0), axis=0)
-    modelled = np.zeros(cost.shape, dtype=bool)
-    np.put_along_axis(modelled, order, running <= budget, axis=0)
-    return [np.where(use[:, None], model, np.nan) for model, use in zip(models, modelled)]
+    from heoslice.regions_compiled import ring_models
 
-
-def _band_sensitivities(layout: FamilyLayout, d0: np.ndarray, ends: list[np.ndarray]) -> list[np.ndarray]:
-    """ds/dd_j of eq. 10's band coordinate for the starting rings and each ending ring (same shapes as the
-    distances). With m the ending ring nearest in |d|, D = d_m + d0 A (:func:`_band_coordinate`):
-    ds/dd0 = N_R A d_m / D^2, ds/dd_m = -N_R d0 / D^2, ds/dd_k = -N_R d0 d_m^2 / (d_k^2 D^2); NaN past a pole."""
-    tiny = 1e-12
-    d = np.stack(ends)
-    nearest = np.argmin(np.abs(d), axis=0)[None]
-    dm = np.take_along_axis(d, nearest, axis=0)[0]
-    other = np.arange(len(ends)).reshape((-1,) + (1,) * d0.ndim) != nearest
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inverse = np.where(other, 1.0 / np.where(np.abs(d) < tiny, tiny, d), 0.0)
-        a = 1.0 + dm * inverse.sum(axis=0)
-        denominator = dm + d0 * a
-        scale = np.where(denominator > 0, layout.count / np.where(denominator > 0, denominator, 1.0) ** 2, np.nan)
-        out = [a * dm * scale]
-        for k in range(len(ends)):
-            out.append(np.where(other[k], -d0 * dm * dm * inverse[k] * inverse[k], -d0) * scale)
-    return out
+    models = ring_models(d, g, grad, cells[0], cells[1], lattice.dx, lattice.dy, layout.count,
+                         0.5 * np.hypot(lattice.dx, lattice.dy), TOLERANCE_PX * min(grid.px, grid.py))
+    return list(models)
 
 
 def _refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, np.ndarray], grid: Grid,

@@ -585,6 +585,114 @@ def _band_field(d, g, count):  # pragma: no cover - compiled
     return s, grad
 
 
+
+@numba.njit(inline="always", **_JIT)
+def _band_sensitivities(here, sets, count, out):  # pragma: no cover - compiled
+    """ds/dd_j of eq. 10's band coordinate (regions._band_coordinate) at one point into ``out`` (sets,), from
+    the signed distances ``here`` (sets,) mm of the starting ring set (0) and each ending one: with m the
+    ending set nearest in |d| and D = d_m + d_0 A, ds/dd_0 = N_R A d_m / D^2, ds/dd_m = -N_R d_0 / D^2,
+    ds/dd_k = -N_R d_0 d_m^2 / (d_k^2 D^2); all NaN past a pole (D <= 0)."""
+    m = _nearest_end(here, sets)
+    rest = 0.0
+    for k in range(1, sets):
+        if k != m:
+            rest += _inverse(here[k])
+    dm, d0 = here[m], here[0]
+    a = 1.0 + dm * rest
+    denominator = dm + d0 * a
+    if not denominator > 0:
+        out[:] = np.nan
+        return
+    scale = count / (denominator * denominator)
+    out[0] = a * dm * scale
+    for k in range(1, sets):
+        inverse = _inverse(here[k])
+        out[k] = -d0 * scale if k == m else -d0 * dm * dm * inverse * inverse * scale
+
+
+@numba.njit(**_JIT)
+def _ring_models(d, g, grad, ci, cj, dx, dy, count, half_diagonal, tolerance):  # pragma: no cover - compiled
+    """Per ring set and cell, the quadratic of its signed distance or NaN (regions._ring_models has the
+    argument); d (sets, rows, cols) mm, g (sets, rows, cols, 2) and grad (rows, cols, 2) at the
+    lattice centres, cells (ci, cj) off the lattice's border."""
+    sets = d.shape[0]
+    models = np.full((sets, len(ci), 6), np.nan)
+    model = np.empty((sets, 6))
+    miss = np.empty(sets)
+    steepest = np.empty(sets)
+    cost = np.empty(sets)
+    here = np.empty(sets)
+    ds = np.empty(sets)
+    order = np.empty(sets, dtype=np.int64)
+    for n in range(len(ci)):
+        i, j = ci[n], cj[n]
+        for k in range(sets):
+            hxx = (g[k, i, j + 1, 0] - g[k, i, j - 1, 0]) / (2.0 * dx)
+            hyy = (g[k, i - 1, j, 1] - g[k, i + 1, j, 1]) / (2.0 * dy)
+            hxy = 0.5 * ((g[k, i - 1, j, 0] - g[k, i + 1, j, 0]) / (2.0 * dy)
+                         + (g[k, i, j + 1, 1] - g[k, i, j - 1, 1]) / (2.0 * dx))
+            model[k, 0], model[k, 1], model[k, 2] = d[k, i, j], g[k, i, j, 0], g[k, i, j, 1]
+            model[k, 3], model[k, 4], model[k, 5] = hxx, hxy, hyy
+            worst = 0.0
+            for di in range(-1, 2):
+                for dj in range(-1, 2):
+                    ex, ey = dj * dx, -di * dy
+                    guess = (model[k, 0] + model[k, 1] * ex + model[k, 2] * ey + 0.5 * (hxx * ex * ex + hyy * ey * ey)
+                             + hxy * ex * ey)
+                    gap = abs(guess - d[k, i + di, j + dj])
+                    if not np.isnan(worst) and (gap > worst or np.isnan(gap)):
+                        worst = gap
+            miss[k] = worst
+            steepest[k] = 0.0
+        # the largest |ds/dd_k| over the cell and its neighbours (NaN past a pole, as numpy's max)
+        weakest = np.inf
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                for k in range(sets):
+                    here[k] = d[k, i + di, j + dj]
+                _band_sensitivities(here, sets, count, ds)
+                for k in range(sets):
+                    value = abs(ds[k])
+                    if np.isnan(value) or np.isnan(steepest[k]):
+                        steepest[k] = np.nan
+                    elif value > steepest[k]:
+                        steepest[k] = value
+                steepness = np.hypot(grad[i + di, j + dj, 0], grad[i + di, j + dj, 1])
+                if np.isfinite(steepness) and steepness < weakest:
+                    weakest = steepness
+        # on the family's side, bounds of the sensitivities over the cell's pixels (regions._ring_models)
+        nearest = np.inf
+        for k in range(1, sets):
+            nearest = min(nearest, abs(d[k, i, j]))
+        for k in range(sets):
+            below = max(abs(d[k, i, j]) - half_diagonal, 0.0)
+            bound = count / (4.0 * below) if k == 0 else count * (nearest + half_diagonal) / (4.0 * below * below)
+            if np.isnan(steepest[k]) or bound < steepest[k]:
+                steepest[k] = bound
+            finite = np.isfinite(model[k, 0])
+            for e in range(1, 6):
+                finite = finite and np.isfinite(model[k, e])
+            cost[k] = (steepest[k] if np.isfinite(steepest[k]) else np.inf) * miss[k]
+            if not (finite and np.isfinite(cost[k])):
+                cost[k] = np.inf
+        budget = tolerance * weakest if np.isfinite(weakest) else 0.0
+        # cheapest first (ties in ring-set order), while the running sum stays within the budget
+        for k in range(sets):
+            order[k] = k
+            e = k
+            while e > 0 and cost[order[e - 1]] > cost[k]:
+                order[e] = order[e - 1]
+                e -= 1
+            order[e] = k
+        running = 0.0
+        for e in range(sets):
+            k = order[e]
+            running += cost[k]
+            if not running <= budget:
+                break
+            models[k, n, :] = model[k]
+    return models
+
 @numba.njit(**_JIT)
 def _band_cells(index, ci, cj, cell, px, py, models, measured, slot, count, length, mask, r0, c0,
                 base):  # pragma: no cover - compiled
@@ -1154,6 +1262,19 @@ def band_field(d: np.ndarray, g: np.ndarray, count: int) -> tuple[np.ndarray, np
     return _band_field(np.ascontiguousarray(d, dtype=np.float64), np.ascontiguousarray(g, dtype=np.float64),
                        float(count))
 
+
+
+def ring_models(d: np.ndarray, g: np.ndarray, grad: np.ndarray, ci: np.ndarray, cj: np.ndarray, dx: float, dy: float,
+                count: int, half_diagonal: float, tolerance: float) -> np.ndarray:
+    """(sets, n, 6) per ring set and lattice cell (ci, cj) ((n,) int, off the border) the quadratic of its
+    signed distance (d, d_x, d_y, d_xx, d_xy, d_yy at the centre, mm) where eq. 10's s stays within
+    ``tolerance`` (mm of s's slope) with it, else NaN: regions._ring_models' choice, compiled. d (sets,
+    rows, cols) mm and g (sets, rows, cols, 2) per ring set, grad (rows, cols, 2) s's gradient at the
+    centres, dx, dy the cells (mm), half_diagonal half a cell's diagonal (mm)."""
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    return _ring_models(f64(d), f64(g), f64(grad), np.ascontiguousarray(ci, dtype=np.int64),
+                        np.ascontiguousarray(cj, dtype=np.int64), float(dx), float(dy), float(count),
+                        float(half_diagonal), float(tolerance))
 
 def band_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, px: float, py: float,
                models: np.ndarray, measured: np.ndarray, slot: np.ndarray, count: int, length: float,
