@@ -439,10 +439,23 @@ ISLAND_LAYOUTS = {
     # two islands in one hole, each box holding a corner of the other island
     "crowded hole": [circle(9.0), circle(6.0, 360, (0.0, 0.0), clockwise=True), circle(1.5, 120, (-1.2, -1.2)),
                      circle(1.5, 120, (1.2, 1.2))],
+    # an island cut by the canvas's left edge (x = -7 mm in the test): its box is clipped
+    "clipped island": [circle(9.0), circle(4.0, 240, (-4.5, 0.0), clockwise=True), circle(1.2, 120, (-6.5, 0.0))],
     # an island with a hole of its own holding another island; the outer island's box reaches into the plate
     "island in an island": [circle(9.0), circle(5.0, 360, clockwise=True), circle(4.0, 240),
                             circle(2.5, 180, clockwise=True), circle(1.0, 90)],
 }
+
+
+def island_grid(name: str) -> Grid:
+    """The canvas of an ISLAND_LAYOUTS layer: 19 mm square around the origin, its left edge at x = -7 mm
+    for the clipped island."""
+    grid = grid_around(9.5)
+    if name != "clipped island":
+        return grid
+    cut = int(round((-7.0 - grid.x_left) / PX))
+    return Grid(width=grid.width - cut, height=grid.height, x_left=grid.x_left + cut * PX, y_top=grid.y_top,
+                px=PX, py=PX)
 
 
 def family_membership(points, offsets, regions, grid) -> np.ndarray:
@@ -462,7 +475,7 @@ def test_islands_are_labelled_exactly_with_or_without_rasterising_their_rings(na
     are the same when every island rasterises its rings again (regions._family_mask) as when an island
     alone in its box (regions._alone_in_box) takes the layer's solid pixels there as its own."""
     points, offsets, area, parent = layer(*ISLAND_LAYOUTS[name])
-    grid = grid_around(9.5)
+    grid = island_grid(name)
     mask = solid_mask(points, offsets, grid)
     spec = RegionSpec(nozzle_mm=0.4)
     labelled = layer_regions(points, offsets, area, parent, None, grid, spec, np.packbits(mask, axis=1))
@@ -494,11 +507,12 @@ def test_only_islands_alone_in_their_box_skip_rasterising_their_rings(monkeypatc
     monkeypatch.setattr(regions, "_family_mask",
                         lambda points, offsets, family, *rest: rasterised.append(family.outer)
                         or real(points, offsets, family, *rest))
-    expected = {"roomy hole": [], "tight hole": [2], "crowded hole": [3], "island in an island": [2]}
+    expected = {"roomy hole": [], "tight hole": [2], "crowded hole": [3], "island in an island": [2],
+                "clipped island": []}
     for name, rings in ISLAND_LAYOUTS.items():
         rasterised.clear()
         points, offsets, area, parent = layer(*rings)
-        grid = grid_around(9.5)
+        grid = island_grid(name)
         mask = solid_mask(points, offsets, grid)
         layer_regions(points, offsets, area, parent, mask, grid, RegionSpec(nozzle_mm=0.4))
         assert rasterised == expected[name], name

@@ -61,7 +61,7 @@ DIRECT_PIXELS = 25_000
 #: Most per-pixel distances measured and held at once when cells are evaluated per pixel (float32: 16 MB).
 _MEASURED_VALUES = 1 << 22
 DIRECTIONS = ("in", "out")
-#: How far inside a hole (mm) the disc around an island's pixel centres must lie for :func:`_alone_in_box`:
+#: How far inside a hole (mm) the disc around an island's box and ring must lie for :func:`_alone_in_box`:
 #: far beyond the rounding of the rasteriser's inside test.
 _HOLE_MARGIN_MM = 1e-6
 
@@ -1025,18 +1025,20 @@ def _alone_in_box(points: np.ndarray, offsets: np.ndarray, parent: np.ndarray, f
                   box: tuple[int, int, int, int], earlier: tuple[Family, ...], fields: tuple[FamilyField, ...],
                   grid: Grid) -> bool:
     """True when no family painted before ``family`` (``earlier``, with their ``fields``) has a pixel in
-    its pixel ``box``: each one's box misses it, or the disc around the box's pixel centres lies inside
-    the hole of that family that holds ``family`` (an ancestor of its outer ring by ``parent``). Then the
-    layer's solid pixels in the box are the family's own and its islands' (painted after it, over their
-    own pixels), and its rings need no rasterising again: an island standing in a hole, a pin in a plate.
+    its pixel ``box``: each one's box misses it, or a disc holding the box's pixel centres and the
+    family's outer ring lies inside the hole of that family that holds ``family`` (an ancestor of its
+    outer ring by ``parent``). Then the layer's solid pixels in the box are the family's own and its
+    islands' (painted after it, over their own pixels), and its rings need no rasterising again: an
+    island standing in a hole, a pin in a plate.
 
-    The disc touches no ring of that hole, so all of it is on the side of the hole that the family's
-    own points are on."""
+    The disc touches no edge of that hole, so all of it is on one side of the hole: the side the
+    family's own ring is on, inside."""
     r0, r1, c0, c1 = box
-    left, right = grid.x_left + (c0 + 0.5) * grid.px, grid.x_left + (c1 - 0.5) * grid.px
-    top, bottom = grid.y_top - (r0 + 0.5) * grid.py, grid.y_top - (r1 - 0.5) * grid.py
-    centre = np.array([0.5 * (left + right), 0.5 * (top + bottom)])
-    reach = 0.5 * np.hypot(right - left, top - bottom) + _HOLE_MARGIN_MM
+    ring = points[offsets[family.outer]:offsets[family.outer + 1]]
+    low = np.minimum(ring.min(axis=0), (grid.x_left + (c0 + 0.5) * grid.px, grid.y_top - (r1 - 0.5) * grid.py))
+    high = np.maximum(ring.max(axis=0), (grid.x_left + (c1 - 0.5) * grid.px, grid.y_top - (r0 + 0.5) * grid.py))
+    centre = 0.5 * (low + high)
+    reach = 0.5 * float(np.hypot(*(high - low))) + _HOLE_MARGIN_MM
     ancestors, loop = [], family.outer
     while parent[loop] >= 0 and len(ancestors) < len(parent):
         loop = int(parent[loop])
