@@ -182,3 +182,39 @@ def test_extruded_layers_reuse_their_sub_regions_and_write_the_same_stack(tmp_pa
     assert [(e["sha256"], e["channels"]) for e in reused["layers"]] == [(e["sha256"], e["channels"])
                                                                        for e in fresh["layers"]]
     assert verify_stack(tmp_path / "reused").ok
+
+
+def test_sub_regions_carry_over_from_one_run_of_layers_to_the_next(tmp_path, monkeypatch):
+    """Sliced in runs of a layer or two (a small segment budget), the plate with holes and pins measures no
+    more families than in one long run, in this process, the last layer of a run serving the next run's
+    first; forked workers, each keeping its own last layer, write the same stack byte for byte."""
+    from dataclasses import replace
+
+    from heoslice import pipeline, regions
+    from heoslice.distribution import make_function
+    from heoslice.loading import load_mesh
+    from heoslice.materials import DEFAULT_MATERIALS, Material
+    from heoslice.slicing import face_z_range, plane_heights
+
+    path = tmp_path / "plate.ply"
+    procedural.holes_and_islands((20.0, 12.5, 4.0), 48).export(path)
+    mesh = load_mesh(path)
+    grade = regions.GradeSpec(regions.RegionSpec(nozzle_mm=0.3), make_function("linear"),
+                              Material("green", (0, 255, 0)), None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
+    long_runs = pipeline.SliceSpec(layer_height_mm=0.2, dpi=(300.0, 300.0), grade=grade, channels=True, jobs=1)
+    short_runs = replace(long_runs, max_segments=1500)
+    measured = []
+    family_field = regions.family_field
+    monkeypatch.setattr(regions, "family_field", lambda *args, **kwargs: measured.append(1) or family_field(
+        *args, **kwargs))
+    one, _ = pipeline.slice_to_stack(mesh, tmp_path / "one", long_runs)
+    in_one_run = len(measured)
+    z = plane_heights(mesh.bounds[0, 2], mesh.bounds[1, 2], short_runs.layer_height_mm)
+    context = pipeline.RunContext(mesh=mesh, z=z, face_range=face_z_range(mesh.vertices, mesh.faces), grid=None,
+                                  spec=short_runs, directory=tmp_path)
+    assert len(pipeline.plane_runs(context)) >= 8
+    many, _ = pipeline.slice_to_stack(mesh, tmp_path / "many", short_runs)
+    assert len(measured) - in_one_run == in_one_run
+    forked, _ = pipeline.slice_to_stack(mesh, tmp_path / "forked", replace(short_runs, jobs=2))
+    files = [[(e["sha256"], e["channels"]) for e in stack["layers"]] for stack in (one, many, forked)]
+    assert files[0] == files[1] == files[2]

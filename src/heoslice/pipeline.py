@@ -266,18 +266,24 @@ class RunResult:
     contours_s: float
 
 
-#: The RunContext of this worker process, set once by :func:`_adopt` (each worker has its own).
-_WORKER_CONTEXT: dict[str, RunContext] = {}
+#: The RunContext of this worker process and the sub-regions of the last layer it graded (``reuse`` of
+#: :func:`slice_run`), set by :func:`_adopt` (each worker has its own).
+_WORKER_CONTEXT: dict = {}
 
 
 def _adopt(context: RunContext) -> None:
     """Worker initializer: keep the context; Ctrl-C is the parent's to handle (one 'interrupted' line)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _WORKER_CONTEXT["run"] = context
+    _WORKER_CONTEXT["reuse"] = {}
 
 
-def slice_run(context: RunContext, start: int, stop: int) -> RunResult:
-    """Slice, chain, render and write planes z[start:stop]: the whole pipeline for one run of layers."""
+def slice_run(context: RunContext, start: int, stop: int, reuse: dict | None = None) -> RunResult:
+    """Slice, chain, render and write planes z[start:stop]: the whole pipeline for one run of layers.
+
+    ``reuse`` keeps the sub-regions of the last layer graded, for families the next one shares (an
+    extruded part: :func:`heoslice.regions.layer_regions`); a dict kept from run to run (same context)
+    carries them over to the next run's first layer too."""
     mesh = context.mesh
     began = time.perf_counter()
     sections = slice_planes(mesh.vertices, mesh.faces, context.z, start, stop, context.face_range)
@@ -285,14 +291,14 @@ def slice_run(context: RunContext, start: int, stop: int) -> RunResult:
     contours = build_contours(sections, hierarchy=context.spec.grade is not None)
     chained = time.perf_counter()
     jobs = layer_jobs(contours, mesh, context.grid, context.spec, context.directory, first_layer=start)
-    reuse: dict = {}  # the last layer's sub-regions, for families the next one shares (an extruded part)
+    reuse = {} if reuse is None else reuse
     return RunResult(layers=[render_and_write(job, reuse) for job in jobs],
                      open_layers=start + contours.layer[contours.closed_by_join],
                      slice_s=sliced - began, contours_s=chained - sliced)
 
 
 def _slice_run_in_worker(start: int, stop: int) -> RunResult:
-    return slice_run(_WORKER_CONTEXT["run"], start, stop)
+    return slice_run(_WORKER_CONTEXT["run"], start, stop, _WORKER_CONTEXT["reuse"])
 
 
 def plane_runs(context: RunContext, max_layers: int = 32) -> list[tuple[int, int]]:
@@ -309,8 +315,9 @@ def _run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], N
     with at most 2 runs each in flight (results arrive in any order; memory stays bounded)."""
     runs = plane_runs(context)
     if workers <= 1:
+        reuse: dict = {}
         for start, stop in runs:
-            on_done(slice_run(context, start, stop))
+            on_done(slice_run(context, start, stop, reuse))
         return
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork"),
                              initializer=_adopt, initargs=(context,)) as pool:
