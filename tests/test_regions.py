@@ -439,6 +439,8 @@ ISLAND_LAYOUTS = {
     # two islands in one hole, each box holding a corner of the other island
     "crowded hole": [circle(9.0), circle(6.0, 360, (0.0, 0.0), clockwise=True), circle(1.5, 120, (-1.2, -1.2)),
                      circle(1.5, 120, (1.2, 1.2))],
+    # a nested shell (a lesion) in the plate's solid: the plate's pixels fill its box
+    "lesion": [circle(9.0), circle(2.0, 200, (3.0, 3.0))],
     # an island cut by the canvas's left edge (x = -7 mm in the test): its box is clipped
     "clipped island": [circle(9.0), circle(4.0, 240, (-4.5, 0.0), clockwise=True), circle(1.2, 120, (-6.5, 0.0))],
     # an island with a hole of its own holding another island; the outer island's box reaches into the plate
@@ -489,6 +491,50 @@ def test_islands_are_labelled_exactly_with_or_without_rasterising_their_rings(na
 
 
 
+
+def crossing_layouts():
+    """Layers of crossing loops (separate shells that overlap; the review's cases), with their parents: a
+    washer lying half over a tube's wall and half in its bore, holding a pin over the wall (by the
+    washer's first point its parent is the bore, though it crosses it), and a plate whose outer ring
+    winds twice around a hole holding a pin (its own winding is 1 in the hole)."""
+    washer = np.roll(circle(3.0, 300, (4.5, 0.0)), 150, axis=0)  # first point (1.5, 0), in the bore
+    chain = [circle(9.0), circle(4.0, 360, clockwise=True), washer, circle(1.5, 200, (5.5, 0.0), clockwise=True),
+             circle(0.5, 90, (5.5, 0.0))]
+    points, offsets, area, parent = layer(*chain)
+    yield "washer over a wall", (points, offsets, area, parent)
+    twice = np.concatenate([circle(9.0), circle(8.8)])
+    points, offsets, area, _ = layer(twice, circle(4.0, 360, clockwise=True), circle(1.0, 120))
+    yield "plate wound twice", (points, offsets, area, np.array([-1, 0, 1]))
+
+
+def test_islands_over_crossing_loops_are_labelled_as_by_rasterising_their_rings(monkeypatch):
+    """Where loops cross, an island takes the solid pixels of its box as its own only if no earlier family's
+    loops wind around any of them: its labels are those of rasterising its rings, on every solid pixel."""
+    for name, (points, offsets, area, parent) in crossing_layouts():
+        grid = grid_around(9.5)
+        mask = solid_mask(points, offsets, grid)
+        spec = RegionSpec(nozzle_mm=0.4)
+        labelled = layer_regions(points, offsets, area, parent, mask, grid, spec)
+        with monkeypatch.context() as patched:
+            patched.setattr(regions, "_alone_in_box", lambda *args: False)
+            rasterised = layer_regions(points, offsets, area, parent, mask, grid, spec)
+        solid = mask[labelled.box[0]:labelled.box[1], labelled.box[2]:labelled.box[3]]
+        assert np.array_equal(rasterised.label[solid], labelled.label[solid]), name
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2 ** 31), st.floats(-12.0, 12.0), st.floats(-12.0, 12.0), st.integers(1, 3))
+def test_winding_number_counts_turns_around_the_point(seed, x, y, turns):
+    """_winding_number of a ring traversed ``turns`` times counter-clockwise is ``turns`` at points inside it
+    (shapely) and 0 outside; the reversed ring gives minus that."""
+    ring = rough_outline(seed, count=int(np.random.default_rng(seed).integers(3, 200)))
+    point = np.array([x, y])
+    inside = shapely.contains_xy(shapely.Polygon(ring), x, y)
+    if shapely.distance(shapely.Point(x, y), shapely.LinearRing(ring)) < 1e-9:
+        return
+    assert regions._winding_number(np.tile(ring, (turns, 1)), point) == (turns if inside else 0)
+    assert regions._winding_number(np.tile(ring[::-1], (turns, 1)), point) == (-turns if inside else 0)
+
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, 2 ** 31), st.floats(-12.0, 12.0), st.floats(-12.0, 12.0))
 def test_ring_clearance_is_shapelys_distance_to_the_ring(seed, x, y):
@@ -499,16 +545,17 @@ def test_ring_clearance_is_shapelys_distance_to_the_ring(seed, x, y):
     assert regions._ring_clearance(ring, np.array([x, y])) == pytest.approx(expected, abs=1e-9)
 
 def test_only_islands_alone_in_their_box_skip_rasterising_their_rings(monkeypatch):
-    """The island of a roomy hole and the inner island of an island in an island take the solid pixels of
-    their box as theirs; an island whose box reaches into the plate, two islands each in the other's box,
-    and the hollow island (the plate's pixels lie in its box) rasterise their rings."""
+    """The island of a roomy hole, the inner island of an island in an island and an island clipped by the
+    canvas take the solid pixels of their box as theirs; an island whose box reaches into the plate, two
+    islands each in the other's box, the hollow island (the plate's pixels lie in its box) and a lesion in
+    the plate's solid rasterise their rings."""
     rasterised = []
     real = regions._family_mask
     monkeypatch.setattr(regions, "_family_mask",
                         lambda points, offsets, family, *rest: rasterised.append(family.outer)
                         or real(points, offsets, family, *rest))
     expected = {"roomy hole": [], "tight hole": [2], "crowded hole": [3], "island in an island": [2],
-                "clipped island": []}
+                "clipped island": [], "lesion": [1]}
     for name, rings in ISLAND_LAYOUTS.items():
         rasterised.clear()
         points, offsets, area, parent = layer(*rings)

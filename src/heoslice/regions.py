@@ -61,8 +61,8 @@ DIRECT_PIXELS = 25_000
 #: Most per-pixel distances measured and held at once when cells are evaluated per pixel (float32: 16 MB).
 _MEASURED_VALUES = 1 << 22
 DIRECTIONS = ("in", "out")
-#: How far inside a hole (mm) the disc around an island's box and ring must lie for :func:`_alone_in_box`:
-#: far beyond the rounding of the rasteriser's inside test.
+#: How far (mm) the disc around an island's pixel centres must stay from other families' rings for
+#: :func:`_alone_in_box`: far beyond the rounding of the rasteriser's inside test.
 _HOLE_MARGIN_MM = 1e-6
 
 
@@ -977,6 +977,7 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
         label = first.index
     else:
         label = np.zeros((box[1] - box[0], box[3] - box[2]), dtype=dtype)
+    loop_bounds = None
     for number, (family, field) in enumerate(zip(families, fields)):
         r0, r1, c0, c1 = field.box
         if r1 <= r0 or c1 <= c0:
@@ -988,8 +989,9 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
                 np.copyto(target, first.index, casting="unsafe")
             continue
         solid = _solid_in(mask, packed, field.box)
-        earlier = (families[:number], fields[:number])
-        if not _alone_in_box(points, offsets, parent, family, field.box, *earlier, grid):
+        if loop_bounds is None:
+            loop_bounds = (np.minimum.reduceat(points, offsets[:-1]), np.maximum.reduceat(points, offsets[:-1]))
+        if not _alone_in_box(points, offsets, loop_bounds, field.box, families[:number], fields[:number], grid):
             solid = solid & _family_mask(points, offsets, family, grid, field.box)
         value = base[number] if family.nested else field.index + base[number]
         np.copyto(target, value, where=solid, casting="unsafe")
@@ -1021,36 +1023,55 @@ def _solid_in(mask: np.ndarray | None, packed: np.ndarray | None, box: tuple[int
     return bits[:, c0 % 8:c0 % 8 + c1 - c0]
 
 
-def _alone_in_box(points: np.ndarray, offsets: np.ndarray, parent: np.ndarray, family: Family,
+def _alone_in_box(points: np.ndarray, offsets: np.ndarray, loop_bounds: tuple[np.ndarray, np.ndarray],
                   box: tuple[int, int, int, int], earlier: tuple[Family, ...], fields: tuple[FamilyField, ...],
                   grid: Grid) -> bool:
-    """True when no family painted before ``family`` (``earlier``, with their ``fields``) has a pixel in
-    its pixel ``box``: each one's box misses it, or a disc holding the box's pixel centres and the
-    family's outer ring lies inside the hole of that family that holds ``family`` (an ancestor of its
-    outer ring by ``parent``). Then the layer's solid pixels in the box are the family's own and its
-    islands' (painted after it, over their own pixels), and its rings need no rasterising again: an
-    island standing in a hole, a pin in a plate.
-
-    The disc touches no edge of that hole, so all of it is on one side of the hole: the side the
-    family's own ring is on, inside."""
+    """True when no family painted before this one (``earlier``, with their ``fields``) has a pixel in its
+    pixel ``box``: each one's box misses it, or that family's loops wind at most 0 times around a disc
+    holding the box's pixel centres and meet none of it (:func:`_outside_loops`), while its pixels are
+    where they wind more than 0 times (:func:`_family_mask`). Then the layer's solid pixels in the box
+    are this family's own and its islands' (painted after it, over their own pixels), and its rings
+    need no rasterising again: an island standing in a hole, a pin in a plate. ``loop_bounds`` are the
+    layer's loops' bounding boxes ((l, 2) lower and upper corners, mm)."""
     r0, r1, c0, c1 = box
-    ring = points[offsets[family.outer]:offsets[family.outer + 1]]
-    low = np.minimum(ring.min(axis=0), (grid.x_left + (c0 + 0.5) * grid.px, grid.y_top - (r1 - 0.5) * grid.py))
-    high = np.maximum(ring.max(axis=0), (grid.x_left + (c1 - 0.5) * grid.px, grid.y_top - (r0 + 0.5) * grid.py))
-    centre = 0.5 * (low + high)
-    reach = 0.5 * float(np.hypot(*(high - low))) + _HOLE_MARGIN_MM
-    ancestors, loop = [], family.outer
-    while parent[loop] >= 0 and len(ancestors) < len(parent):
-        loop = int(parent[loop])
-        ancestors.append(loop)
+    low = np.array([grid.x_left + (c0 + 0.5) * grid.px, grid.y_top - (r1 - 0.5) * grid.py])
+    high = np.array([grid.x_left + (c1 - 0.5) * grid.px, grid.y_top - (r0 + 0.5) * grid.py])
+    centre, reach = 0.5 * (low + high), 0.5 * float(np.hypot(*(high - low))) + _HOLE_MARGIN_MM
     for other, field in zip(earlier, fields):
         e0, e1, f0, f1 = field.box
         if e1 <= r0 or r1 <= e0 or f1 <= c0 or c1 <= f0:
             continue
-        hole = next((loop for loop in ancestors if loop in other.holes), None)
-        if hole is None or _ring_clearance(points[offsets[hole]:offsets[hole + 1]], centre) <= reach:
+        if not _outside_loops(points, offsets, loop_bounds, (other.outer, *other.holes), centre, reach):
             return False
     return True
+
+
+def _outside_loops(points: np.ndarray, offsets: np.ndarray, loop_bounds: tuple[np.ndarray, np.ndarray], loops,
+                   centre: np.ndarray, reach: float) -> bool:
+    """Whether the given loops meet no point of a disc (``centre`` (2,), radius ``reach``, mm) and wind around
+    it at most 0 times (the same all over it, since no edge enters it). A loop whose bounding box, grown by
+    ``reach``, misses the centre neither meets the disc nor winds around it."""
+    low, high = loop_bounds
+    loops = np.asarray(loops)
+    near = np.all((centre >= low[loops] - reach) & (centre <= high[loops] + reach), axis=1)
+    winding = 0
+    for loop in loops[near]:
+        ring = points[offsets[loop]:offsets[loop + 1]]
+        if _ring_clearance(ring, centre) <= reach:
+            return False
+        winding += _winding_number(ring, centre)
+    return winding <= 0
+
+
+def _winding_number(ring: np.ndarray, point: np.ndarray) -> int:
+    """How many times a closed ring ((n, 2) mm) winds around a point off it ((2,) mm), counter-clockwise
+    positive: the signed crossings of the ray from the point towards +x."""
+    x, y = ring[:, 0] - point[0], ring[:, 1] - point[1]
+    nx, ny = np.roll(x, -1), np.roll(y, -1)
+    left = x * ny - nx * y
+    up = (y <= 0) & (ny > 0) & (left > 0)
+    down = (ny <= 0) & (y > 0) & (left < 0)
+    return int(np.count_nonzero(up)) - int(np.count_nonzero(down))
 
 
 def _ring_clearance(ring: np.ndarray, point: np.ndarray) -> float:
