@@ -522,28 +522,6 @@ def test_islands_over_crossing_loops_are_labelled_as_by_rasterising_their_rings(
         assert np.array_equal(rasterised.label[solid], labelled.label[solid]), name
 
 
-@settings(max_examples=60, deadline=None)
-@given(st.integers(0, 2 ** 31), st.floats(-12.0, 12.0), st.floats(-12.0, 12.0), st.integers(1, 3))
-def test_winding_number_counts_turns_around_the_point(seed, x, y, turns):
-    """_winding_number of a ring traversed ``turns`` times counter-clockwise is ``turns`` at points inside it
-    (shapely) and 0 outside; the reversed ring gives minus that."""
-    ring = rough_outline(seed, count=int(np.random.default_rng(seed).integers(3, 200)))
-    point = np.array([x, y])
-    inside = shapely.contains_xy(shapely.Polygon(ring), x, y)
-    if shapely.distance(shapely.Point(x, y), shapely.LinearRing(ring)) < 1e-9:
-        return
-    assert regions._winding_number(np.tile(ring, (turns, 1)), point) == (turns if inside else 0)
-    assert regions._winding_number(np.tile(ring[::-1], (turns, 1)), point) == (-turns if inside else 0)
-
-@settings(max_examples=60, deadline=None)
-@given(st.integers(0, 2 ** 31), st.floats(-12.0, 12.0), st.floats(-12.0, 12.0))
-def test_ring_clearance_is_shapelys_distance_to_the_ring(seed, x, y):
-    """_ring_clearance, which decides whether an island is alone in its box, is the distance from the
-    point to the closed ring (shapely), inside it or out."""
-    ring = rough_outline(seed, count=int(np.random.default_rng(seed).integers(3, 200)))
-    expected = shapely.distance(shapely.Point(x, y), shapely.LinearRing(ring))
-    assert regions._ring_clearance(ring, np.array([x, y])) == pytest.approx(expected, abs=1e-9)
-
 def test_only_islands_alone_in_their_box_skip_rasterising_their_rings(monkeypatch):
     """The island of a roomy hole, the inner island of an island in an island and an island clipped by the
     canvas take the solid pixels of their box as theirs; an island whose box reaches into the plate, two

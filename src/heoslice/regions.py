@@ -1049,39 +1049,18 @@ def _alone_in_box(points: np.ndarray, offsets: np.ndarray, loop_bounds: tuple[np
 def _outside_loops(points: np.ndarray, offsets: np.ndarray, loop_bounds: tuple[np.ndarray, np.ndarray], loops,
                    centre: np.ndarray, reach: float) -> bool:
     """Whether the given loops meet no point of a disc (``centre`` (2,), radius ``reach``, mm) and wind around
-    it at most 0 times (the same all over it, since no edge enters it). A loop whose bounding box, grown by
-    ``reach``, misses the centre neither meets the disc nor winds around it."""
+    it at most 0 times (the same all over it, since no edge enters it; compiled
+    :func:`heoslice.regions_compiled.disc_winding`). A loop whose bounding box, grown by ``reach``,
+    misses the centre neither meets the disc nor winds around it."""
+    from heoslice.regions_compiled import disc_winding
+
     low, high = loop_bounds
     loops = np.asarray(loops)
-    near = np.all((centre >= low[loops] - reach) & (centre <= high[loops] + reach), axis=1)
-    winding = 0
-    for loop in loops[near]:
-        ring = points[offsets[loop]:offsets[loop + 1]]
-        if _ring_clearance(ring, centre) <= reach:
-            return False
-        winding += _winding_number(ring, centre)
-    return winding <= 0
-
-
-def _winding_number(ring: np.ndarray, point: np.ndarray) -> int:
-    """How many times a closed ring ((n, 2) mm) winds around a point off it ((2,) mm), counter-clockwise
-    positive: the signed crossings of the ray from the point towards +x."""
-    x, y = ring[:, 0] - point[0], ring[:, 1] - point[1]
-    nx, ny = np.roll(x, -1), np.roll(y, -1)
-    left = x * ny - nx * y
-    up = (y <= 0) & (ny > 0) & (left > 0)
-    down = (ny <= 0) & (y > 0) & (left < 0)
-    return int(np.count_nonzero(up)) - int(np.count_nonzero(down))
-
-
-def _ring_clearance(ring: np.ndarray, point: np.ndarray) -> float:
-    """Distance (mm) from a point ((2,) mm) to a closed ring's edges ((n, 2) mm)."""
-    x, y = ring[:, 0] - point[0], ring[:, 1] - point[1]
-    dx, dy = np.roll(x, -1) - x, np.roll(y, -1) - y
-    along = dx * dx + dy * dy
-    t = np.clip(-(x * dx + y * dy) / np.where(along > 0, along, 1.0), 0.0, 1.0)
-    gx, gy = x + t * dx, y + t * dy
-    return float(np.sqrt((gx * gx + gy * gy).min()))
+    near = loops[np.all((centre >= low[loops] - reach) & (centre <= high[loops] + reach), axis=1)]
+    if not len(near):
+        return True
+    winding = disc_winding(points, offsets, near, centre, reach)
+    return winding is not None and winding <= 0
 
 
 def _family_mask(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid,

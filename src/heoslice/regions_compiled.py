@@ -973,6 +973,29 @@ def _off_segment(x, y, j, a, c):  # pragma: no cover - compiled
     return _point_to_edge(x[j], y[j], x[a], y[a], vx, vy, 1.0 / length2 if length2 > 0.0 else 0.0)
 
 
+
+@numba.njit(**_EXACT)
+def _disc_winding(points, offsets, loops, cx, cy, reach):  # pragma: no cover - compiled
+    """The winding number of the loops around the point (cx, cy), or None when an edge comes within
+    ``reach`` of it."""
+    winding = 0
+    for loop in loops:
+        first, last = offsets[loop], offsets[loop + 1]
+        for i in range(first, last):
+            j = i + 1 if i + 1 < last else first
+            ax, ay = points[i, 0] - cx, points[i, 1] - cy
+            bx, by = points[j, 0] - cx, points[j, 1] - cy
+            vx, vy = bx - ax, by - ay
+            length2 = vx * vx + vy * vy
+            if _point_to_edge(0.0, 0.0, ax, ay, vx, vy, 1.0 / length2 if length2 > 0.0 else 0.0) <= reach:
+                return None
+            left = ax * by - bx * ay
+            if ay <= 0.0 < by and left > 0.0:
+                winding += 1
+            elif by <= 0.0 < ay and left < 0.0:
+                winding -= 1
+    return winding
+
 @numba.njit(**_JIT)
 def _straight_runs(x, y, size, tolerance, longest):  # pragma: no cover - compiled
     """(keep (n,) bool, order (n,), knots (n + rings,), knot_at (n + rings,)) of :func:`straight_runs`."""
@@ -1047,6 +1070,15 @@ def _straight_runs(x, y, size, tolerance, longest):  # pragma: no cover - compil
         begin = end
     return keep, order, knots, knot_at
 
+
+
+def disc_winding(points: np.ndarray, offsets: np.ndarray, loops: np.ndarray, centre: np.ndarray,
+                 reach: float) -> int | None:
+    """How many times the given loops (indices into ``offsets``, of points (p, 2) mm) wind around a disc
+    (``centre`` (2,), radius ``reach``, mm), counter-clockwise positive: the same at every point of it,
+    since None is returned when any of their edges comes within ``reach`` of the centre (compiled)."""
+    return _disc_winding(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(offsets, dtype=np.int64),
+                         np.ascontiguousarray(loops, dtype=np.int64), float(centre[0]), float(centre[1]), float(reach))
 
 def straight_runs(x: np.ndarray, y: np.ndarray, size: np.ndarray, tolerance: float, longest: int = 16
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
