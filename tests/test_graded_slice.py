@@ -154,10 +154,9 @@ def test_missing_materials_file(run_cli, ball, tmp_path):
     assert code == 2 and "nope.toml" in stderr
 
 
-def test_extruded_layers_reuse_their_sub_regions_and_write_the_same_stack(tmp_path, monkeypatch):
-    """A plate with holes, pins and a cavity (the benchmark's part, small): its layers away from the cavity
-    are alike, and slicing with droplet masks measures far fewer families than layers times families while
-    writing every layer and channel file byte for byte as layers graded one by one, each afresh."""
+def counted_plate(tmp_path, monkeypatch):
+    """The benchmark's plate with holes, pins and a cavity, small; a graded slice spec with droplet masks
+    (300 dpi, 0.2 mm layers, in this process); and a list that grows by one per family measured afresh."""
     from heoslice import pipeline, regions
     from heoslice.distribution import make_function
     from heoslice.loading import load_mesh
@@ -165,14 +164,23 @@ def test_extruded_layers_reuse_their_sub_regions_and_write_the_same_stack(tmp_pa
 
     path = tmp_path / "plate.ply"
     procedural.holes_and_islands((20.0, 12.5, 4.0), 48).export(path)
-    mesh = load_mesh(path)
     grade = regions.GradeSpec(regions.RegionSpec(nozzle_mm=0.3), make_function("linear"),
                               Material("green", (0, 255, 0)), None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
-    spec = pipeline.SliceSpec(layer_height_mm=0.2, dpi=(300.0, 300.0), grade=grade, channels=True, jobs=1)
     measured = []
     family_field = regions.family_field
     monkeypatch.setattr(regions, "family_field", lambda *args, **kwargs: measured.append(1) or family_field(
         *args, **kwargs))
+    spec = pipeline.SliceSpec(layer_height_mm=0.2, dpi=(300.0, 300.0), grade=grade, channels=True, jobs=1)
+    return load_mesh(path), spec, measured
+
+
+def test_extruded_layers_reuse_their_sub_regions_and_write_the_same_stack(tmp_path, monkeypatch):
+    """A plate with holes, pins and a cavity (the benchmark's part, small): its layers away from the cavity
+    are alike, and slicing with droplet masks measures far fewer families than layers times families while
+    writing every layer and channel file byte for byte as layers graded one by one, each afresh."""
+    from heoslice import pipeline
+
+    mesh, spec, measured = counted_plate(tmp_path, monkeypatch)
     reused, _ = pipeline.slice_to_stack(mesh, tmp_path / "reused", spec)
     with_reuse = len(measured)
     render_and_write = pipeline.render_and_write
@@ -190,23 +198,11 @@ def test_sub_regions_carry_over_from_one_run_of_layers_to_the_next(tmp_path, mon
     first; forked workers, each keeping its own last layer, write the same stack byte for byte."""
     from dataclasses import replace
 
-    from heoslice import pipeline, regions
-    from heoslice.distribution import make_function
-    from heoslice.loading import load_mesh
-    from heoslice.materials import DEFAULT_MATERIALS, Material
+    from heoslice import pipeline
     from heoslice.slicing import face_z_range, plane_heights
 
-    path = tmp_path / "plate.ply"
-    procedural.holes_and_islands((20.0, 12.5, 4.0), 48).export(path)
-    mesh = load_mesh(path)
-    grade = regions.GradeSpec(regions.RegionSpec(nozzle_mm=0.3), make_function("linear"),
-                              Material("green", (0, 255, 0)), None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
-    long_runs = pipeline.SliceSpec(layer_height_mm=0.2, dpi=(300.0, 300.0), grade=grade, channels=True, jobs=1)
+    mesh, long_runs, measured = counted_plate(tmp_path, monkeypatch)
     short_runs = replace(long_runs, max_segments=1500)
-    measured = []
-    family_field = regions.family_field
-    monkeypatch.setattr(regions, "family_field", lambda *args, **kwargs: measured.append(1) or family_field(
-        *args, **kwargs))
     one, _ = pipeline.slice_to_stack(mesh, tmp_path / "one", long_runs)
     in_one_run = len(measured)
     z = plane_heights(mesh.bounds[0, 2], mesh.bounds[1, 2], short_runs.layer_height_mm)
