@@ -63,7 +63,7 @@ _MEASURED_VALUES = 1 << 22
 DIRECTIONS = ("in", "out")
 #: How far (mm) the disc around an island's pixel centres must stay from other families' rings for
 #: :func:`_alone_in_box`: far beyond the rounding of the rasteriser's inside test.
-_HOLE_MARGIN_MM = 1e-6
+_DISC_MARGIN_MM = 1e-6
 
 
 @dataclass(frozen=True)
@@ -828,7 +828,7 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
 
 
 def _ring_models(layout: FamilyLayout, d: np.ndarray, g: np.ndarray, grad: np.ndarray, lattice: Lattice, grid: Grid,
-                  cells: tuple[np.ndarray, np.ndarray]) -> list[np.ndarray]:
+                 cells: tuple[np.ndarray, np.ndarray]) -> list[np.ndarray]:
     """Per ring set of an eq. 10 family, a quadratic of its signed distance over each given cell
     ((n, 6): d, d_x, d_y, d_xx, d_xy, d_yy at the centre, mm), NaN where the exact distance
     must be measured per pixel instead.
@@ -1036,7 +1036,7 @@ def _alone_in_box(points: np.ndarray, offsets: np.ndarray, loop_bounds: tuple[np
     r0, r1, c0, c1 = box
     low = np.array([grid.x_left + (c0 + 0.5) * grid.px, grid.y_top - (r1 - 0.5) * grid.py])
     high = np.array([grid.x_left + (c1 - 0.5) * grid.px, grid.y_top - (r0 + 0.5) * grid.py])
-    centre, reach = 0.5 * (low + high), 0.5 * float(np.hypot(*(high - low))) + _HOLE_MARGIN_MM
+    centre, reach = 0.5 * (low + high), 0.5 * float(np.hypot(*(high - low))) + _DISC_MARGIN_MM
     for other, field in zip(earlier, fields):
         e0, e1, f0, f1 = field.box
         if e1 <= r0 or r1 <= e0 or f1 <= c0 or c1 <= f0:

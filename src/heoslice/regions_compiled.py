@@ -3,10 +3,11 @@
 The grading step's inner loops have no fast numpy form: gathering, for each group of
 points, the ring edges within its own radius (a walk down a bounding-box hierarchy),
 the nearest of those edges to each point, the expansion of one plane (or quadratic)
-per lattice cell to its pixels, the per-cell fit test, eq. 10 per pixel of the cells
-no plane fits (from each ring's quadratic or measured distance), the halftoning
-of a labelled layer into droplet masks, and the walk that leaves a ring's straight
-points out of its edges. As numpy passes they cost ~100 of a
+per lattice cell to its pixels, the per-cell fit test, the choice of the rings whose
+quadratic serves a cell no plane fits, eq. 10 per pixel of those cells (from each
+ring's quadratic or measured distance), the halftoning of a labelled layer into
+droplet masks, the walk that leaves a ring's straight points out of its edges, and
+the winding number of a layer's loops around a disc. As numpy passes they cost ~100 of a
 ~15 MP layer's ~115 ms (``python benchmarks/bench_grading.py --stages``, before);
 compiled, the whole step is under 30 ms. Everything here takes and returns plain
 arrays; the geometry (which points, which radius, why it is enough) is argued in
