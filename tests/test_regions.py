@@ -493,10 +493,11 @@ def test_islands_are_labelled_exactly_with_or_without_rasterising_their_rings(na
 
 
 def crossing_layouts():
-    """Layers of crossing loops (separate shells that overlap; the review's cases), with their parents: a
+    """Layers of crossing loops (separate shells that overlap; the reviews' cases), with their parents: a
     washer lying half over a tube's wall and half in its bore, holding a pin over the wall (by the
-    washer's first point its parent is the bore, though it crosses it), and a plate whose outer ring
-    winds twice around a hole holding a pin (its own winding is 1 in the hole)."""
+    washer's first point its parent is the bore, though it crosses it), a plate whose outer ring
+    winds twice around a hole holding a pin (its own winding is 1 in the hole), and a figure-eight
+    loop whose far lobe is solid inside another island's box, as a hole or in no family."""
     washer = np.roll(circle(3.0, 300, (4.5, 0.0)), 150, axis=0)  # first point (1.5, 0), in the bore
     chain = [circle(9.0), circle(4.0, 360, clockwise=True), washer, circle(1.5, 200, (5.5, 0.0), clockwise=True),
              circle(0.5, 90, (5.5, 0.0))]
@@ -505,6 +506,17 @@ def crossing_layouts():
     twice = np.concatenate([circle(9.0), circle(8.8)])
     points, offsets, area, _ = layer(twice, circle(4.0, 360, clockwise=True), circle(1.0, 120))
     yield "plate wound twice", (points, offsets, area, np.array([-1, 0, 1]))
+    # a figure-eight hole of an island in the bore: a clockwise lobe in the island, a small counter-clockwise
+    # one (solid) beside the other island, far from its own family's box; then the same loop with no family
+    lobe_a = np.roll(circle(1.0, 120, (-3.0, 0.0), clockwise=True), 1, axis=0)  # from (-2, 0) clockwise
+    lobe_b = np.roll(circle(0.15, 60, (2.3, 1.2)), 30, axis=0)
+    eight = np.concatenate([lobe_a, lobe_b])
+    rings = [circle(9.0), circle(6.0, 720, clockwise=True), circle(1.5, 240, (-3.0, 0.0)), eight,
+             circle(1.5, 240, (3.5, 0.0))]
+    points, offsets, _, _ = layer(*rings)
+    area = np.array([0.5 * np.sum(r[:, 0] * np.roll(r[:, 1], -1) - np.roll(r[:, 0], -1) * r[:, 1]) for r in rings])
+    yield "figure-eight hole", (points, offsets, area, np.array([-1, 0, 1, 2, 1]))
+    yield "figure-eight loop of no family", (points, offsets, area, np.array([-1, 0, 1, 1, 1]))
 
 
 def test_islands_over_crossing_loops_are_labelled_as_by_rasterising_their_rings(monkeypatch):
@@ -525,14 +537,14 @@ def test_islands_over_crossing_loops_are_labelled_as_by_rasterising_their_rings(
 def test_only_islands_alone_in_their_box_skip_rasterising_their_rings(monkeypatch):
     """The island of a roomy hole, the inner island of an island in an island and an island clipped by the
     canvas take the solid pixels of their box as theirs; an island whose box reaches into the plate, two
-    islands each in the other's box, the hollow island (the plate's pixels lie in its box) and a lesion in
-    the plate's solid rasterise their rings."""
+    islands each reaching into the other's box, the hollow island (its own island and the plate reach into
+    its box) and a lesion in the plate's solid rasterise their rings."""
     rasterised = []
     real = regions._family_mask
     monkeypatch.setattr(regions, "_family_mask",
                         lambda points, offsets, family, *rest: rasterised.append(family.outer)
                         or real(points, offsets, family, *rest))
-    expected = {"roomy hole": [], "tight hole": [2], "crowded hole": [3], "island in an island": [2],
+    expected = {"roomy hole": [], "tight hole": [2], "crowded hole": [2, 3], "island in an island": [2],
                 "clipped island": [], "lesion": [1]}
     for name, rings in ISLAND_LAYOUTS.items():
         rasterised.clear()

@@ -61,7 +61,7 @@ DIRECT_PIXELS = 25_000
 #: Most per-pixel distances measured and held at once when cells are evaluated per pixel (float32: 16 MB).
 _MEASURED_VALUES = 1 << 22
 DIRECTIONS = ("in", "out")
-#: How far (mm) the disc around an island's pixel centres must stay from other families' rings for
+#: How far (mm) the disc around an island's pixel centres must stay from the layer's other loops for
 #: :func:`_alone_in_box`: far beyond the rounding of the rasteriser's inside test.
 _DISC_MARGIN_MM = 1e-6
 
@@ -991,7 +991,7 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
         solid = _solid_in(mask, packed, field.box)
         if loop_bounds is None:
             loop_bounds = (np.minimum.reduceat(points, offsets[:-1]), np.maximum.reduceat(points, offsets[:-1]))
-        if not _alone_in_box(points, offsets, loop_bounds, field.box, families[:number], fields[:number], grid):
+        if not _alone_in_box(points, offsets, loop_bounds, family, field.box, grid):
             solid = solid & _family_mask(points, offsets, family, grid, field.box)
         value = base[number] if family.nested else field.index + base[number]
         np.copyto(target, value, where=solid, casting="unsafe")
@@ -1024,26 +1024,20 @@ def _solid_in(mask: np.ndarray | None, packed: np.ndarray | None, box: tuple[int
 
 
 def _alone_in_box(points: np.ndarray, offsets: np.ndarray, loop_bounds: tuple[np.ndarray, np.ndarray],
-                  box: tuple[int, int, int, int], earlier: tuple[Family, ...], fields: tuple[FamilyField, ...],
-                  grid: Grid) -> bool:
-    """True when no family painted before this one (``earlier``, with their ``fields``) has a pixel in its
-    pixel ``box``: each one's box misses it, or that family's loops wind at most 0 times around a disc
-    holding the box's pixel centres and meet none of it (:func:`_outside_loops`), while its pixels are
-    where they wind more than 0 times (:func:`_family_mask`). Then the layer's solid pixels in the box
-    are this family's own and its islands' (painted after it, over their own pixels), and its rings
-    need no rasterising again: an island standing in a hole, a pin in a plate. ``loop_bounds`` are the
-    layer's loops' bounding boxes ((l, 2) lower and upper corners, mm)."""
+                  family: Family, box: tuple[int, int, int, int], grid: Grid) -> bool:
+    """True when the layer's solid pixels in a family's pixel ``box`` are all pixels of the family
+    (:func:`_family_mask`), so its rings need no rasterising again: an island standing in a hole, a pin
+    in a plate. The layer is solid where all its loops wind more than 0 times around a pixel centre, the
+    family's pixels where its own loops do; so it holds when the other loops wind at most 0 times around
+    a disc holding the box's pixel centres and none of them meets it (:func:`_outside_loops`).
+    ``loop_bounds`` are the layer's loops' bounding boxes ((l, 2) lower and upper corners, mm)."""
     r0, r1, c0, c1 = box
     low = np.array([grid.x_left + (c0 + 0.5) * grid.px, grid.y_top - (r1 - 0.5) * grid.py])
     high = np.array([grid.x_left + (c1 - 0.5) * grid.px, grid.y_top - (r0 + 0.5) * grid.py])
     centre, reach = 0.5 * (low + high), 0.5 * float(np.hypot(*(high - low))) + _DISC_MARGIN_MM
-    for other, field in zip(earlier, fields):
-        e0, e1, f0, f1 = field.box
-        if e1 <= r0 or r1 <= e0 or f1 <= c0 or c1 <= f0:
-            continue
-        if not _outside_loops(points, offsets, loop_bounds, (other.outer, *other.holes), centre, reach):
-            return False
-    return True
+    others = np.ones(len(offsets) - 1, dtype=bool)
+    others[[family.outer, *family.holes]] = False
+    return _outside_loops(points, offsets, loop_bounds, np.flatnonzero(others), centre, reach)
 
 
 def _outside_loops(points: np.ndarray, offsets: np.ndarray, loop_bounds: tuple[np.ndarray, np.ndarray], loops,
