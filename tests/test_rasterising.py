@@ -46,7 +46,7 @@ def assert_matches_reference(points, offsets, grid):
 
 @pytest.mark.parametrize("name", MESHES)
 def test_masks_match_point_in_polygon_reference(name):
-    """Every layer's mask is the non-zero winding rule at pixel centres (shapely reference)."""
+    """Every layer's mask is winding number > 0 at pixel centres (shapely reference)."""
     mesh = MESHES[name]()
     z, contours = contours_of(mesh, 0.5)
     bounds = np.array([mesh.vertices.min(axis=0)[:2], mesh.vertices.max(axis=0)[:2]])

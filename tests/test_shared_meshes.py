@@ -124,7 +124,7 @@ def test_stack_volume_matches_mesh_volume(relative):
     grid = grid_for(mesh.bounds[:, :2], (dpi, dpi))
     solid = sum(count_solid(packed_mask(*layer_loops(contours, k), grid)) for k in range(len(z)))
     stack_volume = solid * grid.px * grid.py * layer
-    # where shells overlap, the solid (non-zero winding) counts the overlap once, the signed volume twice
+    # where shells overlap, the solid (winding number > 0) counts the overlap once, the signed volume twice
     area_integral = float(contours.layer_area().sum()) * layer
     expected = mesh_volume(mesh)
     assert area_integral == pytest.approx(expected, rel=5e-3)

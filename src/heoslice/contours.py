@@ -283,7 +283,7 @@ def build_contours(sections: Sections, hierarchy: bool = True) -> Contours:
     """Chain all layers' segments into loops and classify them (outer/hole, families).
 
     ``hierarchy=False`` skips which loop lies in which (``parent``, ``family`` are None):
-    filling a layer by non-zero winding does not need it, only grading does.
+    filling a layer by its winding number does not need it, only grading does.
     """
     order, offsets, closed_by_join = chain_loops(sections)
     first_segment = offsets[:-1]

@@ -1053,7 +1053,7 @@ def signed_volume_mm3(vertices: np.ndarray, faces: np.ndarray) -> float:
 
 
 def solid_volume_mm3(mesh: Mesh) -> tuple[float, bool]:
-    """Volume of the solid the slicer fills (non-zero winding), mm^3, and whether it is exact.
+    """Volume of the solid the slicer fills (winding number > 0), mm^3, and whether it is exact.
 
     Shells that overlap (a lesion shell inside an organ) count once: when every shell
     is outward, the volume is manifold3d's union of the shells. With cavities

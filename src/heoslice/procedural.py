@@ -96,7 +96,7 @@ def nested_shells(outer: float = 20.0, inner: float = 6.0, offset=(4.0, 0.0, 0.0
                   subdivisions: int = 4) -> trimesh.Trimesh:
     """Two overlapping closed, outward shells: an organ and a lesion inside it.
 
-    The lesion is not a hole: by the non-zero winding rule the region stays solid.
+    The lesion is not a hole: the loops wind twice around it, and the region stays solid.
     """
     return concatenate(sphere(outer, subdivisions), sphere(inner, subdivisions, center=offset))
 

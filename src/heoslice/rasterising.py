@@ -1,8 +1,8 @@
 """Rasterising: turn a layer's contour loops into a solid mask and a layer image.
 
-A pixel is solid when its centre lies inside the layer's region by the non-zero
-winding rule, so a cavity (clockwise loop) stays empty and a nested shell (a second
-counter-clockwise loop) stays solid. The mask is built scanline-style without a
+A pixel is solid when its centre lies inside the layer's region: the loops wind
+more than 0 times around it, so a cavity (clockwise loop) stays empty and a nested
+shell (a second counter-clockwise loop) stays solid. The mask is built scanline-style without a
 Python loop: loop edges are crossed with the pixel-row centres, the winding number
 is accumulated over each row's sorted crossings, and the solid spans are filled
 straight into a packed 1-bit image (the TIFF layout) by a running XOR over bytes.
@@ -119,7 +119,7 @@ def row_crossings(points: np.ndarray, offsets: np.ndarray, grid: Grid):
 
 
 def span_boundaries(row: np.ndarray, column: np.ndarray, sign: np.ndarray, width: int):
-    """Columns where the non-zero winding rule switches between empty and solid, per row.
+    """Columns where the fill (winding number > 0) switches between empty and solid, per row.
 
     Crossings are summed per (row, column), accumulated along each row (every row's
     crossings sum to zero for closed loops, so one running sum serves all rows), and
@@ -196,7 +196,7 @@ def count_solid(packed: np.ndarray) -> int:
 
 
 def solid_mask(points: np.ndarray, offsets: np.ndarray, grid: Grid) -> np.ndarray:
-    """(height, width) bool: pixel centres inside the loops by the non-zero winding rule."""
+    """(height, width) bool: pixel centres the loops wind more than 0 times around."""
     return np.unpackbits(packed_mask(points, offsets, grid), axis=1, count=grid.width).astype(bool)
 
 
