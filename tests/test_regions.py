@@ -460,6 +460,10 @@ def island_grid(name: str) -> Grid:
                 px=PX, py=PX)
 
 
+def never_alone(points, offsets, families, *rest):
+    """A stand-in for regions._alone_in_boxes under which every island rasterises its rings."""
+    return [False] * len(families)
+
 def family_membership(points, offsets, regions, grid) -> np.ndarray:
     """(rows, cols) int over the regions' box: the number of the family whose polygon (outer ring less
     its holes, shapely) holds each pixel centre, -1 where none does."""
@@ -475,7 +479,7 @@ def family_membership(points, offsets, regions, grid) -> np.ndarray:
 def test_islands_are_labelled_exactly_with_or_without_rasterising_their_rings(name, monkeypatch):
     """Every solid pixel carries a label of the family whose polygon holds it (shapely), and the labels
     are the same when every island rasterises its rings again (regions._family_mask) as when an island
-    alone in its box (regions._alone_in_box) takes the layer's solid pixels there as its own."""
+    alone in its box (regions._alone_in_boxes) takes the layer's solid pixels there as its own."""
     points, offsets, area, parent = layer(*ISLAND_LAYOUTS[name])
     grid = island_grid(name)
     mask = solid_mask(points, offsets, grid)
@@ -485,7 +489,7 @@ def test_islands_are_labelled_exactly_with_or_without_rasterising_their_rings(na
     owner = family_membership(points, offsets, labelled, grid)
     label_family = np.searchsorted(labelled.base, labelled.label, side="right") - 1
     assert np.array_equal(label_family[solid], owner[solid])
-    monkeypatch.setattr(regions, "_alone_in_box", lambda *args: False)
+    monkeypatch.setattr(regions, "_alone_in_boxes", never_alone)
     rasterised = layer_regions(points, offsets, area, parent, None, grid, spec, np.packbits(mask, axis=1))
     assert np.array_equal(rasterised.label[solid], labelled.label[solid])
 
@@ -528,7 +532,7 @@ def test_islands_over_crossing_loops_are_labelled_as_by_rasterising_their_rings(
         spec = RegionSpec(nozzle_mm=0.4)
         labelled = layer_regions(points, offsets, area, parent, mask, grid, spec)
         with monkeypatch.context() as patched:
-            patched.setattr(regions, "_alone_in_box", lambda *args: False)
+            patched.setattr(regions, "_alone_in_boxes", never_alone)
             rasterised = layer_regions(points, offsets, area, parent, mask, grid, spec)
         solid = mask[labelled.box[0]:labelled.box[1], labelled.box[2]:labelled.box[3]]
         assert np.array_equal(rasterised.label[solid], labelled.label[solid]), name

@@ -62,8 +62,10 @@ DIRECT_PIXELS = 25_000
 _MEASURED_VALUES = 1 << 22
 DIRECTIONS = ("in", "out")
 #: How far (mm) the disc around an island's pixel centres must stay from the layer's other loops for
-#: :func:`_alone_in_box`: far beyond the rounding of the rasteriser's inside test.
+#: :func:`_alone_in_boxes`: far beyond the rounding of the rasteriser's inside test.
 _DISC_MARGIN_MM = 1e-6
+#: Most (family, loop) bounding-box tests made at once by :func:`_alone_in_boxes` (two bools each: 8 MB).
+_NEAR_TESTS = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -977,7 +979,7 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
         label = first.index
     else:
         label = np.zeros((box[1] - box[0], box[3] - box[2]), dtype=dtype)
-    loop_bounds = None
+    alone = _alone_in_boxes(points, offsets, families, [field.box for field in fields], grid) if fields[1:] else ()
     for number, (family, field) in enumerate(zip(families, fields)):
         r0, r1, c0, c1 = field.box
         if r1 <= r0 or c1 <= c0:
@@ -989,9 +991,7 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
                 np.copyto(target, first.index, casting="unsafe")
             continue
         solid = _solid_in(mask, packed, field.box)
-        if loop_bounds is None:
-            loop_bounds = (np.minimum.reduceat(points, offsets[:-1]), np.maximum.reduceat(points, offsets[:-1]))
-        if not _alone_in_box(points, offsets, loop_bounds, family, field.box, grid):
+        if not alone[number]:
             solid = solid & _family_mask(points, offsets, family, grid, field.box)
         value = base[number] if family.nested else field.index + base[number]
         np.copyto(target, value, where=solid, casting="unsafe")
@@ -1023,38 +1023,34 @@ def _solid_in(mask: np.ndarray | None, packed: np.ndarray | None, box: tuple[int
     return bits[:, c0 % 8:c0 % 8 + c1 - c0]
 
 
-def _alone_in_box(points: np.ndarray, offsets: np.ndarray, loop_bounds: tuple[np.ndarray, np.ndarray],
-                  family: Family, box: tuple[int, int, int, int], grid: Grid) -> bool:
-    """True when the layer's solid pixels in a family's pixel ``box`` are all pixels of the family
+def _alone_in_boxes(points: np.ndarray, offsets: np.ndarray, families: tuple[Family, ...],
+                    boxes: list[tuple[int, int, int, int]], grid: Grid) -> np.ndarray:
+    """(f,) bool per family: whether the layer's solid pixels in its pixel box are all pixels of the family
     (:func:`_family_mask`), so its rings need no rasterising again: an island standing in a hole, a pin
     in a plate. The layer is solid where all its loops wind more than 0 times around a pixel centre, the
-    family's pixels where its own loops do; so it holds when the other loops wind at most 0 times around
-    a disc holding the box's pixel centres and none of them meets it (:func:`_outside_loops`).
-    ``loop_bounds`` are the layer's loops' bounding boxes ((l, 2) lower and upper corners, mm)."""
-    r0, r1, c0, c1 = box
-    low = np.array([grid.x_left + (c0 + 0.5) * grid.px, grid.y_top - (r1 - 0.5) * grid.py])
-    high = np.array([grid.x_left + (c1 - 0.5) * grid.px, grid.y_top - (r0 + 0.5) * grid.py])
-    centre, reach = 0.5 * (low + high), 0.5 * float(np.hypot(*(high - low))) + _DISC_MARGIN_MM
-    others = np.ones(len(offsets) - 1, dtype=bool)
-    others[[family.outer, *family.holes]] = False
-    return _outside_loops(points, offsets, loop_bounds, np.flatnonzero(others), centre, reach)
-
-
-def _outside_loops(points: np.ndarray, offsets: np.ndarray, loop_bounds: tuple[np.ndarray, np.ndarray], loops,
-                   centre: np.ndarray, reach: float) -> bool:
-    """Whether the given loops meet no point of a disc (``centre`` (2,), radius ``reach``, mm) and wind around
-    it at most 0 times (the same all over it, since no edge enters it; compiled
-    :func:`heoslice.regions_compiled.disc_winding`). A loop whose bounding box, grown by ``reach``,
-    misses the centre neither meets the disc nor winds around it."""
+    family's pixels where its own loops do; so it holds when the other loops wind at most 0 times around a
+    disc holding the box's pixel centres and none of them meets it (compiled
+    :func:`heoslice.regions_compiled.disc_winding`). Only loops whose bounding box, grown by the disc's
+    radius, holds its centre can meet the disc or wind around it."""
     from heoslice.regions_compiled import disc_winding
 
-    low, high = loop_bounds
-    loops = np.asarray(loops)
-    near = loops[np.all((centre >= low[loops] - reach) & (centre <= high[loops] + reach), axis=1)]
-    if not len(near):
-        return True
-    winding = disc_winding(points, offsets, near, centre, reach)
-    return winding is not None and winding <= 0
+    box = np.array(boxes, dtype=np.float64).reshape(-1, 4)
+    low = np.column_stack([grid.x_left + (box[:, 2] + 0.5) * grid.px, grid.y_top - (box[:, 1] - 0.5) * grid.py])
+    high = np.column_stack([grid.x_left + (box[:, 3] - 0.5) * grid.px, grid.y_top - (box[:, 0] + 0.5) * grid.py])
+    centre, reach = 0.5 * (low + high), 0.5 * np.hypot(*(high - low).T) + _DISC_MARGIN_MM
+    loop_low, loop_high = np.minimum.reduceat(points, offsets[:-1]), np.maximum.reduceat(points, offsets[:-1])
+    near = []
+    step = max(1, _NEAR_TESTS // len(loop_low))  # families at once: (step, loops) tests
+    for first in range(0, len(families), step):
+        c, r = centre[first:first + step, None, :], reach[first:first + step, None, None]
+        near += list(map(np.flatnonzero, np.all((c >= loop_low - r) & (c <= loop_high + r), axis=2)))
+    alone = np.zeros(len(families), dtype=bool)
+    for number, (family, loops) in enumerate(zip(families, near)):
+        own = {family.outer, *family.holes}
+        others = [loop for loop in loops.tolist() if loop not in own]
+        winding = disc_winding(points, offsets, np.array(others), centre[number], reach[number]) if others else 0
+        alone[number] = winding is not None and winding <= 0
+    return alone
 
 
 def _family_mask(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid,
