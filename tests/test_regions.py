@@ -464,6 +464,7 @@ def never_alone(points, offsets, families, *rest):
     """A stand-in for regions._alone_in_boxes under which every island rasterises its rings."""
     return [False] * len(families)
 
+
 def family_membership(points, offsets, regions, grid) -> np.ndarray:
     """(rows, cols) int over the regions' box: the number of the family whose polygon (outer ring less
     its holes, shapely) holds each pixel centre, -1 where none does."""
@@ -494,8 +495,6 @@ def test_islands_are_labelled_exactly_with_or_without_rasterising_their_rings(na
     assert np.array_equal(rasterised.label[solid], labelled.label[solid])
 
 
-
-
 def crossing_layouts():
     """Layers of crossing loops (separate shells that overlap; the reviews' cases), with their parents: a
     washer lying half over a tube's wall and half in its bore, holding a pin over the wall (by the
@@ -524,8 +523,9 @@ def crossing_layouts():
 
 
 def test_islands_over_crossing_loops_are_labelled_as_by_rasterising_their_rings(monkeypatch):
-    """Where loops cross, an island takes the solid pixels of its box as its own only if no earlier family's
-    loops wind around any of them: its labels are those of rasterising its rings, on every solid pixel."""
+    """Where loops cross, an island takes the solid pixels of its box as its own only if the layer's other loops
+    wind at most 0 times around all of them: its labels are those of rasterising its rings, on every solid
+    pixel."""
     for name, (points, offsets, area, parent) in crossing_layouts():
         grid = grid_around(9.5)
         mask = solid_mask(points, offsets, grid)
