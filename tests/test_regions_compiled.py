@@ -346,8 +346,9 @@ def test_inside_centres_is_the_solid_mask_of_disjoint_rings(seed, rings, clockwi
     rng = np.random.default_rng(seed)
     loops = []
     for k in range(rings):
-        count = int(rng.integers(3, 60))
-        angle = np.sort(rng.uniform(0, 2 * np.pi, count))
+        count = int(rng.integers(5, 60))
+        # angles a jittered step apart, so no gap reaches half a turn and the ring stays simple
+        angle = (np.arange(count) + rng.uniform(0.0, 0.9, count)) * (2 * np.pi / count)
         radius = rng.uniform(0.5, 4.0) * rng.uniform(0.5, 1.0, count)
         loop = np.array([10.0 * k, 0.0]) + np.column_stack([radius * np.cos(angle), radius * np.sin(angle)])
         loops.append(loop[::-1] if clockwise else loop)
@@ -621,8 +622,8 @@ def test_disc_winding_is_the_turns_around_a_disc_no_edge_enters(seed, x, y, reac
     an edge comes within ``reach`` of the centre (shapely's distance), else the sum of their turns around
     it: ``turns`` (minus that reversed) inside the first ring (shapely), 1 inside the other."""
     rng = np.random.default_rng(seed)
-    count = int(rng.integers(3, 300))
-    angle = np.sort(rng.uniform(0, 2 * np.pi, count))
+    count = int(rng.integers(5, 300))
+    angle = (np.arange(count) + rng.uniform(0.0, 0.9, count)) * (2 * np.pi / count)  # simple: gaps < half a turn
     radius = rng.uniform(3.0, 30.0) * rng.uniform(0.6, 1.0, count)
     ring = np.column_stack([radius * np.cos(angle), radius * np.sin(angle)])
     other = np.column_stack([25.0 + 4.0 * np.cos(angle), 4.0 * np.sin(angle)])

@@ -640,8 +640,8 @@ def _ring_models(d, g, grad, ci, cj, dx, dy, count, half_diagonal, tolerance):  
                     ex, ey = dj * dx, -di * dy
                     guess = (model[k, 0] + model[k, 1] * ex + model[k, 2] * ey + 0.5 * (hxx * ex * ex + hyy * ey * ey)
                              + hxy * ex * ey)
-                    gap = abs(guess - d[k, i + di, j + dj])
-                    if not np.isnan(worst) and (gap > worst or np.isnan(gap)):
+                    gap = abs(guess - d[k, i + di, j + dj])  # NaN only from a NaN model: rejected below
+                    if gap > worst:
                         worst = gap
             miss[k] = worst
             steepest[k] = 0.0
