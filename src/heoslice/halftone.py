@@ -16,19 +16,24 @@ vectorised: the threshold image is an indexed tile, no loop per pixel.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 #: Side of the ordered-dither matrix (256 threshold levels).
 TILE = 16
 
 
+@functools.cache
 def bayer_matrix(size: int = TILE) -> np.ndarray:
-    """The (size, size) Bayer index matrix (0 .. size^2 - 1), size a power of two."""
+    """The (size, size) Bayer index matrix (0 .. size^2 - 1), size a power of two; made once per size
+    (every graded layer asks for it) and read-only."""
     if size < 1 or size & (size - 1):
         raise ValueError(f"Bayer matrix size must be a power of two, got {size}")
     matrix = np.zeros((1, 1), dtype=np.int64)
     while matrix.shape[0] < size:
         matrix = np.block([[4 * matrix, 4 * matrix + 2], [4 * matrix + 3, 4 * matrix + 1]])
+    matrix.setflags(write=False)
     return matrix
 
 
