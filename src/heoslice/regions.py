@@ -979,7 +979,8 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
         label = first.index
     else:
         label = np.zeros((box[1] - box[0], box[3] - box[2]), dtype=dtype)
-    alone = _alone_in_boxes(points, offsets, families, [field.box for field in fields], grid) if fields[1:] else ()
+    # the outermost family labels its box by its own expansion: only the others may take the solid pixels of theirs
+    alone = np.r_[False, _alone_in_boxes(points, offsets, families[1:], [field.box for field in fields[1:]], grid)]
     for number, (family, field) in enumerate(zip(families, fields)):
         r0, r1, c0, c1 = field.box
         if r1 <= r0 or c1 <= c0:
@@ -1034,6 +1035,8 @@ def _alone_in_boxes(points: np.ndarray, offsets: np.ndarray, families: tuple[Fam
     radius, holds its centre can meet the disc or wind around it."""
     from heoslice.regions_compiled import disc_winding
 
+    if not families:
+        return np.zeros(0, dtype=bool)
     box = np.array(boxes, dtype=np.float64).reshape(-1, 4)
     low = np.column_stack([grid.x_left + (box[:, 2] + 0.5) * grid.px, grid.y_top - (box[:, 1] - 0.5) * grid.py])
     high = np.column_stack([grid.x_left + (box[:, 3] - 0.5) * grid.px, grid.y_top - (box[:, 0] + 0.5) * grid.py])
