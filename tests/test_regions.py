@@ -1045,11 +1045,65 @@ def test_layers_of_an_extruded_part_reuse_the_fields_of_families_they_share(monk
     assert both([plate, *holes, island], 2) == 0
     assert both([plate, holes[0], holes[1] + [1e-6, 0.0], island], 3) == 1
     assert both([plate + 0.5, holes[0] + 0.5, holes[1] + 0.5, island + 0.5], 4) == 2
-    assert len(reuse) == 2
+    assert len(reuse["fields"]) == 2  # the last layer's fields only
     # a shell inside the plate's solid paints over the plate's labels: moved, it must leave none behind
     lesion = circle(1.2, 64, (4.0, -3.5))
     assert both([plate, *holes, lesion], 5) == 2
     assert both([plate, *holes, lesion + [0.0, 0.4]], 6) == 1
+
+
+def test_a_layer_like_the_last_takes_its_labels_only_with_the_same_solid_bits_and_islands_alone():
+    """The labels of a layer whose fields, solid bits and lone islands are the last layer's are that
+    layer's array; other solid bits, or an island not alone in its box, are painted afresh, and every
+    layer's labels equal those of a layer graded without ``reuse``."""
+    plate = np.array([[-9.0, -6.0], [9.0, -6.0], [9.0, 6.0], [-9.0, 6.0]])
+    hole = circle(3.0, 96, (-3.0, 0.0), clockwise=True)
+    island = circle(1.5, 64, (-3.0, 0.0))
+    grid = grid_around(9.5)
+    spec = RegionSpec(nozzle_mm=0.3)
+    reuse: dict = {}
+
+    def labels(rings, packed=None):
+        points, offsets, area, parent = layer(*rings)
+        packed = np.packbits(solid_mask(points, offsets, grid), axis=1) if packed is None else packed
+        kept = layer_regions(points, offsets, area, parent, None, grid, spec, packed, reuse)
+        fresh = layer_regions(points, offsets, area, parent, None, grid, spec, packed)
+        assert kept.box == fresh.box and np.array_equal(kept.label, fresh.label)
+        return kept, packed
+
+    first, packed = labels([plate, hole, island])
+    again, _ = labels([plate, hole, island])
+    assert again.label is first.label
+    # the island's pixels cleared from the solid bits (as a caller's mask may be): painted afresh, without them
+    cleared = packed.copy()
+    r0, r1, c0, c1 = first.fields[1].box
+    cleared[r0:r1, c0 // 8:-(-c1 // 8)] = 0
+    other, _ = labels([plate, hole, island], cleared)
+    assert other.label is not first.label
+    assert not np.array_equal(other.label, first.label)
+    # an island near its hole's rim, so that the plate's ring meets its box: not alone, nothing is taken
+    crowd = [plate, hole, circle(1.0, 64, (-1.4, 0.0))]
+    crowded, _ = labels(crowd)
+    assert labels(crowd)[0].label is not crowded.label
+
+
+def test_a_layer_like_the_last_with_other_contour_materials_jets_its_own_choices():
+    """Two layers alike but for their contour's material (uniform, 0.2 then 0.7): the second layer's droplet
+    masks with ``reuse`` are those graded afresh, not the first layer's choices of material."""
+    from heoslice.regions import droplet_planes
+
+    plate = np.array([[-9.0, -6.0], [9.0, -6.0], [9.0, 6.0], [-9.0, 6.0]])
+    points, offsets, area, parent = layer(plate, circle(3.0, 96, (-3.0, 0.0), clockwise=True))
+    grid = grid_around(9.5)
+    spec = GradeSpec(RegionSpec(nozzle_mm=0.3), make_function("linear"), Material("green", (0, 255, 0)),
+                     None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
+    packed = np.packbits(solid_mask(points, offsets, grid), axis=1)
+    args = (points, offsets, area, parent, None, None, grid, spec, 4)
+    reuse: dict = {}
+    planes = [droplet_planes(*args, point_material=np.full(len(points), share), packed=packed, reuse=reuse)
+              for share in (0.2, 0.7)]
+    assert not np.array_equal(planes[0], planes[1])
+    assert np.array_equal(planes[1], droplet_planes(*args, point_material=np.full(len(points), 0.7), packed=packed))
 
 
 def test_holes_that_stay_while_another_shrinks_are_measured_once(monkeypatch):

@@ -140,7 +140,8 @@ def render_and_write(job: LayerJob, reuse: dict | None = None) -> tuple:
     Returns (index, sha256, solid pixels, raster s, encode s, channel entries); the
     channel entries (graded layers with droplet masks) are (file name, sha256, solid pixels).
     A graded layer takes the sub-regions of families it shares with the layer rendered
-    before it with the same ``reuse`` dict (:func:`heoslice.regions.layer_regions`).
+    before it with the same ``reuse`` dict (:func:`heoslice.regions.layer_regions`); a 1-bit
+    layer with the same solid bits as that one takes its encoded TIFF.
     """
     if job.graded is not None:
         return _render_graded_and_write(job, reuse)
@@ -149,12 +150,25 @@ def render_and_write(job: LayerJob, reuse: dict | None = None) -> tuple:
                                 base_color=job.base_color)
     rendered = time.perf_counter()
     if job.point_colors is None:
-        data = encode_bilevel_tiff(image, job.grid.width, job.dpi, job.compression)
+        data, _ = _solid_tiff(image, job, reuse)
     else:
         data = encode_tiff(image, job.dpi, job.compression)
     encoded = time.perf_counter()
     digest = write_file(job.path, data)
     return job.index, digest, solid, rendered - started, encoded - rendered, ()
+
+
+def _solid_tiff(packed: np.ndarray, job: LayerJob, reuse: dict | None) -> tuple[bytes, int]:
+    """The 1-bit TIFF of a layer's solid bits ((h, ceil(w / 8)) uint8) and its solid pixel count: the
+    last layer's (kept in ``reuse``) when the bits are the same, as an extruded part's layers are."""
+    form = (job.grid.width, job.dpi, job.compression)
+    last = None if reuse is None else reuse.get("solid_tiff")
+    if last is not None and last[0] == form and np.array_equal(last[1], packed):
+        return last[2], last[3]
+    data, solid = encode_bilevel_tiff(packed, job.grid.width, job.dpi, job.compression), count_solid(packed)
+    if reuse is not None:
+        reuse["solid_tiff"] = (form, packed, data, solid)
+    return data, solid
 
 
 def _render_graded_and_write(job: LayerJob, reuse: dict | None) -> tuple:
@@ -169,11 +183,10 @@ def _render_graded_and_write(job: LayerJob, reuse: dict | None) -> tuple:
                                 packed=packed, reuse=reuse)
         rendered = time.perf_counter()
         width = job.grid.width
-        data = encode_bilevel_tiff(packed, width, job.dpi, job.compression)
+        data, solid = _solid_tiff(packed, job, reuse)
         pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression), count_solid(plane))
                   for path, plane in zip(graded.channel_paths, planes)]
         encoded = time.perf_counter()
-        solid = count_solid(packed)
         digest = write_file(job.path, data)
         channels = tuple((path.name, write_file(path, blob), count) for path, blob, count in pieces)
         return job.index, digest, solid, rendered - started, encoded - rendered, channels

@@ -947,7 +947,10 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     previous layer's fields by their rings' edges (:func:`ring_geometry`): a family whose
     edges are the same, value for value (an extruded part), takes its field from there; a
     family measured afresh takes the edge trees and lattice passes of its ring sets that
-    are the same (holes that stay while another changes, :class:`RingMeasures`).
+    are the same (holes that stay while another changes, :class:`RingMeasures`). When every
+    family's field is the previous layer's, every island is alone in its box
+    (:func:`_alone_in_boxes`) and the ``packed`` solid bits are the same, the labels are the
+    previous layer's too: that array is returned again (callers only read labels).
     """
     families = tuple(layer_families(area, parent))
     if not families:
@@ -973,14 +976,20 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     base = np.concatenate([[1], 1 + np.cumsum(sizes)]).astype(np.int64)
     dtype = _index_dtype(int(base[-1]))
     first = fields[0]
+    # the outermost family labels its box by its own expansion: only the others may take the solid pixels of theirs
+    alone = np.r_[False, _alone_in_boxes(points, offsets, families[1:], [field.box for field in fields[1:]], grid)]
+    # painted from fields alone and the solid bits: the same fields, islands and bits paint the same labels
+    paintable = reuse is not None and packed is not None and None not in keys and bool(alone[1:].all())
+    painted = reuse.pop("painted", None) if reuse is not None else None
+    if paintable and painted is not None and painted[0] == keys and np.array_equal(painted[1], packed):
+        reuse["painted"] = painted
+        return LayerRegions(box, painted[2], families, fields, base)
     if first.box == box and first.index.dtype == dtype and (keys[0] is None or len(fields) == 1):
         # the outermost family spans the layer's box: its labels are the layer's, no copy of ~15 MP (unless
         # other families paint over them and the field may serve the next layer)
         label = first.index
     else:
         label = np.zeros((box[1] - box[0], box[3] - box[2]), dtype=dtype)
-    # the outermost family labels its box by its own expansion: only the others may take the solid pixels of theirs
-    alone = np.r_[False, _alone_in_boxes(points, offsets, families[1:], [field.box for field in fields[1:]], grid)]
     for number, (family, field) in enumerate(zip(families, fields)):
         r0, r1, c0, c1 = field.box
         if r1 <= r0 or c1 <= c0:
@@ -996,6 +1005,8 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
             solid = solid & _family_mask(points, offsets, family, grid, field.box)
         value = base[number] if family.nested else field.index + base[number]
         np.copyto(target, value, where=solid, casting="unsafe")
+    if paintable:
+        reuse["painted"] = (keys, packed.copy(), label)
     return LayerRegions(box, label, families, fields, base)
 
 
@@ -1300,12 +1311,13 @@ def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, pa
     """
     packed = np.packbits(mask, axis=1) if packed is None else packed
     regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions, packed, reuse)
-    return _droplet_planes_of(regions, spec, loop_shell, point_material, packed, grid, layer)
+    return _droplet_planes_of(regions, spec, loop_shell, point_material, packed, grid, layer, reuse)
 
 
 def _droplet_planes_of(regions: LayerRegions, spec: GradeSpec, loop_shell, point_material, packed: np.ndarray,
-                       grid: Grid, layer: int) -> np.ndarray:
-    """:func:`droplet_planes` of a layer whose sub-regions are already known."""
+                       grid: Grid, layer: int, reuse: dict | None = None) -> np.ndarray:
+    """:func:`droplet_planes` of a layer whose sub-regions are already known; ``reuse`` keeps the
+    choice table for the next layer (:func:`_layer_choice_table`)."""
     from heoslice.halftone import layer_tile
     from heoslice.regions_compiled import droplet_bits
 
@@ -1328,11 +1340,25 @@ def _droplet_planes_of(regions: LayerRegions, spec: GradeSpec, loop_shell, point
     sizes = np.array([mix.size for mix in mixes])
     layout = np.array([(field.box[0], field.box[2], field.lattice.cell, field.lattice.cols, start)
                        for field, start in zip(regions.fields, np.cumsum(sizes) - sizes)], dtype=np.int64)
-    table = _choice_table(regions, mixes, fractions, target_mix)
-    table[0] = base_channel
+    table = _layer_choice_table(regions, mixes, fractions, target_mix, base_channel, reuse)
     return droplet_bits(regions.label, regions.box[::2], packed, family_of_label, fractions,
                         layout, np.concatenate([mix.ravel() for mix in mixes]), target_mix, layer_tile(layer),
                         base_channel, planes, table)
+
+
+def _layer_choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.ndarray,
+                        target_mix: np.ndarray, base_channel: int, reuse: dict | None) -> np.ndarray:
+    """:func:`_choice_table` with label 0 (solid pixels outside every family) on the base channel; the
+    last layer's (kept in ``reuse``) when its label bases, fractions and mixes are the same (an extruded part)."""
+    key = (regions.base, fractions, target_mix, *mixes)
+    last = None if reuse is None else reuse.get("choices")
+    if last is not None and len(last[0]) == len(key) and all(map(np.array_equal, last[0], key)):
+        return last[1]
+    table = _choice_table(regions, mixes, fractions, target_mix)
+    table[0] = base_channel
+    if reuse is not None:
+        reuse["choices"] = (key, table)
+    return table
 
 
 def _choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.ndarray,
