@@ -1052,6 +1052,21 @@ def test_layers_of_an_extruded_part_reuse_the_fields_of_families_they_share(monk
     assert both([plate, *holes, lesion + [0.0, 0.4]], 6) == 1
 
 
+def test_ring_geometry_of_several_loop_sets_is_each_sets_edges():
+    """The keys of several sets of loops taken in one pass are, set by set, the bytes of the edges that
+    ring_edges keeps for that set alone (its straight points left out), whatever the sets' order."""
+    rng = np.random.default_rng(11)
+    plate = with_points_on_its_edges(np.array([[-9.0, -6.0], [9.0, -6.0], [9.0, 6.0], [-9.0, 6.0]]), rng, 3)
+    holes = [circle(2.5, 96, (-4.0, 0.0), clockwise=True), circle(2.0, 80, (3.5, 1.0), clockwise=True)]
+    islands = [circle(1.0, 64, (-4.0, 0.0)), with_points_on_its_edges(circle(0.9, 12, (3.5, 1.0)), rng, 5)]
+    points, offsets, _, _ = layer(plate, *holes, *islands)
+    sets = [(0, 1, 2), (3,), (4,), (2, 1)]
+    expected = [regions._edges_key(ring_edges(points, offsets, loops)) for loops in sets]
+    assert regions.ring_geometry(points, offsets, sets) == expected
+    assert regions.ring_geometry(points, offsets, sets[::-1]) == expected[::-1]
+    assert regions.ring_geometry(points, offsets, []) == []
+
+
 def test_a_layer_like_the_last_takes_its_labels_only_with_the_same_solid_bits_and_islands_alone():
     """The labels of a layer whose fields, solid bits and lone islands are the last layer's are that
     layer's array; other solid bits, or an island not alone in its box, are painted afresh, and every

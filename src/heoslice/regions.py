@@ -231,11 +231,21 @@ def _kept_points(points: np.ndarray, offsets: np.ndarray, loops) -> tuple:
     return every[order[keep[order]]], counts, every, knots, knot_at
 
 
-def ring_geometry(points: np.ndarray, offsets: np.ndarray, loops) -> tuple[bytes, bytes, bytes]:
-    """The given loops' edges (what :func:`ring_edges` keeps) as bytes, the same as their RingEdges'
-    :func:`_edges_key`: equal for two layers exactly when their edges are (an extruded part's layers)."""
-    index, counts, _, _, _ = _kept_points(points, offsets, loops)
-    return points[index, 0].tobytes(), points[index, 1].tobytes(), np.repeat(np.arange(len(counts)), counts).tobytes()
+def ring_geometry(points: np.ndarray, offsets: np.ndarray, loop_sets) -> list[tuple[bytes, bytes, bytes]]:
+    """Each given set of loops' edges (what :func:`ring_edges` keeps) as bytes, the same as their RingEdges'
+    :func:`_edges_key`: equal for two layers exactly when their edges are (an extruded part's layers).
+    One pass for all the sets (the straight runs of each loop are its own)."""
+    if not loop_sets:
+        return []
+    index, counts, _, _, _ = _kept_points(points, offsets, [loop for loops in loop_sets for loop in loops])
+    start = np.concatenate([[0], np.cumsum(counts)])
+    keys, first = [], 0
+    for loops in loop_sets:
+        kept = index[start[first]:start[first + len(loops)]]
+        ring = np.repeat(np.arange(len(loops)), counts[first:first + len(loops)])
+        keys.append((points[kept, 0].tobytes(), points[kept, 1].tobytes(), ring.tobytes()))
+        first += len(loops)
+    return keys
 
 
 def _edges_key(edges: RingEdges) -> tuple[bytes, bytes, bytes]:
@@ -957,9 +967,11 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
         return LayerRegions((0, 0, 0, 0), np.zeros((0, 0), np.int16), (), (), np.ones(1, np.int64))
     # the outermost family (label base 1) is labelled by its own expansion, saving a pass over ~15 MP
     masks = [None if number or family.nested else mask for number, family in enumerate(families)]
-    keys = [None if reuse is None or family_mask is not None else
-            (family.nested, int(number == 0), ring_geometry(points, offsets, (family.outer, *family.holes)))
-            for number, (family, family_mask) in enumerate(zip(families, masks))]
+    keyed = [number for number, family_mask in enumerate(masks) if reuse is not None and family_mask is None]
+    geometry = dict(zip(keyed, ring_geometry(points, offsets, [(families[n].outer, *families[n].holes)
+                                                               for n in keyed])))
+    keys = [(family.nested, int(number == 0), geometry[number]) if number in geometry else None
+            for number, family in enumerate(families)]
     before: dict = {} if reuse is None else reuse.setdefault("fields", {})
     for stale in set(before) - set(keys):
         del before[stale]  # freed before this layer's fields are made
