@@ -1069,8 +1069,9 @@ def test_ring_geometry_of_several_loop_sets_is_each_sets_edges():
 
 def test_a_layer_like_the_last_takes_its_labels_only_with_the_same_solid_bits_and_islands_alone():
     """The labels of a layer whose fields, solid bits and lone islands are the last layer's are that
-    layer's array; other solid bits, or an island not alone in its box, are painted afresh, and every
-    layer's labels equal those of a layer graded without ``reuse``."""
+    layer's array; other solid bits, an island not alone in its box, or other fields under the same solid
+    bits (a plate running off the canvas) are painted afresh, and every layer's labels equal those of a
+    layer graded without ``reuse``."""
     plate = np.array([[-9.0, -6.0], [9.0, -6.0], [9.0, 6.0], [-9.0, 6.0]])
     hole = circle(3.0, 96, (-3.0, 0.0), clockwise=True)
     island = circle(1.5, 64, (-3.0, 0.0))
@@ -1100,6 +1101,10 @@ def test_a_layer_like_the_last_takes_its_labels_only_with_the_same_solid_bits_an
     crowd = [plate, hole, circle(1.0, 64, (-1.4, 0.0))]
     crowded, _ = labels(crowd)
     assert labels(crowd)[0].label is not crowded.label
+    # a plate running off the canvas, its far edge moved: the same solid bits, other fields, other labels
+    near, far = (np.array([[-20.0, -6.0], [20.0, -6.0], [20.0, top], [-20.0, top]]) for top in (12.0, 16.0))
+    low, high = labels([near, hole, island]), labels([far, hole, island])
+    assert np.array_equal(low[1], high[1]) and not np.array_equal(low[0].label, high[0].label)
 
 
 def test_a_layer_like_the_last_with_other_contour_materials_jets_its_own_choices():

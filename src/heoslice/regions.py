@@ -975,6 +975,9 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     before: dict = {} if reuse is None else reuse.setdefault("fields", {})
     for stale in set(before) - set(keys):
         del before[stale]  # freed before this layer's fields are made
+    painted = None if reuse is None else reuse.pop("painted", None)
+    if painted is not None and painted[0] != keys:
+        painted = None  # so are labels painted from other fields
     measured = ({} if reuse is None else reuse.get("rings", {}), {})
     fields = tuple(_layer_field(points, offsets, family, grid, spec, family_mask, 0 if number else 1,
                                 None if key is None else before.get(key), measured)
@@ -992,8 +995,7 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     alone = np.r_[False, _alone_in_boxes(points, offsets, families[1:], [field.box for field in fields[1:]], grid)]
     # painted from fields alone and the solid bits: the same fields, islands and bits paint the same labels
     paintable = reuse is not None and packed is not None and None not in keys and bool(alone[1:].all())
-    painted = reuse.pop("painted", None) if reuse is not None else None
-    if paintable and painted is not None and painted[0] == keys and np.array_equal(painted[1], packed):
+    if paintable and painted is not None and np.array_equal(painted[1], packed):
         reuse["painted"] = painted
         return LayerRegions(box, painted[2], families, fields, base)
     if first.box == box and first.index.dtype == dtype and (keys[0] is None or len(fields) == 1):
