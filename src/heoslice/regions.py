@@ -998,6 +998,7 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     if paintable and painted is not None and np.array_equal(painted[1], packed):
         reuse["painted"] = painted
         return LayerRegions(box, painted[2], families, fields, base)
+    painted = None  # freed before this layer's labels are painted
     if first.box == box and first.index.dtype == dtype and (keys[0] is None or len(fields) == 1):
         # the outermost family spans the layer's box: its labels are the layer's, no copy of ~15 MP (unless
         # other families paint over them and the field may serve the next layer)
