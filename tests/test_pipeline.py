@@ -197,3 +197,23 @@ def test_nested_shells_fill_once_and_verify_against_the_union(tmp_path, run_cli)
     assert stack_volume_mm3(manifest) == pytest.approx(union, rel=5e-3)
     code, out, err = run_cli("verify", tmp_path / "stack", "--mesh", model)
     assert code == 0, out + err
+
+
+def test_a_layer_takes_the_last_layers_tiff_only_for_the_same_solid_bits():
+    """A 1-bit layer takes the last layer's encoded TIFF (the same bytes object) only when its solid bits are
+    those bits: as many solid pixels elsewhere get a TIFF of their own, which decodes to them."""
+    import io
+    from types import SimpleNamespace
+
+    from heoslice.pipeline import _solid_tiff
+
+    job = SimpleNamespace(grid=SimpleNamespace(width=40), dpi=(600.0, 600.0), compression="deflate")
+    mask = np.zeros((30, 40), dtype=bool)
+    mask[5:15, 8:20] = True
+    moved = np.roll(mask, 7, axis=1)
+    reuse: dict = {}
+    first = _solid_tiff(np.packbits(mask, axis=1), int(mask.sum()), job, reuse)
+    assert _solid_tiff(np.packbits(mask, axis=1), int(mask.sum()), job, reuse) is first
+    other = _solid_tiff(np.packbits(moved, axis=1), int(moved.sum()), job, reuse)
+    assert np.array_equal(tifffile.imread(io.BytesIO(other)).astype(bool), moved)
+    assert np.array_equal(tifffile.imread(io.BytesIO(first)).astype(bool), mask)

@@ -1068,10 +1068,11 @@ def test_ring_geometry_of_several_loop_sets_is_each_sets_edges():
 
 
 def test_a_layer_like_the_last_takes_its_labels_only_with_the_same_solid_bits_and_islands_alone():
-    """The labels of a layer whose fields, solid bits and lone islands are the last layer's are that
-    layer's array; other solid bits, an island not alone in its box, or other fields under the same solid
-    bits (a plate running off the canvas) are painted afresh, and every layer's labels equal those of a
-    layer graded without ``reuse``."""
+    """The labels of a layer whose fields, solid bits and lone islands are the last layer's, itself graded
+    from the fields before it, are that layer's array; other solid bits, an island not alone in its box,
+    the same islands listed in another order, or other fields under the same solid bits (a plate running
+    off the canvas) are painted afresh, and every layer's labels equal those of a layer graded without
+    ``reuse``."""
     plate = np.array([[-9.0, -6.0], [9.0, -6.0], [9.0, 6.0], [-9.0, 6.0]])
     hole = circle(3.0, 96, (-3.0, 0.0), clockwise=True)
     island = circle(1.5, 64, (-3.0, 0.0))
@@ -1088,19 +1089,25 @@ def test_a_layer_like_the_last_takes_its_labels_only_with_the_same_solid_bits_an
         return kept, packed
 
     first, packed = labels([plate, hole, island])
-    again, _ = labels([plate, hole, island])
-    assert again.label is first.label
+    second, _ = labels([plate, hole, island])
+    assert second.label is not first.label  # the first layer's fields were measured afresh: nothing kept
+    assert labels([plate, hole, island])[0].label is second.label
     # the island's pixels cleared from the solid bits (as a caller's mask may be): painted afresh, without them
     cleared = packed.copy()
     r0, r1, c0, c1 = first.fields[1].box
     cleared[r0:r1, c0 // 8:-(-c1 // 8)] = 0
     other, _ = labels([plate, hole, island], cleared)
-    assert other.label is not first.label
-    assert not np.array_equal(other.label, first.label)
+    assert other.label is not second.label and not np.array_equal(other.label, second.label)
     # an island near its hole's rim, so that the plate's ring meets its box: not alone, nothing is taken
     crowd = [plate, hole, circle(1.0, 64, (-1.4, 0.0))]
-    crowded, _ = labels(crowd)
-    assert labels(crowd)[0].label is not crowded.label
+    crowded = [labels(crowd)[0] for _ in range(3)]
+    assert crowded[2].label is not crowded[1].label
+    # two islands of other sizes (other band counts) listed the other way round: the same fields, other labels
+    pair = [plate, hole, circle(2.0, 64, (4.5, 0.0), clockwise=True), island, circle(0.8, 48, (4.5, 0.0))]
+    for _ in range(2):
+        ordered = labels(pair)[0]
+    swapped = labels(pair[:3] + pair[:2:-1])[0]
+    assert swapped.label is not ordered.label and not np.array_equal(swapped.label, ordered.label)
     # a plate running off the canvas, its far edge moved: the same solid bits, other fields, other labels
     near, far = (np.array([[-20.0, -6.0], [20.0, -6.0], [20.0, top], [-20.0, top]]) for top in (12.0, 16.0))
     low, high = labels([near, hole, island]), labels([far, hole, island])

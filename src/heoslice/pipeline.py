@@ -150,7 +150,7 @@ def render_and_write(job: LayerJob, reuse: dict | None = None) -> tuple:
                                 base_color=job.base_color)
     rendered = time.perf_counter()
     if job.point_colors is None:
-        data, _ = _solid_tiff(image, job, reuse)
+        data = _solid_tiff(image, solid, job, reuse)
     else:
         data = encode_tiff(image, job.dpi, job.compression)
     encoded = time.perf_counter()
@@ -158,17 +158,18 @@ def render_and_write(job: LayerJob, reuse: dict | None = None) -> tuple:
     return job.index, digest, solid, rendered - started, encoded - rendered, ()
 
 
-def _solid_tiff(packed: np.ndarray, job: LayerJob, reuse: dict | None) -> tuple[bytes, int]:
-    """The 1-bit TIFF of a layer's solid bits ((h, ceil(w / 8)) uint8) and its solid pixel count: the
-    last layer's (kept in ``reuse``) when the bits are the same, as an extruded part's layers are."""
-    form = (job.grid.width, job.dpi, job.compression)
+def _solid_tiff(packed: np.ndarray, solid: int, job: LayerJob, reuse: dict | None) -> bytes:
+    """The 1-bit TIFF of a layer's solid bits ((h, ceil(w / 8)) uint8, ``solid`` of them set): the last
+    layer's (kept in ``reuse``) when the bits are the same, as an extruded part's layers are (the bits are
+    compared only when their counts are equal)."""
+    form = (job.grid.width, job.dpi, job.compression, solid)
     last = None if reuse is None else reuse.get("solid_tiff")
     if last is not None and last[0] == form and np.array_equal(last[1], packed):
-        return last[2], last[3]
-    data, solid = encode_bilevel_tiff(packed, job.grid.width, job.dpi, job.compression), count_solid(packed)
+        return last[2]
+    data = encode_bilevel_tiff(packed, job.grid.width, job.dpi, job.compression)
     if reuse is not None:
-        reuse["solid_tiff"] = (form, packed, data, solid)
-    return data, solid
+        reuse["solid_tiff"] = (form, packed, data)
+    return data
 
 
 def _render_graded_and_write(job: LayerJob, reuse: dict | None) -> tuple:
@@ -183,7 +184,8 @@ def _render_graded_and_write(job: LayerJob, reuse: dict | None) -> tuple:
                                 packed=packed, reuse=reuse)
         rendered = time.perf_counter()
         width = job.grid.width
-        data, solid = _solid_tiff(packed, job, reuse)
+        solid = count_solid(packed)
+        data = _solid_tiff(packed, solid, job, reuse)
         pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression), count_solid(plane))
                   for path, plane in zip(graded.channel_paths, planes)]
         encoded = time.perf_counter()

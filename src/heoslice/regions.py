@@ -994,7 +994,9 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     # the outermost family labels its box by its own expansion: only the others may take the solid pixels of theirs
     alone = np.r_[False, _alone_in_boxes(points, offsets, families[1:], [field.box for field in fields[1:]], grid)]
     # painted from fields alone and the solid bits: the same fields, islands and bits paint the same labels
-    paintable = reuse is not None and packed is not None and None not in keys and bool(alone[1:].all())
+    # (kept for the next layer only when this one's fields are all the last one's: an extruded part)
+    paintable = (reuse is not None and packed is not None and None not in keys and all(key in before for key in keys)
+                 and bool(alone[1:].all()))
     if paintable and painted is not None and np.array_equal(painted[1], packed):
         reuse["painted"] = painted
         return LayerRegions(box, painted[2], families, fields, base)
