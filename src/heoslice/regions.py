@@ -958,9 +958,9 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     edges are the same, value for value (an extruded part), takes its field from there; a
     family measured afresh takes the edge trees and lattice passes of its ring sets that
     are the same (holes that stay while another changes, :class:`RingMeasures`). When every
-    family's field is the previous layer's, every island is alone in its box
-    (:func:`_alone_in_boxes`) and the ``packed`` solid bits are the same, the labels are the
-    previous layer's too: that array is returned again (callers only read labels).
+    family's field is the previous layer's, and was the layer's before that, every island is
+    alone in its box (:func:`_alone_in_boxes`) and the ``packed`` solid bits are the previous
+    layer's, so are the labels: that array is returned again (callers only read labels).
     """
     families = tuple(layer_families(area, parent))
     if not families:
@@ -1366,8 +1366,9 @@ def _droplet_planes_of(regions: LayerRegions, spec: GradeSpec, loop_shell, point
 def _layer_choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.ndarray,
                         target_mix: np.ndarray, base_channel: int, reuse: dict | None) -> np.ndarray:
     """:func:`_choice_table` with label 0 (solid pixels outside every family) on the base channel; the
-    last layer's (kept in ``reuse``) when its label bases, fractions and mixes are the same (an extruded part)."""
-    key = (regions.base, fractions, target_mix, *mixes)
+    last layer's (kept in ``reuse``) when its label bases, fractions, mixes and base channel are the same
+    (an extruded part)."""
+    key = (np.array([base_channel]), regions.base, fractions, target_mix, *mixes)
     last = None if reuse is None else reuse.get("choices")
     if last is not None and len(last[0]) == len(key) and all(map(np.array_equal, last[0], key)):
         return last[1]
