@@ -281,8 +281,8 @@ class RunResult:
     contours_s: float
 
 
-#: The RunContext of this worker process and the sub-regions of the last layer it graded (``reuse`` of
-#: :func:`slice_run`), set by :func:`_adopt` (each worker has its own).
+#: The RunContext of this worker process and what the last layer it rendered leaves to the next (``reuse``
+#: of :func:`slice_run`), set by :func:`_adopt` (each worker has its own).
 _WORKER_CONTEXT: dict = {}
 
 
@@ -296,9 +296,9 @@ def _adopt(context: RunContext) -> None:
 def slice_run(context: RunContext, start: int, stop: int, reuse: dict | None = None) -> RunResult:
     """Slice, chain, render and write planes z[start:stop]: the whole pipeline for one run of layers.
 
-    ``reuse`` keeps the sub-regions of the last layer graded, for families the next one shares (an
-    extruded part: :func:`heoslice.regions.layer_regions`); a dict kept from run to run (same context)
-    carries them over to the next run's first layer too."""
+    ``reuse`` keeps what the last layer rendered leaves to the next when they are alike (an extruded
+    part): its sub-regions, choice table and encoded 1-bit TIFF (:func:`render_and_write`); a dict kept
+    from run to run (same context) carries them over to the next run's first layer too."""
     mesh = context.mesh
     began = time.perf_counter()
     sections = slice_planes(mesh.vertices, mesh.faces, context.z, start, stop, context.face_range)
