@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import platform
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -217,3 +220,33 @@ def test_a_layer_takes_the_last_layers_tiff_only_for_the_same_solid_bits():
     other = _solid_tiff(np.packbits(moved, axis=1), int(moved.sum()), job, reuse)
     assert np.array_equal(tifffile.imread(io.BytesIO(other)).astype(bool), moved)
     assert np.array_equal(tifffile.imread(io.BytesIO(first)).astype(bool), mask)
+
+
+_REUSE_PROBE = """
+import resource, sys
+import numpy as np
+from heoslice import pipeline
+if sys.argv[1] == "worker":
+    pipeline._adopt(None)
+faults = []
+for _ in range(2):
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    block = np.ones(24 << 20, dtype=np.uint8)
+    del block
+    faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+print(*faults)
+"""
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt's thresholds are glibc's")
+def test_workers_keep_freed_memory_for_the_next_layer():
+    """A worker (set up by the pool's initializer) serves a 24 MB block freed by the last layer again
+    without new page faults; a plain process keeps glibc's defaults, which fault it in afresh at least
+    once (the probe sees the faults when there are some)."""
+    def probe(role):
+        out = subprocess.run([sys.executable, "-c", _REUSE_PROBE, role], capture_output=True, text=True, check=True)
+        return [int(word) for word in out.stdout.split()]
+
+    first, second = probe("worker")
+    assert first > 100 and second < 20
+    assert max(probe("plain")) > 100
