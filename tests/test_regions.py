@@ -1052,6 +1052,34 @@ def test_layers_of_an_extruded_part_reuse_the_fields_of_families_they_share(monk
     assert both([plate, *holes, lesion + [0.0, 0.4]], 6) == 1
 
 
+def test_rings_that_stay_give_their_last_centres_only_for_the_same_blocks_wanted(monkeypatch):
+    """Through a cavity (one hole of a plate growing and shrinking from layer to layer, the other hole staying),
+    the plate's field measured with what the last layer measured equals the field measured afresh; the rings
+    that stay have their centres measured again only when the blocks wanted change (the big hole's deep
+    inside drops blocks), and not at all on a layer like the last."""
+    import heoslice.regions_compiled as compiled
+
+    measured = []
+    original = compiled.signed_feet
+    monkeypatch.setattr(compiled, "signed_feet", lambda *args: measured.append(1) or original(*args))
+    plate = np.array([[-12.0, -9.0], [12.0, -9.0], [12.0, 9.0], [-12.0, 9.0]])
+    stay = circle(2.0, 96, (-7.0, 0.0), clockwise=True)
+    grid = grid_around(12.5)
+    spec = RegionSpec(nozzle_mm=0.3)
+    before: dict = {}
+    counts = []
+    for radius in [1.0, 2.0, 6.5, 5.5, 2.0, 2.0]:
+        points, offsets, area, parent = layer(plate, stay, circle(radius, 128, (4.0, 0.0), clockwise=True))
+        family = layer_families(area, parent)[0]
+        now: dict = {}
+        start = len(measured)
+        kept = family_field(points, offsets, family, grid, spec, measured=(before, now))
+        counts.append(len(measured) - start)
+        assert np.array_equal(kept.index, family_field(points, offsets, family, grid, spec).index)
+        before = now
+    assert counts == [3, 1, 3, 3, 1, 0]
+
+
 def test_ring_geometry_of_several_loop_sets_is_each_sets_edges():
     """The keys of several sets of loops taken in one pass are, set by set, the bytes of the edges that
     ring_edges keeps for that set alone (its straight points left out), whatever the sets' order."""

@@ -513,7 +513,8 @@ class RingMeasures:
     """One ring set's passes over a family's padded lattice: its block bounds, the cell centres inside
     it, the blocks off the family's side of it (``far``), and the exact nearest edge ((rows, cols) int)
     of the cells of the blocks measured so far (``done``, (block rows, block cols) bool; elsewhere
-    ``edge`` means nothing). A pure function
+    ``edge`` means nothing); ``centres`` the blocks last wanted of :func:`_measured_centres` and what it
+    gave for them (read-only arrays). A pure function
     of the ring set's edges and the lattice, so a layer with the same edges (an extruded hole) reuses it."""
 
     bounds: BlockBounds
@@ -521,6 +522,7 @@ class RingMeasures:
     far: np.ndarray
     edge: np.ndarray
     done: np.ndarray
+    centres: tuple = ()
 
 
 def _ring_measures(rings: RingSet, lattice: Lattice) -> RingMeasures:
@@ -537,9 +539,12 @@ def _measured_centres(rings: RingSet, measures: RingMeasures, lattice: Lattice, 
     """At every cell centre: signed distance to the rings (> 0 on the family's side), its unit gradient, foot
     and edge, exact in the ``wanted`` blocks ((block rows, block cols) bool; elsewhere from the block's seed
     edge, :func:`lattice_edges`), measuring only the blocks ``measures`` does not hold yet: ((signed, gradient,
-    foot, edge), the measures with them)."""
+    foot, edge), the measures with them). The same blocks wanted as the last time give the last answer (a hole
+    that stays while another ring of its family changes, as through a cavity)."""
     from heoslice.regions_compiled import signed_feet
 
+    if measures.centres and np.array_equal(measures.centres[0], wanted):
+        return measures.centres[1], measures
     if not measures.done.any():
         edge = lattice_edges(rings.edges, lattice, rings.tree, measures.bounds, wanted)
         measures = replace(measures, edge=edge, done=wanted)
@@ -552,8 +557,11 @@ def _measured_centres(rings: RingSet, measures: RingMeasures, lattice: Lattice, 
         seeds = lattice_edges(rings.edges, lattice, rings.tree, measures.bounds, np.zeros_like(wanted))
         edge = np.where(_block_cells(wanted, lattice), measures.edge, seeds)
     e = rings.edges
-    return signed_feet(edge, lattice.x0, lattice.y0, lattice.dx, lattice.dy, e.x, e.y, e.vx, e.vy, e.inv_len2,
-                       measures.inside, rings.encloses) + (edge,), measures
+    at = signed_feet(edge, lattice.x0, lattice.y0, lattice.dx, lattice.dy, e.x, e.y, e.vx, e.vy, e.inv_len2,
+                     measures.inside, rings.encloses) + (edge,)
+    for array in at:
+        array.flags.writeable = False
+    return at, replace(measures, centres=(wanted, at))
 
 
 def _block_cells(blocks: np.ndarray, lattice: Lattice) -> np.ndarray:
