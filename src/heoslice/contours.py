@@ -92,7 +92,7 @@ def successors(start_key: np.ndarray, end_key: np.ndarray) -> np.ndarray:
     partner = run_start + position - first_end  # the k-th start of the run, for its k-th end
     match = is_end & (partner < first_end)
     nxt = np.full(count, -1, dtype=np.int64)
-    nxt[order[match] - count] = order[partner[match]]
+    nxt[np.compress(match, order) - count] = order[np.compress(match, partner)]  # compress: 5x a boolean index
     return nxt
 
 
@@ -221,15 +221,18 @@ def loop_parents(points: np.ndarray, offsets: np.ndarray, layer: np.ndarray, are
     usable = np.nonzero((sizes >= 3) & (loops_in_layer >= 2))[0]
     if len(usable) < 2:
         return parent
-    extent = np.ptp(points[:, 0]) + np.ptp(points[:, 1]) + 1.0
-    shift = np.repeat(layer * 2.0 * extent, sizes)
-    shifted = points.copy()
-    shifted[:, 0] += shift
-    point_loop = np.repeat(np.arange(loops), sizes)
-    take = np.isin(point_loop, usable)
-    rings = shapely.linearrings(shifted[take], indices=np.searchsorted(usable, point_loop[take]))
-    polygons = shapely.polygons(rings)
-    probes = shapely.points(shifted[offsets[usable]])
+    shift = layer[usable] * 2.0 * (np.ptp(points[:, 0]) + np.ptp(points[:, 1]) + 1.0)
+    # the usable loops' points, each ring closed by its first point again: shapely's ragged layout, which
+    # builds the polygons several times faster than from indices
+    ring_sizes = sizes[usable] + 1
+    ring_offsets = np.concatenate([[0], np.cumsum(ring_sizes)])
+    source = np.arange(ring_offsets[-1]) - np.repeat(ring_offsets[:-1] - offsets[usable], ring_sizes)
+    source[ring_offsets[1:] - 1] = offsets[usable]
+    coords = np.take(points, source, axis=0)
+    coords[:, 0] += np.repeat(shift, ring_sizes)
+    polygons = shapely.from_ragged_array(shapely.GeometryType.POLYGON, coords,
+                                         (ring_offsets, np.arange(len(usable) + 1)))
+    probes = shapely.points(coords[ring_offsets[:-1]])
     inner, outer = shapely.STRtree(polygons).query(probes, predicate="within")
     inner, outer = usable[inner], usable[outer]
     # a container is larger: loops that overlap without nesting (a self-intersecting mesh) may each hold the
@@ -288,8 +291,8 @@ def build_contours(sections: Sections, hierarchy: bool = True) -> Contours:
     order, offsets, closed_by_join = chain_loops(sections)
     first_segment = offsets[:-1]
     loop_layer = sections.layer[order[first_segment]] if len(order) else np.zeros(0, np.int64)
-    points = sections.start[order]
-    point_edge = sections.start_edge[order]
+    points = np.take(sections.start, order, axis=0)  # row gathers: np.take is several times faster
+    point_edge = np.take(sections.start_edge, order, axis=0)
     point_t = sections.start_t[order]
     if closed_by_join.any():  # an open chain also keeps the end point of its last segment
         tails = order[offsets[1:][closed_by_join] - 1]

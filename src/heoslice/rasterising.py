@@ -90,7 +90,7 @@ def _loop_edges(points: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np
     """Start and end points ((e, 2) each) of every edge of every closed loop."""
     following = np.arange(1, len(points) + 1)
     following[offsets[1:] - 1] = offsets[:-1]
-    return points, points[following]
+    return points, np.take(points, following, axis=0)
 
 
 def row_crossings(points: np.ndarray, offsets: np.ndarray, grid: Grid):

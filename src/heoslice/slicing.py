@@ -108,7 +108,7 @@ def slice_mesh(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
     faces = np.asarray(faces, dtype=np.int64)
     z = np.asarray(z, dtype=np.float64)
     n_vertices = len(vertices)
-    face_z = vertices[faces, 2]  # (m, 3)
+    face_z = vertices[:, 2][faces]  # (m, 3)
     low, high = face_range if face_range is not None else _face_min_max(face_z)
 
     # Global intersection filter: planes p with z_min < p <= z_max cross the triangle.
@@ -127,8 +127,9 @@ def slice_mesh(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
 
     # Local topology: the lone vertex (alone on its side of the plane) and its two edges.
     plane = z[pair_layer]
-    tri = faces[pair_face]  # (s, 3)
-    tri_z = face_z[pair_face]
+    # np.take: row gathers several times faster than fancy indexing (numpy 2.4)
+    tri = np.take(faces, pair_face, axis=0)  # (s, 3)
+    tri_z = np.take(face_z, pair_face, axis=0)
     below = tri_z < plane[:, None]
     # One or two corners are below; the lone vertex is the corner unlike the other two.
     b0, b1, b2 = below[:, 0], below[:, 1], below[:, 2]
@@ -154,11 +155,13 @@ def slice_mesh(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
     # triangles sharing the edge agree bit for bit.
     start_edge, start_t = _edge_crossing(v_lone, z_lone, v_start, z_start, plane)
     end_edge, end_t = _edge_crossing(v_lone, z_lone, v_end, z_end, plane)
-    xy_a = vertices[start_edge[:, 0], :2]
-    start = vertices[start_edge[:, 1], :2]
-    start -= xy_a
+    # whole (s, 3) rows, then x and y: the same arithmetic, several times faster than on strided columns
+    xyz_a = np.take(vertices, start_edge[:, 0], axis=0)
+    start = np.take(vertices, start_edge[:, 1], axis=0)
+    start -= xyz_a
     start *= start_t[:, None]
-    start += xy_a
+    start += xyz_a
+    start = np.ascontiguousarray(start[:, :2])
 
     span = np.int64(n_vertices) * np.int64(n_vertices)
     if len(z) * float(span) >= 2.0**62:
@@ -230,7 +233,7 @@ def slice_planes(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray, start: 
     """
     low, high = face_range if face_range is not None else face_z_range(vertices, faces)
     reach = np.nonzero((high >= z[start]) & (low < z[stop - 1]))[0]
-    sections = slice_mesh(vertices, np.asarray(faces)[reach], z[start:stop], (low[reach], high[reach]))
+    sections = slice_mesh(vertices, np.take(faces, reach, axis=0), z[start:stop], (low[reach], high[reach]))
     return replace(sections, face=reach[sections.face])
 
 
