@@ -6,6 +6,7 @@ import json
 import platform
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -75,12 +76,16 @@ def test_manifest_describes_the_images(tmp_path):
     assert verify_stack(tmp_path / "stack").ok
 
 
-def test_parallel_and_serial_stacks_are_identical(tmp_path):
-    """Worker processes change nothing: the same layer files, byte for byte."""
+@pytest.mark.parametrize("layer_mm, layers", [(0.5, 32), (9.0, 2), (16.0, 1)])
+def test_parallel_and_serial_stacks_are_identical(tmp_path, layer_mm, layers):
+    """Worker processes (the first layer rendered before they are forked) change nothing: the same layer
+    files, byte for byte, also for parts of one or two layers."""
     model = write_mesh(procedural.shell_with_island(8.0, 5.0, 2.0, 3), tmp_path / "m.ply")
     mesh = load_mesh(model)
-    one, _ = slice_to_stack(mesh, tmp_path / "a", SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), jobs=1))
-    two, _ = slice_to_stack(mesh, tmp_path / "b", SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), jobs=2))
+    spec = SliceSpec(layer_height_mm=layer_mm, dpi=(150.0, 150.0), jobs=1)
+    one, _ = slice_to_stack(mesh, tmp_path / "a", spec)
+    two, _ = slice_to_stack(mesh, tmp_path / "b", replace(spec, jobs=2))
+    assert len(one["layers"]) == layers
     assert [e["sha256"] for e in one["layers"]] == [e["sha256"] for e in two["layers"]]
 
 

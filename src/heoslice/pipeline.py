@@ -9,6 +9,7 @@ does not grow with the number of layers.
 from __future__ import annotations
 
 import ctypes
+import gc
 import os
 import signal
 import time
@@ -350,25 +351,39 @@ def plane_runs(context: RunContext, max_layers: int = 32) -> list[tuple[int, int
 
 
 def _run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], None]) -> None:
-    """Every run of planes through :func:`slice_run`: in this process, or in ``workers`` forked processes
-    with at most 2 runs each in flight (results arrive in any order; memory stays bounded)."""
+    """Every run of planes through :func:`slice_run`: in this process, or (but for the first layer, rendered
+    here) in ``workers`` forked processes with at most 2 runs each in flight (results arrive in any order;
+    memory stays bounded)."""
     runs = plane_runs(context)
     if workers <= 1:
         reuse: dict = {}
         for start, stop in runs:
             on_done(slice_run(context, start, stop, reuse))
         return
-    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork"),
-                             initializer=_adopt, initargs=(context,)) as pool:
-        pending = set()
-        for start, stop in runs:
-            pending.add(pool.submit(_slice_run_in_worker, start, stop))
-            if len(pending) >= 2 * workers:
-                done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                for future in done:
-                    on_done(future.result())
-        for future in pending:
-            on_done(future.result())
+    # The first layer is rendered here, before the workers are forked: what it loads (compiled kernels and
+    # their registries, codecs) is loaded once and inherited, not by every worker side by side (two took
+    # 1.03 s at once against 0.85 s for one, graded holes part). Frozen before the fork, as Python's gc
+    # documentation advises, the objects made so far stay out of the workers' collections.
+    start, stop = runs[0]
+    on_done(slice_run(context, start, start + 1))
+    runs = ([(start + 1, stop)] if stop > start + 1 else []) + runs[1:]
+    if not runs:
+        return
+    gc.freeze()
+    try:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork"),
+                                 initializer=_adopt, initargs=(context,)) as pool:
+            pending = set()
+            for start, stop in runs:
+                pending.add(pool.submit(_slice_run_in_worker, start, stop))
+                if len(pending) >= 2 * workers:
+                    done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                    for future in done:
+                        on_done(future.result())
+            for future in pending:
+                on_done(future.result())
+    finally:
+        gc.unfreeze()
 
 
 def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool = False,
