@@ -17,9 +17,12 @@ from PIL import Image
 
 from heoslice import procedural
 from heoslice.contours import build_contours
+from heoslice.distribution import make_function
 from heoslice.loading import load_mesh
+from heoslice.materials import DEFAULT_MATERIALS, Material
 from heoslice.pipeline import SliceSpec, slice_to_stack
 from heoslice.rasterising import Grid, contour_pixels, solid_mask
+from heoslice.regions import GradeSpec, RegionSpec
 from heoslice.slicing import slice_mesh
 from heoslice.stack import read_layer_mask, stack_volume_mm3, verify_stack
 
@@ -255,3 +258,117 @@ def test_workers_keep_freed_memory_for_the_next_layer():
     first, second = probe("worker")
     assert first > 100 and second < 20
     assert max(probe("plain")) > 100
+
+
+def _graded_spec(**changes) -> SliceSpec:
+    """A small graded slice with droplet masks (linear grading, nozzle 0.5 mm, 0.5 mm layers at 150 dpi)."""
+    grade = GradeSpec(RegionSpec(nozzle_mm=0.5), make_function("linear"), Material("green", (0, 255, 0)), None,
+                      DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
+    return SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), grade=grade, channels=True, **changes)
+
+
+def _broken_helper(*args):
+    raise RuntimeError("helper broke")
+
+
+class _Asked:
+    """A helper's end of the pipe, as a parent that asks only once the helper has gone through every run."""
+
+    def __init__(self):
+        self.sent = []
+
+    def poll(self):
+        return False
+
+    def recv(self):
+        return None
+
+    def send(self, value):
+        self.sent.append(value)
+
+
+def _run_context(tmp_path, mesh, spec):
+    from heoslice.pipeline import RunContext
+    from heoslice.rasterising import grid_for
+    from heoslice.slicing import face_z_range, plane_heights
+
+    loaded = load_mesh(write_mesh(mesh, tmp_path / "part.ply"))
+    return RunContext(mesh=loaded, z=plane_heights(loaded.bounds[0, 2], loaded.bounds[1, 2], spec.layer_height_mm),
+                      face_range=face_z_range(loaded.vertices, loaded.faces),
+                      grid=grid_for(loaded.bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm), spec=spec,
+                      directory=tmp_path)
+
+
+@pytest.mark.parametrize("graded", [False, True])
+def test_runs_sliced_ahead_into_shared_memory_are_the_runs_sliced_in_place(tmp_path, graded):
+    """What the helper copies into the shared buffer reads back (read-only) as the very contours and
+    hierarchy that run_contours makes in place, run by run; a buffer too small for the next run stops it
+    after the runs that fit, none cut short; slice_run takes a run the context holds instead of slicing."""
+    import mmap
+
+    from heoslice.pipeline import _shared_array, _slice_ahead, plane_runs, run_contours
+
+    spec = _graded_spec(max_segments=400) if graded else SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0),
+                                                                   max_segments=400)
+    context = _run_context(tmp_path, procedural.shell_with_island(8.0, 5.0, 2.0, 3), spec)
+    runs = plane_runs(context)
+    assert len(runs) > 3
+    buffer = mmap.mmap(-1, 16 << 20)
+    asked = _Asked()
+    _slice_ahead(context, runs, buffer, asked)
+    (placed,) = asked.sent
+    assert [run for run, _, _ in placed] == runs
+    for run, layout, _ in placed:
+        expected, _, _ = run_contours(context, *run)
+        for name, where in layout:
+            got = _shared_array(buffer, where)
+            if getattr(expected, name) is None:
+                assert got is None and not graded
+            else:
+                assert not got.flags.writeable and np.array_equal(got, getattr(expected, name))
+    # room for the first two runs and 64 bytes more: the third does not fit
+    two_runs = max(offset + np.dtype(dtype).itemsize * int(np.prod(shape))
+                   for _, where in placed[1][1] if where for dtype, shape, offset in [where])
+    small = mmap.mmap(-1, two_runs + 64)
+    asked = _Asked()
+    _slice_ahead(context, runs, small, asked)
+    assert [run for run, _, _ in asked.sent[0]] == runs[:2]
+    held = run_contours(context, *runs[0])
+    ahead = replace(context, ahead={runs[0]: (held[0], 0.0, 0.0)})
+    assert run_contours(ahead, *runs[0])[0] is held[0]
+
+
+def test_graded_stacks_are_the_same_with_runs_sliced_ahead_or_not(tmp_path, monkeypatch):
+    """Graded droplet-mask stacks with workers (and a helper slicing ahead) are byte for byte the serial
+    stack, also when every run is sliced ahead (many runs) and when the helper fails."""
+    from heoslice import pipeline
+
+    mesh = load_mesh(write_mesh(procedural.shell_with_island(8.0, 5.0, 2.0, 3), tmp_path / "m.ply"))
+
+    def layers(name, **changes):
+        manifest, _ = slice_to_stack(mesh, tmp_path / name, _graded_spec(**changes))
+        return [(e["sha256"], e["channels"]) for e in manifest["layers"]]
+
+    serial = layers("serial", jobs=1)
+    assert layers("workers", jobs=2) == serial
+    assert layers("many-runs", jobs=2, max_segments=400) == serial
+
+    monkeypatch.setattr(pipeline, "_slice_ahead", _broken_helper)
+    assert layers("broken-helper", jobs=2) == serial
+
+
+def test_a_helper_that_fails_or_is_left_makes_nothing_and_leaves_quietly(tmp_path, monkeypatch, capfd):
+    """A helper that raises gives no runs; a parent interrupted before it asks ends its helper, which leaves
+    without a traceback."""
+    from heoslice import pipeline
+
+    spec = SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), max_segments=400)
+    context = _run_context(tmp_path, procedural.shell_with_island(8.0, 5.0, 2.0, 3), spec)
+    with pytest.raises(KeyboardInterrupt):
+        with pipeline._sliced_ahead(context, pipeline.plane_runs(context)):
+            raise KeyboardInterrupt
+    assert "Traceback" not in capfd.readouterr().err
+
+    monkeypatch.setattr(pipeline, "_slice_ahead", _broken_helper)
+    with pipeline._sliced_ahead(context, pipeline.plane_runs(context)) as collect:
+        assert collect() == {}

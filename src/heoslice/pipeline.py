@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import ctypes
 import gc
+import mmap
 import os
 import signal
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from dataclasses import dataclass
+from contextlib import contextmanager
+from dataclasses import dataclass, field, fields, replace
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -271,6 +273,8 @@ class RunContext:
     grid: Grid
     spec: SliceSpec
     directory: Path
+    #: Runs already sliced and chained (by :func:`_slice_ahead`): (start, stop) -> (contours, slice s, chain s).
+    ahead: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -324,17 +328,26 @@ def slice_run(context: RunContext, start: int, stop: int, reuse: dict | None = N
     ``reuse`` keeps what the last layer rendered leaves to the next when they are alike (an extruded
     part): its sub-regions, choice table and encoded 1-bit TIFF (:func:`render_and_write`); a dict kept
     from run to run (same context) carries them over to the next run's first layer too."""
+    contours, slice_s, contours_s = run_contours(context, start, stop)
+    jobs = layer_jobs(contours, context.mesh, context.grid, context.spec, context.directory, first_layer=start)
+    reuse = {} if reuse is None else reuse
+    return RunResult(layers=[render_and_write(job, reuse) for job in jobs],
+                     open_layers=start + contours.layer[contours.closed_by_join],
+                     slice_s=slice_s, contours_s=contours_s)
+
+
+def run_contours(context: RunContext, start: int, stop: int) -> tuple[Contours, float, float]:
+    """The contours of planes z[start:stop] (numpy only, no compiled kernel), with the seconds spent slicing
+    and chaining them: from ``context.ahead`` when a helper made them already."""
+    made = context.ahead.get((start, stop))
+    if made is not None:
+        return made
     mesh = context.mesh
     began = time.perf_counter()
     sections = slice_planes(mesh.vertices, mesh.faces, context.z, start, stop, context.face_range)
     sliced = time.perf_counter()
     contours = build_contours(sections, hierarchy=context.spec.grade is not None)
-    chained = time.perf_counter()
-    jobs = layer_jobs(contours, mesh, context.grid, context.spec, context.directory, first_layer=start)
-    reuse = {} if reuse is None else reuse
-    return RunResult(layers=[render_and_write(job, reuse) for job in jobs],
-                     open_layers=start + contours.layer[contours.closed_by_join],
-                     slice_s=sliced - began, contours_s=chained - sliced)
+    return contours, sliced - began, time.perf_counter() - sliced
 
 
 def _slice_run_in_worker(start: int, stop: int) -> RunResult:
@@ -350,6 +363,102 @@ def plane_runs(context: RunContext, max_layers: int = 32) -> list[tuple[int, int
     return runs
 
 
+#: Most bytes of contours a helper slices ahead (shared memory, touched only as written).
+AHEAD_BYTES = 256 << 20
+
+
+@contextmanager
+def _sliced_ahead(context: RunContext, runs: list[tuple[int, int]]):
+    """Fork a helper that slices and chains ``runs`` in order (:func:`_slice_ahead`) while the body runs;
+    yields ``collect()``, which stops it and returns the runs it finished ((start, stop) -> what
+    :func:`run_contours` gives), their arrays read-only views of the memory it shares with this process
+    (and with the workers forked after). A helper that fails leaves nothing made: the workers slice."""
+    if not runs:
+        yield lambda: {}
+        return
+    buffer = mmap.mmap(-1, AHEAD_BYTES)
+    fork = get_context("fork")
+    ours, theirs = fork.Pipe()
+    helper = fork.Process(target=_slice_ahead, args=(context, runs, buffer, theirs, ours), daemon=True)
+    helper.start()
+    theirs.close()
+
+    def collect() -> dict:
+        try:
+            ours.send(None)
+            placed = ours.recv()
+        except (OSError, EOFError):
+            return {}
+        return {run: (Contours(**{name: _shared_array(buffer, where) for name, where in layout}), *seconds)
+                for run, layout, seconds in placed}
+
+    try:
+        yield collect
+    finally:
+        ours.close()
+        helper.join(timeout=5)
+        if helper.is_alive():
+            helper.kill()
+            helper.join()
+
+
+def _slice_ahead(context: RunContext, runs: list[tuple[int, int]], buffer: mmap.mmap, conn, parent_end=None
+                 ) -> None:
+    """Helper process: :func:`run_contours` of ``runs`` in order, each copied into ``buffer``, until the parent
+    asks (anything on ``conn``, or its end closed) or the buffer is full; then send, per run done, where its
+    arrays lie. ``parent_end``, the parent's end of the pipe as forked into this process, is closed first, so
+    that the parent closing its own is seen here."""
+    if parent_end is not None:
+        parent_end.close()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    placed, used = [], 0
+    try:
+        for run in runs:
+            if conn.poll():
+                break
+            contours, *seconds = run_contours(context, *run)
+            copied = _copy_arrays(contours, buffer, used)
+            if copied is None:
+                break
+            layout, used = copied
+            placed.append((run, layout, seconds))
+    except Exception:  # noqa: BLE001 - what is not made here the workers make, and they report its errors
+        pass
+    try:
+        conn.recv()
+        conn.send(placed)
+    except (EOFError, OSError):
+        pass  # the parent stopped before it asked (an error, Ctrl-C): nothing is wanted
+
+
+def _copy_arrays(contours: Contours, buffer: mmap.mmap, used: int) -> tuple[list, int] | None:
+    """Copy the arrays of ``contours`` into ``buffer`` from byte ``used`` on, each 64-byte aligned: (per field,
+    its name and (dtype, shape, offset) or None, and the bytes used after), or None when they do not fit."""
+    layout = []
+    for item in fields(Contours):
+        array = getattr(contours, item.name)
+        if array is None:
+            layout.append((item.name, None))
+            continue
+        start = -(-used // 64) * 64
+        used = start + array.nbytes
+        if used > len(buffer):
+            return None
+        np.ndarray(array.shape, array.dtype, buffer=buffer, offset=start)[...] = array
+        layout.append((item.name, (array.dtype.str, array.shape, start)))
+    return layout, used
+
+
+def _shared_array(buffer: mmap.mmap, where: tuple | None) -> np.ndarray | None:
+    """A read-only view of an array copied into ``buffer`` by :func:`_slice_ahead` ((dtype, shape, offset))."""
+    if where is None:
+        return None
+    dtype, shape, offset = where
+    array = np.ndarray(shape, np.dtype(dtype), buffer=buffer, offset=offset)
+    array.flags.writeable = False
+    return array
+
+
 def _run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], None]) -> None:
     """Every run of planes through :func:`slice_run`: in this process, or (but for the first layer, rendered
     here) in ``workers`` forked processes with at most 2 runs each in flight (results arrive in any order;
@@ -362,11 +471,14 @@ def _run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], N
         return
     # The first layer is rendered here, before the workers are forked: what it loads (compiled kernels and
     # their registries, codecs) is loaded once and inherited, not by every worker side by side (two took
-    # 1.03 s at once against 0.85 s for one, graded holes part). Frozen before the fork, as Python's gc
-    # documentation advises, the objects made so far stay out of the workers' collections.
+    # 1.03 s at once against 0.85 s for one, graded holes part). Meanwhile, when that takes long (graded
+    # layers), a helper slices and chains the next runs on the core that would idle. Frozen before the
+    # fork, as Python's gc documentation advises, the objects made so far stay out of the workers' collections.
     start, stop = runs[0]
-    on_done(slice_run(context, start, start + 1))
     runs = ([(start + 1, stop)] if stop > start + 1 else []) + runs[1:]
+    with _sliced_ahead(context, runs if context.spec.grade is not None else []) as collect:
+        on_done(slice_run(context, start, start + 1))
+        context = replace(context, ahead=collect())
     if not runs:
         return
     gc.freeze()
