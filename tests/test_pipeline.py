@@ -302,11 +302,13 @@ def _run_context(tmp_path, mesh, spec):
 @pytest.mark.parametrize("graded", [False, True])
 def test_runs_sliced_ahead_into_shared_memory_are_the_runs_sliced_in_place(tmp_path, graded):
     """What the helper copies into the shared buffer reads back (read-only) as the very contours and
-    hierarchy that run_contours makes in place, run by run; a buffer too small for the next run stops it
-    after the runs that fit, none cut short; slice_run takes a run the context holds instead of slicing."""
+    hierarchy that run_contours makes in place, run by run, and as the layers' solid bits that packed_mask
+    makes of them; a buffer too small for the next run stops it after the runs that fit, none cut short;
+    run_contours takes a run the context holds instead of slicing it."""
     import mmap
 
-    from heoslice.pipeline import _shared_array, _slice_ahead, plane_runs, run_contours
+    from heoslice.pipeline import _shared_array, _slice_ahead, layer_jobs, plane_runs, run_contours
+    from heoslice.rasterising import packed_mask
 
     spec = _graded_spec(max_segments=400) if graded else SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0),
                                                                    max_segments=400)
@@ -316,9 +318,9 @@ def test_runs_sliced_ahead_into_shared_memory_are_the_runs_sliced_in_place(tmp_p
     buffer = mmap.mmap(-1, 16 << 20)
     asked = _Asked()
     _slice_ahead(context, runs, buffer, asked)
-    (placed,) = asked.sent
-    assert [run for run, _, _ in placed] == runs
-    for run, layout, _ in placed:
+    ((placed, masks),) = asked.sent
+    assert [run for run, _, _ in placed] == [run for run, _ in masks] == runs
+    for (run, layout, _), (_, where_bits) in zip(placed, masks):
         expected, _, _ = run_contours(context, *run)
         for name, where in layout:
             got = _shared_array(buffer, where)
@@ -326,13 +328,17 @@ def test_runs_sliced_ahead_into_shared_memory_are_the_runs_sliced_in_place(tmp_p
                 assert got is None and not graded
             else:
                 assert not got.flags.writeable and np.array_equal(got, getattr(expected, name))
+        jobs = layer_jobs(expected, context.mesh, context.grid, spec, tmp_path, first_layer=run[0])
+        bits = _shared_array(buffer, where_bits)
+        assert not bits.flags.writeable
+        assert np.array_equal(bits, [packed_mask(job.points, job.offsets, context.grid) for job in jobs])
     # room for the first two runs and 64 bytes more: the third does not fit
     two_runs = max(offset + np.dtype(dtype).itemsize * int(np.prod(shape))
                    for _, where in placed[1][1] if where for dtype, shape, offset in [where])
     small = mmap.mmap(-1, two_runs + 64)
     asked = _Asked()
     _slice_ahead(context, runs, small, asked)
-    assert [run for run, _, _ in asked.sent[0]] == runs[:2]
+    assert [run for run, _, _ in asked.sent[0][0]] == runs[:2] and asked.sent[0][1] == []
     held = run_contours(context, *runs[0])
     ahead = replace(context, ahead={runs[0]: (held[0], 0.0, 0.0)})
     assert run_contours(ahead, *runs[0])[0] is held[0]
@@ -358,7 +364,7 @@ def test_graded_stacks_are_the_same_with_runs_sliced_ahead_or_not(tmp_path, monk
 
 
 def test_a_helper_that_fails_or_is_left_makes_nothing_and_leaves_quietly(tmp_path, monkeypatch, capfd):
-    """A helper that raises gives no runs; a parent interrupted before it asks ends its helper, which leaves
+    """A helper that raises leaves the context as it was; a parent interrupted before it asks ends its helper, which leaves
     without a traceback."""
     from heoslice import pipeline
 
@@ -371,4 +377,4 @@ def test_a_helper_that_fails_or_is_left_makes_nothing_and_leaves_quietly(tmp_pat
 
     monkeypatch.setattr(pipeline, "_slice_ahead", _broken_helper)
     with pipeline._sliced_ahead(context, pipeline.plane_runs(context)) as collect:
-        assert collect() == {}
+        assert collect() is context

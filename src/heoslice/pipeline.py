@@ -123,6 +123,8 @@ class LayerJob:
     base_color: tuple[int, int, int]
     path: Path
     graded: "GradedJob | None" = None
+    #: The layer's solid bits when a helper made them ahead (:func:`packed_mask`'s).
+    packed: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -181,7 +183,7 @@ def _render_graded_and_write(job: LayerJob, reuse: dict | None) -> tuple:
     1-bit solid layer plus one 1-bit TIFF per material."""
     graded = job.graded
     started = time.perf_counter()
-    packed = packed_mask(job.points, job.offsets, job.grid)
+    packed = job.packed if job.packed is not None else packed_mask(job.points, job.offsets, job.grid)
     if graded.channel_paths is not None:
         planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, None,
                                 job.grid, graded.spec, job.index, point_material=graded.point_material,
@@ -273,8 +275,10 @@ class RunContext:
     grid: Grid
     spec: SliceSpec
     directory: Path
-    #: Runs already sliced and chained (by :func:`_slice_ahead`): (start, stop) -> (contours, slice s, chain s).
+    #: Runs already sliced and chained (by :func:`_slice_ahead`): (start, stop) -> (contours, slice s, chain s),
+    #: and the solid bits of some of their layers: (start, stop) -> (layers, h, ceil(w / 8)) uint8.
     ahead: dict = field(default_factory=dict)
+    ahead_masks: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -330,6 +334,9 @@ def slice_run(context: RunContext, start: int, stop: int, reuse: dict | None = N
     from run to run (same context) carries them over to the next run's first layer too."""
     contours, slice_s, contours_s = run_contours(context, start, stop)
     jobs = layer_jobs(contours, context.mesh, context.grid, context.spec, context.directory, first_layer=start)
+    masks = context.ahead_masks.get((start, stop))
+    if masks is not None:
+        jobs = (replace(job, packed=mask) for job, mask in zip(jobs, masks))
     reuse = {} if reuse is None else reuse
     return RunResult(layers=[render_and_write(job, reuse) for job in jobs],
                      open_layers=start + contours.layer[contours.closed_by_join],
@@ -369,12 +376,12 @@ AHEAD_BYTES = 256 << 20
 
 @contextmanager
 def _sliced_ahead(context: RunContext, runs: list[tuple[int, int]]):
-    """Fork a helper that slices and chains ``runs`` in order (:func:`_slice_ahead`) while the body runs;
-    yields ``collect()``, which stops it and returns the runs it finished ((start, stop) -> what
-    :func:`run_contours` gives), their arrays read-only views of the memory it shares with this process
-    (and with the workers forked after). A helper that fails leaves nothing made: the workers slice."""
+    """Fork a helper that slices and chains ``runs`` in order, then makes their layers' solid bits
+    (:func:`_slice_ahead`), while the body runs; yields ``collect()``, which stops it and returns
+    ``context`` with what it finished (``ahead``, ``ahead_masks``): read-only views of the memory it shares
+    with this process (and with the workers forked after). A helper that fails leaves nothing made."""
     if not runs:
-        yield lambda: {}
+        yield lambda: context
         return
     buffer = mmap.mmap(-1, AHEAD_BYTES)
     fork = get_context("fork")
@@ -383,14 +390,15 @@ def _sliced_ahead(context: RunContext, runs: list[tuple[int, int]]):
     helper.start()
     theirs.close()
 
-    def collect() -> dict:
+    def collect() -> RunContext:
         try:
             ours.send(None)
-            placed = ours.recv()
+            placed, masks = ours.recv()
         except (OSError, EOFError):
-            return {}
-        return {run: (Contours(**{name: _shared_array(buffer, where) for name, where in layout}), *seconds)
-                for run, layout, seconds in placed}
+            return context
+        return replace(context, ahead={run: (_shared_contours(buffer, layout), *seconds)
+                                       for run, layout, seconds in placed},
+                       ahead_masks={run: _shared_array(buffer, where) for run, where in masks})
 
     try:
         yield collect
@@ -404,59 +412,80 @@ def _sliced_ahead(context: RunContext, runs: list[tuple[int, int]]):
 
 def _slice_ahead(context: RunContext, runs: list[tuple[int, int]], buffer: mmap.mmap, conn, parent_end=None
                  ) -> None:
-    """Helper process: :func:`run_contours` of ``runs`` in order, each copied into ``buffer``, until the parent
-    asks (anything on ``conn``, or its end closed) or the buffer is full; then send, per run done, where its
-    arrays lie. ``parent_end``, the parent's end of the pipe as forked into this process, is closed first, so
-    that the parent closing its own is seen here."""
+    """Helper process: :func:`run_contours` of ``runs`` in order, then the solid bits of their layers run by
+    run, each copied into ``buffer``, until the parent asks (anything on ``conn``, or its end closed) or the
+    buffer is full; then send where each run's contours and masks lie. ``parent_end``, the parent's end of the
+    pipe as forked into this process, is closed first, so that the parent closing its own is seen here."""
     if parent_end is not None:
         parent_end.close()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    placed, used = [], 0
+    placed, masks, used = [], [], 0
     try:
         for run in runs:
             if conn.poll():
                 break
             contours, *seconds = run_contours(context, *run)
-            copied = _copy_arrays(contours, buffer, used)
-            if copied is None:
+            layout = []
+            for item in fields(Contours):
+                where, used = _copy_array(getattr(contours, item.name), buffer, used)
+                layout.append((item.name, where))
+            if used > len(buffer):
                 break
-            layout, used = copied
             placed.append((run, layout, seconds))
+        for run, layout, _ in placed:
+            if conn.poll():
+                break
+            jobs = list(layer_jobs(_shared_contours(buffer, layout), context.mesh, context.grid, context.spec,
+                                   context.directory, first_layer=run[0]))
+            grid = context.grid
+            where, used = _place((len(jobs), grid.height, -(-grid.width // 8)), np.uint8, used)
+            if used > len(buffer):
+                break
+            bits = _shared_array(buffer, where, writeable=True)
+            for layer, job in enumerate(jobs):
+                bits[layer] = packed_mask(job.points, job.offsets, grid)
+            masks.append((run, where))
     except Exception:  # noqa: BLE001 - what is not made here the workers make, and they report its errors
         pass
     try:
         conn.recv()
-        conn.send(placed)
+        conn.send((placed, masks))
     except (EOFError, OSError):
         pass  # the parent stopped before it asked (an error, Ctrl-C): nothing is wanted
 
 
-def _copy_arrays(contours: Contours, buffer: mmap.mmap, used: int) -> tuple[list, int] | None:
-    """Copy the arrays of ``contours`` into ``buffer`` from byte ``used`` on, each 64-byte aligned: (per field,
-    its name and (dtype, shape, offset) or None, and the bytes used after), or None when they do not fit."""
-    layout = []
-    for item in fields(Contours):
-        array = getattr(contours, item.name)
-        if array is None:
-            layout.append((item.name, None))
-            continue
-        start = -(-used // 64) * 64
-        used = start + array.nbytes
-        if used > len(buffer):
-            return None
-        np.ndarray(array.shape, array.dtype, buffer=buffer, offset=start)[...] = array
-        layout.append((item.name, (array.dtype.str, array.shape, start)))
-    return layout, used
+def _place(shape: tuple, dtype, used: int) -> tuple[tuple, int]:
+    """Where an array of ``shape`` and ``dtype`` goes in a shared buffer whose first ``used`` bytes are taken,
+    64-byte aligned: ((dtype, shape, offset), bytes taken after)."""
+    dtype = np.dtype(dtype)
+    start = -(-used // 64) * 64
+    return (dtype.str, tuple(shape), start), start + dtype.itemsize * int(np.prod(shape))
 
 
-def _shared_array(buffer: mmap.mmap, where: tuple | None) -> np.ndarray | None:
-    """A read-only view of an array copied into ``buffer`` by :func:`_slice_ahead` ((dtype, shape, offset))."""
+def _copy_array(array: np.ndarray | None, buffer: mmap.mmap, used: int) -> tuple[tuple | None, int]:
+    """Copy ``array`` into ``buffer`` after its first ``used`` bytes (:func:`_place`): (where, bytes taken after;
+    None and ``used`` for no array). Nothing is copied past the end (the bytes taken then exceed the length)."""
+    if array is None:
+        return None, used
+    where, used = _place(array.shape, array.dtype, used)
+    if used <= len(buffer):
+        _shared_array(buffer, where, writeable=True)[...] = array
+    return where, used
+
+
+def _shared_array(buffer: mmap.mmap, where: tuple | None, writeable: bool = False) -> np.ndarray | None:
+    """A view (read-only unless ``writeable``) of an array placed in ``buffer`` (:func:`_place`)."""
     if where is None:
         return None
     dtype, shape, offset = where
     array = np.ndarray(shape, np.dtype(dtype), buffer=buffer, offset=offset)
-    array.flags.writeable = False
+    array.flags.writeable = writeable
     return array
+
+
+def _shared_contours(buffer: mmap.mmap, layout: list) -> Contours:
+    """The Contours whose arrays :func:`_slice_ahead` placed in ``buffer`` (layout: (field, where) per field)."""
+    return Contours(**{name: _shared_array(buffer, where) for name, where in layout})
 
 
 def _run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], None]) -> None:
@@ -478,7 +507,7 @@ def _run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], N
     runs = ([(start + 1, stop)] if stop > start + 1 else []) + runs[1:]
     with _sliced_ahead(context, runs if context.spec.grade is not None else []) as collect:
         on_done(slice_run(context, start, start + 1))
-        context = replace(context, ahead=collect())
+        context = collect()
     if not runs:
         return
     gc.freeze()
