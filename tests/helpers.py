@@ -1,4 +1,4 @@
-"""Test helpers: slice a trimesh in memory, and independent references to compare against."""
+"""Test helpers: slice a trimesh in memory, random rings, and independent references to compare against."""
 
 from __future__ import annotations
 
@@ -7,6 +7,8 @@ import numpy as np
 import shapely
 
 from heoslice.contours import Contours, build_contours
+from heoslice.regions import ring_edges
+from heoslice.regions_compiled import edge_tree
 from heoslice.slicing import plane_heights, slice_mesh
 
 
@@ -57,3 +59,30 @@ def near_contour(points: np.ndarray, offsets: np.ndarray, x: np.ndarray, y: np.n
 def _shoelace(ring: np.ndarray) -> float:
     x, y = ring[:, 0], ring[:, 1]
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def random_rings(rng, rings: int):
+    """Edges of ``rings`` random star-shaped rings (3 to 300 points each) in a 100 mm square."""
+    points, sizes = [], []
+    for _ in range(rings):
+        count = int(rng.integers(3, 300))
+        angle = np.sort(rng.uniform(0, 2 * np.pi, count))
+        radius = rng.uniform(0.5, 30.0) * rng.uniform(0.6, 1.0, count)
+        centre = rng.uniform(-50, 50, 2)
+        points.append(centre + np.column_stack([radius * np.cos(angle), radius * np.sin(angle)]))
+        sizes.append(count)
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    return ring_edges(np.concatenate(points), offsets, list(range(rings)))
+
+
+def brute_squared(qx, qy, edges):
+    """(n, e) squared distance from every point to every edge, float64."""
+    rx = qx[:, None] - edges.x[None, :]
+    ry = qy[:, None] - edges.y[None, :]
+    t = np.clip((rx * edges.vx + ry * edges.vy) * edges.inv_len2, 0.0, 1.0)
+    return (rx - t * edges.vx) ** 2 + (ry - t * edges.vy) ** 2
+
+
+def tree_of(edges):
+    """The edge tree of RingEdges (:func:`heoslice.regions_compiled.edge_tree`)."""
+    return edge_tree(edges.x, edges.y, edges.x + edges.vx, edges.y + edges.vy)

@@ -11,6 +11,7 @@ import pytest
 import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from helpers import brute_squared, random_rings, tree_of
 
 from heoslice import regions
 from heoslice.distribution import make_function
@@ -1237,3 +1238,23 @@ def test_only_families_of_one_or_two_convex_rings_get_the_wider_cells():
             points, offsets, area, parent = layer(*rings)
             field = family_field(points, offsets, layer_families(area, parent)[0], grid, RegionSpec())
             assert field.lattice.cell == cell, len(rings)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 4))
+def test_block_bounds_are_the_distances_to_the_edges_nearest_the_block_centres(seed, rings):
+    """Each block's bound is the exact distance to its edge, and that edge is the nearest to the block's centre
+    (within float32 rounding of the search): never below the true distance, so every radius built on it holds
+    the nearest edge, and never more than 1e-4 mm above it."""
+    rng = np.random.default_rng(seed)
+    edges = random_rings(rng, rings)
+    lattice = regions.Lattice(row0=0, col0=0, cell=8, rows=int(rng.integers(1, 120)), cols=int(rng.integers(1, 120)),
+                              x0=-70.0, y0=70.0, dx=float(rng.uniform(0.3, 1.5)), dy=float(rng.uniform(0.3, 1.5)))
+    bounds = regions.block_bounds(edges, lattice, tree_of(edges))
+    x, y = bounds.blocks.centres()
+    cx, cy = np.meshgrid(x, y)
+    squared = brute_squared(cx.ravel(), cy.ravel(), edges)
+    exact = np.sqrt(squared.min(axis=1))
+    of_edge = np.sqrt(squared[np.arange(len(exact)), bounds.edge.ravel()])
+    np.testing.assert_allclose(bounds.upper.ravel(), of_edge, rtol=0, atol=1e-9)
+    assert np.all(bounds.upper.ravel() >= exact - 1e-9) and np.all(bounds.upper.ravel() <= exact + 1e-4)

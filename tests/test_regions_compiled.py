@@ -8,6 +8,7 @@ import pytest
 import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from helpers import brute_squared, random_rings, tree_of
 
 from heoslice.regions import ring_edges
 from heoslice.regions_compiled import (
@@ -24,36 +25,9 @@ from heoslice.regions_compiled import (
     nearest_in_groups,
     refine_flags,
     ring_models,
-    seed_cells,
     signed_feet,
     straight_runs,
 )
-
-
-def random_rings(rng, rings: int):
-    """Edges of ``rings`` random star-shaped rings (3 to 300 points each) in a 100 mm square."""
-    points, sizes = [], []
-    for _ in range(rings):
-        count = int(rng.integers(3, 300))
-        angle = np.sort(rng.uniform(0, 2 * np.pi, count))
-        radius = rng.uniform(0.5, 30.0) * rng.uniform(0.6, 1.0, count)
-        centre = rng.uniform(-50, 50, 2)
-        points.append(centre + np.column_stack([radius * np.cos(angle), radius * np.sin(angle)]))
-        sizes.append(count)
-    offsets = np.concatenate([[0], np.cumsum(sizes)])
-    return ring_edges(np.concatenate(points), offsets, list(range(rings)))
-
-
-def brute_squared(qx, qy, edges):
-    """(n, e) squared distance from every point to every edge, float64."""
-    rx = qx[:, None] - edges.x[None, :]
-    ry = qy[:, None] - edges.y[None, :]
-    t = np.clip((rx * edges.vx + ry * edges.vy) * edges.inv_len2, 0.0, 1.0)
-    return (rx - t * edges.vx) ** 2 + (ry - t * edges.vy) ** 2
-
-
-def tree_of(edges):
-    return edge_tree(edges.x, edges.y, edges.x + edges.vx, edges.y + edges.vy)
 
 
 @settings(max_examples=25, deadline=None)
@@ -366,43 +340,6 @@ def test_inside_centres_is_the_solid_mask_of_disjoint_rings(seed, rings, clockwi
     near = shapely.distance(shapely.points(*np.meshgrid(x, y)), shapely.MultiLineString(
         [np.vstack([loop, loop[:1]]) for loop in loops])) < 1e-9
     assert np.array_equal(inside[~near], expected[~near])
-
-
-@settings(max_examples=25, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 4))
-def test_seed_cells_are_the_cells_of_edge_samples_nearest_their_centres(seed, rings):
-    """Seeded cells are exactly those holding a sample of an edge (edges sampled at half a cell, ends
-    included), each with the edge of the sample nearest its centre in cell units (the first of equals),
-    as a numpy sort over every sample finds them; every cell whose centre lies within a quarter cell of
-    an edge is seeded."""
-    rng = np.random.default_rng(seed)
-    edges = random_rings(rng, rings)
-    rows, cols, dx, dy, x0, y0 = int(rng.integers(3, 40)), int(rng.integers(3, 40)), 4.0, 3.0, -60.0, 60.0
-    got_seed, got_edge = seed_cells(edges.x, edges.y, edges.vx, edges.vy, x0, y0, dx, dy, rows, cols)
-    count = np.ceil(np.hypot(edges.vx, edges.vy) / (0.5 * min(dx, dy))).astype(np.int64) + 1
-    edge = np.repeat(np.arange(len(count)), count)
-    t = (np.arange(len(edge)) - np.repeat(np.cumsum(count) - count, count)) / np.repeat(count - 1, count)
-    u = (edges.x[edge] + t * edges.vx[edge] - x0) / dx - 0.5
-    v = (y0 - edges.y[edge] - t * edges.vy[edge]) / dy - 0.5
-    col, row = np.clip(np.rint(u), 0, cols - 1).astype(int), np.clip(np.rint(v), 0, rows - 1).astype(int)
-    key = row * cols + col
-    order = np.lexsort(((u - col) ** 2 + (v - row) ** 2, key))
-    first = order[np.concatenate([[True], key[order][1:] != key[order][:-1]])]
-    seed_expected = np.zeros(rows * cols, bool)
-    seed_expected[key[first]] = True
-    assert np.array_equal(got_seed.ravel(), seed_expected)
-    gap = (u - col) ** 2 + (v - row) ** 2
-    chosen = got_edge.ravel()[key]
-    # the chosen edge's best sample in each cell is as near the centre as any (ties may pick either edge)
-    best = np.full(rows * cols, np.inf)
-    np.minimum.at(best, key, gap)
-    mine = np.full(rows * cols, np.inf)
-    np.minimum.at(mine, key[edge == chosen], gap[edge == chosen])
-    assert np.allclose(mine[seed_expected], best[seed_expected], rtol=0, atol=1e-12)
-    cx = np.broadcast_to(x0 + (np.arange(cols) + 0.5) * dx, (rows, cols)).ravel()
-    cy = np.broadcast_to((y0 - (np.arange(rows) + 0.5) * dy)[:, None], (rows, cols)).ravel()
-    close = np.sqrt(brute_squared(cx, cy, edges).min(axis=1)) < 0.25 * min(dx, dy)
-    assert got_seed.ravel()[close].all()
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (1, 7), (6, 1), (2, 2), (30, 41)])

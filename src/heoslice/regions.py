@@ -336,8 +336,8 @@ _BLOCK = 8
 class BlockBounds:
     """An upper bound of the distance to a ring set at the centres of blocks of _BLOCK x _BLOCK cells.
 
-    ``blocks`` is the block lattice; per block ((rows, cols)): ``edge`` the edge of the
-    nearest ring-seeded block and ``upper`` the exact distance to it (mm).
+    ``blocks`` is the block lattice; per block ((rows, cols)): ``edge`` the edge found nearest
+    its centre and ``upper`` the exact distance to it (mm).
     """
 
     blocks: Lattice
@@ -345,24 +345,20 @@ class BlockBounds:
     upper: np.ndarray
 
 
-def block_bounds(edges: RingEdges, lattice: Lattice) -> BlockBounds:
-    """Upper bounds of the distance at block centres from scipy's exact EDT over the blocks seeded by
-    the rings: the distance to the edge of the nearest seeded block."""
-    import scipy.ndimage  # imported here: ungraded slicing never needs it
-
-    from heoslice.regions_compiled import feet, seed_cells
+def block_bounds(edges: RingEdges, lattice: Lattice, tree: tuple) -> BlockBounds:
+    """Upper bounds of the distance at block centres: the exact distance to the edge found nearest each
+    centre (:func:`nearest_edges`, in float32, among the edges within the centre's distance to the rings'
+    first point, which holds the nearest)."""
+    from heoslice.regions_compiled import feet
 
     b = _BLOCK
     blocks = Lattice(row0=lattice.row0, col0=lattice.col0, cell=lattice.cell * b, rows=-(-lattice.rows // b),
                      cols=-(-lattice.cols // b), x0=lattice.x0, y0=lattice.y0, dx=lattice.dx * b, dy=lattice.dy * b)
-    seed, seed_edge = seed_cells(edges.x, edges.y, edges.vx, edges.vy, blocks.x0, blocks.y0, blocks.dx, blocks.dy,
-                                 blocks.rows, blocks.cols)
-    index = scipy.ndimage.distance_transform_edt(~seed, sampling=(blocks.dy, blocks.dx), return_distances=False,
-                                                 return_indices=True)
     x, y = blocks.centres()
     cx = np.broadcast_to(x, (blocks.rows, blocks.cols)).ravel()
     cy = np.broadcast_to(y[:, None], (blocks.rows, blocks.cols)).ravel()
-    edge = seed_edge[index[0], index[1]].ravel()
+    reach = np.hypot(cx - edges.x[0], cy - edges.y[0]) * (1 + 1e-6) + 1e-6
+    edge = nearest_edges(cx, cy, reach, np.zeros(1), np.zeros(1), edges, tree)[:, 0].astype(np.int64)
     upper = feet(cx, cy, edge, edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2)[0]
     shape = (blocks.rows, blocks.cols)
     return BlockBounds(blocks, edge.reshape(shape), upper.reshape(shape))
@@ -382,7 +378,7 @@ def lattice_edges(edges: RingEdges, lattice: Lattice, tree: tuple | None = None,
     if tree is None:
         tree = ring_tree(edges)
     if bounds is None:
-        bounds = block_bounds(edges, lattice)
+        bounds = block_bounds(edges, lattice, tree)
     blocks, b = bounds.blocks, _BLOCK
     edge = np.repeat(bounds.edge[:, :, None], b * b, axis=2)
     chosen = np.nonzero(np.ones(bounds.edge.shape, bool) if wanted is None else wanted)
@@ -527,7 +523,7 @@ class RingMeasures:
 
 def _ring_measures(rings: RingSet, lattice: Lattice) -> RingMeasures:
     """A ring set's RingMeasures on a lattice, no block's edges measured yet."""
-    bounds = block_bounds(rings.edges, lattice)
+    bounds = block_bounds(rings.edges, lattice, rings.tree)
     inside = _inside_loops(rings, lattice)
     far = _far_side(rings, inside, bounds, lattice)
     return RingMeasures(bounds, inside, far, np.zeros((lattice.rows, lattice.cols), dtype=np.int64),

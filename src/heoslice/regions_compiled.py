@@ -463,29 +463,6 @@ def _inside_centres(ex, ey, evx, evy, x0, y0, dx, dy, rows, cols):  # pragma: no
 
 
 @numba.njit(**_JIT)
-def _seed_cells(ex, ey, evx, evy, x0, y0, dx, dy, rows, cols):  # pragma: no cover - compiled
-    """(seed (rows, cols) bool, edge (rows, cols) int64): the lattice cells the edges pass through, sampled
-    at half a cell, each with the edge whose sample lies nearest its centre (in cells; the first of
-    equals)."""
-    step = 0.5 * min(dx, dy)
-    best = np.full((rows, cols), np.inf)
-    edge = np.zeros((rows, cols), dtype=np.int64)
-    for e in range(len(ex)):
-        count = int(np.ceil(np.sqrt(evx[e] * evx[e] + evy[e] * evy[e]) / step)) + 1
-        for k in range(count):
-            t = k / (count - 1) if count > 1 else 0.0
-            u = (ex[e] + t * evx[e] - x0) / dx - 0.5
-            v = (y0 - (ey[e] + t * evy[e])) / dy - 0.5
-            col = int(min(max(np.rint(u), 0.0), cols - 1.0))
-            row = int(min(max(np.rint(v), 0.0), rows - 1.0))
-            gap = (u - col) ** 2 + (v - row) ** 2
-            if gap < best[row, col]:
-                best[row, col] = gap
-                edge[row, col] = e
-    return best < np.inf, edge
-
-
-@numba.njit(**_JIT)
 def _feet(qx, qy, edge, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
     """Distance from each point to its given edge, and the nearest point on it (the foot)."""
     n = len(qx)
@@ -1266,16 +1243,6 @@ def inside_centres(ex: np.ndarray, ey: np.ndarray, evx: np.ndarray, evy: np.ndar
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
     return _inside_centres(f64(ex), f64(ey), f64(evx), f64(evy), float(x0), float(y0), float(dx), float(dy),
                            int(rows), int(cols))
-
-
-def seed_cells(ex: np.ndarray, ey: np.ndarray, evx: np.ndarray, evy: np.ndarray, x0: float, y0: float,
-               dx: float, dy: float, rows: int, cols: int) -> tuple[np.ndarray, np.ndarray]:
-    """(seed (rows, cols) bool, edge (rows, cols) int): cells of a lattice (x0, y0 its top-left corner, dx, dy
-    its cells, mm) that the edges from (ex, ey) by (evx, evy) pass through, each with the edge passing
-    nearest its centre (compiled :func:`_seed_cells`)."""
-    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
-    return _seed_cells(f64(ex), f64(ey), f64(evx), f64(evy), float(x0), float(y0), float(dx), float(dy), int(rows),
-                       int(cols))
 
 
 def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, ex: np.ndarray, ey: np.ndarray, evx: np.ndarray,
