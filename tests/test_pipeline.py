@@ -235,7 +235,7 @@ import resource, sys
 import numpy as np
 from heoslice import pipeline
 if sys.argv[1] == "worker":
-    pipeline._adopt(None)
+    pipeline._adopt(None, {})
 faults = []
 for _ in range(2):
     before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt

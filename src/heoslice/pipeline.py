@@ -296,12 +296,13 @@ class RunResult:
 _WORKER_CONTEXT: dict = {}
 
 
-def _adopt(context: RunContext) -> None:
-    """Worker initializer: keep the context; Ctrl-C is the parent's to handle (one 'interrupted' line)."""
+def _adopt(context: RunContext, reuse: dict) -> None:
+    """Worker initializer: keep the context and what the parent's first layer left to the next (``reuse``,
+    this worker's copy by fork); Ctrl-C is the parent's to handle (one 'interrupted' line)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     keep_freed_memory()
     _WORKER_CONTEXT["run"] = context
-    _WORKER_CONTEXT["reuse"] = {}
+    _WORKER_CONTEXT["reuse"] = reuse
 
 
 #: glibc's mallopt parameters (malloc.h) and the values a worker sets: blocks below 32 MB (glibc's largest
@@ -505,15 +506,16 @@ def _run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], N
     # fork, as Python's gc documentation advises, the objects made so far stay out of the workers' collections.
     start, stop = runs[0]
     runs = ([(start + 1, stop)] if stop > start + 1 else []) + runs[1:]
+    first: dict = {}
     with _sliced_ahead(context, runs if context.spec.grade is not None else []) as collect:
-        on_done(slice_run(context, start, start + 1))
+        on_done(slice_run(context, start, start + 1, first))
         context = collect()
     if not runs:
         return
     gc.freeze()
     try:
         with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork"),
-                                 initializer=_adopt, initargs=(context,)) as pool:
+                                 initializer=_adopt, initargs=(context, first)) as pool:
             pending = set()
             for start, stop in runs:
                 pending.add(pool.submit(_slice_run_in_worker, start, stop))
