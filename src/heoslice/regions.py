@@ -1009,6 +1009,8 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
         # the outermost family spans the layer's box: its labels are the layer's, no copy of ~15 MP (unless
         # other families paint over them and the field may serve the next layer)
         label = first.index
+    elif first.box == box:
+        label = np.empty((box[1] - box[0], box[3] - box[2]), dtype=dtype)  # the copy of its labels fills it
     else:
         label = np.zeros((box[1] - box[0], box[3] - box[2]), dtype=dtype)
     for number, (family, field) in enumerate(zip(families, fields)):
