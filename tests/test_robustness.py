@@ -369,3 +369,25 @@ def test_corpus_slices_to_a_verified_stack_or_fails_in_one_line(tmp_path, model,
     else:
         one_error_line(err)
         assert not (directory / MANIFEST).exists()
+
+
+_THREADS_PROBE = """
+import atexit, os, sys
+atexit.register(lambda: print(os.environ.get("OPENBLAS_NUM_THREADS"), "numpy" in sys.modules))
+from heoslice.cli import main
+print("numpy" in sys.modules)
+sys.argv = ["heoslice", "--version"]
+main()
+"""
+
+
+@pytest.mark.parametrize("given, expected", [(None, "1"), ("3", "3")])
+def test_the_command_runs_openblas_on_one_thread_unless_told_otherwise(given, expected):
+    """The console command sets OPENBLAS_NUM_THREADS to 1 before numpy is loaded (heoslice makes no BLAS call
+    worth threads; the pools only spin), and keeps a value the user set."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    out = subprocess.run([sys.executable, "-c", _THREADS_PROBE], capture_output=True, text=True, env=env, check=True)
+    lines = out.stdout.split("\n")
+    assert lines[0] == "False" and lines[-2] == f"{expected} False"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import gc
 import importlib
+import os
 import sys
 import traceback
 
@@ -67,6 +68,10 @@ def cli(ctx: click.Context, debug: bool) -> None:
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: run the group, map errors to one line and an exit status."""
     args = sys.argv[1:] if argv is None else argv
+    if argv is None:
+        # this process's own command: heoslice makes no BLAS call worth threads (its workers are processes),
+        # and OpenBLAS's thread pools, started when numpy and scipy load it, only spin (~0.2 s of CPU a run)
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     debug = "--debug" in args
     try:
         cli.main(args=args, prog_name="heoslice", standalone_mode=False)
