@@ -738,6 +738,23 @@ def test_droplet_bits_follows_a_dither_tile_of_any_size(size):
     assert np.array_equal(got, expected)
 
 
+def test_droplet_bits_takes_every_layers_tile_through_one_compiled_signature():
+    """Tiles of layers under every symmetry (transposed ones are Fortran-ordered) reach the kernel as the same
+    argument types: the workers load one compiled version, not one per layout."""
+    from heoslice.halftone import layer_tile
+    from heoslice.regions_compiled import _droplet_bits, droplet_bits
+
+    label = np.ones((4, 16), np.int16)
+    table = np.ones((2, 256), np.int8)
+    for layer in range(8):
+        droplet_bits(label, (0, 0), np.full((4, 2), 255, np.uint8), np.zeros(2, np.int64), np.zeros(2),
+                     np.zeros((1, 5), np.int64), np.zeros(2), np.zeros(2), layer_tile(layer), 0,
+                     np.zeros((2, 4, 2), np.uint8), table)
+    assert {layer_tile(layer).flags.f_contiguous for layer in range(8)} == {True, False}
+    layouts = {signature[-1].layout for signature in _droplet_bits.overloads}
+    assert layouts == {"C"}
+
+
 def wide_halftone_case(rng, channels: int, missing: str, entries: int):
     """A droplet_bits input with rows of many 16-pixel chunks inside the labels: label bands of 1-12 pixels,
     solid pixels with empty stretches (whole empty bytes and chunks), the label box a little inside the

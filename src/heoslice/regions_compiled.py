@@ -1316,7 +1316,8 @@ def droplet_bits(label: np.ndarray, origin: tuple[int, int], packed: np.ndarray,
     the table has entries (an organ layer of ``slice --channels``, K = 2), ~20 ns where it has none.
     """
     size = tile.shape[0]
-    level = np.rint(np.asarray(tile, dtype=np.float64) * size * size - 0.5).astype(np.int64)
+    # C order whichever symmetry the layer's tile has (a transposed one is Fortran-ordered): one compiled signature
+    level = np.ascontiguousarray(np.rint(np.asarray(tile, dtype=np.float64) * size * size - 0.5).astype(np.int64))
     label = np.ascontiguousarray(label)
     if label.dtype.kind == "i":
         label = label.view(f"u{label.itemsize}")
