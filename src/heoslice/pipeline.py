@@ -502,18 +502,20 @@ def _run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], N
     # The first layer is rendered here, before the workers are forked: what it loads (compiled kernels and
     # their registries, codecs) is loaded once and inherited, not by every worker side by side (two took
     # 1.03 s at once against 0.85 s for one, graded holes part). Meanwhile, when that takes long (graded
-    # layers), a helper slices and chains the next runs on the core that would idle. Frozen before the
-    # fork, as Python's gc documentation advises, the objects made so far stay out of the workers' collections.
+    # layers), a helper slices and chains the next runs on the core that would idle. Frozen before each
+    # fork, as Python's gc documentation advises, the objects made so far stay out of the collections (whose
+    # writes would copy the pages this process shares with the helper and the workers).
     start, stop = runs[0]
     runs = ([(start + 1, stop)] if stop > start + 1 else []) + runs[1:]
     first: dict = {}
-    with _sliced_ahead(context, runs if context.spec.grade is not None else []) as collect:
-        on_done(slice_run(context, start, start + 1, first))
-        context = collect()
-    if not runs:
-        return
     gc.freeze()
     try:
+        with _sliced_ahead(context, runs if context.spec.grade is not None else []) as collect:
+            on_done(slice_run(context, start, start + 1, first))
+            context = collect()
+        if not runs:
+            return
+        gc.freeze()
         with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork"),
                                  initializer=_adopt, initargs=(context, first)) as pool:
             pending = set()
