@@ -1258,3 +1258,32 @@ def test_block_bounds_are_the_distances_to_the_edges_nearest_the_block_centres(s
     of_edge = np.sqrt(squared[np.arange(len(exact)), bounds.edge.ravel()])
     np.testing.assert_allclose(bounds.upper.ravel(), of_edge, rtol=0, atol=1e-9)
     assert np.all(bounds.upper.ravel() >= exact - 1e-9) and np.all(bounds.upper.ravel() <= exact + 1e-4)
+
+
+def test_the_distance_from_the_outer_ring_to_its_holes_is_the_least_hole_by_hole_and_kept_a_layer(monkeypatch):
+    """L_S of a plate with holes, taken hole by hole, is exactly rings_apart of the outer ring and all its holes
+    at once; through a cavity (one hole changing) only the changed hole's distance is measured again."""
+    rng = np.random.default_rng(3)
+    plate = np.array([[-12.0, -9.0], [12.0, -9.0], [12.0, 9.0], [-12.0, 9.0]])
+    centres = [(-7.0, -4.0), (-7.0, 4.0), (0.0, -4.0), (0.0, 4.0)]
+    holes = [circle(float(rng.uniform(1.0, 2.5)), int(rng.integers(12, 200)), c, clockwise=True) for c in centres]
+    counted = []
+    original = regions.rings_apart
+    monkeypatch.setattr(regions, "rings_apart", lambda *a: counted.append(1) or original(*a))
+    grid = grid_around(12.5)
+    spec = RegionSpec(nozzle_mm=0.05)
+    before: dict = {}
+    measured = []
+    for radius in [2.0, 2.6, 2.6]:
+        rings = [plate, *holes, circle(radius, 96, (7.0, 0.0), clockwise=True)]
+        points, offsets, area, parent = layer(*rings)
+        family = layer_families(area, parent)[0]
+        outer = regions.ring_set(points, offsets, (family.outer,), True)
+        everything = original(outer, regions.ring_set(points, offsets, family.holes, False))
+        now: dict = {}
+        start = len(counted)
+        field = family_field(points, offsets, family, grid, spec, measured=(before, now))
+        assert field.layout.length_mm == everything
+        measured.append(len(counted) - start)
+        before = now
+    assert measured == [len(holes) + 1, 1, 0]

@@ -459,6 +459,19 @@ def rings_apart(first: RingSet, second: RingSet) -> float:
     return edge_sets_apart(a, first.tree, b, second.tree, bound)
 
 
+def _rings_apart_kept(first: RingSet, second: RingSet, before: dict, now: dict) -> float:
+    """:func:`rings_apart`, taken from ``before`` (what the last layer measured, by the two sets' keys) when
+    there, and kept in ``now``."""
+    key = ("apart", first.key, second.key)
+    apart = before.get(key)
+    if apart is None:
+        apart = now.get(key)
+    if apart is None:
+        apart = rings_apart(first, second)
+    now[key] = apart
+    return apart
+
+
 def _band_coordinate(layout: FamilyLayout, d: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """s = r * N_R and its gradient from the signed distances d and gradients g to the starting rings (d[0])
     and each ending ring.
@@ -684,8 +697,13 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
         outline = shapely.Polygon(np.column_stack([outer.edges.x, outer.edges.y]))
         inradius = float(shapely.maximum_inscribed_circle(outline, 0.5 * min(grid.px, grid.py)).length)
     apart = None
-    if family.holes and spec.depth_mm is None:
+    if family.holes and spec.depth_mm is None and outward:
         apart = rings_apart(outer, rings(family.holes, False))
+    elif family.holes and spec.depth_mm is None:
+        # hole by hole (the rings the grading ends at, measured anyway), each pair kept for the next layer: through
+        # a cavity, only the outer ring's distance to the cavity is new
+        apart = min(_rings_apart_kept(outer, rings((hole,), False), measured_before, measured_now)
+                    for hole in family.holes)
     layout = family_layout(family, spec, inradius, apart)
     ends = [rings(loops, outward) for loops in layout.end]
     if direct:
