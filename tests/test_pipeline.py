@@ -378,3 +378,22 @@ def test_a_helper_that_fails_or_is_left_makes_nothing_and_leaves_quietly(tmp_pat
     monkeypatch.setattr(pipeline, "_slice_ahead", _broken_helper)
     with pipeline._sliced_ahead(context, pipeline.plane_runs(context)) as collect:
         assert collect() is context
+
+
+def test_parallel_slicing_leaves_the_garbage_collector_as_it_found_it(tmp_path):
+    """What is frozen for the forks is unfrozen after (nothing left frozen), and a caller that froze its own
+    objects finds them frozen still, and no more."""
+    import gc
+
+    mesh = load_mesh(write_mesh(procedural.shell_with_island(8.0, 5.0, 2.0, 3), tmp_path / "m.ply"))
+    spec = _graded_spec(jobs=2)
+    assert gc.get_freeze_count() == 0
+    slice_to_stack(mesh, tmp_path / "a", spec)
+    assert gc.get_freeze_count() == 0
+    gc.freeze()
+    try:
+        frozen = gc.get_freeze_count()
+        slice_to_stack(mesh, tmp_path / "b", spec)
+        assert gc.get_freeze_count() == frozen
+    finally:
+        gc.unfreeze()

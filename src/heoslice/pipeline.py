@@ -508,14 +508,15 @@ def _run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], N
     start, stop = runs[0]
     runs = ([(start + 1, stop)] if stop > start + 1 else []) + runs[1:]
     first: dict = {}
-    gc.freeze()
+    freeze = gc.freeze if gc.get_freeze_count() == 0 else lambda: None  # a caller's own freezing is left alone
+    freeze()
     try:
         with _sliced_ahead(context, runs if context.spec.grade is not None else []) as collect:
             on_done(slice_run(context, start, start + 1, first))
             context = collect()
         if not runs:
             return
-        gc.freeze()
+        freeze()
         with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("fork"),
                                  initializer=_adopt, initargs=(context, first)) as pool:
             pending = set()
@@ -528,7 +529,8 @@ def _run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], N
             for future in pending:
                 on_done(future.result())
     finally:
-        gc.unfreeze()
+        if freeze is gc.freeze:
+            gc.unfreeze()
 
 
 def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool = False,
