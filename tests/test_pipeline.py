@@ -397,3 +397,49 @@ def test_parallel_slicing_leaves_the_garbage_collector_as_it_found_it(tmp_path):
         assert gc.get_freeze_count() == frozen
     finally:
         gc.unfreeze()
+
+
+def test_a_helper_makes_masks_only_up_to_their_share_of_the_buffer(tmp_path, monkeypatch):
+    """Past AHEAD_MASK_BYTES of solid masks the helper stops making them: every run's contours, the masks of
+    the runs that fit in that share."""
+    import mmap
+
+    from heoslice import pipeline
+
+    context = _run_context(tmp_path, procedural.shell_with_island(8.0, 5.0, 2.0, 3), _graded_spec(max_segments=400))
+    runs = pipeline.plane_runs(context)
+    layers = [stop - start for start, stop in runs[:2]]
+    row_bytes = context.grid.height * -(-context.grid.width // 8)
+    monkeypatch.setattr(pipeline, "AHEAD_MASK_BYTES", sum(layers) * row_bytes)
+    asked = _Asked()
+    pipeline._slice_ahead(context, runs, mmap.mmap(-1, 16 << 20), asked)
+    placed, masks = asked.sent[0]
+    assert [run for run, _, _ in placed] == runs and [run for run, _ in masks] == runs[:2]
+
+
+def _silent_helper(*args):
+    import signal
+    import time
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    time.sleep(120)
+
+
+def test_a_helper_that_does_not_answer_is_left_aside_and_ended(tmp_path, monkeypatch):
+    """A helper that neither answers nor ends is waited for at most _AHEAD_WAIT_S (0.3 s here; well within
+    30 s, where the helper would still be asleep), its work left to the workers, and it is killed: no
+    process is left behind."""
+    import multiprocessing
+    import time
+
+    from heoslice import pipeline
+
+    monkeypatch.setattr(pipeline, "_slice_ahead", _silent_helper)
+    monkeypatch.setattr(pipeline, "_AHEAD_WAIT_S", 0.3)
+    spec = SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), max_segments=400)
+    context = _run_context(tmp_path, procedural.shell_with_island(8.0, 5.0, 2.0, 3), spec)
+    started = time.monotonic()
+    with pipeline._sliced_ahead(context, pipeline.plane_runs(context)) as collect:
+        assert collect() is context
+    assert time.monotonic() - started < 30
+    assert multiprocessing.active_children() == []

@@ -316,15 +316,17 @@ def keep_freed_memory() -> bool:
 
     Every layer allocates and frees the same few-MB arrays; glibc otherwise maps them afresh or
     gives them back to the kernel, and each comes back as newly zeroed pages (~170 k page faults, a
-    third of a second of system time, on the benchmark's part with holes). Peak memory is unchanged:
-    what is kept is what the worker had already used. Called in worker processes only (a library
-    caller's own process keeps its settings); a no-op where the C library has no mallopt (not glibc).
+    third of a second of system time, on the benchmark's part with holes). What is kept is what the
+    worker had used (peak RSS measured: organ 54 -> 55 MB, graded holes 213 -> 222 MB; a heap this
+    large can hold fragments). Called in worker processes only (a library caller's own process keeps
+    its settings); a no-op where the C library has no mallopt (not glibc).
     """
     mallopt = getattr(ctypes.CDLL(None), "mallopt", None)
     if mallopt is None:
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    return bool(mallopt(_M_MMAP_THRESHOLD, _HEAP_BLOCK_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, _KEPT_BYTES))
+    done = [mallopt(_M_MMAP_THRESHOLD, _HEAP_BLOCK_BYTES), mallopt(_M_TRIM_THRESHOLD, _KEPT_BYTES)]
+    return all(done)
 
 
 def slice_run(context: RunContext, start: int, stop: int, reuse: dict | None = None) -> RunResult:
@@ -371,8 +373,12 @@ def plane_runs(context: RunContext, max_layers: int = 32) -> list[tuple[int, int
     return runs
 
 
-#: Most bytes of contours a helper slices ahead (shared memory, touched only as written).
+#: Most bytes a helper makes ahead (shared memory, touched only as written), and of them at most
+#: AHEAD_MASK_BYTES of solid masks (a 15 MP organ's run of masks is 32 MB: each worker maps what it reads).
 AHEAD_BYTES = 256 << 20
+AHEAD_MASK_BYTES = 64 << 20
+#: Longest wait (s) for a helper to answer, and then to end, before it is left aside (and killed).
+_AHEAD_WAIT_S = 10.0
 
 
 @contextmanager
@@ -380,7 +386,8 @@ def _sliced_ahead(context: RunContext, runs: list[tuple[int, int]]):
     """Fork a helper that slices and chains ``runs`` in order, then makes their layers' solid bits
     (:func:`_slice_ahead`), while the body runs; yields ``collect()``, which stops it and returns
     ``context`` with what it finished (``ahead``, ``ahead_masks``): read-only views of the memory it shares
-    with this process (and with the workers forked after). A helper that fails leaves nothing made."""
+    with this process (and with the workers forked after). What a helper that fails or does not answer in
+    _AHEAD_WAIT_S did not finish, the workers make."""
     if not runs:
         yield lambda: context
         return
@@ -388,12 +395,19 @@ def _sliced_ahead(context: RunContext, runs: list[tuple[int, int]]):
     fork = get_context("fork")
     ours, theirs = fork.Pipe()
     helper = fork.Process(target=_slice_ahead, args=(context, runs, buffer, theirs, ours), daemon=True)
-    helper.start()
+    # Ctrl-C held back over the fork: the helper ignores it before it can arrive (the parent handles it)
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        helper.start()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
     theirs.close()
 
     def collect() -> RunContext:
         try:
             ours.send(None)
+            if not ours.poll(_AHEAD_WAIT_S):
+                return context
             placed, masks = ours.recv()
         except (OSError, EOFError):
             return context
@@ -405,7 +419,7 @@ def _sliced_ahead(context: RunContext, runs: list[tuple[int, int]]):
         yield collect
     finally:
         ours.close()
-        helper.join(timeout=5)
+        helper.join(timeout=_AHEAD_WAIT_S)
         if helper.is_alive():
             helper.kill()
             helper.join()
@@ -420,7 +434,8 @@ def _slice_ahead(context: RunContext, runs: list[tuple[int, int]], buffer: mmap.
     if parent_end is not None:
         parent_end.close()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    placed, masks, used = [], [], 0
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    placed, masks, used, mask_bytes = [], [], 0, 0
     try:
         for run in runs:
             if conn.poll():
@@ -439,8 +454,10 @@ def _slice_ahead(context: RunContext, runs: list[tuple[int, int]], buffer: mmap.
             jobs = list(layer_jobs(_shared_contours(buffer, layout), context.mesh, context.grid, context.spec,
                                    context.directory, first_layer=run[0]))
             grid = context.grid
-            where, used = _place((len(jobs), grid.height, -(-grid.width // 8)), np.uint8, used)
-            if used > len(buffer):
+            shape = (len(jobs), grid.height, -(-grid.width // 8))
+            mask_bytes += int(np.prod(shape))
+            where, used = _place(shape, np.uint8, used)
+            if used > len(buffer) or mask_bytes > AHEAD_MASK_BYTES:
                 break
             bits = _shared_array(buffer, where, writeable=True)
             for layer, job in enumerate(jobs):

@@ -373,7 +373,7 @@ def lattice_edges(edges: RingEdges, lattice: Lattice, tree: tuple | None = None,
     C has d(p) <= U + a (the distance is 1-Lipschitz), so its nearest edge is within
     U + 2 a of C: every edge within U + 2 max a of C is a candidate, and the nearest is
     exact. Blocks not ``wanted`` ((rows, cols) bool over the blocks; default all) are not
-    measured: their centres get their block's seed edge (its distance an upper bound).
+    measured: their centres get the edge found nearest their block's centre (its distance an upper bound).
     """
     if tree is None:
         tree = ring_tree(edges)
@@ -546,8 +546,8 @@ def _ring_measures(rings: RingSet, lattice: Lattice) -> RingMeasures:
 def _measured_centres(rings: RingSet, measures: RingMeasures, lattice: Lattice, wanted: np.ndarray
                       ) -> tuple[tuple, RingMeasures]:
     """At every cell centre: signed distance to the rings (> 0 on the family's side), its unit gradient, foot
-    and edge, exact in the ``wanted`` blocks ((block rows, block cols) bool; elsewhere from the block's seed
-    edge, :func:`lattice_edges`), measuring only the blocks ``measures`` does not hold yet: ((signed, gradient,
+    and edge, exact in the ``wanted`` blocks ((block rows, block cols) bool; elsewhere from the edge nearest the
+    block's centre, :func:`lattice_edges`), measuring only the blocks ``measures`` does not hold yet: ((signed, gradient,
     foot, edge), the measures with them). The same blocks wanted as the last time give the last answer (a hole
     that stays while another ring of its family changes, as through a cavity)."""
     from heoslice.regions_compiled import signed_feet
