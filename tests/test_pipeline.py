@@ -364,8 +364,8 @@ def test_graded_stacks_are_the_same_with_runs_sliced_ahead_or_not(tmp_path, monk
 
 
 def test_a_helper_that_fails_or_is_left_makes_nothing_and_leaves_quietly(tmp_path, monkeypatch, capfd):
-    """A helper that raises leaves the context as it was; a parent interrupted before it asks ends its helper, which leaves
-    without a traceback."""
+    """A helper that raises leaves the context as it was; a parent interrupted before it asks ends its helper,
+    which leaves without a traceback."""
     from heoslice import pipeline
 
     spec = SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), max_segments=400)

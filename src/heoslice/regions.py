@@ -546,10 +546,10 @@ def _ring_measures(rings: RingSet, lattice: Lattice) -> RingMeasures:
 def _measured_centres(rings: RingSet, measures: RingMeasures, lattice: Lattice, wanted: np.ndarray
                       ) -> tuple[tuple, RingMeasures]:
     """At every cell centre: signed distance to the rings (> 0 on the family's side), its unit gradient, foot
-    and edge, exact in the ``wanted`` blocks ((block rows, block cols) bool; elsewhere from the edge nearest the
-    block's centre, :func:`lattice_edges`), measuring only the blocks ``measures`` does not hold yet: ((signed, gradient,
-    foot, edge), the measures with them). The same blocks wanted as the last time give the last answer (a hole
-    that stays while another ring of its family changes, as through a cavity)."""
+    and edge, exact in the ``wanted`` blocks ((block rows, block cols) bool; elsewhere from the edge nearest
+    the block's centre, :func:`lattice_edges`), measuring only the blocks ``measures`` does not hold yet:
+    ((signed, gradient, foot, edge), the measures with them). The same blocks wanted as the last time give
+    the last answer (a hole that stays while another ring of its family changes, as through a cavity)."""
     from heoslice.regions_compiled import signed_feet
 
     if measures.centres and np.array_equal(measures.centres[0], wanted):
