@@ -28,7 +28,7 @@ import trimesh
 
 from heoslice.coloring import ColorSpec, color_mesh
 from heoslice.distribution import build_surface_index, make_function, surface_distance
-from heoslice.loading import Mesh
+from heoslice.mesh import Mesh
 
 
 def organ(vertex_count: int) -> Mesh:

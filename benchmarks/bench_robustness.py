@@ -7,7 +7,7 @@ Prints:
 - refusing a PLY header that declares 10**9 / 10**12 elements: wall time and peak RSS of
   ``heoslice info`` in a subprocess, against ``heoslice --version`` (start-up only)
   (issue 7 target: under 1 s and 100 MB);
-- the strict PLY reader (``loading.read_ply``) against trimesh's PLY reader on the same
+- the strict PLY reader (``heoslice.mesh.read_ply``) against trimesh's PLY reader on the same
   binary and ASCII files (ratio = heoslice / trimesh);
 - ``verify_stack`` (hash, header checks and a full strip-by-strip decode of every
   layer) against writing the same stack with ``slice_to_stack``.
@@ -44,7 +44,7 @@ def main() -> None:
     import trimesh
 
     from heoslice import procedural
-    from heoslice.loading import load_mesh, read_ply
+    from heoslice.mesh import load_mesh, read_ply
     from heoslice.pipeline import SliceSpec, slice_to_stack
     from heoslice.stack import verify_stack
 

@@ -85,7 +85,7 @@ def slicing_ratio(mesh_path: Path, layer: float, repeats: int) -> dict:
     import manifold3d
 
     from heoslice.contours import build_contours
-    from heoslice.loading import load_mesh
+    from heoslice.mesh import load_mesh
     from heoslice.slicing import plane_heights, slice_mesh
 
     mesh = load_mesh(mesh_path)

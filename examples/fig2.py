@@ -19,7 +19,7 @@ from PIL import Image, ImageDraw
 
 from heoslice.coloring import ColorSpec, color_mesh
 from heoslice.distribution import make_function
-from heoslice.loading import load_mesh
+from heoslice.mesh import load_mesh
 
 HERE = Path(__file__).resolve().parent
 

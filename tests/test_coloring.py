@@ -1,7 +1,7 @@
 """Colouring meshes and writing the coloured PLY; the ``heoslice color`` command.
 
 References: exact r and f on procedural meshes (a box about its base plane, a sphere
-about its centre), the mesh read back by heoslice.loading.load_mesh and by trimesh,
+about its centre), the mesh read back by heoslice.mesh.load_mesh and by trimesh,
 and trimesh's own check of watertightness after subdivision.
 """
 
@@ -18,7 +18,7 @@ from heoslice import procedural
 from heoslice.coloring import ColorSpec, color_mesh, default_output, ply_bytes, subdivide, write_ply
 from heoslice.distribution import make_function
 from heoslice.errors import InputError, OutputError
-from heoslice.loading import MATERIAL_PROPERTY, Mesh, load_mesh
+from heoslice.mesh import MATERIAL_PROPERTY, Mesh, load_mesh
 from heoslice.materials import Material
 
 REPO = Path(__file__).resolve().parents[1]

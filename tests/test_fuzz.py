@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from heoslice import procedural
 from heoslice.errors import InputError, VerifyError
-from heoslice.loading import load_mesh
+from heoslice.mesh import load_mesh
 from heoslice.pipeline import SliceSpec, slice_to_stack
 from heoslice.stack import MANIFEST, layer_file_name, read_layer_mask, read_manifest, verify_stack
 

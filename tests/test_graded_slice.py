@@ -159,7 +159,7 @@ def counted_plate(tmp_path, monkeypatch):
     (300 dpi, 0.2 mm layers, in this process); and a list that grows by one per family measured afresh."""
     from heoslice import pipeline, regions
     from heoslice.distribution import make_function
-    from heoslice.loading import load_mesh
+    from heoslice.mesh import load_mesh
     from heoslice.materials import DEFAULT_MATERIALS, Material
 
     path = tmp_path / "plate.ply"

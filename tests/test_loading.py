@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from heoslice import procedural
 from heoslice.errors import InputError
-from heoslice.loading import check_ply_header, load_mesh, read_ply
+from heoslice.mesh import check_ply_header, load_mesh, read_ply
 
 PLY_NUMPY = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4", "uint": "u4",
              "float": "f4", "double": "f8", "int32": "i4", "uint8": "u1", "float32": "f4", "float64": "f8"}
@@ -430,7 +430,7 @@ def test_absurd_coordinates_are_refused(tmp_path):
 def test_row_starts_are_the_same_for_any_window(tmp_path, window):
     """Finding binary row starts by pointer doubling gives the sequential answer whatever the window size
     (rows crossing window edges included)."""
-    from heoslice.loading import _binary_row_starts, parse_ply_header
+    from heoslice.mesh.ply import _binary_row_starts, parse_ply_header
 
     rng = np.random.default_rng(11)
     sizes = rng.integers(3, 8, 700)
@@ -449,23 +449,23 @@ def test_row_starts_are_the_same_for_any_window(tmp_path, window):
 def test_weld_merges_equal_coordinates_in_first_occurrence_order(monkeypatch, collide):
     """Equal coordinates (and -0.0 / 0.0) become one vertex, first occurrences keep their order, a welded
     mesh is unchanged, and the exact regrouping gives the same answer when some or every hash collides."""
-    from heoslice import loading
+    from heoslice.mesh import weld
 
     if collide == "all":
-        monkeypatch.setattr(loading, "_row_hash", lambda bits: np.zeros(len(bits), dtype=np.uint64))
+        monkeypatch.setattr(weld, "_row_hash", lambda bits: np.zeros(len(bits), dtype=np.uint64))
     elif collide == "some":  # rows with the same x collide whatever their y and z
-        monkeypatch.setattr(loading, "_row_hash", lambda bits: bits[:, 0].astype(np.uint64) << np.uint64(40))
+        monkeypatch.setattr(weld, "_row_hash", lambda bits: bits[:, 0].astype(np.uint64) << np.uint64(40))
     rng = np.random.default_rng(5)
     vertices = rng.integers(-2, 3, (300, 3)).astype(np.float32)
     vertices[vertices == 0] = -0.0
     faces = rng.integers(0, 300, (200, 3))
-    unique, welded_faces, first = loading._weld(vertices, faces)
+    unique, welded_faces, first = weld.weld_vertices(vertices, faces)
     np.testing.assert_array_equal(unique[welded_faces], (vertices[faces] + 0.0).astype(np.float64))
     assert len(unique) == len(np.unique(vertices + 0.0, axis=0))
     assert np.all(np.diff(first) > 0) and first[0] == 0
     np.testing.assert_array_equal(unique, vertices[first] + 0.0)
     assert np.all(first[welded_faces] <= faces)  # each vertex maps to the first occurrence of its coordinates
-    again, again_faces, _ = loading._weld(unique, welded_faces)
+    again, again_faces, _ = weld.weld_vertices(unique, welded_faces)
     np.testing.assert_array_equal(again, unique)
     np.testing.assert_array_equal(again_faces, welded_faces)
 
@@ -478,7 +478,7 @@ def test_shell_labels_match_scipy_connected_components(seed, shells, shuffle):
     import scipy.sparse
     import scipy.sparse.csgraph
 
-    from heoslice.loading import edge_groups, shell_labels
+    from heoslice.mesh import edge_groups, shell_labels
 
     rng = np.random.default_rng(seed)
     parts, offset = [], 0
@@ -505,7 +505,7 @@ def test_shell_labels_match_scipy_connected_components(seed, shells, shuffle):
 def test_edge_groups_group_every_undirected_edge_in_index_order(seed, offset):
     """Each group is one undirected edge, every face edge is in exactly one group, and within a group the
     entries are in index order (a packed sort for small vertex indices, an argsort for huge ones)."""
-    from heoslice.loading import edge_groups
+    from heoslice.mesh import edge_groups
 
     rng = np.random.default_rng(seed)
     faces = offset + rng.integers(0, int(rng.integers(3, 40)), (int(rng.integers(2, 60)), 3))

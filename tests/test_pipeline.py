@@ -18,7 +18,7 @@ from PIL import Image
 from heoslice import procedural
 from heoslice.contours import build_contours
 from heoslice.distribution import make_function
-from heoslice.loading import load_mesh
+from heoslice.mesh import load_mesh
 from heoslice.materials import DEFAULT_MATERIALS, Material
 from heoslice.pipeline import SliceSpec, slice_to_stack
 from heoslice.rasterising import Grid, contour_pixels, solid_mask
@@ -197,7 +197,7 @@ def test_slicing_in_runs_of_planes_gives_the_same_stack(tmp_path):
 def test_nested_shells_fill_once_and_verify_against_the_union(tmp_path, run_cli):
     """A lesion shell inside an organ is filled once: the stack volume is the union's (manifold3d), not
     the signed sum, and `verify --mesh` accepts it."""
-    from heoslice.loading import signed_volume_mm3, solid_volume_mm3
+    from heoslice.mesh import signed_volume_mm3, solid_volume_mm3
 
     mesh = procedural.nested_shells(outer=10.0, inner=4.0, offset=(3.0, 0.0, 0.0), subdivisions=4)
     model = write_mesh(mesh, tmp_path / "organ.ply")

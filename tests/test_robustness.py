@@ -27,7 +27,7 @@ from conftest import shared_data_dir
 
 from heoslice import procedural
 from heoslice.errors import EXIT_BUG, EXIT_INPUT, EXIT_OUTPUT, EXIT_VERIFY
-from heoslice.loading import load_mesh
+from heoslice.mesh import load_mesh
 from heoslice.pipeline import SliceSpec, slice_to_stack
 from heoslice.stack import MANIFEST, read_manifest, verify_stack
 

@@ -15,7 +15,7 @@ from helpers import layer_loops, near_contour, winding_reference
 
 from heoslice.contours import build_contours
 from heoslice.errors import HeosliceError
-from heoslice.loading import load_mesh
+from heoslice.mesh import load_mesh
 from heoslice.rasterising import count_solid, grid_for, packed_mask, solid_mask
 from heoslice.slicing import plane_heights, slice_mesh
 

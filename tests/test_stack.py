@@ -20,7 +20,7 @@ import tifffile
 
 from heoslice import procedural
 from heoslice.errors import InputError, OutputError, VerifyError
-from heoslice.loading import load_mesh
+from heoslice.mesh import load_mesh
 from heoslice.pipeline import SliceSpec, slice_to_stack
 from heoslice.stack import (
     MANIFEST,

@@ -1,6 +1,6 @@
 """Colouring a mesh by a material distribution function (paper section III.A, Fig. 2).
 
-The paper's Z-axis modelling steps, on a loaded :class:`~heoslice.loading.Mesh`:
+The paper's Z-axis modelling steps, on a loaded :class:`~heoslice.mesh.Mesh`:
 (1) bounding box, (2) every vertex RGB starts at (0, 0, 0), (3) the reference feature,
 (4) r and f(r) per vertex, blended from M1 to M2 by eq. 1, (5) the PLY written back.
 Optionally the mesh is first subdivided so no edge is longer than ``max_edge`` mm (a
@@ -8,7 +8,7 @@ function with fine detail is then not undersampled at sparse vertices), and whol
 shells can be given their own material.
 
 The PLY carries per-vertex uchar red/green/blue and the exact fraction f clipped to
-[0, 1] as the float vertex property ``material`` (:data:`heoslice.loading.MATERIAL_PROPERTY`),
+[0, 1] as the float vertex property ``material`` (:data:`heoslice.mesh.MATERIAL_PROPERTY`),
 so later stages need not invert colours. Header comments record what was done::
 
     comment heoslice color: linear: f = 1*r + 0
@@ -33,7 +33,7 @@ import numpy as np
 from heoslice.distribution import (DistributionFunction, Reference, make_function, make_reference,
                                    normalise, reference_distance, evaluate)
 from heoslice.errors import InputError, OutputError
-from heoslice.loading import MATERIAL_PROPERTY, Mesh, load_mesh, shell_labels
+from heoslice.mesh import MATERIAL_PROPERTY, Mesh, load_mesh, shell_labels
 from heoslice.materials import DEFAULT_MATERIALS, Material, blend, to_rgb8
 
 #: Subdivision refuses to make more triangles than this (memory: about 1 KB each on the way).
@@ -107,7 +107,7 @@ def subdivide(vertices: np.ndarray, faces: np.ndarray, max_edge: float) -> tuple
 
 
 def _canonical(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices welded and sorted by coordinate, as :func:`heoslice.loading.load_mesh` orders them,
+    """Vertices welded and sorted by coordinate, as :func:`heoslice.mesh.load_mesh` orders them,
     so a written mesh reads back vertex for vertex."""
     unique, inverse = np.unique(vertices, axis=0, return_inverse=True)
     return unique, inverse.reshape(-1)[faces]

@@ -26,7 +26,7 @@ import numpy as np
 from heoslice import __version__
 from heoslice.contours import Contours, build_contours
 from heoslice.errors import InputError
-from heoslice.loading import Mesh
+from heoslice.mesh import Mesh
 from heoslice.rasterising import Grid, count_solid, grid_for, packed_mask, render_layer
 from heoslice.regions import GradeSpec, droplet_planes, render_graded
 from heoslice.slicing import face_z_range, interpolate_at, plane_chunks, plane_heights, slice_planes

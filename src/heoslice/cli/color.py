@@ -11,7 +11,7 @@ from heoslice.cli.common import echo_warnings, progress_bar
 from heoslice.coloring import ColorSpec, color_mesh, default_output, write_ply
 from heoslice.distribution import FUNCTION_KINDS, REFERENCE_KINDS, make_function
 from heoslice.errors import InputError
-from heoslice.loading import load_mesh
+from heoslice.mesh import load_mesh
 from heoslice.materials import load_materials, load_shell_materials, resolve_material
 
 EPILOG = """\b

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from heoslice.loading import load_mesh, mesh_info
+from heoslice.mesh import load_mesh, mesh_info
 
 
 @click.command("info", epilog="""\b

@@ -10,7 +10,7 @@ import click
 
 from heoslice.cli.common import echo_warnings, progress_bar
 from heoslice.errors import InputError
-from heoslice.loading import load_mesh, scaled
+from heoslice.mesh import load_mesh, scaled
 from heoslice.pipeline import SliceSpec, slice_to_stack
 from heoslice.rasterising import parse_dpi
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3

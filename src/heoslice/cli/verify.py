@@ -10,7 +10,7 @@ import click
 import numpy as np
 
 from heoslice.errors import VerifyError
-from heoslice.loading import Mesh, edge_use_counts, load_mesh, scaled, solid_volume_mm3
+from heoslice.mesh import Mesh, edge_use_counts, load_mesh, scaled, solid_volume_mm3
 from heoslice.stack import check_input_path, layer_height_problems, stack_volume_mm3, verify_stack
 
 

@@ -1,0 +1,64 @@
+"""OFF reading (OFF, COFF, NOFF, CNOFF, STOFF), strict: counts checked against the rows present."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.errors import InputError
+from heoslice.mesh.raw import RawMesh, checked_triangles
+from heoslice.mesh.text import as_type, ascii_rows
+
+def read_off(path: Path):
+    """Read an OFF file (OFF, COFF, NOFF, CNOFF, STOFF; '#' comments) strictly into a :class:`RawMesh`.
+
+    Counts are checked against the rows present; one vertex or face per line; extra
+    values on a row (colours, normals, texture coordinates) are ignored; faces with
+    fewer than 3 vertices, indices outside the vertex list and NaN coordinates are
+    one-line InputErrors. Polygons are fan-triangulated.
+    """
+    path = Path(path)
+    data = np.frombuffer(path.read_bytes(), dtype=np.uint8).copy()
+    position = np.arange(len(data))
+    last_hash = np.maximum.accumulate(np.where(data == ord("#"), position, -1))
+    last_newline = np.maximum.accumulate(np.where(data == ord("\n"), position, -1))
+    data[(last_hash > last_newline) & (data != ord("\n"))] = ord(" ")  # blank out comments
+    text = data.tobytes()
+    words = text.split(None, 1)
+    keyword = words[0].decode("ascii", "replace") if words else ""
+    if not keyword.endswith("OFF") or keyword[:-3] not in ("", "C", "N", "CN", "NC", "ST", "STC", "STN", "STCN"):
+        raise InputError(f"{path}: not an OFF file (first word {keyword[:20]!r}, expected OFF)")
+    start = text.index(words[0]) + len(words[0])
+    body = b" " * start + text[start:]
+    values, row_start, row_length, row_line = ascii_rows(path, body, 1)
+    if len(row_start) == 0 or row_length[0] < 2:
+        raise InputError(f"{path}: OFF has no 'vertices faces edges' count line")
+    counts = as_type(path, values[row_start[0]:row_start[0] + 2], "i8", row_line[[0, 0]], "count")
+    vertex_count, face_count = int(counts[0]), int(counts[1])
+    if vertex_count < 0 or face_count < 0 or 1 + vertex_count + face_count > len(row_start):
+        raise InputError(f"{path}: OFF declares {vertex_count} vertices and {face_count} faces, "
+                         f"but holds {len(row_start) - 1} rows")
+    if 1 + vertex_count + face_count < len(row_start):
+        raise InputError(f"{path}: OFF line {row_line[1 + vertex_count + face_count]}: data after the last face")
+    rows = slice(1, 1 + vertex_count)
+    short = row_length[rows] < 3
+    if short.any():
+        raise InputError(f"{path}: OFF line {row_line[rows][np.argmax(short)]}: a vertex needs 3 coordinates")
+    vertices = values[row_start[rows][:, None] + np.arange(3)]
+    finite = np.isfinite(vertices).all(axis=1)
+    if not finite.all():
+        raise InputError(f"{path}: vertex {int(np.argmin(finite))} has a NaN or infinite coordinate")
+    rows = slice(1 + vertex_count, 1 + vertex_count + face_count)
+    first, length, lines = row_start[rows], row_length[rows], row_line[rows]
+    lengths = as_type(path, values[first], "i4", lines, "face size").astype(np.int64)
+    over = (lengths < 0) | (1 + lengths > length)
+    if over.any():
+        raise InputError(f"{path}: OFF line {lines[np.argmax(over)]}: face size {lengths[np.argmax(over)]} "
+                         "does not match the values on the line")
+    within = np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    flat = as_type(path, values[np.repeat(first + 1, lengths) + within], "i8",
+                        np.repeat(lines, lengths), "vertex index")
+    triangles, _ = checked_triangles(path, vertex_count, lengths, flat)
+    return RawMesh(vertices, triangles)
+

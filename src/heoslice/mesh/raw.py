@@ -1,0 +1,69 @@
+"""The raw mesh every format reader returns, and the polygon triangulation the strict readers share."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.errors import InputError
+
+#: Name of the per-vertex float property carrying the material fraction in [0, 1].
+MATERIAL_PROPERTY = "material"
+
+
+
+@dataclass(frozen=True)
+class RawMesh:
+    """A triangle mesh as one file holds it, before welding, checks and orientation.
+
+    vertices: (n, 3) float64 coordinates as written (float32 for binary STL, widened after
+    the weld). faces: (m, 3) int64 indices into vertices. vertex_colors: (n, 3) uint8
+    RGB given per vertex, or None. face_colors: (m, 3) uint8 RGB given per face, or None.
+    color_source: 'vertex' or 'face' (what the file's colours belong to), or None.
+    vertex_properties: the file's other per-vertex scalar columns by name, (n,) arrays
+    (the material fraction written by ``heoslice color`` among them).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    vertex_colors: np.ndarray | None = None
+    face_colors: np.ndarray | None = None
+    color_source: str | None = None
+    vertex_properties: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+
+def fan_triangles(lengths: np.ndarray, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Triangulate polygons (given as lengths (m,) and concatenated indices) by fans from their first vertex.
+
+    Returns (triangles (k, 3) int64, polygon of each triangle (k,)). Exact for convex
+    polygons (quads from scanners and CAD); triangles pass through unchanged.
+    """
+    per = lengths - 2
+    first = np.cumsum(lengths) - lengths
+    polygon = np.repeat(np.arange(len(lengths)), per)
+    step = np.arange(int(per.sum())) - np.repeat(np.cumsum(per) - per, per)
+    base = first[polygon]
+    triangles = np.stack([flat[base], flat[base + step + 1], flat[base + step + 2]], axis=1)
+    return triangles.astype(np.int64), polygon
+
+
+def checked_triangles(path: Path, vertex_count: int, lengths: np.ndarray, flat: np.ndarray):
+    """Fan triangles of polygons after refusing faces with fewer than 3 vertices or indices outside the vertices.
+
+    Returns (triangles (k, 3) int64, polygon of each triangle (k,)).
+    """
+    short = lengths < 3
+    if short.any():
+        bad = int(np.argmax(short))
+        raise InputError(f"{path}: face {bad} has {int(lengths[bad])} vertices (a face needs at least 3)")
+    flat = flat.astype(np.int64)
+    outside = (flat < 0) | (flat >= vertex_count)
+    if outside.any():
+        bad = int(np.repeat(np.arange(len(lengths)), lengths)[np.argmax(outside)])
+        raise InputError(f"{path}: face {bad} refers to vertex {int(flat[np.argmax(outside)])}, "
+                         f"outside 0..{vertex_count - 1}")
+    return fan_triangles(lengths, flat)
+

@@ -1,0 +1,33 @@
+"""Binary STL reading: fixed-size records read in one numpy view (ASCII STL goes to trimesh)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.mesh.raw import RawMesh
+
+
+def read_binary_stl(path: Path) -> RawMesh | None:
+    """A binary STL as a triangle soup (vertices (3m, 3) float32, faces (m, 3)), or None if not binary.
+
+    Binary STL is fixed-size records (12 float32 + 2 bytes), so numpy reads it in one
+    view, without trimesh's per-record work. An 80-byte header may start with 'solid' (a known trap
+    for ASCII detection): the size check decides. ASCII STL goes to trimesh.
+    """
+    size = path.stat().st_size
+    with open(path, "rb") as handle:
+        head = handle.read(84)
+    if len(head) < 84:
+        return None
+    count = int(np.frombuffer(head, dtype="<u4", count=1, offset=80)[0])
+    if size != 84 + 50 * count:
+        return None
+    record = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
+    data = np.fromfile(path, dtype=record, count=count, offset=84)
+    vertices = np.ascontiguousarray(data["corners"]).reshape(-1, 3)  # float32: welded before widening
+    del data
+    faces = np.arange(3 * count, dtype=np.int64).reshape(-1, 3)
+    return RawMesh(vertices, faces)
+

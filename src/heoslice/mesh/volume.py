@@ -1,0 +1,77 @@
+"""Volume and winding: the one implementation behind ``info``, ``verify --mesh`` and outward orientation.
+
+The slicer fills where the winding number is > 0 (see :mod:`heoslice.rasterising`), so
+the volume of a mesh is that solid's: shells that overlap (a lesion inside an organ, two
+intersecting parts) count once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+def face_volumes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per face: area (m,) and signed volume of the tetrahedron with the origin (m,), from one cross product.
+
+    The cross product and its length are written out column by column (the same
+    arithmetic as ``np.cross`` and ``np.linalg.norm``, without their short-axis overhead).
+    """
+    v0 = vertices[faces[:, 0]]
+    e1 = vertices[faces[:, 1]] - v0
+    e2 = vertices[faces[:, 2]] - v0
+    normal = np.empty_like(v0)
+    for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
+        np.multiply(e1[:, i], e2[:, j], out=normal[:, k])
+        normal[:, k] -= e1[:, j] * e2[:, i]
+    x, y, z = normal[:, 0], normal[:, 1], normal[:, 2]
+    return 0.5 * np.sqrt(x * x + y * y + z * z), np.einsum("ij,ij->i", v0, normal) / 6.0
+
+
+def winding_number(point: np.ndarray, triangles: np.ndarray) -> float:
+    """Generalised winding number of closed triangles (k, 3, 3) around a point (3,): sum of solid angles / 4 pi.
+
+    Solid angles by Van Oosterom and Strackee's formula; for a closed outward shell
+    the result is 1 inside, 0 outside.
+    """
+    a, b, c = (triangles[:, i] - point for i in range(3))
+    la, lb, lc = (np.linalg.norm(v, axis=1) for v in (a, b, c))
+    numerator = np.einsum("ij,ij->i", a, np.cross(b, c))
+    denominator = (la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", a, c) * lb
+                   + np.einsum("ij,ij->i", b, c) * la)
+    return float(np.sum(2.0 * np.arctan2(numerator, denominator)) / (4.0 * np.pi))
+
+
+def signed_volume_mm3(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Signed volume of a triangle mesh by the divergence theorem, mm^3 (exact for closed outward shells)."""
+    corner = vertices[faces]
+    return float(np.einsum("ij,ij->i", corner[:, 0], np.cross(corner[:, 1], corner[:, 2])).sum() / 6.0)
+
+
+def solid_volume_mm3(mesh) -> tuple[float, bool]:
+    """Volume of the solid the slicer fills (winding number > 0), mm^3, and whether it is exact.
+
+    ``mesh``: a loaded :class:`heoslice.mesh.Mesh` (its vertices, faces and shell labels).
+    Shells that overlap (a lesion shell inside an organ) count once: when every shell
+    is outward, the volume is manifold3d's union of the shells. With cavities
+    (inward shells) it is the signed volume, exact when shells do not overlap. If
+    manifold3d refuses a shell, the signed volume is returned as not exact.
+    """
+    signed = signed_volume_mm3(mesh.vertices, mesh.faces)
+    shells = int(mesh.shell.max()) + 1 if len(mesh.shell) else 0
+    if shells < 2:
+        return signed, True
+    per_face = face_volumes(mesh.vertices, mesh.faces)[1]
+    if np.any(np.bincount(mesh.shell, weights=per_face) <= 0):
+        return signed, True
+    import manifold3d
+
+    parts = []
+    for label in range(shells):  # one manifold per shell, then one batched union
+        faces = mesh.faces[mesh.shell == label]
+        used, local = np.unique(faces, return_inverse=True)
+        part = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.ascontiguousarray(mesh.vertices[used]),
+                                                     tri_verts=local.reshape(-1, 3).astype(np.uint64)))
+        if part.status() != manifold3d.Error.NoError:
+            return signed, False
+        parts.append(part)
+    return float(manifold3d.Manifold.batch_boolean(parts, manifold3d.OpType.Add).volume()), True
+
