@@ -22,8 +22,8 @@ from PIL import Image, ImageDraw
 
 from heoslice import procedural
 from heoslice.contours import build_contours
-from heoslice.distribution import make_function
-from heoslice.materials import Material
+from heoslice.material import make_function
+from heoslice.material import Material
 from heoslice.rasterising import grid_for, paint_contour, render_layer, solid_mask
 from heoslice.regions import GradeSpec, RegionSpec, render_graded
 from heoslice.slicing import interpolate_at, slice_mesh

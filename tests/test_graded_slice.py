@@ -135,7 +135,7 @@ def test_default_slice_is_unchanged(run_cli, ball, tmp_path):
     (["--grade", "linear", "--from", "#12"], "--from"),
     (["--alpha", "2"], "--alpha"),
     (["--grade", "linear", "--offsets", "0"], "--offsets"),
-    (["--grade", "expression", "--expression", "__import__('os')"], "--grade"),
+    (["--grade", "expression", "--expression", "__import__('os')"], "--expr"),
 ])
 def test_bad_grading_options_fail_cleanly(run_cli, ball, tmp_path, args, option):
     """A bad grading option is one line naming it, exit status 2, and no stack left behind."""
@@ -158,9 +158,9 @@ def counted_plate(tmp_path, monkeypatch):
     """The benchmark's plate with holes, pins and a cavity, small; a graded slice spec with droplet masks
     (300 dpi, 0.2 mm layers, in this process); and a list that grows by one per family measured afresh."""
     from heoslice import pipeline, regions
-    from heoslice.distribution import make_function
+    from heoslice.material import make_function
     from heoslice.mesh import load_mesh
-    from heoslice.materials import DEFAULT_MATERIALS, Material
+    from heoslice.material import DEFAULT_MATERIALS, Material
 
     path = tmp_path / "plate.ply"
     procedural.holes_and_islands((20.0, 12.5, 4.0), 48).export(path)

@@ -17,9 +17,9 @@ from PIL import Image
 
 from heoslice import procedural
 from heoslice.contours import build_contours
-from heoslice.distribution import make_function
+from heoslice.material import make_function
 from heoslice.mesh import load_mesh
-from heoslice.materials import DEFAULT_MATERIALS, Material
+from heoslice.material import DEFAULT_MATERIALS, Material
 from heoslice.pipeline import SliceSpec, slice_to_stack
 from heoslice.rasterising import Grid, contour_pixels, solid_mask
 from heoslice.regions import GradeSpec, RegionSpec

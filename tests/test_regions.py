@@ -14,9 +14,9 @@ from hypothesis import strategies as st
 from helpers import brute_squared, random_rings, tree_of
 
 from heoslice import regions
-from heoslice.distribution import make_function
+from heoslice.material import make_function
 from heoslice.errors import InputError
-from heoslice.materials import DEFAULT_MATERIALS, Material
+from heoslice.material import DEFAULT_MATERIALS, Material
 from heoslice.rasterising import Grid, solid_mask
 from heoslice.regions import (
     GradeSpec,

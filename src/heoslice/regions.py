@@ -1187,7 +1187,7 @@ def label_fractions(regions: LayerRegions, fraction_at) -> np.ndarray:
 class GradeSpec:
     """What a graded slice asks for (``heoslice slice --grade``).
 
-    ``function``: the distribution function (:class:`heoslice.distribution.DistributionFunction`,
+    ``function``: the distribution function (:class:`heoslice.material.functions.DistributionFunction`,
     or None: no gradient, every family keeps its contour's material); ``target``: the
     material M2 reached at r = 1 (eq. 1); ``start``: M1 overriding the contour's
     material (``--from``); ``base``/``second``: the materials a mesh's per-vertex
@@ -1275,7 +1275,7 @@ def _family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_col
 
 def _target_fractions(regions: LayerRegions, spec: GradeSpec) -> np.ndarray:
     """Fraction of the target material per label ((label_count,) float; zeros without a gradient)."""
-    from heoslice.distribution import evaluate
+    from heoslice.material.functions import evaluate
 
     if spec.function is None or spec.target is None:
         return np.zeros(regions.label_count)

@@ -24,17 +24,16 @@ import math
 import os
 import tempfile
 from collections.abc import Callable
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from heoslice.distribution import (DistributionFunction, Reference, make_function, make_reference,
-                                   normalise, reference_distance, evaluate)
 from heoslice.errors import InputError, OutputError
 from heoslice.mesh import MATERIAL_PROPERTY, Mesh, load_mesh, shell_labels
-from heoslice.materials import DEFAULT_MATERIALS, Material, blend, to_rgb8
+from heoslice.material.functions import DistributionFunction, evaluate, make_function
+from heoslice.material.materials import DEFAULT_MATERIALS, Material, blend, to_rgb8
+from heoslice.material.references import REFERENCES, Reference, make_reference, normalise, reference_distance
 
 #: Subdivision refuses to make more triangles than this (memory: about 1 KB each on the way).
 MAX_SUBDIVIDED_TRIANGLES = 20_000_000
@@ -45,7 +44,7 @@ class ColorSpec:
     """What to colour with: function, reference (kind and its optional geometry), range, materials.
 
     at / normal / direction: (3,) mm or unit vectors, None for the defaults of
-    :func:`heoslice.distribution.make_reference`. surface: a second mesh (or its path) for
+    :func:`heoslice.material.references.make_reference`. surface: a second mesh (or its path) for
     ``reference='surface'``. r_range: (R0, R1) mm, None = 0 .. largest distance.
     shell_materials: ((shell number, Material), ...): those shells are coloured whole with
     that material, and their material fraction is 1 (the shell is its own target material).
@@ -93,13 +92,13 @@ def subdivide(vertices: np.ndarray, faces: np.ndarray, max_edge: float) -> tuple
     from trimesh.remesh import subdivide_to_size
 
     if not (isinstance(max_edge, (int, float)) and math.isfinite(max_edge) and max_edge > 0):
-        raise InputError(f"must be a positive length in mm, got {max_edge!r}")
+        raise InputError(f"max_edge: must be a positive length in mm, got {max_edge!r}")
     corners = vertices[faces]
     longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
     halvings = np.ceil(np.log2(np.maximum(longest / max_edge, 1.0)))
     estimate = float(np.sum(4.0 ** halvings))
     if estimate > MAX_SUBDIVIDED_TRIANGLES:
-        raise InputError(f"{max_edge:g} mm would make about {estimate:.3g} triangles "
+        raise InputError(f"max_edge: {max_edge:g} mm would make about {estimate:.3g} triangles "
                          f"(limit {MAX_SUBDIVIDED_TRIANGLES:.3g}); choose a larger value")
     new_vertices, new_faces = subdivide_to_size(vertices, faces, max_edge=max_edge,
                                                 max_iter=int(halvings.max(initial=0)) + 2)
@@ -127,58 +126,42 @@ def material_comment(prefix: str, material: Material) -> str:
     return f"heoslice {prefix} {name} {','.join(map(str, material.color))} channel {channel}"
 
 
-#: What each step of :func:`color_mesh` puts in front of its errors, unless the caller says otherwise.
-STEP_LABELS = {"shells": "shell materials", "max_edge": "max edge", "surface": "reference surface",
-               "reference": "reference", "range": "range", "function": "function"}
-
-
-@contextmanager
-def _step(labels: dict[str, str], key: str):
-    """Put the step's label (e.g. a CLI option name) in front of an InputError raised inside."""
-    try:
-        yield
-    except InputError as err:
-        raise InputError(f"{labels.get(key, STEP_LABELS[key])}: {err}") from None
-
-
-def color_mesh(mesh: Mesh, spec: ColorSpec, labels: dict[str, str] | None = None,
-               progress: Callable[[int, int], None] | None = None) -> ColoredMesh:
+def color_mesh(mesh: Mesh, spec: ColorSpec, progress: Callable[[int, int], None] | None = None) -> ColoredMesh:
     """Colour every vertex of ``mesh`` by ``spec`` (the paper's steps 1-4); nothing is written.
 
-    Raises InputError, prefixed with the step's label from ``labels`` (keys of
-    :data:`STEP_LABELS`), for a shell number the mesh does not have, a subdivision that
-    is too fine, an unreadable reference mesh, a range of zero width, or an expression undefined at some r.
-    ``progress(done, total)`` follows the distance computation (vertices).
+    Raises InputError naming the :class:`ColorSpec` field at fault (``shell_materials``,
+    ``max_edge``, ``surface``, ``reference``, ``at``, ``normal``, ``direction``, ``r_range``,
+    ``expression``) for a shell number the mesh does not have, a subdivision that is too
+    fine, an unreadable reference mesh, a range of zero width, or an expression undefined
+    at some r. ``progress(done, total)`` follows the distance computation (vertices).
     """
-    labels = labels or {}
+    if spec.reference not in REFERENCES:
+        raise InputError(f"reference: unknown reference {spec.reference!r} (choose from {', '.join(REFERENCES)})")
     vertices, faces, shell = mesh.vertices, mesh.faces, mesh.shell
     shell_count = int(shell.max()) + 1 if len(shell) else 0
-    with _step(labels, "shells"):
-        for number, _ in spec.shell_materials:
-            if not 0 <= number < shell_count:
-                raise InputError(f"shell {number} does not exist: the mesh has {shell_count} shell(s), "
-                                 f"numbered 0..{shell_count - 1}")
+    for number, _ in spec.shell_materials:
+        if not 0 <= number < shell_count:
+            raise InputError(f"shell_materials: shell {number} does not exist: the mesh has {shell_count} "
+                             f"shell(s), numbered 0..{shell_count - 1}")
     if spec.max_edge is not None:
-        with _step(labels, "max_edge"):
-            vertices, faces = _canonical(*subdivide(vertices, faces, spec.max_edge))
+        vertices, faces = _canonical(*subdivide(vertices, faces, spec.max_edge))
         shell = shell_labels(faces)
     surface = None
     if spec.reference == "surface":
-        with _step(labels, "surface"):
-            if spec.surface is None:
-                raise InputError("a surface reference needs a second mesh: every vertex of the model "
-                                 "lies on the model's own surface, at distance 0")
+        if spec.surface is None:
+            raise InputError("surface: a surface reference needs a second mesh: every vertex of the model "
+                             "lies on the model's own surface, at distance 0")
+        try:
             other = spec.surface if isinstance(spec.surface, Mesh) else load_mesh(spec.surface)
-            surface = (other.vertices, other.faces)
-    with _step(labels, "reference"):
-        reference = make_reference(spec.reference, vertices, faces, at=spec.at, normal=spec.normal,
-                                   direction=spec.direction, surface=surface)
+        except InputError as err:
+            raise InputError(f"surface: {err}") from None
+        surface = (other.vertices, other.faces)
+    reference = make_reference(spec.reference, vertices, faces, at=spec.at, normal=spec.normal,
+                               direction=spec.direction, surface=surface)
     colors = np.zeros((len(vertices), 3), dtype=np.uint8)  # step 2: every vertex starts at (0, 0, 0)
     distance = reference_distance(reference, vertices, progress)
-    with _step(labels, "range"):
-        r = normalise(distance, spec.r_range)
-    with _step(labels, "function"):
-        f = evaluate(spec.function, r)
+    r = normalise(distance, spec.r_range)
+    f = evaluate(spec.function, r)
     fraction = np.clip(f, 0.0, 1.0).astype(np.float32).astype(np.float64)
     colors[:] = to_rgb8(blend(spec.m1, spec.m2, fraction))
     vertex_shell = _vertex_shells(faces, shell, len(vertices))

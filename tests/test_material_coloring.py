@@ -15,11 +15,11 @@ import pytest
 import trimesh
 
 from heoslice import procedural
-from heoslice.coloring import ColorSpec, color_mesh, default_output, ply_bytes, subdivide, write_ply
-from heoslice.distribution import make_function
+from heoslice.material import ColorSpec, color_mesh, default_output, ply_bytes, subdivide, write_ply
+from heoslice.material import make_function
 from heoslice.errors import InputError, OutputError
 from heoslice.mesh import MATERIAL_PROPERTY, Mesh, load_mesh
-from heoslice.materials import Material
+from heoslice.material import Material
 
 REPO = Path(__file__).resolve().parents[1]
 VASE = REPO / "examples" / "vase.ply"
@@ -164,7 +164,7 @@ def test_surface_reference(tmp_path):
     lesion = trimesh.load(lesion_path, process=False)
     _, d, _ = trimesh.proximity.closest_point(lesion, mesh.vertices)
     assert np.allclose(colored.r, d / d.max(), rtol=0, atol=1e-9)
-    with pytest.raises(InputError, match="reference surface: .*no such file"):
+    with pytest.raises(InputError, match="^surface: .*no such file"):
         color_mesh(mesh, ColorSpec(reference="surface", surface=tmp_path / "absent.ply"))
     with pytest.raises(InputError, match="needs a second mesh"):
         color_mesh(mesh, ColorSpec(reference="surface"))
@@ -255,9 +255,9 @@ def test_cli_expression_and_surface(run_cli, vase_copy, tmp_path):
     (["--to", "blurple"], "--to"),
     (["--from", "1,2"], "--from"),
     (["--at", "1,2"], "--at"),
-    (["--normal", "0,0,0"], "--ref"),
+    (["--normal", "0,0,0"], "--normal"),
     (["--ref", "point", "--normal", "0,0,1"], "--normal"),
-    (["--expr", "import os"], "--func"),
+    (["--expr", "import os"], "--expr"),
     (["--expr", "sqrt(r - 2)"], "--expr"),
     (["--max-edge", "0"], "--max-edge"),
     (["--max-edge", "0.00001"], "--max-edge"),

@@ -20,6 +20,11 @@ jetting head; channel 0 of a print job is the solid mask). ``color``, ``slice`` 
 Without a file the built-in default has two materials, ``M1`` (light grey
 (240, 240, 240), channel 1) and ``M2`` (green (0, 255, 0), channel 2).
 
+The default policy is one rule, :func:`material_roles`: M1 is the table's first
+material and M2 its second, unless a start or target material is named; a colour named
+on the command line that is a table material's colour is that material (its name and
+channel).
+
 Eq. 1 of the paper is misprinted (its middle case is f (M1 - M2) + M1, which leaves
 M1..M2 the wrong way); :func:`blend` uses the corrected form M = M1 + f (M2 - M1)
 with f clipped to [0, 1], so M = M1 where f <= 0 and M = M2 where f >= 1.
@@ -161,6 +166,55 @@ def resolve_material(text: str, table: dict[str, Material]) -> Material:
         raise InputError(f"{spec!r} is neither a material name ({', '.join(table) or 'none defined'}) "
                          "nor a colour (a name like 'green', #00ff00 or 0,255,0)") from None
     return Material(spec, color, None)
+
+
+def _table_material(material: Material | None, table: dict[str, Material]) -> Material | None:
+    """An unnamed material (a colour given on the command line) that is a table material's colour is that material."""
+    if material is None or material.channel is not None:
+        return material
+    return next((known for known in table.values() if known.color == material.color), material)
+
+
+@dataclass(frozen=True)
+class MaterialRoles:
+    """Which material plays which part of eq. 1, by the one default rule of :func:`material_roles`.
+
+    first, second: the table's first and second materials (second None for a one-material
+    table), which a mesh's material fraction m mixes as (1 - m) first + m second; start,
+    target: the materials named as M1 and M2, or None.
+    """
+
+    first: Material
+    second: Material | None
+    start: Material | None
+    target: Material | None
+
+    @property
+    def m1(self) -> Material:
+        """M1 (f <= 0): the named start material, else the table's first."""
+        return self.start if self.start is not None else self.first
+
+    @property
+    def m2(self) -> Material | None:
+        """M2 (f >= 1): the named target material, else the table's second (None for a one-material table)."""
+        return self.target if self.target is not None else self.second
+
+
+def material_roles(table: dict[str, Material], start: str | None = None,
+                   target: str | None = None) -> MaterialRoles:
+    """The roles of the materials of ``table`` with an optional start (M1) and target (M2) name or colour.
+
+    Raises InputError naming the parameter (``start``, ``target``) that does not resolve.
+    """
+    names = list(table)
+    resolved = {}
+    for parameter, text in (("start", start), ("target", target)):
+        try:
+            resolved[parameter] = _table_material(resolve_material(text, table), table) if text else None
+        except InputError as err:
+            raise InputError(f"{parameter}: {err}") from None
+    return MaterialRoles(first=table[names[0]], second=table[names[1]] if len(names) > 1 else None,
+                         start=resolved["start"], target=resolved["target"])
 
 
 def blend(m1, m2, f: np.ndarray) -> np.ndarray:
