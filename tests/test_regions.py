@@ -17,7 +17,7 @@ from heoslice import regions
 from heoslice.distribution import make_function
 from heoslice.errors import InputError
 from heoslice.materials import DEFAULT_MATERIALS, Material
-from heoslice.rasterising import Grid, solid_mask
+from heoslice.layers.rasterising import Grid, solid_mask
 from heoslice.regions import (
     GradeSpec,
     RegionSpec,
