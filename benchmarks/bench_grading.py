@@ -33,8 +33,8 @@ from timing import best_of
 def part_layers(scale: float, count: int):
     """(contours, planes) of the liver phantom with its lesion, ``count`` layers around the widest section."""
     from heoslice import procedural
-    from heoslice.contours import build_contours
-    from heoslice.slicing import slice_mesh
+    from heoslice.layers.contours import build_contours
+    from heoslice.layers.slicing import slice_mesh
 
     organ, lesion = procedural.liver_phantom(scale=scale)
     mesh = procedural.concatenate(organ, lesion)
@@ -112,7 +112,7 @@ def naive_labels(points, offsets, area, parent, mask, grid, spec, regions):
     shells painted after their host, as layer_regions does."""
     import shapely
 
-    from heoslice.rasterising import solid_mask
+    from heoslice.layers.rasterising import solid_mask
 
     b = regions.box
     label = np.zeros((b[1] - b[0], b[3] - b[2]), dtype=np.int32)
@@ -156,7 +156,7 @@ def main() -> None:
     if args.quick:
         args.scale, args.layers = 0.4, 3
 
-    from heoslice.rasterising import grid_for, solid_mask
+    from heoslice.layers.rasterising import grid_for, solid_mask
     from heoslice.regions import RegionSpec, layer_regions
 
     contours, z = part_layers(args.scale, args.layers)

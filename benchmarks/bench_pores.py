@@ -31,7 +31,7 @@ def circle(radius: float, centre: tuple[float, float], clockwise: bool = False, 
 
 def case(kind: str, count: int):
     """(points, offsets, area, parent, mask, grid) of one layer: ``count`` pores in a plate, or ``count`` islands."""
-    from heoslice.rasterising import Grid, solid_mask
+    from heoslice.layers.rasterising import Grid, solid_mask
 
     side = int(np.ceil(np.sqrt(count)))
     centres = [(3.0 * i, 3.0 * j) for i in range(side) for j in range(side)][:count]

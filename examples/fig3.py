@@ -20,12 +20,12 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from heoslice import procedural
-from heoslice.contours import build_contours
+from heoslice.layers.contours import build_contours
 from heoslice.material import evaluate, make_function, make_reference, normalise, reference_distance
 from heoslice.material import DEFAULT_MATERIALS, Material, blend
-from heoslice.rasterising import grid_for, solid_mask
+from heoslice.layers.rasterising import grid_for, solid_mask
 from heoslice.regions import GradeSpec, RegionSpec, render_graded
-from heoslice.slicing import interpolate_at, slice_mesh
+from heoslice.layers.slicing import interpolate_at, slice_mesh
 
 HERE = Path(__file__).resolve().parent
 

@@ -21,12 +21,12 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from heoslice import procedural
-from heoslice.contours import build_contours
+from heoslice.layers.contours import build_contours
 from heoslice.material import make_function
 from heoslice.material import Material
-from heoslice.rasterising import grid_for, paint_contour, render_layer, solid_mask
+from heoslice.layers.rasterising import grid_for, paint_contour, render_layer, solid_mask
 from heoslice.regions import GradeSpec, RegionSpec, render_graded
-from heoslice.slicing import interpolate_at, slice_mesh
+from heoslice.layers.slicing import interpolate_at, slice_mesh
 
 HERE = Path(__file__).resolve().parent
 LIVER = Material("liver", (150, 60, 45), 1)

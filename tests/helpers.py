@@ -6,10 +6,10 @@ import manifold3d
 import numpy as np
 import shapely
 
-from heoslice.contours import Contours, build_contours
+from heoslice.layers.contours import Contours, build_contours
 from heoslice.regions import ring_edges
 from heoslice.regions_compiled import edge_tree
-from heoslice.slicing import plane_heights, slice_mesh
+from heoslice.layers import plane_heights, slice_mesh
 
 
 def contours_of(mesh, layer_height: float) -> tuple[np.ndarray, Contours]:

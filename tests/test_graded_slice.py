@@ -183,8 +183,10 @@ def test_extruded_layers_reuse_their_sub_regions_and_write_the_same_stack(tmp_pa
     mesh, spec, measured = counted_plate(tmp_path, monkeypatch)
     reused, _ = pipeline.slice_to_stack(mesh, tmp_path / "reused", spec)
     with_reuse = len(measured)
-    render_and_write = pipeline.render_and_write
-    monkeypatch.setattr(pipeline, "render_and_write", lambda job, reuse=None: render_and_write(job))
+    from heoslice.pipeline import runs
+
+    render_and_write = runs.render_and_write
+    monkeypatch.setattr(runs, "render_and_write", lambda job, cache=None, packed=None: render_and_write(job))
     fresh, _ = pipeline.slice_to_stack(mesh, tmp_path / "fresh", spec)
     assert with_reuse < 0.4 * (len(measured) - with_reuse)
     assert [(e["sha256"], e["channels"]) for e in reused["layers"]] == [(e["sha256"], e["channels"])
@@ -199,7 +201,7 @@ def test_sub_regions_carry_over_from_one_run_of_layers_to_the_next(tmp_path, mon
     from dataclasses import replace
 
     from heoslice import pipeline
-    from heoslice.slicing import face_z_range, plane_heights
+    from heoslice.layers import face_z_range, plane_heights
 
     mesh, long_runs, measured = counted_plate(tmp_path, monkeypatch)
     short_runs = replace(long_runs, max_segments=1500)

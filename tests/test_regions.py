@@ -17,7 +17,7 @@ from heoslice import regions
 from heoslice.material import make_function
 from heoslice.errors import InputError
 from heoslice.material import DEFAULT_MATERIALS, Material
-from heoslice.rasterising import Grid, solid_mask
+from heoslice.layers.rasterising import Grid, solid_mask
 from heoslice.regions import (
     GradeSpec,
     RegionSpec,

@@ -315,7 +315,7 @@ def test_inside_centres_is_the_solid_mask_of_disjoint_rings(seed, rings, clockwi
     """For disjoint star-shaped rings of either orientation, the lattice centres inside them are the pixels
     rasterising.solid_mask fills on the same grid (an independent scanline rasteriser), centres on an
     edge aside."""
-    from heoslice.rasterising import Grid, solid_mask
+    from heoslice.layers.rasterising import Grid, solid_mask
 
     rng = np.random.default_rng(seed)
     loops = []
@@ -509,7 +509,7 @@ def test_ring_models_is_the_numpy_formulation(seed, holes):
     ring_models picks the same ring sets to model in the same cells as the numpy formulation, with the
     same quadratics."""
     from heoslice import regions
-    from heoslice.rasterising import Grid
+    from heoslice.layers.rasterising import Grid
 
     rng = np.random.default_rng(seed)
     angle = np.linspace(0, 2 * np.pi, 400, endpoint=False)

@@ -46,7 +46,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from heoslice.errors import InputError
-from heoslice.rasterising import Grid, solid_mask
+from heoslice.layers.rasterising import Grid, solid_mask
 
 #: Largest error of a sub-region boundary, in pixels, before a lattice cell is evaluated per pixel.
 TOLERANCE_PX = 0.5
@@ -971,7 +971,7 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     Families are painted outermost first, each over its own solid pixels; a family
     inside another family's solid (a nested shell) is painted after it, so the inner
     shell wins where shells overlap. Without the bool ``mask``, from the ``packed`` one
-    only (:func:`heoslice.rasterising.packed_mask`; the droplet masks' path, which reads
+    only (:func:`heoslice.layers.rasterising.packed_mask`; the droplet masks' path, which reads
     labels only where the layer is solid), the outermost family labels its whole box:
     pixels off the solid there hold labels too.
 
@@ -1297,7 +1297,7 @@ def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     """
     import time
 
-    from heoslice.rasterising import paint_contour
+    from heoslice.layers.rasterising import paint_contour
 
     started = time.process_time()
     regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions, reuse=reuse)
@@ -1347,7 +1347,7 @@ def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, pa
     layer's pixels, without the RGBA image: the path of ``slice --channels`` (and of
     ``render_graded(..., channels=True)``). Solid pixels outside every family jet the base
     material. Arguments as :func:`render_graded`; mask (h, w) bool, ``packed`` the same mask
-    bit-packed (:func:`heoslice.rasterising.packed_mask`) when the caller has it; with it, the
+    bit-packed (:func:`heoslice.layers.rasterising.packed_mask`) when the caller has it; with it, the
     mask may be None (no per-pixel mask built or read: :func:`layer_regions`); ``reuse`` as there.
     """
     packed = np.packbits(mask, axis=1) if packed is None else packed

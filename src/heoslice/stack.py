@@ -23,6 +23,7 @@ import numpy as np
 
 from heoslice import __version__
 from heoslice.errors import InputError, OutputError, VerifyError
+from heoslice.layers.planes import layer_count
 
 FORMAT_NAME = "heoslice-stack"
 FORMAT_VERSION = 1
@@ -548,8 +549,8 @@ def _layer_file_problem(path: Path, name: str, digest: str, solid: int | None, m
 
 
 def expected_layer_count(z_min: float, z_max: float, layer_height: float) -> int:
-    """Layers a stack of this z-range needs: ceil((z_max - z_min) / h), at least 1 (as slicing.plane_heights)."""
-    return max(1, int(np.ceil((z_max - z_min) / layer_height - 1e-9)))
+    """Layers a stack of this z-range needs: :func:`heoslice.layers.planes.layer_count`, as slicing cuts them."""
+    return layer_count(z_min, z_max, layer_height)
 
 
 def layer_height_problems(manifest: dict, z_min: float, z_max: float, source: str) -> list[str]:

@@ -12,14 +12,40 @@ from heoslice.cli.common import echo_warnings, progress_bar
 from heoslice.cli.options import flags, function_from_options, function_options, option
 from heoslice.errors import InputError
 from heoslice.mesh import load_mesh, scaled
-from heoslice.pipeline import SliceSpec, slice_to_stack
-from heoslice.rasterising import parse_dpi
+from heoslice.pipeline import MAX_DPI, SliceSpec, slice_to_stack
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3
+
+#: SliceSpec and slice_to_stack parameters -> the options that set them (library errors name the parameter).
+SPEC_FLAGS = {
+    "layer_height_mm": "--layer", "dpi": "--dpi", "margin_mm": "--margin", "canvas_mm": "--canvas",
+    "compression": "--compress", "jobs": "--jobs", "channels": "--channels", "materials": "--materials",
+}
 
 
 def default_output(model: Path) -> Path:
     """Where a stack goes without -o: ``./<model stem>_stack`` in the current directory."""
     return Path.cwd() / f"{model.stem}_stack"
+
+
+def flag_error(err: InputError) -> InputError:
+    """``err`` with the parameter its message starts with (``layer_height_mm: ...``) named as its option."""
+    parameter, colon, rest = str(err).partition(":")
+    flag = SPEC_FLAGS.get(parameter)
+    return InputError(f"{flag}:{rest}") if colon and flag else err
+
+
+def parse_dpi(text: str) -> tuple[float, float]:
+    """'600' -> (600, 600); '600x300' -> (600, 300). Raises InputError otherwise."""
+    parts = str(text).lower().split("x")
+    try:
+        values = [float(part) for part in parts]
+    except ValueError:
+        values = []
+    if len(values) == 1:
+        values = values * 2
+    if len(values) != 2 or not all(0 < value <= MAX_DPI for value in values):
+        raise InputError(f"--dpi: expected N or NxM with positive numbers, got {text!r}")
+    return (values[0], values[1])
 
 
 def parse_canvas(text: str | None) -> tuple[float, float] | None:
@@ -132,9 +158,12 @@ def slice_cmd(model: Path, output: Path | None, layer_height: float, dpi: str, c
     """
     grade = grade_spec(grade_kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth,
                        offset_count, direction, materials_file, channels)
-    spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
-                     canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
-                     grade=grade, channels=channels)
+    try:
+        spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
+                         canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
+                         grade=grade, channels=channels)
+    except InputError as err:
+        raise flag_error(err) from None
     mesh = load_mesh(model)
     if scale != 1.0:
         mesh = scaled(mesh, scale)
@@ -142,7 +171,10 @@ def slice_cmd(model: Path, output: Path | None, layer_height: float, dpi: str, c
         echo_warnings(model, mesh.warnings)
     directory = output if output is not None else default_output(model)
     with progress_bar("slicing", unit="layer") as update:
-        manifest, times = slice_to_stack(mesh, directory, spec, force=force, progress=update)
+        try:
+            manifest, times = slice_to_stack(mesh, directory, spec, force=force, progress=update)
+        except InputError as err:
+            raise flag_error(err) from None
     open_layers = [entry["index"] for entry in manifest["layers"] if entry["open_contours"]]
     summary = {
         "stack": str(directory),

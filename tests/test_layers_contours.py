@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 from helpers import contours_of, manifold_areas
 
 from heoslice import procedural
-from heoslice.contours import _rank_paths, build_contours, successors
-from heoslice.slicing import plane_heights, slice_mesh
+from heoslice.layers.contours import _rank_paths, build_contours, successors
+from heoslice.layers import plane_heights, slice_mesh
 
 REFERENCE_MESHES = {
     "sphere": lambda: procedural.sphere(25.0, 5),
@@ -158,7 +158,7 @@ def test_successors_link_the_kth_end_to_the_kth_start_of_a_key(seed, size, disti
 def test_label_chains_name_each_cycle_by_its_smallest_node_and_each_path_by_its_tail(seed, size):
     """Random disjoint cycles and paths: every node gets its cycle's smallest index, or -1 - the tail of its
     path, as walking the successor map node by node does."""
-    from heoslice.contours import _label_chains
+    from heoslice.layers.contours import _label_chains
 
     rng = np.random.default_rng(seed)
     nodes = rng.permutation(size)
@@ -195,7 +195,7 @@ def test_contours_without_hierarchy_are_the_same_loops():
 def test_overlapping_loops_of_a_broken_mesh_get_parents_that_end():
     """Two loops that cross (a self-intersecting mesh), each holding the other's first vertex: only the larger
     can be the smaller's parent, so the parents form no cycle (they did, and grading hung following them)."""
-    from heoslice.contours import loop_parents
+    from heoslice.layers.contours import loop_parents
 
     small = np.array([[10.0, 10.0], [0.0, 10.0], [0.0, 0.0], [10.0, 0.0]])
     large = np.array([[0.5, 0.5], [10.7, 0.5], [10.7, 10.7], [0.5, 10.7]])

@@ -11,12 +11,11 @@ from helpers import contours_of, layer_loops, near_contour, winding_reference
 
 from heoslice import procedural
 from heoslice.errors import InputError
-from heoslice.rasterising import (
+from heoslice.layers.rasterising import (
     Grid,
     count_solid,
     grid_for,
     packed_mask,
-    parse_dpi,
     prefix_xor_bytes,
     render_layer,
     solid_mask,
@@ -116,20 +115,6 @@ def test_grid_geometry_and_canvas():
     assert (canvas.width, canvas.height) == (200, 300)
     with pytest.raises(InputError):
         grid_for(np.array([[0.0, 0.0], [10.0, 5.0]]), (254.0, 254.0), canvas_mm=(5.0, 30.0))
-
-
-@pytest.mark.parametrize("text, expected", [("600", (600.0, 600.0)), ("600x300", (600.0, 300.0)),
-                                            ("1200X1200", (1200.0, 1200.0))])
-def test_parse_dpi_accepts_n_and_nxm(text, expected):
-    """--dpi takes N or NxM."""
-    assert parse_dpi(text) == expected
-
-
-@pytest.mark.parametrize("text", ["", "abc", "0", "-5", "600x", "1x2x3"])
-def test_parse_dpi_rejects_nonsense(text):
-    """Anything else is a one-line input error."""
-    with pytest.raises(InputError, match="--dpi"):
-        parse_dpi(text)
 
 
 def test_rgba_layer_shows_contour_colours_and_base_inside():

@@ -8,7 +8,7 @@ The paper's section IV.A-B, vectorised with numpy:
 * local topology: each intersection point is named by the mesh edge it lies on,
   and each segment is directed by the right-hand rule, from the edge that goes down
   through the plane to the edge that goes up, so that outer contours run
-  counter-clockwise seen from +z and holes clockwise. :mod:`heoslice.contours`
+  counter-clockwise seen from +z and holes clockwise. :mod:`heoslice.layers.contours`
   chains the segments into loops through those shared edge names.
 
 A vertex exactly on a plane counts as above it (the comparison is ``z < plane``
@@ -68,17 +68,6 @@ class Sections:
         return interpolate_at(self.vertices[:, :2], edge, self.end_t[segments])
 
 
-def plane_heights(z_min: float, z_max: float, layer_height: float) -> np.ndarray:
-    """Slicing planes at layer centres: z_i = z_min + (i + 1/2) h, i = 0 .. ceil((z_max - z_min) / h) - 1.
-
-    Returns (L,) float64, mm.
-    """
-    if not layer_height > 0:
-        raise InputError(f"layer height must be positive, got {layer_height}")
-    count = int(np.ceil((z_max - z_min) / layer_height - 1e-9))
-    return z_min + (np.arange(max(count, 1)) + 0.5) * layer_height
-
-
 def _pick(rows: np.ndarray, column: np.ndarray) -> np.ndarray:
     """rows[i, column[i]] for a (k, c) array (one entry per row), by one flat gather."""
     rows = np.ascontiguousarray(rows)
@@ -127,7 +116,7 @@ def slice_mesh(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
 
     # Local topology: the lone vertex (alone on its side of the plane) and its two edges.
     plane = z[pair_layer]
-    # np.take: row gathers several times faster than fancy indexing (numpy 2.4)
+    # np.take: row gathers are faster than fancy indexing (benchmarks/README.md)
     tri = np.take(faces, pair_face, axis=0)  # (s, 3)
     tri_z = np.take(face_z, pair_face, axis=0)
     below = tri_z < plane[:, None]

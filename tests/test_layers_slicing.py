@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from heoslice import procedural
 from heoslice.errors import InputError
-from heoslice.slicing import interpolate_at, plane_heights, slice_mesh
+from heoslice.layers import interpolate_at, plane_heights, slice_mesh
 
 
 def test_plane_heights_are_layer_centres():
@@ -111,7 +111,7 @@ def test_interpolate_at_is_linear_along_the_edge():
 @pytest.mark.parametrize("budget", [1, 5_000, 40_000, 10**9])
 def test_plane_chunks_partition_the_planes_and_reproduce_the_whole(budget):
     """Slicing run by run gives exactly the segments of slicing everything at once, whatever the budget."""
-    from heoslice.slicing import plane_chunks, segments_per_plane, slice_planes
+    from heoslice.layers.slicing import plane_chunks, segments_per_plane, slice_planes
 
     mesh = procedural.vase()
     z = plane_heights(0.0, 60.0, 0.2)

@@ -1,6 +1,6 @@
 """Contours: chain intersection segments into closed loops and organise them into families.
 
-The paper's section II.C and IV.B: segments from :mod:`heoslice.slicing` are linked
+The paper's section II.C and IV.B: segments from :mod:`heoslice.layers.slicing` are linked
 end to start through the mesh edge they share (local topology), giving closed
 loops oriented by the right-hand rule (outer counter-clockwise seen from +z, holes
 clockwise). Open meshes give open chains, which are closed by joining their ends
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from heoslice.slicing import Sections
+from heoslice.layers.slicing import Sections
 
 
 @dataclass(frozen=True)
@@ -92,7 +92,7 @@ def successors(start_key: np.ndarray, end_key: np.ndarray) -> np.ndarray:
     partner = run_start + position - first_end  # the k-th start of the run, for its k-th end
     match = is_end & (partner < first_end)
     nxt = np.full(count, -1, dtype=np.int64)
-    nxt[np.compress(match, order) - count] = order[np.compress(match, partner)]  # compress: 5x a boolean index
+    nxt[np.compress(match, order) - count] = order[np.compress(match, partner)]  # compress: faster than a boolean index
     return nxt
 
 
