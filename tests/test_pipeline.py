@@ -22,7 +22,7 @@ from heoslice.loading import load_mesh
 from heoslice.materials import DEFAULT_MATERIALS, Material
 from heoslice.pipeline import SliceSpec, slice_to_stack
 from heoslice.rasterising import Grid, contour_pixels, solid_mask
-from heoslice.regions import GradeSpec, RegionSpec
+from heoslice.grading import GradeSpec, RegionSpec
 from heoslice.slicing import slice_mesh
 from heoslice.stack import read_layer_mask, stack_volume_mm3, verify_stack
 

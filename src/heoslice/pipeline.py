@@ -28,7 +28,7 @@ from heoslice.contours import Contours, build_contours
 from heoslice.errors import InputError
 from heoslice.loading import Mesh
 from heoslice.rasterising import Grid, count_solid, grid_for, packed_mask, render_layer
-from heoslice.regions import GradeSpec, droplet_planes, render_graded
+from heoslice.grading import GradeSpec, GradingCache, droplet_planes, render_graded
 from heoslice.slicing import face_z_range, interpolate_at, plane_chunks, plane_heights, slice_planes
 from heoslice.stack import (
     COMPRESSIONS,
@@ -55,8 +55,8 @@ MAX_LAYERS = 1_000_000
 class SliceSpec:
     """What to slice and how: layer height (mm), resolution (dpi x, y), canvas, encoding, workers.
 
-    ``grade`` asks for graded interiors (:mod:`heoslice.regions`), ``channels`` for one
-    droplet mask per material per layer (:mod:`heoslice.halftone`; needs ``grade``).
+    ``grade`` asks for graded interiors (:mod:`heoslice.grading`), ``channels`` for one
+    droplet mask per material per layer (:mod:`heoslice.grading.halftone`; needs ``grade``).
     """
 
     layer_height_mm: float = 0.1
@@ -146,7 +146,7 @@ def render_and_write(job: LayerJob, reuse: dict | None = None) -> tuple:
     Returns (index, sha256, solid pixels, raster s, encode s, channel entries); the
     channel entries (graded layers with droplet masks) are (file name, sha256, solid pixels).
     A graded layer takes the sub-regions of families it shares with the layer rendered
-    before it with the same ``reuse`` dict (:func:`heoslice.regions.layer_regions`); a 1-bit
+    before it with the same ``reuse`` dict (its ``grading`` cache, :func:`heoslice.grading.layer_regions`); a 1-bit
     layer with the same solid bits as that one takes its encoded TIFF.
     """
     if job.graded is not None:
@@ -182,12 +182,13 @@ def _render_graded_and_write(job: LayerJob, reuse: dict | None) -> tuple:
     """The graded branch of :func:`render_and_write`: the RGBA layer, or with droplet masks the
     1-bit solid layer plus one 1-bit TIFF per material."""
     graded = job.graded
+    cache = None if reuse is None else reuse.setdefault("grading", GradingCache())
     started = time.perf_counter()
     packed = job.packed if job.packed is not None else packed_mask(job.points, job.offsets, job.grid)
     if graded.channel_paths is not None:
         planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, None,
                                 job.grid, graded.spec, job.index, point_material=graded.point_material,
-                                packed=packed, reuse=reuse)
+                                packed=packed, cache=cache)
         rendered = time.perf_counter()
         width = job.grid.width
         solid = count_solid(packed)
@@ -201,7 +202,7 @@ def _render_graded_and_write(job: LayerJob, reuse: dict | None) -> tuple:
     mask = np.unpackbits(packed, axis=1, count=job.grid.width).view(bool)
     layer = render_graded(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, mask, job.grid,
                           graded.spec, job.index, point_colors=job.point_colors,
-                          point_material=graded.point_material, reuse=reuse)
+                          point_material=graded.point_material, cache=cache)
     rendered = time.perf_counter()
     data = encode_tiff(layer.image, job.dpi, job.compression)
     encoded = time.perf_counter()

@@ -43,7 +43,7 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
     """
     from heoslice.distribution import make_function
     from heoslice.materials import load_materials, load_shell_materials, resolve_material
-    from heoslice.regions import GradeSpec, RegionSpec
+    from heoslice.grading import GradeSpec, RegionSpec
 
     if kind is None:
         given = {"--alpha": alpha, "--beta": beta, "--lambda": lam, "--periods": periods,
