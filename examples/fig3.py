@@ -7,7 +7,7 @@ The vase (heoslice.procedural.vase, 90 sections: 360 intersection points per lay
 as in the paper's example) is coloured by a sine function of x (from red to blue,
 heoslice.material), so that its contour points carry different colours. Panel (a)
 draws the layer's loops and the intersection points in their interpolated colours
-(Fig. 3a, 6); panel (b) is heoslice.regions.render_graded with 200 sub-regions from
+(Fig. 3a, 6); panel (b) is heoslice.grading.render_graded with 200 sub-regions from
 the outer contour's colours to the target contour's (0, 255, 0) (Fig. 3b).
 """
 
@@ -24,7 +24,7 @@ from heoslice.layers.contours import build_contours
 from heoslice.material import evaluate, make_function, make_reference, normalise, reference_distance
 from heoslice.material import DEFAULT_MATERIALS, Material, blend
 from heoslice.layers.rasterising import grid_for, solid_mask
-from heoslice.regions import GradeSpec, RegionSpec, render_graded
+from heoslice.grading import GradeSpec, RegionSpec, render_graded
 from heoslice.layers.slicing import interpolate_at, slice_mesh
 
 HERE = Path(__file__).resolve().parent

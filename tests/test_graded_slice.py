@@ -157,18 +157,18 @@ def test_missing_materials_file(run_cli, ball, tmp_path):
 def counted_plate(tmp_path, monkeypatch):
     """The benchmark's plate with holes, pins and a cavity, small; a graded slice spec with droplet masks
     (300 dpi, 0.2 mm layers, in this process); and a list that grows by one per family measured afresh."""
-    from heoslice import pipeline, regions
+    from heoslice import grading, pipeline
     from heoslice.material import make_function
     from heoslice.mesh import load_mesh
     from heoslice.material import DEFAULT_MATERIALS, Material
 
     path = tmp_path / "plate.ply"
     procedural.holes_and_islands((20.0, 12.5, 4.0), 48).export(path)
-    grade = regions.GradeSpec(regions.RegionSpec(nozzle_mm=0.3), make_function("linear"),
+    grade = grading.GradeSpec(grading.RegionSpec(nozzle_mm=0.3), make_function("linear"),
                               Material("green", (0, 255, 0)), None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
     measured = []
-    family_field = regions.family_field
-    monkeypatch.setattr(regions, "family_field", lambda *args, **kwargs: measured.append(1) or family_field(
+    family_field = grading.labels.family_field
+    monkeypatch.setattr(grading.labels, "family_field", lambda *args, **kwargs: measured.append(1) or family_field(
         *args, **kwargs))
     spec = pipeline.SliceSpec(layer_height_mm=0.2, dpi=(300.0, 300.0), grade=grade, channels=True, jobs=1)
     return load_mesh(path), spec, measured

@@ -15,7 +15,7 @@ from heoslice.material import make_function
 from heoslice.mesh import load_mesh
 from heoslice.material import DEFAULT_MATERIALS, Material
 from heoslice.pipeline import SliceSpec, plane_runs, slice_to_stack
-from heoslice.regions import GradeSpec, RegionSpec
+from heoslice.grading import GradeSpec, RegionSpec
 
 _REUSE_PROBE = """
 import os, resource, sys

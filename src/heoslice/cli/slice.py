@@ -69,8 +69,8 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
     families keep their own (or their shell's) materials, without a gradient. The
     materials play the parts :func:`heoslice.material.material_roles` gives them.
     """
+    from heoslice.grading import GradeSpec, RegionSpec
     from heoslice.material import load_materials, load_shell_materials, material_roles
-    from heoslice.regions import GradeSpec, RegionSpec
 
     if kind is None:
         given = {"--alpha": alpha, "--beta": beta, "--lambda": lam, "--periods": periods,

@@ -6,7 +6,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -15,7 +14,7 @@ from heoslice.layers.rasterising import Grid, count_solid, packed_mask, render_l
 from heoslice.layers.slicing import interpolate_at
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec, channel_name
-from heoslice.regions import GradeSpec, droplet_planes, render_graded
+from heoslice.grading import GradeSpec, GradingCache, droplet_planes, render_graded
 from heoslice.stack import encode_bilevel_tiff, encode_tiff, layer_file_name, write_file
 
 
@@ -38,7 +37,7 @@ class PipelineCache:
     (the same slice); a worker starts from a copy of the one its parent's first layer filled.
     """
 
-    grading: Any = field(default_factory=dict)
+    grading: GradingCache = field(default_factory=GradingCache)
     solid: EncodedSolid | None = None
 
 
@@ -80,7 +79,7 @@ def render_and_write(job: LayerJob, cache: PipelineCache | None = None, packed: 
     channel entries (graded layers with droplet masks) are (file name, sha256, solid pixels).
     ``packed`` is the layer's solid bits when they were made ahead (:func:`packed_mask`'s).
     With a ``cache``, a graded layer takes the sub-regions of families it shares with the layer
-    rendered before it (:func:`heoslice.regions.layer_regions`), and a 1-bit layer with the same
+    rendered before it (:func:`heoslice.grading.layer_regions`), and a 1-bit layer with the same
     solid bits as that one takes its encoded TIFF.
     """
     if job.graded is not None:
@@ -122,7 +121,7 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed:
     if graded.channel_paths is not None:
         planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, None,
                                 job.grid, graded.spec, job.index, point_material=graded.point_material,
-                                packed=packed, reuse=grading_cache)
+                                packed=packed, cache=grading_cache)
         rendered = time.perf_counter()
         width = job.grid.width
         solid = count_solid(packed)
@@ -136,7 +135,7 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed:
     mask = np.unpackbits(packed, axis=1, count=job.grid.width).view(bool)
     layer = render_graded(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, mask, job.grid,
                           graded.spec, job.index, point_colors=job.point_colors,
-                          point_material=graded.point_material, reuse=grading_cache)
+                          point_material=graded.point_material, cache=grading_cache)
     rendered = time.perf_counter()
     data = encode_tiff(layer.image, job.dpi, job.compression)
     encoded = time.perf_counter()

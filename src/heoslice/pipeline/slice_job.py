@@ -22,7 +22,7 @@ from heoslice.mesh import Mesh
 from heoslice.pipeline.parallel import run_all
 from heoslice.pipeline.runs import RunContext, RunResult
 from heoslice.pipeline.spec import SliceSpec, StageTimes
-from heoslice.regions import GradeSpec
+from heoslice.grading import GradeSpec
 from heoslice.stack import (
     FORMAT_NAME,
     FORMAT_VERSION,

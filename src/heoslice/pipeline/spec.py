@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from heoslice.errors import InputError
-from heoslice.regions import GradeSpec
+from heoslice.grading import GradeSpec
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION
 
 MIN_LAYER_MM = 1e-3
@@ -23,8 +23,8 @@ MIN_DPI, MAX_DPI = 1.0, 100_000.0
 class SliceSpec:
     """What to slice and how: layer height (mm), resolution (dpi x, y), canvas, encoding, workers.
 
-    ``grade`` asks for graded interiors (:mod:`heoslice.regions`), ``channels`` for one
-    droplet mask per material per layer (:mod:`heoslice.halftone`; needs ``grade``).
+    ``grade`` asks for graded interiors (:mod:`heoslice.grading`), ``channels`` for one
+    droplet mask per material per layer (:mod:`heoslice.grading.halftone`; needs ``grade``).
     """
 
     layer_height_mm: float = 0.1

@@ -20,6 +20,7 @@ import functools
 
 import numpy as np
 
+
 #: Side of the ordered-dither matrix (256 threshold levels).
 TILE = 16
 
@@ -58,37 +59,3 @@ def thresholds(shape: tuple[int, int], layer: int, origin: tuple[int, int] = (0,
     rows = (np.arange(shape[0]) + origin[0]) % TILE
     cols = (np.arange(shape[1]) + origin[1]) % TILE
     return tile[np.ix_(rows, cols)]
-
-
-def choose_materials(fractions: np.ndarray, solid: np.ndarray, layer: int,
-                     origin: tuple[int, int] = (0, 0)) -> np.ndarray:
-    """The material number each pixel jets: (rows, cols) int8, -1 where not solid.
-
-    fractions: (K, rows, cols) float, each pixel's material fractions (summing to 1
-    where solid; they are normalised here); solid: (rows, cols) bool.
-    """
-    fractions = np.asarray(fractions, dtype=np.float32)
-    count = fractions.shape[0]
-    if count == 0:
-        raise ValueError("at least one material is needed")
-    total = np.zeros(fractions.shape[1:], dtype=np.float32)
-    for fraction in fractions:  # summed in order (numpy's pairwise sum would round differently)
-        total += fraction
-    threshold = thresholds(solid.shape, layer, origin) * np.where(total > 0, total, 1.0)
-    chosen = np.full(solid.shape, count - 1, dtype=np.int8)
-    running = np.zeros(solid.shape, dtype=np.float32)
-    undecided = np.ones(solid.shape, dtype=bool)
-    for material in range(count - 1):
-        running += fractions[material]
-        here = undecided & (threshold < running)
-        chosen[here] = material
-        undecided &= ~here
-    chosen[~solid] = -1
-    return chosen
-
-
-def droplet_masks(fractions: np.ndarray, solid: np.ndarray, layer: int,
-                  origin: tuple[int, int] = (0, 0)) -> np.ndarray:
-    """One 1-bit mask per material: (K, rows, cols) bool, exactly one True per solid pixel, none elsewhere."""
-    chosen = choose_materials(fractions, solid, layer, origin)
-    return chosen[None, :, :] == np.arange(fractions.shape[0], dtype=np.int8)[:, None, None]
