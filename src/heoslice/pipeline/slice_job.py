@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from heoslice import __version__
 from heoslice.errors import InputError
 from heoslice.layers.planes import layer_count, plane_heights
 from heoslice.layers.rasterising import grid_for
@@ -24,10 +23,12 @@ from heoslice.pipeline.runs import RunContext, RunResult
 from heoslice.pipeline.spec import SliceSpec, StageTimes
 from heoslice.grading import GradeSpec
 from heoslice.stack import (
-    FORMAT_NAME,
-    FORMAT_VERSION,
+    ChannelRecord,
+    ImageRecord,
+    LayerRecord,
+    build_manifest,
     check_image_size,
-    layer_file_name,
+    grading_summary,
     prepare_directory,
     write_manifest,
 )
@@ -72,40 +73,16 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     context = RunContext(mesh=mesh, z=z, face_range=face_z_range(mesh.vertices, mesh.faces), grid=grid,
                          spec=spec, directory=directory)
     run_all(context, spec.worker_count(), on_done)
-    manifest = {
-        "format": FORMAT_NAME,
-        "version": FORMAT_VERSION,
-        "complete": True,
-        "created_by": f"heoslice {__version__}",
-        "source": {"file": mesh.source.name, "sha256": mesh.sha256},
-        "layer_height_mm": spec.layer_height_mm,
-        "dpi": [float(spec.dpi[0]), float(spec.dpi[1])],
-        "pixel_size_mm": [grid.px, grid.py],
-        "image": {
-            "width": grid.width,
-            "height": grid.height,
-            "origin_mm": [grid.x_left, grid.y_top],
-            "mode": _image_mode(mesh, spec),
-            "compression": spec.compression,
-        },
-        "mask": "nonzero" if _image_mode(mesh, spec) == "1" else "alpha",
-        "z_range_mm": [float(bounds[0, 2]), float(bounds[1, 2])],
-        "warnings": list(mesh.warnings),
-        "layers": [
-            {
-                "index": index,
-                "z_mm": float(z[index]),
-                "file": layer_file_name(index),
-                "sha256": results[index][0],
-                "solid_pixels": results[index][1],
-                "open_contours": bool(open_layers[index]),
-                **({"channels": _channel_entries(spec.grade, results[index][2])} if spec.channels else {}),
-            }
-            for index in range(len(z))
-        ],
-    }
-    if spec.grade is not None:
-        manifest["grading"] = grading_summary(spec.grade)
+    mode = _image_mode(mesh, spec)
+    manifest = build_manifest(
+        source_file=mesh.source.name, source_sha256=mesh.sha256, layer_height_mm=spec.layer_height_mm,
+        dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
+        image=ImageRecord(grid.width, grid.height, (grid.x_left, grid.y_top), mode, spec.compression),
+        z_range_mm=(bounds[0, 2], bounds[1, 2]), warnings=mesh.warnings,
+        layers=[LayerRecord(z[index], results[index][0], results[index][1], open_layers[index],
+                            _channel_records(spec.grade, results[index][2]) if spec.channels else None)
+                for index in range(len(z))],
+        grading=None if spec.grade is None else grading_summary(spec.grade))
     write_manifest(directory, manifest)
     times.total = time.perf_counter() - started
     return manifest, times
@@ -117,26 +94,7 @@ def _image_mode(mesh: Mesh, spec: SliceSpec) -> str:
     return "RGBA" if (mesh.colors is not None or spec.grade is not None) and not spec.channels else "1"
 
 
-def _channel_entries(grade: GradeSpec, written: tuple) -> list[dict]:
-    """The manifest's per-layer ``channels`` list: material, file, sha256, solid pixels."""
-    return [{"material": material.name, "file": name, "sha256": digest, "solid_pixels": solid}
-            for material, (name, digest, solid) in zip(grade.channel_materials(), written)]
-
-
-def grading_summary(grade: GradeSpec) -> dict:
-    """The manifest's ``grading`` object: what the interiors were graded with, and the materials."""
-    regions = grade.regions
-
-    def material(m):
-        return None if m is None else {"name": m.name, "color": list(m.color), "channel": m.channel}
-
-    return {
-        "function": None if grade.function is None else grade.function.describe(),
-        "target": material(grade.target),
-        "from": material(grade.start),
-        "nozzle_mm": regions.nozzle_mm,
-        "depth_mm": regions.depth_mm,
-        "direction": regions.direction,
-        "offsets": regions.count,
-        "materials": [material(m) for m in grade.channel_materials()],
-    }
+def _channel_records(grade: GradeSpec, written: tuple) -> tuple[ChannelRecord, ...]:
+    """The manifest records of one layer's droplet masks: material, file, sha256, solid pixels."""
+    return tuple(ChannelRecord(material.name, name, digest, solid)
+                 for material, (name, digest, solid) in zip(grade.channel_materials(), written))

@@ -1,7 +1,5 @@
-"""Previews of a stack: one layer, or a contact sheet of several, as PNG for people who would rather look.
+"""One layer of a stack as a display image, in material colours or dark solid on white.
 
-Layers are read through :mod:`heoslice.stack`: the manifest is checked, each shown file
-must stay inside the stack and match its sha256 and layout before it is decoded.
 RGBA layers are shown in their material colours over dark grey (so a white or light
 material stays visible). Layers with droplet masks (``slice --channels``) are shown the
 same way, composed from the masks: each set pixel of a material's mask in that
@@ -24,37 +22,6 @@ SOLID_GREY = (64, 64, 64)
 BACKGROUND = (255, 255, 255)
 #: Empty pixels behind RGBA layers: dark, since material colours are often white or light.
 RGBA_BACKGROUND = (32, 32, 32)
-
-
-def parse_layers(text: str, count: int) -> list[int]:
-    """Layer numbers from 'N', 'A,B,C' or a Python-style range 'START:STOP[:STEP]' (stop excluded, may be empty).
-
-    Raises InputError naming the text when it does not parse or names no existing layer.
-    """
-    layers: list[int] = []
-    try:
-        for part in str(text).split(","):
-            part = part.strip()
-            if ":" in part:
-                pieces = [p.strip() for p in part.split(":")]
-                if len(pieces) > 3:
-                    raise ValueError
-                start = int(pieces[0]) if pieces[0] else 0
-                stop = int(pieces[1]) if len(pieces) > 1 and pieces[1] else count
-                step = int(pieces[2]) if len(pieces) > 2 and pieces[2] else 1
-                if step <= 0:
-                    raise ValueError
-                layers.extend(range(start, min(stop, count), step))
-            else:
-                layers.append(int(part))
-    except ValueError:
-        raise InputError(f"--layers: expected N, A,B,C or START:STOP[:STEP], got {text!r}") from None
-    bad = [layer for layer in layers if not 0 <= layer < count]
-    if bad:
-        raise InputError(f"--layers: layer {bad[0]} does not exist (the stack has layers 0..{count - 1})")
-    if not layers:
-        raise InputError(f"--layers: {text!r} selects no layer (the stack has layers 0..{count - 1})")
-    return layers
 
 
 def layer_rgb(pixels: np.ndarray) -> np.ndarray:
@@ -135,25 +102,3 @@ def layer_image(directory: Path, index: int, size: int | None = None, manifest: 
     if not 0 <= index < count:
         raise InputError(f"--layer: layer {index} does not exist (the stack has layers 0..{count - 1})")
     return fit(Image.fromarray(layer_display(Path(directory), manifest, index)), size)
-
-
-def contact_sheet(directory: Path, layers: list[int], tile: int = 256, columns: int | None = None,
-                  manifest: dict | None = None):
-    """PIL RGB image: the given layers side by side, each reduced to ``tile`` pixels and labelled with its number and z."""
-    from PIL import Image, ImageDraw
-
-    directory = Path(directory)
-    manifest = read_manifest(directory) if manifest is None else manifest
-    columns = columns or int(np.ceil(np.sqrt(len(layers))))
-    rows = -(-len(layers) // columns)
-    label = 14
-    sheet = Image.new("RGB", (columns * (tile + 4) + 4, rows * (tile + label + 4) + 4), (200, 200, 200))
-    draw = ImageDraw.Draw(sheet)
-    for position, index in enumerate(layers):
-        image = layer_image(directory, index, tile, manifest)
-        x = 4 + (position % columns) * (tile + 4)
-        y = 4 + (position // columns) * (tile + label + 4)
-        sheet.paste(image, (x + (tile - image.size[0]) // 2, y + label + (tile - image.size[1]) // 2))
-        z = manifest["layers"][index]["z_mm"]
-        draw.text((x + 2, y + 1), f"layer {index}  z {z:.2f} mm", fill=(0, 0, 0))
-    return sheet
