@@ -21,13 +21,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from heoslice import protocol as P
 from heoslice.cli import cli, main
-from heoslice.controller import FaultSpec, FdTransport, SimConfig, SimController, TcpServerTransport
 from heoslice.errors import (ControllerFaultError, ControllerResetError, IncompatibleControllerError, LinkDeadError,
                              PortError, PrintInterrupted, RetryLimitError)
-from heoslice.printer import (CHUNK_HEADER, LinkTiming, SimConnector, next_chunk, optimal_frame_bytes, print_job,
-                              random_job, stack_job, synthetic_job)
+from heoslice.printing import (CHUNK_HEADER, LinkTiming, next_chunk, optimal_frame_bytes, print_job, stack_job)
+from heoslice.printing import protocol as P
+from heoslice.printing.simulator import FaultSpec, FdTransport, SimConfig, SimConnector, SimController, TcpServerTransport
+from printing_jobs import random_job, synthetic_job
 
 FAST = dict(baud=1_000_000, layer_time_s=0.0005, status_interval_s=0.2)
 #: A finer read/pacing granularity than the default 5 ms keeps fewer frames in flight at the tests' 100 kB/s.

@@ -7,8 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from heoslice import protocol as P
-from heoslice.controller import FaultSpec, SimConfig, SimController, pipe_pair, sim_from_url
+from heoslice.printing import protocol as P
+from heoslice.printing.simulator import FaultSpec, SimConfig, SimController, pipe_pair, sim_from_url
 from heoslice.errors import PortError
 
 FAST = dict(baud=10_000_000, layer_time_s=0.001, status_interval_s=0.05)

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from heoslice import protocol as P
+from heoslice.printing import protocol as P
 from heoslice.errors import HeosliceError, ProtocolError
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
