@@ -19,11 +19,6 @@ Examples:
   heoslice print vase_stack/ --port /dev/ttyACM0 --from-layer 120   # after a controller reset
   heoslice print vase_stack/ --port 'sim://?layer_time_s=0.01'        # built-in simulator
   heoslice print vase_stack/ --dry-run                               # verify and size, no port
-\b
-Exit status: 0 printed; 2 bad input; 4 stack failed verification; 10 port cannot be
-opened; 11 link dead; 12 protocol/version mismatch or job does not fit; 13 retry limit
-(job paused); 14 controller was reset (rerun with --from-layer); 15 controller error;
-130 interrupted (ABORT sent). See docs/protocol.md.
 """)
 @click.argument("stack", type=click.Path(path_type=Path))
 @click.option("-p", "--port", default=None,
