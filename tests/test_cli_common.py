@@ -49,9 +49,9 @@ def test_expand_inputs(tmp_path, monkeypatch):
     for name in ("b.ply", "a.ply", "deep/c.ply", "x[1].ply"):
         (tmp_path / name).parent.mkdir(exist_ok=True)
         (tmp_path / name).write_text("")
-    found = expand_inputs([Path("*.ply"), Path("b.ply"), Path("**/c.ply"), Path("none/*.stl")])
-    assert found.paths == (Path("a.ply"), Path("b.ply"), Path("x[1].ply"), Path("deep/c.ply"))
-    assert found.unmatched == ("none/*.stl",) and found.several
+    found = expand_inputs([Path("*.ply"), Path("none/*.stl"), Path("b.ply"), Path("**/c.ply")])
+    assert found.items == (Path("a.ply"), Path("b.ply"), Path("x[1].ply"), "none/*.stl", Path("deep/c.ply"))
+    assert found.paths == (Path("a.ply"), Path("b.ply"), Path("x[1].ply"), Path("deep/c.ply")) and found.several
     single = expand_inputs([Path("x[1].ply")])
     assert single.paths == (Path("x[1].ply"),) and not single.several
     assert expand_inputs([Path("x*.ply")]).several
@@ -66,3 +66,21 @@ def test_controller_json_prints_its_port_as_one_object(run_cli):
     summary = json.loads(lines[0])
     assert summary["ok"] is True and summary["port"].startswith("/dev/")
     assert "0 layers executed" in err
+
+
+def test_json_convention_holds_for_every_command_with_json(run_cli, tmp_path, monkeypatch):
+    """info, slice, verify, print --dry-run: one line of strict JSON on stdout, an object with ok and its input."""
+    from test_cli_slice import write_box
+
+    monkeypatch.chdir(tmp_path)
+    write_box(tmp_path / "box.off")
+    calls = {"slice": (("slice", "box.off", "--dpi", "254", "--layer", "2", "-j", "1"), "model"),
+             "info": (("info", "box.off"), "model"),
+             "verify": (("verify", "box_stack", "--mesh", "box.off"), "stack"),
+             "print": (("print", "box_stack", "--dry-run"), "stack")}
+    for name, (arguments, key) in calls.items():
+        code, out, err = run_cli(*arguments, "--json")
+        assert code == 0, (name, err)
+        assert out.count("\n") == 1, name
+        value = json.loads(out, parse_constant=lambda constant: pytest.fail(f"{name}: {constant}"))
+        assert value["ok"] is True and isinstance(value[key], str), name

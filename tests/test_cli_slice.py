@@ -83,11 +83,12 @@ def test_a_failing_model_does_not_stop_the_others(run_cli, models):
 
 
 def test_pattern_matching_nothing_is_one_failure(run_cli, models):
-    """A pattern that matches no file is reported as such (exit 2) and the other models still run."""
-    code, _, err = run_cli("slice", "nothing/*.stl", "scans/tall.off", *FAST)
+    """A pattern that matches no file is reported in its place (exit 2) and the other models still run."""
+    code, out, err = run_cli("slice", "scans/tall.off", "nothing/*.stl", "scans/short.off", "--json", *FAST)
     assert code == EXIT_INPUT
     assert "heoslice: error: nothing/*.stl: no file matches this pattern" in err
-    assert verify_stack(models / "tall_stack").ok
+    assert [entry["model"] for entry in json.loads(out)] == ["scans/tall.off", "nothing/*.stl", "scans/short.off"]
+    assert verify_stack(models / "tall_stack").ok and verify_stack(models / "short_stack").ok
 
 
 @pytest.mark.parametrize("arguments", [("scans/tall.off", "scans/short.off", "-o", "out"),

@@ -120,14 +120,19 @@ def echo_json(value: object) -> None:
 class Inputs:
     """The files one call works on, in the order given, after heoslice expanded the patterns.
 
-    ``several`` is true when more than one argument or any pattern was given: then the
-    command reports per input and its JSON is a list, however many files matched.
-    ``unmatched`` are patterns that matched no file.
+    ``items`` holds each file once, in order, and (as a ``str``) each pattern that
+    matched no file, where it was given. ``several`` is true when more than one
+    argument or any pattern was given: then the command reports per input and its JSON
+    is a list, however many files matched.
     """
 
-    paths: tuple[Path, ...]
-    unmatched: tuple[str, ...]
+    items: tuple[Path | str, ...]
     several: bool
+
+    @property
+    def paths(self) -> tuple[Path, ...]:
+        """The files, in order."""
+        return tuple(item for item in self.items if isinstance(item, Path))
 
 
 def expand_inputs(arguments: tuple[Path, ...] | list[Path]) -> Inputs:
@@ -136,30 +141,27 @@ def expand_inputs(arguments: tuple[Path, ...] | list[Path]) -> Inputs:
     An argument naming an existing file is taken literally even if it has glob
     characters, so a file called ``a[1].ply`` is still found.
     """
-    paths: list[Path] = []
-    unmatched: list[str] = []
+    items: list[Path | str] = []
     pattern_given = False
     for argument in arguments:
         text = str(argument)
         if GLOB_CHARACTERS.isdisjoint(text) or Path(text).exists():
-            paths.append(Path(text))
+            items.append(Path(text))
             continue
         pattern_given = True
         matches = sorted(match for match in glob.glob(text, recursive=True) if Path(match).is_file())
-        if not matches:
-            unmatched.append(text)
-        paths += [Path(match) for match in matches]
-    unique = tuple(dict.fromkeys(paths))
-    return Inputs(paths=unique, unmatched=tuple(unmatched), several=len(arguments) > 1 or pattern_given)
+        items += [Path(match) for match in matches] or [text]
+    return Inputs(items=tuple(dict.fromkeys(items)), several=len(arguments) > 1 or pattern_given)
 
 
 def run_each(inputs: Inputs, run: Callable[[Path], dict], key: str, as_json: bool, debug: bool = False) -> None:
     """Run ``run(path) -> summary`` for every input; a failing one gives its line and the others still run.
 
-    With one literal input its error propagates as usual. With several, each failure is
-    one ``heoslice: error:`` line on stderr, then one line saying how many failed, and
-    the exit status is the highest of theirs. A Ctrl-C stops the whole call. With
-    ``as_json`` the summaries (and failure entries) are printed as one JSON list.
+    With one literal input its error propagates as usual. With several, each failure
+    (a pattern matching nothing included) is one ``heoslice: error:`` line on stderr,
+    then one line saying how many failed, and the exit status is the highest of theirs.
+    A Ctrl-C stops the whole call. With ``as_json`` the summaries and failure entries
+    are printed as one JSON list, in the order given.
     """
     if not inputs.several:
         summary = run(inputs.paths[0])
@@ -168,24 +170,20 @@ def run_each(inputs: Inputs, run: Callable[[Path], dict], key: str, as_json: boo
         return
     entries: list[dict] = []
     failed: list[tuple[str, int]] = []
-    for pattern in inputs.unmatched:
-        message = f"{pattern}: no file matches this pattern"
-        click.echo(f"heoslice: error: {message}", err=True)
-        entries.append({key: pattern, "ok": False, "error": message, "exit_code": EXIT_INPUT})
-        failed.append((pattern, EXIT_INPUT))
-    for path in inputs.paths:
+    for item in inputs.items:
         try:
-            entries.append(run(path))
+            if isinstance(item, str):
+                raise HeosliceError(f"{item}: no file matches this pattern", exit_code=EXIT_INPUT)
+            entries.append(run(item))
         except Exception as err:  # noqa: BLE001 - one input's failure, reported as main() would
             line, code = error_line(err, debug)
             click.echo(line, err=True)
             message = str(err) if isinstance(err, HeosliceError) else line
-            entries.append({key: str(path), "ok": False, "error": message, "exit_code": code})
-            failed.append((str(path), code))
+            entries.append({key: str(item), "ok": False, "error": message, "exit_code": code})
+            failed.append((str(item), code))
     if as_json:
         echo_json(entries)
     if failed:
-        total = len(inputs.paths) + len(inputs.unmatched)
         names = ", ".join(name for name, _ in failed[:5]) + (", ..." if len(failed) > 5 else "")
-        raise HeosliceError(f"{len(failed)} of {total} {key}s failed: {names}",
+        raise HeosliceError(f"{len(failed)} of {len(inputs.items)} {key}s failed: {names}",
                             exit_code=max(code for _, code in failed))
