@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from heoslice.cli.common import echo_json, exit_status_epilog, expand_inputs, plural, signed_percent
-from heoslice.errors import EXIT_CODES
+from heoslice.cli.common import echo_json, exit_status_epilog, expand_inputs, plural, run_each, signed_percent
+from heoslice.errors import EXIT_CODES, EXIT_INTERRUPTED, HeosliceError
 
 
 @pytest.mark.parametrize(("count", "text"), [(0, "0 layers"), (1, "1 layer"), (2, "2 layers")])
@@ -84,3 +84,16 @@ def test_json_convention_holds_for_every_command_with_json(run_cli, tmp_path, mo
         assert out.count("\n") == 1, name
         value = json.loads(out, parse_constant=lambda constant: pytest.fail(f"{name}: {constant}"))
         assert value["ok"] is True and isinstance(value[key], str), name
+
+
+def test_an_interrupted_input_stops_the_others(tmp_path):
+    """An error with the interrupted status (a print's Ctrl-C) is not one input's failure: nothing after it runs."""
+    ran = []
+
+    def run(path: Path) -> dict:
+        ran.append(path)
+        raise HeosliceError("stopped", exit_code=EXIT_INTERRUPTED)
+
+    with pytest.raises(HeosliceError) as caught:
+        run_each(expand_inputs([Path("a.ply"), Path("b.ply")]), run, key="model", as_json=False)
+    assert caught.value.exit_code == EXIT_INTERRUPTED and ran == [Path("a.ply")]

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import click
 
-from heoslice.errors import EXIT_BUG, EXIT_CODES, EXIT_INPUT, HeosliceError
+from heoslice.errors import EXIT_BUG, EXIT_CODES, EXIT_INPUT, EXIT_INTERRUPTED, HeosliceError
 
 #: Characters that make a MODEL argument a pattern for heoslice to expand (when no file has that name).
 GLOB_CHARACTERS = frozenset("*?[")
@@ -160,8 +160,9 @@ def run_each(inputs: Inputs, run: Callable[[Path], dict], key: str, as_json: boo
     With one literal input its error propagates as usual. With several, each failure
     (a pattern matching nothing included) is one ``heoslice: error:`` line on stderr,
     then one line saying how many failed, and the exit status is the highest of theirs.
-    A Ctrl-C stops the whole call. With ``as_json`` the summaries and failure entries
-    are printed as one JSON list, in the order given.
+    A Ctrl-C (or an error with the interrupted status) stops the whole call. With
+    ``as_json`` the summaries and failure entries are printed as one JSON list, in the
+    order given.
     """
     if not inputs.several:
         summary = run(inputs.paths[0])
@@ -176,6 +177,8 @@ def run_each(inputs: Inputs, run: Callable[[Path], dict], key: str, as_json: boo
                 raise HeosliceError(f"{item}: no file matches this pattern", exit_code=EXIT_INPUT)
             entries.append(run(item))
         except Exception as err:  # noqa: BLE001 - one input's failure, reported as main() would
+            if isinstance(err, HeosliceError) and err.exit_code == EXIT_INTERRUPTED:
+                raise
             line, code = error_line(err, debug)
             click.echo(line, err=True)
             message = str(err) if isinstance(err, HeosliceError) else line
