@@ -151,11 +151,13 @@ def _checked(param: click.Option, value: object, where: str, folder: Path) -> ob
 
 
 def _scalar(param: click.Option, value: object, where: str, folder: Path) -> object:
+    """One TOML number or string converted as its command-line text would be (``0.1`` -> '0.1' -> 0.1)."""
     if isinstance(value, bool) or not isinstance(value, (str, int, float)):
         raise InputError(f"{where}: expected a number or a string, got {value!r}")
     text = value if isinstance(value, str) else repr(value)
-    if isinstance(param.type, click.Path) and text and not Path(text).expanduser().is_absolute():
-        text = str(folder / text)
+    if isinstance(param.type, click.Path) and text:
+        path = Path(text).expanduser()
+        text = str(path if path.is_absolute() else folder / path)
     try:
         return param.type.convert(text, param, None)
     except click.BadParameter as err:
