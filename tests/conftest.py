@@ -53,3 +53,9 @@ def run_cli():
         return code, out.getvalue(), err.getvalue()
 
     return run
+
+
+@pytest.fixture(autouse=True)
+def _no_user_defaults_file(monkeypatch, tmp_path_factory):
+    """No test reads the developer's own ~/.config/heoslice/heoslice.toml (defaults files, cli/defaults.py)."""
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path_factory.getbasetemp() / "no-user-config"))

@@ -1,11 +1,16 @@
-"""Tests of cli/slice.py: option parsing, and library errors named by the options that set the parameter."""
+"""Tests of cli/slice.py: option parsing, library errors named by the options that set the parameter, and
+several models per call (one stack each, patterns expanded, failures reported per model)."""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import pytest
 
 from heoslice.cli.slice import flag_error, parse_dpi
-from heoslice.errors import InputError
+from heoslice.errors import EXIT_INPUT, EXIT_OUTPUT, InputError
+from heoslice.stack import verify_stack
 
 
 @pytest.mark.parametrize("text, expected", [("600", (600.0, 600.0)), ("600x300", (600.0, 300.0)),
@@ -31,3 +36,103 @@ def test_parse_dpi_rejects_nonsense(text):
 def test_library_errors_name_the_option_that_sets_their_parameter(message, shown):
     """An error naming a SliceSpec parameter is shown with its option; any other message is left as it is."""
     assert str(flag_error(InputError(message))) == shown
+
+
+FAST = ["--dpi", "50", "--layer", "1", "-j", "1"]
+
+
+def write_box(path: Path, height: float = 10.0) -> Path:
+    """A closed 10 x 10 x ``height`` mm box as an ASCII OFF file (outward faces)."""
+    corners = [(x, y, z) for z in (0.0, height) for y in (0.0, 10.0) for x in (0.0, 10.0)]
+    quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    triangles = [tri for a, b, c, d in quads for tri in ((a, b, c), (a, c, d))]
+    lines = ["OFF", f"{len(corners)} {len(triangles)} 0"]
+    lines += [" ".join(f"{v:g}" for v in corner) for corner in corners]
+    lines += ["3 " + " ".join(map(str, tri)) for tri in triangles]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture
+def models(tmp_path, monkeypatch) -> Path:
+    """A folder of two boxes (10 and 5 mm tall) and a broken file; the working directory is tmp_path."""
+    monkeypatch.chdir(tmp_path)
+    write_box(tmp_path / "scans" / "tall.off", 10.0)
+    write_box(tmp_path / "scans" / "short.off", 5.0)
+    (tmp_path / "broken.off").write_text("OFF\n8 12 0\n0 0 0\n")
+    return tmp_path
+
+
+def test_each_model_goes_to_its_own_stack(run_cli, models):
+    """`slice a b` writes ./a_stack and ./b_stack, each a verified stack of its own model's layers."""
+    code, out, err = run_cli("slice", "scans/tall.off", "scans/short.off", *FAST)
+    assert code == 0, err
+    assert len(out.splitlines()) == 2
+    for name, layers in (("tall", 10), ("short", 5)):
+        report = verify_stack(models / f"{name}_stack")
+        assert report.ok and len(report.manifest["layers"]) == layers
+
+
+def test_quoted_pattern_is_expanded_and_json_is_a_list(run_cli, models):
+    """A pattern the shell left alone is expanded (sorted) by heoslice; --json is a list, one object per model."""
+    code, out, err = run_cli("slice", "scans/*.off", "--into", "stacks", "--json", *FAST)
+    assert code == 0, err
+    entries = json.loads(out)
+    assert [entry["model"] for entry in entries] == ["scans/short.off", "scans/tall.off"]
+    assert all(entry["ok"] for entry in entries)
+    assert [entry["stack"] for entry in entries] == ["stacks/short_stack", "stacks/tall_stack"]
+    assert verify_stack(models / "stacks" / "tall_stack").ok
+
+
+def test_one_literal_model_gives_one_object(run_cli, models):
+    """One model named literally: --json is one object that names the model and says ok."""
+    code, out, err = run_cli("slice", "scans/tall.off", "-o", "t", "--json", *FAST)
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["model"] == "scans/tall.off" and summary["ok"] is True and summary["layers"] == 10
+
+
+def test_a_failing_model_does_not_stop_the_others(run_cli, models):
+    """Bad input (2) and a non-empty output (3) each give one line, the good model is sliced, exit is the worst."""
+    (models / "short_stack").mkdir()
+    (models / "short_stack" / "keep.txt").write_text("mine")
+    code, out, err = run_cli("slice", "broken.off", "scans/short.off", "scans/tall.off", "--json", *FAST)
+    assert code == EXIT_OUTPUT
+    lines = err.strip().splitlines()
+    assert len(lines) == 3 and all(line.startswith("heoslice: error: ") for line in lines)
+    assert "broken.off" in lines[0] and "short_stack" in lines[1]
+    assert lines[2] == "heoslice: error: 2 of 3 models failed: broken.off, scans/short.off"
+    entries = json.loads(out)
+    assert [(entry["ok"], entry.get("exit_code")) for entry in entries] == [
+        (False, EXIT_INPUT), (False, EXIT_OUTPUT), (True, None)]
+    assert verify_stack(models / "tall_stack").ok
+    assert (models / "short_stack" / "keep.txt").read_text() == "mine"
+
+
+def test_pattern_matching_nothing_is_one_failure(run_cli, models):
+    """A pattern that matches no file is reported in its place (exit 2) and the other models still run."""
+    code, out, err = run_cli("slice", "scans/tall.off", "nothing/*.stl", "scans/short.off", "--json", *FAST)
+    assert code == EXIT_INPUT
+    assert "heoslice: error: nothing/*.stl: no file matches this pattern" in err
+    assert [entry["model"] for entry in json.loads(out)] == ["scans/tall.off", "nothing/*.stl", "scans/short.off"]
+    assert verify_stack(models / "tall_stack").ok and verify_stack(models / "short_stack").ok
+
+
+@pytest.mark.parametrize("arguments", [("scans/tall.off", "scans/short.off", "-o", "out"),
+                                       ("scans/*.off", "-o", "out"),
+                                       ("scans/tall.off", "-o", "out", "--into", "elsewhere")])
+def test_output_names_one_stack_only(run_cli, models, arguments):
+    """-o with several models (or a pattern), or with --into, is refused before anything is written."""
+    code, _, err = run_cli("slice", *arguments, *FAST)
+    assert code == EXIT_INPUT and err.count("\n") == 1 and "--into" in err
+    assert not any(models.glob("*_stack")) and not (models / "out").exists()
+
+
+def test_two_models_with_one_stack_name_are_refused(run_cli, models):
+    """a/x.off and b/x.off would share ./x_stack: refused up front, nothing sliced."""
+    write_box(models / "a" / "x.off")
+    write_box(models / "b" / "x.off")
+    code, _, err = run_cli("slice", "a/x.off", "b/x.off", *FAST)
+    assert code == EXIT_INPUT and "would both be sliced into" in err
+    assert not (models / "x_stack").exists()

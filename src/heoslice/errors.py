@@ -111,3 +111,20 @@ class PrintInterrupted(PrinterError):
     """The user interrupted the print (Ctrl-C); ABORT was sent to the controller."""
 
     exit_code = EXIT_INTERRUPTED
+
+
+#: Every exit status heoslice uses -> what it means, for the help texts and the README (one source of the numbers).
+EXIT_CODES: dict[int, str] = {
+    EXIT_OK: "success",
+    EXIT_BUG: "a bug in heoslice (rerun with --debug and report the traceback)",
+    EXIT_INPUT: "bad input: a file that cannot be read or a bad option value",
+    EXIT_OUTPUT: "the output cannot be written (exists, unwritable, disk full)",
+    EXIT_VERIFY: "a stack failed verification",
+    EXIT_PORT: "the printer port cannot be opened",
+    EXIT_LINK_DEAD: "the link died: no frame from the controller, reconnecting failed",
+    EXIT_PROTOCOL: "protocol version mismatch, no controller answering, or a job it cannot print",
+    EXIT_RETRIES: "retry limit reached; the job was paused on the controller",
+    EXIT_RESET: "the controller was reset during the print: rerun with --from-layer",
+    EXIT_CONTROLLER: "the controller reported an error (layer CRC mismatch, hardware fault)",
+    EXIT_INTERRUPTED: "interrupted (Ctrl-C); a print sends ABORT first",
+}

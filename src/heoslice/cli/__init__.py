@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import importlib
 import sys
-import traceback
+from pathlib import Path
 
 import click
 
 from heoslice import __version__
-from heoslice.errors import EXIT_BUG, EXIT_INTERRUPTED, HeosliceError
+from heoslice.cli.common import error_line, exit_status_epilog
+from heoslice.errors import (EXIT_BUG, EXIT_CODES, EXIT_CONTROLLER, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_LINK_DEAD,
+                             EXIT_OK, EXIT_OUTPUT, EXIT_PORT, EXIT_PROTOCOL, EXIT_RESET, EXIT_RETRIES, EXIT_VERIFY)
 from heoslice.pipeline import parallel
 
 EPILOG = """\b
@@ -25,6 +27,10 @@ Examples:
   heoslice slice vase.ply --layer 0.1 --dpi 600
   heoslice verify vase_stack/
   heoslice print vase_stack/ --port /dev/ttyUSB0
+\b
+Option defaults are read from ./heoslice.toml and ~/.config/heoslice/heoslice.toml
+(a table per command, e.g. [slice] dpi = "600"); options given here override them.
+Shell completion (bash): eval "$(_HEOSLICE_COMPLETE=bash_source heoslice)"
 """
 
 
@@ -41,8 +47,26 @@ COMMANDS = {
 }
 
 
+_COMMON_EXITS = (EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_INTERRUPTED)
+_PRINTER_EXITS = (EXIT_PORT, EXIT_LINK_DEAD, EXIT_PROTOCOL, EXIT_RETRIES, EXIT_RESET, EXIT_CONTROLLER)
+
+#: Sub-command name -> the exit statuses it can end with, listed in its --help (meanings from errors.EXIT_CODES).
+EXIT_STATUSES = {
+    "info": _COMMON_EXITS,
+    "color": (*_COMMON_EXITS, EXIT_OUTPUT),
+    "slice": (*_COMMON_EXITS, EXIT_OUTPUT),
+    "preview": (*_COMMON_EXITS, EXIT_OUTPUT),
+    "verify": (*_COMMON_EXITS, EXIT_VERIFY),
+    "print": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_VERIFY, *_PRINTER_EXITS),
+    "controller": _COMMON_EXITS,
+}
+
+
 class LazyGroup(click.Group):
-    """A click group whose sub-commands are imported on first use (click's documented pattern)."""
+    """A click group whose sub-commands are imported on first use (click's documented pattern).
+
+    Each command's help gets the 'Exit status:' paragraph of its EXIT_STATUSES entry.
+    """
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return list(COMMANDS)
@@ -51,17 +75,35 @@ class LazyGroup(click.Group):
         if name not in COMMANDS:
             return None
         module, attribute = COMMANDS[name].split(":")
-        return getattr(importlib.import_module(module), attribute)
+        command = getattr(importlib.import_module(module), attribute)
+        epilog = exit_status_epilog(EXIT_STATUSES[name])
+        if epilog not in (command.epilog or ""):
+            command.epilog = f"{command.epilog or ''}\n{epilog}".lstrip("\n")
+        return command
 
 
-@click.group(cls=LazyGroup, epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=LazyGroup, epilog=EPILOG + "\n" + exit_status_epilog(tuple(EXIT_CODES)),
+             context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="heoslice")
 @click.option("--debug", is_flag=True, help="Show full tracebacks (for bug reports).")
+@click.option("--config", "config_file", type=click.Path(path_type=Path, exists=True, dir_okay=False),
+              default=None, metavar="FILE",
+              help="Read option defaults from FILE only [default: ~/.config/heoslice/heoslice.toml, "
+                   "then ./heoslice.toml].")
+@click.option("--no-config", is_flag=True, help="Read no defaults file.")
 @click.pass_context
-def cli(ctx: click.Context, debug: bool) -> None:
+def cli(ctx: click.Context, debug: bool, config_file: Path | None, no_config: bool) -> None:
     """Slice coloured meshes into graded multi-material layer images and print them."""
+    from heoslice.cli.defaults import load_defaults
+
     ctx.ensure_object(dict)
     ctx.obj["debug"] = debug
+    if config_file is not None and no_config:
+        raise click.UsageError("give --config FILE or --no-config, not both")
+    if ctx.invoked_subcommand is not None:
+        defaults = load_defaults(config_file, no_config, ctx.command, ctx, ctx.invoked_subcommand)
+        ctx.obj["defaults"] = defaults
+        ctx.default_map = {ctx.invoked_subcommand: defaults.values} if defaults.values else None
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -70,8 +112,9 @@ def main(argv: list[str] | None = None) -> None:
     if argv is None:
         parallel.single_blas_thread()
     debug = "--debug" in args
+    state: dict = {}
     try:
-        cli.main(args=args, prog_name="heoslice", standalone_mode=False)
+        cli.main(args=args, prog_name="heoslice", standalone_mode=False, obj=state)
         if argv is None:
             parallel.skip_exit_collection()
     except click.exceptions.Exit as done:
@@ -87,17 +130,8 @@ def main(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt:
         click.echo("heoslice: interrupted", err=True)
         sys.exit(EXIT_INTERRUPTED)
-    except HeosliceError as err:
-        if debug:
-            traceback.print_exc()
-        click.echo(f"heoslice: error: {err}", err=True)
-        sys.exit(err.exit_code)
-    except Exception as err:  # noqa: BLE001 - the last line of defence for users
-        if debug:
-            traceback.print_exc()
-        click.echo(
-            f"heoslice: internal error: {type(err).__name__}: {err} "
-            "(rerun with --debug and report the traceback)",
-            err=True,
-        )
-        sys.exit(EXIT_BUG)
+    except Exception as err:  # noqa: BLE001 - the last line of defence for users; a HeosliceError is theirs
+        line, code = error_line(err, debug)
+        where = state["defaults"].origin(str(err), args) if "defaults" in state and code != EXIT_BUG else None
+        click.echo(line + (f" (set in {where})" if where else ""), err=True)
+        sys.exit(code)

@@ -9,6 +9,7 @@ import urllib.parse
 
 import click
 
+from heoslice.cli.common import echo_json, json_option, plural
 from heoslice.errors import InputError
 
 
@@ -37,8 +38,9 @@ fail_at_layer, rx_buffer, max_payload, version, features (0: no SACK, plain go-b
 @click.option("--set", "settings", multiple=True, metavar="NAME=VALUE", help="Any simulator or fault field.")
 @click.option("--duration", type=click.FloatRange(min=0), default=None,
               help="Stop after this many seconds [default: until Ctrl-C].")
+@json_option
 def controller(use_pty: bool, listen: str | None, baud: int, layer_time: float, time_scale: float, seed: int,
-               settings: tuple[str, ...], duration: float | None) -> None:
+               settings: tuple[str, ...], duration: float | None, as_json: bool) -> None:
     """Run the simulated controller so a pipeline can be dry-run end to end without hardware."""
     from heoslice.printing.simulator import FdTransport, SimController, TcpServerTransport, sim_from_url
 
@@ -69,7 +71,10 @@ def controller(use_pty: bool, listen: str | None, baud: int, layer_time: float, 
         except (ValueError, OSError) as err:
             raise InputError(f"--listen {listen}: cannot listen ({err})") from err
         where = "socket://{}:{}".format(*transport.address)
-    click.echo(where)
+    if as_json:
+        echo_json({"port": where, "ok": True, "baud": baud})
+    else:
+        click.echo(where)
     sim.start(transport)
     try:
         end = None if duration is None else time.monotonic() + duration
@@ -82,5 +87,5 @@ def controller(use_pty: bool, listen: str | None, baud: int, layer_time: float, 
         if slave is not None:
             os.close(slave)
     layers = sim.executed_layers()
-    click.echo(f"controller stopped: {len(layers)} layer(s) executed"
+    click.echo(f"controller stopped: {plural(len(layers), 'layer')} executed"
                + (f" ({layers[0]}..{layers[-1]})" if layers else ""), err=True)

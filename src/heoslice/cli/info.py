@@ -21,7 +21,7 @@ def info(model: Path, as_json: bool) -> None:
     """Print MODEL's vertices, triangles, bounding box, watertightness, winding, shells, volume, colours."""
     summary = mesh_info(load_mesh(model))
     if as_json:
-        click.echo(json.dumps(summary))
+        click.echo(json.dumps({"model": str(model), "ok": True, **summary}))
         return
     low, high = summary["bounds_mm"]
     volume = "n/a (not watertight)" if summary["volume_mm3"] is None else f"{summary['volume_mm3']:.6g} mm^3"

@@ -19,11 +19,6 @@ Examples:
   heoslice print vase_stack/ --port /dev/ttyACM0 --from-layer 120   # after a controller reset
   heoslice print vase_stack/ --port 'sim://?layer_time_s=0.01'        # built-in simulator
   heoslice print vase_stack/ --dry-run                               # verify and size, no port
-\b
-Exit status: 0 printed; 2 bad input; 4 stack failed verification; 10 port cannot be
-opened; 11 link dead; 12 protocol/version mismatch or job does not fit; 13 retry limit
-(job paused); 14 controller was reset (rerun with --from-layer); 15 controller error;
-130 interrupted (ABORT sent). See docs/protocol.md.
 """)
 @click.argument("stack", type=click.Path(path_type=Path))
 @click.option("-p", "--port", default=None,
@@ -49,7 +44,7 @@ def print_cmd(stack: Path, port: str | None, baud: int, from_layer: int | None, 
     check_input_path(stack)
     job, get_layer = stack_job(stack)
     if dry_run:
-        summary = {"stack": str(stack), **plan_transfer(job, get_layer, baud=baud, max_payload=max_payload,
+        summary = {"stack": str(stack), "ok": True, **plan_transfer(job, get_layer, baud=baud, max_payload=max_payload,
                                                          from_layer=from_layer or 0)}
         click.echo(json.dumps(summary) if as_json else
                    f"{stack}: verified; {job_summary(job)}\n"
@@ -63,7 +58,7 @@ def print_cmd(stack: Path, port: str | None, baud: int, from_layer: int | None, 
         result = print_job(port, job, get_layer, baud=baud, from_layer=from_layer, log_path=log_path,
                            on_progress=progress, max_payload=max_payload)
     if as_json:
-        click.echo(json.dumps({"stack": str(stack), "port": port, "log": str(log_path), **result.__dict__}))
+        click.echo(json.dumps({"stack": str(stack), "ok": True, "port": port, "log": str(log_path), **result.__dict__}))
         return
     rate = result.bytes_sent / result.elapsed_s if result.elapsed_s > 0 else 0.0
     click.echo(f"{stack}: printed layers {result.first_layer}..{result.last_completed} on {port} "

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 import click
 
-from heoslice.cli.common import echo_warnings, progress_bar
+from heoslice.cli.common import echo_warnings, expand_inputs, plural, progress_bar, run_each
 from heoslice.cli.options import flags, function_from_options, function_options, option
 from heoslice.errors import InputError
 from heoslice.mesh import load_mesh, scaled
@@ -22,9 +21,21 @@ SPEC_FLAGS = {
 }
 
 
-def default_output(model: Path) -> Path:
-    """Where a stack goes without -o: ``./<model stem>_stack`` in the current directory."""
-    return Path.cwd() / f"{model.stem}_stack"
+def default_output(model: Path, parent: Path | None = None) -> Path:
+    """Where a stack goes without -o: ``<model stem>_stack`` in ``parent`` (--into), else the current directory."""
+    return (parent if parent is not None else Path.cwd()) / f"{model.stem}_stack"
+
+
+def stack_directories(models: tuple[Path, ...], output: Path | None, into: Path | None) -> dict[Path, Path]:
+    """Each model's stack directory; two models that would share one are refused before anything is sliced."""
+    targets = {model: output if output is not None else default_output(model, into) for model in models}
+    seen: dict[Path, Path] = {}
+    for model, directory in targets.items():
+        other = seen.setdefault(directory.absolute(), model)
+        if other != model:
+            raise InputError(f"{other} and {model} would both be sliced into {directory}; "
+                             "slice them in separate calls or rename one")
+    return targets
 
 
 def flag_error(err: InputError) -> InputError:
@@ -100,6 +111,7 @@ Examples:
   heoslice slice liver.ply --layer 0.1 --dpi 600 -o liver_stack
   heoslice slice part.stl --dpi 600x300 --canvas 200x150 --compress packbits
   heoslice slice scan.ply --scale 1000 --json   # a model in metres
+  heoslice slice "scans/*.ply" --into stacks/   # one stack per model: stacks/NAME_stack
 \b
 Graded interiors (the paper's Fig. 3b, 9b):
   heoslice slice model.ply --grade linear --to 0,255,0 --nozzle 0.2
@@ -107,9 +119,11 @@ Graded interiors (the paper's Fig. 3b, 9b):
   heoslice slice liver.ply --grade sine --periods 2 --to M2 --depth 10 --channels
   heoslice slice part.ply --grade linear --from M1 --to M2 --direction out --materials mats.toml
 """)
-@click.argument("model", type=click.Path(path_type=Path))
+@click.argument("models", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="MODEL...")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
-              help="Stack directory [default: ./MODEL_stack].")
+              help="Stack directory, for one model [default: ./MODEL_stack].")
+@click.option("--into", type=click.Path(path_type=Path, file_okay=False), default=None, metavar="DIR",
+              help="Put each model's stack in DIR/MODEL_stack (any number of models) [default: .].")
 @click.option("--layer", "layer_height", type=float, default=0.1, show_default=True,
               help="Layer height, mm.")
 @click.option("--dpi", default="600", show_default=True, help="Resolution: N, or NxM for x and y.")
@@ -145,16 +159,20 @@ Graded interiors (the paper's Fig. 3b, 9b):
 @click.option("--channels", is_flag=True,
               help="Write one 1-bit droplet mask per material per layer (halftoned fractions); "
                    "the layer image is then the 1-bit solid mask.")
-def slice_cmd(model: Path, output: Path | None, layer_height: float, dpi: str, canvas: str | None,
+@click.pass_context
+def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None, into: Path | None,
+              layer_height: float, dpi: str, canvas: str | None,
               margin: float, compression: str, scale: float, jobs: int, force: bool, as_json: bool,
               grade_kind: str | None, alpha: float | None, beta: float | None, lam: float | None,
               periods: float | None, expression: str | None, target: str | None, start: str | None,
               nozzle: float, depth: float | None, offset_count: int | None, direction: str,
               materials_file: Path | None, channels: bool) -> None:
-    """Slice MODEL (PLY, STL, OBJ, OFF) into one TIFF per layer plus manifest.json.
+    """Slice each MODEL (PLY, STL, OBJ, OFF) into one TIFF per layer plus manifest.json.
 
     Layers are cut at their centres, z = z_min + (i + 1/2) x layer; a pixel is solid
     when its centre is inside the model. The stack format is in docs/stack-format.md.
+    Several models (or a quoted pattern such as "scans/*.ply", expanded by heoslice)
+    each go to their own stack; one that fails is reported and the others still run.
     """
     grade = grade_spec(grade_kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth,
                        offset_count, direction, materials_file, channels)
@@ -164,19 +182,33 @@ def slice_cmd(model: Path, output: Path | None, layer_height: float, dpi: str, c
                          grade=grade, channels=channels)
     except InputError as err:
         raise flag_error(err) from None
+    inputs = expand_inputs(models)
+    if inputs.several and output is not None:
+        raise click.UsageError("-o/--output names one stack; with several models use --into DIR")
+    if output is not None and into is not None:
+        raise click.UsageError("give -o/--output (one stack) or --into DIR, not both")
+    targets = stack_directories(inputs.paths, output, into)
+    run_each(inputs, lambda model: slice_model(model, targets[model], spec, scale, force, as_json, inputs.several),
+             key="model", as_json=as_json, debug=(ctx.find_root().obj or {}).get("debug", False))
+
+
+def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, force: bool, as_json: bool,
+                several: bool) -> dict:
+    """Slice one model into ``directory`` and report it (one text line, or nothing with --json); its summary."""
     mesh = load_mesh(model)
     if scale != 1.0:
         mesh = scaled(mesh, scale)
     if not as_json:
         echo_warnings(model, mesh.warnings)
-    directory = output if output is not None else default_output(model)
-    with progress_bar("slicing", unit="layer") as update:
+    with progress_bar(f"slicing {model.name}" if several else "slicing", unit="layer") as update:
         try:
             manifest, times = slice_to_stack(mesh, directory, spec, force=force, progress=update)
         except InputError as err:
             raise flag_error(err) from None
     open_layers = [entry["index"] for entry in manifest["layers"] if entry["open_contours"]]
     summary = {
+        "model": str(model),
+        "ok": True,
         "stack": str(directory),
         "layers": len(manifest["layers"]),
         "image": [manifest["image"]["width"], manifest["image"]["height"]],
@@ -188,13 +220,14 @@ def slice_cmd(model: Path, output: Path | None, layer_height: float, dpi: str, c
                     "encode_cpu": times.encode, "total": times.total},
     }
     if as_json:
-        click.echo(json.dumps(summary))
-        return
+        return summary
     if open_layers:
         shown = ", ".join(str(i) for i in open_layers[:10]) + (" ..." if len(open_layers) > 10 else "")
         click.echo(f"warning: {model}: open mesh: contours closed in {len(open_layers)} layer(s): {shown}",
                    err=True)
-    click.echo(f"{directory}: {summary['layers']} layers of {summary['image'][0]} x {summary['image'][1]} px "
+    click.echo(f"{directory}: {plural(summary['layers'], 'layer')} of "
+               f"{summary['image'][0]} x {summary['image'][1]} px "
                f"at {manifest['dpi'][0]:g} x {manifest['dpi'][1]:g} dpi, volume {summary['volume_mm3']:.1f} mm^3, "
                f"{times.total:.1f} s")
     sys.stdout.flush()
+    return summary

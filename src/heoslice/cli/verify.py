@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from heoslice.cli.common import plural, signed_percent
 from heoslice.errors import VerifyError
 from heoslice.mesh import Mesh, edge_use_counts, load_mesh, scaled, solid_volume_mm3
 from heoslice.stack import check_input_path, layer_height_problems, stack_volume_mm3, verify_stack
@@ -34,7 +35,7 @@ def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float) -> t
     relative = (stack_volume - mesh_volume) / abs(mesh_volume) if mesh_volume else float("inf")
     if not abs(relative) <= tolerance:
         line = (f"stack volume {stack_volume:.6g} mm^3 differs from the mesh volume {mesh_volume:.6g} mm^3 "
-                f"by {100 * relative:+.2f} % (tolerance {100 * tolerance:g} %)")
+                f"by {signed_percent(relative)} (tolerance {100 * tolerance:g} %)")
         if watertight and exact:
             problems.append(line)
         elif not watertight:
@@ -99,9 +100,9 @@ def verify(stack: Path, model: Path | None, scale: float, tolerance: float, as_j
         for line in problems:
             click.echo(line if line.startswith(str(stack)) else f"{stack}: {line}")
         if not problems:
-            click.echo(f"{stack}: OK, {len(layers)} layers, volume {summary['volume_mm3']:.6g} mm^3"
+            click.echo(f"{stack}: OK, {plural(len(layers), 'layer')}, volume {summary['volume_mm3']:.6g} mm^3"
                        + (f", mesh volume {mesh_summary['volume_mm3']:.6g} mm^3 "
-                          f"({100 * mesh_summary['relative_volume_difference']:+.2f} %)"
+                          f"({signed_percent(mesh_summary['relative_volume_difference'])})"
                           if mesh_summary and mesh_summary["relative_volume_difference"] is not None else ""))
     sys.stdout.flush()
     if problems:

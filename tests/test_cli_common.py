@@ -1,0 +1,99 @@
+"""Shared CLI helpers: message formatting, the JSON convention, expanding patterns; controller --json."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from heoslice.cli.common import echo_json, exit_status_epilog, expand_inputs, plural, run_each, signed_percent
+from heoslice.errors import EXIT_CODES, EXIT_INTERRUPTED, HeosliceError
+
+
+@pytest.mark.parametrize(("count", "text"), [(0, "0 layers"), (1, "1 layer"), (2, "2 layers")])
+def test_plural(count, text):
+    """One of a noun is singular, every other count plural."""
+    assert plural(count, "layer") == text
+
+
+@pytest.mark.parametrize(("fraction", "text"), [(-0.00001, "0.00 %"), (0.0, "0.00 %"), (-0.0, "0.00 %"),
+                                                (0.0123, "+1.23 %"), (-0.004, "-0.40 %")])
+def test_signed_percent_never_shows_minus_zero(fraction, text):
+    """A difference that rounds to zero is '0.00 %' (never '-0.00 %'); others keep their sign."""
+    assert signed_percent(fraction) == text
+
+
+def test_exit_status_epilog_reads_the_meanings_from_the_table():
+    """The help paragraph lists the given statuses in order, each with its errors.EXIT_CODES meaning."""
+    text = exit_status_epilog((130, 0, 2))
+    assert text.splitlines()[1:] == ["Exit status:", f"  0    {EXIT_CODES[0]}", f"  2    {EXIT_CODES[2]}",
+                                     f"  130  {EXIT_CODES[130]}"]
+
+
+def test_echo_json_is_strict_single_line_json(capsys):
+    """NaN and infinities become null, numpy scalars numbers, paths strings, tuples lists; one line."""
+    echo_json({"a": float("nan"), "b": np.float32(1.5), "c": np.int64(3), "d": Path("x/y"), "e": (1, np.inf),
+               "f": np.bool_(True)})
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1
+    assert json.loads(out, parse_constant=lambda name: pytest.fail(f"non-standard {name}")) == {
+        "a": None, "b": 1.5, "c": 3, "d": "x/y", "e": [1, None], "f": True}
+
+
+def test_expand_inputs(tmp_path, monkeypatch):
+    """Patterns expand sorted and recursively, files are kept once in order, a file named like a pattern is
+    taken literally, and a single literal argument is not 'several'."""
+    monkeypatch.chdir(tmp_path)
+    for name in ("b.ply", "a.ply", "deep/c.ply", "x[1].ply"):
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_text("")
+    found = expand_inputs([Path("*.ply"), Path("none/*.stl"), Path("b.ply"), Path("**/c.ply")])
+    assert found.items == (Path("a.ply"), Path("b.ply"), Path("x[1].ply"), "none/*.stl", Path("deep/c.ply"))
+    assert found.paths == (Path("a.ply"), Path("b.ply"), Path("x[1].ply"), Path("deep/c.ply")) and found.several
+    single = expand_inputs([Path("x[1].ply")])
+    assert single.paths == (Path("x[1].ply"),) and not single.several
+    assert expand_inputs([Path("x*.ply")]).several
+
+
+def test_controller_json_prints_its_port_as_one_object(run_cli):
+    """`controller --pty --json` prints one JSON object naming the pseudo-terminal, and nothing else on stdout."""
+    code, out, err = run_cli("controller", "--pty", "--duration", "0.2", "--json")
+    assert code == 0, err
+    lines = out.splitlines()
+    assert len(lines) == 1
+    summary = json.loads(lines[0])
+    assert summary["ok"] is True and summary["port"].startswith("/dev/")
+    assert "0 layers executed" in err
+
+
+def test_json_convention_holds_for_every_command_with_json(run_cli, tmp_path, monkeypatch):
+    """info, slice, verify, print --dry-run: one line of strict JSON on stdout, an object with ok and its input."""
+    from test_cli_slice import write_box
+
+    monkeypatch.chdir(tmp_path)
+    write_box(tmp_path / "box.off")
+    calls = {"slice": (("slice", "box.off", "--dpi", "254", "--layer", "2", "-j", "1"), "model"),
+             "info": (("info", "box.off"), "model"),
+             "verify": (("verify", "box_stack", "--mesh", "box.off"), "stack"),
+             "print": (("print", "box_stack", "--dry-run"), "stack")}
+    for name, (arguments, key) in calls.items():
+        code, out, err = run_cli(*arguments, "--json")
+        assert code == 0, (name, err)
+        assert out.count("\n") == 1, name
+        value = json.loads(out, parse_constant=lambda constant: pytest.fail(f"{name}: {constant}"))
+        assert value["ok"] is True and isinstance(value[key], str), name
+
+
+def test_an_interrupted_input_stops_the_others(tmp_path):
+    """An error with the interrupted status (a print's Ctrl-C) is not one input's failure: nothing after it runs."""
+    ran = []
+
+    def run(path: Path) -> dict:
+        ran.append(path)
+        raise HeosliceError("stopped", exit_code=EXIT_INTERRUPTED)
+
+    with pytest.raises(HeosliceError) as caught:
+        run_each(expand_inputs([Path("a.ply"), Path("b.ply")]), run, key="model", as_json=False)
+    assert caught.value.exit_code == EXIT_INTERRUPTED and ran == [Path("a.ply")]
