@@ -54,8 +54,7 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
         ignored = {"--to": target, "--from": start}
         stray += [name for name, value in ignored.items() if value]
         if stray:
-            raise InputError(f"{', '.join(stray)}: only used with --grade FUNC (without it "
-                             f"{'it would be' if len(stray) == 1 else 'they would be'} ignored)")
+            raise InputError(f"{', '.join(stray)}: only used with --grade FUNC (ignored without it)")
         if not (channels or materials_file):
             return None
     with option("--materials"):
