@@ -1,6 +1,6 @@
 """The paper's Fig. 2: the vase coloured by linear, quadratic and sine functions about the X-Y plane.
 
-Usage: python examples/fig2.py [OUT.png] [--model examples/vase.ply] [--size 360]
+Usage: .venv/bin/python examples/fig2.py [OUT.png] [--model examples/vase.ply] [--size 360]
 
 Colours the example vase (made by examples/make_vase.py) with heoslice.material, from
 M1 (light grey) at the bottom to M2 (green) at the top, and renders (a) the bare mesh,
@@ -12,14 +12,18 @@ code below; Pillow writes the PNG.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-import numpy as np
-from PIL import Image, ImageDraw
+try:
+    import numpy as np
+    from PIL import Image, ImageDraw
 
-from heoslice.material import ColorSpec, color_mesh
-from heoslice.material import make_function
-from heoslice.mesh import load_mesh
+    from heoslice.mesh import load_mesh
+    from heoslice.material import ColorSpec, color_mesh, make_function
+except ImportError as missing:
+    sys.exit(f"fig2.py: error: cannot import {missing.name or missing}: run it with the Python that heoslice "
+             "is installed in, e.g. .venv/bin/python examples/fig2.py")
 
 HERE = Path(__file__).resolve().parent
 

@@ -60,3 +60,21 @@ def test_function_errors_name_the_flag(run_cli, tmp_path, command, args, flag):
     kind = ["--func", "linear"] if command == "color" else ["--grade", "linear"]
     code, _, err = run_cli(command, model, *kind, *args, "-o", tmp_path / ("o.ply" if command == "color" else "s"))
     assert code == 2 and len(err.strip().splitlines()) == 1 and f"heoslice: error: {flag}" in err, err
+
+
+@pytest.mark.parametrize("args, named", [
+    (["--to", "0,255,0"], "--to"),
+    (["--from", "M1"], "--from"),
+    (["--to", "M2", "--from", "M1", "--alpha", "2"], "--alpha, --to, --from"),
+])
+def test_slice_refuses_materials_it_would_ignore(run_cli, tmp_path, args, named):
+    """`slice vase.ply --to 0,255,0` (or --from) without --grade exits 2 with one line naming the options,
+    and leaves no stack (issue 18: they were accepted and ignored)."""
+    from pathlib import Path
+
+    vase = Path(__file__).resolve().parents[1] / "examples" / "vase.ply"
+    code, out, err = run_cli("slice", vase, *args, "-o", tmp_path / "stack")
+    assert code == 2, (out, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"heoslice: error: {named}: only used with --grade"), err
+    assert not (tmp_path / "stack").exists()

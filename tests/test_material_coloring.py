@@ -292,3 +292,65 @@ def test_cli_help_has_examples(run_cli):
     """--help shows examples, including the documented `heoslice color vase.ply --func linear`."""
     code, out, _ = run_cli("color", "--help")
     assert code == 0 and "heoslice color vase.ply --func linear" in out and "--shell-colors" in out
+
+
+# --- issue 23: file mode, --json, the written function --------------------------------------
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o027, 0o640), (0o002, 0o664)])
+def test_cli_ply_mode_follows_umask(run_cli, vase_copy, umask, mode):
+    """`color` writes its PLY with 0666 less the umask (as stacks and PNGs are), not the temporary file's 0600."""
+    previous = os.umask(umask)
+    try:
+        code, _, err = run_cli("color", vase_copy, "-o", vase_copy.parent / "out.ply")
+    finally:
+        os.umask(previous)
+    assert code == 0, err
+    assert (vase_copy.parent / "out.ply").stat().st_mode & 0o777 == mode
+
+
+def test_cli_json_summary(run_cli, vase_copy):
+    """`color --json` prints one JSON object: output, counts, the function and reference as written, r and f
+    ranges, the materials; nothing else on stdout."""
+    import json
+
+    target = vase_copy.parent / "q.ply"
+    code, out, err = run_cli("color", vase_copy, "--func", "quadratic", "--alpha", "2", "--lambda", "-0.5",
+                             "-o", target, "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    back = load_mesh(target)
+    assert summary["output"] == str(target) and summary["vertices"] == len(back.vertices)
+    assert summary["triangles"] == len(back.faces)
+    assert summary["function"] == "quadratic: f = 2*r^2 - 0.5"
+    assert summary["r"] == [0.0, 1.0] and summary["f"] == [0.0, 1.0]
+    assert summary["from"]["name"] == "M1" and summary["to"] == {"name": "M2", "color": [0, 255, 0], "channel": 2}
+
+
+@pytest.mark.parametrize("args, written", [
+    (["--func", "quadratic", "--alpha", "2", "--lambda", "-0.5"], "quadratic: f = 2*r^2 - 0.5"),
+    (["--func", "linear", "--alpha", "-1", "--lambda", "1"], "linear: f = -1*r + 1"),
+    (["--func", "quadratic", "--beta", "0.5", "--alpha", "0"], "quadratic: f = 0.5*r + 0"),
+    (["--func", "linear"], "linear: f = 1*r + 0"),
+])
+def test_cli_function_written_properly(run_cli, vase_copy, args, written):
+    """The function in the summary and the PLY comment leaves out zero terms and subtracts negative ones
+    (no '+ 0*r + -0.5'); the constant term is always shown."""
+    target = vase_copy.parent / "w.ply"
+    code, out, err = run_cli("color", vase_copy, *args, "-o", target)
+    assert code == 0, err
+    assert written in out
+    assert f"comment heoslice color: {written}\n".encode() in target.read_bytes()[:1000]
+
+
+def test_fig2_without_its_environment_fails_in_one_line(tmp_path):
+    """examples/fig2.py run by a Python without heoslice (here: without site-packages) exits non-zero with one
+    line that says to run it with the project's Python, and writes nothing."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-S", str(REPO / "examples" / "fig2.py"), str(tmp_path / "f.png")],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=60)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode != 0 and len(lines) == 1, done.stderr
+    assert lines[0].startswith("fig2.py: error: cannot import") and ".venv/bin/python examples/fig2.py" in lines[0]
+    assert not (tmp_path / "f.png").exists()

@@ -6,6 +6,8 @@ every triangle of a mesh.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -76,25 +78,139 @@ def test_surface_distance_matches_brute_force(name):
     assert np.allclose(ours[-20:], 0.0, rtol=0, atol=1e-12)
 
 
-def test_surface_distance_with_coarse_seeds():
-    """With far fewer seeds than vertices, the downhill walks still reach the brute-force distance."""
+def test_surface_distance_on_a_fine_sphere_in_chunks():
+    """A 5,120-triangle sphere, points near and far, measured in chunks on two threads: brute force, and
+    progress follows the chunks."""
     mesh = procedural.sphere(radius=10.0, subdivisions=4)
-    index = build_surface_index(mesh.vertices, mesh.faces, seed_count=40)
-    assert len(index.seeds) < len(mesh.faces) // 10
+    index = build_surface_index(mesh.vertices, mesh.faces)
     rng = np.random.default_rng(11)
     points = np.vstack([rng.uniform(-40, 40, size=(80, 3)), rng.normal(size=(40, 3)) * 3])
-    assert np.allclose(surface_distance(points, index), brute_force_distance(points, mesh), rtol=0, atol=1e-9)
-
-
-def test_surface_distance_bounds_with_few_seeds():
-    """With very few start points on a thin-walled vase the result stays within [true, true + seed_spacing]."""
-    mesh = procedural.vase(sections=24, rings_outer=12, rings_inner=10)
-    index = build_surface_index(mesh.vertices, mesh.faces, seed_count=8)
-    rng = np.random.default_rng(5)
-    points = np.vstack([rng.uniform(mesh.bounds[0] - 5, mesh.bounds[1] + 5, size=(150, 3)),
-                        mesh.sample(100, seed=2) + rng.normal(scale=0.5, size=(100, 3))])
     calls = []
-    ours = surface_distance(points, index, chunk=64, progress=lambda done, total: calls.append((done, total)))
-    truth = brute_force_distance(points, mesh)
-    assert np.all(ours >= truth - 1e-9) and np.all(ours <= truth + index.seed_spacing + 1e-9)
-    assert calls[-1] == (250, 250) and len(calls) == 4
+    ours = surface_distance(points, index, chunk=32, workers=2, progress=lambda done, total: calls.append((done, total)))
+    assert np.allclose(ours, brute_force_distance(points, mesh), rtol=0, atol=1e-9)
+    assert calls == [(32, 120), (64, 120), (96, 120), (120, 120)]
+
+
+# --- exact on non-convex references (issue 19) ----------------------------------------------
+
+def literal_point_triangle_distance(point: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Distance (m,) from one point (3,) to each triangle (m, 3, 3), written out independently of heoslice:
+    the foot of the perpendicular on the triangle's plane when it lies inside the triangle (all three
+    edge cross products point along the normal), else the nearest of the three edges as segments."""
+    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    normal = np.cross(b - a, c - a)
+    length = np.linalg.norm(normal, axis=1)
+    unit = normal / np.where(length > 0, length, 1.0)[:, None]
+    height = np.einsum("ij,ij->i", point - a, unit)
+    foot = point - height[:, None] * unit
+    inside = length > 0
+    for start, end in ((a, b), (b, c), (c, a)):
+        inside &= np.einsum("ij,ij->i", np.cross(end - start, foot - start), normal) >= 0
+    best = np.where(inside, np.abs(height), np.inf)
+    for start, end in ((a, b), (b, c), (c, a)):
+        edge = end - start
+        length2 = np.einsum("ij,ij->i", edge, edge)
+        t = np.clip(np.einsum("ij,ij->i", point - start, edge) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+        gap = point - (start + t[:, None] * edge)
+        best = np.minimum(best, np.sqrt(np.einsum("ij,ij->i", gap, gap)))
+    return best
+
+
+def literal_surface_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """min over every triangle of :func:`literal_point_triangle_distance`, point by point."""
+    triangles = vertices[faces]
+    return np.array([literal_point_triangle_distance(p, triangles).min() for p in points])
+
+
+def wavy_sphere() -> tuple[np.ndarray, np.ndarray]:
+    """A sphere of radius 20 mm with bumps of +-25 % (non-convex, 5,120 triangles)."""
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+    v = np.asarray(mesh.vertices)
+    radius = 20.0 * (1.0 + 0.25 * np.sin(5 * v[:, 0]) * np.sin(4 * v[:, 1]) * np.cos(3 * v[:, 2]))
+    return v * radius[:, None], np.asarray(mesh.faces)
+
+
+def torus_knot(p: int = 2, q: int = 3, along: int = 240, around: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """A tube of radius 1.5 mm along a (p, q) torus knot of about 30 mm (5,760 triangles)."""
+    t = np.linspace(0.0, 2 * np.pi, along, endpoint=False)
+    curve = np.column_stack([(2 + np.cos(q * t)) * np.cos(p * t), (2 + np.cos(q * t)) * np.sin(p * t),
+                             -np.sin(q * t)]) * 5.0
+    tangent = np.roll(curve, -1, axis=0) - np.roll(curve, 1, axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1)[:, None]
+    side = np.cross(tangent, [0.0, 0.0, 1.0])
+    side /= np.linalg.norm(side, axis=1)[:, None]
+    up = np.cross(side, tangent)
+    angle = np.linspace(0.0, 2 * np.pi, around, endpoint=False)
+    ring = np.cos(angle)[None, :, None] * side[:, None] + np.sin(angle)[None, :, None] * up[:, None]
+    vertices = (curve[:, None] + 1.5 * ring).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(along), np.arange(around), indexing="ij")
+    a, b = i * around + j, ((i + 1) % along) * around + j
+    c, d = ((i + 1) % along) * around + (j + 1) % around, i * around + (j + 1) % around
+    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    return vertices, faces
+
+
+def nearly_touching() -> tuple[np.ndarray, np.ndarray]:
+    """Two spheres of radius 5 mm, 0.01 mm apart (two parts, 2 x 1,280 triangles)."""
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=5.0)
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    return np.vstack([v - [5.005, 0, 0], v + [5.005, 0, 0]]), np.vstack([f, f + len(v)])
+
+
+def shipped_vase() -> tuple[np.ndarray, np.ndarray]:
+    """The shipped example vase (thin-walled, open at the top, 6,144 triangles)."""
+    from heoslice.mesh import load_mesh
+
+    mesh = load_mesh(Path(__file__).resolve().parents[1] / "examples" / "vase.ply")
+    return mesh.vertices, mesh.faces
+
+
+REFERENCES = {"vase": shipped_vase, "wavy sphere": wavy_sphere, "torus knot": torus_knot,
+              "nearly touching": nearly_touching}
+_INDEXED: dict = {}
+
+
+def indexed(name: str):
+    """(vertices, faces, SurfaceIndex) of a reference, built once per test session."""
+    if name not in _INDEXED:
+        vertices, faces = REFERENCES[name]()
+        _INDEXED[name] = (vertices, faces, build_surface_index(vertices, faces))
+    return _INDEXED[name]
+
+
+unit_points = arrays(np.float64, (12, 3), elements=st.floats(0.0, 1.0, allow_nan=False))
+near_points = st.tuples(arrays(np.int64, (12,), elements=st.integers(0, 10 ** 9)),
+                        arrays(np.float64, (12, 3), elements=st.floats(0.0, 1.0, allow_nan=False)),
+                        arrays(np.float64, (12,), elements=st.floats(-3.0, 3.0, allow_nan=False)))
+
+
+@pytest.mark.parametrize("name", list(REFERENCES))
+@settings(max_examples=15, deadline=None)
+@given(box=unit_points, near=near_points)
+def test_exact_on_non_convex_references(name, box, near):
+    """Distances to the vase, a wavy sphere, a torus knot and two nearly touching parts equal a literal brute
+    force within 1e-6 mm, for points anywhere around the part and points just off its surface (on either side,
+    where a downhill walk would stop at a local minimum)."""
+    vertices, faces, index = indexed(name)
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    around = low - 0.3 * (high - low) + box * 1.6 * (high - low)
+    which, weights, offset = near
+    triangles = vertices[faces[which % len(faces)]]
+    weights = weights / np.maximum(weights.sum(axis=1), 1e-12)[:, None]
+    normal = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
+    close = np.einsum("ij,ijk->ik", weights, triangles) + offset[:, None] * normal
+    points = np.vstack([around, close])
+    assert np.allclose(surface_distance(points, index), literal_surface_distance(points, vertices, faces),
+                       rtol=0, atol=1e-6)
+
+
+def test_walk_trap_of_issue_19():
+    """The points where a downhill walk stopped at a local minimum: inside the vase's cavity, nearer the far
+    wall's inside than the near wall's outside, equal brute force."""
+    vertices, faces, index = indexed("vase")
+    centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2
+    rng = np.random.default_rng(19)
+    points = centre + rng.normal(scale=[8.0, 8.0, 15.0], size=(300, 3))
+    assert np.allclose(surface_distance(points, index), literal_surface_distance(points, vertices, faces),
+                       rtol=0, atol=1e-6)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
@@ -107,9 +108,10 @@ def parse_shell_colors(entries: tuple[str, ...], table) -> dict:
               help="Colour a whole shell with a material (repeatable; shells as numbered by heoslice info).")
 @click.option("--ascii", "ascii_ply", is_flag=True, help="Write an ASCII PLY [default: binary].")
 @click.option("--force", is_flag=True, help="Overwrite an existing output file.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
 def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, lam, periods, expression,
           ref_kind: str, at, normal, direction, surface_path, r_range, m1_text, m2_text, materials_file,
-          max_edge, shell_colors, ascii_ply: bool, force: bool) -> None:
+          max_edge, shell_colors, ascii_ply: bool, force: bool, as_json: bool) -> None:
     """Colour MODEL's vertices by a material distribution function of the distance to a reference.
 
     The paper's Z-axis modelling (eq. 1-5, Fig. 2): the default reference is the X-Y
@@ -146,7 +148,8 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
     shells = {**file_shells, **parse_shell_colors(shell_colors, table)}
 
     mesh = load_mesh(model)
-    echo_warnings(model, mesh.warnings)
+    if not as_json:
+        echo_warnings(model, mesh.warnings)
     spec = ColorSpec(function=function, reference=ref_kind, at=point, normal=plane_normal,
                      direction=axis_direction, surface=surface_path,
                      r_range=None if r_range is None else (float(r_range[0]), float(r_range[1])),
@@ -159,6 +162,16 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
     target = output if output is not None else default_output(model, function)
     write_ply(target, colored, ascii=ascii_ply, force=force)
     f = colored.material
+    if as_json:
+        material = lambda m: {"name": m.name, "color": list(m.color), "channel": m.channel}  # noqa: E731
+        click.echo(json.dumps({
+            "output": str(target), "vertices": len(colored.vertices), "triangles": len(colored.faces),
+            "function": function.describe(), "reference": colored.reference.describe(),
+            "r": [float(colored.r.min()), float(colored.r.max())], "f": [float(f.min()), float(f.max())],
+            "from": material(roles.m1), "to": material(roles.m2),
+            "shells": {str(n): material(m) for n, m in spec.shell_materials}, "warnings": list(mesh.warnings),
+        }))
+        return
     click.echo(f"{target}: {len(colored.vertices)} vertices, {len(colored.faces)} triangles; "
                f"{function.describe()}; reference {colored.reference.describe()}; "
                f"r {colored.r.min():.3g}..{colored.r.max():.3g}, f {f.min():.3g}..{f.max():.3g}; "

@@ -76,8 +76,9 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
                direction, materials_file, channels):
     """The GradeSpec the grading options ask for, or None when none is given (the plain, fast path).
 
-    --channels, --to, --from or a materials file without --grade still build one: the
-    families keep their own (or their shell's) materials, without a gradient. The
+    --channels or a materials file without --grade still build one: the families keep
+    their own (or their shell's) materials, without a gradient; --to, --from and the
+    function's coefficients without --grade are refused (they would be ignored). The
     materials play the parts :func:`heoslice.material.material_roles` gives them.
     """
     from heoslice.grading import GradeSpec, RegionSpec
@@ -87,9 +88,11 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
         given = {"--alpha": alpha, "--beta": beta, "--lambda": lam, "--periods": periods,
                  "--expr": expression, "--depth": depth, "--offsets": offset_count}
         stray = [name for name, value in given.items() if value is not None]
+        ignored = {"--to": target, "--from": start}
+        stray += [name for name, value in ignored.items() if value]
         if stray:
-            raise InputError(f"{', '.join(stray)}: only used with --grade FUNC")
-        if not (channels or target or start or materials_file):
+            raise InputError(f"{', '.join(stray)}: only used with --grade FUNC (ignored without it)")
+        if not (channels or materials_file):
             return None
     with option("--materials"):
         table = load_materials(materials_file)

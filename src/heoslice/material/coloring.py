@@ -217,8 +217,16 @@ def ply_bytes(colored: ColoredMesh, ascii: bool = False) -> bytes:
     return head + vertex.tobytes() + face.tobytes()
 
 
+def _umask() -> int:
+    """The process's file-creation mask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_ply(path: Path, colored: ColoredMesh, ascii: bool = False, force: bool = False) -> Path:
-    """Write ``colored`` to ``path`` atomically (a temporary file renamed at the end).
+    """Write ``colored`` to ``path`` atomically (a temporary file renamed at the end), with the mode an
+    ordinary new file gets (0666 less the umask), not the temporary file's 0600.
 
     Raises OutputError if the file exists (unless ``force``) or cannot be written; a
     failed write leaves nothing behind.
@@ -241,6 +249,7 @@ def write_ply(path: Path, colored: ColoredMesh, ascii: bool = False, force: bool
             handle = None
             out.write(data)
             out.flush()
+            os.fchmod(out.fileno(), 0o666 & ~_umask())
             os.fsync(out.fileno())
         os.replace(temporary, path)
         temporary = None

@@ -90,15 +90,15 @@ FUNCTIONS: dict[str, FunctionKind] = {
     "linear": FunctionKind(
         "3", ("alpha", "lam"), {"alpha": 1.0, "lam": 0.0}, {"beta": 0.0},
         lambda fn, r: fn.alpha * r + fn.lam,
-        lambda fn: f"{_number(fn.alpha)}*r + {_number(fn.lam)}"),
+        lambda fn: _sum([(fn.alpha, "r")], fn.lam)),
     "quadratic": FunctionKind(
         "4", ("alpha", "beta", "lam"), {"alpha": 1.0, "beta": 0.0, "lam": 0.0}, {},
         lambda fn, r: (fn.alpha * r + fn.beta) * r + fn.lam,
-        lambda fn: f"{_number(fn.alpha)}*r^2 + {_number(fn.beta)}*r + {_number(fn.lam)}"),
+        lambda fn: _sum([(fn.alpha, "r^2"), (fn.beta, "r")], fn.lam)),
     "sine": FunctionKind(
         "5", ("alpha", "beta", "lam"), {"alpha": 0.5, "beta": 2.0 * math.pi, "lam": 0.5}, {},
         lambda fn, r: fn.alpha * np.sin(fn.beta * r) + fn.lam,
-        lambda fn: f"{_number(fn.alpha)}*sin({_number(fn.beta)}*r) + {_number(fn.lam)}"),
+        lambda fn: _sum([(fn.alpha, f"sin({_number(fn.beta)}*r)")], fn.lam)),
     "expression": FunctionKind(
         "-", (), {}, {},
         lambda fn, r: evaluate_expression(fn.expression or "", r),
