@@ -516,3 +516,22 @@ def test_edge_groups_group_every_undirected_edge_in_index_order(seed, offset):
     assert all((edges[run == g] == edges[groups.starts[g]]).all() for g in range(len(groups.starts)))
     assert len({tuple(e) for e in edges[groups.starts]}) == len(groups.starts)
     assert np.all(np.diff(groups.order)[np.diff(run) == 0] > 0)
+
+
+@pytest.mark.parametrize("collide", ["none", "all"])
+def test_duplicate_faces_are_the_repeats_of_an_earlier_face(monkeypatch, collide):
+    """duplicate_faces flags exactly the faces equal (up to rotation, same orientation) to an earlier one, as a
+    set-based reference says, also when every hash collides; reversed faces are not duplicates."""
+    from heoslice.mesh import weld
+
+    if collide == "all":
+        monkeypatch.setattr(weld, "_row_hash", lambda bits: np.zeros(len(bits), dtype=np.uint64))
+    rng = np.random.default_rng(8)
+    faces = np.array([rng.choice(6, 3, replace=False) for _ in range(400)])
+    seen, expected = set(), []
+    for face in faces.tolist():
+        key = min(tuple(face[i:] + face[:i]) for i in range(3))
+        expected.append(key in seen)
+        seen.add(key)
+    np.testing.assert_array_equal(weld.duplicate_faces(faces), expected)
+    assert not weld.duplicate_faces(np.array([[0, 1, 2], [0, 2, 1]])).any()
