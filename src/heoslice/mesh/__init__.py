@@ -3,6 +3,7 @@
 3MF (objects, names, materials) is read at library level by :func:`read_3mf`; ``load_mesh`` does not take it yet.
 """
 
+from heoslice.mesh.checks import VolumeCheck, volume_check
 from heoslice.mesh.load import MAX_COORDINATE, SUPPORTED_SUFFIXES, Mesh, column_bounds, file_sha256, load_mesh, \
     mesh_info, scaled
 from heoslice.mesh.ply import check_ply_header, parse_ply_header, read_ply
@@ -16,4 +17,5 @@ __all__ = [
     "RawMesh", "ThreeMF", "check_ply_header", "read_3mf",
     "column_bounds", "edge_groups", "edge_use_counts", "file_sha256", "load_mesh", "mesh_info", "parse_ply_header",
     "read_ply", "scaled", "shell_labels", "signed_volume_mm3", "solid_volume_mm3", "winding_number",
+    "VolumeCheck", "volume_check",
 ]

@@ -38,7 +38,7 @@ def index_sort(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sort (n,) uint64 ``key`` by its high bits, ties by index: (order (n,) int64, sorted high bits (n,) uint64).
 
     The index is packed into the low :func:`index_bits` bits of the key and the packed
-    values are sorted with ``np.sort``, several times faster than ``np.argsort`` on
+    values are sorted with ``np.sort``, cheaper than ``np.argsort`` on
     millions of keys. Those low bits of the key are dropped, so keys equal in their
     high bits (not only equal keys) end up together.
     """
