@@ -39,7 +39,7 @@ COUNTS = st.one_of(st.integers(0, 12), st.sampled_from([10**9, 10**12, 2**31, 2*
 
 def seed_files() -> list[bytes]:
     """Valid PLY files in every format, with colours, polygons and extra properties, to mutate."""
-    from test_loading import CUBE_QUADS, CUBE_VERTICES, TETRA_FACES, TETRA_VERTICES, ply_bytes
+    from test_mesh_ply import CUBE_QUADS, CUBE_VERTICES, TETRA_FACES, TETRA_VERTICES, ply_bytes
 
     colours = [(c, "uchar", np.array([10, 20, 30, 40])) for c in ("red", "green", "blue")]
     files = []
@@ -121,7 +121,8 @@ def test_mutated_ply_files_raise_only_input_errors(scratch, data):
 
 
 def off_seeds() -> list[bytes]:
-    from test_loading import CUBE_QUADS, CUBE_VERTICES, TETRA_FACES, TETRA_VERTICES, off_text
+    from test_mesh_off import off_text
+    from test_mesh_ply import CUBE_QUADS, CUBE_VERTICES, TETRA_FACES, TETRA_VERTICES
 
     return [off_text(TETRA_VERTICES, TETRA_FACES).encode(),
             off_text(CUBE_VERTICES, CUBE_QUADS, header="COFF\n# comment\n", colours=True).encode()]
@@ -145,7 +146,7 @@ def test_generated_ply_headers_raise_only_input_errors(scratch, data):
 def repeated_faces(draw) -> tuple[bytes, int, int]:
     """(a seed mesh whose faces are each repeated 1..4 times in a random order, in any format; distinct faces;
     all faces)."""
-    from test_loading import TETRA_FACES, TETRA_VERTICES, ply_bytes
+    from test_mesh_ply import TETRA_FACES, TETRA_VERTICES, ply_bytes
 
     copies = draw(st.lists(st.integers(1, 4), min_size=len(TETRA_FACES), max_size=len(TETRA_FACES)))
     faces = [face for face, k in zip(TETRA_FACES, copies) for _ in range(k)]
@@ -173,7 +174,8 @@ def test_repeated_faces_load_as_the_distinct_geometry(scratch, case):
 @st.composite
 def flooded(draw) -> tuple[str, bytes]:
     """(suffix, an ASCII PLY or OFF seed with runs of blank, whitespace or comment lines inserted between lines)."""
-    from test_loading import TETRA_FACES, TETRA_VERTICES, off_text, ply_bytes
+    from test_mesh_off import off_text
+    from test_mesh_ply import TETRA_FACES, TETRA_VERTICES, ply_bytes
 
     suffix = draw(st.sampled_from([".ply", ".off"]))
     seed = ply_bytes("ascii", TETRA_VERTICES, TETRA_FACES) if suffix == ".ply" else \
@@ -211,7 +213,8 @@ def test_blank_and_comment_floods_load_or_are_refused_in_one_line(scratch, case)
 def test_sparse_files_are_refused_or_read_in_one_line(scratch, suffix, holes, where):
     """A valid file extended by a hole (at its end, or with the header's count made to match the hole):
     from 16 MiB of holes a one-line 'sparse' InputError before any read; a small hole loads or is one line."""
-    from test_loading import TETRA_FACES, TETRA_VERTICES, off_text, ply_bytes
+    from test_mesh_off import off_text
+    from test_mesh_ply import TETRA_FACES, TETRA_VERTICES, ply_bytes
 
     path = scratch / f"sparse{suffix}"
     seed = {".ply": ply_bytes("binary_little_endian", TETRA_VERTICES, TETRA_FACES),

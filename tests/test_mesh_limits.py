@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_loading import TETRA_FACES, TETRA_VERTICES, off_text, ply_bytes
+from test_mesh_off import off_text
+from test_mesh_ply import TETRA_FACES, TETRA_VERTICES, ply_bytes
 
 from heoslice.errors import EXIT_INPUT, InputError
 from heoslice.mesh import load_mesh
@@ -51,8 +52,12 @@ def run_bounded(*args, timeout: float = 120.0) -> tuple[int, str, str, float, fl
         return child.returncode, out.read().decode(), err.read().decode(), seconds, usage.ru_maxrss / 1024
 
 
-def assert_one_line_refusal(result, *needles: str, seconds: float = 10.0, rss_mib: float = 400.0) -> None:
-    """Exit 2, one stderr line 'heoslice: error: ...' holding every needle, within the time and memory bounds."""
+def assert_one_line_refusal(result, *needles: str, seconds: float = 30.0, rss_mib: float = 400.0) -> None:
+    """Exit 2, one stderr line 'heoslice: error: ...' holding every needle, within the time and memory bounds.
+
+    The time bound is wide (start-up alone can take seconds on a loaded machine); an unbounded
+    read or loop of these inputs takes minutes, the memory bound is the sharper check.
+    """
     code, _, err, took, rss = result
     assert code == EXIT_INPUT, err
     assert err.count("\n") == 1 and err.startswith("heoslice: error: "), err
@@ -109,7 +114,7 @@ def test_repeated_faces_are_sliced_once(tmp_path):
     assert summary["volume_mm3"] == pytest.approx(30.0 ** 3 / 6)
     code, out, err, took, rss = run_bounded("slice", path, "-o", tmp_path / "stack")
     assert code == 0, err
-    assert took < 60 and rss < 1000, (took, rss)
+    assert took < 60 and rss < 600, (took, rss)
 
 
 @pytest.mark.parametrize("case", ["ply-blank-lines", "off-comments"])
@@ -173,7 +178,7 @@ def test_counts_beyond_the_limits_are_refused(tmp_path, monkeypatch, limit, valu
     import trimesh
 
     from heoslice.mesh import off, ply, raw, stl
-    from test_loading import CUBE_QUADS, CUBE_VERTICES
+    from test_mesh_ply import CUBE_QUADS, CUBE_VERTICES
 
     for module in (ply, off, stl, raw):
         if hasattr(module, limit):

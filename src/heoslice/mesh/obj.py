@@ -33,12 +33,12 @@ def read_with_trimesh(path: Path) -> RawMesh:
     become ``vertex_colors``, with ``color_source`` saying which the file gave. The file is
     at most MAX_TRIMESH_BYTES (trimesh's parsers hold Python objects per line).
     """
-    import trimesh
-
     data = read_bounded(path, MAX_TRIMESH_BYTES, "mesh")
     if path.suffix.lower() == ".obj":
         check_obj_indices(path, data)
     del data
+    import trimesh
+
     logging.getLogger("trimesh").setLevel(logging.CRITICAL)
     try:
         with warnings.catch_warnings():
