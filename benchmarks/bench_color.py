@@ -26,8 +26,8 @@ import numpy as np
 from timing import best_of
 import trimesh
 
-from heoslice.coloring import ColorSpec, color_mesh
-from heoslice.distribution import build_surface_index, make_function, surface_distance
+from heoslice.material import ColorSpec, color_mesh
+from heoslice.material import build_surface_index, make_function, surface_distance
 from heoslice.mesh import Mesh
 
 

@@ -1,10 +1,10 @@
-"""Benchmark of the grading step (heoslice.regions.layer_regions) against a naive baseline, same run.
+"""Benchmark of the grading step (heoslice.grading.layer_regions) against a naive baseline, same run.
 
     python benchmarks/bench_grading.py             # liver phantom ~160 x 165 mm, 600 dpi (~15 MP/layer)
     python benchmarks/bench_grading.py --quick     # a smaller part, for a smoke test
     python benchmarks/bench_grading.py --stages    # and CPU ms per stage (a separate, instrumented pass)
 
-The grading step is everything :func:`heoslice.regions.layer_regions` does for one
+The grading step is everything :func:`heoslice.grading.layer_regions` does for one
 layer: from the layer's loops and its solid mask (made by the rasteriser, which the
 ungraded path runs too, so not counted) to the sub-region label of every pixel: the
 families, exact ring distances on the coarse lattice, the per-cell planes, the
@@ -33,8 +33,8 @@ from timing import best_of
 def part_layers(scale: float, count: int):
     """(contours, planes) of the liver phantom with its lesion, ``count`` layers around the widest section."""
     from heoslice import procedural
-    from heoslice.contours import build_contours
-    from heoslice.slicing import slice_mesh
+    from heoslice.layers.contours import build_contours
+    from heoslice.layers.slicing import slice_mesh
 
     organ, lesion = procedural.liver_phantom(scale=scale)
     mesh = procedural.concatenate(organ, lesion)
@@ -52,7 +52,9 @@ def layer_inputs(contours, index: int):
             np.where(parent >= 0, parent - first, -1))
 
 
-STAGES = ("lattice_edges", "_inside_loops", "_refine", "_expand_planes", "_refine_cells", "_family_mask")
+#: (module, name) of each stage timed: the module whose functions call it by that name.
+STAGES = (("lattice", "lattice_edges"), ("lattice", "_inside_loops"), ("field", "cells_to_refine"),
+          ("field", "_expand_planes"), ("field", "refine_cells"), ("labels", "_family_mask"))
 
 
 @contextlib.contextmanager
@@ -61,7 +63,7 @@ def stage_timers(totals: dict):
     add up in ``totals``."""
     import shapely
 
-    from heoslice import regions
+    import importlib
 
     def timed(name, function):
         @functools.wraps(function)
@@ -73,7 +75,8 @@ def stage_timers(totals: dict):
                 totals[name] = totals.get(name, 0.0) + time.process_time() - started
         return wrapper
 
-    patched = [(regions, name, getattr(regions, name)) for name in STAGES if hasattr(regions, name)]
+    modules = [importlib.import_module(f"heoslice.grading.{module}") for module, _ in STAGES]
+    patched = [(module, name, getattr(module, name)) for module, (_, name) in zip(modules, STAGES)]
     patched.append((shapely, "maximum_inscribed_circle", shapely.maximum_inscribed_circle))
     try:
         for module, name, function in patched:
@@ -86,7 +89,7 @@ def stage_timers(totals: dict):
 
 def stage_table(inputs, spec, repeats: int) -> dict:
     """Median over layers (best of ``repeats`` per layer, by total) of CPU ms per stage of layer_regions."""
-    from heoslice.regions import layer_regions
+    from heoslice.grading import layer_regions
 
     rows = {}
     for points, offsets, area, parent, mask, grid in inputs:
@@ -112,7 +115,7 @@ def naive_labels(points, offsets, area, parent, mask, grid, spec, regions):
     shells painted after their host, as layer_regions does."""
     import shapely
 
-    from heoslice.rasterising import solid_mask
+    from heoslice.layers.rasterising import solid_mask
 
     b = regions.box
     label = np.zeros((b[1] - b[0], b[3] - b[2]), dtype=np.int32)
@@ -156,8 +159,8 @@ def main() -> None:
     if args.quick:
         args.scale, args.layers = 0.4, 3
 
-    from heoslice.rasterising import grid_for, solid_mask
-    from heoslice.regions import RegionSpec, layer_regions
+    from heoslice.layers.rasterising import grid_for, solid_mask
+    from heoslice.grading import RegionSpec, layer_regions
 
     contours, z = part_layers(args.scale, args.layers)
     spec = RegionSpec(nozzle_mm=args.nozzle, depth_mm=args.depth)

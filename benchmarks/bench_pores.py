@@ -6,7 +6,7 @@
 Each case is one layer at 600 dpi, 0.2 mm nozzle, graded inwards, made here: a square
 plate pierced by a grid of round pores (r = 1 mm, 3 mm apart: one family whose eq. 10
 couples every pore to every pixel), or a grid of free discs of the same size (one
-family each). The time is :func:`heoslice.regions.layer_regions` (CPU, best of
+family each). The time is :func:`heoslice.grading.layer_regions` (CPU, best of
 --repeats), per layer and per pore or island; the ratio is the per-pore cost against the
 smallest case of the same kind in the same run (1.0: linear in the count).
 """
@@ -31,7 +31,7 @@ def circle(radius: float, centre: tuple[float, float], clockwise: bool = False, 
 
 def case(kind: str, count: int):
     """(points, offsets, area, parent, mask, grid) of one layer: ``count`` pores in a plate, or ``count`` islands."""
-    from heoslice.rasterising import Grid, solid_mask
+    from heoslice.layers.rasterising import Grid, solid_mask
 
     side = int(np.ceil(np.sqrt(count)))
     centres = [(3.0 * i, 3.0 * j) for i in range(side) for j in range(side)][:count]
@@ -57,7 +57,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="fewer, smaller cases (a smoke test)")
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per case [3]")
     args = parser.parse_args()
-    from heoslice.regions import RegionSpec, layer_regions
+    from heoslice.grading import RegionSpec, layer_regions
 
     spec = RegionSpec(nozzle_mm=0.2)
     plan = {"pores": (4, 16) if args.quick else (9, 36, 100),

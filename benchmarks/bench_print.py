@@ -15,11 +15,16 @@ Targets (issue 5): >= 90 % with no faults, >= 70 % with a byte error rate of 1e-
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
-from heoslice import protocol as P
-from heoslice.controller import FaultSpec, SimConfig, SimController
-from heoslice.printer import SimConnector, print_job, random_job, synthetic_job
+from heoslice.printing import print_job
+from heoslice.printing import protocol as P
+from heoslice.printing.simulator import FaultSpec, SimConfig, SimConnector, SimController
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from printing_jobs import random_job, synthetic_job  # noqa: E402  (test fixtures, beside the tests)
 
 
 def run(job, get_layer, baud: int, error_rate: float, seed: int, features: int = P.ALL_FEATURES) -> dict:

@@ -84,9 +84,9 @@ def slicing_ratio(mesh_path: Path, layer: float, repeats: int) -> dict:
     """heoslice slice+contours vs manifold3d slice over the same planes (best of repeats, seconds)."""
     import manifold3d
 
-    from heoslice.contours import build_contours
+    from heoslice.layers.contours import build_contours
     from heoslice.mesh import load_mesh
-    from heoslice.slicing import plane_heights, slice_mesh
+    from heoslice.layers import plane_heights, slice_mesh
 
     mesh = load_mesh(mesh_path)
     z = plane_heights(mesh.bounds[0, 2], mesh.bounds[1, 2], layer)

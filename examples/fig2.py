@@ -2,7 +2,7 @@
 
 Usage: python examples/fig2.py [OUT.png] [--model examples/vase.ply] [--size 360]
 
-Colours the example vase (made by examples/make_vase.py) with heoslice.coloring, from
+Colours the example vase (made by examples/make_vase.py) with heoslice.material, from
 M1 (light grey) at the bottom to M2 (green) at the top, and renders (a) the bare mesh,
 (b) linear, (c) quadratic (nonlinear) and (d) sine (periodic) side by side. The render
 is orthographic, Gouraud-shaded with a z-buffer, rasterised by the vectorised numpy
@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-from heoslice.coloring import ColorSpec, color_mesh
-from heoslice.distribution import make_function
+from heoslice.material import ColorSpec, color_mesh
+from heoslice.material import make_function
 from heoslice.mesh import load_mesh
 
 HERE = Path(__file__).resolve().parent

@@ -5,9 +5,9 @@ Usage: python examples/fig3.py [OUT.png] [--z 30] [--dpi 600] [--size 560]
 
 The vase (heoslice.procedural.vase, 90 sections: 360 intersection points per layer,
 as in the paper's example) is coloured by a sine function of x (from red to blue,
-heoslice.distribution), so that its contour points carry different colours. Panel (a)
+heoslice.material), so that its contour points carry different colours. Panel (a)
 draws the layer's loops and the intersection points in their interpolated colours
-(Fig. 3a, 6); panel (b) is heoslice.regions.render_graded with 200 sub-regions from
+(Fig. 3a, 6); panel (b) is heoslice.grading.render_graded with 200 sub-regions from
 the outer contour's colours to the target contour's (0, 255, 0) (Fig. 3b).
 """
 
@@ -20,12 +20,12 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from heoslice import procedural
-from heoslice.contours import build_contours
-from heoslice.distribution import evaluate, make_function, make_reference, normalise, reference_distance
-from heoslice.materials import DEFAULT_MATERIALS, Material, blend
-from heoslice.rasterising import grid_for, solid_mask
-from heoslice.regions import GradeSpec, RegionSpec, render_graded
-from heoslice.slicing import interpolate_at, slice_mesh
+from heoslice.layers.contours import build_contours
+from heoslice.material import evaluate, make_function, make_reference, normalise, reference_distance
+from heoslice.material import DEFAULT_MATERIALS, Material, blend
+from heoslice.layers.rasterising import grid_for, solid_mask
+from heoslice.grading import GradeSpec, RegionSpec, render_graded
+from heoslice.layers.slicing import interpolate_at, slice_mesh
 
 HERE = Path(__file__).resolve().parent
 

@@ -7,7 +7,7 @@ heoslice.procedural.liver_phantom gives the organ and a lesion shell inside it; 
 organ's vertices carry a liver colour, the lesion's a dark purple (the PLY colour
 information of Fig. 8b). The layer through the lesion's centre is rendered (a) as the
 plain slicer does (contour colours at the boundary, base material inside: Fig. 9a),
-(b) graded (heoslice.regions.render_graded: linear from the organ's contour to a
+(b) graded (heoslice.grading.render_graded: linear from the organ's contour to a
 'cells' material over --depth mm, the lesion keeping its own material: Fig. 9b) and
 (c) as the droplet masks of a 3-material jetting head (one colour per material).
 """
@@ -21,12 +21,12 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from heoslice import procedural
-from heoslice.contours import build_contours
-from heoslice.distribution import make_function
-from heoslice.materials import Material
-from heoslice.rasterising import grid_for, paint_contour, render_layer, solid_mask
-from heoslice.regions import GradeSpec, RegionSpec, render_graded
-from heoslice.slicing import interpolate_at, slice_mesh
+from heoslice.layers.contours import build_contours
+from heoslice.material import make_function
+from heoslice.material import Material
+from heoslice.layers.rasterising import grid_for, paint_contour, render_layer, solid_mask
+from heoslice.grading import GradeSpec, RegionSpec, render_graded
+from heoslice.layers.slicing import interpolate_at, slice_mesh
 
 HERE = Path(__file__).resolve().parent
 LIVER = Material("liver", (150, 60, 45), 1)

@@ -6,10 +6,12 @@ import manifold3d
 import numpy as np
 import shapely
 
-from heoslice.contours import Contours, build_contours
-from heoslice.regions import ring_edges
-from heoslice.regions_compiled import edge_tree
-from heoslice.slicing import plane_heights, slice_mesh
+from heoslice.layers.contours import Contours, build_contours
+from heoslice.grading.edges import ring_edges
+from heoslice.grading.halftone import thresholds
+from heoslice.grading.search import RingSet, ring_tree
+from heoslice.grading.search_kernels import edge_tree
+from heoslice.layers import plane_heights, slice_mesh
 
 
 def contours_of(mesh, layer_height: float) -> tuple[np.ndarray, Contours]:
@@ -84,5 +86,73 @@ def brute_squared(qx, qy, edges):
 
 
 def tree_of(edges):
-    """The edge tree of RingEdges (:func:`heoslice.regions_compiled.edge_tree`)."""
+    """The edge tree of RingEdges (:func:`heoslice.grading.search_kernels.edge_tree`)."""
     return edge_tree(edges.x, edges.y, edges.x + edges.vx, edges.y + edges.vy)
+
+
+# Test-only references: straightforward forms of what the grading stage computes another way
+
+
+def subregion_index(r: np.ndarray, count: int) -> np.ndarray:
+    """Sub-region k in 1..N_R of positions r (r = 0 at the starting ring, 1 at the end): min(floor(r N_R) + 1, N_R)."""
+    return np.clip(np.floor(np.asarray(r, dtype=np.float64) * count).astype(np.int64) + 1, 1, count)
+
+
+def ring_weights(distances: np.ndarray) -> np.ndarray:
+    """Eq. 10: weights of beta rings at n points from their distances ((n, beta) float, mm) -> (n, beta).
+
+    w_i = prod_{k != i} d_k / sum_j prod_{k != j} d_k: the weights sum to 1, and a ring's
+    weight is 1 on the ring itself (d_i = 0) and falls as the point moves away from it.
+    Dividing through by prod_k d_k gives w_i = (1 / d_i) / sum_j (1 / d_j), computed here
+    as (d_min / d_i) / sum_j (d_min / d_j), which neither overflows nor underflows; where
+    some d_i are 0 those rings share the weight (one ring, unless rings touch).
+    """
+    d = np.asarray(distances, dtype=np.float64)
+    if d.ndim != 2 or d.shape[1] < 1:
+        raise ValueError("distances must be (n, beta) with beta >= 1")
+    nearest = d.min(axis=1, keepdims=True)
+    on_ring = d <= 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(on_ring, 0.0, nearest / d)
+    ratio = np.where(nearest > 0, ratio, on_ring.astype(np.float64))
+    return ratio / ratio.sum(axis=1, keepdims=True)
+
+
+def ring_set(points: np.ndarray, offsets: np.ndarray, loops, encloses: bool) -> RingSet:
+    """The ring set of some loops of a layer, with its edges and their bounding-box hierarchy."""
+    edges = ring_edges(points, offsets, loops)
+    return RingSet(tuple(loops), edges, encloses, ring_tree(edges))
+
+
+def choose_materials(fractions: np.ndarray, solid: np.ndarray, layer: int,
+                     origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """The material number each pixel jets: (rows, cols) int8, -1 where not solid.
+
+    fractions: (K, rows, cols) float, each pixel's material fractions (summing to 1
+    where solid; they are normalised here); solid: (rows, cols) bool.
+    """
+    fractions = np.asarray(fractions, dtype=np.float32)
+    count = fractions.shape[0]
+    if count == 0:
+        raise ValueError("at least one material is needed")
+    total = np.zeros(fractions.shape[1:], dtype=np.float32)
+    for fraction in fractions:  # summed in order (numpy's pairwise sum would round differently)
+        total += fraction
+    threshold = thresholds(solid.shape, layer, origin) * np.where(total > 0, total, 1.0)
+    chosen = np.full(solid.shape, count - 1, dtype=np.int8)
+    running = np.zeros(solid.shape, dtype=np.float32)
+    undecided = np.ones(solid.shape, dtype=bool)
+    for material in range(count - 1):
+        running += fractions[material]
+        here = undecided & (threshold < running)
+        chosen[here] = material
+        undecided &= ~here
+    chosen[~solid] = -1
+    return chosen
+
+
+def droplet_masks(fractions: np.ndarray, solid: np.ndarray, layer: int,
+                  origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """One 1-bit mask per material: (K, rows, cols) bool, exactly one True per solid pixel, none elsewhere."""
+    chosen = choose_materials(fractions, solid, layer, origin)
+    return chosen[None, :, :] == np.arange(fractions.shape[0], dtype=np.int8)[:, None, None]

@@ -135,7 +135,7 @@ def test_default_slice_is_unchanged(run_cli, ball, tmp_path):
     (["--grade", "linear", "--from", "#12"], "--from"),
     (["--alpha", "2"], "--alpha"),
     (["--grade", "linear", "--offsets", "0"], "--offsets"),
-    (["--grade", "expression", "--expression", "__import__('os')"], "--grade"),
+    (["--grade", "expression", "--expression", "__import__('os')"], "--expr"),
 ])
 def test_bad_grading_options_fail_cleanly(run_cli, ball, tmp_path, args, option):
     """A bad grading option is one line naming it, exit status 2, and no stack left behind."""
@@ -157,18 +157,18 @@ def test_missing_materials_file(run_cli, ball, tmp_path):
 def counted_plate(tmp_path, monkeypatch):
     """The benchmark's plate with holes, pins and a cavity, small; a graded slice spec with droplet masks
     (300 dpi, 0.2 mm layers, in this process); and a list that grows by one per family measured afresh."""
-    from heoslice import pipeline, regions
-    from heoslice.distribution import make_function
+    from heoslice import grading, pipeline
+    from heoslice.material import make_function
     from heoslice.mesh import load_mesh
-    from heoslice.materials import DEFAULT_MATERIALS, Material
+    from heoslice.material import DEFAULT_MATERIALS, Material
 
     path = tmp_path / "plate.ply"
     procedural.holes_and_islands((20.0, 12.5, 4.0), 48).export(path)
-    grade = regions.GradeSpec(regions.RegionSpec(nozzle_mm=0.3), make_function("linear"),
+    grade = grading.GradeSpec(grading.RegionSpec(nozzle_mm=0.3), make_function("linear"),
                               Material("green", (0, 255, 0)), None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
     measured = []
-    family_field = regions.family_field
-    monkeypatch.setattr(regions, "family_field", lambda *args, **kwargs: measured.append(1) or family_field(
+    family_field = grading.labels.family_field
+    monkeypatch.setattr(grading.labels, "family_field", lambda *args, **kwargs: measured.append(1) or family_field(
         *args, **kwargs))
     spec = pipeline.SliceSpec(layer_height_mm=0.2, dpi=(300.0, 300.0), grade=grade, channels=True, jobs=1)
     return load_mesh(path), spec, measured
@@ -183,8 +183,10 @@ def test_extruded_layers_reuse_their_sub_regions_and_write_the_same_stack(tmp_pa
     mesh, spec, measured = counted_plate(tmp_path, monkeypatch)
     reused, _ = pipeline.slice_to_stack(mesh, tmp_path / "reused", spec)
     with_reuse = len(measured)
-    render_and_write = pipeline.render_and_write
-    monkeypatch.setattr(pipeline, "render_and_write", lambda job, reuse=None: render_and_write(job))
+    from heoslice.pipeline import runs
+
+    render_and_write = runs.render_and_write
+    monkeypatch.setattr(runs, "render_and_write", lambda job, cache=None, packed=None: render_and_write(job))
     fresh, _ = pipeline.slice_to_stack(mesh, tmp_path / "fresh", spec)
     assert with_reuse < 0.4 * (len(measured) - with_reuse)
     assert [(e["sha256"], e["channels"]) for e in reused["layers"]] == [(e["sha256"], e["channels"])
@@ -199,7 +201,7 @@ def test_sub_regions_carry_over_from_one_run_of_layers_to_the_next(tmp_path, mon
     from dataclasses import replace
 
     from heoslice import pipeline
-    from heoslice.slicing import face_z_range, plane_heights
+    from heoslice.layers import face_z_range, plane_heights
 
     mesh, long_runs, measured = counted_plate(tmp_path, monkeypatch)
     short_runs = replace(long_runs, max_segments=1500)

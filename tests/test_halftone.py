@@ -1,4 +1,4 @@
-"""Tests of heoslice.halftone: one material per solid pixel, shares within 2 % over 2 mm x 2 mm, layers decorrelated."""
+"""Tests of heoslice.grading.halftone: one material per solid pixel, shares within 2 % over 2 mm x 2 mm, layers decorrelated."""
 
 from __future__ import annotations
 
@@ -7,7 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from heoslice.halftone import TILE, bayer_matrix, choose_materials, droplet_masks, layer_tile, thresholds
+from helpers import choose_materials, droplet_masks
+
+from heoslice.grading.halftone import TILE, bayer_matrix, layer_tile, thresholds
 
 #: 2 mm at 600 dpi, in pixels.
 WINDOW = int(round(2.0 / (25.4 / 600)))

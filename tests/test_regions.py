@@ -1,4 +1,4 @@
-"""Tests of heoslice.regions: eq. 8 band counts, eq. 9-10 weights, sub-regions against analytic
+"""Tests of heoslice.grading: eq. 8 band counts, eq. 9-10 weights, sub-regions against analytic
 fields and shapely's round-join offsets, nested shells."""
 
 from __future__ import annotations
@@ -11,15 +11,16 @@ import pytest
 import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from helpers import brute_squared, random_rings, tree_of
+from helpers import brute_squared, random_rings, ring_set, ring_weights, subregion_index, tree_of
 
-from heoslice import regions
-from heoslice.distribution import make_function
+from heoslice.grading import edges, field as field_module, labels, lattice as lattice_module, search
+from heoslice.material import make_function
 from heoslice.errors import InputError
-from heoslice.materials import DEFAULT_MATERIALS, Material
-from heoslice.rasterising import Grid, solid_mask
-from heoslice.regions import (
+from heoslice.material import DEFAULT_MATERIALS, Material
+from heoslice.layers.rasterising import Grid, solid_mask
+from heoslice.grading import (
     GradeSpec,
+    GradingCache,
     RegionSpec,
     band_count,
     contour_values,
@@ -27,10 +28,9 @@ from heoslice.regions import (
     layer_families,
     layer_regions,
     render_graded,
-    ring_edges,
-    ring_weights,
-    subregion_index,
 )
+from heoslice.grading.cache import RingMemo
+from heoslice.grading.edges import ring_edges
 
 PX = 25.4 / 600
 
@@ -38,22 +38,22 @@ PX = 25.4 / 600
 @pytest.fixture(autouse=True, scope="module")
 def lattice_fit_for_every_family():
     """Every family here is fitted on the lattice however small (most test shapes are below
-    regions.DIRECT_PIXELS); the tests of the exact per-pixel path ask for it with :func:`exact_per_pixel`."""
-    saved = regions.DIRECT_PIXELS
-    regions.DIRECT_PIXELS = 0
+    field_module.DIRECT_PIXELS); the tests of the exact per-pixel path ask for it with :func:`exact_per_pixel`."""
+    saved = field_module.DIRECT_PIXELS
+    field_module.DIRECT_PIXELS = 0
     yield
-    regions.DIRECT_PIXELS = saved
+    field_module.DIRECT_PIXELS = saved
 
 
 @contextmanager
 def exact_per_pixel():
-    """Every family takes each pixel's exact distances (regions._exact_index), however large."""
-    saved = regions.DIRECT_PIXELS
-    regions.DIRECT_PIXELS = 10 ** 12
+    """Every family takes each pixel's exact distances (field_module._exact_index), however large."""
+    saved = field_module.DIRECT_PIXELS
+    field_module.DIRECT_PIXELS = 10 ** 12
     try:
         yield
     finally:
-        regions.DIRECT_PIXELS = saved
+        field_module.DIRECT_PIXELS = saved
 
 
 def circle(radius: float, count: int = 720, center=(0.0, 0.0), clockwise: bool = False) -> np.ndarray:
@@ -278,7 +278,7 @@ def test_shallow_depth_with_many_bands_stays_exact(nozzle, count, depth):
 def test_layer_without_families_jets_the_base_material():
     """Solid pixels no family labels (here: a lone clockwise ring, a broken mesh) still get exactly one
     material, the base one, in the fast droplet path, render_graded and the numpy composition."""
-    from heoslice.regions import droplet_planes
+    from heoslice.grading import droplet_planes
 
     points, offsets, area, parent = layer(circle(3.0, clockwise=True))
     grid = grid_around(3.5)
@@ -462,7 +462,7 @@ def island_grid(name: str) -> Grid:
 
 
 def never_alone(points, offsets, families, *rest):
-    """A stand-in for regions._alone_in_boxes under which every island rasterises its rings."""
+    """A stand-in for labels._alone_in_boxes under which every island rasterises its rings."""
     return [False] * len(families)
 
 
@@ -480,8 +480,8 @@ def family_membership(points, offsets, regions, grid) -> np.ndarray:
 @pytest.mark.parametrize("name", sorted(ISLAND_LAYOUTS))
 def test_islands_are_labelled_exactly_with_or_without_rasterising_their_rings(name, monkeypatch):
     """Every solid pixel carries a label of the family whose polygon holds it (shapely), and the labels
-    are the same when every island rasterises its rings again (regions._family_mask) as when an island
-    alone in its box (regions._alone_in_boxes) takes the layer's solid pixels there as its own."""
+    are the same when every island rasterises its rings again (labels._family_mask) as when an island
+    alone in its box (labels._alone_in_boxes) takes the layer's solid pixels there as its own."""
     points, offsets, area, parent = layer(*ISLAND_LAYOUTS[name])
     grid = island_grid(name)
     mask = solid_mask(points, offsets, grid)
@@ -491,7 +491,7 @@ def test_islands_are_labelled_exactly_with_or_without_rasterising_their_rings(na
     owner = family_membership(points, offsets, labelled, grid)
     label_family = np.searchsorted(labelled.base, labelled.label, side="right") - 1
     assert np.array_equal(label_family[solid], owner[solid])
-    monkeypatch.setattr(regions, "_alone_in_boxes", never_alone)
+    monkeypatch.setattr(labels, "_alone_in_boxes", never_alone)
     rasterised = layer_regions(points, offsets, area, parent, None, grid, spec, np.packbits(mask, axis=1))
     assert np.array_equal(rasterised.label[solid], labelled.label[solid])
 
@@ -533,7 +533,7 @@ def test_islands_over_crossing_loops_are_labelled_as_by_rasterising_their_rings(
         spec = RegionSpec(nozzle_mm=0.4)
         labelled = layer_regions(points, offsets, area, parent, mask, grid, spec)
         with monkeypatch.context() as patched:
-            patched.setattr(regions, "_alone_in_boxes", never_alone)
+            patched.setattr(labels, "_alone_in_boxes", never_alone)
             rasterised = layer_regions(points, offsets, area, parent, mask, grid, spec)
         solid = mask[labelled.box[0]:labelled.box[1], labelled.box[2]:labelled.box[3]]
         assert np.array_equal(rasterised.label[solid], labelled.label[solid]), name
@@ -545,8 +545,8 @@ def test_only_islands_alone_in_their_box_skip_rasterising_their_rings(monkeypatc
     islands each reaching into the other's box, the hollow island (its own island and the plate reach into
     its box) and a lesion in the plate's solid rasterise their rings."""
     rasterised = []
-    real = regions._family_mask
-    monkeypatch.setattr(regions, "_family_mask",
+    real = labels._family_mask
+    monkeypatch.setattr(labels, "_family_mask",
                         lambda points, offsets, family, *rest: rasterised.append(family.outer)
                         or real(points, offsets, family, *rest))
     expected = {"roomy hole": [], "tight hole": [2], "crowded hole": [2, 3], "island in an island": [2],
@@ -592,7 +592,7 @@ def test_bands_follow_the_exact_distance_where_nearest_edges_are_far_apart(shape
 def test_rings_apart_is_shapely_distance(seed):
     """L_S between an outer ring and the holes inside it is shapely's distance between the rings (to float32
     rounding of a few hundredths of a micrometre), wherever the closest pair lies (vertex or edge)."""
-    from heoslice.regions import ring_set, rings_apart
+    from heoslice.grading.search import rings_apart
 
     rng = np.random.default_rng(seed)
     outer = rough_outline(int(rng.integers(0, 2 ** 31)), count=int(rng.integers(20, 400)), radius=10.0)
@@ -609,10 +609,10 @@ def test_rings_apart_is_shapely_distance(seed):
 def composed_masks(points, offsets, area, parent, shells, mask, grid, spec, layer, point_material=None):
     """The droplet masks composed in numpy from their definition, an independent reference for the compiled
     path: each labelled pixel's mix is its family's start mix at its lattice cell (paint_cells) moved by
-    its sub-region's fraction towards the target (eq. 1), halftoned by heoslice.halftone.droplet_masks;
+    its sub-region's fraction towards the target (eq. 1), halftoned by helpers.droplet_masks;
     solid pixels outside every family jet the base material."""
-    from heoslice.halftone import droplet_masks
-    from heoslice.regions import _family_starts, _target_fractions, paint_cells
+    from helpers import droplet_masks
+    from heoslice.grading.materials import family_starts as _family_starts, paint_cells, target_fractions as _target_fractions
 
     regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions)
     materials = spec.channel_materials()
@@ -639,7 +639,7 @@ def test_droplet_planes_are_render_graded_masks_bit_for_bit(per_vertex):
     with a hole, an island in the hole and a lesion shell of its own material, on two layers; with
     per-vertex material fractions every family's start mix varies by cell, so the per-pixel branch
     is exercised too."""
-    from heoslice.regions import droplet_planes
+    from heoslice.grading import droplet_planes
 
     organ, hole, island, lesion = (circle(9.0), circle(3.0, 240, (-3.0, -2.0), clockwise=True),
                                    circle(1.0, 120, (-3.0, -2.0)), circle(2.0, 200, (4.0, 2.0)))
@@ -694,7 +694,7 @@ def test_family_smaller_than_a_cell_is_labelled_like_its_pixels(radius):
 def test_many_materials_halftone_like_render_graded():
     """With eight or more droplet materials (shells of their own, per-vertex fractions), the fast droplet
     path still equals the masks composed in numpy bit for bit and partitions the solid pixels."""
-    from heoslice.regions import droplet_planes
+    from heoslice.grading import droplet_planes
 
     rings = [circle(9.0)] + [circle(0.8, 90, (3.0 * np.cos(a), 3.0 * np.sin(a))) for a in np.linspace(0, 6, 8)]
     points, offsets, area, parent = layer(*rings)
@@ -721,8 +721,6 @@ def test_skipping_blocks_off_the_family_changes_no_label(seed, direction):
     measured gives the same labels at every pixel (random bumpy outlines with one or two holes)."""
     from unittest import mock
 
-    from heoslice import regions
-
     rng = np.random.default_rng(seed)
     outer = rough_outline(int(rng.integers(0, 2 ** 31)), count=400, radius=9.0)
     holes = [circle(float(rng.uniform(0.5, 2.0)), 120, (float(x), float(y)), clockwise=True)
@@ -732,8 +730,8 @@ def test_skipping_blocks_off_the_family_changes_no_label(seed, direction):
     mask = solid_mask(points, offsets, grid)
     spec = RegionSpec(nozzle_mm=0.25, direction=direction)
     culled = layer_regions(points, offsets, area, parent, mask, grid, spec)
-    never_far = regions._far_side
-    with mock.patch.object(regions, "_far_side", lambda *args: np.zeros_like(never_far(*args))):
+    never_far = lattice_module._far_side
+    with mock.patch.object(lattice_module, "_far_side", lambda *args: np.zeros_like(never_far(*args))):
         full = layer_regions(points, offsets, area, parent, mask, grid, spec)
     assert np.array_equal(culled.label, full.label)
 
@@ -855,7 +853,7 @@ def rectangle_with_a_row_of_holes(gap: float = 0.093, radius: float = 0.41, spac
                                   turn: float = 1.14) -> list[np.ndarray]:
     """An 8 x 4 mm rectangle (turned by ``turn`` rad) with a row of clockwise circular holes ``gap`` mm
     inside its upper edge: eq. 10's continuation outside that edge meets a pole (d_m + d_start A = 0,
-    :func:`heoslice.regions._band_coordinate`) about ``gap`` mm off the family, within a lattice cell."""
+    :func:`heoslice.grading.field._band_coordinate`) about ``gap`` mm off the family, within a lattice cell."""
     outer = np.asarray(shapely.box(-4.0, -2.0, 4.0, 2.0).segmentize(0.05).exterior.coords)[:-1]
     if not shapely.LinearRing(outer).is_ccw:
         outer = outer[::-1]
@@ -1005,11 +1003,11 @@ def with_points_on_its_edges(ring: np.ndarray, rng, start: int) -> np.ndarray:
 
 def test_layers_of_an_extruded_part_reuse_the_fields_of_families_they_share(monkeypatch):
     """Layer after layer with the same vertices (the straight points moved, the rings starting elsewhere, other
-    material fractions at the points), the droplet masks and RGBA images with ``reuse`` are those measured
+    material fractions at the points), the droplet masks and RGBA images with ``cache`` are those measured
     afresh, and no family is measured again; a hole moved by a nanometre has its family measured again,
     the island beside it not; on a layer whose rings all change nothing of the previous layer is kept; a
     shell inside the plate moved leaves no label behind in the plate's reused field."""
-    from heoslice.regions import droplet_planes
+    from heoslice.grading import droplet_planes
 
     plate = np.array([[-9.0, -6.0], [9.0, -6.0], [9.0, 6.0], [-9.0, 6.0]])
     holes = [circle(2.5, 96, (-4.0, 0.0), clockwise=True), circle(2.0, 80, (3.5, 1.0), clockwise=True)]
@@ -1018,12 +1016,12 @@ def test_layers_of_an_extruded_part_reuse_the_fields_of_families_they_share(monk
     spec = GradeSpec(RegionSpec(nozzle_mm=0.3), make_function("linear"), Material("green", (0, 255, 0)),
                      None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
     measured = []
-    original = regions.family_field
-    monkeypatch.setattr(regions, "family_field", lambda *args, **kwargs: measured.append(1) or original(*args,
+    original = labels.family_field
+    monkeypatch.setattr(labels, "family_field", lambda *args, **kwargs: measured.append(1) or original(*args,
                                                                                                          **kwargs))
     rng = np.random.default_rng(5)
-    reuse: dict = {}
-    reuse_rgba: dict = {}  # render_graded's own: its outermost family, labelled on the mask, is never kept
+    cache = GradingCache()
+    cache_rgba = GradingCache()  # render_graded's own: its outermost family, labelled on the mask, is never kept
 
     def both(rings, index):
         points, offsets, area, parent = layer(*(with_points_on_its_edges(ring, rng, int(rng.integers(0, 9)))
@@ -1032,12 +1030,12 @@ def test_layers_of_an_extruded_part_reuse_the_fields_of_families_they_share(monk
         material = rng.uniform(0, 1, len(points))
         args = (points, offsets, area, parent, None, None, grid, spec, index)
         before = len(measured)
-        kept = droplet_planes(*args, point_material=material, packed=packed, reuse=reuse)
+        kept = droplet_planes(*args, point_material=material, packed=packed, cache=cache)
         count = len(measured) - before
         assert np.array_equal(kept, droplet_planes(*args, point_material=material, packed=packed))
         mask = np.unpackbits(packed, axis=1, count=grid.width).view(bool)
         rgba = (points, offsets, area, parent, None, mask, grid, spec, index)
-        assert np.array_equal(render_graded(*rgba, point_material=material, reuse=reuse_rgba).image,
+        assert np.array_equal(render_graded(*rgba, point_material=material, cache=cache_rgba).image,
                               render_graded(*rgba, point_material=material).image)
         return count
 
@@ -1046,7 +1044,7 @@ def test_layers_of_an_extruded_part_reuse_the_fields_of_families_they_share(monk
     assert both([plate, *holes, island], 2) == 0
     assert both([plate, holes[0], holes[1] + [1e-6, 0.0], island], 3) == 1
     assert both([plate + 0.5, holes[0] + 0.5, holes[1] + 0.5, island + 0.5], 4) == 2
-    assert len(reuse["fields"]) == 2  # the last layer's fields only
+    assert len(cache.fields) == 2  # the last layer's fields only
     # a shell inside the plate's solid paints over the plate's labels: moved, it must leave none behind
     lesion = circle(1.2, 64, (4.0, -3.5))
     assert both([plate, *holes, lesion], 5) == 2
@@ -1058,7 +1056,7 @@ def test_rings_that_stay_give_their_last_centres_only_for_the_same_blocks_wanted
     the plate's field measured with what the last layer measured equals the field measured afresh; the rings
     that stay have their centres measured again only when the blocks wanted change (the big hole's deep
     inside drops blocks), and not at all on a layer like the last."""
-    import heoslice.regions_compiled as compiled
+    from heoslice.grading import lattice as compiled
 
     measured = []
     original = compiled.signed_feet
@@ -1072,12 +1070,12 @@ def test_rings_that_stay_give_their_last_centres_only_for_the_same_blocks_wanted
     for radius in [1.0, 2.0, 6.5, 5.5, 2.0, 2.0]:
         points, offsets, area, parent = layer(plate, stay, circle(radius, 128, (4.0, 0.0), clockwise=True))
         family = layer_families(area, parent)[0]
-        now: dict = {}
+        memo = RingMemo(before=before)
         start = len(measured)
-        kept = family_field(points, offsets, family, grid, spec, measured=(before, now))
+        kept = family_field(points, offsets, family, grid, spec, memo=memo)
         counts.append(len(measured) - start)
         assert np.array_equal(kept.index, family_field(points, offsets, family, grid, spec).index)
-        before = now
+        before = memo.now
     assert counts == [3, 1, 3, 3, 1, 0]
 
 
@@ -1090,10 +1088,10 @@ def test_ring_geometry_of_several_loop_sets_is_each_sets_edges():
     islands = [circle(1.0, 64, (-4.0, 0.0)), with_points_on_its_edges(circle(0.9, 12, (3.5, 1.0)), rng, 5)]
     points, offsets, _, _ = layer(plate, *holes, *islands)
     sets = [(0, 1, 2), (3,), (4,), (2, 1)]
-    expected = [regions._edges_key(ring_edges(points, offsets, loops)) for loops in sets]
-    assert regions.ring_geometry(points, offsets, sets) == expected
-    assert regions.ring_geometry(points, offsets, sets[::-1]) == expected[::-1]
-    assert regions.ring_geometry(points, offsets, []) == []
+    expected = [edges.edges_key(ring_edges(points, offsets, loops)) for loops in sets]
+    assert edges.ring_geometry(points, offsets, sets) == expected
+    assert edges.ring_geometry(points, offsets, sets[::-1]) == expected[::-1]
+    assert edges.ring_geometry(points, offsets, []) == []
 
 
 def test_a_layer_like_the_last_takes_its_labels_only_with_the_same_solid_bits_and_islands_alone():
@@ -1101,18 +1099,18 @@ def test_a_layer_like_the_last_takes_its_labels_only_with_the_same_solid_bits_an
     from the fields before it, are that layer's array; other solid bits, an island not alone in its box,
     the same islands listed in another order, or other fields under the same solid bits (a plate running
     off the canvas) are painted afresh, and every layer's labels equal those of a layer graded without
-    ``reuse``."""
+    ``cache``."""
     plate = np.array([[-9.0, -6.0], [9.0, -6.0], [9.0, 6.0], [-9.0, 6.0]])
     hole = circle(3.0, 96, (-3.0, 0.0), clockwise=True)
     island = circle(1.5, 64, (-3.0, 0.0))
     grid = grid_around(9.5)
     spec = RegionSpec(nozzle_mm=0.3)
-    reuse: dict = {}
+    cache = GradingCache()
 
     def labels(rings, packed=None):
         points, offsets, area, parent = layer(*rings)
         packed = np.packbits(solid_mask(points, offsets, grid), axis=1) if packed is None else packed
-        kept = layer_regions(points, offsets, area, parent, None, grid, spec, packed, reuse)
+        kept = layer_regions(points, offsets, area, parent, None, grid, spec, packed, cache)
         fresh = layer_regions(points, offsets, area, parent, None, grid, spec, packed)
         assert kept.box == fresh.box and np.array_equal(kept.label, fresh.label)
         return kept, packed
@@ -1145,8 +1143,8 @@ def test_a_layer_like_the_last_takes_its_labels_only_with_the_same_solid_bits_an
 
 def test_a_layer_like_the_last_with_other_contour_materials_jets_its_own_choices():
     """Two layers alike but for their contour's material (uniform, 0.2 then 0.7): the second layer's droplet
-    masks with ``reuse`` are those graded afresh, not the first layer's choices of material."""
-    from heoslice.regions import droplet_planes
+    masks with ``cache`` are those graded afresh, not the first layer's choices of material."""
+    from heoslice.grading import droplet_planes
 
     plate = np.array([[-9.0, -6.0], [9.0, -6.0], [9.0, 6.0], [-9.0, 6.0]])
     points, offsets, area, parent = layer(plate, circle(3.0, 96, (-3.0, 0.0), clockwise=True))
@@ -1155,8 +1153,8 @@ def test_a_layer_like_the_last_with_other_contour_materials_jets_its_own_choices
                      None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
     packed = np.packbits(solid_mask(points, offsets, grid), axis=1)
     args = (points, offsets, area, parent, None, None, grid, spec, 4)
-    reuse: dict = {}
-    planes = [droplet_planes(*args, point_material=np.full(len(points), share), packed=packed, reuse=reuse)
+    cache = GradingCache()
+    planes = [droplet_planes(*args, point_material=np.full(len(points), share), packed=packed, cache=cache)
               for share in (0.2, 0.7)]
     assert not np.array_equal(planes[0], planes[1])
     assert np.array_equal(planes[1], droplet_planes(*args, point_material=np.full(len(points), 0.7), packed=packed))
@@ -1166,7 +1164,7 @@ def test_holes_that_stay_while_another_shrinks_are_measured_once(monkeypatch):
     """A plate whose big hole shrinks layer by layer (more of the lattice is wanted each time) while its outline
     and small hole stay: only the shrinking hole's lattice passes are made again, the others' are taken from
     the layer before and completed where newly wanted, and the droplet masks equal those measured afresh."""
-    from heoslice.regions import droplet_planes
+    from heoslice.grading import droplet_planes
 
     plate = np.array([[-20.0, -14.0], [20.0, -14.0], [20.0, 14.0], [-20.0, 14.0]])
     small = circle(1.5, 64, (14.0, 8.0), clockwise=True)
@@ -1174,15 +1172,15 @@ def test_holes_that_stay_while_another_shrinks_are_measured_once(monkeypatch):
     spec = GradeSpec(RegionSpec(nozzle_mm=0.3), make_function("linear"), Material("green", (0, 255, 0)),
                      None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
     passes = []
-    ring_measures = regions._ring_measures
-    monkeypatch.setattr(regions, "_ring_measures", lambda *args: passes.append(1) or ring_measures(*args))
-    reuse: dict = {}
+    ring_measures = field_module.ring_measures
+    monkeypatch.setattr(field_module, "ring_measures", lambda *args: passes.append(1) or ring_measures(*args))
+    cache = GradingCache()
     for index, radius in enumerate([11.0, 10.0, 8.5, 7.0]):
         points, offsets, area, parent = layer(plate, circle(radius, 200, (-6.0, 0.0), clockwise=True), small)
         packed = np.packbits(solid_mask(points, offsets, grid), axis=1)
         args = (points, offsets, area, parent, None, None, grid, spec, index)
         before = len(passes)
-        kept = droplet_planes(*args, packed=packed, reuse=reuse)
+        kept = droplet_planes(*args, packed=packed, cache=cache)
         assert len(passes) - before == (3 if index == 0 else 1)
         assert np.array_equal(kept, droplet_planes(*args, packed=packed))
 
@@ -1248,9 +1246,9 @@ def test_block_bounds_are_the_distances_to_the_edges_nearest_the_block_centres(s
     the nearest edge, and never more than 1e-4 mm above it."""
     rng = np.random.default_rng(seed)
     edges = random_rings(rng, rings)
-    lattice = regions.Lattice(row0=0, col0=0, cell=8, rows=int(rng.integers(1, 120)), cols=int(rng.integers(1, 120)),
+    lattice = lattice_module.Lattice(row0=0, col0=0, cell=8, rows=int(rng.integers(1, 120)), cols=int(rng.integers(1, 120)),
                               x0=-70.0, y0=70.0, dx=float(rng.uniform(0.3, 1.5)), dy=float(rng.uniform(0.3, 1.5)))
-    bounds = regions.block_bounds(edges, lattice, tree_of(edges))
+    bounds = lattice_module.block_bounds(edges, lattice, tree_of(edges))
     x, y = bounds.blocks.centres()
     cx, cy = np.meshgrid(x, y)
     squared = brute_squared(cx.ravel(), cy.ravel(), edges)
@@ -1268,8 +1266,8 @@ def test_the_distance_from_the_outer_ring_to_its_holes_is_the_least_hole_by_hole
     centres = [(-7.0, -4.0), (-7.0, 4.0), (0.0, -4.0), (0.0, 4.0)]
     holes = [circle(float(rng.uniform(1.0, 2.5)), int(rng.integers(12, 200)), c, clockwise=True) for c in centres]
     counted = []
-    original = regions.rings_apart
-    monkeypatch.setattr(regions, "rings_apart", lambda *a: counted.append(1) or original(*a))
+    original = search.rings_apart
+    monkeypatch.setattr(search, "rings_apart", lambda *a: counted.append(1) or original(*a))
     grid = grid_around(12.5)
     spec = RegionSpec(nozzle_mm=0.05)
     before: dict = {}
@@ -1278,12 +1276,12 @@ def test_the_distance_from_the_outer_ring_to_its_holes_is_the_least_hole_by_hole
         rings = [plate, *holes, circle(radius, 96, (7.0, 0.0), clockwise=True)]
         points, offsets, area, parent = layer(*rings)
         family = layer_families(area, parent)[0]
-        outer = regions.ring_set(points, offsets, (family.outer,), True)
-        everything = original(outer, regions.ring_set(points, offsets, family.holes, False))
-        now: dict = {}
+        outer = ring_set(points, offsets, (family.outer,), True)
+        everything = original(outer, ring_set(points, offsets, family.holes, False))
+        memo = RingMemo(before=before)
         start = len(counted)
-        field = family_field(points, offsets, family, grid, spec, measured=(before, now))
+        field = family_field(points, offsets, family, grid, spec, memo=memo)
         assert field.layout.length_mm == everything
         measured.append(len(counted) - start)
-        before = now
+        before = memo.now
     assert measured == [len(holes) + 1, 1, 0]

@@ -1,4 +1,4 @@
-"""Tests of heoslice.regions_compiled: the compiled kernels of the grading step against brute force
+"""Tests of heoslice.grading kernels: the compiled kernels of the grading step against brute force
 (every edge tried, float64 numpy) and against the plain formulas they implement."""
 
 from __future__ import annotations
@@ -8,26 +8,15 @@ import pytest
 import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from helpers import brute_squared, random_rings, tree_of
+from helpers import brute_squared, random_rings, ring_weights, tree_of
 
-from heoslice.regions import ring_edges
-from heoslice.regions_compiled import (
-    _candidates,
-    band_cells,
-    band_field,
-    curve_cells,
-    disc_winding,
-    edge_tree,
-    expand_planes,
-    feet,
-    hessian_of,
-    inside_centres,
-    nearest_in_groups,
-    refine_flags,
-    ring_models,
-    signed_feet,
-    straight_runs,
-)
+from heoslice.grading.edges import ring_edges
+from heoslice.grading.edges_kernels import straight_runs
+from heoslice.grading.field_kernels import band_field, curve_cells, expand_planes
+from heoslice.grading.labels_kernels import disc_winding
+from heoslice.grading.lattice_kernels import feet, inside_centres, signed_feet
+from heoslice.grading.refine_kernels import band_cells, hessian_of, refine_flags, ring_models
+from heoslice.grading.search_kernels import _candidates, edge_tree, nearest_in_groups
 
 
 @settings(max_examples=25, deadline=None)
@@ -146,11 +135,10 @@ def test_expand_planes_is_the_plane_formula(seed, cell, masked):
 @given(st.integers(0, 2 ** 32 - 1), st.integers(1, 5), st.booleans())
 def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked):
     """band_cells writes, at every pixel of the given cells, clip(floor(s) + 1, 1, count) of s by eq. 10
-    (s = (1 - w_start) count from regions.ring_weights for two or more ring sets, d count / length for
+    (s = (1 - w_start) count from helpers.ring_weights for two or more ring sets, d count / length for
     one) of each ring set's distance there: its quadratic where the cell's model is given, the measured
     value (from its slot in a packed array) where it is NaN; + base, and 0 off the mask's pixels;
     pixels past the image and other cells untouched."""
-    from heoslice.regions import ring_weights
 
     rng = np.random.default_rng(seed)
     cell, rows, cols, count, length, base = 5, 4, 5, int(rng.integers(1, 40)), 3.0, 3
@@ -193,9 +181,10 @@ def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked
 
 
 def sampled_field(function, rows: int = 12, cols: int = 14, step: float = 0.5):
-    """s, its gradient ((rows, cols, 2), y up) and the Hessian from regions._hessian ((3, rows, cols)) of
+    """s, its gradient ((rows, cols, 2), y up) and the Hessian from refine.cell_hessians ((3, rows, cols)) of
     ``function(x, y) -> (s, s_x, s_y)`` sampled at lattice centres ``step`` mm apart."""
-    from heoslice.regions import Lattice, _hessian
+    from heoslice.grading.lattice import Lattice
+    from heoslice.grading.refine import cell_hessians as _hessian
 
     lattice = Lattice(row0=0, col0=0, cell=12, rows=rows, cols=cols, x0=0.0, y0=rows * step, dx=step, dy=step)
     x, y = lattice.centres()
@@ -315,7 +304,7 @@ def test_inside_centres_is_the_solid_mask_of_disjoint_rings(seed, rings, clockwi
     """For disjoint star-shaped rings of either orientation, the lattice centres inside them are the pixels
     rasterising.solid_mask fills on the same grid (an independent scanline rasteriser), centres on an
     edge aside."""
-    from heoslice.rasterising import Grid, solid_mask
+    from heoslice.layers.rasterising import Grid, solid_mask
 
     rng = np.random.default_rng(seed)
     loops = []
@@ -367,10 +356,9 @@ def test_hessian_of_is_numpys_gradient_of_the_gradients(shape):
 @given(st.integers(0, 2 ** 32 - 1), st.integers(2, 6))
 def test_band_field_is_eq10_and_its_gradient(seed, sets):
     """With distances to circles (signed, > 0 on the family's side: inside the first, outside the others),
-    band_field's s is (1 - w_start) N_R of eq. 10 (regions.ring_weights) wherever every distance is
+    band_field's s is (1 - w_start) N_R of eq. 10 (helpers.ring_weights) wherever every distance is
     positive, its gradient matches central differences of s, and s is NaN where the continuation passes
     its pole (d_m + d_start A <= 0)."""
-    from heoslice.regions import ring_weights
 
     rng = np.random.default_rng(seed)
     centres = np.vstack([[0.0, 0.0], rng.uniform(-5, 5, (sets - 1, 2))])
@@ -409,7 +397,7 @@ def test_band_sensitivities_are_the_partial_derivatives_of_eq10(seed, sets):
     """_band_sensitivities' ds/dd_j at a point (distances to the starting and each ending ring set, some
     near zero or negative) match central differences of band_field's s in each distance, and are all
     NaN where s is (past the continuation's pole)."""
-    from heoslice.regions_compiled import _band_sensitivities
+    from heoslice.grading.refine_kernels import _band_sensitivities
 
     rng = np.random.default_rng(seed)
     count = float(rng.integers(1, 40))
@@ -435,7 +423,7 @@ def test_band_sensitivities_are_the_partial_derivatives_of_eq10(seed, sets):
 
 
 def numpy_ring_models(d, g, grad, ci, cj, dx, dy, count, h, tolerance):
-    """regions._ring_models' choice written as numpy passes over all cells at once (the formulation the
+    """refine.fit_ring_models' choice written as numpy passes over all cells at once (the formulation the
     compiled kernel replaced): models (sets, n, 6), NaN rows where the ring set is measured."""
     steps = [(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1)]
     ex = np.array([dj * dx for _, dj in steps])[:, None]
@@ -508,8 +496,11 @@ def test_ring_models_is_the_numpy_formulation(seed, holes):
     """On the lattices of plates with 1 to 5 random holes (graded to the holes, eq. 10), the compiled
     ring_models picks the same ring sets to model in the same cells as the numpy formulation, with the
     same quadratics."""
-    from heoslice import regions
-    from heoslice.rasterising import Grid
+    from heoslice.grading import field as field_module
+    from heoslice.grading.families import Family
+    from heoslice.grading.refine import TOLERANCE_PX
+    from heoslice.grading.spec import RegionSpec
+    from heoslice.layers.rasterising import Grid
 
     rng = np.random.default_rng(seed)
     angle = np.linspace(0, 2 * np.pi, 400, endpoint=False)
@@ -526,28 +517,28 @@ def test_ring_models_is_the_numpy_formulation(seed, holes):
     cells = int(np.ceil(21 / px))
     grid = Grid(width=cells, height=cells, x_left=-cells * px / 2, y_top=cells * px / 2, px=px, py=px)
     calls = []
-    compiled = regions._ring_models
+    compiled = field_module.fit_ring_models
 
     def recorded(layout, d, g, grad, lattice, grid_, refined):
         models = compiled(layout, d, g, grad, lattice, grid_, refined)
         calls.append((layout, d, g, grad, lattice, refined, models))
         return models
 
-    regions._ring_models = recorded
+    field_module.fit_ring_models = recorded
     try:
-        family = regions.Family(outer=0, holes=tuple(range(1, holes + 1)), nested=False, depth=0)
-        regions.family_field(points, offsets, family, grid, regions.RegionSpec(nozzle_mm=0.2))
+        family = Family(outer=0, holes=tuple(range(1, holes + 1)), nested=False, depth=0)
+        field_module.family_field(points, offsets, family, grid, RegionSpec(nozzle_mm=0.2))
     finally:
-        regions._ring_models = compiled
+        field_module.fit_ring_models = compiled
     assert calls
     layout, d, g, grad, lattice, (ci, cj), models = calls[0]
     assert len(ci)
     h = 0.5 * np.hypot(lattice.dx, lattice.dy)
     expected = numpy_ring_models(d, g, grad, ci, cj, lattice.dx, lattice.dy, layout.count, h,
-                                 regions.TOLERANCE_PX * px)
+                                 TOLERANCE_PX * px)
     np.testing.assert_array_equal(np.isnan(np.stack(models)[..., 0]), np.isnan(expected[..., 0]))
     np.testing.assert_allclose(np.stack(models), expected, rtol=1e-9, atol=1e-12)
-    direct = ring_models(d, g, grad, ci, cj, lattice.dx, lattice.dy, layout.count, h, regions.TOLERANCE_PX * px)
+    direct = ring_models(d, g, grad, ci, cj, lattice.dx, lattice.dy, layout.count, h, TOLERANCE_PX * px)
     np.testing.assert_array_equal(direct, np.stack(models))
 
 
@@ -661,8 +652,8 @@ def assert_droplet_bits_are_the_per_pixel_choice(rng, case: dict, channels: int,
     """droplet_bits on ``case`` equals np.packbits of the brute-force per-pixel choice (the table entry at the
     pixel's dither ``level``, choose_materials of its eq. 1 mix where that is -1, the base channel outside
     the labels and on label 0), and it leaves every byte without a solid pixel as it was."""
-    from heoslice.halftone import choose_materials
-    from heoslice.regions_compiled import droplet_bits
+    from helpers import choose_materials
+    from heoslice.grading.droplets_kernels import droplet_bits
 
     solid, label, (r0, c0), table = case["solid"], case["label"], case["origin"], case["table"]
     size = level.shape[0]
@@ -701,7 +692,7 @@ def test_droplet_bits_is_the_per_pixel_choice_packed(seed, channels, height, wid
     choose_materials of the pixel's eq. 1 mix; for any number of channels (one to nine, over one
     pattern word or several), widths not a multiple of 8 or 16, label boxes covering part of the solid;
     and it writes only the bytes that hold a solid pixel."""
-    from heoslice.halftone import layer_tile
+    from heoslice.grading.halftone import layer_tile
 
     rng = np.random.default_rng(seed)
     case = random_halftone_case(rng, channels, height, width, label_dtype)
@@ -716,8 +707,8 @@ def test_droplet_bits_follows_a_dither_tile_of_any_size(size):
     """With an ordered-dither tile of any power-of-two size n (smaller than the 16-pixel pattern block,
     or larger: several blocks per tile row), each labelled pixel jets table[label, level] at its level
     bayer[row % n, col % n] (levels (k + 1/2) / n^2), exactly as a per-pixel look-up."""
-    from heoslice.halftone import bayer_matrix
-    from heoslice.regions_compiled import droplet_bits
+    from heoslice.grading.halftone import bayer_matrix
+    from heoslice.grading.droplets_kernels import droplet_bits
 
     rng = np.random.default_rng(size)
     channels, height, width = 3, 70, 133
@@ -741,8 +732,8 @@ def test_droplet_bits_follows_a_dither_tile_of_any_size(size):
 def test_droplet_bits_takes_every_layers_tile_through_one_compiled_signature():
     """Tiles of layers under every symmetry (transposed ones are Fortran-ordered) reach the kernel as the same
     argument types: the workers load one compiled version, not one per layout."""
-    from heoslice.halftone import layer_tile
-    from heoslice.regions_compiled import _droplet_bits, droplet_bits
+    from heoslice.grading.halftone import layer_tile
+    from heoslice.grading.droplets_kernels import _droplet_bits, droplet_bits
 
     label = np.ones((4, 16), np.int16)
     table = np.ones((2, 256), np.int8)
@@ -802,7 +793,7 @@ def test_droplet_bits_is_the_per_pixel_choice_along_wide_rows(channels, size, se
     a whole family does (stretches of per-pixel mixes between table look-ups) or scattered entries
     do (with the 16 x 16 tile of choose_materials; other tile sizes without -1 entries, several pattern
     blocks per tile row at 32); bytes without a solid pixel are left as they were."""
-    from heoslice.halftone import bayer_matrix, layer_tile
+    from heoslice.grading.halftone import bayer_matrix, layer_tile
 
     rng = np.random.default_rng(seed)
     layer = int(rng.integers(0, 1000))

@@ -8,9 +8,7 @@ and its exit status; any other exception is a bug, shown as one line unless
 
 from __future__ import annotations
 
-import gc
 import importlib
-import os
 import sys
 import traceback
 
@@ -18,6 +16,7 @@ import click
 
 from heoslice import __version__
 from heoslice.errors import EXIT_BUG, EXIT_INTERRUPTED, HeosliceError
+from heoslice.pipeline import parallel
 
 EPILOG = """\b
 Examples:
@@ -69,16 +68,12 @@ def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: run the group, map errors to one line and an exit status."""
     args = sys.argv[1:] if argv is None else argv
     if argv is None:
-        # this process's own command: heoslice makes no BLAS call worth threads (its workers are processes),
-        # and OpenBLAS's thread pools, started when numpy and scipy load it, only spin (~0.2 s of CPU a run)
-        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+        parallel.single_blas_thread()
     debug = "--debug" in args
     try:
         cli.main(args=args, prog_name="heoslice", standalone_mode=False)
         if argv is None:
-            # this process's own command is done and it ends now: its objects need no collection pass at exit,
-            # which costs ~0.2 s once slicing has loaded its compiled kernels
-            gc.freeze()
+            parallel.skip_exit_collection()
     except click.exceptions.Exit as done:
         sys.exit(done.exit_code)
     except click.ClickException as err:

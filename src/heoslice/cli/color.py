@@ -2,17 +2,22 @@
 
 from __future__ import annotations
 
-from contextlib import contextmanager
 from pathlib import Path
 
 import click
 
 from heoslice.cli.common import echo_warnings, progress_bar
-from heoslice.coloring import ColorSpec, color_mesh, default_output, write_ply
-from heoslice.distribution import FUNCTION_KINDS, REFERENCE_KINDS, make_function
+from heoslice.cli.options import FUNCTION_FLAGS, flags, function_from_options, function_options, option
 from heoslice.errors import InputError
 from heoslice.mesh import load_mesh
-from heoslice.materials import load_materials, load_shell_materials, resolve_material
+from heoslice.material import (FUNCTION_KINDS, REFERENCE_KINDS, ColorSpec, color_mesh, default_output,
+                               load_materials, load_shell_materials, material_roles, reference_kinds_taking,
+                               resolve_material, write_ply)
+
+#: Library parameters of color_mesh and material_roles -> the options of this command.
+COLOR_FLAGS = {**FUNCTION_FLAGS, "reference": "--ref", "at": "--at", "normal": "--normal",
+               "direction": "--direction", "surface": "--surface", "r_range": "--range", "max_edge": "--max-edge",
+               "start": "--from", "target": "--to"}
 
 EPILOG = """\b
 Examples:
@@ -44,15 +49,6 @@ Materials file (TOML), shared with slice and print:
   1 = "cells"
 Without one: M1 = 240,240,240 (channel 1) and M2 = 0,255,0 (channel 2).
 """
-
-
-@contextmanager
-def option(name: str):
-    """Re-raise an InputError from the library with the option it came from in front."""
-    try:
-        yield
-    except InputError as err:
-        raise InputError(f"{name}: {err}") from None
 
 
 def parse_vector(name: str, text: str | None) -> tuple[float, float, float] | None:
@@ -87,11 +83,7 @@ def parse_shell_colors(entries: tuple[str, ...], table) -> dict:
               help="Output PLY [default: MODEL_FUNC.ply beside MODEL].")
 @click.option("--func", "func_kind", default=None, metavar="|".join(FUNCTION_KINDS),
               help="Distribution function [default: linear; expression when --expr is given].")
-@click.option("--alpha", type=float, default=None, help="alpha of eq. 3-5.")
-@click.option("--beta", type=float, default=None, help="beta of eq. 4-5.")
-@click.option("--lambda", "lam", type=float, default=None, help="lambda of eq. 2-5.")
-@click.option("--periods", type=float, default=None, help="Sine periods over r = 0..1 (beta = 2 pi periods).")
-@click.option("--expr", "expression", default=None, help="f as a formula in r, e.g. \"r**2*(3-2*r)\".")
+@function_options
 @click.option("--ref", "ref_kind", default="plane", show_default=True, metavar="|".join(REFERENCE_KINDS),
               help="Reference feature the distance is measured to.")
 @click.option("--at", default=None, metavar="X,Y,Z",
@@ -126,21 +118,17 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
     """
     if func_kind is None:
         func_kind = "expression" if expression is not None else "linear"
-    if func_kind in ("expr", "formula"):
-        func_kind = "expression"
-    with option("--func"):
-        function = make_function(func_kind, alpha=alpha, beta=beta, lam=lam, periods=periods,
-                                 expression=expression)
+    function = function_from_options("--func", func_kind, alpha, beta, lam, periods, expression)
     if ref_kind not in REFERENCE_KINDS:
         raise InputError(f"--ref: unknown reference {ref_kind!r} (choose from {', '.join(REFERENCE_KINDS)})")
     point = parse_vector("--at", at)
     plane_normal = parse_vector("--normal", normal)
     axis_direction = parse_vector("--direction", direction)
-    for name, value, kinds in (("--at", point, ("plane", "point", "axis")), ("--normal", plane_normal, ("plane",)),
-                               ("--direction", axis_direction, ("axis",)),
-                               ("--surface", surface_path, ("surface",))):
+    for name, value in (("at", point), ("normal", plane_normal), ("direction", axis_direction),
+                        ("surface", surface_path)):
+        kinds = reference_kinds_taking(name)
         if value is not None and ref_kind not in kinds:
-            raise InputError(f"{name}: only used with --ref {' or '.join(kinds)}, not --ref {ref_kind}")
+            raise InputError(f"--{name}: only used with --ref {' or '.join(kinds)}, not --ref {ref_kind}")
     if ref_kind == "surface" and surface_path is None:
         raise InputError("--surface: --ref surface needs the reference mesh (--surface PATH); every vertex "
                          "of the model lies on its own surface, at distance 0")
@@ -151,11 +139,10 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
     with option("--materials"):
         table = load_materials(materials_file)
         file_shells = load_shell_materials(materials_file, table)
-    names = list(table)
-    with option("--from"):
-        m1 = resolve_material(m1_text, table) if m1_text else table[names[0]]
-    with option("--to"):
-        m2 = resolve_material(m2_text, table) if m2_text else table[names[min(1, len(names) - 1)]]
+    with flags(COLOR_FLAGS):
+        roles = material_roles(table, start=m1_text, target=m2_text)
+    if roles.m2 is None:
+        raise InputError(f"--to: {materials_file} defines one material: name the target material (M2)")
     shells = {**file_shells, **parse_shell_colors(shell_colors, table)}
 
     mesh = load_mesh(model)
@@ -163,17 +150,17 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
     spec = ColorSpec(function=function, reference=ref_kind, at=point, normal=plane_normal,
                      direction=axis_direction, surface=surface_path,
                      r_range=None if r_range is None else (float(r_range[0]), float(r_range[1])),
-                     m1=m1, m2=m2, max_edge=max_edge, shell_materials=tuple(sorted(shells.items())))
-    labels = {"shells": "--shell-colors" if shell_colors else "--materials", "max_edge": "--max-edge",
-              "surface": "--surface", "reference": "--ref", "function": "--expr" if expression else "--func",
-              "range": "--range" if spec.r_range is not None else f"--ref {ref_kind}"}
-    with progress_bar("colouring", unit="vertices") as progress:
-        colored = color_mesh(mesh, spec, labels, progress)
+                     m1=roles.m1, m2=roles.m2, max_edge=max_edge, shell_materials=tuple(sorted(shells.items())))
+    range_flag = "--range" if spec.r_range is not None else f"--ref {ref_kind}"
+    mapping = {**COLOR_FLAGS, "shell_materials": "--shell-colors" if shell_colors else "--materials",
+               "r_range": range_flag}
+    with progress_bar("colouring", unit="vertices") as progress, flags(mapping):
+        colored = color_mesh(mesh, spec, progress)
     target = output if output is not None else default_output(model, function)
     write_ply(target, colored, ascii=ascii_ply, force=force)
     f = colored.material
     click.echo(f"{target}: {len(colored.vertices)} vertices, {len(colored.faces)} triangles; "
                f"{function.describe()}; reference {colored.reference.describe()}; "
                f"r {colored.r.min():.3g}..{colored.r.max():.3g}, f {f.min():.3g}..{f.max():.3g}; "
-               f"{m1.name} -> {m2.name}"
+               f"{roles.m1.name} -> {roles.m2.name}"
                + (f"; shells {', '.join(f'{n}={m.name}' for n, m in spec.shell_materials)}" if shells else ""))

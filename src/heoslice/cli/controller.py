@@ -20,7 +20,7 @@ Examples:
   heoslice controller --pty --set byte_error_rate=1e-3 --set reset_at_layer=40 --seed 3
   heoslice controller --pty --time-scale 0.01    # 100x faster than real time
 \b
---set takes any field of SimConfig or FaultSpec (heoslice.controller), e.g.
+--set takes any field of SimConfig or FaultSpec (heoslice.printing.simulator), e.g.
 frame_drop_rate, frame_dup_rate, ack_loss_rate, disconnect_at_layer, dead_at_layer,
 fail_at_layer, rx_buffer, max_payload, version, features (0: no SACK, plain go-back-N).
 """)
@@ -40,7 +40,7 @@ fail_at_layer, rx_buffer, max_payload, version, features (0: no SACK, plain go-b
 def controller(use_pty: bool, listen: str | None, baud: int, layer_time: float, time_scale: float, seed: int,
                settings: tuple[str, ...], duration: float | None) -> None:
     """Run the simulated controller so a pipeline can be dry-run end to end without hardware."""
-    from heoslice.controller import FdTransport, SimController, TcpServerTransport, sim_from_url
+    from heoslice.printing.simulator import FdTransport, SimController, TcpServerTransport, sim_from_url
 
     if use_pty == (listen is not None):
         raise click.UsageError("give exactly one of --pty and --listen HOST:PORT")

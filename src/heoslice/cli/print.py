@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from heoslice.printer import Progress, default_log_path, job_summary, plan_transfer, print_job, stack_job
+from heoslice.printing import Progress, default_log_path, job_summary, plan_transfer, print_job, stack_job
 from heoslice.stack import check_input_path
 
 

@@ -9,16 +9,43 @@ from pathlib import Path
 import click
 
 from heoslice.cli.common import echo_warnings, progress_bar
+from heoslice.cli.options import flags, function_from_options, function_options, option
 from heoslice.errors import InputError
 from heoslice.mesh import load_mesh, scaled
-from heoslice.pipeline import SliceSpec, slice_to_stack
-from heoslice.rasterising import parse_dpi
+from heoslice.pipeline import MAX_DPI, SliceSpec, slice_to_stack
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3
+
+#: SliceSpec and slice_to_stack parameters -> the options that set them (library errors name the parameter).
+SPEC_FLAGS = {
+    "layer_height_mm": "--layer", "dpi": "--dpi", "margin_mm": "--margin", "canvas_mm": "--canvas",
+    "compression": "--compress", "jobs": "--jobs", "channels": "--channels", "materials": "--materials",
+}
 
 
 def default_output(model: Path) -> Path:
     """Where a stack goes without -o: ``./<model stem>_stack`` in the current directory."""
     return Path.cwd() / f"{model.stem}_stack"
+
+
+def flag_error(err: InputError) -> InputError:
+    """``err`` with the parameter its message starts with (``layer_height_mm: ...``) named as its option."""
+    parameter, colon, rest = str(err).partition(":")
+    flag = SPEC_FLAGS.get(parameter)
+    return InputError(f"{flag}:{rest}") if colon and flag else err
+
+
+def parse_dpi(text: str) -> tuple[float, float]:
+    """'600' -> (600, 600); '600x300' -> (600, 300). Raises InputError otherwise."""
+    parts = str(text).lower().split("x")
+    try:
+        values = [float(part) for part in parts]
+    except ValueError:
+        values = []
+    if len(values) == 1:
+        values = values * 2
+    if len(values) != 2 or not all(0 < value <= MAX_DPI for value in values):
+        raise InputError(f"--dpi: expected N or NxM with positive numbers, got {text!r}")
+    return (values[0], values[1])
 
 
 def parse_canvas(text: str | None) -> tuple[float, float] | None:
@@ -39,54 +66,32 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
     """The GradeSpec the grading options ask for, or None when none is given (the plain, fast path).
 
     --channels, --to, --from or a materials file without --grade still build one: the
-    families keep their own (or their shell's) materials, without a gradient.
+    families keep their own (or their shell's) materials, without a gradient. The
+    materials play the parts :func:`heoslice.material.material_roles` gives them.
     """
-    from heoslice.distribution import make_function
-    from heoslice.materials import load_materials, load_shell_materials, resolve_material
-    from heoslice.regions import GradeSpec, RegionSpec
+    from heoslice.grading import GradeSpec, RegionSpec
+    from heoslice.material import load_materials, load_shell_materials, material_roles
 
     if kind is None:
         given = {"--alpha": alpha, "--beta": beta, "--lambda": lam, "--periods": periods,
-                 "--expression": expression, "--depth": depth, "--offsets": offset_count}
+                 "--expr": expression, "--depth": depth, "--offsets": offset_count}
         stray = [name for name, value in given.items() if value is not None]
         if stray:
             raise InputError(f"{', '.join(stray)}: only used with --grade FUNC")
         if not (channels or target or start or materials_file):
             return None
-    table = load_materials(materials_file)
-    shells = load_shell_materials(materials_file, table)
-    names = list(table)
-    function = None
-    if kind is not None:
-        try:
-            function = make_function(kind, alpha=alpha, beta=beta, lam=lam, periods=periods, expression=expression)
-        except InputError as err:
-            raise InputError(f"--grade: {err}") from None
-    try:
-        to = resolve_material(target, table) if target else (table[names[1]] if len(names) > 1 and function else None)
-    except InputError as err:
-        raise InputError(f"--to: {err}") from None
-    try:
-        origin = resolve_material(start, table) if start else None
-    except InputError as err:
-        raise InputError(f"--from: {err}") from None
-    to = _known_channel(to, table)
-    origin = _known_channel(origin, table)
+    with option("--materials"):
+        table = load_materials(materials_file)
+        shells = load_shell_materials(materials_file, table)
+    function = None if kind is None else function_from_options("--grade", kind, alpha, beta, lam, periods,
+                                                                expression)
+    with flags({"start": "--from", "target": "--to"}):
+        roles = material_roles(table, start=start, target=target)
     return GradeSpec(
         regions=RegionSpec(nozzle_mm=nozzle, depth_mm=depth, direction=direction, count=offset_count),
-        function=function, target=to, start=origin, base=table[names[0]],
-        second=table[names[1]] if len(names) > 1 else None, shells=tuple(sorted(shells.items())),
+        function=function, target=roles.m2 if function is not None else roles.target, start=roles.start,
+        base=roles.first, second=roles.second, shells=tuple(sorted(shells.items())),
     )
-
-
-def _known_channel(material, table):
-    """A colour given on the command line that is a table material's colour is that material."""
-    if material is None or material.channel is not None:
-        return material
-    for known in table.values():
-        if known.color == material.color:
-            return known
-    return material
 
 
 @click.command("slice", epilog="""\b
@@ -120,11 +125,7 @@ Graded interiors (the paper's Fig. 3b, 9b):
 @click.option("--grade", "grade_kind", default=None, metavar="FUNC",
               help="Grade each layer's interior from the contour's material to --to with this distribution "
                    "function: constant, linear, quadratic, sine or expression (eq. 2-5).")
-@click.option("--alpha", type=float, default=None, help="alpha of the grading function.")
-@click.option("--beta", type=float, default=None, help="beta of the grading function.")
-@click.option("--lambda", "lam", type=float, default=None, help="lambda of the grading function.")
-@click.option("--periods", type=float, default=None, help="Sine periods over r = 0..1 (instead of --beta).")
-@click.option("--expression", "--expr", "expression", default=None, help="f(r) for --grade expression, e.g. '0.5 - 0.5*cos(2*pi*r)'.")
+@function_options
 @click.option("--to", "target", default=None, metavar="MATERIAL",
               help="Target material M2 reached at r = 1: a name from the materials file, #hex or r,g,b "
                    "[default with --grade: the second material, M2].")
@@ -157,9 +158,12 @@ def slice_cmd(model: Path, output: Path | None, layer_height: float, dpi: str, c
     """
     grade = grade_spec(grade_kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth,
                        offset_count, direction, materials_file, channels)
-    spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
-                     canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
-                     grade=grade, channels=channels)
+    try:
+        spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
+                         canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
+                         grade=grade, channels=channels)
+    except InputError as err:
+        raise flag_error(err) from None
     mesh = load_mesh(model)
     if scale != 1.0:
         mesh = scaled(mesh, scale)
@@ -167,7 +171,10 @@ def slice_cmd(model: Path, output: Path | None, layer_height: float, dpi: str, c
         echo_warnings(model, mesh.warnings)
     directory = output if output is not None else default_output(model)
     with progress_bar("slicing", unit="layer") as update:
-        manifest, times = slice_to_stack(mesh, directory, spec, force=force, progress=update)
+        try:
+            manifest, times = slice_to_stack(mesh, directory, spec, force=force, progress=update)
+        except InputError as err:
+            raise flag_error(err) from None
     open_layers = [entry["index"] for entry in manifest["layers"] if entry["open_contours"]]
     summary = {
         "stack": str(directory),

@@ -1,6 +1,6 @@
 """Volume and winding: the one implementation behind ``info``, ``verify --mesh`` and outward orientation.
 
-The slicer fills where the winding number is > 0 (see :mod:`heoslice.rasterising`), so
+The slicer fills where the winding number is > 0 (see :mod:`heoslice.layers.rasterising`), so
 the volume of a mesh is that solid's: shells that overlap (a lesion inside an organ, two
 intersecting parts) count once.
 """

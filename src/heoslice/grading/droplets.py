@@ -1,0 +1,109 @@
+"""The droplet masks of a graded layer: each solid pixel's mix halftoned into one material (:mod:`.halftone`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from heoslice.grading.cache import ChoiceTable, GradingCache
+from heoslice.grading.droplets_kernels import droplet_bits
+from heoslice.grading.halftone import TILE, layer_tile
+from heoslice.grading.labels import LayerRegions, layer_regions
+from heoslice.grading.materials import family_starts, target_fractions
+from heoslice.grading.spec import GradeSpec
+from heoslice.layers.rasterising import Grid
+
+
+def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, parent: np.ndarray,
+                   loop_shell: np.ndarray | None, mask: np.ndarray | None, grid: Grid, spec: GradeSpec, layer: int, *,
+                   point_material: np.ndarray | None = None, packed: np.ndarray | None = None,
+                   cache: GradingCache | None = None) -> np.ndarray:
+    """The droplet masks of one graded layer, bit-packed: (K, height, ceil(width / 8)) uint8, rows MSB first.
+
+    Each solid pixel's mix is its family's start mix at its lattice cell moved by its
+    sub-region's fraction towards the target (eq. 1), halftoned by the ordered dither of
+    :mod:`heoslice.grading.halftone` (in its float32 arithmetic), in one compiled pass over the
+    layer's pixels, without the RGBA image: the path of ``slice --channels`` (and of
+    ``render_graded(..., channels=True)``). Solid pixels outside every family jet the base
+    material. Arguments as :func:`render_graded`; mask (h, w) bool, ``packed`` the same mask
+    bit-packed (:func:`heoslice.layers.rasterising.packed_mask`) when the caller has it; with it, the
+    mask may be None (no per-pixel mask built or read: :func:`layer_regions`); ``cache`` as there.
+    """
+    packed = np.packbits(mask, axis=1) if packed is None else packed
+    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions, packed, cache)
+    return labelled_droplet_planes(regions, spec, loop_shell, point_material, packed, grid, layer, cache)
+
+
+def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, point_material, packed: np.ndarray,
+                            grid: Grid, layer: int, cache: GradingCache | None = None) -> np.ndarray:
+    """:func:`droplet_planes` of a layer whose sub-regions are already known; ``cache`` keeps the
+    choice table for the next layer (:func:`_layer_choice_table`)."""
+    materials = spec.channel_materials()
+    planes = np.zeros((len(materials), grid.height, -(-grid.width // 8)), dtype=np.uint8)
+    position = {(m.name, m.color): i for i, m in enumerate(materials)}
+    base_channel = position[(spec.base.name, spec.base.color)]
+    if not regions.fields:
+        return droplet_bits(np.zeros((0, 0), np.int16), (0, 0), packed, np.zeros(1, np.int64), np.zeros(1),
+                            np.zeros((0, 5), np.int64), np.zeros(0), np.zeros(len(materials)),
+                            layer_tile(layer), base_channel, planes, np.full((1, 256), base_channel, np.int8))
+    _, mixes = family_starts(regions, spec, loop_shell, None, point_material, colors=False)
+    target_mix = np.zeros(len(materials))
+    if spec.target is not None and spec.function is not None:
+        target_mix[position[(spec.target.name, spec.target.color)]] = 1.0
+    fractions = target_fractions(regions, spec)
+    family_of_label = np.zeros(regions.label_count, dtype=np.int64)
+    for number in range(len(regions.fields)):
+        family_of_label[regions.base[number]:regions.base[number + 1]] = number
+    sizes = np.array([mix.size for mix in mixes])
+    layout = np.array([(field.box[0], field.box[2], field.lattice.cell, field.lattice.cols, start)
+                       for field, start in zip(regions.fields, np.cumsum(sizes) - sizes)], dtype=np.int64)
+    table = _layer_choice_table(regions, mixes, fractions, target_mix, base_channel, cache)
+    return droplet_bits(regions.label, regions.box[::2], packed, family_of_label, fractions,
+                        layout, np.concatenate([mix.ravel() for mix in mixes]), target_mix, layer_tile(layer),
+                        base_channel, planes, table)
+
+
+def _layer_choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.ndarray,
+                        target_mix: np.ndarray, base_channel: int, cache: GradingCache | None) -> np.ndarray:
+    """:func:`_choice_table` with label 0 (solid pixels outside every family) on the base channel; the
+    last layer's (kept in ``cache``) when its label bases, fractions, mixes and base channel are the same
+    (an extruded part)."""
+    key = (np.array([base_channel]), regions.base, fractions, target_mix, *mixes)
+    if cache is not None and cache.choices is not None and cache.choices.matches(key):
+        return cache.choices.table
+    table = _choice_table(regions, mixes, fractions, target_mix)
+    table[0] = base_channel
+    if cache is not None:
+        cache.choices = ChoiceTable(key, table)
+    return table
+
+
+def _choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.ndarray,
+                  target_mix: np.ndarray) -> np.ndarray:
+    """The channel each label jets at each of the 256 dither thresholds ((labels, 256) int8), for the
+    labels of families whose start mix is the same at every cell (-1 for the others, which
+    are halftoned per pixel). Computed in choose_materials' float32 arithmetic, so a pixel's
+    channel is the same either way; it turns the per-pixel mix into one table look-up."""
+    count = TILE * TILE
+    table = np.full((regions.label_count, count), -1, dtype=np.int8)
+    levels = ((np.arange(count) + 0.5) / count).astype(np.float32)
+    target = target_mix.astype(np.float32)
+    for number, mix in enumerate(mixes):
+        flat = mix.reshape(-1, mix.shape[-1]).astype(np.float32)
+        if not len(flat) or (flat != flat[0]).any():
+            continue
+        labels = np.arange(regions.base[number], regions.base[number + 1])
+        share = flat[0] + fractions.astype(np.float32)[labels, None] * (target - flat[0])
+        total = np.zeros(len(labels), dtype=np.float32)
+        for column in share.T:
+            total += column
+        threshold = levels[None, :] * np.where(total > 0, total, np.float32(1.0))[:, None]
+        chosen = np.full(threshold.shape, share.shape[1] - 1, dtype=np.int8)
+        running = np.zeros(len(labels), dtype=np.float32)
+        undecided = np.ones(threshold.shape, dtype=bool)
+        for channel in range(share.shape[1] - 1):
+            running += share[:, channel]
+            here = undecided & (threshold < running[:, None])
+            chosen[here] = channel
+            undecided &= ~here
+        table[labels] = chosen
+    return table

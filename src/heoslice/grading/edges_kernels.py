@@ -1,0 +1,117 @@
+"""Compiled loops of :mod:`heoslice.grading.edges`: a point's distance to an edge, and the walk that leaves a
+ring's straight points out of its edges."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from heoslice.grading.jit import JIT, f64, i64
+
+
+@numba.njit(inline="always", **JIT)
+def point_to_edge(px, py, ex, ey, vx, vy, inv):  # pragma: no cover - compiled
+    """Distance (float64) from a point to the edge from (ex, ey) by (vx, vy), 1/|v|^2 = inv."""
+    rx, ry = px - ex, py - ey
+    t = min(max((rx * vx + ry * vy) * inv, 0.0), 1.0)
+    return np.sqrt((rx - t * vx) ** 2 + (ry - t * vy) ** 2)
+
+
+@numba.njit(inline="always", **JIT)
+def _off_segment(x, y, j, a, c):  # pragma: no cover - compiled
+    """Distance (mm) from point j to the segment from point a to point c."""
+    vx, vy = x[c] - x[a], y[c] - y[a]
+    length2 = vx * vx + vy * vy
+    return point_to_edge(x[j], y[j], x[a], y[a], vx, vy, 1.0 / length2 if length2 > 0.0 else 0.0)
+
+
+@numba.njit(**JIT)
+def _straight_runs(x, y, size, tolerance, longest):  # pragma: no cover - compiled
+    """(keep (n,) bool, order (n,), knots (n + rings,), knot_at (n + rings,)) of :func:`straight_runs`."""
+    n, rings = len(x), len(size)
+    keep = np.ones(n, dtype=np.bool_)
+    order = np.empty(n, dtype=np.int64)
+    knots = np.empty(n + rings)
+    knot_at = np.empty(n + rings, dtype=np.int64)
+    begin = 0
+    edge = 0
+    for k in range(rings):
+        m = size[k]
+        end = begin + m
+        # the ring's lowest point in x then y (the first of equal ones) is a corner of its convex hull: walks
+        # and edges start there, so that where the ring starts (say where a plane crosses a quad's diagonal)
+        # decides nothing
+        anchor = 0
+        for i in range(1, m):
+            if x[begin + i] < x[begin + anchor] or (x[begin + i] == x[begin + anchor]
+                                                    and y[begin + i] < y[begin + anchor]):
+                anchor = i
+        if m > 3:
+            a = anchor
+            bound = 0.0  # the run's points before i lie within this of the segment from a to i
+            for step in range(1, m):
+                i = (anchor + step) % m
+                c = (i + 1) % m
+                run = (i - a) % m
+                # that segment lies within i's distance of the one from a to c (they share a), so the run's
+                # points lie within the sum of it: no recheck while the run is straight however long
+                reach = _off_segment(x, y, begin + i, begin + a, begin + c) + (bound if run > 1 else 0.0)
+                if reach > tolerance and run <= longest:
+                    reach = 0.0
+                    for back in range(run):
+                        reach = max(reach, _off_segment(x, y, begin + (a + 1 + back) % m, begin + a, begin + c))
+                if reach <= tolerance:
+                    keep[begin + i] = False
+                    bound = reach
+                else:
+                    a = i
+            if keep[begin:end].sum() < 3:
+                keep[begin:end] = True
+        # knots from the anchor round the ring: each point at its edge + ring + fraction along the edge
+        following = anchor
+        ahead = np.empty(m, dtype=np.int64)
+        for step in range(m - 1, -1, -1):
+            i = (anchor + step) % m
+            ahead[i] = following
+            if keep[begin + i]:
+                following = i
+        last = -1.0
+        a = anchor
+        for step in range(m):
+            i = (anchor + step) % m
+            order[begin + step] = begin + i
+            if keep[begin + i]:
+                a = i
+                position = float(edge + k)
+                edge += 1
+            else:
+                c = ahead[a]
+                vx, vy = x[begin + c] - x[begin + a], y[begin + c] - y[begin + a]
+                length2 = vx * vx + vy * vy
+                rx, ry = x[begin + i] - x[begin + a], y[begin + i] - y[begin + a]
+                t = (rx * vx + ry * vy) / length2 if length2 > 0.0 else 0.0
+                position = edge - 1 + k + min(max(t, 0.0), 1.0)
+            last = max(last, position)
+            knots[begin + k + step] = last
+            knot_at[begin + k + step] = begin + i
+        knots[end + k] = edge + k
+        knot_at[end + k] = begin + anchor
+        begin = end
+    return keep, order, knots, knot_at
+
+
+def straight_runs(x: np.ndarray, y: np.ndarray, size: np.ndarray, tolerance: float, longest: int = 16
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points of closed rings ((n,) mm, ring k the next size[k] points) that can be left out because
+    every point of their run lies within ``tolerance`` of the segment between the kept points on
+    either side (rings that would keep fewer than three points keep all), walked from each ring's
+    anchor, its lowest point in x then y (always kept). A run is bounded as it grows (exactly
+    straight runs of any length cost one test per point) and rechecked point by point only while
+    at most ``longest`` points long: a slowly bending run stops there.
+
+    Returns keep (n,) bool; order (n,), the points ring by ring from each anchor round (the kept
+    ones in this order are the edges' starts); knots (n + rings,), each point's place along the
+    edges so numbered, edge + ring + fraction along it, from each ring's anchor round to it again
+    (knot_at (n + rings,): which point)."""
+    x, y = f64(x), f64(y)
+    return _straight_runs(x, y, i64(size), float(tolerance), int(longest))

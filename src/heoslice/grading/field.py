@@ -1,0 +1,290 @@
+"""The sub-region index of one profile family at every pixel of its box (the paper's II.D-E, III.B, eq. 8-10).
+
+Inside each family the solid region is divided into N_R = int(L_S / D_N) sub-regions
+(eq. 8); sub-region k (1..N_R) gets the material at r = k / N_R of the distribution
+function, from the contour's material to the target. Where r comes from:
+
+* one set of rings (a solid family, or a target depth): r = d / L_S, d the distance
+  to the starting rings, so sub-region k is the band between the round-join offsets
+  of the contour by (k - 1) w and k w, w = L_S / N_R;
+* starting and ending rings (an outer ring with holes): eq. 9-10, the weights
+  w_i = prod_{k != i} d_k / sum_j prod_{k != j} d_k, and r is the total weight of
+  the ending rings. With one hole this is r = d_o / (d_o + d_i): the position of a
+  point is decided by both contours together (Fig. 1), and for rings a constant
+  distance apart the sub-regions are again equidistant offsets.
+
+The field is computed without a Python loop per pixel or per cell: exact signed
+distances to the rings at the centres of a coarse lattice (cells of about 0.5 mm,
+padded by one cell; blocks of cells wholly off the family's side are skipped,
+:mod:`heoslice.grading.lattice`), one plane per cell (a quadratic where the field bends
+and that fits better), checked against the eight neighbouring centres (across the rings
+too: s continues smoothly there) and expanded to pixels. Cells where neither places the
+sub-region boundaries within TOLERANCE_PX pixels of the exact ones (medial axis, sharp
+corners) are evaluated per pixel (:mod:`heoslice.grading.refine`). "Exact" means the
+nearest of every edge that can be nearest (a bound argued where it is used), measured in
+float32 from a nearby centre (under 2e-5 mm). The solid mask decides which pixels are
+solid, so the outline is exact.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from heoslice.grading.cache import RingMemo
+from heoslice.grading.edges import RingEdges, convex_rings, edges_key, ring_edges
+from heoslice.grading.families import Family, FamilyLayout, family_layout
+from heoslice.grading.field_kernels import band_field, curve_cells, expand_planes
+from heoslice.grading.lattice import (CELL_MM, Lattice, lattice_for, measured_centres, padded, ring_measures)
+from heoslice.grading.refine import cell_hessians, cells_to_refine, fit_ring_models, refine_cells, ring_vertices
+from heoslice.grading.search import RingSet, rings_apart, rings_apart_kept, ring_tree
+from heoslice.grading.spec import RegionSpec
+from heoslice.layers.rasterising import Grid
+
+
+#: The same for families of one or two convex rings (a disc, a tube's wall): their fields have no
+#: creases but the deep medial axis (none where the nearest of several holes changes, none beside a
+#: reflex corner), so they fit larger cells, which cost less.
+WIDE_CELL_MM = 0.68
+
+
+#: Families whose box pixels x ring sets are at most this get every pixel's exact distance, no lattice fit.
+DIRECT_PIXELS = 25_000
+
+
+def _band_coordinate(layout: FamilyLayout, d: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """s = r * N_R and its gradient from the signed distances d and gradients g to the starting rings (d[0])
+    and each ending ring.
+
+    One ring set: s = d N_R / L_S. Several: r = 1 - w_start of eq. 10, which divided
+    through by the product of all d is r = u / (1 + u), u = d_start * sum_end 1 / d_k.
+    Taken with the ending ring m nearest in |d| as r = d_start A / (d_m + d_start A),
+    A = 1 + d_m * sum_{k != m} 1 / d_k, it has no pole on any ring: with signed distances
+    (< 0 off the family's side) s continues smoothly across the rings, so the lattice
+    cells a contour crosses are fitted and checked like any other. Where the continuation
+    passes a pole (d_m + d_start A <= 0, deep off the family's side) s is NaN. Distances
+    (sets, rows, cols) mm, gradients (sets, rows, cols, 2); several ring sets compiled
+    (:func:`heoslice.grading.field_kernels.band_field`).
+    """
+    if not layout.end:
+        scale = layout.count / layout.length_mm
+        return d[0] * scale, g[0] * scale
+    return band_field(d, g, layout.count)
+
+
+@dataclass(frozen=True)
+class FamilyField:
+    """The sub-region index of one family over its pixel box.
+
+    ``index``: (rows, cols) int16/int32, k in 1..N_R (valid on the family's solid
+    pixels; the caller masks; in :class:`LayerRegions` the outermost family's index,
+    when its box is the layer's, is the label array itself); ``box`` = (row0, row1, col0, col1) of the grid;
+    ``layout`` its rings and N_R; ``lattice``; ``nearest()`` gives per cell the nearest point
+    on the starting rings (foot (2, cells_r, cells_c) mm) and its edge ((cells_r, cells_c)
+    into ``start_edges()``, the starting rings' edges in this layer's points), to take the
+    contour's material there (measured on first call for a nested shell, whose own material
+    usually makes it unneeded, and for a small family labelled from exact distances,
+    :func:`_exact_index`; ``start_edges()`` made on first call for a field another layer measured).
+    """
+
+    box: tuple[int, int, int, int]
+    index: np.ndarray
+    layout: FamilyLayout
+    lattice: Lattice
+    start_edges: Callable[[], RingEdges]
+    nearest: Callable[[], tuple[np.ndarray, np.ndarray]]
+
+
+def family_box(edges: RingEdges, grid: Grid) -> tuple[int, int, int, int]:
+    """Pixel box (row0, row1, col0, col1) of the pixel centres inside the bounding box of a ring's edges."""
+    low, high = (edges.x.min(), edges.y.min()), (edges.x.max(), edges.y.max())
+    col0 = int(np.clip(np.floor((low[0] - grid.x_left) / grid.px - 0.5), 0, grid.width))
+    col1 = int(np.clip(np.ceil((high[0] - grid.x_left) / grid.px + 0.5), 0, grid.width))
+    row0 = int(np.clip(np.floor((grid.y_top - high[1]) / grid.py - 0.5), 0, grid.height))
+    row1 = int(np.clip(np.ceil((grid.y_top - low[1]) / grid.py + 0.5), 0, grid.height))
+    return row0, row1, col0, col1
+
+
+class _FamilyRings:
+    """The ring sets of one layer's loops, each made once, its edge tree recalled from a :class:`RingMemo`."""
+
+    def __init__(self, points: np.ndarray, offsets: np.ndarray, memo: RingMemo):
+        self.points, self.offsets, self.memo, self.made = points, offsets, memo, {}
+
+    def __call__(self, loops, encloses: bool) -> RingSet:
+        """The ring set of the given loops (its region inside them when ``encloses``), keyed by its edges."""
+        if (tuple(loops), encloses) not in self.made:
+            edges = ring_edges(self.points, self.offsets, loops)
+            key = (encloses, *edges_key(edges))
+            tree = self.memo.recall(key, lambda: ring_tree(edges))
+            self.made[tuple(loops), encloses] = RingSet(tuple(loops), edges, encloses, tree, key)
+        return self.made[tuple(loops), encloses]
+
+
+def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid,
+                 spec: RegionSpec, pixels: bool = True, mask: np.ndarray | None = None,
+                 label_base: int = 0, memo: RingMemo | None = None) -> FamilyField:
+    """Sub-region index k (1..N_R) at every pixel of a family's box (see the module docstring).
+
+    With ``pixels`` False only the lattice is measured (a nested shell, which keeps its
+    own material, needs its cells' nearest contour points but no sub-regions): ``index``
+    is then empty and N_R is 1. With the layer's solid ``mask`` ((h, w) bool) ``index``
+    holds labels instead: k + label_base on solid pixels, 0 elsewhere.
+
+    ``memo``: what the previous layer measured of ring sets with these very edges (their
+    edge trees by RingSet.key, distances between sets, lattice passes by key and lattice);
+    this family's measurements are kept in it.
+    """
+    memo = RingMemo() if memo is None else memo
+    rings = _FamilyRings(points, offsets, memo)
+    # everything below reads the rings' edges only, not their straight points (so a layer may reuse another's)
+    outer = rings((family.outer,), True)
+    box = family_box(outer.edges, grid)
+    row0, row1, col0, col1 = box
+    outward = spec.direction == "out" and bool(family.holes)
+    # a small family takes every pixel's exact distance to each ring set (family_layout's ends and its start)
+    end_sets = 0 if spec.depth_mm is not None or not family.holes else 1 if outward else len(family.holes)
+    direct = pixels and (row1 - row0) * (col1 - col0) * (1 + end_sets) <= DIRECT_PIXELS
+    smooth = (not direct and len(family.holes) <= 1 and convex_rings(outer.edges)
+              and (not family.holes or convex_rings(rings(family.holes, False).edges)))
+    lattice = lattice_for(box, grid, WIDE_CELL_MM if smooth else CELL_MM)
+
+    start_loops = family.holes if outward else (family.outer,)
+    start = rings(start_loops, not outward)
+
+    @functools.cache
+    def nearest():
+        measures = ring_measures(start, lattice)
+        at, _ = measured_centres(start, measures, lattice, ~measures.far)
+        return at[2], at[3]
+
+    if not pixels:
+        return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
+                           lattice=lattice, start_edges=lambda: start.edges, nearest=nearest)
+    layout = family_layout(family, spec, *_grading_length(family, spec, outer, rings, grid, memo))
+    ends = [rings(loops, outward) for loops in layout.end]
+    shape = (row1 - row0, col1 - col0)
+    if direct:
+        index = _exact_index(lattice, grid, layout, [start] + ends, shape, mask, label_base)
+        return FamilyField(box=box, index=index, layout=layout, lattice=lattice, start_edges=lambda: start.edges,
+                           nearest=nearest)
+    index, foot, edge = _lattice_index(lattice, grid, layout, [start] + ends, shape, mask, label_base, memo)
+    return FamilyField(box=box, index=index, layout=layout, lattice=lattice,
+                       start_edges=lambda: start.edges, nearest=lambda: (foot, edge))
+
+
+def _grading_length(family: Family, spec: RegionSpec, outer: RingSet, rings: _FamilyRings, grid: Grid,
+                    memo: RingMemo) -> tuple[float | None, float | None]:
+    """(inradius, apart) for :func:`family_layout`: a solid family's largest inscribed distance, or the
+    shortest distance (mm) between its starting and ending rings; None where a target depth sets L_S."""
+    if spec.depth_mm is not None:
+        return None, None
+    if not family.holes:
+        outline = shapely.Polygon(np.column_stack([outer.edges.x, outer.edges.y]))
+        return float(shapely.maximum_inscribed_circle(outline, 0.5 * min(grid.px, grid.py)).length), None
+    if spec.direction == "out":
+        return None, rings_apart(outer, rings(family.holes, False))
+    # hole by hole (the rings the grading ends at, measured anyway), each pair kept for the next layer: through
+    # a cavity, only the outer ring's distance to the cavity is new
+    return None, min(rings_apart_kept(outer, rings((hole,), False), memo) for hole in family.holes)
+
+
+def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: list[RingSet],
+                   shape: tuple[int, int], mask: np.ndarray | None, label_base: int,
+                   memo: RingMemo) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """k at every pixel of a family's box ((rows, cols), labelled like :func:`_expand_planes`) from the
+    lattice fit: one plane or quadratic per cell, per-pixel eq. 10 where neither fits; with the
+    starting rings' nearest foot ((2, rows, cols) mm) and edge ((rows, cols)) at every cell centre.
+    ``ring_sets``: the starting rings, then each ending ring set."""
+    start, ends = ring_sets[0], ring_sets[1:]
+    # measured on the lattice padded by a cell, so that every cell of the family has its eight neighbours
+    padded_lattice = padded(lattice)
+    measures = [memo.earlier((rings.key, padded_lattice)) or ring_measures(rings, padded_lattice)
+                for rings in ring_sets]
+    wanted = ~np.logical_or.reduce([m.far for m in measures])
+    centres = [measured_centres(rings, m, padded_lattice, wanted) for rings, m in zip(ring_sets, measures)]
+    for rings, (_, m) in zip(ring_sets, centres):
+        memo.keep((rings.key, padded_lattice), m)
+    start_at, ends_at = centres[0][0], [at for at, _ in centres[1:]]
+    d = np.stack([start_at[0]] + [at[0] for at in ends_at])
+    g = np.stack([start_at[1]] + [at[1] for at in ends_at])
+    s, grad = _band_coordinate(layout, d, g)
+
+    # a cell may hold solid pixels when its centre is within half a diagonal of the family's side
+    reach = -0.5 * np.hypot(lattice.dx, lattice.dy)
+    touched = np.logical_and.reduce([start_at[0] >= reach] + [at[0] >= reach for at in ends_at])
+    touched[[0, -1], :] = touched[:, [0, -1]] = False
+    # deep enough that every pixel of the cell is in the last sub-region (s >= N_R - 1 throughout)
+    half_diagonal = 0.5 * np.hypot(lattice.dx, lattice.dy)
+    beyond = (s - np.hypot(grad[..., 0], grad[..., 1]) * half_diagonal >= layout.count) | ~touched
+    # a cell gets a quadratic where it fits better than a plane: eq. 10's field bends everywhere, one ring's
+    # distance field around its medial axis (the centre of a disc)
+    hessian = cell_hessians(grad, padded_lattice)
+    candidate = touched & ~beyond
+    known = np.isfinite(s) & np.isfinite(grad[..., 0]) & np.isfinite(grad[..., 1])
+    side = np.logical_and.reduce([start_at[0] >= 0] + [at[0] >= 0 for at in ends_at])
+    vertices = ring_vertices([(start, 0.0)] + [(rings, float(layout.count)) for rings in ends], padded_lattice)
+    refine = cells_to_refine(s, grad, known, side, candidate, padded_lattice, grid, layout.count, hessian, vertices)
+    refined = np.nonzero(refine)  # never on the padded lattice's border: its cells are no candidates
+    models = [None] * len(ring_sets)
+    if layout.end and len(refined[0]):
+        models = fit_ring_models(layout, d, g, grad, padded_lattice, grid, refined)
+    inner = (slice(1, -1), slice(1, -1))
+    s, grad, beyond, candidate, refine, known, touched = (a[inner] for a in (s, grad, beyond, candidate, refine, known,
+                                                                             touched))
+    hessian = hessian[:, 1:-1, 1:-1]
+    if not known.all():
+        # cells without s are refined or hold no solid pixel: expanded from 0
+        s, grad = np.where(known, s, 0.0), np.where(known[..., None], grad, 0.0)
+    index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, shape, mask, label_base, ~touched)
+    curved = np.nonzero((hessian != 0).any(axis=0) & candidate & ~refine)
+    if len(curved[0]):
+        curve_cells(index, curved[0], curved[1], lattice.cell, s, grad, hessian, grid.px, grid.py, layout.count,
+                    mask, (lattice.row0, lattice.col0), label_base)
+    if len(refined[0]):
+        cells = (refined[0] - 1, refined[1] - 1)
+        refine_cells(index, lattice, cells, grid, layout,
+                     [(rings, np.abs(at[0][inner][cells]), model)
+                      for rings, at, model in zip(ring_sets, [start_at] + ends_at, models)], mask, label_base)
+    return index, start_at[2][:, 1:-1, 1:-1], start_at[3][inner]
+
+
+def _exact_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: list[RingSet],
+                 shape: tuple[int, int], mask: np.ndarray | None = None, label_base: int = 0) -> np.ndarray:
+    """k at every pixel of a small family's box ((rows, cols), labelled like :func:`_expand_planes`),
+    each from its exact distance to every ring set (:func:`refine_cells` over every cell).
+
+    Below DIRECT_PIXELS (box pixels x ring sets) this beats fitting the lattice, whose fixed
+    cost (~2.5 ms a family) dominates a small island's; each cell's bound is its distance
+    to a ring set's first point."""
+    index = np.empty(shape, dtype=label_dtype(layout.count + label_base))
+    ci, cj = (a.ravel() for a in np.indices((lattice.rows, lattice.cols)))
+    x, y = lattice.centres()
+    bounds = [np.hypot(x[cj] - rings.edges.x[0], y[ci] - rings.edges.y[0]) for rings in ring_sets]
+    refine_cells(index, lattice, (ci, cj), grid, layout,
+                  [(rings, bound, None) for rings, bound in zip(ring_sets, bounds)], mask, label_base)
+    return index
+
+
+def label_dtype(largest: int) -> type:
+    """int16 for labels up to 32000, else int32."""
+    return np.int16 if largest < 32000 else np.int32
+
+
+def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid, flat: np.ndarray, count: int,
+                   shape: tuple[int, int], mask: np.ndarray | None = None, label_base: int = 0,
+                   empty: np.ndarray | None = None) -> np.ndarray:
+    """k = clip(floor(s) + 1, 1, N_R) at every pixel of the family's box ((rows, cols) int16, int32
+    past 32000 labels) from one plane per cell (compiled); a ``flat`` cell takes its centre's
+    value throughout, an ``empty`` one (none of the family's pixels) 0. With the layer's
+    ``mask``: k + label_base on solid pixels, else 0."""
+    s = np.where(flat, np.clip(s, -1.0, count - 0.5), s)
+    gx = np.where(flat, 0.0, grad[..., 0])
+    gy = np.where(flat, 0.0, grad[..., 1])
+    out = np.empty(shape, dtype=label_dtype(count + label_base))
+    return expand_planes(s, gx, gy, lattice.cell, grid.px, grid.py, count, out, mask,
+                         (lattice.row0, lattice.col0), label_base, empty)

@@ -1,0 +1,200 @@
+"""Compiled loops of :mod:`heoslice.grading.field`: eq. 10's band coordinate at lattice centres and the
+expansion of one plane (or quadratic) per lattice cell to its pixels."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from heoslice.grading.jit import JIT, f64, i64
+
+
+@numba.njit(inline="always", **JIT)
+def nearest_end(d, sets):  # pragma: no cover - compiled
+    """Index m (1..sets-1) of the ending ring set nearest in |d| (the first of equals), d (sets,) mm."""
+    m = 1
+    for j in range(2, sets):
+        if abs(d[j]) < abs(d[m]):
+            m = j
+    return m
+
+
+@numba.njit(inline="always", **JIT)
+def inverse_distance(value):  # pragma: no cover - compiled
+    """1 / d, with |d| below 1e-12 taken as 1e-12 (a pixel on a ring)."""
+    return 1.0 / (value if abs(value) >= 1e-12 else 1e-12)
+
+
+@numba.njit(**JIT)
+def _band_field(d, g, count):  # pragma: no cover - compiled
+    """s of eq. 10 (pole-free form, field._band_coordinate) and its gradient at every lattice
+    centre, from the signed distances d (sets, rows, cols) and their gradients g (sets, rows,
+    cols, 2) of the starting ring set (0) and each ending one; NaN past a pole."""
+    sets, rows, cols = d.shape
+    s = np.empty((rows, cols))
+    grad = np.empty((rows, cols, 2))
+    here = np.empty(sets)
+    for i in range(rows):
+        for j in range(cols):
+            for k in range(sets):
+                here[k] = d[k, i, j]
+            m = nearest_end(here, sets)
+            rest, rest_x, rest_y = 0.0, 0.0, 0.0
+            for k in range(1, sets):
+                if k != m:
+                    inverse = inverse_distance(here[k])
+                    rest += inverse
+                    rest_x -= g[k, i, j, 0] * inverse * inverse
+                    rest_y -= g[k, i, j, 1] * inverse * inverse
+            dm, d0 = here[m], here[0]
+            a = 1.0 + dm * rest
+            numerator = d0 * a
+            denominator = dm + numerator
+            if not denominator > 0:
+                s[i, j], grad[i, j, 0], grad[i, j, 1] = np.nan, np.nan, np.nan
+                continue
+            scale = count / denominator
+            s[i, j] = numerator * scale
+            for axis, rest_axis in ((0, rest_x), (1, rest_y)):
+                grad_a = g[m, i, j, axis] * rest + dm * rest_axis
+                grad_numerator = g[0, i, j, axis] * a + d0 * grad_a
+                grad[i, j, axis] = (dm * grad_numerator - numerator * g[m, i, j, axis]) * scale / denominator
+    return s, grad
+
+
+def band_field(d: np.ndarray, g: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(s (rows, cols), its gradient (rows, cols, 2) per mm) of eq. 10 at lattice centres from the signed
+    distances d (sets, rows, cols) mm and gradients g (sets, rows, cols, 2) of the starting ring set
+    and each ending one (two or more sets; compiled :func:`_band_field`)."""
+    return _band_field(f64(d), f64(g),
+                       float(count))
+
+
+@numba.njit(**JIT)
+def _expand_planes(s, gx, gy, empty, cell, px, py, count, out, mask, r0, c0, base):  # pragma: no cover - compiled
+    """out[i*cell + v, j*cell + u] = clip(floor(s_ij + gx_ij x_u - gy_ij y_v) + 1, 1, count) over the
+    part of the lattice that ``out`` covers; x_u, y_v are pixel offsets from the cell centre (mm),
+    plus ``base``; with a ``mask`` (not 0 x 0), pixels where mask[r0 + row, c0 + col] is False get
+    0. ``empty`` cells (no pixel of the family) get 0 without evaluating. Per row of
+    cells the column terms are laid out once (float32: s to ~1e-4 of a band), so each pixel
+    row is a few long branch-free loops, one per run of cells that are not empty."""
+    rows, cols = out.shape
+    masked = mask.shape[0] > 0
+    half = 0.5 * cell
+    column = np.empty(cols, dtype=np.float32)
+    slope = np.empty(cols, dtype=np.float32)
+    span_from = np.empty(s.shape[1] + 1, dtype=np.int64)
+    span_to = np.empty(s.shape[1] + 1, dtype=np.int64)
+    low, high, offset = np.float32(1.0), np.float32(count), np.float32(base)
+    for i in range(s.shape[0]):
+        if i * cell >= rows:
+            break
+        spans = 0
+        for j in range(min(s.shape[1], -(-cols // cell))):
+            if empty[i, j]:
+                continue
+            first, last = j * cell, min(cols, (j + 1) * cell)
+            if spans and span_to[spans - 1] == first:
+                span_to[spans - 1] = last
+            else:
+                span_from[spans], span_to[spans] = first, last
+                spans += 1
+            for c in range(first, last):
+                column[c] = s[i, j] + 1.0 + gx[i, j] * ((c - j * cell + 0.5 - half) * px)
+                slope[c] = gy[i, j] * py
+        for v in range(min(cell, rows - i * cell)):
+            r = i * cell + v
+            down = np.float32(v + 0.5 - half)
+            line = out[r]
+            keep = mask[r0 + r, c0:c0 + cols] if masked else mask[0, 0:0]
+            done = 0
+            for n in range(spans):
+                lo, hi = span_from[n], span_to[n]
+                line[done:lo] = 0
+                done = hi
+                _expand_run(line[lo:hi], column[lo:hi], slope[lo:hi], keep[lo:hi] if masked else keep, down, low,
+                            high, offset, masked)
+            line[done:] = 0
+    return out
+
+
+@numba.njit(inline="always", **JIT)
+def _expand_run(line, column, slope, keep, down, low, high, offset, masked):  # pragma: no cover - compiled
+    """One run of a pixel row in :func:`_expand_planes`: a branch-free loop that vectorises."""
+    if masked:
+        for c in range(len(line)):
+            value = column[c] - slope[c] * down
+            value = low if value < low else value
+            value = high if value > high else value
+            line[c] = np.int32((value + offset) * np.float32(keep[c]))
+    else:
+        for c in range(len(line)):
+            value = column[c] - slope[c] * down
+            value = low if value < low else value
+            value = high if value > high else value
+            line[c] = np.int32(value + offset)
+
+
+def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: int, px: float, py: float,
+                  count: int, out: np.ndarray, mask: np.ndarray | None = None, origin: tuple[int, int] = (0, 0),
+                  base: int = 0, empty: np.ndarray | None = None) -> np.ndarray:
+    """Sub-region k = clip(floor(s) + 1, 1, count) at every pixel of ``out`` ((rows, cols) int16/int32,
+    rows <= cells_r * cell) from one plane per lattice cell: s (cells_r, cells_c) at the cell
+    centre, gradient (gx, gy) per mm (y up, rows down), plus ``base``: a family's labels in the
+    same pass. With ``mask`` ((h, w) bool, C order; ``out`` covers rows/columns from ``origin``
+    of it) pixels where it is False get 0. ``empty`` ((cells_r, cells_c) bool) cells are written
+    0 throughout."""
+    if out.shape[0] > np.shape(s)[0] * cell or out.shape[1] > np.shape(s)[1] * cell:
+        raise ValueError(f"expand_planes: {out.shape} pixels exceed {np.shape(s)} cells of {cell}")
+    mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
+    empty = np.zeros(np.shape(s), dtype=np.bool_) if empty is None else np.ascontiguousarray(empty, dtype=np.bool_)
+    return _expand_planes(f64(s), f64(gx), f64(gy), empty, int(cell), float(px), float(py), float(count), out, mask,
+                          int(origin[0]), int(origin[1]), int(base))
+
+
+@numba.njit(**JIT)
+def _curve_cells(index, ci, cj, cell, s, gx, gy, hxx, hxy, hyy, px, py, count, mask, r0, c0,
+                 base):  # pragma: no cover - compiled
+    """Rewrite whole cells (ci, cj) from their quadratics (see :func:`curve_cells`): along each pixel
+    row of a cell the quadratic is A + (B + C x) x, one branch-free loop."""
+    rows, cols = index.shape
+    masked = mask.shape[0] > 0
+    half = 0.5 * cell
+    offsets = (np.arange(cell) + 0.5 - half) * px
+    for n in range(len(ci)):
+        i, j = ci[n], cj[n]
+        height, width = min(cell, rows - i * cell), min(cell, cols - j * cell)
+        if height <= 0 or width <= 0:
+            continue
+        c = 0.5 * hxx[i, j]
+        for v in range(height):
+            r = i * cell + v
+            y = -(v + 0.5 - half) * py
+            a = s[i, j] + 1.0 + gy[i, j] * y + 0.5 * hyy[i, j] * y * y
+            b = gx[i, j] + hxy[i, j] * y
+            line = index[r, j * cell:j * cell + width]
+            if masked:
+                keep = mask[r0 + r, c0 + j * cell:c0 + j * cell + width]
+                for u in range(width):
+                    x = offsets[u]
+                    value = min(max(np.floor(a + (b + c * x) * x), 1.0), count)
+                    line[u] = int((value + base) * keep[u])
+            else:
+                for u in range(width):
+                    x = offsets[u]
+                    line[u] = int(min(max(np.floor(a + (b + c * x) * x), 1.0), count) + base)
+    return index
+
+
+def curve_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, s: np.ndarray, grad: np.ndarray,
+                hessian: np.ndarray, px: float, py: float, count: int, mask: np.ndarray | None = None,
+                origin: tuple[int, int] = (0, 0), base: int = 0) -> np.ndarray:
+    """Sub-region k of every pixel of lattice cells (ci, cj) ((n,) int) from the cell's quadratic
+    s + g.d + d.H.d / 2 (s (rows, cols), grad (rows, cols, 2) per mm, hessian (3, rows, cols)
+    s_xx, s_xy, s_yy per mm^2; d the pixel's offset from the cell centre, y up), in place;
+    ``mask``, ``origin`` and ``base`` as in :func:`expand_planes`."""
+    mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
+    return _curve_cells(index, i64(ci), i64(cj),
+                        int(cell), f64(s), f64(grad[..., 0]), f64(grad[..., 1]), f64(hessian[0]),
+                        f64(hessian[1]), f64(hessian[2]), float(px), float(py), float(count), mask,
+                        int(origin[0]), int(origin[1]), float(base))

@@ -1,0 +1,103 @@
+"""Compiled loops of :mod:`heoslice.grading.lattice`: signed distances, gradients and feet at lattice centres,
+which centres are inside a ring set, and points' distances to given edges."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from heoslice.grading.jit import JIT, f64, i64
+
+
+@numba.njit(**JIT)
+def _signed_feet(edge, x0, y0, dx, dy, ex, ey, evx, evy, einv, inside, encloses):  # pragma: no cover - compiled
+    """At every lattice centre (x0 + (j + 1/2) dx, y0 - (i + 1/2) dy): signed distance to its edge
+    (> 0 where ``inside`` equals ``encloses``), its unit gradient (0 on the edge) and the foot."""
+    rows, cols = edge.shape
+    signed = np.empty((rows, cols))
+    gradient = np.empty((rows, cols, 2))
+    foot = np.empty((2, rows, cols))
+    for i in range(rows):
+        y = y0 - (i + 0.5) * dy
+        for j in range(cols):
+            x = x0 + (j + 0.5) * dx
+            e = edge[i, j]
+            rx, ry = x - ex[e], y - ey[e]
+            t = min(max((rx * evx[e] + ry * evy[e]) * einv[e], 0.0), 1.0)
+            fx, fy = ex[e] + t * evx[e], ey[e] + t * evy[e]
+            distance = np.sqrt((x - fx) ** 2 + (y - fy) ** 2)
+            sign = 1.0 if inside[i, j] == encloses else -1.0
+            scale = sign / distance if distance > 0 else 0.0
+            signed[i, j] = sign * distance
+            gradient[i, j, 0], gradient[i, j, 1] = (x - fx) * scale, (y - fy) * scale
+            foot[0, i, j], foot[1, i, j] = fx, fy
+    return signed, gradient, foot
+
+
+def signed_feet(edge: np.ndarray, x0: float, y0: float, dx: float, dy: float, ex: np.ndarray, ey: np.ndarray,
+                evx: np.ndarray, evy: np.ndarray, einv: np.ndarray, inside: np.ndarray,
+                encloses: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(signed distance (rows, cols) mm, unit gradient (rows, cols, 2), foot (2, rows, cols) mm) of every
+    centre of a lattice (x0, y0 its top-left corner, dx, dy its cells, mm) from its nearest edge ``edge``
+    ((rows, cols) int); > 0 where ``inside`` ((rows, cols) bool) equals ``encloses`` (compiled)."""
+    return _signed_feet(i64(edge), float(x0), float(y0), float(dx), float(dy),
+                        f64(ex), f64(ey), f64(evx), f64(evy), f64(einv), np.ascontiguousarray(inside), bool(encloses))
+
+
+@numba.njit(**JIT)
+def _inside_centres(ex, ey, evx, evy, x0, y0, dx, dy, rows, cols):  # pragma: no cover - compiled
+    """(rows, cols) bool: lattice centres (x0 + (j + 1/2) dx, y0 - (i + 1/2) dy) inside the closed rings
+    whose edges run from (ex, ey) by (evx, evy), by the parity of the edges crossed to their left
+    (each edge half-open in y)."""
+    flips = np.zeros((rows, cols + 1), dtype=np.uint8)
+    for e in range(len(ex)):
+        if evy[e] == 0.0:
+            continue
+        low, high = min(ey[e], ey[e] + evy[e]), max(ey[e], ey[e] + evy[e])
+        first = max(int(np.ceil((y0 - high) / dy - 0.5)) - 1, 0)
+        last = min(int(np.floor((y0 - low) / dy - 0.5)) + 1, rows - 1)
+        for i in range(first, last + 1):
+            y = y0 - (i + 0.5) * dy
+            if y < low or y >= high:
+                continue
+            x = ex[e] + (y - ey[e]) / evy[e] * evx[e]
+            k = min(max(int(np.ceil((x - x0) / dx - 0.5)), 0), cols)
+            flips[i, k] ^= 1
+    inside = np.empty((rows, cols), dtype=np.bool_)
+    for i in range(rows):
+        parity = 0
+        for j in range(cols):
+            parity ^= flips[i, j]
+            inside[i, j] = parity == 1
+    return inside
+
+
+def inside_centres(ex: np.ndarray, ey: np.ndarray, evx: np.ndarray, evy: np.ndarray, x0: float, y0: float,
+                   dx: float, dy: float, rows: int, cols: int) -> np.ndarray:
+    """(rows, cols) bool: the centres of a lattice (x0, y0 its top-left corner, dx, dy its cells, mm) inside
+    the closed rings of the edges from (ex, ey) by (evx, evy) ((n,) mm), even-odd: inside any of
+    them when they neither cross nor nest (compiled :func:`_inside_centres`)."""
+    return _inside_centres(f64(ex), f64(ey), f64(evx), f64(evy), float(x0), float(y0), float(dx), float(dy),
+                           int(rows), int(cols))
+
+
+@numba.njit(**JIT)
+def _feet(qx, qy, edge, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
+    """Distance from each point to its given edge, and the nearest point on it (the foot)."""
+    n = len(qx)
+    distance, fx, fy = np.empty(n), np.empty(n), np.empty(n)
+    for i in range(n):
+        e = edge[i]
+        rx, ry = qx[i] - ex[e], qy[i] - ey[e]
+        t = min(max((rx * evx[e] + ry * evy[e]) * einv[e], 0.0), 1.0)
+        fx[i], fy[i] = ex[e] + t * evx[e], ey[e] + t * evy[e]
+        distance[i] = np.sqrt((qx[i] - fx[i]) ** 2 + (qy[i] - fy[i]) ** 2)
+    return distance, fx, fy
+
+
+def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, ex: np.ndarray, ey: np.ndarray, evx: np.ndarray,
+         evy: np.ndarray, einv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distance (n,) mm from points (qx, qy) to the given edges ((n,) int) and the nearest point on each
+    (foot x, foot y (n,) mm); edges as in :func:`nearest_in_groups`."""
+    return _feet(f64(qx), f64(qy), i64(edge), f64(ex), f64(ey), f64(evx), f64(evy),
+                 f64(einv))

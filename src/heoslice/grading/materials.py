@@ -1,0 +1,98 @@
+"""The materials of a graded layer's families: what each interior starts from (its contour's material, its
+shell's, or --from) and the fraction of the target per sub-region (eq. 1)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from heoslice.material import evaluate
+from heoslice.grading.field import FamilyField
+from heoslice.grading.labels import LayerRegions, family_of, label_fractions
+from heoslice.grading.spec import GradeSpec
+
+
+def _family_sources(spec: GradeSpec, shell, point_material):
+    """How one family's contour material is read: (its shell's own Material or None, use the mesh's fraction?)."""
+    shells = dict(spec.shells)
+    if shell is not None and int(shell) in shells:
+        return shells[int(shell)], False
+    return None, point_material is not None and spec.second is not None
+
+
+def family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_colors, point_material,
+                   colors: bool = True):
+    """Per family, what its interior starts from at each lattice cell (its contour's material, or
+    its shell's, or --from): colour ((cells_r, cells_c, 3) int16 0..255; None without ``colors``)
+    and the mix of the K channel materials ((cells_r, cells_c, K) float, summing to 1)."""
+    materials = spec.channel_materials()
+    position = {(m.name, m.color): i for i, m in enumerate(materials)}
+    starts, mixes = [], []
+    for family, field in zip(regions.families, regions.fields):
+        shell = None if loop_shell is None else loop_shell[family.outer]
+        own, use_fraction = _family_sources(spec, shell, point_material)
+        if own is not None:
+            start = own
+        elif spec.start is not None and not family.nested:
+            start = spec.start
+        else:
+            start = None
+        cells = (field.lattice.rows, field.lattice.cols)
+        mix = np.zeros((*cells, len(materials)))
+        if start is not None:
+            mix[..., position[(start.name, start.color)]] = 1.0
+            color = np.asarray(start.color, dtype=np.float64)
+        elif use_fraction:
+            m = np.clip(contour_values(field, point_material), 0.0, 1.0)
+            mix[..., position[(spec.base.name, spec.base.color)]] = 1.0 - m
+            mix[..., position[(spec.second.name, spec.second.color)]] += m
+            color = (np.asarray(spec.base.color, dtype=np.float64) * (1.0 - m)[..., None]
+                     + np.asarray(spec.second.color, dtype=np.float64) * m[..., None])
+        else:
+            mix[..., position[(spec.base.name, spec.base.color)]] = 1.0
+            color = np.asarray(spec.base.color, dtype=np.float64)
+        mixes.append(mix)
+        if not colors:
+            starts.append(None)
+            continue
+        if point_colors is not None and start is None:
+            color = contour_values(field, point_colors)
+        starts.append(np.broadcast_to(np.clip(np.rint(color), 0, 255).astype(np.int16), (*cells, 3)))
+    return starts, mixes
+
+
+def target_fractions(regions: LayerRegions, spec: GradeSpec) -> np.ndarray:
+    """Fraction of the target material per label ((label_count,) float; zeros without a gradient)."""
+    if spec.function is None or spec.target is None:
+        return np.zeros(regions.label_count)
+    return label_fractions(regions, lambda r: evaluate(spec.function, r))
+
+
+def contour_values(field: FamilyField, values: np.ndarray) -> np.ndarray:
+    """Per-point values ((p,) or (p, c)) of the layer's loops taken at each cell's nearest
+    starting-ring point, interpolated between the layer's points on either side of it
+    (an edge may span several, :class:`RingEdges`): (cells_r, cells_c[, c]) float."""
+    edges = field.start_edges()
+    foot, edge = field.nearest()
+    t = ((foot[0] - edges.x[edge]) * edges.vx[edge] + (foot[1] - edges.y[edge]) * edges.vy[edge]) * edges.inv_len2[edge]
+    at = edge + edges.ring[edge] + np.clip(t, 0.0, 1.0)
+    values = np.asarray(values, dtype=np.float64)[edges.knot_point]
+    if values.ndim == 1:
+        return np.interp(at, edges.knots, values)
+    return np.stack([np.interp(at, edges.knots, column) for column in values.T], axis=-1)
+
+
+def paint_cells(regions: LayerRegions, per_family: list[np.ndarray], dtype=np.float32) -> np.ndarray:
+    """Per-pixel values over the layer box from per-cell values of each family ((cells_r, cells_c, c)).
+
+    Each family's cells are expanded to its pixels (blocks of cell x cell) and written
+    where the family's labels are: (rows, cols, c) of ``dtype``, 0 elsewhere.
+    """
+    channels = per_family[0].shape[-1] if per_family else 1
+    b = regions.box
+    out = np.zeros((b[1] - b[0], b[3] - b[2], channels), dtype=dtype)
+    for field, cells, own in zip(regions.fields, per_family, family_of(regions)):
+        r0, r1, c0, c1 = field.box
+        f = field.lattice.cell
+        pixels = np.repeat(np.repeat(cells.astype(dtype), f, axis=0), f, axis=1)[: r1 - r0, : c1 - c0]
+        np.copyto(out[r0 - b[0]:r1 - b[0], c0 - b[2]:c1 - b[2]], pixels, where=own[..., None])
+    return out

@@ -1,0 +1,382 @@
+"""Compiled loops of :mod:`heoslice.grading.refine`: the per-cell fit test, the Hessians of s, the rings whose
+quadratic serves a cell no plane fits, and eq. 10 per pixel of those cells."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from heoslice.grading.field_kernels import inverse_distance, nearest_end
+from heoslice.grading.jit import JIT, f32, f64, i64
+
+
+@numba.njit(inline="always", **JIT)
+def _boundary_within(s, spread, miss, count):  # pragma: no cover - compiled
+    """Whether a sub-region boundary (k = clip(floor(s) + 1, 1, count) changing) can lie within ``spread``
+    plus ``miss`` of the value ``s``."""
+    low = min(max(np.floor(s - spread - miss) + 1.0, 1.0), count)
+    high = min(max(np.floor(s + spread + miss) + 1.0, 1.0), count)
+    return low != high
+
+
+@numba.njit(inline="always", **JIT)
+def _turns(grad, gx, gy, hx, hm, hy, i, j, dx, dy, limit):  # pragma: no cover - compiled
+    """Whether the model's gradient (g + H e, e the offset to a neighbour's centre) points away from some
+    neighbour's own direction (grad there, normalised) by more than ``limit`` (a cosine); H = 0 for a plane."""
+    rows, cols = grad.shape[0], grad.shape[1]
+    for ni in range(max(i - 1, 0), min(i + 2, rows)):
+        for nj in range(max(j - 1, 0), min(j + 2, cols)):
+            ex, ey = (nj - j) * dx, -(ni - i) * dy
+            mx = gx + hx * ex + hm * ey
+            my = gy + hm * ex + hy * ey
+            nx, ny = grad[ni, nj, 0], grad[ni, nj, 1]
+            scale = max(np.sqrt(mx * mx + my * my), 1e-300) * max(np.sqrt(nx * nx + ny * ny), 1e-300)
+            if mx * nx + my * ny < limit * scale:
+                return True
+    return False
+
+
+@numba.njit(inline="always", **JIT)
+def _vertices_fit(vstart, vx, vy, vs, i, j, rows, cols, x0, y0, dx, dy, centre, gx, gy, hx, hm, hy,
+                  allowed):  # pragma: no cover - compiled
+    """Whether the quadratic of cell (i, j) gives, at every ring vertex in the cells around it (CSR
+    vstart over the lattice's cells, positions vx, vy, exact s there vs), s within ``allowed``."""
+    if len(vstart) == 0:
+        return True
+    cx, cy = x0 + (j + 0.5) * dx, y0 - (i + 0.5) * dy
+    for ni in range(max(i - 1, 0), min(i + 2, rows)):
+        for nj in range(max(j - 1, 0), min(j + 2, cols)):
+            cell = ni * cols + nj
+            for v in range(vstart[cell], vstart[cell + 1]):
+                ex, ey = vx[v] - cx, vy[v] - cy
+                guess = centre + gx * ex + gy * ey + 0.5 * (hx * ex * ex + hy * ey * ey) + hm * ex * ey
+                if abs(guess - vs[v]) > allowed:
+                    return False
+    return True
+
+
+@numba.njit(**JIT)
+def _refine_flags(s, grad, hxx, hxy, hyy, known, side, candidate, dx, dy, tolerance, limit,
+                  count, vstart, vx, vy, vs, x0, y0):  # pragma: no cover - compiled
+    """Cells to evaluate per pixel: candidates whose plane (s, gradient) misses s at a neighbour's
+    centre (where s is ``known``) by more than ``tolerance`` x the slope, and so does their
+    quadratic when a Hessian is given (hxx, hxy, hyy not 0 x 0; zeroed in place where the plane
+    is kept), unless the better model's range over the cell widened by its largest miss holds no
+    sub-region boundary (one k = clip(floor(s) + 1, 1, count) throughout: a slow or saturated
+    field); or, while some neighbour is off the family's ``side`` or its s is not known (next to
+    the outline, where features smaller than a cell hide between centres), whose model's gradient
+    turns by more than ``limit`` (a cosine) from a neighbour's direction: the plane's own
+    direction, or else (where the quadratic fits the values too, and gives s within half the
+    tolerance at the ring vertices around the cell: vstart, vx, vy, vs, a CSR over the cells of
+    the lattice whose top-left corner is x0, y0; a notch's tip or a slot's corners are vertices)
+    the quadratic's gradient at that neighbour, so that a round outline's steady turn is no
+    reason to refine; or whose own s is not known, or no
+    neighbour's (nothing checks their plane). Neighbours past the lattice's border repeat the
+    border cell (offset as a neighbour would be, so a border cell's plane is checked against
+    its own centre value; the turn test skips them)."""
+    rows, cols = s.shape
+    curved = hxx.shape[0] > 0
+    out = np.zeros((rows, cols), dtype=np.bool_)
+    for i in range(rows):
+        for j in range(cols):
+            if not candidate[i, j]:
+                continue
+            if not known[i, j]:
+                out[i, j] = True
+                continue
+            gx, gy, centre = grad[i, j, 0], grad[i, j, 1], s[i, j]
+            slope = np.sqrt(gx * gx + gy * gy)
+            allowed = tolerance * max(slope, 1e-9)
+            all_inside = True
+            flat, bent, compared = 0.0, 0.0, 0
+            hx, hm, hy = (hxx[i, j], hxy[i, j], hyy[i, j]) if curved else (0.0, 0.0, 0.0)
+            for di in range(-1, 2):
+                ni = min(max(i + di, 0), rows - 1)
+                ey = -di * dy
+                for dj in range(-1, 2):
+                    nj = min(max(j + dj, 0), cols - 1)
+                    all_inside = all_inside and side[ni, nj]
+                    if not known[ni, nj]:
+                        all_inside = False
+                        continue
+                    compared += di != 0 or dj != 0
+                    ex = dj * dx
+                    guess = centre + gx * ex + gy * ey - s[ni, nj]
+                    flat = max(flat, abs(guess))
+                    bent = max(bent, abs(guess + 0.5 * (hx * ex * ex + hy * ey * ey) + hm * ex * ey))
+            reach = 0.5 * (abs(gx) * dx + abs(gy) * dy)
+            bend = 0.125 * (abs(hx) * dx * dx + 2.0 * abs(hm) * dx * dy + abs(hy) * dy * dy)
+            quadratic = curved and allowed < flat and bent < flat
+            bent_misses = bent > allowed and _boundary_within(centre, reach + bend, bent, count)
+            if quadratic:
+                refine = bent_misses
+            else:
+                refine = flat > allowed and _boundary_within(centre, reach, flat, count)
+            refine = refine or compared == 0  # no neighbour to check the plane against
+            if not refine and not all_inside and _turns(grad, gx, gy, 0.0, 0.0, 0.0, i, j, dx, dy, limit):
+                quadratic = (curved and not bent_misses
+                             and not _turns(grad, gx, gy, hx, hm, hy, i, j, dx, dy, limit)
+                             and _vertices_fit(vstart, vx, vy, vs, i, j, rows, cols, x0, y0, dx, dy, centre, gx, gy,
+                                               hx, hm, hy, 0.5 * allowed))
+                refine = not quadratic
+            out[i, j] = refine
+            if curved and not quadratic:
+                hxx[i, j], hxy[i, j], hyy[i, j] = 0.0, 0.0, 0.0
+    return out
+
+
+def refine_flags(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np.ndarray, candidate: np.ndarray,
+                 dx: float, dy: float, tolerance: float, limit: float, count: int,
+                 hessian: np.ndarray | None = None, vertices: tuple | None = None) -> np.ndarray:
+    """(rows, cols) bool: lattice cells whose plane (and quadratic, with a ``hessian``) does not fit
+    (see :func:`_refine_flags`); s (rows, cols), grad (rows, cols, 2) per mm, known/side/candidate
+    (rows, cols) bool, dx/dy the cell (mm), count N_R; hessian (3, rows, cols) s_xx, s_xy, s_yy
+    per mm^2, zeroed in place where the plane is kept. ``vertices``: (start (rows * cols + 1,),
+    x, y, s, x0, y0), the ring vertices in each cell (a CSR), their exact s, and the lattice's
+    top-left corner (mm); None: no vertex check."""
+    parts = f64(hessian) if hessian is not None else np.zeros((3, 0, 0))
+    if vertices is None:
+        vertices = (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), np.zeros(0), 0.0, 0.0)
+    vstart, vx, vy, vs, x0, y0 = vertices
+    out = _refine_flags(f64(s), f64(grad), parts[0], parts[1], parts[2],
+                        np.ascontiguousarray(known), np.ascontiguousarray(side), np.ascontiguousarray(candidate),
+                        float(dx), float(dy), float(tolerance), float(limit), float(count),
+                        i64(vstart), f64(vx), f64(vy), f64(vs), float(x0), float(y0))
+    if hessian is not None and parts is not hessian:
+        hessian[...] = parts
+    return out
+
+
+@numba.njit(inline="always", **JIT)
+def _difference(lower, upper, steps, step):  # pragma: no cover - compiled
+    """(upper - lower) / (steps * step), as numpy.gradient takes it (central inside, one-sided at a border)."""
+    return (upper - lower) / (steps * step)
+
+
+@numba.njit(**JIT)
+def _hessian_of(grad, dx, dy):  # pragma: no cover - compiled
+    """(3, rows, cols) s_xx, s_xy, s_yy from the gradients (rows, cols, 2) at centres dx, dy apart (rows
+    downwards, y up): numpy.gradient's differences, zero along an axis one cell wide, all zero where
+    any is not finite (see refine.cell_hessians)."""
+    rows, cols = grad.shape[0], grad.shape[1]
+    out = np.zeros((3, rows, cols))
+    for i in range(rows):
+        up, down = max(i - 1, 0), min(i + 1, rows - 1)
+        for j in range(cols):
+            left, right = max(j - 1, 0), min(j + 1, cols - 1)
+            hyy = hyx = hxx = hxy = 0.0
+            if rows > 1:
+                hyy = _difference(grad[up, j, 1], grad[down, j, 1], down - up, -dy)
+                hyx = _difference(grad[up, j, 0], grad[down, j, 0], down - up, -dy)
+            if cols > 1:
+                hxx = _difference(grad[i, left, 0], grad[i, right, 0], right - left, dx)
+                hxy = _difference(grad[i, left, 1], grad[i, right, 1], right - left, dx)
+                hyx = 0.5 * (hyx + hxy) if rows > 1 else hxy
+            if np.isfinite(hxx) and np.isfinite(hyx) and np.isfinite(hyy):
+                out[0, i, j], out[1, i, j], out[2, i, j] = hxx, hyx, hyy
+    return out
+
+
+def hessian_of(grad: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    """(3, rows, cols) s_xx, s_xy, s_yy per mm^2 from gradients (rows, cols, 2) per mm at lattice centres
+    dx, dy (mm) apart (compiled :func:`_hessian_of`)."""
+    return _hessian_of(f64(grad), float(dx), float(dy))
+
+
+@numba.njit(inline="always", **JIT)
+def _band_sensitivities(here, sets, count, out):  # pragma: no cover - compiled
+    """ds/dd_j of eq. 10's band coordinate (field._band_coordinate) at one point into ``out`` (sets,), from
+    the signed distances ``here`` (sets,) mm of the starting ring set (0) and each ending one: with m the
+    ending set nearest in |d| and D = d_m + d_0 A, ds/dd_0 = N_R A d_m / D^2, ds/dd_m = -N_R d_0 / D^2,
+    ds/dd_k = -N_R d_0 d_m^2 / (d_k^2 D^2); all NaN past a pole (D <= 0)."""
+    m = nearest_end(here, sets)
+    rest = 0.0
+    for k in range(1, sets):
+        if k != m:
+            rest += inverse_distance(here[k])
+    dm, d0 = here[m], here[0]
+    a = 1.0 + dm * rest
+    denominator = dm + d0 * a
+    if not denominator > 0:
+        out[:] = np.nan
+        return
+    scale = count / (denominator * denominator)
+    out[0] = a * dm * scale
+    for k in range(1, sets):
+        inverse = inverse_distance(here[k])
+        out[k] = -d0 * scale if k == m else -d0 * dm * dm * inverse * inverse * scale
+
+
+@numba.njit(**JIT)
+def _ring_models(d, g, grad, ci, cj, dx, dy, count, half_diagonal, tolerance):  # pragma: no cover - compiled
+    """Per ring set and cell, the quadratic of its signed distance or NaN (refine.fit_ring_models has the
+    argument); d (sets, rows, cols) mm, g (sets, rows, cols, 2) and grad (rows, cols, 2) at the
+    lattice centres, cells (ci, cj) off the lattice's border."""
+    sets = d.shape[0]
+    models = np.full((sets, len(ci), 6), np.nan)
+    model = np.empty((sets, 6))
+    miss = np.empty(sets)
+    steepest = np.empty(sets)
+    cost = np.empty(sets)
+    here = np.empty(sets)
+    ds = np.empty(sets)
+    order = np.empty(sets, dtype=np.int64)
+    for n in range(len(ci)):
+        i, j = ci[n], cj[n]
+        for k in range(sets):
+            hxx = (g[k, i, j + 1, 0] - g[k, i, j - 1, 0]) / (2.0 * dx)
+            hyy = (g[k, i - 1, j, 1] - g[k, i + 1, j, 1]) / (2.0 * dy)
+            hxy = 0.5 * ((g[k, i - 1, j, 0] - g[k, i + 1, j, 0]) / (2.0 * dy)
+                         + (g[k, i, j + 1, 1] - g[k, i, j - 1, 1]) / (2.0 * dx))
+            model[k, 0], model[k, 1], model[k, 2] = d[k, i, j], g[k, i, j, 0], g[k, i, j, 1]
+            model[k, 3], model[k, 4], model[k, 5] = hxx, hxy, hyy
+            worst = 0.0
+            for di in range(-1, 2):
+                for dj in range(-1, 2):
+                    ex, ey = dj * dx, -di * dy
+                    guess = (model[k, 0] + model[k, 1] * ex + model[k, 2] * ey + 0.5 * (hxx * ex * ex + hyy * ey * ey)
+                             + hxy * ex * ey)
+                    gap = abs(guess - d[k, i + di, j + dj])  # NaN only from a NaN model: rejected below
+                    if gap > worst:
+                        worst = gap
+            miss[k] = worst
+            steepest[k] = 0.0
+        # the largest |ds/dd_k| over the cell and its neighbours (NaN past a pole, as numpy's max)
+        weakest = np.inf
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                for k in range(sets):
+                    here[k] = d[k, i + di, j + dj]
+                _band_sensitivities(here, sets, count, ds)
+                for k in range(sets):
+                    value = abs(ds[k])
+                    if np.isnan(value) or np.isnan(steepest[k]):
+                        steepest[k] = np.nan
+                    elif value > steepest[k]:
+                        steepest[k] = value
+                steepness = np.hypot(grad[i + di, j + dj, 0], grad[i + di, j + dj, 1])
+                if np.isfinite(steepness) and steepness < weakest:
+                    weakest = steepness
+        # on the family's side, bounds of the sensitivities over the cell's pixels (refine.fit_ring_models)
+        nearest = np.inf
+        for k in range(1, sets):
+            nearest = min(nearest, abs(d[k, i, j]))
+        for k in range(sets):
+            below = max(abs(d[k, i, j]) - half_diagonal, 0.0)
+            bound = count / (4.0 * below) if k == 0 else count * (nearest + half_diagonal) / (4.0 * below * below)
+            if np.isnan(steepest[k]) or bound < steepest[k]:
+                steepest[k] = bound
+            finite = np.isfinite(model[k, 0])
+            for e in range(1, 6):
+                finite = finite and np.isfinite(model[k, e])
+            cost[k] = (steepest[k] if np.isfinite(steepest[k]) else np.inf) * miss[k]
+            if not (finite and np.isfinite(cost[k])):
+                cost[k] = np.inf
+        budget = tolerance * weakest if np.isfinite(weakest) else 0.0
+        # cheapest first (ties in ring-set order), while the running sum stays within the budget
+        for k in range(sets):
+            order[k] = k
+            e = k
+            while e > 0 and cost[order[e - 1]] > cost[k]:
+                order[e] = order[e - 1]
+                e -= 1
+            order[e] = k
+        running = 0.0
+        for e in range(sets):
+            k = order[e]
+            running += cost[k]
+            if not running <= budget:
+                break
+            models[k, n, :] = model[k]
+    return models
+
+
+def ring_models(d: np.ndarray, g: np.ndarray, grad: np.ndarray, ci: np.ndarray, cj: np.ndarray, dx: float, dy: float,
+                count: int, half_diagonal: float, tolerance: float) -> np.ndarray:
+    """(sets, n, 6) per ring set and lattice cell (ci, cj) ((n,) int, off the border) the quadratic of its
+    signed distance (d, d_x, d_y, d_xx, d_xy, d_yy at the centre, mm) where eq. 10's s stays within
+    ``tolerance`` (mm of s's slope) with it, else NaN: refine.fit_ring_models' choice, compiled. d (sets,
+    rows, cols) mm and g (sets, rows, cols, 2) per ring set, grad (rows, cols, 2) s's gradient at the
+    centres, dx, dy the cells (mm), half_diagonal half a cell's diagonal (mm)."""
+    return _ring_models(f64(d), f64(g), f64(grad), i64(ci),
+                        i64(cj), float(dx), float(dy), float(count),
+                        float(half_diagonal), float(tolerance))
+
+
+@numba.njit(**JIT)
+def _band_cells(index, ci, cj, cell, px, py, models, measured, slot, count, length, mask, r0, c0,
+                base):  # pragma: no cover - compiled
+    """Sub-region k of every pixel of whole cells (ci, cj) from each ring set's distance there: the
+    ring's quadratic models[j, n] (d, d_x, d_y, d_xx, d_xy, d_yy at the cell centre) or, where
+    its d is NaN, measured[slot[j, n], pixel]; s by eq. 10 (pole-free form of field._band_coordinate)
+    with ring set 0 starting, or s = d_0 count / length with one ring set. Per cell, each ring
+    set's distances fill a row of pixels, and eq. 10 runs over the cell's pixels with the
+    nearest ending ring kept as a running minimum (the first of equals), so the loops vectorise."""
+    rows, cols = index.shape
+    masked = mask.shape[0] > 0
+    sets = models.shape[0]
+    half = 0.5 * cell
+    pixels = cell * cell
+    x = np.empty(pixels)
+    y = np.empty(pixels)
+    for p in range(pixels):
+        x[p] = (p % cell + 0.5 - half) * px
+        y[p] = -(p // cell + 0.5 - half) * py
+    d = np.empty((sets, pixels))
+    nearest = np.empty(pixels)
+    rest = np.empty(pixels)
+    s = np.empty(pixels)
+    for n in range(len(ci)):
+        for j in range(sets):
+            model = models[j, n]
+            if np.isnan(model[0]):
+                d[j] = measured[slot[j, n]]
+            else:
+                for p in range(pixels):
+                    d[j, p] = (model[0] + model[1] * x[p] + model[2] * y[p]
+                               + 0.5 * (model[3] * x[p] * x[p] + model[5] * y[p] * y[p]) + model[4] * x[p] * y[p])
+        if sets == 1:
+            for p in range(pixels):
+                s[p] = d[0, p] * count / length
+        else:
+            nearest[:] = d[1]
+            rest[:] = 0.0
+            for j in range(2, sets):
+                for p in range(pixels):
+                    closer = abs(d[j, p]) < abs(nearest[p])
+                    rest[p] += inverse_distance(nearest[p] if closer else d[j, p])
+                    nearest[p] = d[j, p] if closer else nearest[p]
+            for p in range(pixels):
+                numerator = d[0, p] * (1.0 + nearest[p] * rest[p])
+                denominator = nearest[p] + numerator
+                s[p] = count * numerator / denominator if denominator > 0 else count
+        height, width = min(cell, rows - ci[n] * cell), min(cell, cols - cj[n] * cell)
+        for v in range(height):
+            r, c = ci[n] * cell + v, cj[n] * cell
+            line = index[r, c:c + width]
+            if masked:
+                keep = mask[r0 + r, c0 + c:c0 + c + width]
+                for u in range(width):
+                    k = min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count)
+                    line[u] = int((k + base) * keep[u])
+            else:
+                for u in range(width):
+                    line[u] = int(min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count) + base)
+    return index
+
+
+def band_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, px: float, py: float,
+               models: np.ndarray, measured: np.ndarray, slot: np.ndarray, count: int, length: float,
+               mask: np.ndarray | None = None, origin: tuple[int, int] = (0, 0), base: int = 0) -> np.ndarray:
+    """Sub-region k = clip(floor(s) + 1, 1, count) of every pixel of lattice cells (ci, cj) ((n,) int), in
+    place, from per ring set (starting rings first) either a quadratic of its distance per cell
+    (models (sets, n, 6): d, d_x, d_y, d_xx, d_xy, d_yy, mm, at the cell centre; pixel offsets
+    from the centre y up) or, where models[j, n, 0] is NaN, the distance at each pixel
+    (measured[slot[j, n]], measured (m, cell * cell) row-major in a cell, slot (sets, n) int);
+    s by eq. 10 for two or more ring sets, d count / length for one; ``mask``, ``origin`` and
+    ``base`` as in :func:`expand_planes`."""
+    mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
+    return _band_cells(index, i64(ci), i64(cj),
+                       int(cell), float(px), float(py), f64(models), f32(measured),
+                       i64(slot), float(count), float(length), mask,
+                       int(origin[0]), int(origin[1]), float(base))

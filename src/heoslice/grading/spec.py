@@ -1,0 +1,79 @@
+"""What a graded slice asks for: the sub-region layout (nozzle D_N, depth, direction; eq. 8) and the materials.
+
+Eq. 8: N_R = int(L_S / D_N) sub-regions, L_S the shortest distance between a family's
+starting and ending rings (or a target depth) and D_N the nozzle diameter; sub-region k
+(1..N_R) gets the material at r = k / N_R of the distribution function (eq. 1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from heoslice.errors import InputError
+
+
+DIRECTIONS = ("in", "out")
+
+
+@dataclass(frozen=True)
+class RegionSpec:
+    """How sub-regions are laid out: nozzle diameter D_N (mm), optional target depth (mm), direction.
+
+    ``direction`` 'in' offsets the outer ring inwards (r = 0 at the outer ring, 1 at the
+    inner rings or the depth); 'out' offsets the inner rings outwards (r = 0 at the holes).
+    A family without holes is always graded inwards from its outer ring. ``count``
+    fixes N_R instead of eq. 8 (the paper's Fig. 3b: 200 offsets).
+    """
+
+    nozzle_mm: float = 0.2
+    depth_mm: float | None = None
+    direction: str = "in"
+    count: int | None = None
+
+    def __post_init__(self):
+        if self.count is not None and (isinstance(self.count, bool) or int(self.count) != self.count
+                                       or self.count < 1):
+            raise InputError(f"--offsets: the number of sub-regions must be a whole number >= 1, got {self.count}")
+        if not (np.isfinite(self.nozzle_mm) and self.nozzle_mm > 0):
+            raise InputError(f"--nozzle: nozzle diameter must be a positive number of mm, got {self.nozzle_mm}")
+        if self.depth_mm is not None and not (np.isfinite(self.depth_mm) and self.depth_mm > 0):
+            raise InputError(f"--depth: target depth must be a positive number of mm, got {self.depth_mm}")
+        if self.direction not in DIRECTIONS:
+            raise InputError(f"--direction: expected 'in' or 'out', got {self.direction!r}")
+
+
+def band_count(length_mm: float, nozzle_mm: float) -> int:
+    """Eq. 8: N_R = int(L_S / D_N), at least 1 (a region thinner than the nozzle is one sub-region)."""
+    return max(1, int(np.floor(length_mm / nozzle_mm + 1e-9)))
+
+
+@dataclass(frozen=True)
+class GradeSpec:
+    """What a graded slice asks for (``heoslice slice --grade``).
+
+    ``function``: the distribution function (:class:`heoslice.material.DistributionFunction`,
+    or None: no gradient, every family keeps its contour's material); ``target``: the
+    material M2 reached at r = 1 (eq. 1); ``start``: M1 overriding the contour's
+    material (``--from``); ``base``/``second``: the materials a mesh's per-vertex
+    material fraction m mixes as (1 - m) base + m second (without it a contour is
+    ``base``); ``shells``: (shell number, Material) pairs, a shell's own material
+    (its region keeps it, nested shells win).
+    """
+
+    regions: RegionSpec
+    function: object | None
+    target: object | None
+    start: object | None
+    base: object
+    second: object | None = None
+    shells: tuple = ()
+
+    def channel_materials(self) -> tuple:
+        """The K materials of the droplet masks, without repeats (same name and colour), in a fixed order."""
+        found = []
+        for material in (self.base, self.second, self.start, self.target, *(m for _, m in self.shells)):
+            if material is not None and all((material.name, material.color) != (m.name, m.color) for m in found):
+                found.append(material)
+        return tuple(found)

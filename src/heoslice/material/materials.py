@@ -1,0 +1,233 @@
+"""Materials: colour specs, the shared materials file, and the blend of eq. 1.
+
+A material has a name, a display colour (what ``heoslice color`` writes into the PLY
+and previews show) and a printer channel (the 1-based material channel of the
+jetting head; channel 0 of a print job is the solid mask). ``color``, ``slice`` and
+``print`` read the same TOML file::
+
+    # materials.toml
+    [materials.gel]
+    color = "#f0f0f0"        # a colour name, #rgb / #rrggbb, "r,g,b" or [r, g, b]
+    channel = 1
+
+    [materials.cells]
+    color = "0,255,0"
+    channel = 2
+
+    [shells]                 # optional: material of a connected shell, by shell number
+    1 = "cells"
+
+Without a file the built-in default has two materials, ``M1`` (light grey
+(240, 240, 240), channel 1) and ``M2`` (green (0, 255, 0), channel 2).
+
+The default policy is one rule, :func:`material_roles`: M1 is the table's first
+material and M2 its second, unless a start or target material is named; a colour named
+on the command line that is a table material's colour is that material (its name and
+channel).
+
+Eq. 1 of the paper is misprinted (its middle case is f (M1 - M2) + M1, which leaves
+M1..M2 the wrong way); :func:`blend` uses the corrected form M = M1 + f (M2 - M1)
+with f clipped to [0, 1], so M = M1 where f <= 0 and M = M2 where f >= 1.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.errors import InputError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+
+
+@dataclass(frozen=True)
+class Material:
+    """A named material: display colour (r, g, b) 0..255 and 1-based printer channel (None = unassigned)."""
+
+    name: str
+    color: tuple[int, int, int]
+    channel: int | None = None
+
+
+DEFAULT_MATERIALS = {
+    "M1": Material("M1", (240, 240, 240), 1),
+    "M2": Material("M2", (0, 255, 0), 2),
+}
+_TRIPLE = re.compile(r"^\s*\(?\s*([^,()]+),([^,()]+),([^,()]+)\)?\s*$")
+
+
+def parse_color(text) -> tuple[int, int, int]:
+    """(r, g, b) 0..255 from a colour name ("green"), "#0f0" / "#00ff00", or "0,255,0".
+
+    Names and hex codes are Pillow's (CSS colour names). Raises InputError naming the text.
+    """
+    from PIL import ImageColor
+
+    if isinstance(text, (list, tuple)) and len(text) == 3:
+        text = ",".join(str(v) for v in text)
+    spec = str(text).strip()
+    match = _TRIPLE.match(spec)
+    if match:
+        parts = [part.strip() for part in match.groups()]
+        if not all(re.fullmatch(r"\d{1,3}", part) for part in parts) or any(int(p) > 255 for p in parts):
+            raise InputError(f"colour {spec!r}: r,g,b must be three whole numbers 0..255")
+        return tuple(int(part) for part in parts)  # type: ignore[return-value]
+    try:
+        rgb = ImageColor.getrgb(spec)
+    except (ValueError, AttributeError):
+        raise InputError(f"colour {spec!r} does not parse (use a name like 'green', #00ff00 or 0,255,0)") from None
+    return tuple(int(v) for v in rgb[:3])  # type: ignore[return-value]
+
+
+def _material_from_table(name: str, entry, path: Path) -> Material:
+    """One [materials.NAME] table of a materials file, checked."""
+    if not isinstance(entry, dict):
+        raise InputError(f"{path}: materials.{name} must be a table with 'color' (and 'channel')")
+    unknown = set(entry) - {"color", "channel"}
+    if unknown:
+        raise InputError(f"{path}: materials.{name}: unknown key(s) {', '.join(sorted(unknown))} "
+                         "(allowed: color, channel)")
+    if "color" not in entry:
+        raise InputError(f"{path}: materials.{name} has no 'color'")
+    try:
+        color = parse_color(entry["color"])
+    except InputError as err:
+        raise InputError(f"{path}: materials.{name}: {err}") from None
+    channel = entry.get("channel")
+    if channel is not None and (isinstance(channel, bool) or not isinstance(channel, int) or channel < 1):
+        raise InputError(f"{path}: materials.{name}: channel must be a whole number >= 1, got {channel!r}")
+    return Material(name, color, channel)
+
+
+def _read_toml(path: Path) -> dict:
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory, not a materials file")
+    try:
+        with open(path, "rb") as handle:
+            return tomllib.load(handle)
+    except tomllib.TOMLDecodeError as err:
+        raise InputError(f"{path}: not a valid TOML materials file ({err})") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f"{path}: cannot be read ({type(err).__name__}: {err})") from None
+
+
+def load_materials(path: Path | None) -> dict[str, Material]:
+    """{name: Material} from a materials TOML file, or the built-in two when ``path`` is None."""
+    if path is None:
+        return dict(DEFAULT_MATERIALS)
+    data = _read_toml(Path(path))
+    table = data.get("materials")
+    if not isinstance(table, dict) or not table:
+        raise InputError(f"{path}: no [materials.NAME] tables (see heoslice color --help)")
+    return {str(name): _material_from_table(str(name), entry, Path(path)) for name, entry in table.items()}
+
+
+def load_shell_materials(path: Path | None, table: dict[str, Material] | None = None) -> dict[int, Material]:
+    """{shell number: Material} from the optional [shells] table of a materials file ({} without one)."""
+    if path is None:
+        return {}
+    data = _read_toml(Path(path))
+    shells = data.get("shells", {})
+    if not isinstance(shells, dict):
+        raise InputError(f"{path}: [shells] must map shell numbers to material names")
+    table = load_materials(path) if table is None else table
+    out: dict[int, Material] = {}
+    for key, value in shells.items():
+        if not str(key).isdigit():
+            raise InputError(f"{path}: [shells] key {key!r} is not a shell number (0, 1, 2...)")
+        try:
+            out[int(key)] = resolve_material(str(value), table)
+        except InputError as err:
+            raise InputError(f"{path}: [shells] {key}: {err}") from None
+    return out
+
+
+def resolve_material(text: str, table: dict[str, Material]) -> Material:
+    """A material by name from ``table`` (exact, then case-insensitive), else a colour spec as an unnamed material."""
+    spec = str(text).strip()
+    if spec in table:
+        return table[spec]
+    folded = {name.lower(): material for name, material in table.items()}
+    if spec.lower() in folded:
+        return folded[spec.lower()]
+    try:
+        color = parse_color(spec)
+    except InputError:
+        raise InputError(f"{spec!r} is neither a material name ({', '.join(table) or 'none defined'}) "
+                         "nor a colour (a name like 'green', #00ff00 or 0,255,0)") from None
+    return Material(spec, color, None)
+
+
+def _table_material(material: Material | None, table: dict[str, Material]) -> Material | None:
+    """An unnamed material (a colour given on the command line) that is a table material's colour is that material."""
+    if material is None or material.channel is not None:
+        return material
+    return next((known for known in table.values() if known.color == material.color), material)
+
+
+@dataclass(frozen=True)
+class MaterialRoles:
+    """Which material plays which part of eq. 1, by the one default rule of :func:`material_roles`.
+
+    first, second: the table's first and second materials (second None for a one-material
+    table), which a mesh's material fraction m mixes as (1 - m) first + m second; start,
+    target: the materials named as M1 and M2, or None.
+    """
+
+    first: Material
+    second: Material | None
+    start: Material | None
+    target: Material | None
+
+    @property
+    def m1(self) -> Material:
+        """M1 (f <= 0): the named start material, else the table's first."""
+        return self.start if self.start is not None else self.first
+
+    @property
+    def m2(self) -> Material | None:
+        """M2 (f >= 1): the named target material, else the table's second (None for a one-material table)."""
+        return self.target if self.target is not None else self.second
+
+
+def material_roles(table: dict[str, Material], start: str | None = None,
+                   target: str | None = None) -> MaterialRoles:
+    """The roles of the materials of ``table`` with an optional start (M1) and target (M2) name or colour.
+
+    Raises InputError naming the parameter (``start``, ``target``) that does not resolve.
+    """
+    names = list(table)
+    resolved = {}
+    for parameter, text in (("start", start), ("target", target)):
+        try:
+            resolved[parameter] = _table_material(resolve_material(text, table), table) if text else None
+        except InputError as err:
+            raise InputError(f"{parameter}: {err}") from None
+    return MaterialRoles(first=table[names[0]], second=table[names[1]] if len(names) > 1 else None,
+                         start=resolved["start"], target=resolved["target"])
+
+
+def blend(m1, m2, f: np.ndarray) -> np.ndarray:
+    """Eq. 1, corrected: M1 + clip(f, 0, 1) (M2 - M1); (n, 3) float RGB for f (n,).
+
+    m1, m2: (3,) colours (or Materials). M1 where f <= 0, M2 where f >= 1, linear between.
+    """
+    c1 = np.asarray(m1.color if isinstance(m1, Material) else m1, dtype=np.float64).reshape(1, -1)
+    c2 = np.asarray(m2.color if isinstance(m2, Material) else m2, dtype=np.float64).reshape(1, -1)
+    weight = np.clip(np.nan_to_num(np.asarray(f, dtype=np.float64).reshape(-1, 1), nan=0.0), 0.0, 1.0)
+    return c1 + weight * (c2 - c1)
+
+
+def to_rgb8(colors: np.ndarray) -> np.ndarray:
+    """(n, 3) float colours 0..255 rounded to (n, 3) uint8."""
+    return np.clip(np.rint(colors), 0, 255).astype(np.uint8)

@@ -1,0 +1,203 @@
+"""Reference features (a plane, point, axis or surface) and each point's distance to one (paper section II.B).
+
+A material distribution measures the minimum distance of every point to a reference
+feature and normalises it to r in [0, 1] (:func:`normalise`). Every kind of reference
+is one row of :data:`REFERENCES`: the options it takes, how its defaults resolve
+against the model, its distance and how it is written. Points are (n, 3) float arrays
+in mm. Errors name the parameter of :func:`make_reference` (``kind``, ``at``,
+``normal``, ``direction``, ``surface``) or of :func:`normalise` (``r_range``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from heoslice.errors import InputError
+from heoslice.material.functions import DistributionFunction, evaluate, finite
+from heoslice.material.surface import SurfaceIndex, build_surface_index, surface_distance
+
+
+@dataclass(frozen=True, eq=False)
+class Reference:
+    """A reference feature with every default resolved.
+
+    kind: a key of :data:`REFERENCES`. point: (3,) mm, a point of the plane or axis, or
+    the point itself. direction: (3,) unit normal of the plane or direction of the axis
+    (None otherwise). surface: the indexed reference surface for kind 'surface'.
+    """
+
+    kind: str
+    point: tuple[float, float, float] | None = None
+    direction: tuple[float, float, float] | None = None
+    surface: SurfaceIndex | None = None
+
+    def describe(self) -> str:
+        """One line for logs and PLY comments."""
+        return REFERENCES[self.kind].written(self)
+
+
+def _text(vector) -> str:
+    return "(" + ", ".join(f"{x + 0.0:.6g}" for x in np.round(vector, 9)) + ")"
+
+
+def _vector(name: str, value, unit: bool = False) -> np.ndarray:
+    """(3,) float64 from three numbers (a unit vector when ``unit``); InputError naming the parameter."""
+    try:
+        vector = np.asarray(value, dtype=np.float64).reshape(3)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: must be three numbers x,y,z, got {value!r}") from None
+    if not np.isfinite(vector).all():
+        raise InputError(f"{name}: must be finite, got {value!r}")
+    if unit:
+        length = float(np.linalg.norm(vector))
+        if length == 0.0:
+            raise InputError(f"{name}: must not be the zero vector")
+        vector = vector / length
+    return vector
+
+
+def _centre(vertices: np.ndarray) -> np.ndarray:
+    return (vertices.min(axis=0) + vertices.max(axis=0)) / 2.0
+
+
+def _resolve_plane(vertices, faces, at, normal, direction, surface) -> Reference:
+    n = _vector("normal", (0.0, 0.0, 1.0) if normal is None else normal, unit=True)
+    p = vertices[np.argmin(vertices @ n)] if at is None else _vector("at", at)
+    return Reference("plane", tuple(map(float, p)), tuple(map(float, n)))
+
+
+def _resolve_point(vertices, faces, at, normal, direction, surface) -> Reference:
+    p = _centre(vertices) if at is None else _vector("at", at)
+    return Reference("point", tuple(map(float, p)))
+
+
+def _resolve_axis(vertices, faces, at, normal, direction, surface) -> Reference:
+    u = _vector("direction", (0.0, 0.0, 1.0) if direction is None else direction, unit=True)
+    p = _centre(vertices) if at is None else _vector("at", at)
+    return Reference("axis", tuple(map(float, p)), tuple(map(float, u)))
+
+
+def _resolve_surface(vertices, faces, at, normal, direction, surface) -> Reference:
+    if surface is None:
+        if faces is None:
+            raise InputError("surface: a surface reference on the model itself needs the model's faces")
+        surface = (vertices, faces)
+    return Reference("surface", surface=build_surface_index(*surface))
+
+
+def _offset(reference: Reference, points: np.ndarray) -> np.ndarray:
+    return points - np.asarray(reference.point)
+
+
+def _plane_distance(reference: Reference, points: np.ndarray, progress) -> np.ndarray:
+    return np.abs(_offset(reference, points) @ np.asarray(reference.direction))
+
+
+def _point_distance(reference: Reference, points: np.ndarray, progress) -> np.ndarray:
+    offset = _offset(reference, points)
+    return np.sqrt(np.einsum("ij,ij->i", offset, offset))
+
+
+def _axis_distance(reference: Reference, points: np.ndarray, progress) -> np.ndarray:
+    offset = _offset(reference, points)
+    along = offset @ np.asarray(reference.direction)
+    across = offset - along[:, None] * np.asarray(reference.direction)
+    return np.sqrt(np.einsum("ij,ij->i", across, across))
+
+
+def _surface_distance(reference: Reference, points: np.ndarray, progress) -> np.ndarray:
+    return surface_distance(points, reference.surface, progress=progress)
+
+
+@dataclass(frozen=True)
+class ReferenceKind:
+    """One kind of reference feature.
+
+    options: the geometry parameters of :func:`make_reference` it takes; resolve(vertices,
+    faces, at, normal, direction, surface) -> Reference with the defaults filled in;
+    distance(reference, points (n, 3), progress) -> (n,) mm; written(reference) -> text.
+    """
+
+    options: tuple[str, ...]
+    resolve: Callable[..., Reference]
+    distance: Callable[[Reference, np.ndarray, Callable | None], np.ndarray]
+    written: Callable[[Reference], str]
+
+
+#: The kinds of reference feature, by name. Defaults: plane = normal +Z through the model's
+#: extreme point against the normal (the X-Y plane through the lowest point); point = the
+#: bounding-box centre; axis = vertical (or ``direction``) through the bounding-box centre;
+#: surface = the model's own surface, or a second mesh.
+REFERENCES: dict[str, ReferenceKind] = {
+    "plane": ReferenceKind(("at", "normal"), _resolve_plane, _plane_distance,
+                           lambda ref: f"plane through {_text(ref.point)} with normal {_text(ref.direction)}"),
+    "point": ReferenceKind(("at",), _resolve_point, _point_distance,
+                           lambda ref: f"point {_text(ref.point)}"),
+    "axis": ReferenceKind(("at", "direction"), _resolve_axis, _axis_distance,
+                          lambda ref: f"axis through {_text(ref.point)} along {_text(ref.direction)}"),
+    "surface": ReferenceKind(("surface",), _resolve_surface, _surface_distance,
+                             lambda ref: f"surface of {len(ref.surface.faces)} triangles"),
+}
+REFERENCE_KINDS = tuple(REFERENCES)
+
+
+def reference_kinds_taking(option: str) -> tuple[str, ...]:
+    """The reference kinds that take a geometry option (``at``, ``normal``, ``direction``, ``surface``)."""
+    return tuple(name for name, row in REFERENCES.items() if option in row.options)
+
+
+def make_reference(kind: str, vertices: np.ndarray, faces: np.ndarray | None = None, *,
+                   at=None, normal=None, direction=None,
+                   surface: tuple[np.ndarray, np.ndarray] | None = None) -> Reference:
+    """Resolve a reference feature against the model (vertices (n, 3) mm, faces (m, 3)); see :data:`REFERENCES`.
+
+    ``surface`` = (vertices, faces) of a second mesh for a surface reference.
+    """
+    name = str(kind).strip().lower()
+    if name not in REFERENCES:
+        raise InputError(f"kind: unknown reference {name!r} (choose from {', '.join(REFERENCE_KINDS)})")
+    for option, value in (("at", at), ("normal", normal), ("direction", direction), ("surface", surface)):
+        if value is not None and option not in REFERENCES[name].options:
+            raise InputError(f"{option}: only applies to a {' or '.join(reference_kinds_taking(option))} "
+                             f"reference, not {name!r}")
+    vertices = np.asarray(vertices, dtype=np.float64)
+    return REFERENCES[name].resolve(vertices, faces, at, normal, direction, surface)
+
+
+def reference_distance(reference: Reference, points: np.ndarray,
+                       progress: Callable[[int, int], None] | None = None) -> np.ndarray:
+    """Minimum distance (n,) float64 mm from each point (n, 3) mm to the reference feature.
+
+    ``progress(done, total)`` is called as points are done (only a surface takes long).
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    return REFERENCES[reference.kind].distance(reference, points, progress)
+
+
+def normalise(distance: np.ndarray, r_range: tuple[float, float] | None = None) -> np.ndarray:
+    """r (n,) in [0, 1]: distance / its maximum, or (distance - R0) / (R1 - R0) clipped.
+
+    ``r_range`` = (R0, R1) in mm. A range of zero width (every distance 0 by default,
+    or R1 <= R0) raises InputError naming ``r_range``.
+    """
+    distance = np.asarray(distance, dtype=np.float64)
+    if r_range is None:
+        top = float(distance.max(initial=0.0))
+        if not top > 0.0:
+            raise InputError("r_range: every point is at distance 0 from the reference: the range is of zero "
+                             "width (choose another reference or give a range in mm)")
+        return np.clip(distance / top, 0.0, 1.0)
+    low, high = (finite("r_range", v) for v in r_range)
+    if not high > low:
+        raise InputError(f"r_range: {low:g} {high:g} mm is of zero or negative width (need R0 < R1)")
+    return np.clip((distance - low) / (high - low), 0.0, 1.0)
+
+
+def material_fraction(points: np.ndarray, reference: Reference, func: DistributionFunction,
+                      r_range: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(r, f) for points (n, 3) mm: normalised distance to the reference and f(r) (not clipped)."""
+    r = normalise(reference_distance(reference, points), r_range)
+    return r, evaluate(func, r)

@@ -1,0 +1,38 @@
+"""The slice pipeline: a :class:`SliceSpec` in, a stack on disk out.
+
+spec (what is asked, checked) -> slice_job (sizes checked, directory prepared, manifest last) -> runs
+(consecutive planes sliced, chained, then rendered and written layer by layer) -> layer_job (one layer:
+render, encode, write; what it leaves to the next) ; parallel holds every process matter (forks, the
+slice-ahead helper, shared memory, allocator, collector, BLAS threads, dying with the parent).
+
+The names below are loaded on first use (PEP 562), not when the package is imported: the ``heoslice``
+command imports :mod:`heoslice.pipeline.parallel` to set its process up before numpy loads.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+#: Public name -> the module of this package that defines it.
+_EXPORTS = {
+    "SliceSpec": "spec", "StageTimes": "spec", "channel_name": "spec", "MIN_LAYER_MM": "spec",
+    "MIN_DPI": "spec", "MAX_DPI": "spec",
+    "LayerJob": "layer_job", "GradedJob": "layer_job", "PipelineCache": "layer_job", "layer_jobs": "layer_job",
+    "render_and_write": "layer_job",
+    "RunContext": "runs", "RunResult": "runs", "run_contours": "runs", "slice_run": "runs", "plane_runs": "runs",
+    "slice_to_stack": "slice_job", "grading_summary": "slice_job", "MAX_LAYERS": "slice_job",
+    "run_all": "parallel", "keep_freed_memory": "parallel",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), name)
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_EXPORTS])

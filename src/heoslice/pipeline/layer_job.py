@@ -1,0 +1,187 @@
+"""One layer's job: what it needs (:class:`LayerJob`), how it is rendered, encoded and written, and what
+one layer leaves to the next that the same process renders (:class:`PipelineCache`)."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.layers.contours import Contours
+from heoslice.layers.rasterising import Grid, count_solid, packed_mask, render_layer
+from heoslice.layers.slicing import interpolate_at
+from heoslice.mesh import Mesh
+from heoslice.pipeline.spec import SliceSpec, channel_name
+from heoslice.grading import GradeSpec, GradingCache, droplet_planes, render_graded
+from heoslice.stack import encode_bilevel_tiff, encode_tiff, layer_file_name, write_file
+
+
+@dataclass(frozen=True, slots=True)
+class EncodedSolid:
+    """A 1-bit layer as encoded: its form (width, dpi, compression, solid pixels), its packed solid bits
+    ((h, ceil(w / 8)) uint8) and its TIFF bytes."""
+
+    form: tuple
+    packed: np.ndarray
+    data: bytes
+
+
+@dataclass(slots=True)
+class PipelineCache:
+    """What the last layer a process rendered leaves to the next when they are alike (an extruded part).
+
+    ``grading`` is the grading stage's own cache (sub-regions, rings, choice table), handed to it
+    unchanged; ``solid`` the last 1-bit layer's encoding. One cache per process, kept from run to run
+    (the same slice); a worker starts from a copy of the one its parent's first layer filled.
+    """
+
+    grading: GradingCache = field(default_factory=GradingCache)
+    solid: EncodedSolid | None = None
+
+
+@dataclass(frozen=True)
+class GradedJob:
+    """The extra a graded layer needs: its loops' signed areas, parents and shells ((l,), within
+    the layer), the contour points' material fractions ((p,) or None), and the channel files."""
+
+    spec: GradeSpec
+    area: np.ndarray
+    parent: np.ndarray
+    loop_shell: np.ndarray | None
+    point_material: np.ndarray | None
+    channel_paths: tuple[Path, ...] | None
+
+
+@dataclass(frozen=True)
+class LayerJob:
+    """Everything needed to render and write one layer: its loops ((p, 2) float points, mm, and
+    (loops + 1,) offsets), point colours ((p, 3) float or None), the grid and encoding, the file."""
+
+    index: int
+    points: np.ndarray
+    offsets: np.ndarray
+    point_colors: np.ndarray | None
+    grid: Grid
+    dpi: tuple[float, float]
+    compression: str
+    base_color: tuple[int, int, int]
+    path: Path
+    graded: GradedJob | None = None
+
+
+def render_and_write(job: LayerJob, cache: PipelineCache | None = None, packed: np.ndarray | None = None
+                     ) -> tuple:
+    """Render, encode and write one layer.
+
+    Returns (index, sha256, solid pixels, raster s, encode s, channel entries); the
+    channel entries (graded layers with droplet masks) are (file name, sha256, solid pixels).
+    ``packed`` is the layer's solid bits when they were made ahead (:func:`packed_mask`'s).
+    With a ``cache``, a graded layer takes the sub-regions of families it shares with the layer
+    rendered before it (:func:`heoslice.grading.layer_regions`), and a 1-bit layer with the same
+    solid bits as that one takes its encoded TIFF.
+    """
+    if job.graded is not None:
+        return _render_graded_and_write(job, cache, packed)
+    started = time.perf_counter()
+    image, solid = render_layer(job.points, job.offsets, job.grid, point_colors=job.point_colors,
+                                base_color=job.base_color)
+    rendered = time.perf_counter()
+    if job.point_colors is None:
+        data = _solid_tiff(image, solid, job, cache)
+    else:
+        data = encode_tiff(image, job.dpi, job.compression)
+    encoded = time.perf_counter()
+    digest = write_file(job.path, data)
+    return job.index, digest, solid, rendered - started, encoded - rendered, ()
+
+
+def _solid_tiff(packed: np.ndarray, solid: int, job: LayerJob, cache: PipelineCache | None) -> bytes:
+    """The 1-bit TIFF of a layer's solid bits ((h, ceil(w / 8)) uint8, ``solid`` of them set): the last
+    layer's (kept in ``cache``) when the bits are the same, as an extruded part's layers are (the bits are
+    compared only when their counts are equal)."""
+    form = (job.grid.width, job.dpi, job.compression, solid)
+    last = None if cache is None else cache.solid
+    if last is not None and last.form == form and np.array_equal(last.packed, packed):
+        return last.data
+    data = encode_bilevel_tiff(packed, job.grid.width, job.dpi, job.compression)
+    if cache is not None:
+        cache.solid = EncodedSolid(form, packed, data)
+    return data
+
+
+def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed: np.ndarray | None) -> tuple:
+    """The graded branch of :func:`render_and_write`: the RGBA layer, or with droplet masks the
+    1-bit solid layer plus one 1-bit TIFF per material."""
+    graded = job.graded
+    grading_cache = None if cache is None else cache.grading
+    started = time.perf_counter()
+    packed = packed if packed is not None else packed_mask(job.points, job.offsets, job.grid)
+    if graded.channel_paths is not None:
+        planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, None,
+                                job.grid, graded.spec, job.index, point_material=graded.point_material,
+                                packed=packed, cache=grading_cache)
+        rendered = time.perf_counter()
+        width = job.grid.width
+        solid = count_solid(packed)
+        data = _solid_tiff(packed, solid, job, cache)
+        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression), count_solid(plane))
+                  for path, plane in zip(graded.channel_paths, planes)]
+        encoded = time.perf_counter()
+        digest = write_file(job.path, data)
+        channels = tuple((path.name, write_file(path, blob), count) for path, blob, count in pieces)
+        return job.index, digest, solid, rendered - started, encoded - rendered, channels
+    mask = np.unpackbits(packed, axis=1, count=job.grid.width).view(bool)
+    layer = render_graded(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, mask, job.grid,
+                          graded.spec, job.index, point_colors=job.point_colors,
+                          point_material=graded.point_material, cache=grading_cache)
+    rendered = time.perf_counter()
+    data = encode_tiff(layer.image, job.dpi, job.compression)
+    encoded = time.perf_counter()
+    digest = write_file(job.path, data)
+    return job.index, digest, layer.solid, rendered - started, encoded - rendered, ()
+
+
+def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, directory: Path,
+               first_layer: int = 0):
+    """One LayerJob per layer of ``contours`` (layer k is stack layer first_layer + k), built lazily."""
+    colors = None if mesh.colors is None else mesh.colors.astype(np.float64)
+    grade = spec.grade
+    materials = grade.channel_materials() if grade is not None else ()
+    loop_shell = None if grade is None or mesh.shell is None or not len(contours.face) else mesh.shell[contours.face]
+    for local in range(len(contours.layer_offsets) - 1):
+        index = first_layer + local
+        first, last = contours.layer_offsets[local], contours.layer_offsets[local + 1]
+        start, stop = contours.offsets[first], contours.offsets[last]
+        point_colors = None
+        if colors is not None:
+            point_colors = interpolate_at(colors, contours.point_edge[start:stop], contours.point_t[start:stop])
+        graded = None
+        if grade is not None:
+            parent = contours.parent[first:last]
+            point_material = None
+            if mesh.material is not None:
+                point_material = interpolate_at(mesh.material, contours.point_edge[start:stop],
+                                                contours.point_t[start:stop])
+            graded = GradedJob(
+                spec=grade,
+                area=contours.area[first:last],
+                parent=np.where(parent >= 0, parent - first, -1),
+                loop_shell=None if loop_shell is None else loop_shell[first:last],
+                point_material=point_material,
+                channel_paths=tuple(directory / layer_file_name(index, channel_name(m)) for m in materials)
+                if spec.channels else None,
+            )
+        yield LayerJob(
+            index=index,
+            points=contours.points[start:stop],
+            offsets=contours.offsets[first:last + 1] - start,
+            point_colors=point_colors,
+            grid=grid,
+            dpi=spec.dpi,
+            compression=spec.compression,
+            base_color=spec.base_color,
+            path=directory / layer_file_name(index),
+            graded=graded,
+        )

@@ -1,0 +1,83 @@
+"""Runs of planes: the whole pipeline (slice, chain, render, write) for consecutive layers at once.
+
+A run is sliced and chained in one go (bounded by ``SliceSpec.max_segments`` segments, so memory does
+not grow with the part), then its layers are rendered and written one by one.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.layers.contours import Contours, build_contours
+from heoslice.layers.rasterising import Grid
+from heoslice.layers.slicing import plane_chunks, slice_planes
+from heoslice.mesh import Mesh
+from heoslice.pipeline.layer_job import PipelineCache, layer_jobs, render_and_write
+from heoslice.pipeline.spec import SliceSpec
+
+#: A run's contours with the seconds spent slicing and chaining them: (contours, slice s, chain s).
+SlicedRun = tuple[Contours, float, float]
+
+
+@dataclass(frozen=True)
+class RunContext:
+    """What every run of planes needs: the mesh, the planes ((L,) float, mm), each face's z-range
+    ((m,) lowest and highest, mm), the grid, the spec and the stack directory."""
+
+    mesh: Mesh
+    z: np.ndarray
+    face_range: tuple[np.ndarray, np.ndarray]
+    grid: Grid
+    spec: SliceSpec
+    directory: Path
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """One run's layers (render_and_write results), its open-contour layers and stage seconds."""
+
+    layers: list
+    open_layers: np.ndarray
+    slice_s: float
+    contours_s: float
+
+
+def run_contours(context: RunContext, start: int, stop: int) -> SlicedRun:
+    """The contours of planes z[start:stop] (numpy only, no compiled kernel), with the seconds spent slicing
+    and chaining them."""
+    mesh = context.mesh
+    began = time.perf_counter()
+    sections = slice_planes(mesh.vertices, mesh.faces, context.z, start, stop, context.face_range)
+    sliced = time.perf_counter()
+    contours = build_contours(sections, hierarchy=context.spec.grade is not None)
+    return contours, sliced - began, time.perf_counter() - sliced
+
+
+def slice_run(context: RunContext, start: int, stop: int, cache: PipelineCache | None = None,
+              sliced: SlicedRun | None = None, masks: np.ndarray | None = None) -> RunResult:
+    """Slice, chain, render and write planes z[start:stop]: the whole pipeline for one run of layers.
+
+    ``cache`` keeps what the last layer rendered leaves to the next (:class:`PipelineCache`); kept from run
+    to run, it carries that over to the next run's first layer too. ``sliced`` is the run's contours when
+    they were made already, ``masks`` ((stop - start, h, ceil(w / 8)) uint8) its layers' solid bits.
+    """
+    contours, slice_s, contours_s = sliced if sliced is not None else run_contours(context, start, stop)
+    jobs = layer_jobs(contours, context.mesh, context.grid, context.spec, context.directory, first_layer=start)
+    cache = PipelineCache() if cache is None else cache
+    layers = [render_and_write(job, cache, None if masks is None else masks[local])
+              for local, job in enumerate(jobs)]
+    return RunResult(layers=layers, open_layers=start + contours.layer[contours.closed_by_join],
+                     slice_s=slice_s, contours_s=contours_s)
+
+
+def plane_runs(context: RunContext, max_layers: int = 32) -> list[tuple[int, int]]:
+    """Runs of at most ``spec.max_segments`` segments and ``max_layers`` planes (memory and load balance)."""
+    runs = []
+    for start, stop in plane_chunks(context.mesh.vertices, context.mesh.faces, context.z,
+                                    context.spec.max_segments, context.face_range):
+        runs += [(first, min(first + max_layers, stop)) for first in range(start, stop, max_layers)]
+    return runs

@@ -1,0 +1,100 @@
+"""The slice job: mesh -> planes -> runs of layers (sliced, chained, rendered, written) -> manifest.
+
+:func:`slice_to_stack` checks the job's sizes before anything is written, prepares the directory, has
+every run of planes done (:func:`heoslice.pipeline.parallel.run_all`, streaming each layer to disk as
+soon as it is done, so memory does not grow with the number of layers) and writes the manifest last.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.errors import InputError
+from heoslice.layers.planes import layer_count, plane_heights
+from heoslice.layers.rasterising import grid_for
+from heoslice.layers.slicing import face_z_range
+from heoslice.mesh import Mesh
+from heoslice.pipeline.parallel import run_all
+from heoslice.pipeline.runs import RunContext, RunResult
+from heoslice.pipeline.spec import SliceSpec, StageTimes
+from heoslice.grading import GradeSpec
+from heoslice.stack import (
+    ChannelRecord,
+    ImageRecord,
+    LayerRecord,
+    build_manifest,
+    check_image_size,
+    grading_summary,
+    prepare_directory,
+    write_manifest,
+)
+
+#: Most layers one stack may have (a 1 m part at 1 micrometre layers).
+MAX_LAYERS = 1_000_000
+
+
+def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool = False,
+                   progress: Callable[[int, int], None] | None = None) -> tuple[dict, StageTimes]:
+    """Slice ``mesh`` into a stack in ``directory``; return the manifest and stage timings.
+
+    ``progress(done, total)`` is called as layers finish. The manifest is written
+    last; if anything fails before, the directory holds no manifest.
+    """
+    directory = Path(directory)
+    times = StageTimes()
+    started = time.perf_counter()
+    grid = grid_for(mesh.bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
+    check_image_size(grid.width, grid.height)
+    bounds = mesh.bounds
+    layers = layer_count(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
+    if layers > MAX_LAYERS:
+        raise InputError(f"layer_height_mm: {spec.layer_height_mm} mm gives {layers} layers for this part "
+                         f"(at most {MAX_LAYERS})")
+    prepare_directory(directory, force)
+    z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
+    results: dict[int, tuple] = {}
+    open_layers = np.zeros(len(z), dtype=bool)
+
+    def on_done(run: RunResult) -> None:
+        for index, digest, solid, raster_s, encode_s, channels in run.layers:
+            results[index] = (digest, solid, channels)
+            times.raster += raster_s
+            times.encode += encode_s
+        open_layers[run.open_layers] = True
+        times.slice += run.slice_s
+        times.contours += run.contours_s
+        if progress is not None:
+            progress(len(results), len(z))
+
+    context = RunContext(mesh=mesh, z=z, face_range=face_z_range(mesh.vertices, mesh.faces), grid=grid,
+                         spec=spec, directory=directory)
+    run_all(context, spec.worker_count(), on_done)
+    mode = _image_mode(mesh, spec)
+    manifest = build_manifest(
+        source_file=mesh.source.name, source_sha256=mesh.sha256, layer_height_mm=spec.layer_height_mm,
+        dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
+        image=ImageRecord(grid.width, grid.height, (grid.x_left, grid.y_top), mode, spec.compression),
+        z_range_mm=(bounds[0, 2], bounds[1, 2]), warnings=mesh.warnings,
+        layers=[LayerRecord(z[index], results[index][0], results[index][1], open_layers[index],
+                            _channel_records(spec.grade, results[index][2]) if spec.channels else None)
+                for index in range(len(z))],
+        grading=None if spec.grade is None else grading_summary(spec.grade))
+    write_manifest(directory, manifest)
+    times.total = time.perf_counter() - started
+    return manifest, times
+
+
+def _image_mode(mesh: Mesh, spec: SliceSpec) -> str:
+    """The layer images' mode: RGBA for colours (a coloured mesh, graded interiors), except that
+    with droplet masks the layer image is the 1-bit solid mask and the masks carry the materials."""
+    return "RGBA" if (mesh.colors is not None or spec.grade is not None) and not spec.channels else "1"
+
+
+def _channel_records(grade: GradeSpec, written: tuple) -> tuple[ChannelRecord, ...]:
+    """The manifest records of one layer's droplet masks: material, file, sha256, solid pixels."""
+    return tuple(ChannelRecord(material.name, name, digest, solid)
+                 for material, (name, digest, solid) in zip(grade.channel_materials(), written))

@@ -1,0 +1,11 @@
+"""PNG previews of a stack for people who would rather look: one layer, a contact sheet, a vertical section.
+
+Every layer shown is read through :mod:`heoslice.stack`: the manifest is checked, each
+file must stay inside the stack and match its sha256 and layout before it is decoded.
+"""
+
+from heoslice.preview.layer import channel_colors, channels_rgb, fit, layer_display, layer_image, layer_rgb
+from heoslice.preview.sheet import contact_sheet, parse_layers
+
+__all__ = ["channel_colors", "channels_rgb", "contact_sheet", "fit", "layer_display", "layer_image", "layer_rgb",
+           "parse_layers"]

@@ -1,0 +1,76 @@
+"""A print job and where it comes from: a verified stack becomes a :class:`JobSpec` and a layer source.
+
+Channel 0 of a layer is its solid mask, channels 1.. its droplet masks, each bit-packed by rows
+(docs/protocol.md section 3). The job id is the CRC-32 of the stack's manifest.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.errors import InputError
+from heoslice.printing import protocol as P
+
+LayerSource = Callable[[int], Sequence[bytes]]
+
+
+@dataclass(frozen=True)
+class JobSpec:
+    """A print job: ``layer_count`` layers of ``channels`` bit-packed masks of ``width`` x ``height`` pixels."""
+
+    job_id: int
+    layer_count: int
+    channels: int
+    width: int
+    height: int
+
+    @property
+    def channel_bytes(self) -> int:
+        """Bytes of one channel of one layer: rows packed MSB first, each padded to whole bytes."""
+        return self.height * ((self.width + 7) // 8)
+
+
+def pack_mask(mask: np.ndarray) -> bytes:
+    """Channel payload of a (height, width) bool mask: ``np.packbits`` along rows (MSB first, rows padded)."""
+    return np.packbits(np.asarray(mask, dtype=bool), axis=1).tobytes()
+
+
+def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
+    """Verify a stack (VerifyError if it fails) and return its job and layer source.
+
+    Channel 0 is the solid mask; channels 1.. are the droplet masks of a layer entry's
+    ``"channels"`` list when present (layers with fewer channels are padded with empty masks).
+    """
+    from heoslice.stack import decode_mask, load_verified, read_layer_mask, resolve_inside
+
+    directory = Path(directory)
+    manifest = load_verified(directory)
+    layers = manifest["layers"]
+    if not layers:
+        raise InputError(f"{directory}: the stack has no layers")
+    width, height = manifest["image"]["width"], manifest["image"]["height"]
+    channels = 1 + max(len(entry.get("channels") or []) for entry in layers)
+    job_id = P.crc32(json.dumps(manifest, sort_keys=True).encode()) or 1
+    job = JobSpec(job_id, len(layers), channels, width, height)
+    as_nonzero = {**manifest, "mask": "nonzero"}
+
+    def get_layer(index: int) -> list[bytes]:
+        out = [pack_mask(read_layer_mask(directory, manifest, index))]
+        for channel in layers[index].get("channels") or []:
+            out.append(pack_mask(decode_mask(resolve_inside(directory, channel["file"]), as_nonzero,
+                                             sha256=channel["sha256"])))
+        empty = bytes(job.channel_bytes)
+        return out + [empty] * (channels - len(out))
+
+    return job, get_layer
+
+
+def job_summary(job: JobSpec) -> str:
+    """One line describing a job."""
+    return (f"{job.layer_count} layers, {job.channels} channel(s) of {job.width} x {job.height} px "
+            f"({job.channel_bytes} bytes each), job id {job.job_id:08x}")

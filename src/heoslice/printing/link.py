@@ -1,0 +1,419 @@
+"""The host side of ``heoslice print``: drive one job over a :class:`~heoslice.printing.session.Session`.
+
+:class:`PrinterLink` feeds the job's data stream (:mod:`~heoslice.printing.stream`) through the send
+window (:mod:`~heoslice.printing.window`), reads ACK / NAK / STATUS, logs each executed layer, and on a
+lost link reconnects and resumes while the controller keeps its boot id. Protocol: ``docs/protocol.md``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from heoslice.errors import (ControllerFaultError, ControllerResetError, IncompatibleControllerError, InputError,
+                             LinkDeadError, PortError, PrintInterrupted, RetryLimitError)
+from heoslice.printing import protocol as P
+from heoslice.printing.job import JobSpec, LayerSource
+from heoslice.printing.log import PrintLog
+from heoslice.printing.ports import Connector, connector_for
+from heoslice.printing.session import LinkLost, LinkTiming, Session
+from heoslice.printing.stream import CHUNK_HEADER, check_from_layer, job_messages
+from heoslice.printing.window import MIN_CHUNK_PAYLOAD, FrameSizer, OutFrame, SendWindow
+
+
+@dataclass(frozen=True)
+class Progress:
+    """Passed to ``on_progress`` after each executed layer."""
+
+    layer: int
+    layers_done: int
+    layers_total: int
+    bytes_sent: int
+    elapsed_s: float
+
+
+@dataclass(frozen=True)
+class PrintResult:
+    """What a finished print did; bytes are wire bytes host -> controller."""
+
+    first_layer: int
+    last_completed: int
+    layers_printed: int
+    bytes_sent: int
+    payload_bytes: int
+    raw_bytes: int
+    frames_sent: int
+    frames_retransmitted: int
+    timeouts: int
+    naks: int
+    reconnects: int
+    elapsed_s: float
+    boot_id: int
+    frames_skipped: int = 0  # retransmissions saved: frames the controller reported held (SACK)
+    sack: bool = False  # selective acknowledgement negotiated (in the last session)
+
+
+@dataclass
+class _Counters:
+    """Running totals of a print, and per-layer bytes and retransmissions until the layer is logged."""
+
+    bytes_sent: int = 0
+    payload_bytes: int = 0
+    raw_bytes: int = 0
+    frames_sent: int = 0
+    retransmitted: int = 0
+    skipped: int = 0
+    timeouts: int = 0
+    naks: int = 0
+    reconnects: int = 0
+    layer_bytes: dict = field(default_factory=dict)
+    layer_retries: dict = field(default_factory=dict)
+
+    def on_sent(self, out: OutFrame, wire_bytes: int, resent: bool) -> None:
+        """Count one transmission of ``out``."""
+        self.bytes_sent += wire_bytes
+        self.frames_sent += 1
+        self.layer_bytes[out.layer] = self.layer_bytes.get(out.layer, 0) + wire_bytes
+        if resent:
+            self.retransmitted += 1
+            self.layer_retries[out.layer] = self.layer_retries.get(out.layer, 0) + 1
+        else:
+            self.payload_bytes += out.payload
+            self.raw_bytes += out.raw
+
+
+class PrinterLink:
+    """One print job over one connector: the stream, the window, progress and reconnection (stateful, so a class)."""
+
+    def __init__(self, connector: Connector, job: JobSpec, get_layer: LayerSource, *,
+                 timing: LinkTiming = LinkTiming(), max_payload: int = 1024, encodings: int = P.ALL_ENCODINGS,
+                 features: int = P.ALL_FEATURES, log: PrintLog | None = None,
+                 on_progress: Callable[[Progress], None] | None = None, session_seed: int | None = None):
+        if job.layer_count < 1:
+            raise InputError("the job has no layers")
+        self.job, self.get_layer = job, get_layer
+        self.name = connector.name
+        self.timing = timing
+        self.max_payload = min(max_payload, P.MAX_PAYLOAD_LIMIT)
+        self.encodings = encodings | (1 << P.ENC_RAW)
+        self.features = features
+        self.session = Session(connector, timing, P.Hello(P.PROTOCOL_VERSION, self.max_payload, self.encodings,
+                                                          features), session_seed)
+        self.log = log or PrintLog(None)
+        self.on_progress = on_progress
+        self.window = SendWindow()
+        self.sizer = FrameSizer()
+        self.counters = _Counters()
+        self.boot_id: int | None = None
+        self.last_completed = -1
+        self.last_queued = -1
+        self.state = P.STATE_IDLE
+        self.first_layer = 0
+        self._negotiated = 1 << P.ENC_RAW
+        self._link_payload = MIN_CHUNK_PAYLOAD + CHUNK_HEADER
+        self._generator: Iterator | None = None
+        self._generator_done = False
+        self._started = 0.0
+
+    # -- public ------------------------------------------------------------------------
+
+    def run(self, from_layer: int | None = None) -> PrintResult:
+        """Print the job (from ``from_layer`` or wherever the controller's copy of this job stands)."""
+        self._started = time.monotonic()
+        self.log.write("start", port=self.name, job_id=self.job.job_id, layers=self.job.layer_count,
+                       channels=self.job.channels, width=self.job.width, height=self.job.height,
+                       from_layer=from_layer)
+        try:
+            self.session.open()
+            ack = self.session.handshake(time.monotonic() + self.timing.hello_timeout_s, first=True)
+            self._accept_hello(ack)
+            start = self._first_layer(ack, from_layer)
+            self.first_layer = start
+            self._restart_stream(start)
+            self.log.write("connected", boot_id=ack.boot_id, controller_state=P.STATE_NAMES.get(ack.state),
+                           first_layer=start, encodings=self._negotiated, window=self.window.window,
+                           rx_buffer=ack.rx_buffer, sack=self.window.sack)
+            self._pump()
+        except KeyboardInterrupt:
+            self.abort()
+            self.log.write("interrupted", last_completed=self.last_completed)
+            raise PrintInterrupted(f"interrupted: ABORT sent to the controller on {self.name} "
+                                   f"(last completed layer {self.last_completed})") from None
+        except LinkLost as lost:
+            self.log.write("error", message=str(lost), kind="LinkDeadError", last_completed=self.last_completed)
+            raise LinkDeadError(f"{self.name}: the link failed while connecting ({lost})") from None
+        except Exception as err:
+            self.log.write("error", message=str(err), kind=type(err).__name__, last_completed=self.last_completed)
+            raise
+        finally:
+            self.session.close()
+        result = self.result()
+        self.log.write("done", **dict(result.__dict__))
+        return result
+
+    def result(self) -> PrintResult:
+        """Counters so far."""
+        c = self.counters
+        return PrintResult(self.first_layer, self.last_completed, max(0, self.last_completed - self.first_layer + 1),
+                           c.bytes_sent, c.payload_bytes, c.raw_bytes, c.frames_sent, c.retransmitted, c.timeouts,
+                           c.naks, c.reconnects, time.monotonic() - self._started, self.boot_id or 0, c.skipped,
+                           self.window.sack)
+
+    def abort(self) -> bool:
+        """Send ABORT (out of band) until the controller reports it; True when confirmed."""
+        return self._out_of_band(P.Abort(), P.STATE_ABORTED)
+
+    def pause(self) -> bool:
+        """Send PAUSE (out of band) until the controller reports it; True when confirmed."""
+        return self._out_of_band(P.Pause(), P.STATE_PAUSED)
+
+    def _out_of_band(self, message: P.Message, wanted_state: int) -> bool:
+        """An out-of-band message confirmed by a STATUS in ``wanted_state``."""
+        status = self.session.out_of_band(message, wanted_state)
+        if status is None:
+            return False
+        self.state = status.state
+        return True
+
+    # -- connection --------------------------------------------------------------------
+
+    def _accept_hello(self, ack: P.HelloAck) -> None:
+        """Take the controller's capabilities; check the job fits and the boot id is the one we started with."""
+        job = self.job
+        if self.boot_id is None:
+            if job.channels > ack.channels or job.width > ack.max_width or job.height > ack.max_height:
+                raise IncompatibleControllerError(
+                    f"{self.name}: the job ({job.channels} channel(s), {job.width} x {job.height} px) does not fit "
+                    f"the printer ({ack.channels} channel(s), at most {ack.max_width} x {ack.max_height} px)")
+            self.boot_id = ack.boot_id
+        elif ack.boot_id != self.boot_id:
+            self._reset_detected(ack.boot_id, ack.job_id, ack.last_completed)
+        self._negotiated = (ack.encodings & self.encodings) | (1 << P.ENC_RAW)
+        sack = bool(ack.features & self.features & P.FEATURE_SACK)
+        self._link_payload = max(MIN_CHUNK_PAYLOAD + CHUNK_HEADER, min(self.max_payload, ack.max_payload))
+        self.sizer.invalidate()
+        self.window.configure(ack.window, ack.rx_buffer, sack)
+        self.state = ack.state
+        self._note_progress(ack.last_queued, ack.last_completed)
+        if ack.state == P.STATE_ERROR and ack.job_id == job.job_id:
+            raise ControllerFaultError(f"{self.name}: the controller is in an error state "
+                                       f"(after layer {ack.last_completed}); fix the printer and reset it")
+
+    def _reset_detected(self, boot_id: int, job_id: int, last_completed: int) -> None:
+        """Raise ControllerResetError naming the layer to resume from."""
+        done = last_completed if job_id == self.job.job_id else self.last_completed
+        raise ControllerResetError(
+            f"{self.name}: the controller was reset during the print (boot id {self.boot_id:08x} -> {boot_id:08x}); "
+            f"layers up to {done} were printed: check the part, then rerun with --from-layer {done + 1}",
+            next_layer=done + 1)
+
+    def _first_layer(self, ack: P.HelloAck, from_layer: int | None) -> int:
+        """Where this run starts: --from-layer, the controller's resume point for this job, or 0."""
+        job = self.job
+        if from_layer is not None:
+            check_from_layer(job, from_layer)
+            return from_layer
+        if ack.job_id == job.job_id and ack.state in (P.STATE_RECEIVING, P.STATE_PAUSED):
+            self.log.write("resume", layer=ack.last_queued + 1, controller_state=P.STATE_NAMES[ack.state])
+            if ack.state == P.STATE_PAUSED:
+                self._out_of_band(P.Resume(), P.STATE_RECEIVING)
+            return ack.last_queued + 1
+        if ack.job_id == job.job_id and ack.state == P.STATE_IDLE and 0 <= ack.last_completed < job.layer_count - 1:
+            raise ControllerResetError(
+                f"{self.name}: the controller was reset during an earlier print of this job after layer "
+                f"{ack.last_completed}; check the part, then rerun with --from-layer {ack.last_completed + 1} "
+                "(or --from-layer 0 to start over)", next_layer=ack.last_completed + 1)
+        return 0
+
+    def _reconnect(self, reason: str) -> None:
+        """Reopen the port and say HELLO until the controller answers; resume with the same boot id."""
+        self.counters.reconnects += 1
+        self.log.write("reconnect", reason=reason, last_completed=self.last_completed)
+        deadline = time.monotonic() + self.timing.reconnect_s
+        while True:
+            self.session.close()
+            try:
+                self.session.open()
+                ack = self.session.handshake(deadline, first=False)
+                break
+            except (PortError, LinkLost):
+                if time.monotonic() >= deadline:
+                    raise LinkDeadError(
+                        f"{self.name}: link lost ({reason}) and the controller could not be reached again within "
+                        f"{self.timing.reconnect_s:g} s (last completed layer {self.last_completed}); check cable "
+                        "and power, then rerun the same command to resume") from None
+                time.sleep(0.05)
+        self._accept_hello(ack)
+        if ack.job_id == self.job.job_id and ack.state in (P.STATE_RECEIVING, P.STATE_PAUSED):
+            resume = ack.last_queued + 1
+            if ack.state == P.STATE_PAUSED:
+                self._out_of_band(P.Resume(), P.STATE_RECEIVING)
+        elif ack.job_id == self.job.job_id and ack.state == P.STATE_DONE:
+            resume = self.job.layer_count
+        else:
+            resume = self.first_layer
+        self.log.write("resume", layer=resume, boot_id=ack.boot_id)
+        self._restart_stream(resume)
+
+    # -- the data stream ---------------------------------------------------------------
+
+    def _restart_stream(self, start: int) -> None:
+        """Begin a fresh data stream (seq 0) at layer ``start``."""
+        self.window.restart()
+        self.window.stuck = 0
+        self._generator = job_messages(self.job, self.get_layer, start, self._chunk_budget, self._negotiated)
+        self._generator_done = start >= self.job.layer_count and self.last_completed >= self.job.layer_count - 1
+
+    def _chunk_budget(self) -> int:
+        """Payload bytes per data frame now: the negotiated maximum, shrunk while bytes are being corrupted."""
+        return self.sizer.budget(self._link_payload, self.window.sack)
+
+    def _new_frame(self) -> bool:
+        """Append the next message of the stream to the window; False when the stream is exhausted."""
+        if self._generator_done:
+            return False
+        try:
+            message, layer, raw = next(self._generator)
+        except StopIteration:
+            self._generator_done = True
+            return False
+        kind, payload = P.pack_message(message)
+        self.window.push(kind, payload, layer, raw)
+        return True
+
+    def _try_send(self, now: float) -> float | None:
+        """Transmit frames the window, credit and pacing allow; return when pacing permits the next one."""
+        window, session = self.window, self.session
+        while True:
+            if window.can_take_new() and not self._new_frame():
+                return None
+            out, skipped = window.next_to_send()
+            self.counters.skipped += skipped
+            if out is None:
+                return None
+            wait = session.pacing_wait(now)
+            if wait is not None:
+                return wait
+            wire = P.encode_frame(P.Frame(out.kind, session.id, out.seq, (window.tag + 1) & 0xFFFF, out.body))
+            wire_end = session.send(wire, now)
+            resent = window.mark_sent(out, wire_end)
+            self.counters.on_sent(out, len(wire), resent)
+            self.sizer.on_sent(len(wire))
+
+    def _go_back(self, reason: str) -> None:
+        """Go-back-N: retransmit every unacknowledged frame not reported held; pause after too many rounds."""
+        stuck = self.window.go_back()
+        self.sizer.on_error()
+        if stuck >= self.timing.retry_limit:
+            head = self.window.head
+            paused = self.pause()
+            self.log.write("retry-limit", seq=head.seq if head else None, layer=head.layer if head else None,
+                           reason=reason, paused=paused)
+            raise RetryLimitError(
+                f"{self.name}: no progress after {self.timing.retry_limit} retransmissions "
+                f"(layer {head.layer if head else '?'}, last: {reason}); the job is "
+                f"{'paused' if paused else 'stopped'} on the controller after layer {self.last_completed}; "
+                "check the link, then rerun the same command to resume")
+
+    def _note_progress(self, last_queued: int, last_completed: int) -> None:
+        """Log each newly executed layer and report progress."""
+        self.last_queued = max(self.last_queued, last_queued)
+        if last_completed <= self.last_completed:
+            return
+        for layer in range(max(self.last_completed + 1, self.first_layer), last_completed + 1):
+            c = self.counters
+            self.log.write("layer", layer=layer, bytes=c.layer_bytes.pop(layer, 0),
+                           retries=c.layer_retries.pop(layer, 0),
+                           status={"state": P.STATE_NAMES.get(self.state, str(self.state)),
+                                   "last_completed": last_completed, "credit": self.window.credit})
+        self.last_completed = last_completed
+        if self.on_progress is not None:
+            self.on_progress(Progress(last_completed, last_completed - self.first_layer + 1,
+                                      self.job.layer_count - self.first_layer, self.counters.bytes_sent,
+                                      time.monotonic() - self._started))
+
+    def _on_status(self, frame: P.Frame, status: P.Status) -> None:
+        """React to STATUS: reset, error or abort stop the print; otherwise it acknowledges like an ACK."""
+        if self.boot_id is not None and status.boot_id != self.boot_id:
+            self._reset_detected(status.boot_id, status.job_id, status.last_completed)
+        if frame.session != self.session.id:
+            return
+        self.state = status.state
+        if status.job_id == self.job.job_id:
+            self._note_progress(status.last_queued, status.last_completed)
+        if status.state == P.STATE_ERROR:
+            raise ControllerFaultError(
+                f"{self.name}: the controller reports {P.ERROR_NAMES.get(status.error, f'error {status.error}')} "
+                f"at layer {status.error_layer}; the job is stopped after layer {status.last_completed} "
+                f"(fix the printer, then rerun with --from-layer {status.last_completed + 1})")
+        if status.state == P.STATE_ABORTED:
+            raise ControllerFaultError(f"{self.name}: the controller aborted the job after layer "
+                                       f"{status.last_completed}")
+        self.window.on_ack(frame.ack, status.credit)
+
+    def _dispatch(self, frame: P.Frame) -> None:
+        """Route one frame from the controller."""
+        if frame.version != P.PROTOCOL_VERSION:
+            return
+        try:
+            message = P.unpack_message(frame.type, frame.payload)
+        except P.ProtocolError:
+            return
+        if isinstance(message, P.Status):
+            self._on_status(frame, message)
+            return
+        if frame.session != self.session.id:
+            return
+        if isinstance(message, P.Ack):
+            self.window.on_ack(frame.ack, message.credit, message.held)
+            self._note_progress(message.last_queued, message.last_completed)
+        elif isinstance(message, P.Nak):
+            self.window.on_ack(frame.ack, message.credit, message.held)
+            self.counters.naks += 1
+            if self.window.nak_calls_for_go_back(frame.ack, message.tag):
+                self._go_back(f"NAK ({message.reason})")
+
+    def _finished(self) -> bool:
+        """True when every frame is acknowledged and the last layer executed."""
+        return self._generator_done and self.window.empty and self.last_completed >= self.job.layer_count - 1
+
+    def _pump(self) -> None:
+        """The main loop: send, read, time out, until the last layer is executed."""
+        timing, session = self.timing, self.session
+        while not self._finished():
+            try:
+                now = time.monotonic()
+                wait_until = self._try_send(now)
+                for frame in session.read_frames():
+                    self._dispatch(frame)
+                now = time.monotonic()
+                if self.window.timed_out(now, timing.ack_timeout_s, timing.max_backoff):
+                    self.counters.timeouts += 1
+                    self._go_back("timeout")
+                if now - session.last_rx > timing.silence_s:
+                    raise LinkLost(f"no frame for {timing.silence_s:g} s")
+                if wait_until is not None and wait_until > now and not session.waiting():
+                    time.sleep(min(wait_until - now, timing.poll_s))
+            except LinkLost as lost:
+                self._reconnect(str(lost))
+
+
+def print_job(port: str, job: JobSpec, get_layer: LayerSource, *, baud: int = 115200,
+              from_layer: int | None = None, timing: LinkTiming = LinkTiming(), log_path: Path | None = None,
+              on_progress: Callable[[Progress], None] | None = None, connector: Connector | None = None,
+              max_payload: int = 1024, encodings: int = P.ALL_ENCODINGS,
+              features: int = P.ALL_FEATURES) -> PrintResult:
+    """Print ``job`` on ``port`` (device path, pyserial URL or ``sim://``); raise a PrinterError subclass on failure."""
+    own = connector is None
+    connector = connector or connector_for(port, baud)
+    log = PrintLog(log_path)
+    try:
+        link = PrinterLink(connector, job, get_layer, timing=timing, max_payload=max_payload,
+                           encodings=encodings, features=features, log=log, on_progress=on_progress)
+        return link.run(from_layer)
+    finally:
+        log.close()
+        if own:
+            connector.close()

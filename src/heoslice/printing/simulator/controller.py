@@ -1,0 +1,559 @@
+"""A simulated printer controller speaking the protocol, with realistic pacing and seeded faults.
+
+The simulator models what the host cannot see on real hardware: a link of ``baud``
+bits/s (10 bits per byte, host -> controller direction paced), a bounded receive
+buffer whose free space is the credit it grants, a print queue and a head that
+takes ``layer_time_s`` per layer. ``time_scale`` multiplies both modelled durations
+so tests run fast. Faults (corrupted, dropped and duplicated bytes and frames, lost
+acks, delays, a reset mid-layer, a disconnect, a dead link, a persistent hardware
+fault, another protocol version) are drawn from a seeded generator.
+
+Every executed layer is recorded in :attr:`SimController.executed` (job, index, CRC of
+the data printed, boot id) so tests can check exactly-once, in-order execution.
+The controller runs one thread over a byte :class:`~.transports.Transport`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from heoslice.errors import ProtocolError
+from heoslice.printing import protocol as P
+from heoslice.printing.simulator.config import ExecutedLayer, FaultSpec, SimConfig
+from heoslice.printing.simulator.transports import Transport
+
+
+@dataclass
+class _Layer:
+    """A layer being received: its channels concatenated in ``data`` and the DATA write cursor."""
+
+    index: int
+    channels: int
+    size: int
+    crc: int
+    data: bytearray = field(default_factory=bytearray)
+    cursor: int = 0
+    complete: bool = False
+    crc_received: int = -1  # CRC-32 of the data actually received, set at LAYER_END
+
+
+class SimController:
+    """The simulated controller: call :meth:`run` on a thread (or :meth:`start`), :meth:`stop` to end it."""
+
+    def __init__(self, config: SimConfig = SimConfig(), faults: FaultSpec = FaultSpec()):
+        self.config = config
+        self.faults = faults
+        self._rng = np.random.default_rng(config.seed)
+        self.executed: list[ExecutedLayer] = []
+        self.stats = {"frames": 0, "bad_frames": 0, "duplicates": 0, "out_of_order": 0, "naks": 0,
+                      "acks_lost": 0, "resets": 0, "disconnects": 0, "hellos": 0, "aborts": 0, "held": 0,
+                      "held_dropped": 0}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._transport: Transport | None = None
+        self._pending_transport: Transport | None = None
+        self._thread: threading.Thread | None = None
+        self._fired: set[str] = set()
+        self.died_at: float | None = None  # monotonic time the dead-link fault struck
+        self.boot_id = self._new_boot_id()
+        # persisted across resets (as in non-volatile memory): the job and its last printed layer
+        self.job_id = 0
+        self.last_completed = -1
+        self._power_on()
+
+    # -- lifecycle ---------------------------------------------------------------------
+
+    def _new_boot_id(self) -> int:
+        """A random non-zero 32-bit boot id (seeded)."""
+        return int(self._rng.integers(1, 1 << 32))
+
+    def _power_on(self) -> None:
+        """State lost on a reset."""
+        self.session = 0
+        self.sack = False  # selective acknowledgement negotiated in this session
+        self.state = P.STATE_IDLE
+        self.error = P.ERR_NONE
+        self.error_layer = -1
+        self.expected = 0
+        self.job_active = False
+        self.job_end = False
+        self.layer_count = 0
+        self.next_execute = 0
+        self.last_queued = self.last_completed
+        self._rx: deque = deque()
+        self._rx_used = 0
+        self._held: dict[int, tuple[P.Message, int]] = {}  # seq -> (message, cost): kept after a gap (SACK)
+        self._held_used = 0
+        self._rx_layer = -1  # layer of the latest layer-bearing data message received (DATA's link fault)
+        self._in_layer = -1  # layer of the latest LAYER_BEGIN taken in order (DATA's layer faults)
+        self._advertised = self.config.rx_buffer
+        self._layer: _Layer | None = None
+        self._queue: deque = deque()
+        self._printing: tuple | None = None
+        self._print_end = 0.0
+        self._paused = False
+        self._splitter = P.FrameSplitter(P.wire_size(self.config.max_payload) + 16)
+        self._arrivals: deque = deque()
+        self._wire_free = 0.0
+        self._stall_until = 0.0
+        self._dead = False
+        self._last_tag = 0
+
+    def attach(self, transport: Transport) -> None:
+        """Connect a (new) transport; the running loop switches to it."""
+        with self._lock:
+            self._pending_transport = transport
+
+    def start(self, transport: Transport | None = None) -> "SimController":
+        """Run on a daemon thread."""
+        if transport is not None:
+            self.attach(transport)
+        self._thread = threading.Thread(target=self.run, name="heoslice-sim", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """End :meth:`run` and close the transport."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5)
+        if self._transport is not None:
+            self._transport.close()
+
+    def executed_layers(self, job_id: int | None = None) -> list[int]:
+        """Indices of executed layers in execution order (of one job when ``job_id`` is given)."""
+        with self._lock:
+            return [e.layer for e in self.executed if job_id is None or e.job_id == job_id]
+
+    # -- the loop ----------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Serve until :meth:`stop`: read, pace, process, print, report."""
+        next_status = time.monotonic()
+        while not self._stop.is_set():
+            with self._lock:
+                if self._pending_transport is not None:
+                    self._transport = self._pending_transport
+                    self._pending_transport = None
+                    self._splitter = P.FrameSplitter(P.wire_size(self.config.max_payload) + 16)
+                    self._arrivals.clear()
+            transport = self._transport
+            now = time.monotonic()
+            if transport is None or self._dead:
+                time.sleep(0.01)
+                continue
+            wake = [next_status, now + 0.02]
+            if self._arrivals:
+                wake.append(max(self._arrivals[0][0], self._stall_until))
+            if self._printing is not None:
+                wake.append(self._print_end)
+            try:
+                data = transport.recv(max(0.0, min(wake) - now))
+            except OSError:
+                data = b""
+            now = time.monotonic()
+            if data:
+                self._on_bytes(data, now)
+            self._deliver(now)
+            self._drain()
+            self._run_head(time.monotonic())
+            if time.monotonic() >= next_status:
+                self._send_status()
+                next_status = time.monotonic() + self.config.status_interval_s
+
+    def _on_bytes(self, data: bytes, now: float) -> None:
+        """Apply byte faults and give each delimited piece its modelled arrival time."""
+        if self.faults.any_byte_faults:
+            data = self._corrupt(data, self.faults.byte_error_rate, self.faults.byte_drop_rate)
+        byte_time = self.config.byte_time_s
+        start = 0
+        while start < len(data):
+            end = data.find(b"\x00", start)
+            end = len(data) if end < 0 else end + 1
+            piece = data[start:end]
+            self._wire_free = max(self._wire_free, now) + len(piece) * byte_time
+            self._arrivals.append((self._wire_free, piece))
+            start = end
+
+    def _corrupt(self, data: bytes, error_rate: float, drop_rate: float) -> bytes:
+        """``data`` with bytes replaced (probability ``error_rate``) and removed (``drop_rate``)."""
+        buf = np.frombuffer(data, dtype=np.uint8).copy()
+        if error_rate > 0:
+            hit = self._rng.random(buf.size) < error_rate
+            buf[hit] ^= self._rng.integers(1, 256, int(hit.sum()), dtype=np.uint8)
+        if drop_rate > 0:
+            buf = buf[self._rng.random(buf.size) >= drop_rate]
+        return buf.tobytes()
+
+    def _deliver(self, now: float) -> None:
+        """Hand pieces whose modelled arrival time has passed to the frame splitter."""
+        while self._arrivals and self._arrivals[0][0] <= now and now >= self._stall_until:
+            _, piece = self._arrivals.popleft()
+            for item in self._splitter.feed(piece):
+                if isinstance(item, ProtocolError):
+                    self.stats["bad_frames"] += 1
+                    if self.session and self.state != P.STATE_ERROR:
+                        self.stats["naks"] += 1
+                        self._send(P.Nak((self._last_tag + 1) & 0xFFFF, self._credit(), P.NAK_BAD_FRAME,
+                                         self._held_mask()))
+                    continue
+                self._on_frame(item, time.monotonic())
+                if self._dead or now < self._stall_until:
+                    break
+
+    def _send(self, message: P.Message, version: int | None = None) -> None:
+        """Encode and write one frame (with byte errors applied on the way out); header.ack = next expected seq."""
+        if self._transport is None or self._dead:
+            return
+        frame = P.message_frame(message, self.session, 0, self.expected,
+                                self.config.version if version is None else version)
+        wire = P.encode_frame(frame)
+        if self.faults.byte_error_rate > 0:
+            wire = self._corrupt(wire, self.faults.byte_error_rate, 0.0)
+        self._transport.send(wire)
+
+    def _credit(self) -> int:
+        """Free receive-buffer bytes (frames held after a gap occupy it too): the credit granted to the host."""
+        return self.config.rx_buffer - self._rx_used - self._held_used
+
+    def _held_mask(self) -> int:
+        """ACK/NAK ``held``: bit i set when the frame with seq expected + 1 + i is held (SACK)."""
+        mask = 0
+        for seq in self._held:
+            mask |= 1 << (P.seq_diff(seq, self.expected) - 1)
+        return mask
+
+    def _drop_received(self) -> None:
+        """Forget every frame received but not applied, and the layer being assembled."""
+        self._rx.clear()
+        self._rx_used = 0
+        self._held.clear()
+        self._held_used = 0
+        self._layer = None
+
+    def _send_ack(self) -> None:
+        """Cumulative ACK with the current credit, progress and held frames."""
+        self._advertised = self._credit()
+        self._send(P.Ack(self._credit(), self.last_queued, self.last_completed, self._held_mask()))
+
+    def _send_status(self) -> None:
+        """STATUS: boot id, state, progress, credit, error."""
+        self._advertised = self._credit()
+        self._send(P.Status(self.boot_id, self.state, self.job_id, self.last_completed, self.last_queued,
+                            self._credit(), self.error, self.error_layer))
+
+    # -- frames ------------------------------------------------------------------------
+
+    def _on_frame(self, frame: P.Frame, now: float) -> None:
+        """Apply frame-level faults (drop, delay, duplicate), then handle the frame."""
+        self.stats["frames"] += 1
+        rng, faults = self._rng, self.faults
+        if faults.frame_drop_rate and rng.random() < faults.frame_drop_rate:
+            return
+        if faults.delay_rate and rng.random() < faults.delay_rate:
+            self._stall_until = now + faults.delay_s * self.config.time_scale
+        repeats = 2 if faults.frame_dup_rate and rng.random() < faults.frame_dup_rate else 1
+        for _ in range(repeats):
+            self._handle(frame)
+
+    def _handle(self, frame: P.Frame) -> None:
+        """Dispatch one frame: HELLO and STATUS_REQ always, the rest only in the current session."""
+        if frame.type == P.Hello.TYPE:
+            self._on_hello(frame)
+            return
+        if frame.version != self.config.version:
+            return
+        if frame.type == P.StatusRequest.TYPE:
+            self._send_status()
+            return
+        if self.session == 0 or frame.session != self.session:
+            return  # stale frame of an earlier connection, or nobody said HELLO since boot
+        if frame.type in P.DATA_TYPES:
+            self._on_data(frame)
+        elif frame.type == P.Abort.TYPE:
+            self.stats["aborts"] += 1
+            self._queue.clear()
+            self._drop_received()
+            self.job_active = False
+            self.state = P.STATE_ABORTED if self.state != P.STATE_ERROR else self.state
+            self._send_status()
+        elif frame.type == P.Pause.TYPE:
+            self._paused = True
+            if self.state == P.STATE_RECEIVING:
+                self.state = P.STATE_PAUSED
+            self._send_status()
+        elif frame.type == P.Resume.TYPE:
+            self._paused = False
+            if self.state == P.STATE_PAUSED:
+                self.state = P.STATE_RECEIVING
+            self._send_status()
+
+    def _on_hello(self, frame: P.Frame) -> None:
+        """Open the host's session (same version only) and answer with HELLO_ACK in our own version."""
+        self.stats["hellos"] += 1
+        cfg = self.config
+        features = 0
+        if frame.version == cfg.version:
+            try:
+                hello = P.unpack_message(frame.type, frame.payload)
+            except ProtocolError:
+                return
+            self.session = frame.session
+            self.expected = 0
+            self._drop_received()
+            features = hello.features & cfg.features
+            self.sack = bool(features & P.FEATURE_SACK)
+        reply = P.HelloAck(cfg.version, self.boot_id, self._credit(), cfg.window, cfg.max_payload,
+                           cfg.encodings, cfg.channels, cfg.max_width, cfg.max_height, cfg.dpi_x, cfg.dpi_y,
+                           self.job_id, self.last_completed, self.last_queued, self.state, features)
+        saved = self.session
+        self.session = frame.session
+        self._send(reply)
+        self.session = saved
+
+    def _on_data(self, frame: P.Frame) -> None:
+        """The receiver: take the expected seq into the buffer (ACK), re-ACK duplicates, NAK gaps.
+
+        Plain go-back-N discards a frame ahead of the expected one; with SACK it is held
+        (within ``SACK_SPAN`` and the credit) and applied once the gap is filled; held
+        frames farthest ahead are dropped again when the expected frame needs their room,
+        so they can never block the gap. Every reply carries the held frames in ``held``.
+        """
+        if self.state == P.STATE_ERROR:
+            return
+        self._last_tag = frame.ack
+        distance = P.seq_diff(frame.seq, self.expected)
+        if distance < 0:
+            self.stats["duplicates"] += 1
+            self._send_ack()
+            return
+        cost = len(frame.payload) + P.FRAME_OVERHEAD
+        if distance > 0:
+            self.stats["out_of_order"] += 1
+            if self.sack and distance <= min(P.SACK_SPAN, self.config.window) and frame.seq not in self._held \
+                    and cost <= self._credit():
+                message = self._receive(frame)
+                if message is not None:
+                    self._held[frame.seq] = (message, cost)
+                    self._held_used += cost
+                    self.stats["held"] += 1
+            self.stats["naks"] += 1
+            self._send(P.Nak(frame.ack, self._credit(), P.NAK_OUT_OF_ORDER, self._held_mask()))
+            return
+        while cost > self._credit() and self._held:
+            _, dropped = self._held.pop(max(self._held, key=lambda seq: P.seq_diff(seq, self.expected)))
+            self._held_used -= dropped
+            self.stats["held_dropped"] += 1
+        if cost > self._credit():
+            self.stats["naks"] += 1
+            self._send(P.Nak(frame.ack, self._credit(), P.NAK_NO_CREDIT, self._held_mask()))
+            return
+        message = self._receive(frame)
+        if message is None:
+            return
+        session = self.session
+        self._accept(message, cost)
+        while self.session == session and self.expected in self._held and not self._dead:
+            message, cost = self._held.pop(self.expected)
+            self._held_used -= cost
+            self._accept(message, cost)
+        if self.session != session or self._dead:
+            return
+        if self.faults.ack_loss_rate and self._rng.random() < self.faults.ack_loss_rate:
+            self.stats["acks_lost"] += 1
+        else:
+            self._send_ack()
+
+    def _receive(self, frame: P.Frame) -> P.Message | None:
+        """The data message of a frame, or None when it is malformed (job error) or the link fault eats it."""
+        try:
+            message = P.unpack_message(frame.type, frame.payload)
+        except ProtocolError:
+            self._fail(P.ERR_BAD_JOB, -1)
+            return None
+        layer = getattr(message, "layer", None)
+        if layer is not None:
+            self._rx_layer = layer
+        start = self.faults.lose_data_from_layer
+        if start is not None and self._rx_layer >= start and (layer is not None or isinstance(message, P.Data)):
+            return None
+        return message
+
+    def _accept(self, message: P.Message, cost: int) -> None:
+        """Take the next in-order message into the receive buffer; strike the faults tied to its layer."""
+        self.expected = (self.expected + 1) % P.SEQ_MODULUS
+        self._rx.append((message, cost))
+        self._rx_used += cost
+        if isinstance(message, P.LayerBegin):
+            self._in_layer = message.layer
+        elif isinstance(message, P.Chunk):
+            self._chunk_faults(message.layer)
+        elif isinstance(message, P.Data):
+            self._chunk_faults(self._in_layer)
+
+    def _once(self, name: str, layer: int | None, at: int) -> bool:
+        """True the first time fault ``name`` meets its layer."""
+        if layer is None or layer != at or name in self._fired:
+            return False
+        self._fired.add(name)
+        return True
+
+    def _chunk_faults(self, layer: int) -> None:
+        """Faults that strike while a layer is being received: reset, disconnect, dead link."""
+        faults = self.faults
+        if self._once("reset", faults.reset_at_layer, layer):
+            self._reset()
+        elif self._once("disconnect", faults.disconnect_at_layer, layer):
+            self.stats["disconnects"] += 1
+            if self._transport is not None:
+                self._transport.disconnect(faults.disconnect_s)
+        elif self._once("dead", faults.dead_at_layer, layer):
+            self._dead = True
+            self.died_at = time.monotonic()
+
+    def _reset(self) -> None:
+        """Reboot: the layer on the head completes, everything else in memory is lost; new boot id."""
+        self.stats["resets"] += 1
+        if self._printing is not None:
+            self._finish_layer()
+        self.boot_id = self._new_boot_id()
+        self._power_on()
+        self._send_status()
+
+    def _fail(self, error: int, layer: int) -> None:
+        """Enter the error state (persistent until a reset) and report it."""
+        self.state = P.STATE_ERROR
+        self.error = error
+        self.error_layer = layer
+        self._queue.clear()
+        self._send_status()
+
+    # -- processing the receive buffer -------------------------------------------------
+
+    def _drain(self) -> None:
+        """Apply buffered data frames in order, stopping when the print queue is full."""
+        while self._rx and self.state != P.STATE_ERROR:
+            message, cost = self._rx[0]
+            if isinstance(message, P.Execute) and message.layer >= self.next_execute \
+                    and len(self._queue) >= self.config.print_queue:
+                break
+            self._rx.popleft()
+            self._rx_used -= cost
+            self._apply(message)
+        if self._credit() - self._advertised >= max(self.config.rx_buffer // 4, 1):
+            self._send_ack()
+
+    def _apply(self, message: P.Message) -> None:
+        """Apply one in-order data message to the job, the layer being assembled or the print queue."""
+        cfg = self.config
+        if isinstance(message, P.JobBegin):
+            if (message.channels > cfg.channels or message.width > cfg.max_width
+                    or message.height > cfg.max_height):
+                self._fail(P.ERR_BAD_JOB, message.first_layer)
+                return
+            same = self.job_active and message.job_id == self.job_id and message.first_layer == self.next_execute
+            if not same:
+                self._queue.clear()
+                self.job_id = message.job_id
+                self.next_execute = message.first_layer
+                self.last_queued = message.first_layer - 1
+                self.last_completed = message.first_layer - 1
+                self.layer_count = message.layer_count
+                self.job_active = True
+                self.job_end = False
+            self.state = P.STATE_PAUSED if self._paused else P.STATE_RECEIVING
+            self._send_status()
+        elif not self.job_active:
+            return
+        elif isinstance(message, P.LayerBegin):
+            self._layer = None
+            if message.layer >= self.next_execute and message.channels >= 1:
+                self._layer = _Layer(message.layer, message.channels, message.size, message.crc,
+                                     bytearray(message.channels * message.size))
+        elif isinstance(message, P.Chunk):
+            layer = self._layer
+            if layer is None or message.layer != layer.index:
+                return
+            if message.channel >= layer.channels or message.offset + message.raw_len > layer.size:
+                self._fail(P.ERR_LAYER_CRC, message.layer)
+                return
+            try:
+                raw = P.decode_chunk(message.encoding, message.data, message.raw_len)
+            except ProtocolError:
+                self._fail(P.ERR_LAYER_CRC, message.layer)
+                return
+            start = message.channel * layer.size + message.offset
+            layer.data[start:start + len(raw)] = raw
+            layer.cursor = start + len(raw)
+        elif isinstance(message, P.Data):
+            layer = self._layer
+            if layer is None:
+                return
+            if layer.cursor + len(message.data) > len(layer.data):
+                self._fail(P.ERR_LAYER_CRC, layer.index)
+                return
+            layer.data[layer.cursor:layer.cursor + len(message.data)] = message.data
+            layer.cursor += len(message.data)
+        elif isinstance(message, P.LayerEnd):
+            layer = self._layer
+            if layer is None or message.layer != layer.index:
+                return
+            actual = P.crc32(layer.data)
+            if actual != layer.crc:
+                self._fail(P.ERR_LAYER_CRC, layer.index)
+                return
+            layer.crc_received = actual
+            layer.complete = True
+        elif isinstance(message, P.Execute):
+            if message.layer < self.next_execute:
+                return  # already queued or printed: executed once only
+            layer = self._layer
+            if message.layer != self.next_execute or layer is None or layer.index != message.layer \
+                    or not layer.complete:
+                self._fail(P.ERR_OUT_OF_ORDER, message.layer)
+                return
+            self._queue.append((layer.index, layer.crc_received))
+            self.last_queued = layer.index
+            self.next_execute = layer.index + 1
+            self._layer = None
+        elif isinstance(message, P.JobEnd):
+            self.job_end = True
+            self._check_done()
+
+    # -- the head ----------------------------------------------------------------------
+
+    def _run_head(self, now: float) -> None:
+        """Finish the layer on the head when its time is up; start the next queued one unless paused or failed."""
+        if self._printing is not None and now >= self._print_end:
+            self._finish_layer()
+            self._send_status()
+            self._check_done()
+        if self._printing is None and self._queue and not self._paused and self.state != P.STATE_ERROR:
+            index, crc = self._queue[0]
+            if self.faults.fail_at_layer is not None and index >= self.faults.fail_at_layer:
+                self._fail(P.ERR_HARDWARE, index)
+                return
+            self._queue.popleft()
+            self._printing = (index, crc)
+            self._print_end = now + self.config.layer_time_s * self.config.time_scale
+
+    def _finish_layer(self) -> None:
+        """Record the layer on the head as executed."""
+        index, crc = self._printing
+        with self._lock:
+            self.executed.append(ExecutedLayer(self.job_id, index, crc, self.boot_id))
+        self.last_completed = index
+        self._printing = None
+
+    def _check_done(self) -> None:
+        """Report DONE once JOB_END came and the last layer is printed."""
+        if self.job_active and self.job_end and not self._queue and self._printing is None \
+                and self.last_completed == self.layer_count - 1:
+            self.state = P.STATE_DONE
+            self.job_active = False
+            self._send_status()

@@ -1,0 +1,163 @@
+"""Reading a stack defensively: paths stay inside it, the manifest is bounded before it is parsed,
+a layer file's bytes are bounded by its checked layout and hashed before they are decoded."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.errors import InputError, VerifyError
+from heoslice.stack.manifest import MANIFEST, MAX_MANIFEST_BYTES, parse_manifest
+from heoslice.stack.tiff import checked_page, decode_solid, file_limit, open_tiff
+
+
+def read_manifest(directory: Path) -> dict:
+    """Parse and structurally check ``manifest.json``; raise VerifyError naming the first problem.
+
+    The manifest must be a regular file inside the stack (a symlink out is refused),
+    at most MAX_MANIFEST_BYTES long; :func:`~heoslice.stack.manifest.parse_manifest` bounds its
+    objects and arrays, so parsing it cannot read outside the stack or allocate without bound.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise VerifyError(f"{directory}: not a directory")
+    path = directory / MANIFEST
+    if not (path.exists() or path.is_symlink()):
+        raise VerifyError(f"{directory}: no {MANIFEST} (not a stack, or an interrupted run)")
+    inside = resolve_inside(directory, MANIFEST)
+    if inside is None:
+        raise VerifyError(f"{path}: is a link to outside the stack")
+    if not inside.is_file():
+        raise VerifyError(f"{path}: is not a regular file")
+    try:
+        with open(inside, "rb") as handle:  # read(n) allocates n bytes up front: ask for the file's size only
+            size = os.fstat(handle.fileno()).st_size
+            if size > MAX_MANIFEST_BYTES:
+                raise VerifyError(f"{path}: manifest is larger than {MAX_MANIFEST_BYTES} bytes")
+            raw = handle.read(size + 1)
+    except OSError as err:
+        raise VerifyError(f"{path}: cannot read ({err.strerror})") from err
+    return parse_manifest(raw, path)
+
+
+def resolve_inside(directory: Path, name: str) -> Path | None:
+    """``directory / name`` if it stays inside ``directory`` (no absolute paths, '..', or links out)."""
+    if not isinstance(name, str) or not name or os.path.isabs(name) or "\\" in name or "\x00" in name:
+        return None
+    root = Path(directory).resolve()
+    try:
+        candidate = (root / name).resolve()
+    except (OSError, RuntimeError):  # symlink loops
+        return None
+    if candidate.parent != root and root not in candidate.parents:
+        return None
+    return candidate
+
+
+
+def read_checked(path: Path, name: str, sha256: str | None, manifest: dict, mode: str | None) -> bytes:
+    """The bytes of a layer file whose TIFF layout passed :func:`checked_page`, at most what that layout
+    can need, and matching ``sha256`` when given. Memory: bounded by twice the raw image size."""
+    try:
+        with open(path, "rb") as handle:
+            size = os.fstat(handle.fileno()).st_size
+            with open_tiff(handle, name) as tiff:
+                limit = file_limit(checked_page(tiff, name, size, manifest, mode))
+            if size > limit:
+                raise VerifyError(f"{name}: file is {size} bytes, more than its image can need ({limit})")
+            handle.seek(0)
+            data = handle.read(size + 1)
+    except OSError as err:
+        raise VerifyError(f"{name}: cannot read ({err.strerror})") from err
+    if len(data) > limit:
+        raise VerifyError(f"{name}: file grew while being read")
+    if sha256 is not None and hashlib.sha256(data).hexdigest() != sha256:
+        raise VerifyError(f"{name}: sha256 does not match the manifest (file altered)")
+    return data
+
+
+def decode_checked(data: bytes, name: str, manifest: dict, mode: str | None, out: np.ndarray | None) -> int:
+    """Check the layout of TIFF bytes again and decode them strip by strip; return the solid pixel count."""
+    with open_tiff(io.BytesIO(data), name) as tiff:
+        page = checked_page(tiff, name, len(data), manifest, mode)
+        return decode_solid(page, name, manifest["mask"] == "alpha" and mode is not None, out=out)
+
+
+def decode_mask(path: Path, manifest: dict, sha256: str | None = None, mode: str | None = None) -> np.ndarray:
+    """The solid mask ((height, width) bool) of one layer image file, after checking its layout and bytes.
+
+    The file is read once into memory (bounded by its layout), its SHA-256 checked when
+    given, and decoded strip by strip into the mask: what is returned is exactly what
+    was hashed. ``mode`` (a manifest image mode) is checked when given; without it the
+    image is read as a channel (any non-zero sample is solid).
+    """
+    if path is None:
+        raise VerifyError("layer file lies outside the stack")
+    path = Path(path)
+    data = read_checked(path, path.name, sha256, manifest, mode)
+    image = manifest["image"]
+    mask = np.zeros((image["height"], image["width"]), dtype=bool)
+    decode_checked(data, path.name, manifest, mode, mask)
+    return mask
+
+
+def read_layer_mask(directory: Path, manifest: dict, index: int) -> np.ndarray:
+    """Solid mask of layer ``index`` of a (verified) stack: (height, width) bool; its sha256 is checked again."""
+    entry = manifest["layers"][index]
+    path = resolve_inside(Path(directory), entry["file"])
+    if path is None:
+        raise VerifyError(f"layer {index}: file {entry['file']!r} lies outside the stack")
+    return decode_mask(path, manifest, sha256=entry["sha256"], mode=manifest["image"].get("mode", "1"))
+
+
+def read_layer_pixels(directory: Path, manifest: dict, index: int) -> np.ndarray:
+    """Pixels of layer ``index`` as stored: (h, w) bool for mode '1', (h, w, 4) uint8 for 'RGBA'.
+
+    The file must stay inside the stack, match its sha256 and pass the layout checks
+    of :func:`decode_mask` before a pixel is decoded (for previews).
+    """
+    entry = manifest["layers"][index]
+    path = resolve_inside(Path(directory), entry["file"])
+    if path is None:
+        raise VerifyError(f"layer {index}: file {entry['file']!r} lies outside the stack")
+    mode = manifest["image"].get("mode", "1")
+    data = read_checked(path, path.name, entry["sha256"], manifest, mode)
+    decode_checked(data, path.name, manifest, mode, None)
+    with open_tiff(io.BytesIO(data), path.name) as tiff:
+        try:
+            return tiff.pages.first.asarray(maxworkers=1)
+        except Exception as err:  # corrupt strips raise many types
+            raise VerifyError(f"{path.name}: cannot decode ({' '.join(str(err).split())[:120]})") from err
+
+
+def read_layer_channels(directory: Path, manifest: dict, index: int) -> np.ndarray:
+    """Droplet masks of layer ``index``: (channels, height, width) bool, in the manifest's channel order.
+
+    Each file must stay inside the stack, match its sha256 and pass the layout checks
+    of :func:`decode_mask` before it is decoded (for previews).
+    """
+    channels = manifest["layers"][index].get("channels", [])
+    image = manifest["image"]
+    masks = np.zeros((len(channels), image["height"], image["width"]), dtype=bool)
+    for number, channel in enumerate(channels):
+        path = resolve_inside(Path(directory), channel["file"])
+        if path is None:
+            raise VerifyError(f"layer {index}: file {channel['file']!r} lies outside the stack")
+        masks[number] = decode_mask(path, manifest, sha256=channel["sha256"])
+    return masks
+
+
+
+def check_input_path(path: Path) -> Path:
+    """A stack directory argument: must exist and be a directory."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such directory")
+    if not path.is_dir():
+        raise InputError(f"{path}: not a directory")
+    return path
+

@@ -1,0 +1,205 @@
+"""Layer TIFFs: encoding (1-bit, grey, RGBA; strips compressed straight from packed bits) and the
+defensive decoding that checks a file's layout against the manifest before any pixel is decoded."""
+
+from __future__ import annotations
+
+import io
+import logging
+
+import numpy as np
+
+from heoslice import __version__
+from heoslice.errors import VerifyError
+from heoslice.stack.manifest import IMAGE_MODES
+
+#: Compression name -> tifffile argument. Default chosen by measurement (see README).
+COMPRESSIONS = {"deflate": "adobe_deflate", "packbits": "packbits", "lzw": "lzw", "none": None}
+DEFAULT_COMPRESSION = "deflate"
+#: TIFF compression codes a layer may use: none, LZW, deflate (Adobe and old code), PackBits.
+TIFF_COMPRESSIONS = (1, 5, 8, 32946, 32773)
+
+
+def encode_tiff(image: np.ndarray, dpi: tuple[float, float], compression: str) -> bytes:
+    """TIFF bytes of one layer image: bool (h, w) as 1-bit, uint8 (h, w) grey, or (h, w, 4) RGBA.
+
+    Resolution tags carry the dpi with ResolutionUnit inch, so viewers show true size.
+    """
+    import tifffile
+
+    options: dict = {
+        "resolution": (float(dpi[0]), float(dpi[1])),
+        "resolutionunit": "INCH",
+        "rowsperstrip": 64,
+        "compression": COMPRESSIONS[compression],
+        "software": f"heoslice {__version__}",
+    }
+    if compression == "deflate":
+        options["compressionargs"] = {"level": 1}
+    if image.ndim == 3:
+        options.update(photometric="rgb", extrasamples=["unassalpha"])
+    else:
+        options["photometric"] = "minisblack"
+    buffer = io.BytesIO()
+    tifffile.imwrite(buffer, image, **options)
+    return buffer.getvalue()
+
+
+
+def _strip_codec(compression: str):
+    """bytes -> compressed bytes for one TIFF strip.
+
+    Deflate uses zlib-ng at level 1 when imagecodecs has it: the same zlib stream
+    format at about half the time of zlib (measured on 3827 x 3945 px layers: 1.0 ms
+    and 37 KB against 2.2 ms and 30 KB per layer). Other codecs are tifffile's own.
+    """
+    import tifffile
+
+    if compression == "deflate":
+        try:
+            from imagecodecs import zlibng_encode
+        except ImportError:
+            zlibng_encode = None
+        if zlibng_encode is not None:
+            return lambda data: zlibng_encode(data, level=1)
+    codec = tifffile.TIFF.COMPRESSORS[tifffile.COMPRESSION[COMPRESSIONS[compression].upper()].value]
+    if compression == "deflate":
+        return lambda data: codec(data, level=1)
+    return codec
+
+
+def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float], compression: str,
+                        rows_per_strip: int = 256) -> bytes:
+    """TIFF bytes of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, MSB first).
+
+    The strips are compressed here, straight from the packed bits, with tifffile's
+    own codec for the chosen compression, and handed to tifffile already encoded:
+    the mask is never expanded to one byte per pixel. Strips of 256 rows (~120 KB of
+    bits at 3800 px) cost a fifth less to write than 64 (0.86 -> 0.65 ms for a
+    1937 x 1937 px droplet mask, deflate).
+    """
+    import tifffile
+
+    height = packed.shape[0]
+    options: dict = {
+        "shape": (height, width),
+        "dtype": bool,
+        "resolution": (float(dpi[0]), float(dpi[1])),
+        "resolutionunit": "INCH",
+        "photometric": "minisblack",
+        "rowsperstrip": rows_per_strip,
+        "software": f"heoslice {__version__}",
+    }
+    buffer = io.BytesIO()
+    codec_name = COMPRESSIONS[compression]
+    if codec_name is None:
+        mask = np.unpackbits(packed, axis=1, count=width).astype(bool)
+        tifffile.imwrite(buffer, mask, **{k: v for k, v in options.items() if k not in ("shape", "dtype")})
+        return buffer.getvalue()
+    codec = _strip_codec(compression)
+    strips = (codec(packed[row:row + rows_per_strip].tobytes()) for row in range(0, height, rows_per_strip))
+    tifffile.imwrite(buffer, data=strips, compression=codec_name, **options)
+    return buffer.getvalue()
+
+def quiet_tifffile() -> None:
+    """tifffile logs warnings about odd files to stderr; heoslice reports problems itself, one line each."""
+    logging.getLogger("tifffile").setLevel(logging.CRITICAL)
+
+
+def checked_page(tiff, name: str, file_size: int, manifest: dict, mode: str | None):
+    """The single page of a layer TIFF after checking its layout against the manifest, before any decoding.
+
+    Refused: several pages, tiles, unknown compression or sample layout, a size or
+    resolution other than the manifest's, a strip count that does not fit the image,
+    a strip claiming more bytes than any encoding of its pixels can need
+    (decompression bombs) or lying past the end of the file.
+    """
+    try:
+        return _checked_page_unsafe(tiff, name, file_size, manifest, mode)
+    except VerifyError:
+        raise
+    except Exception as err:  # tifffile raises many types on malformed tags
+        raise VerifyError(f"{name}: malformed TIFF ({' '.join(str(err).split())[:120]})") from err
+
+
+def _checked_page_unsafe(tiff, name: str, file_size: int, manifest: dict, mode: str | None):
+    width, height, dpi = manifest["image"]["width"], manifest["image"]["height"], manifest["dpi"]
+    try:
+        page = tiff.pages.first
+    except IndexError:
+        raise VerifyError(f"{name}: TIFF has no image") from None
+    if tiff.pages.is_multipage:
+        raise VerifyError(f"{name}: TIFF has more than one page")
+    if (page.imagewidth, page.imagelength) != (width, height):
+        raise VerifyError(f"{name}: is {page.imagewidth} x {page.imagelength} pixels, manifest says {width} x {height}")
+    if page.is_tiled or page.planarconfig != 1 or int(page.compression) not in TIFF_COMPRESSIONS:
+        raise VerifyError(f"{name}: TIFF layout not written by heoslice (tiles, planar or compression "
+                          f"{int(page.compression)})")
+    layout = (page.bitspersample, page.samplesperpixel)
+    if layout not in ((1, 1), (8, 1), (8, 3), (8, 4)):
+        raise VerifyError(f"{name}: {page.bitspersample}-bit x {page.samplesperpixel} samples is not a layer format")
+    if mode is not None and layout != IMAGE_MODES[mode]:
+        raise VerifyError(f"{name}: pixels are {page.bitspersample}-bit x {page.samplesperpixel}, "
+                          f"manifest says mode {mode!r}")
+    rows = min(int(page.rowsperstrip or height), height)
+    strips = -(-height // rows)
+    raw = rows * -(-width * page.samplesperpixel * page.bitspersample // 8)
+    offsets, counts = page.dataoffsets, page.databytecounts
+    if len(offsets) != strips or len(counts) != strips:
+        raise VerifyError(f"{name}: has {len(offsets)} strips, its size needs {strips}")
+    for number, (offset, count) in enumerate(zip(offsets, counts)):
+        if count > 2 * raw + 1024:
+            raise VerifyError(f"{name}: strip {number} claims {count} bytes, more than any encoding of its "
+                              f"{raw} bytes of pixels needs (refused before decoding)")
+        if count == 0 or offset < 8 or offset + count > file_size:
+            raise VerifyError(f"{name}: strip {number} lies outside the file or is empty")
+    tags = page.tags
+    if "XResolution" not in tags or "YResolution" not in tags:
+        raise VerifyError(f"{name}: has no resolution tags")
+    xres, yres = tags["XResolution"].value, tags["YResolution"].value
+    try:
+        found = (xres[0] / xres[1], yres[0] / yres[1])
+    except (TypeError, IndexError, ZeroDivisionError):
+        raise VerifyError(f"{name}: malformed resolution tags") from None
+    unit = tags["ResolutionUnit"].value if "ResolutionUnit" in tags else 2
+    if int(unit) != 2 or not np.allclose(found, dpi, rtol=1e-6):
+        raise VerifyError(f"{name}: resolution {found[0]:g} x {found[1]:g} "
+                          f"{'dpi' if int(unit) == 2 else 'per unit ' + str(int(unit))}, "
+                          f"manifest says {dpi[0]:g} x {dpi[1]:g} dpi")
+    return page
+
+
+def decode_solid(page, name: str, alpha: bool, out: np.ndarray | None = None) -> int:
+    """Count solid pixels strip by strip (memory: one strip); fill ``out`` ((h, w) bool) when given."""
+    total = 0
+    try:
+        for segment, index, shape in page.segments(maxworkers=1):
+            if segment is None:
+                raise VerifyError(f"{name}: a strip is missing")
+            pixels = segment.reshape(shape[1], shape[2], shape[3])
+            solid = pixels[:, :, 3] > 0 if alpha and shape[3] == 4 else np.any(pixels != 0, axis=2)
+            total += int(np.count_nonzero(solid))
+            if out is not None:
+                out[index[2]:index[2] + shape[1], index[3]:index[3] + shape[2]] = solid
+    except VerifyError:
+        raise
+    except Exception as err:  # imagecodecs and tifffile raise many types on corrupt strips
+        raise VerifyError(f"{name}: cannot decode ({' '.join(str(err).split())[:120]})") from err
+    return total
+
+
+def open_tiff(source, name: str):
+    import tifffile
+
+    quiet_tifffile()
+    try:
+        return tifffile.TiffFile(source)
+    except Exception as err:  # tifffile raises many types on corrupt files
+        raise VerifyError(f"{name}: not a readable TIFF ({' '.join(str(err).split())[:120]})") from err
+
+
+def file_limit(page) -> int:
+    """Most bytes a layer file with this page's layout can need: every strip at its bound, plus 1 MiB of tags."""
+    raw = page.imagelength * -(-page.imagewidth * page.samplesperpixel * page.bitspersample // 8)
+    return 2 * raw + 1024 * len(page.dataoffsets) + (1 << 20)
+
+

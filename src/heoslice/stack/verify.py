@@ -1,0 +1,116 @@
+"""Verifying a stack: the manifest, every listed file (inside, present, sha256, layout, solid pixels),
+droplet masks against their layer, layer heights, and no unlisted layer files."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.errors import VerifyError
+from heoslice.stack.manifest import LAYER_PATTERN, layer_height_problems
+from heoslice.stack.read import decode_checked, decode_mask, read_checked, read_layer_mask, read_manifest, resolve_inside
+
+
+@dataclass(frozen=True)
+class StackReport:
+    """Outcome of :func:`verify_stack`: ``problems`` (one line each; empty when clean) and the manifest."""
+
+    directory: Path
+    problems: tuple[str, ...]
+    manifest: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+
+def _layer_file_problem(path: Path, name: str, digest: str, solid: int | None, manifest: dict,
+                        mode: str | None, check_pixels: bool) -> str | None:
+    """Problem of one listed image file (layout, size, hash, solid pixel count), or None."""
+    try:
+        data = read_checked(path, name, digest, manifest, mode)
+        if check_pixels and solid is not None:
+            found = decode_checked(data, name, manifest, mode, None)
+            if found != solid:
+                return f"{name}: has {found} solid pixels, manifest says {solid}"
+    except VerifyError as err:
+        return str(err)
+    return None
+
+
+
+def _channel_problems(directory: Path, manifest: dict, index: int) -> list[str]:
+    """Droplet masks against their layer: every solid pixel in exactly one mask, empty pixels in none."""
+    entry = manifest["layers"][index]
+    solid = read_layer_mask(directory, manifest, index)
+    jets = np.zeros(solid.shape, dtype=np.uint8)
+    for channel in entry["channels"]:
+        jets += decode_mask(resolve_inside(directory, channel["file"]), manifest, sha256=channel["sha256"])
+    problems = []
+    doubled = int(np.count_nonzero(jets > 1))
+    if doubled:
+        problems.append(f"layer {index}: {doubled} pixels are set in more than one droplet mask")
+    unmatched = int(np.count_nonzero((jets > 0) != solid))
+    if unmatched:
+        problems.append(f"layer {index}: {unmatched} pixels where the droplet masks do not cover exactly "
+                        "the layer's solid pixels")
+    return problems
+
+
+def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:
+    """Check a stack: manifest, every listed file (inside, present, sha256, size, dpi, solid pixels), extras.
+
+    Returns a report listing every problem found, one line each.
+    """
+    directory = Path(directory)
+    try:
+        manifest = read_manifest(directory)
+    except VerifyError as err:
+        return StackReport(directory, (str(err),))
+    problems: list[str] = []
+    listed: dict[Path, str] = {}
+    mode = manifest["image"].get("mode", "1")
+    for entry in manifest["layers"]:
+        index = entry["index"]
+        files = [(entry["file"], entry["sha256"], entry["solid_pixels"], mode)]
+        files += [(channel["file"], channel["sha256"], channel.get("solid_pixels"), None)
+                  for channel in entry.get("channels", [])]
+        for name, digest, solid, file_mode in files:
+            path = resolve_inside(directory, name)
+            if path is None:
+                problems.append(f"layer {index}: file {name!r} lies outside the stack")
+                continue
+            if path in listed:
+                problems.append(f"layer {index}: {name} is listed twice (also by {listed[path]})")
+                continue
+            listed[path] = f"layer {index}"
+            if not path.is_file():
+                problems.append(f"layer {index}: {name} is missing")
+                continue
+            problem = _layer_file_problem(path, name, digest, solid, manifest, file_mode, check_pixels)
+            if problem:
+                problems.append(f"layer {index}: {problem}")
+        if entry.get("channels") and check_pixels and not any(p.startswith(f"layer {index}:") for p in problems):
+            problems += _channel_problems(directory, manifest, index)
+    z_range = manifest.get("z_range_mm")
+    if z_range is not None:
+        problems += layer_height_problems(manifest, z_range[0], z_range[1], "the manifest's")
+    names = {path.name for path in listed if path.parent == directory.resolve()}
+    for entry in sorted(directory.iterdir()):
+        if LAYER_PATTERN.match(entry.name) and entry.name not in names:
+            problems.append(f"{entry.name}: layer file not listed in the manifest")
+    return StackReport(directory, tuple(problems), manifest)
+
+
+def load_verified(directory: Path) -> dict:
+    """The manifest of a stack that passes :func:`verify_stack`; raise VerifyError with its problems otherwise."""
+    report = verify_stack(directory)
+    if not report.ok:
+        more = f" (and {len(report.problems) - 1} more problem(s))" if len(report.problems) > 1 else ""
+        raise VerifyError(f"{directory}: {report.problems[0]}{more}")
+    return report.manifest
+
+

@@ -1,0 +1,102 @@
+"""Writing a stack: the output directory, layer files and the manifest, each safely.
+
+Layer files are created without following links planted in the stack; the manifest
+is written last and atomically (temporary file, fsync, rename), so a directory is a
+complete stack only when its manifest says so.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+from pathlib import Path
+
+from heoslice.errors import OutputError
+from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST
+
+
+def prepare_directory(directory: Path, force: bool) -> None:
+    """Create the output directory, refusing a non-empty one unless ``force``.
+
+    With ``force``, the old manifest is removed first (so the directory never looks
+    complete while being rewritten), then the old layer files.
+    """
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise OutputError(f"{directory}: exists and is not a directory")
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        existing = list(directory.iterdir())
+    except OSError as err:
+        raise OutputError(f"{directory}: cannot create output directory ({err.strerror})") from err
+    if existing and not force:
+        raise OutputError(f"{directory}: directory is not empty (use --force to overwrite)")
+    try:
+        for stale in (directory / MANIFEST, directory / (MANIFEST + ".tmp")):
+            if os.path.lexists(stale):
+                stale.unlink()
+        _fsync_directory(directory)
+        for entry in existing:
+            if LAYER_PATTERN.match(entry.name) and (entry.is_symlink() or entry.is_file()):
+                entry.unlink()
+    except OSError as err:
+        raise OutputError(f"{directory}: cannot clear old stack ({err.strerror})") from err
+    if not os.access(directory, os.W_OK):
+        raise OutputError(f"{directory}: directory is not writable")
+
+
+def _write_error(path: Path, err: OSError) -> OutputError:
+    """One-line OutputError for a failed write: disk full, quota, file size limit, read-only, permission."""
+    reasons = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exceeded",
+               errno.EFBIG: "file size limit exceeded", errno.EROFS: "read-only file system",
+               errno.EACCES: "permission denied", errno.EPERM: "permission denied"}
+    return OutputError(f"{path}: cannot write ({reasons.get(err.errno, err.strerror or str(err))})")
+
+
+def write_file(path: Path, data: bytes) -> str:
+    """Write bytes to ``path``; return their SHA-256. Disk errors become one-line OutputErrors."""
+    try:
+        with _create(path) as handle:
+            handle.write(data)
+    except OSError as err:
+        raise _write_error(path, err) from err
+    return hashlib.sha256(data).hexdigest()
+
+
+def _create(path: Path):
+    """Open ``path`` for writing, truncated, never following a symlink planted in the stack."""
+    return os.fdopen(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW, 0o666), "wb")
+
+
+def _fsync_directory(directory: Path) -> None:
+    try:
+        handle = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(handle)
+    except OSError:
+        pass
+    finally:
+        os.close(handle)
+
+
+def write_manifest(directory: Path, manifest: dict) -> Path:
+    """Write ``manifest.json`` atomically: temporary file, fsync, rename, fsync of the directory."""
+    directory = Path(directory)
+    target = directory / MANIFEST
+    temporary = directory / (MANIFEST + ".tmp")
+    text = json.dumps(manifest, indent=1, allow_nan=False) + "\n"
+    try:
+        with _create(temporary) as handle:
+            handle.write(text.encode("utf-8"))
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(temporary, target)
+    except OSError as err:
+        raise _write_error(target, err) from err
+    _fsync_directory(directory)
+    return target
+

@@ -1,0 +1,62 @@
+"""The options shared by ``color`` and ``slice`` (cli/options.py) and the map from library parameters to flags."""
+
+from __future__ import annotations
+
+import click
+import pytest
+
+from heoslice.cli.color import color
+from heoslice.cli.options import flags
+from heoslice.cli.slice import slice_cmd
+from heoslice.errors import InputError
+
+SHARED = ("alpha", "beta", "lam", "periods", "expression")
+
+
+def _options(command: click.Command) -> dict[str, click.Option]:
+    return {p.name: p for p in command.params if isinstance(p, click.Option)}
+
+
+def test_shared_options_are_declared_once():
+    """--alpha/--beta/--lambda/--periods/--expr have the same flags and help texts in color and slice."""
+    ours, theirs = _options(color), _options(slice_cmd)
+    for name in SHARED:
+        assert ours[name].opts == theirs[name].opts and ours[name].help == theirs[name].help, name
+
+
+def test_coefficient_help_shows_the_defaults(run_cli):
+    """slice --help shows each coefficient's default per function kind (from the table of kinds)."""
+    code, out, _ = run_cli("slice", "--help")
+    text = " ".join(out.split())
+    assert code == 0
+    assert "alpha of eq. 3-5 [default: linear 1, quadratic 1, sine 0.5]" in text
+    assert "lambda of eq. 2-5 [default: constant 1, linear 0, quadratic 0, sine 0.5]" in text
+    assert "beta of eq. 4-5 [default: quadratic 0, sine 2 pi periods]" in text
+
+
+def test_flags_rewrite_only_known_parameters():
+    """A library error 'alpha: ...' becomes '--alpha: ...'; an unknown prefix is left as it is."""
+    with pytest.raises(InputError, match=r"^--lambda: must be finite$"):
+        with flags({"lam": "--lambda"}):
+            raise InputError("lam: must be finite")
+    with pytest.raises(InputError, match=r"^other: problem$"):
+        with flags({"lam": "--lambda"}):
+            raise InputError("other: problem")
+
+
+@pytest.mark.parametrize("command", ["color", "slice"])
+@pytest.mark.parametrize("args, flag", [
+    (["--alpha", "nan"], "--alpha: must be finite"),
+    (["--lambda", "inf"], "--lambda: must be finite"),
+    (["--beta", "2"], "--beta: beta is not used by the linear function"),
+    (["--periods", "2"], "--periods: only applies to the 'sine' function"),
+])
+def test_function_errors_name_the_flag(run_cli, tmp_path, command, args, flag):
+    """A bad coefficient is one line naming its own option, in both commands, exit 2."""
+    from heoslice import procedural
+
+    model = tmp_path / "ball.ply"
+    model.write_bytes(procedural.sphere(radius=5.0, subdivisions=1).export(file_type="ply"))
+    kind = ["--func", "linear"] if command == "color" else ["--grade", "linear"]
+    code, _, err = run_cli(command, model, *kind, *args, "-o", tmp_path / ("o.ply" if command == "color" else "s"))
+    assert code == 2 and len(err.strip().splitlines()) == 1 and f"heoslice: error: {flag}" in err, err

@@ -1,0 +1,205 @@
+"""Tests of contours.py: loops chained through shared edges, orientation, hierarchy, open meshes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from helpers import contours_of, manifold_areas
+
+from heoslice import procedural
+from heoslice.layers.contours import _rank_paths, build_contours, successors
+from heoslice.layers import plane_heights, slice_mesh
+
+REFERENCE_MESHES = {
+    "sphere": lambda: procedural.sphere(25.0, 5),
+    "torus": lambda: procedural.torus(20.0, 6.0),
+    "vase": lambda: procedural.vase(),
+    "box on planes": lambda: procedural.box((10.0, 8.0, 6.0), z_cuts=(0.25, 0.75, 3.0)),
+    "shell with island": lambda: procedural.shell_with_island(),
+}
+
+
+@pytest.mark.parametrize("name", REFERENCE_MESHES)
+def test_layer_areas_match_manifold3d(name):
+    """Per-layer contour area within 1e-5 relative of manifold3d's slice at the same z."""
+    mesh = REFERENCE_MESHES[name]()
+    z, contours = contours_of(mesh, 0.25)
+    reference = manifold_areas(mesh.vertices, mesh.faces, z)
+    ours = contours.layer_area()
+    solid = reference > 1e-9
+    np.testing.assert_allclose(ours[solid], reference[solid], rtol=1e-5)
+    assert np.all(np.abs(ours[~solid]) < 1e-9)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 100_000), layer=st.floats(0.05, 1.0))
+def test_random_convex_solids_match_manifold3d(seed, layer):
+    """Any convex hull: one counter-clockwise loop per crossed layer, area as manifold3d's slice."""
+    points = np.random.default_rng(seed).normal(size=(60, 3)) * [5.0, 3.0, 4.0]
+    mesh = trimesh.convex.convex_hull(points)
+    z, contours = contours_of(mesh, layer)
+    reference = manifold_areas(mesh.vertices, mesh.faces, z)
+    np.testing.assert_allclose(contours.layer_area(), reference, rtol=1e-5, atol=1e-9)
+    assert np.all(contours.area > 0) and not contours.closed_by_join.any()
+    # a plane above the top (the last layer centre can be) crosses nothing
+    expected = (z < mesh.vertices[:, 2].max()).astype(int)
+    np.testing.assert_array_equal(np.bincount(contours.layer, minlength=len(z)), expected)
+
+
+def test_loops_are_simple_closed_polygons_through_shared_edges():
+    """Consecutive loop points are joined by one triangle, and every loop is a simple polygon."""
+    mesh = procedural.torus(20.0, 6.0)
+    _, contours = contours_of(mesh, 0.5)
+    for loop in range(contours.loop_count):
+        ring = contours.loop_points(loop)
+        assert shapely.LinearRing(ring).is_simple
+        edges = contours.point_edge[contours.offsets[loop]:contours.offsets[loop + 1]]
+        following = np.roll(edges, -1, axis=0)
+        # consecutive intersection edges share a vertex (they bound the same triangle)
+        shares = (edges[:, :1] == following).any(axis=1) | (edges[:, 1:] == following).any(axis=1)
+        assert shares.all()
+
+
+def test_torus_layers_have_an_outer_ring_and_a_hole():
+    """Outer rings run counter-clockwise, holes clockwise, and a hole's family is its outer ring."""
+    _, contours = contours_of(procedural.torus(20.0, 6.0), 0.5)
+    for layer in range(len(contours.layer_offsets) - 1):
+        loops = np.arange(contours.layer_offsets[layer], contours.layer_offsets[layer + 1])
+        assert len(loops) == 2
+        outer, hole = loops[np.argsort(-contours.area[loops])]
+        assert contours.area[outer] > 0 > contours.area[hole]
+        assert contours.parent[hole] == outer and contours.family[hole] == outer
+        assert contours.parent[outer] == -1 and contours.family[outer] == outer
+
+
+def test_island_inside_a_hole_is_a_family_of_its_own():
+    """Outer ring + cavity form one family; the island floating in the cavity is a second family."""
+    mesh = procedural.shell_with_island(outer=20.0, cavity=12.0, island=5.0)
+    z, contours = contours_of(mesh, 1.0)
+    middle = int(np.argmin(np.abs(z - z.mean())))
+    loops = np.arange(contours.layer_offsets[middle], contours.layer_offsets[middle + 1])
+    assert len(loops) == 3
+    outer, island, hole = loops[np.argsort(-contours.area[loops])]
+    assert contours.area[hole] < 0 < contours.area[island]
+    assert contours.family[hole] == outer
+    assert contours.parent[island] == hole and contours.family[island] == island
+    assert len(np.unique(contours.family[loops])) == 2
+
+
+def test_nested_shell_is_not_a_hole():
+    """A lesion shell inside an organ gives a second counter-clockwise loop whose parent is the organ."""
+    mesh = procedural.nested_shells(outer=20.0, inner=6.0, offset=(4.0, 0.0, 0.0))
+    z, contours = contours_of(mesh, 1.0)
+    middle = int(np.argmin(np.abs(z)))
+    loops = np.arange(contours.layer_offsets[middle], contours.layer_offsets[middle + 1])
+    organ, lesion = loops[np.argsort(-contours.area[loops])]
+    assert contours.area[lesion] > 0
+    assert contours.parent[lesion] == organ and contours.family[lesion] == lesion
+    shell = np.concatenate([np.zeros(1280 * 4, int), np.ones(1280 * 4, int)])  # icosphere(4) has 5120 faces
+    assert shell[contours.face[organ]] != shell[contours.face[lesion]]
+
+
+def test_open_mesh_chains_are_closed_and_reported():
+    """Removing the top and one side of a box leaves open chains, closed by joining their ends."""
+    box = procedural.box((10.0, 10.0, 10.0))
+    keep = np.ones(len(box.faces), dtype=bool)
+    keep[[2, 3]] = False  # one side face pair
+    z = plane_heights(0.0, 10.0, 1.0)
+    contours = build_contours(slice_mesh(box.vertices, box.faces[keep], z))
+    assert contours.closed_by_join.all() and contours.loop_count == len(z)
+    np.testing.assert_allclose(contours.layer_area(), 100.0)
+
+
+def test_vertices_on_planes_give_no_duplicate_points():
+    """A box cut exactly through its vertex rings yields 4-point loops with the exact square area."""
+    box = procedural.box((4.0, 3.0, 2.0), z_cuts=(0.5, 1.0, 1.5))
+    contours = build_contours(slice_mesh(box.vertices, box.faces, np.array([0.5, 1.0, 1.5])))
+    assert contours.loop_count == 3
+    assert np.all(np.diff(contours.offsets) == 4)
+    np.testing.assert_allclose(contours.area, 12.0)
+
+
+def test_successors_link_matching_keys_and_leave_dangling_ends():
+    """Each segment links to the one starting on its end edge; unmatched ends get -1."""
+    start = np.array([10, 20, 30, 40])
+    end = np.array([20, 30, 10, 99])
+    np.testing.assert_array_equal(successors(start, end), [1, 2, 0, -1])
+
+
+def test_rank_paths_counts_steps_to_the_tail():
+    """Pointer jumping gives each node's distance to the end of its path."""
+    nxt = np.array([1, 2, 3, -1, 5, -1, -1])
+    np.testing.assert_array_equal(_rank_paths(nxt), [3, 2, 1, 0, 1, 0, 0])
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 100_000), size=st.integers(0, 40), distinct=st.integers(1, 12))
+def test_successors_link_the_kth_end_to_the_kth_start_of_a_key(seed, size, distinct):
+    """With repeated keys (non-manifold edges), the k-th segment (in index order) ending on a key links
+    to the k-th segment starting on it, as a brute-force pass over the keys does; small and huge keys alike."""
+    rng = np.random.default_rng(seed)
+    scale = int(rng.choice([1, 10**17]))  # huge keys leave no room to pack the index: the argsort path
+    start = rng.integers(0, distinct, size) * scale
+    end = rng.integers(0, distinct, size) * scale
+    expected = np.full(size, -1)
+    for key in set(end.tolist()):
+        enders, starters = np.flatnonzero(end == key), np.flatnonzero(start == key)
+        for k in range(min(len(enders), len(starters))):
+            expected[enders[k]] = starters[k]
+    np.testing.assert_array_equal(successors(start, end), expected)
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 100_000), size=st.integers(1, 200))
+def test_label_chains_name_each_cycle_by_its_smallest_node_and_each_path_by_its_tail(seed, size):
+    """Random disjoint cycles and paths: every node gets its cycle's smallest index, or -1 - the tail of its
+    path, as walking the successor map node by node does."""
+    from heoslice.layers.contours import _label_chains
+
+    rng = np.random.default_rng(seed)
+    nodes = rng.permutation(size)
+    nxt = np.full(size, -1)
+    cuts = np.sort(rng.choice(np.arange(1, size), size=min(size - 1, int(rng.integers(0, 8))), replace=False))
+    for chain in np.split(nodes, cuts):
+        nxt[chain[:-1]] = chain[1:]
+        if rng.random() < 0.5:
+            nxt[chain[-1]] = chain[0]  # a cycle (a single node may be its own successor)
+    expected = np.empty(size, dtype=np.int64)
+    for node in range(size):
+        seen, current = [node], nxt[node]
+        while current >= 0 and current != node:
+            seen.append(current)
+            current = nxt[current]
+        expected[node] = min(seen) if current == node else -1 - seen[-1]
+    key, on_path = _label_chains(nxt)
+    np.testing.assert_array_equal(key, expected)
+    np.testing.assert_array_equal(on_path, expected < 0)
+
+
+def test_contours_without_hierarchy_are_the_same_loops():
+    """hierarchy=False gives the same loops, points and areas, and leaves parent and family out."""
+    mesh = procedural.shell_with_island()
+    z = plane_heights(mesh.vertices[:, 2].min(), mesh.vertices[:, 2].max(), 0.5)
+    sections = slice_mesh(mesh.vertices, mesh.faces, z)
+    full, plain = build_contours(sections), build_contours(sections, hierarchy=False)
+    assert plain.parent is None and plain.family is None and (full.parent >= 0).any()
+    for name in ("points", "point_edge", "point_t", "offsets", "layer", "area", "closed_by_join", "face",
+                 "layer_offsets"):
+        np.testing.assert_array_equal(getattr(plain, name), getattr(full, name))
+
+
+def test_overlapping_loops_of_a_broken_mesh_get_parents_that_end():
+    """Two loops that cross (a self-intersecting mesh), each holding the other's first vertex: only the larger
+    can be the smaller's parent, so the parents form no cycle (they did, and grading hung following them)."""
+    from heoslice.layers.contours import loop_parents
+
+    small = np.array([[10.0, 10.0], [0.0, 10.0], [0.0, 0.0], [10.0, 0.0]])
+    large = np.array([[0.5, 0.5], [10.7, 0.5], [10.7, 10.7], [0.5, 10.7]])
+    points = np.concatenate([small, large])
+    area = np.array([shapely.Polygon(small).area, shapely.Polygon(large).area])
+    parent = loop_parents(points, np.array([0, 4, 8]), np.array([0, 0]), area)
+    assert list(parent) == [1, -1]

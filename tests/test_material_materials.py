@@ -1,0 +1,134 @@
+"""Colour specs, the materials file, and the eq. 1 blend (corrected).
+
+References: CSS colour values written out, TOML files written by hand, and eq. 1 with
+its misprint corrected (M1 where f <= 0, M2 where f >= 1, M1 + f (M2 - M1) between).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from heoslice.errors import InputError
+from heoslice.material import (DEFAULT_MATERIALS, Material, blend, load_materials, load_shell_materials,
+                                parse_color, resolve_material, to_rgb8)
+
+channel = st.integers(0, 255)
+
+
+@pytest.mark.parametrize("text, rgb", [
+    ("red", (255, 0, 0)), ("Lime", (0, 255, 0)), ("green", (0, 128, 0)), ("white", (255, 255, 255)),
+    ("#0f0", (0, 255, 0)), ("#00FF00", (0, 255, 0)), ("#102030", (16, 32, 48)),
+    ("0,255,0", (0, 255, 0)), (" 12, 34 ,56 ", (12, 34, 56)), ("(1,2,3)", (1, 2, 3)), ((7, 8, 9), (7, 8, 9)),
+])
+def test_parse_color(text, rgb):
+    """Names (CSS), #rgb / #rrggbb and r,g,b all give the (r, g, b) triple."""
+    assert parse_color(text) == rgb
+
+
+@pytest.mark.parametrize("text", ["nope", "1,2", "1,2,3,4", "256,0,0", "-1,0,0", "1.5,2,3", "#12345", "", "#ggg"])
+def test_parse_color_refusals(text):
+    """Anything else is an InputError whose message quotes the text."""
+    with pytest.raises(InputError) as caught:
+        parse_color(text)
+    assert repr(text.strip()) in str(caught.value)
+
+
+@given(r=channel, g=channel, b=channel)
+def test_parse_color_round_trip(r, g, b):
+    """Every triple survives both the r,g,b and the #hex spelling."""
+    assert parse_color(f"{r},{g},{b}") == (r, g, b)
+    assert parse_color(f"#{r:02x}{g:02x}{b:02x}") == (r, g, b)
+
+
+def test_blend_boundaries():
+    """Eq. 1 corrected: exactly M1 for f <= 0, exactly M2 for f >= 1, the midpoint at f = 0.5."""
+    m1, m2 = (240, 240, 240), (0, 255, 0)
+    f = np.array([-5.0, -1e-9, 0.0, 0.5, 1.0, 1.0 + 1e-9, 7.0, np.inf, -np.inf])
+    out = blend(m1, m2, f)
+    assert out.shape == (len(f), 3)
+    for row in (0, 1, 2, 8):
+        assert tuple(out[row]) == m1
+    for row in (4, 5, 6, 7):
+        assert tuple(out[row]) == m2
+    assert tuple(out[3]) == (120.0, 247.5, 120.0)
+    materials = blend(Material("a", m1), Material("b", m2), f)
+    assert np.array_equal(materials, out)
+
+
+@given(f=st.floats(0, 1), c1=st.tuples(channel, channel, channel), c2=st.tuples(channel, channel, channel))
+def test_blend_is_linear_between(f, c1, c2):
+    """For 0 < f < 1 the blend is M1 + f (M2 - M1) (not the misprinted f (M1 - M2) + M1) and stays in the box."""
+    out = blend(c1, c2, np.array([f]))[0]
+    assert np.allclose(out, np.array(c1) + f * (np.array(c2) - np.array(c1)), rtol=0, atol=1e-12)
+    low, high = np.minimum(c1, c2), np.maximum(c1, c2)
+    assert np.all(out >= low - 1e-9) and np.all(out <= high + 1e-9)
+    assert to_rgb8(out[None]).dtype == np.uint8
+
+
+def test_default_materials():
+    """Without a file: M1 light grey on channel 1, M2 green (0, 255, 0) on channel 2."""
+    table = load_materials(None)
+    assert list(table) == ["M1", "M2"]
+    assert table["M1"] == Material("M1", (240, 240, 240), 1)
+    assert table["M2"] == Material("M2", (0, 255, 0), 2)
+    assert table is not DEFAULT_MATERIALS  # callers may change their copy
+    assert load_shell_materials(None) == {}
+
+
+def test_materials_file(tmp_path):
+    """A TOML file names materials (colour in any spelling, channel) and assigns shells by number."""
+    path = tmp_path / "mats.toml"
+    path.write_text(
+        '[materials.gel]\ncolor = "#f0f0f0"\nchannel = 1\n'
+        '[materials.cells]\ncolor = [0, 200, 0]\nchannel = 2\n'
+        '[materials.tumour]\ncolor = "red"\n'
+        '[shells]\n1 = "tumour"\n2 = "0,0,255"\n'
+    )
+    table = load_materials(path)
+    assert table == {"gel": Material("gel", (240, 240, 240), 1), "cells": Material("cells", (0, 200, 0), 2),
+                     "tumour": Material("tumour", (255, 0, 0), None)}
+    shells = load_shell_materials(path, table)
+    assert shells == {1: table["tumour"], 2: Material("0,0,255", (0, 0, 255), None)}
+
+
+@pytest.mark.parametrize("text, fragment", [
+    ("[materials.a]\nchannel = 1\n", "has no 'color'"),
+    ("[materials.a]\ncolor = 'blurple'\n", "does not parse"),
+    ("[materials.a]\ncolor = 'red'\nchannel = 0\n", "channel must be a whole number >= 1"),
+    ("[materials.a]\ncolor = 'red'\nchannel = 'one'\n", "channel must be"),
+    ("[materials.a]\ncolor = 'red'\nink = 3\n", "unknown key"),
+    ("[materials]\n", "no \\[materials.NAME\\]"),
+    ("materials = 3\n", "no \\[materials.NAME\\]"),
+    ("[materials.a\ncolor = 'red'\n", "not a valid TOML"),
+    ("[materials.a]\ncolor = 'red'\n[shells]\nliver = 'a'\n", "not a shell number"),
+    ("[materials.a]\ncolor = 'red'\n[shells]\n1 = 'b'\n", "neither a material name"),
+])
+def test_materials_file_refusals(tmp_path, text, fragment):
+    """Each malformed file is one InputError naming the file and the problem."""
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=fragment) as caught:
+        load_shell_materials(path)
+    assert str(path) in str(caught.value)
+
+
+def test_missing_materials_file(tmp_path):
+    """A missing file or a directory is an InputError naming it."""
+    with pytest.raises(InputError, match="no such file"):
+        load_materials(tmp_path / "absent.toml")
+    with pytest.raises(InputError, match="is a directory"):
+        load_materials(tmp_path)
+
+
+def test_resolve_material():
+    """A name from the table (exact, then any case) wins; otherwise a colour spec makes an unnamed material."""
+    table = {"gel": Material("gel", (1, 2, 3), 1), "Red": Material("Red", (9, 9, 9), 2)}
+    assert resolve_material("gel", table) is table["gel"]
+    assert resolve_material("GEL", table) is table["gel"]
+    assert resolve_material("red", table) is table["Red"]  # the table's name shadows the CSS colour
+    assert resolve_material("#0000ff", table) == Material("#0000ff", (0, 0, 255), None)
+    with pytest.raises(InputError, match="neither a material name"):
+        resolve_material("unobtainium", table)

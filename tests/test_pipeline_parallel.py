@@ -1,0 +1,233 @@
+"""Tests of pipeline/parallel.py: workers, the slice-ahead helper and its shared memory, process settings."""
+
+from __future__ import annotations
+
+import platform
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from test_pipeline_slice_job import write_mesh
+
+from heoslice import procedural
+from heoslice.material import make_function
+from heoslice.mesh import load_mesh
+from heoslice.material import DEFAULT_MATERIALS, Material
+from heoslice.pipeline import SliceSpec, plane_runs, slice_to_stack
+from heoslice.grading import GradeSpec, RegionSpec
+
+_REUSE_PROBE = """
+import os, resource, sys
+import numpy as np
+from heoslice.pipeline import parallel
+if sys.argv[1] == "worker":
+    parallel._enter_worker(os.getppid())
+faults = []
+for _ in range(2):
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    block = np.ones(24 << 20, dtype=np.uint8)
+    del block
+    faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+print(*faults)
+"""
+
+
+@pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt's thresholds are glibc's")
+def test_workers_keep_freed_memory_for_the_next_layer():
+    """A worker (set up as the pool sets it up) serves a 24 MB block freed by the last layer again
+    without new page faults; a plain process keeps glibc's defaults, which fault it in afresh at least
+    once (the probe sees the faults when there are some)."""
+    def probe(role):
+        out = subprocess.run([sys.executable, "-c", _REUSE_PROBE, role], capture_output=True, text=True, check=True)
+        return [int(word) for word in out.stdout.split()]
+
+    first, second = probe("worker")
+    assert first > 100 and second < 20
+    assert max(probe("plain")) > 100
+
+
+def _graded_spec(**changes) -> SliceSpec:
+    """A small graded slice with droplet masks (linear grading, nozzle 0.5 mm, 0.5 mm layers at 150 dpi)."""
+    grade = GradeSpec(RegionSpec(nozzle_mm=0.5), make_function("linear"), Material("green", (0, 255, 0)), None,
+                      DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
+    return SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), grade=grade, channels=True, **changes)
+
+
+def _broken_helper(*args):
+    raise RuntimeError("helper broke")
+
+
+class _Asked:
+    """A helper's end of the pipe, as a parent that asks only once the helper has gone through every run."""
+
+    def __init__(self):
+        self.sent = []
+
+    def poll(self):
+        return False
+
+    def recv(self):
+        return None
+
+    def send(self, value):
+        self.sent.append(value)
+
+
+def _run_context(tmp_path, mesh, spec):
+    from heoslice.pipeline import RunContext
+    from heoslice.layers.rasterising import grid_for
+    from heoslice.layers import face_z_range, plane_heights
+
+    loaded = load_mesh(write_mesh(mesh, tmp_path / "part.ply"))
+    return RunContext(mesh=loaded, z=plane_heights(loaded.bounds[0, 2], loaded.bounds[1, 2], spec.layer_height_mm),
+                      face_range=face_z_range(loaded.vertices, loaded.faces),
+                      grid=grid_for(loaded.bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm), spec=spec,
+                      directory=tmp_path)
+
+
+@pytest.mark.parametrize("graded", [False, True])
+def test_runs_sliced_ahead_into_shared_memory_are_the_runs_sliced_in_place(tmp_path, graded):
+    """What the helper copies into the shared buffer reads back (read-only) as the very contours and
+    hierarchy that run_contours makes in place, run by run, and as the layers' solid bits that packed_mask
+    makes of them; a buffer too small for the next run stops it after the runs that fit, none cut short;
+    run_contours takes a run the context holds instead of slicing it."""
+    import mmap
+
+    from heoslice.pipeline import layer_jobs, run_contours
+    from heoslice.pipeline.parallel import Ahead, _shared_array, _slice_ahead
+    from heoslice.layers.rasterising import packed_mask
+
+    spec = _graded_spec(max_segments=400) if graded else SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0),
+                                                                   max_segments=400)
+    context = _run_context(tmp_path, procedural.shell_with_island(8.0, 5.0, 2.0, 3), spec)
+    runs = plane_runs(context)
+    assert len(runs) > 3
+    buffer = mmap.mmap(-1, 16 << 20)
+    asked = _Asked()
+    _slice_ahead(context, runs, buffer, asked)
+    ((placed, masks),) = asked.sent
+    assert [run for run, _, _ in placed] == [run for run, _ in masks] == runs
+    for (run, layout, _), (_, where_bits) in zip(placed, masks):
+        expected, _, _ = run_contours(context, *run)
+        for name, where in layout:
+            got = _shared_array(buffer, where)
+            if getattr(expected, name) is None:
+                assert got is None and not graded
+            else:
+                assert not got.flags.writeable and np.array_equal(got, getattr(expected, name))
+        jobs = layer_jobs(expected, context.mesh, context.grid, spec, tmp_path, first_layer=run[0])
+        bits = _shared_array(buffer, where_bits)
+        assert not bits.flags.writeable
+        assert np.array_equal(bits, [packed_mask(job.points, job.offsets, context.grid) for job in jobs])
+    # room for the first two runs and 64 bytes more: the third does not fit
+    two_runs = max(offset + np.dtype(dtype).itemsize * int(np.prod(shape))
+                   for _, where in placed[1][1] if where for dtype, shape, offset in [where])
+    small = mmap.mmap(-1, two_runs + 64)
+    asked = _Asked()
+    _slice_ahead(context, runs, small, asked)
+    assert [run for run, _, _ in asked.sent[0][0]] == runs[:2] and asked.sent[0][1] == []
+    held = run_contours(context, *runs[0])
+    ahead = Ahead(contours={runs[0]: (held[0], 0.0, 0.0)})
+    assert ahead.run_contours(context, *runs[0])[0] is held[0]
+
+
+def test_graded_stacks_are_the_same_with_runs_sliced_ahead_or_not(tmp_path, monkeypatch):
+    """Graded droplet-mask stacks with workers (and a helper slicing ahead) are byte for byte the serial
+    stack, also when every run is sliced ahead (many runs) and when the helper fails."""
+    from heoslice.pipeline import parallel
+
+    mesh = load_mesh(write_mesh(procedural.shell_with_island(8.0, 5.0, 2.0, 3), tmp_path / "m.ply"))
+
+    def layers(name, **changes):
+        manifest, _ = slice_to_stack(mesh, tmp_path / name, _graded_spec(**changes))
+        return [(e["sha256"], e["channels"]) for e in manifest["layers"]]
+
+    serial = layers("serial", jobs=1)
+    assert layers("workers", jobs=2) == serial
+    assert layers("many-runs", jobs=2, max_segments=400) == serial
+
+    monkeypatch.setattr(parallel, "_slice_ahead", _broken_helper)
+    assert layers("broken-helper", jobs=2) == serial
+
+
+def test_a_helper_that_fails_or_is_left_makes_nothing_and_leaves_quietly(tmp_path, monkeypatch, capfd):
+    """A helper that raises leaves the context as it was; a parent interrupted before it asks ends its helper,
+    which leaves without a traceback."""
+    from heoslice.pipeline import parallel
+
+    spec = SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), max_segments=400)
+    context = _run_context(tmp_path, procedural.shell_with_island(8.0, 5.0, 2.0, 3), spec)
+    with pytest.raises(KeyboardInterrupt):
+        with parallel._sliced_ahead(context, plane_runs(context)):
+            raise KeyboardInterrupt
+    assert "Traceback" not in capfd.readouterr().err
+
+    monkeypatch.setattr(parallel, "_slice_ahead", _broken_helper)
+    with parallel._sliced_ahead(context, plane_runs(context)) as collect:
+        assert collect() == parallel.Ahead()
+
+
+def test_parallel_slicing_leaves_the_garbage_collector_as_it_found_it(tmp_path):
+    """What is frozen for the forks is unfrozen after (nothing left frozen), and a caller that froze its own
+    objects finds them frozen still, and no more."""
+    import gc
+
+    mesh = load_mesh(write_mesh(procedural.shell_with_island(8.0, 5.0, 2.0, 3), tmp_path / "m.ply"))
+    spec = _graded_spec(jobs=2)
+    assert gc.get_freeze_count() == 0
+    slice_to_stack(mesh, tmp_path / "a", spec)
+    assert gc.get_freeze_count() == 0
+    gc.freeze()
+    try:
+        frozen = gc.get_freeze_count()
+        slice_to_stack(mesh, tmp_path / "b", spec)
+        assert gc.get_freeze_count() == frozen
+    finally:
+        gc.unfreeze()
+
+
+def test_a_helper_makes_masks_only_up_to_their_share_of_the_buffer(tmp_path, monkeypatch):
+    """Past AHEAD_MASK_BYTES of solid masks the helper stops making them: every run's contours, the masks of
+    the runs that fit in that share."""
+    import mmap
+
+    from heoslice.pipeline import parallel
+
+    context = _run_context(tmp_path, procedural.shell_with_island(8.0, 5.0, 2.0, 3), _graded_spec(max_segments=400))
+    runs = plane_runs(context)
+    layers = [stop - start for start, stop in runs[:2]]
+    row_bytes = context.grid.height * -(-context.grid.width // 8)
+    monkeypatch.setattr(parallel, "AHEAD_MASK_BYTES", sum(layers) * row_bytes)
+    asked = _Asked()
+    parallel._slice_ahead(context, runs, mmap.mmap(-1, 16 << 20), asked)
+    placed, masks = asked.sent[0]
+    assert [run for run, _, _ in placed] == runs and [run for run, _ in masks] == runs[:2]
+
+
+def _silent_helper(*args):
+    import signal
+    import time
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    time.sleep(120)
+
+
+def test_a_helper_that_does_not_answer_is_left_aside_and_ended(tmp_path, monkeypatch):
+    """A helper that neither answers nor ends is waited for at most _AHEAD_WAIT_S (0.3 s here; well within
+    30 s, where the helper would still be asleep), its work left to the workers, and it is killed: no
+    process is left behind."""
+    import multiprocessing
+    import time
+
+    from heoslice.pipeline import parallel
+
+    monkeypatch.setattr(parallel, "_slice_ahead", _silent_helper)
+    monkeypatch.setattr(parallel, "_AHEAD_WAIT_S", 0.3)
+    spec = SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), max_segments=400)
+    context = _run_context(tmp_path, procedural.shell_with_island(8.0, 5.0, 2.0, 3), spec)
+    started = time.monotonic()
+    with parallel._sliced_ahead(context, plane_runs(context)) as collect:
+        assert collect() == parallel.Ahead()
+    assert time.monotonic() - started < 30
+    assert multiprocessing.active_children() == []
