@@ -1,8 +1,8 @@
 """The resource model through the command line: hostile mesh inputs end in one line, in bounded time and memory.
 
 Every file is generated here (sparse files by truncate, floods written out). Each case
-runs ``python -m heoslice`` in a child process whose wall time and peak RSS (from
-``os.wait4``'s resource usage) are asserted, under an address-space limit so that a
+runs ``python -m heoslice`` in a child process whose wall time and peak RSS (its
+resource usage, reported by a small parent interpreter) are asserted, under an address-space limit so that a
 regression fails instead of exhausting the machine.
 """
 
@@ -10,11 +10,8 @@ from __future__ import annotations
 
 import json
 import os
-import resource
 import subprocess
 import sys
-import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -28,28 +25,32 @@ from heoslice.mesh import load_mesh
 ADDRESS_LIMIT = 3 << 30  # bytes of address space a child may map
 
 
+#: Run in a fresh small interpreter: starts heoslice under the address-space limit and reports its exit code,
+#: output, wall time and peak RSS. (A child forked from the test process would inherit the test process's
+#: RSS into its ru_maxrss, which exec does not reset.)
+PROBE = """
+import json, resource, subprocess, sys, time
+limit, timeout = int(sys.argv[1]), float(sys.argv[2])
+def cap():
+    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+started = time.perf_counter()
+try:
+    done = subprocess.run([sys.executable, "-m", "heoslice", *sys.argv[3:]], capture_output=True, text=True,
+                          preexec_fn=cap, timeout=timeout, env={**__import__("os").environ, "OPENBLAS_NUM_THREADS": "1"})
+    code, out, err = done.returncode, done.stdout, done.stderr
+except subprocess.TimeoutExpired:
+    code, out, err = -9, "", "timed out"
+print(json.dumps([code, out, err, time.perf_counter() - started,
+                  resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024]))
+"""
+
+
 def run_bounded(*args, timeout: float = 120.0) -> tuple[int, str, str, float, float]:
     """(exit code, stdout, stderr, wall seconds, peak RSS MiB) of ``python -m heoslice ARGS`` in a child."""
-
-    def limit() -> None:
-        resource.setrlimit(resource.RLIMIT_AS, (ADDRESS_LIMIT, ADDRESS_LIMIT))
-
-    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
-        started = time.perf_counter()
-        child = subprocess.Popen([sys.executable, "-m", "heoslice", *map(str, args)], stdout=out, stderr=err,
-                                 preexec_fn=limit, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
-        while True:
-            pid, status, usage = os.wait4(child.pid, os.WNOHANG)
-            if pid:
-                break
-            if time.perf_counter() - started > timeout:
-                child.kill()
-            time.sleep(0.01)
-        seconds = time.perf_counter() - started
-        child.returncode = os.waitstatus_to_exitcode(status)
-        out.seek(0)
-        err.seek(0)
-        return child.returncode, out.read().decode(), err.read().decode(), seconds, usage.ru_maxrss / 1024
+    probe = subprocess.run([sys.executable, "-c", PROBE, str(ADDRESS_LIMIT), str(timeout), *map(str, args)],
+                           capture_output=True, text=True, check=True, timeout=timeout + 30)
+    code, out, err, seconds, rss = json.loads(probe.stdout)
+    return code, out, err, seconds, rss
 
 
 def assert_one_line_refusal(result, *needles: str, seconds: float = 30.0, rss_mib: float = 400.0) -> None:
