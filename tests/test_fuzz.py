@@ -39,7 +39,7 @@ COUNTS = st.one_of(st.integers(0, 12), st.sampled_from([10**9, 10**12, 2**31, 2*
 
 def seed_files() -> list[bytes]:
     """Valid PLY files in every format, with colours, polygons and extra properties, to mutate."""
-    from test_loading import CUBE_QUADS, CUBE_VERTICES, TETRA_FACES, TETRA_VERTICES, ply_bytes
+    from test_mesh_ply import CUBE_QUADS, CUBE_VERTICES, TETRA_FACES, TETRA_VERTICES, ply_bytes
 
     colours = [(c, "uchar", np.array([10, 20, 30, 40])) for c in ("red", "green", "blue")]
     files = []
@@ -121,7 +121,8 @@ def test_mutated_ply_files_raise_only_input_errors(scratch, data):
 
 
 def off_seeds() -> list[bytes]:
-    from test_loading import CUBE_QUADS, CUBE_VERTICES, TETRA_FACES, TETRA_VERTICES, off_text
+    from test_mesh_off import off_text
+    from test_mesh_ply import CUBE_QUADS, CUBE_VERTICES, TETRA_FACES, TETRA_VERTICES
 
     return [off_text(TETRA_VERTICES, TETRA_FACES).encode(),
             off_text(CUBE_VERTICES, CUBE_QUADS, header="COFF\n# comment\n", colours=True).encode()]
@@ -139,6 +140,104 @@ def test_mutated_off_files_raise_only_input_errors(scratch, data):
 def test_generated_ply_headers_raise_only_input_errors(scratch, data):
     """Grammar-built headers with wrong types and huge counts, over random bodies: only InputError."""
     load_only_input_errors(scratch / "generated.ply", data)
+
+
+@st.composite
+def repeated_faces(draw) -> tuple[bytes, int, int]:
+    """(a seed mesh whose faces are each repeated 1..4 times in a random order, in any format; distinct faces;
+    all faces)."""
+    from test_mesh_ply import TETRA_FACES, TETRA_VERTICES, ply_bytes
+
+    copies = draw(st.lists(st.integers(1, 4), min_size=len(TETRA_FACES), max_size=len(TETRA_FACES)))
+    faces = [face for face, k in zip(TETRA_FACES, copies) for _ in range(k)]
+    faces = [faces[i] for i in draw(st.permutations(range(len(faces))))]
+    rotate = draw(st.integers(0, 2))
+    faces = [face[rotate:] + face[:rotate] for face in faces]  # a rotated copy is the same face
+    fmt = draw(st.sampled_from(["ascii", "binary_little_endian", "binary_big_endian"]))
+    return ply_bytes(fmt, TETRA_VERTICES, faces), len(TETRA_FACES), len(faces)
+
+
+@FUZZ
+@given(case=repeated_faces())
+def test_repeated_faces_load_as_the_distinct_geometry(scratch, case):
+    """Faces repeated any number of times, in any order and rotation, load as the distinct faces alone
+    (the slicer's work then follows the distinct geometry), the drop reported in the warnings."""
+    data, distinct, total = case
+    path = scratch / "repeated.ply"
+    path.write_bytes(data)
+    mesh = load_mesh(path)
+    assert len(mesh.faces) == distinct
+    assert mesh.duplicate_faces == total - distinct
+    assert (mesh.duplicate_faces > 0) == any("duplicate face" in note for note in mesh.warnings)
+
+
+@st.composite
+def flooded(draw) -> tuple[str, bytes]:
+    """(suffix, an ASCII PLY or OFF seed with runs of blank, whitespace or comment lines inserted between lines)."""
+    from test_mesh_off import off_text
+    from test_mesh_ply import TETRA_FACES, TETRA_VERTICES, ply_bytes
+
+    suffix = draw(st.sampled_from([".ply", ".off"]))
+    seed = ply_bytes("ascii", TETRA_VERTICES, TETRA_FACES) if suffix == ".ply" else \
+        off_text(TETRA_VERTICES, TETRA_FACES).encode()
+    lines = seed.split(b"\n")
+    body_from = lines.index(b"end_header") + 1 if suffix == ".ply" else 1
+    filler = [b"", b"   ", b"\t", b"# note"] if suffix == ".off" else [b"", b"   ", b"\t"]
+    for _ in range(draw(st.integers(1, 3))):
+        at = draw(st.integers(body_from, len(lines)))
+        run = draw(st.sampled_from([1, 10, 20_000, 300_000]))
+        lines[at:at] = [draw(st.sampled_from(filler))] * run
+    return suffix, b"\n".join(lines)
+
+
+@FUZZ
+@given(case=flooded())
+def test_blank_and_comment_floods_load_or_are_refused_in_one_line(scratch, case):
+    """Blank, whitespace and comment lines between rows load as the plain seed when few, and are a one-line
+    InputError naming the flood when they outnumber the rows beyond the limit; nothing else."""
+    suffix, data = case
+    path = scratch / f"flooded{suffix}"
+    path.write_bytes(data)
+    try:
+        mesh = load_mesh(path)
+    except InputError as err:
+        assert "\n" not in str(err) and "flood" in str(err)
+        assert data.count(b"\n") > 10_000
+        return
+    assert len(mesh.faces) == 4
+
+
+@FUZZ
+@given(suffix=st.sampled_from([".ply", ".stl", ".off", ".obj"]), holes=st.sampled_from([1 << 12, 1 << 24, 1 << 26]),
+       where=st.sampled_from(["end", "declared"]))
+def test_sparse_files_are_refused_or_read_in_one_line(scratch, suffix, holes, where):
+    """A valid file extended by a hole (at its end, or with the header's count made to match the hole):
+    from 16 MiB of holes a one-line 'sparse' InputError before any read; a small hole loads or is one line."""
+    from test_mesh_off import off_text
+    from test_mesh_ply import TETRA_FACES, TETRA_VERTICES, ply_bytes
+
+    path = scratch / f"sparse{suffix}"
+    seed = {".ply": ply_bytes("binary_little_endian", TETRA_VERTICES, TETRA_FACES),
+            ".off": off_text(TETRA_VERTICES, TETRA_FACES).encode(),
+            ".obj": b"v 0 0 0\nv 10 0 0\nv 0 10 0\nv 0 0 10\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
+            ".stl": procedural.sphere(5.0, 1).export(file_type="stl")}[suffix]
+    if where == "declared" and suffix == ".stl":
+        seed = seed[:80] + np.uint32((len(seed) - 84 + holes) // 50).tobytes() + seed[84:]
+        holes -= holes % 50
+    elif where == "declared" and suffix == ".ply":
+        seed = seed.replace(b"element face 4", b"element face %d" % (4 + holes // 13))
+    path.write_bytes(seed)
+    with open(path, "r+b") as handle:
+        handle.truncate(len(seed) + holes)
+    if holes >= 1 << 24 and path.stat().st_blocks * 512 >= holes:
+        pytest.skip("this file system stores no holes")
+    try:
+        load_mesh(path)
+    except InputError as err:
+        assert "\n" not in str(err)
+        assert holes < 1 << 24 or "sparse" in str(err)
+    else:
+        assert holes < 1 << 24
 
 
 # --- manifests and layer files ----------------------------------------------------------------------

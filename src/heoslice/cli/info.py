@@ -18,13 +18,17 @@ Examples:
 @click.argument("model", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def info(model: Path, as_json: bool) -> None:
-    """Print MODEL's vertices, triangles, bounding box, watertightness, winding, shells, volume, colours."""
+    """Print MODEL's vertices, triangles, bounding box, watertightness, winding, shells, duplicate faces,
+    volume (of the solid the slicer fills: overlapping shells count once, as in 'verify --mesh'), colours."""
     summary = mesh_info(load_mesh(model))
     if as_json:
         click.echo(json.dumps({"model": str(model), "ok": True, **summary}))
         return
     low, high = summary["bounds_mm"]
-    volume = "n/a (not watertight)" if summary["volume_mm3"] is None else f"{summary['volume_mm3']:.6g} mm^3"
+    volume = "n/a (not watertight)" if summary["volume_mm3"] is None else (
+        f"{summary['volume_mm3']:.6g} mm^3" + ("" if summary["volume_exact"] else " (shells not united)"))
+    colours = {"vertex": "per-vertex RGB", "face": "per-face RGB (spread to the vertices)"}.get(
+        summary["color_source"], "RGB") if summary["colors"] else "none"
     lines = [
         f"file:               {summary['file']}",
         f"vertices:           {summary['vertices']}",
@@ -35,8 +39,9 @@ def info(model: Path, as_json: bool) -> None:
         f"({summary['boundary_edges']} boundary, {summary['non_manifold_edges']} non-manifold edges)",
         f"winding consistent: {'yes' if summary['winding_consistent'] else 'no'}",
         f"shells:             {summary['shells']}",
+        f"duplicate faces:    {summary['duplicate_faces']} (dropped before slicing)",
         f"volume:             {volume}",
-        f"colours:            {'per-vertex RGB' if summary['colors'] else 'none'}"
+        f"colours:            {colours}"
         f"{', material fraction' if summary['material_fraction'] else ''}",
     ]
     lines += [f"warning:            {text}" for text in summary["warnings"]]

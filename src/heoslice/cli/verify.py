@@ -7,20 +7,17 @@ import sys
 from pathlib import Path
 
 import click
-import numpy as np
 
 from heoslice.cli.common import plural, signed_percent
 from heoslice.errors import VerifyError
-from heoslice.mesh import Mesh, edge_use_counts, load_mesh, scaled, solid_volume_mm3
+from heoslice.mesh import Mesh, load_mesh, scaled, volume_check
 from heoslice.stack import check_input_path, layer_height_problems, stack_volume_mm3, verify_stack
 
 
 def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float) -> tuple[list[str], list[str], dict]:
-    """Compare a stack with its (scaled) mesh: volume (relative difference) and layers against the z-range.
+    """Compare a stack with its (scaled) mesh: volume (the library's rule) and layers against the z-range.
 
-    Returns (problems, warnings, summary). A volume difference above ``tolerance``
-    is a problem for a watertight mesh and only a warning otherwise (an open mesh has
-    no well-defined volume).
+    Returns (problems, warnings, summary).
     """
     model = mesh.source
     problems: list[str] = []
@@ -29,23 +26,13 @@ def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float) -> t
     if isinstance(source, dict) and source.get("sha256") not in (None, mesh.sha256):
         warnings.append(f"{model}: not the file this stack was sliced from "
                         f"({source.get('file', '?')}, sha256 differs)")
-    watertight = bool(np.all(edge_use_counts(mesh.faces) == 2))
-    mesh_volume, exact = solid_volume_mm3(mesh)
-    stack_volume = stack_volume_mm3(manifest)
-    relative = (stack_volume - mesh_volume) / abs(mesh_volume) if mesh_volume else float("inf")
-    if not abs(relative) <= tolerance:
-        line = (f"stack volume {stack_volume:.6g} mm^3 differs from the mesh volume {mesh_volume:.6g} mm^3 "
-                f"by {signed_percent(relative)} (tolerance {100 * tolerance:g} %)")
-        if watertight and exact:
-            problems.append(line)
-        elif not watertight:
-            warnings.append(f"{line}; the mesh is not watertight, so its volume is only approximate")
-        else:
-            warnings.append(f"{line}; its shells could not be united, so overlaps may count twice")
+    volume = volume_check(mesh, stack_volume_mm3(manifest), tolerance)
+    problems += [volume.problem] if volume.problem else []
+    warnings += [volume.warning] if volume.warning else []
     z_min, z_max = (float(v) for v in mesh.bounds[:, 2])
     problems += layer_height_problems(manifest, z_min, z_max, "the mesh's")
-    summary = {"file": str(model), "scale": scale, "watertight": watertight, "volume_mm3": mesh_volume,
-               "relative_volume_difference": relative if np.isfinite(relative) else None,
+    summary = {"file": str(model), "scale": scale, "watertight": volume.watertight,
+               "volume_mm3": volume.mesh_volume_mm3, "relative_volume_difference": volume.relative,
                "z_range_mm": [z_min, z_max]}
     return problems, warnings, summary
 

@@ -1,14 +1,21 @@
-"""Reading meshes: one reader per format, each giving a :class:`RawMesh`; welding, topology, volume; the loaded Mesh."""
+"""Reading meshes: one reader per format, each giving a :class:`RawMesh`; welding, topology, volume; the loaded Mesh.
 
+3MF (objects, names, materials) is read at library level by :func:`read_3mf`; ``load_mesh`` does not take it yet.
+"""
+
+from heoslice.mesh.checks import VolumeCheck, volume_check
 from heoslice.mesh.load import MAX_COORDINATE, SUPPORTED_SUFFIXES, Mesh, column_bounds, file_sha256, load_mesh, \
     mesh_info, scaled
 from heoslice.mesh.ply import check_ply_header, parse_ply_header, read_ply
 from heoslice.mesh.raw import MATERIAL_PROPERTY, RawMesh
+from heoslice.mesh.threemf import Material, ModelObject, ThreeMF, read_3mf
 from heoslice.mesh.topology import EdgeGroups, edge_groups, edge_use_counts, shell_labels
 from heoslice.mesh.volume import signed_volume_mm3, solid_volume_mm3, winding_number
 
 __all__ = [
-    "MATERIAL_PROPERTY", "MAX_COORDINATE", "SUPPORTED_SUFFIXES", "EdgeGroups", "Mesh", "RawMesh", "check_ply_header",
+    "MATERIAL_PROPERTY", "MAX_COORDINATE", "SUPPORTED_SUFFIXES", "EdgeGroups", "Material", "Mesh", "ModelObject",
+    "RawMesh", "ThreeMF", "check_ply_header", "read_3mf",
     "column_bounds", "edge_groups", "edge_use_counts", "file_sha256", "load_mesh", "mesh_info", "parse_ply_header",
     "read_ply", "scaled", "shell_labels", "signed_volume_mm3", "solid_volume_mm3", "winding_number",
+    "VolumeCheck", "volume_check",
 ]

@@ -2,29 +2,43 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
 
 from heoslice.errors import InputError
+from heoslice.files import read_bounded
+from heoslice.mesh.limits import MAX_MESH_BYTES, MAX_TRIANGLES, MAX_VERTICES, check_count, check_text_body
 from heoslice.mesh.raw import RawMesh, checked_triangles
 from heoslice.mesh.text import as_type, ascii_rows
 
-def read_off(path: Path):
+_COMMENT = re.compile(rb"#[^\n]*")
+#: The keyword and the vertex and face counts after any blank or comment lines (the counts the limits check).
+_COUNTS = re.compile(rb"(?:\s|#[^\n]*)*(\S*?OFF)(?:\s|#[^\n]*)+(\d+)(?:\s|#[^\n]*)+(\d+)")
+
+
+def read_off(path: Path) -> RawMesh:
     """Read an OFF file (OFF, COFF, NOFF, CNOFF, STOFF; '#' comments) strictly into a :class:`RawMesh`.
 
     Counts are checked against the rows present; one vertex or face per line; extra
     values on a row (colours, normals, texture coordinates) are ignored; faces with
     fewer than 3 vertices, indices outside the vertex list and NaN coordinates are
-    one-line InputErrors. Polygons are fan-triangulated.
+    one-line InputErrors. Polygons are fan-triangulated. Counts and the body's size are
+    checked against :mod:`heoslice.mesh.limits` before the body is tokenised.
     """
     path = Path(path)
-    data = np.frombuffer(path.read_bytes(), dtype=np.uint8).copy()
-    position = np.arange(len(data))
-    last_hash = np.maximum.accumulate(np.where(data == ord("#"), position, -1))
-    last_newline = np.maximum.accumulate(np.where(data == ord("\n"), position, -1))
-    data[(last_hash > last_newline) & (data != ord("\n"))] = ord(" ")  # blank out comments
-    text = data.tobytes()
+    data = read_bounded(path, MAX_MESH_BYTES, "mesh")
+    declared = _COUNTS.match(data)
+    rows = 0
+    if declared:
+        vertex_count, face_count = int(declared.group(2)), int(declared.group(3))
+        check_count(path, "vertices", vertex_count, MAX_VERTICES)
+        check_count(path, "faces", face_count, MAX_TRIANGLES)
+        rows = 1 + vertex_count + face_count
+    check_text_body(path, len(data), rows, data.count(b"\n"))
+    text = _COMMENT.sub(b"", data)  # a comment runs to the end of its line; the line break stays
+    del data
     words = text.split(None, 1)
     keyword = words[0].decode("ascii", "replace") if words else ""
     if not keyword.endswith("OFF") or keyword[:-3] not in ("", "C", "N", "CN", "NC", "ST", "STC", "STN", "STCN"):

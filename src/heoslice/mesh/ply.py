@@ -7,12 +7,15 @@ by :mod:`heoslice.mesh.text`.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from heoslice.errors import InputError
+from heoslice.files import open_regular, read_bounded
+from heoslice.mesh.limits import MAX_MESH_BYTES, MAX_TRIANGLES, MAX_VERTICES, check_count, check_text_body
 from heoslice.mesh.raw import RawMesh, checked_triangles
 from heoslice.mesh.text import as_type, ascii_rows
 
@@ -122,11 +125,13 @@ def check_ply_header(path: Path) -> dict[str, int]:
     """Parse a PLY header and refuse element counts the file cannot hold.
 
     Returns {element name: count}. Reads at most 64 KiB and allocates nothing for the
-    body, so a header declaring 10**12 vertices in a small file fails at once.
+    body, so a header declaring 10**12 vertices in a small file fails at once; counts
+    beyond the limits of :mod:`heoslice.mesh.limits` and ASCII bodies far larger than
+    their rows are refused alike.
     """
     path = Path(path)
-    size = path.stat().st_size
-    with open(path, "rb") as handle:
+    with open_regular(path, "mesh") as handle:
+        size = os.fstat(handle.fileno()).st_size
         head = handle.read(_PLY_MAX_HEADER_BYTES)
     header = parse_ply_header(path, head)
     needed = _ply_min_body_bytes(header)
@@ -137,6 +142,11 @@ def check_ply_header(path: Path) -> dict[str, int]:
             f"{path}: truncated or corrupt PLY: the header declares {declared} "
             f"(at least {needed} bytes) but the body holds {body_bytes} bytes"
         )
+    for name, count, _ in header.elements:
+        limit = MAX_VERTICES if name == "vertex" else MAX_TRIANGLES
+        check_count(path, f"{name!r} rows" if name != "vertex" else "vertices", count, limit)
+    if header.format == "ascii":
+        check_text_body(path, body_bytes, sum(count for _, count, _ in header.elements))
     return {name: count for name, count, _ in header.elements}
 
 
@@ -397,11 +407,14 @@ def read_ply(path: Path) -> RawMesh:
     """
     path = Path(path)
     check_ply_header(path)
-    data = path.read_bytes()
+    data = read_bounded(path, MAX_MESH_BYTES, "mesh")
     header = parse_ply_header(path, data[:_PLY_MAX_HEADER_BYTES])
     if header.format == "ascii":
         first_line = data[:header.body_offset].count(b"\n") + 1
-        elements = _read_ascii_elements(path, header, data[header.body_offset:], first_line)
+        body = data[header.body_offset:]
+        del data
+        check_text_body(path, len(body), sum(count for _, count, _ in header.elements), body.count(b"\n"))
+        elements = _read_ascii_elements(path, header, body, first_line)
     else:
         order = _PLY_FORMATS[header.format]
         buffer = memoryview(data)

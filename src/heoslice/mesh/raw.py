@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import InputError
+from heoslice.mesh.limits import MAX_TRIANGLES
 
 #: Name of the per-vertex float property carrying the material fraction in [0, 1].
 MATERIAL_PROPERTY = "material"
@@ -59,6 +60,10 @@ def checked_triangles(path: Path, vertex_count: int, lengths: np.ndarray, flat: 
     if short.any():
         bad = int(np.argmax(short))
         raise InputError(f"{path}: face {bad} has {int(lengths[bad])} vertices (a face needs at least 3)")
+    triangles = int(lengths.sum()) - 2 * len(lengths)
+    if triangles > MAX_TRIANGLES:
+        raise InputError(f"{path}: its polygons make {triangles} triangles, more than the {MAX_TRIANGLES} "
+                         "heoslice reads")
     flat = flat.astype(np.int64)
     outside = (flat < 0) | (flat >= vertex_count)
     if outside.any():

@@ -21,10 +21,10 @@ def ascii_rows(path: Path, body: bytes, first_line: int):
     blank = space[data]
     starts = np.flatnonzero(~blank & np.concatenate([[True], blank[:-1]]))
     stops = np.flatnonzero(~blank & np.concatenate([blank[1:], [True]])) + 1
-    line_of = np.cumsum(data == 10)
+    newlines = np.flatnonzero(data == 10)  # line numbers from newline positions, not a count per byte
 
     def line_at(position: int) -> int:
-        return first_line + int(line_of[position - 1]) if position > 0 else first_line
+        return first_line + int(np.searchsorted(newlines, position))
 
     too_long = np.flatnonzero(stops - starts > MAX_TOKEN)
     if len(too_long):
@@ -52,7 +52,7 @@ def ascii_rows(path: Path, body: bytes, first_line: int):
                 break
         token = body[bad:bad + MAX_TOKEN].split()[0].decode("ascii", "replace")
         raise InputError(f"{path}: line {line_at(bad)}: {token[:40]!r} is not a number")
-    token_line = line_of[starts] if len(starts) else np.zeros(0, dtype=np.int64)
+    token_line = np.searchsorted(newlines, starts) if len(starts) else np.zeros(0, dtype=np.int64)
     lines, row_start, row_length = np.unique(token_line, return_index=True, return_counts=True)
     return values, row_start, row_length, lines + first_line
 

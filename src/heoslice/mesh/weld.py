@@ -38,7 +38,7 @@ def index_sort(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sort (n,) uint64 ``key`` by its high bits, ties by index: (order (n,) int64, sorted high bits (n,) uint64).
 
     The index is packed into the low :func:`index_bits` bits of the key and the packed
-    values are sorted with ``np.sort``, several times faster than ``np.argsort`` on
+    values are sorted with ``np.sort``, cheaper than ``np.argsort`` on
     millions of keys. Those low bits of the key are dropped, so keys equal in their
     high bits (not only equal keys) end up together.
     """
@@ -107,11 +107,15 @@ def duplicate_faces(faces: np.ndarray) -> np.ndarray:
     rows = np.ascontiguousarray(rolled, dtype=np.int64)
     order, high = index_sort(_row_hash(rows.view(np.uint64)))
     repeated = np.zeros(len(faces), dtype=bool)
-    tied = np.flatnonzero(high[1:] == high[:-1])
-    if len(tied) == 0:
+    starts = np.flatnonzero(np.concatenate([[True], high[1:] != high[:-1]]))
+    if len(starts) == len(faces):
         return repeated
-    candidates = np.unique(order[np.concatenate([tied, tied + 1])])  # rows sharing their hash with another
-    _, first = np.unique(rows[candidates], axis=0, return_index=True)
-    repeated[candidates] = True
-    repeated[candidates[first]] = False
+    first = np.repeat(order[starts], np.diff(np.append(starts, len(order))))  # group's lowest index, per entry
+    exact = (rows[order] == rows[first]).all(axis=1)
+    repeated[order] = exact & (order != first)
+    if not exact.all():  # a hash collision: group the collided groups' rows exactly
+        members = np.sort(order[np.isin(first, first[~exact])])
+        _, lowest = np.unique(rows[members], axis=0, return_index=True)
+        repeated[members] = True
+        repeated[members[lowest]] = False
     return repeated

@@ -1,7 +1,8 @@
-"""Mesh loading: every supported format and PLY variant, each malformed-input error, each warning.
+"""PLY reading: every format and variant read as trimesh reads it, each malformed input a one-line error.
 
 Test files are written here by hand (PLY bytes built from numpy) or exported by
-trimesh, the independent reference for what a file holds.
+trimesh, the independent reference for what a file holds. The helpers (ply_bytes,
+one_line_error, the cube and tetrahedron) are shared by the other mesh tests.
 """
 
 from __future__ import annotations
@@ -20,12 +21,21 @@ from heoslice import procedural
 from heoslice.errors import InputError
 from heoslice.mesh import check_ply_header, load_mesh, read_ply
 
+
 PLY_NUMPY = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4", "uint": "u4",
              "float": "f4", "double": "f8", "int32": "i4", "uint8": "u1", "float32": "f4", "float64": "f8"}
+
+
 CUBE_VERTICES = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
                           [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], dtype=float) * 10.0
+
+
 CUBE_QUADS = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
+
+
 TETRA_VERTICES = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0], [0, 0, 10]], dtype=float)
+
+
 TETRA_FACES = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]
 
 
@@ -185,20 +195,6 @@ def test_extra_properties_and_elements_are_ignored(tmp_path, fmt):
     np.testing.assert_array_equal(ours.faces, TETRA_FACES)
 
 
-@pytest.mark.parametrize("suffix, options", [(".stl", {}), (".stl", {"file_type": "stl_ascii"}), (".obj", {}),
-                                             (".off", {})])
-def test_stl_obj_off(tmp_path, suffix, options):
-    """STL (binary and ASCII), OBJ and OFF exported by trimesh load to the same solid (volume, bounds)."""
-    mesh = procedural.vase(rings_outer=8, rings_inner=6, sections=16)
-    path = tmp_path / f"v{suffix}"
-    data = mesh.export(file_type=options.get("file_type", suffix[1:]))
-    path.write_bytes(data.encode() if isinstance(data, str) else data)
-    loaded = load_mesh(path)
-    assert trimesh.Trimesh(loaded.vertices, loaded.faces).volume == pytest.approx(mesh.volume, rel=1e-5)
-    np.testing.assert_allclose(loaded.bounds, mesh.bounds, atol=1e-4)
-    assert loaded.warnings == ()
-
-
 def test_hostile_element_counts_are_refused_without_allocating(tmp_path):
     """10**9 and 10**12 declared elements in a tiny file: one-line error, < 5 MB traced allocation."""
     for fmt in ("binary_little_endian", "ascii"):
@@ -232,7 +228,11 @@ def test_hostile_list_length_is_refused(tmp_path):
 
 
 TETRA_ASCII = ply_bytes("ascii", TETRA_VERTICES, TETRA_FACES)
+
+
 TETRA_BINARY = ply_bytes("binary_little_endian", TETRA_VERTICES, TETRA_FACES)
+
+
 HEADER_END = TETRA_BINARY.index(b"end_header\n") + len(b"end_header\n")
 
 
@@ -288,65 +288,10 @@ def test_binary_index_and_nan_errors(tmp_path, fmt):
     assert "negative list length" in one_line_error(write(tmp_path, "neg.ply", bytes(data)))
 
 
-@pytest.mark.parametrize("name, data, expected", [
-    ("empty", b"", "file is empty"),
-    ("unsupported", b"solid", "unsupported file type"),
-])
-def test_file_level_errors(tmp_path, name, data, expected):
-    """Empty files, unknown suffixes, directories and missing files are one-line errors."""
-    path = write(tmp_path, "m.ply" if name == "empty" else "m.3ds", data)
-    assert expected in one_line_error(path)
-    assert "no such file" in one_line_error(tmp_path / "absent.ply")
-    assert "is a directory" in one_line_error(tmp_path)
-
-
 def test_check_ply_header_returns_counts(tmp_path):
     """check_ply_header gives {element: count} of a well-formed file."""
     path = write(tmp_path, "t.ply", TETRA_BINARY)
     assert check_ply_header(path) == {"vertex": 4, "face": 4}
-
-
-def test_warning_open_mesh(tmp_path):
-    """A box with one face removed loads with an 'open mesh' warning counting its 3 boundary edges."""
-    box = procedural.box()
-    path = write(tmp_path, "open.ply", ply_bytes("ascii", box.vertices, box.faces[1:].tolist()))
-    assert any(note.startswith("open mesh: 3 boundary edge(s)") for note in load_mesh(path).warnings)
-
-
-def test_warning_non_manifold(tmp_path):
-    """Two tetrahedra sharing one edge give a non-manifold warning for that edge."""
-    second = TETRA_VERTICES * [1, 1, -1]
-    vertices = np.vstack([TETRA_VERTICES, second[[3]]])
-    faces = TETRA_FACES + [[0, 1, 4], [0, 4, 2], [1, 2, 4], [0, 2, 1]]
-    notes = load_mesh(write(tmp_path, "nm.ply", ply_bytes("ascii", vertices, faces))).warnings
-    assert any("non-manifold: " in note for note in notes)
-
-
-def test_warning_inverted_is_fixed(tmp_path):
-    """An inside-out cube is flipped (warning) so that its signed volume becomes positive."""
-    inverted = procedural.inverted(procedural.box())
-    mesh = load_mesh(write(tmp_path, "inv.ply", ply_bytes("ascii", inverted.vertices, inverted.faces.tolist())))
-    assert any("inward" in note for note in mesh.warnings)
-    assert trimesh.Trimesh(mesh.vertices, mesh.faces).volume == pytest.approx(1000.0)
-
-
-def test_warning_metres(tmp_path):
-    """A 10 cm sphere written in metres (0.1 across) warns about units."""
-    sphere = procedural.sphere(radius=0.05, subdivisions=1)
-    mesh = load_mesh(write(tmp_path, "m.ply", ply_bytes("binary_little_endian", sphere.vertices,
-                                                         sphere.faces.tolist())))
-    assert any("metres" in note and "--scale 1000" in note for note in mesh.warnings)
-
-
-def test_warning_degenerate_faces(tmp_path):
-    """Faces with a repeated vertex are dropped (warning); collinear faces are counted as zero-area."""
-    faces = TETRA_FACES + [[0, 0, 1]]
-    notes = load_mesh(write(tmp_path, "d.ply", ply_bytes("ascii", TETRA_VERTICES, faces))).warnings
-    assert any("1 degenerate face(s)" in note for note in notes)
-    vertices = np.vstack([TETRA_VERTICES, [[5.0, 0.0, 0.0]]])
-    faces = TETRA_FACES + [[0, 4, 1]]
-    notes = load_mesh(write(tmp_path, "z.ply", ply_bytes("ascii", vertices, faces))).warnings
-    assert any("1 zero-area face(s)" in note for note in notes)
 
 
 @settings(max_examples=30, deadline=None)
@@ -369,63 +314,6 @@ def test_ply_round_trip(tmp_path_factory, data):
     np.testing.assert_array_equal(mesh.faces, expected)
 
 
-def off_text(vertices, faces, header: str = "OFF\n", colours: bool = False) -> str:
-    """An OFF file: header keyword, counts, one vertex and one face per line (optional RGB after each)."""
-    extra = " 255 0 0" if colours else ""
-    lines = [f"{len(vertices)} {len(faces)} 0"]
-    lines += [" ".join(repr(float(c)) for c in v) + extra for v in vertices]
-    lines += [" ".join(str(i) for i in [len(f), *f]) + extra for f in faces]
-    return header + "\n".join(lines) + "\n"
-
-
-def test_off_variants_read_the_same_solid(tmp_path):
-    """OFF with comments, counts on the keyword line, COFF colours and quads all give the 1000 mm^3 cube."""
-    plain = off_text(CUBE_VERTICES, CUBE_QUADS)
-    variants = {
-        "plain.off": plain,
-        "comments.off": "# made by hand\n" + plain.replace("\n", "  # note\n", 3),
-        "inline.off": plain.replace("\n", " ", 1),
-        "coff.off": off_text(CUBE_VERTICES, CUBE_QUADS, header="COFF\n", colours=True),
-    }
-    for name, text in variants.items():
-        path = tmp_path / name
-        path.write_text(text)
-        mesh = load_mesh(path)
-        assert len(mesh.faces) == 12 and mesh.warnings == (), name
-        assert trimesh.Trimesh(mesh.vertices, mesh.faces).volume == pytest.approx(1000.0), name
-
-
-TETRA_OFF = off_text(TETRA_VERTICES, TETRA_FACES)
-
-
-@pytest.mark.parametrize("name, text, expected", [
-    ("missing face", TETRA_OFF.replace("3 1 2 3\n", ""), "declares 4 vertices and 4 faces"),
-    ("huge counts", TETRA_OFF.replace("4 4 0", "1000000000000 1000000000000 0"), "declares 1000000000000"),
-    ("extra rows", TETRA_OFF + "1 2 3\n", "data after the last face"),
-    ("two-vertex face", TETRA_OFF.replace("3 1 2 3", "2 1 2"), "face 3 has 2 vertices"),
-    ("index out of range", TETRA_OFF.replace("3 1 2 3", "3 1 2 7"), "face 3 refers to vertex 7"),
-    ("negative index", TETRA_OFF.replace("3 1 2 3", "3 1 2 -1"), "face 3 refers to vertex -1"),
-    ("face longer than its line", TETRA_OFF.replace("3 1 2 3", "5 1 2 3"), "does not match"),
-    ("NaN", TETRA_OFF.replace("10.0 0.0 0.0", "10.0 nan 0.0"), "vertex 1 has a NaN"),
-    ("short vertex", TETRA_OFF.replace("10.0 0.0 0.0", "10.0 0.0"), "needs 3 coordinates"),
-    ("garbage", TETRA_OFF.replace("10.0 0.0 0.0", "10.0 zz 0.0"), "'zz' is not a number"),
-    ("not off", TETRA_OFF.replace("OFF", "PLY"), "not an OFF file"),
-])
-def test_malformed_off_is_one_line_input_error(tmp_path, name, text, expected):
-    """Each kind of malformed OFF gives one InputError line naming the file and the problem."""
-    path = tmp_path / "bad.off"
-    path.write_text(text)
-    assert expected in one_line_error(path)
-
-
-def test_absurd_coordinates_are_refused(tmp_path):
-    """A finite but absurd coordinate (1e300 mm) is an InputError, not an overflow deeper in."""
-    vertices = TETRA_VERTICES.copy()
-    vertices[3, 2] = 1e300
-    path = write(tmp_path, "far.ply", ply_bytes("binary_little_endian", vertices, TETRA_FACES, coord="double"))
-    assert "beyond" in one_line_error(path)
-
-
 @pytest.mark.parametrize("window", [16, 61, 1000, 1 << 18])
 def test_row_starts_are_the_same_for_any_window(tmp_path, window):
     """Finding binary row starts by pointer doubling gives the sequential answer whatever the window size
@@ -444,75 +332,3 @@ def test_row_starts_are_the_same_for_any_window(tmp_path, window):
     expected = offset + np.concatenate([[0], np.cumsum(2 + 4 * sizes)[:-1]])
     np.testing.assert_array_equal(starts, expected)
 
-
-@pytest.mark.parametrize("collide", ["none", "some", "all"])
-def test_weld_merges_equal_coordinates_in_first_occurrence_order(monkeypatch, collide):
-    """Equal coordinates (and -0.0 / 0.0) become one vertex, first occurrences keep their order, a welded
-    mesh is unchanged, and the exact regrouping gives the same answer when some or every hash collides."""
-    from heoslice.mesh import weld
-
-    if collide == "all":
-        monkeypatch.setattr(weld, "_row_hash", lambda bits: np.zeros(len(bits), dtype=np.uint64))
-    elif collide == "some":  # rows with the same x collide whatever their y and z
-        monkeypatch.setattr(weld, "_row_hash", lambda bits: bits[:, 0].astype(np.uint64) << np.uint64(40))
-    rng = np.random.default_rng(5)
-    vertices = rng.integers(-2, 3, (300, 3)).astype(np.float32)
-    vertices[vertices == 0] = -0.0
-    faces = rng.integers(0, 300, (200, 3))
-    unique, welded_faces, first = weld.weld_vertices(vertices, faces)
-    np.testing.assert_array_equal(unique[welded_faces], (vertices[faces] + 0.0).astype(np.float64))
-    assert len(unique) == len(np.unique(vertices + 0.0, axis=0))
-    assert np.all(np.diff(first) > 0) and first[0] == 0
-    np.testing.assert_array_equal(unique, vertices[first] + 0.0)
-    assert np.all(first[welded_faces] <= faces)  # each vertex maps to the first occurrence of its coordinates
-    again, again_faces, _ = weld.weld_vertices(unique, welded_faces)
-    np.testing.assert_array_equal(again, unique)
-    np.testing.assert_array_equal(again_faces, welded_faces)
-
-
-@settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 100_000), shells=st.integers(1, 6), shuffle=st.booleans())
-def test_shell_labels_match_scipy_connected_components(seed, shells, shuffle):
-    """Shells are scipy's connected components of the face graph (faces joined by shared edges),
-    numbered alike (by first face), for several touching-at-a-vertex or separate shells in any face order."""
-    import scipy.sparse
-    import scipy.sparse.csgraph
-
-    from heoslice.mesh import edge_groups, shell_labels
-
-    rng = np.random.default_rng(seed)
-    parts, offset = [], 0
-    for _ in range(shells):
-        sphere = procedural.sphere(1.0, int(rng.integers(0, 3)))
-        parts.append(sphere.faces + offset)
-        offset += len(sphere.vertices) - int(rng.integers(0, 2))  # shells may share one vertex, never an edge
-    faces = np.concatenate(parts)
-    if shuffle:
-        faces = faces[rng.permutation(len(faces))]
-    groups = edge_groups(faces)
-    same = np.ones(len(groups.order), dtype=bool)
-    same[groups.starts] = False
-    owner = groups.order // 3
-    graph = scipy.sparse.coo_matrix((np.ones(int(same[1:].sum())), (owner[:-1][same[1:]], owner[1:][same[1:]])),
-                                    shape=(len(faces), len(faces)))
-    expected = scipy.sparse.csgraph.connected_components(graph, directed=False)[1]
-    np.testing.assert_array_equal(shell_labels(faces), expected)
-    assert shell_labels(faces).max() + 1 == shells
-
-
-@settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 100_000), offset=st.sampled_from([0, 2**31 - 64]))
-def test_edge_groups_group_every_undirected_edge_in_index_order(seed, offset):
-    """Each group is one undirected edge, every face edge is in exactly one group, and within a group the
-    entries are in index order (a packed sort for small vertex indices, an argsort for huge ones)."""
-    from heoslice.mesh import edge_groups
-
-    rng = np.random.default_rng(seed)
-    faces = offset + rng.integers(0, int(rng.integers(3, 40)), (int(rng.integers(2, 60)), 3))
-    groups = edge_groups(faces)
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)[groups.order]
-    run = np.cumsum(np.isin(np.arange(len(edges)), groups.starts)) - 1
-    assert np.array_equal(np.sort(groups.order), np.arange(3 * len(faces)))
-    assert all((edges[run == g] == edges[groups.starts[g]]).all() for g in range(len(groups.starts)))
-    assert len({tuple(e) for e in edges[groups.starts]}) == len(groups.starts)
-    assert np.all(np.diff(groups.order)[np.diff(run) == 0] > 0)

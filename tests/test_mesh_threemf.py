@@ -1,0 +1,111 @@
+"""3MF reading: objects with names, base materials and colour groups, geometry placed as the build says."""
+
+from __future__ import annotations
+
+import zipfile
+
+import numpy as np
+import pytest
+import trimesh
+
+from heoslice.errors import InputError
+from heoslice.mesh.threemf import read_3mf
+
+CORE = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
+MATERIAL = "http://schemas.microsoft.com/3dmanufacturing/material/2015/02"
+RELS = ('<?xml version="1.0" encoding="UTF-8"?><Relationships xmlns="http://schemas.openxmlformats.org/package/2006/'
+        'relationships"><Relationship Target="/3D/3dmodel.model" Id="rel0" '
+        'Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/></Relationships>')
+
+
+def mesh_xml(mesh: trimesh.Trimesh, object_id: int, name: str, attributes: str = "", triangle=lambda i: "") -> str:
+    """An <object> element holding ``mesh``; ``triangle(i)`` gives extra attributes of triangle i."""
+    vertices = "".join(f'<vertex x="{x!r}" y="{y!r}" z="{z!r}"/>' for x, y, z in mesh.vertices.tolist())
+    triangles = "".join(f'<triangle v1="{a}" v2="{b}" v3="{c}"{triangle(i)}/>'
+                        for i, (a, b, c) in enumerate(mesh.faces.tolist()))
+    return (f'<object id="{object_id}" type="model" name="{name}"{attributes}><mesh><vertices>{vertices}</vertices>'
+            f'<triangles>{triangles}</triangles></mesh></object>')
+
+
+def write_3mf(path, resources: str, build: str, unit: str = "millimeter", rels: bool = True) -> None:
+    model = (f'<?xml version="1.0" encoding="UTF-8"?><model unit="{unit}" xmlns="{CORE}" xmlns:m="{MATERIAL}">'
+             f"<resources>{resources}</resources><build>{build}</build></model>")
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive:
+        if rels:
+            archive.writestr("_rels/.rels", RELS)
+        archive.writestr("3D/3dmodel.model", model)
+
+
+LIVER = trimesh.creation.icosphere(2, 20.0)
+LESION = trimesh.creation.box(extents=(5.0, 5.0, 5.0))
+MATERIALS = ('<basematerials id="1"><base name="liver tissue" displaycolor="#C04030"/>'
+             '<base name="lesion" displaycolor="#30C040FF"/></basematerials>'
+             '<m:colorgroup id="2"><m:color color="#0000FF"/><m:color color="#FFFF00"/></m:colorgroup>')
+
+
+def test_objects_materials_and_colour_groups(tmp_path):
+    """Two named objects: one with a base material for the whole object, one whose triangles alternate between
+    the two colours of a colour group; names, materials, per-face colours and geometry (translated by the build
+    transform) read back."""
+    path = tmp_path / "organ.3mf"
+    resources = (MATERIALS + mesh_xml(LIVER, 3, "Liver", ' pid="1" pindex="0"')
+                 + mesh_xml(LESION, 4, "Lesion", triangle=lambda i: f' pid="2" p1="{i % 2}"'))
+    write_3mf(path, resources, '<item objectid="3"/><item objectid="4" transform="1 0 0 0 1 0 0 0 1 7 0 -2"/>')
+    model = read_3mf(path)
+    assert [m.name for m in model.materials] == ["liver tissue", "lesion", "colorgroup 2 #0", "colorgroup 2 #1"]
+    assert model.materials[0].color == (0xC0, 0x40, 0x30, 255)
+    liver, lesion = model.objects
+    assert (liver.name, lesion.name) == ("Liver", "Lesion")
+    np.testing.assert_array_equal(liver.face_material, 0)
+    np.testing.assert_array_equal(liver.mesh.face_colors, np.tile([0xC0, 0x40, 0x30], (len(LIVER.faces), 1)))
+    np.testing.assert_array_equal(lesion.face_material, 2 + np.arange(len(LESION.faces)) % 2)
+    assert liver.mesh.color_source == "face"
+    np.testing.assert_allclose(liver.mesh.vertices, LIVER.vertices)
+    np.testing.assert_allclose(lesion.mesh.vertices, LESION.vertices + [7.0, 0.0, -2.0])
+    np.testing.assert_array_equal(lesion.mesh.faces, LESION.faces)
+
+
+def test_geometry_matches_trimesh_placement(tmp_path):
+    """Units, a rotating build transform and components of components are placed as an independent computation
+    (trimesh's transform of the same mesh) says: volume and vertices in mm."""
+    path = tmp_path / "placed.3mf"
+    rotation = trimesh.transformations.rotation_matrix(0.3, [0, 0, 1])
+    rotation[:3, 3] = [1.0, 2.0, 3.0]
+    flat = " ".join(f"{v!r}" for v in rotation[:3, :3].T.ravel().tolist() + rotation[:3, 3].tolist())
+    resources = (mesh_xml(LESION, 1, "cube") + '<object id="2" name="holder"><components>'
+                 '<component objectid="1" transform="1 0 0 0 1 0 0 0 1 0 0 10"/></components></object>')
+    write_3mf(path, resources, f'<item objectid="2" transform="{flat}"/>', unit="centimeter", rels=False)
+    (placed,) = read_3mf(path).objects
+    expected = LESION.copy().apply_translation([0, 0, 10]).apply_transform(rotation).apply_scale(10.0)
+    np.testing.assert_allclose(placed.mesh.vertices, expected.vertices, atol=1e-9)
+    assert trimesh.Trimesh(placed.mesh.vertices, placed.mesh.faces).volume == pytest.approx(125.0 * 1000)
+    assert placed.mesh.face_colors is None and (placed.face_material == -1).all()
+
+
+@pytest.mark.parametrize("change, expected", [
+    (lambda x: b"not a zip", "not a zip archive"),
+    (lambda x: x.replace(b'v3="2"', b'v3="999"', 1), "outside"),
+    (lambda x: x.replace(b'pindex="0"', b'pindex="7"'), "property 1:7"),
+    (lambda x: x.replace(b'<item objectid="3"/>', b'<item objectid="9"/>'), "object '9'"),
+    (lambda x: x.replace(b'unit="millimeter"', b'unit="furlong"'), "unit"),
+    (lambda x: x.replace(b"</model>", b""), "not well-formed"),
+    (lambda x: x.replace(b'<vertex x="', b'<vertex x="zz', 1), "non-numeric"),
+    (lambda x: x.replace(b"#C04030", b"red"), "colour"),
+    (lambda x: x.replace(b"<?xml", b'<!DOCTYPE m [<!ENTITY a "b">]><?xml'), "DTD"),
+])
+def test_malformed_3mf_is_one_line_input_error(tmp_path, change, expected):
+    """Each flaw of the archive, the XML or the references is one InputError line naming the file."""
+    good = tmp_path / "good.3mf"
+    write_3mf(good, MATERIALS + mesh_xml(LIVER, 3, "Liver", ' pid="1" pindex="0"'), '<item objectid="3"/>')
+    with zipfile.ZipFile(good) as archive:
+        model = archive.read("3D/3dmodel.model")
+    bad = tmp_path / "bad.3mf"
+    changed = change(model)
+    if changed == b"not a zip":
+        bad.write_bytes(changed)
+    else:
+        with zipfile.ZipFile(bad, "w") as archive:
+            archive.writestr("3D/3dmodel.model", changed)
+    with pytest.raises(InputError, match=expected) as caught:
+        read_3mf(bad)
+    assert "\n" not in str(caught.value) and str(bad) in str(caught.value)
