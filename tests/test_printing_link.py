@@ -23,7 +23,8 @@ from click.testing import CliRunner
 
 from heoslice.cli import cli, main
 from heoslice.errors import (ControllerFaultError, ControllerResetError, IncompatibleControllerError, LinkDeadError,
-                             PortError, PrintInterrupted, RetryLimitError)
+                             PortError, PrintInterrupted, RetryLimitError, UnfinishedJobError)
+from heoslice.printing.window import MIN_CHUNK_PAYLOAD
 from heoslice.printing import (CHUNK_HEADER, LinkTiming, next_chunk, optimal_frame_bytes, print_job, stack_job)
 from heoslice.printing import protocol as P
 from heoslice.printing.simulator import FaultSpec, FdTransport, SimConfig, SimConnector, SimController, TcpServerTransport
@@ -130,7 +131,8 @@ def test_incompressible_layers_under_faults_as_data_frames(sim_factory, features
     result = print_job("sim://", job, get_layer, connector=SimConnector(sim), timing=TIMING, features=features)
     assert_exactly_once(sim, job, get_layer)
     control = len(P.pack_message(P.JobBegin(0, 0, 0, 0, 0, 0))[1]) + 4 + job.layer_count * (13 + 4 + 4)
-    assert result.payload_bytes == result.raw_bytes + control
+    resplit = len(P.pack_message(P.JobBegin(0, 0, 0, 0, 0, 0))[1]) + 13  # a new session resends JOB_BEGIN + LAYER_BEGIN
+    assert result.payload_bytes == result.raw_bytes + control + result.resplits * resplit
     assert sim.stats["bad_frames"] > 10 and result.frames_retransmitted > 0
     assert result.sack == bool(features) and (result.frames_skipped > 0) == bool(features)
     """Over socket:// (loopback TCP) with the fault mix, a dropped connection is resumed with the same boot id and
@@ -185,8 +187,8 @@ def test_reset_requires_from_layer_even_in_a_new_run(sim_factory):
 
 
 def test_retry_limit_pauses_and_a_rerun_resumes(sim_factory):
-    """A one-way link failure hits the retry cap (exit 13) with the job paused; once the link heals, rerunning
-    the same command resumes where the controller stands and prints every layer exactly once."""
+    """A one-way link failure hits the retry cap (exit 13) with the job paused; once the link heals, a plain rerun
+    is refused naming --resume, and --resume continues where the controller stands: every layer exactly once."""
     job, get_layer = synthetic_job(40, 64, 16)
     sim = sim_factory(FaultSpec(lose_data_from_layer=15))
     connector = SimConnector(sim)
@@ -196,7 +198,9 @@ def test_retry_limit_pauses_and_a_rerun_resumes(sim_factory):
     assert info.value.exit_code == 13 and "paused" in str(info.value)
     assert sim.state == P.STATE_PAUSED
     sim.faults = FaultSpec()
-    result = print_job("sim://", job, get_layer, connector=connector, timing=timing)
+    with pytest.raises(UnfinishedJobError, match="--resume"):
+        print_job("sim://", job, get_layer, connector=connector, timing=timing)
+    result = print_job("sim://", job, get_layer, connector=connector, timing=timing, resume=True)
     assert result.first_layer > 0
     assert_exactly_once(sim, job, get_layer)
 
@@ -214,7 +218,7 @@ def test_version_mismatch_exit_code(sim_factory):
     """A controller speaking protocol version 1 (before DATA and SACK) is refused with exit 12, both versions named."""
     job, get_layer = synthetic_job(5, 64, 16)
     sim = sim_factory(version=1)
-    with pytest.raises(IncompatibleControllerError, match="version 1.*version 2") as info:
+    with pytest.raises(IncompatibleControllerError, match="version 1.*version 3") as info:
         print_job("sim://", job, get_layer, connector=SimConnector(sim))
     assert info.value.exit_code == 12 and sim.executed == []
 
@@ -272,7 +276,7 @@ def test_frame_size_adapts_to_errors():
     (SACK) it is the closed-form optimum of (1 - h/L)(1 - e)^L, L = (h + sqrt(h^2 + 4h / -ln(1 - e))) / 2, and
     plain go-back-N (one frame wasted per error) wants smaller frames."""
     sizes = [optimal_frame_bytes(rate, 16, 1040) for rate in (0.0, 1e-4, 1e-3, 1e-2)]
-    assert sizes[0] == 1040 and sizes[0] > sizes[1] > sizes[2] > sizes[3] >= 16 + 64
+    assert sizes[0] == 1040 and sizes[0] > sizes[1] > sizes[2] > sizes[3] >= 16 + MIN_CHUNK_PAYLOAD
     for rate in (3e-4, 1e-3, 3e-3):
         closed = (16 + np.sqrt(16 ** 2 + 4 * 16 / -np.log1p(-rate))) / 2
         sack = optimal_frame_bytes(rate, 16, 1040, waste=0.0)

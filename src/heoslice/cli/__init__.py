@@ -18,6 +18,7 @@ import click
 
 from heoslice import __version__
 from heoslice.errors import EXIT_BUG, EXIT_INTERRUPTED, HeosliceError
+from heoslice.signals import interrupt_on_terminating_signals
 
 EPILOG = """\b
 Examples:
@@ -73,6 +74,7 @@ def main(argv: list[str] | None = None) -> None:
         # and OpenBLAS's thread pools, started when numpy and scipy load it, only spin (~0.2 s of CPU a run)
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     debug = "--debug" in args
+    interrupt_on_terminating_signals()
     try:
         cli.main(args=args, prog_name="heoslice", standalone_mode=False)
         if argv is None:
@@ -86,12 +88,12 @@ def main(argv: list[str] | None = None) -> None:
         hint = f" (see '{where} --help')" if isinstance(err, click.UsageError) else ""
         click.echo(f"heoslice: error: {' '.join(err.format_message().split())}{hint}", err=True)
         sys.exit(err.exit_code)
-    except click.exceptions.Abort:
+    except click.exceptions.Abort as abort:
         click.echo("heoslice: interrupted", err=True)
-        sys.exit(EXIT_INTERRUPTED)
-    except KeyboardInterrupt:
+        sys.exit(getattr(abort.__cause__ or abort.__context__, "exit_code", EXIT_INTERRUPTED))
+    except KeyboardInterrupt as interrupt:
         click.echo("heoslice: interrupted", err=True)
-        sys.exit(EXIT_INTERRUPTED)
+        sys.exit(getattr(interrupt, "exit_code", EXIT_INTERRUPTED))
     except HeosliceError as err:
         if debug:
             traceback.print_exc()

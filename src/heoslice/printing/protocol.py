@@ -1,4 +1,4 @@
-"""The heoslice printer wire protocol, version 2: pure codecs, no I/O.
+"""The heoslice printer wire protocol, version 3: pure codecs, no I/O.
 
 Specified in ``docs/protocol.md``. A frame is ``COBS(header + payload + CRC-32) + 0x00``;
 the header is ``<BBHHHH`` (version, type, session, seq, ack, payload length), all
@@ -18,7 +18,7 @@ import numpy as np
 
 from heoslice.errors import ProtocolError
 
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 HEADER = struct.Struct("<BBHHHH")
 CRC = struct.Struct("<I")
 #: Largest payload any peer may send or accept, bytes.
@@ -64,6 +64,10 @@ ERR_BAD_JOB = 4
 ERROR_NAMES = {ERR_NONE: "none", ERR_LAYER_CRC: "layer CRC mismatch",
                ERR_OUT_OF_ORDER: "layer out of order", ERR_HARDWARE: "hardware fault",
                ERR_BAD_JOB: "job does not fit this printer"}
+
+# HELLO_ACK flags.
+#: Another host's run holds the controller (a live job of another host id): no session was opened.
+HELLO_BUSY = 1 << 0
 
 # NAK reasons.
 NAK_OUT_OF_ORDER = 1
@@ -213,11 +217,12 @@ class Hello:
     """Host -> controller: open a session (header.session is the new session id)."""
 
     TYPE: ClassVar[int] = 0x01
-    FORMAT: ClassVar[str] = "<BHBB"
+    FORMAT: ClassVar[str] = "<BHBBI"
     version: int
     max_payload: int
     encodings: int
     features: int = 0
+    host_id: int = 0  # the print run saying HELLO: random, non-zero, the same across its reconnects
 
 
 @dataclass(frozen=True)
@@ -225,7 +230,7 @@ class HelloAck:
     """Controller -> host: capabilities and the state a resuming host needs."""
 
     TYPE: ClassVar[int] = 0x02
-    FORMAT: ClassVar[str] = "<BIIHHBBIIffIiiBB"
+    FORMAT: ClassVar[str] = "<BIIHHBBIIffIIiiIBBB"
     version: int
     boot_id: int
     rx_buffer: int
@@ -238,10 +243,13 @@ class HelloAck:
     dpi_x: float
     dpi_y: float
     job_id: int
+    run_id: int  # host id of the run that began or last continued the job (0: none)
     last_completed: int
     last_queued: int
+    layer_count: int
     state: int
     features: int = 0
+    flags: int = 0  # bit 0 HELLO_BUSY: another host holds the controller, no session was opened
 
 
 @dataclass(frozen=True)
@@ -363,8 +371,10 @@ class Ack:
     """Controller -> host: header.ack = next expected seq (cumulative); free buffer and progress."""
 
     TYPE: ClassVar[int] = 0x30
-    FORMAT: ClassVar[str] = "<IiiQ"
+    FORMAT: ClassVar[str] = "<IIIiiQ"
     credit: int
+    job_id: int
+    run_id: int
     last_queued: int
     last_completed: int
     held: int = 0
@@ -387,10 +397,11 @@ class Status:
     """Controller -> host, at least once a second and on every change."""
 
     TYPE: ClassVar[int] = 0x32
-    FORMAT: ClassVar[str] = "<IBIiiIBi"
+    FORMAT: ClassVar[str] = "<IBIIiiIBi"
     boot_id: int
     state: int
     job_id: int
+    run_id: int
     last_completed: int
     last_queued: int
     credit: int

@@ -18,8 +18,8 @@ import numpy as np
 
 from heoslice.printing import protocol as P
 
-#: Smallest chunk payload the adaptive sizing goes down to, bytes.
-MIN_CHUNK_PAYLOAD = 64
+#: Smallest chunk payload the adaptive sizing goes down to, bytes (a 1e-2 link wants ~35).
+MIN_CHUNK_PAYLOAD = 16
 #: Prior of the byte error estimate: one error in this many bytes until the link shows better (frames
 #: start near 250 bytes and reach the full payload after ~64 KiB sent cleanly).
 ERROR_PRIOR_BYTES = 4096
@@ -238,9 +238,9 @@ class FrameSizer:
         mean = self.bytes / self.frames if self.frames else 1.0
         return -math.log1p(-min(per_byte * mean, 0.5)) / mean
 
-    def budget(self, link_payload: int, sack: bool) -> int:
-        """Payload bytes for the next data frame, at most ``link_payload``."""
-        self._age += 1
+    def budget(self, link_payload: int, sack: bool, count: bool = True) -> int:
+        """Payload bytes for the next data frame, at most ``link_payload`` (``count`` False: only look)."""
+        self._age += count
         if self._budget is None or self._age >= 32:
             frame = optimal_frame_bytes(self.error_rate(), P.WIRE_OVERHEAD, P.wire_size(link_payload),
                                         waste=0.0 if sack else 1.0)
