@@ -131,8 +131,9 @@ def test_incompressible_layers_under_faults_as_data_frames(sim_factory, features
     result = print_job("sim://", job, get_layer, connector=SimConnector(sim), timing=TIMING, features=features)
     assert_exactly_once(sim, job, get_layer)
     control = len(P.pack_message(P.JobBegin(0, 0, 0, 0, 0, 0))[1]) + 4 + job.layer_count * (13 + 4 + 4)
-    resplit = len(P.pack_message(P.JobBegin(0, 0, 0, 0, 0, 0))[1]) + 13  # a new session resends JOB_BEGIN + LAYER_BEGIN
-    assert result.payload_bytes == result.raw_bytes + control + result.resplits * resplit
+    extra = result.payload_bytes - result.raw_bytes - control
+    # a re-split (new session) resends JOB_BEGIN and the control frames of the few layers then in flight
+    assert extra == 0 if result.resplits == 0 else 0 < extra <= result.resplits * (21 + 4 * 21)
     assert sim.stats["bad_frames"] > 10 and result.frames_retransmitted > 0
     assert result.sack == bool(features) and (result.frames_skipped > 0) == bool(features)
     """Over socket:// (loopback TCP) with the fault mix, a dropped connection is resumed with the same boot id and

@@ -373,7 +373,7 @@ class PrinterLink:
             wire_end = session.send(wire, now)
             resent = window.mark_sent(out, wire_end)
             self.counters.on_sent(out, len(wire), resent)
-            self.sizer.on_sent(len(wire))
+            self.sizer.on_sent(len(wire), resent, window.sack)
             if out.kind == P.Execute.TYPE:
                 self._sent_execute = max(self._sent_execute, out.layer)
 

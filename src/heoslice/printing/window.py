@@ -201,10 +201,10 @@ def optimal_frame_bytes(error_rate: float, overhead: int, largest: int, waste: f
 class FrameSizer:
     """The payload size of new data frames, from the byte error rate the retransmissions reveal.
 
-    The rate is estimated from retransmission rounds per byte sent (with the prior of one in
-    ``ERROR_PRIOR_BYTES``) as e = -ln(1 - p) / L, p the rounds per frame of mean size L; the
-    frame size is then chosen by :func:`optimal_frame_bytes`. Re-estimated every 32 chunks and
-    after every retransmission round.
+    The rate is estimated from retransmissions per byte sent (each resend means an earlier copy
+    was lost; with the prior of one in ``ERROR_PRIOR_BYTES``) as e = -ln(1 - p) / L, p the
+    resends per frame of mean size L; the frame size is then chosen by :func:`optimal_frame_bytes`.
+    Re-estimated every 32 chunks and after every retransmission round.
     """
 
     def __init__(self) -> None:
@@ -214,14 +214,18 @@ class FrameSizer:
         self._budget: int | None = None
         self._age = 0
 
-    def on_sent(self, wire_bytes: int) -> None:
-        """A frame of ``wire_bytes`` was written."""
+    def on_sent(self, wire_bytes: int, resent: bool = False, sack: bool = True) -> None:
+        """A frame of ``wire_bytes`` was written (``resent``: again, so an earlier copy was lost).
+
+        Without SACK about half the resends follow a loss in vain (the frame behind the lost one), so a
+        resend counts half an error there.
+        """
         self.bytes += wire_bytes
         self.frames += 1
+        self.events += resent * (1.0 if sack else 0.5)
 
     def on_error(self) -> None:
-        """A retransmission round: one more error event; old evidence is halved past 256 KiB."""
-        self.events += 1
+        """A retransmission round: estimate again; old evidence is halved past 256 KiB."""
         self._budget = None
         if self.bytes > 1 << 18:
             self.bytes /= 2
