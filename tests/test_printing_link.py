@@ -28,7 +28,7 @@ from heoslice.printing.window import MIN_CHUNK_PAYLOAD
 from heoslice.printing import (CHUNK_HEADER, LinkTiming, next_chunk, optimal_frame_bytes, print_job, stack_job)
 from heoslice.printing import protocol as P
 from heoslice.printing.simulator import FaultSpec, FdTransport, SimConfig, SimConnector, SimController, TcpServerTransport
-from printing_jobs import random_job, synthetic_job
+from printing_jobs import disc_masks, make_stack, random_job, synthetic_job
 
 FAST = dict(baud=1_000_000, layer_time_s=0.0005, status_interval_s=0.2)
 #: A finer read/pacing granularity than the default 5 ms keeps fewer frames in flight at the tests' 100 kB/s.
@@ -301,45 +301,6 @@ def test_next_chunk_prefers_data_unless_encoding_wins():
 
 
 # --- the CLI over a real stack ---------------------------------------------------------
-
-
-def make_stack(directory: Path, masks: list[np.ndarray], droplets: list[list[np.ndarray]] | None = None) -> Path:
-    """A stack as docs/stack-format.md describes it (L images 0/255, 600 dpi), with optional droplet channels
-    (per layer, a list of masks partitioning its solid pixels)."""
-    import tifffile
-
-    directory.mkdir()
-    height, width = masks[0].shape
-    layers = []
-
-    def write(name, mask):
-        tifffile.imwrite(directory / name, (mask * 255).astype(np.uint8), resolution=(600.0, 600.0),
-                         resolutionunit="INCH", photometric="minisblack")
-        return hashlib.sha256((directory / name).read_bytes()).hexdigest()
-
-    for index, mask in enumerate(masks):
-        entry = {"index": index, "z_mm": 0.05 + 0.1 * index, "file": f"layer_{index:05d}.tif",
-                 "sha256": write(f"layer_{index:05d}.tif", mask), "solid_pixels": int(mask.sum()),
-                 "open_contours": False}
-        if droplets is not None:
-            entry["channels"] = []
-            for number, drop in enumerate(droplets[index]):
-                name = f"layer_{index:05d}_drop{number}.tif"
-                entry["channels"].append({"file": name, "sha256": write(name, drop)})
-        layers.append(entry)
-    manifest = {"format": "heoslice-stack", "version": 1, "complete": True, "created_by": "test",
-                "source": {"file": "x.ply", "sha256": "0" * 64}, "layer_height_mm": 0.1, "dpi": [600.0, 600.0],
-                "pixel_size_mm": [25.4 / 600, 25.4 / 600],
-                "image": {"width": width, "height": height, "origin_mm": [0.0, 0.0], "mode": "L",
-                          "compression": "raw"},
-                "mask": "nonzero", "z_range_mm": [0.0, 0.1 * len(masks)], "layers": layers}
-    (directory / "manifest.json").write_text(json.dumps(manifest))
-    return directory
-
-
-def disc_masks(count: int, width: int = 40, height: int = 30) -> list[np.ndarray]:
-    yy, xx = np.mgrid[0:height, 0:width]
-    return [(xx - width / 2) ** 2 + (yy - height / 2) ** 2 < (3 + k) ** 2 for k in range(count)]
 
 
 def test_stack_job_sends_solid_mask_and_droplet_channels(tmp_path):

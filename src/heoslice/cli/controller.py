@@ -101,5 +101,6 @@ def controller(use_pty: bool, listen: str | None, baud: int | None, layer_time: 
         if slave is not None:
             os.close(slave)
     layers = sim.executed_layers()
-    click.echo(f"controller stopped: {len(layers)} layer(s) executed"
-               + (f" ({layers[0]}..{layers[-1]})" if layers else ""), err=True)
+    if not quiet:
+        click.echo(f"controller stopped: {len(layers)} layer(s) executed"
+                   + (f" ({layers[0]}..{layers[-1]})" if layers else ""), err=True)

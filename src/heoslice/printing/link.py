@@ -126,6 +126,7 @@ class PrinterLink:
         self._queued_base = -1  # layers the controller already held queued for this job when this run began
         self._sent_execute = -1  # highest layer this run sent EXECUTE for
         self._last_advance = 0.0
+        self._acked_at = 0.0  # start of the current flight, or its latest acknowledgement
         self._negotiated = 1 << P.ENC_RAW
         self._link_payload = MIN_CHUNK_PAYLOAD + CHUNK_HEADER
         self._generator: Iterator | None = None
@@ -369,6 +370,8 @@ class PrinterLink:
             wait = session.pacing_wait(now)
             if wait is not None:
                 return wait
+            if out is window.head and out.sends == 0:
+                self._acked_at = now  # a new flight starts
             wire = P.encode_frame(P.Frame(out.kind, session.id, out.seq, (window.tag + 1) & 0xFFFF, out.body))
             wire_end = session.send(wire, now)
             resent = window.mark_sent(out, wire_end)
@@ -447,7 +450,7 @@ class PrinterLink:
             raise ControllerFaultError(f"{self.name}: the controller aborted the job after layer "
                                        f"{status.last_completed}")
         if self.window.on_ack(frame.ack, status.credit):
-            self._last_advance = time.monotonic()
+            self._advanced()
 
     def _dispatch(self, frame: P.Frame) -> None:
         """Route one frame from the controller."""
@@ -464,12 +467,12 @@ class PrinterLink:
             return
         if isinstance(message, P.Ack):
             if self.window.on_ack(frame.ack, message.credit, message.held):
-                self._last_advance = time.monotonic()
+                self._advanced()
             if self._own(message.job_id, message.run_id):
                 self._note_progress(message.last_queued, message.last_completed)
         elif isinstance(message, P.Nak):
             if self.window.on_ack(frame.ack, message.credit, message.held):
-                self._last_advance = time.monotonic()
+                self._advanced()
             self.counters.naks += 1
             if self.window.nak_calls_for_go_back(frame.ack, message.tag):
                 self._go_back(f"NAK ({message.reason})")
@@ -477,6 +480,10 @@ class PrinterLink:
     def _finished(self) -> bool:
         """True when every frame is acknowledged and the last layer executed."""
         return self._generator_done and self.window.empty and self.last_completed >= self.job.layer_count - 1
+
+    def _advanced(self) -> None:
+        """The acknowledgement moved on."""
+        self._last_advance = self._acked_at = time.monotonic()
 
     def _check_stall(self, now: float) -> None:
         """Stop (exit 12) a controller that neither acknowledges nor progresses, whatever it answers."""
@@ -503,6 +510,8 @@ class PrinterLink:
                     self._go_back("timeout")
                 if now - session.last_rx > timing.silence_s:
                     raise LinkLost(f"no frame for {timing.silence_s:g} s")
+                if self.window.in_flight and now - self._acked_at > timing.silence_s:
+                    raise LinkLost(f"nothing acknowledged for {timing.silence_s:g} s (the controller reads nothing?)")
                 self._check_stall(now)
                 session.keepalive(now)
                 if wait_until is not None and wait_until > now and not session.waiting():

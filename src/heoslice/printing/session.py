@@ -31,7 +31,7 @@ class LinkTiming:
     abort_wait_s: float = 1.0  # how long PAUSE / RESUME wait for the controller's confirmation (ABORT: +1 s)
     poll_s: float = 0.005  # read granularity
     keepalive_s: float = 1.0  # nothing written for this long: STATUS_REQ (the controller's lease on us)
-    stall_s: float = 10.0  # nothing acknowledged or progressing while nothing is queued: a stuck controller
+    stall_s: float = 5.0  # nothing acknowledged or progressing while nothing is queued: a stuck controller
     head_stall_s: float = 120.0  # no layer completed for this long while layers are queued
     max_reconnects: int = 8  # per job, not per connection
     max_resplits: int = 32  # new sessions opened to shrink frames, per job

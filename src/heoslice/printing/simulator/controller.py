@@ -95,7 +95,7 @@ class SimController:
         """State lost on a reset."""
         self.session = 0
         self.host_id = 0  # HELLO host id of the current session
-        self._heard = 0.0  # monotonic time of the current session's latest frame
+        self._heard = 0.0  # monotonic time of the latest frame of the job's run (its host's session)
         self._aborting = False  # ABORT came while a layer was on the head: confirm once it is done
         self._stop_reading = False
         self.sack = False  # selective acknowledgement negotiated in this session
@@ -303,7 +303,7 @@ class SimController:
             return
         if frame.version != self.config.version:
             return
-        if self.session and frame.session == self.session:
+        if self.session and frame.session == self.session and self.host_id == self.run_id:
             self._heard = time.monotonic()
         if frame.type == P.StatusRequest.TYPE:
             self._send_status()
@@ -350,8 +350,8 @@ class SimController:
             self._send_status()
 
     def _busy_for(self, host_id: int) -> bool:
-        """True when another host's live session holds a job in progress (one host per controller)."""
-        return (self.session != 0 and host_id != self.host_id
+        """True when the host of the job in progress (its run) is live and another host says HELLO."""
+        return (self.run_id != 0 and host_id != self.run_id
                 and self.state == P.STATE_RECEIVING and time.monotonic() - self._heard < OWNER_LEASE_S)
 
     def _on_hello(self, frame: P.Frame) -> None:
@@ -366,14 +366,15 @@ class SimController:
                 return
             if self._busy_for(hello.host_id):
                 flags = P.HELLO_BUSY
-                self._say(f"busy: refused host {hello.host_id:08x} (host {self.host_id:08x} is printing "
+                self._say(f"busy: refused host {hello.host_id:08x} (host {self.run_id:08x} is printing "
                           f"job {self.job_id:08x})")
             else:
                 if hello.host_id != self.host_id or frame.session != self.session:
                     self._say(f"connection: session {frame.session:04x}, host {hello.host_id:08x}")
                 self.session = frame.session
                 self.host_id = hello.host_id
-                self._heard = time.monotonic()
+                if self.host_id == self.run_id:
+                    self._heard = time.monotonic()
                 self.expected = 0
                 self._drop_received()
                 features = hello.features & cfg.features
@@ -536,6 +537,7 @@ class SimController:
             self._say(f"job {message.job_id:08x}: {'continued' if same else 'begun'} at layer "
                       f"{message.first_layer} of {message.layer_count} by host {self.host_id:08x}")
             self.run_id = self.host_id
+            self._heard = time.monotonic()
             if not same:
                 self._queue.clear()
                 self.job_id = message.job_id
