@@ -20,28 +20,14 @@ import threading
 import time
 from collections.abc import Callable
 from collections import deque
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from heoslice.errors import ProtocolError
 from heoslice.printing import protocol as P
+from heoslice.printing.simulator.assembly import LayerAssembly
 from heoslice.printing.simulator.config import ExecutedLayer, FaultSpec, SimConfig
 from heoslice.printing.simulator.transports import Transport
-
-
-@dataclass
-class _Layer:
-    """A layer being received: its channels concatenated in ``data`` and the DATA write cursor."""
-
-    index: int
-    channels: int
-    size: int
-    crc: int
-    data: bytearray = field(default_factory=bytearray)
-    cursor: int = 0
-    complete: bool = False
-    crc_received: int = -1  # CRC-32 of the data actually received, set at LAYER_END
 
 
 #: A host whose session sent nothing for this long no longer holds the controller, s.
@@ -114,7 +100,7 @@ class SimController:
         self._rx_layer = -1  # layer of the latest layer-bearing data message received (DATA's link fault)
         self._in_layer = -1  # layer of the latest LAYER_BEGIN taken in order (DATA's layer faults)
         self._advertised = self.config.rx_buffer
-        self._layer: _Layer | None = None
+        self._layer: LayerAssembly | None = None
         self._queue: deque = deque()
         self._printing: tuple | None = None
         self._print_end = 0.0
@@ -527,84 +513,67 @@ class SimController:
 
     def _apply(self, message: P.Message) -> None:
         """Apply one in-order data message to the job, the layer being assembled or the print queue."""
-        cfg = self.config
         if isinstance(message, P.JobBegin):
-            if (message.channels > cfg.channels or message.width > cfg.max_width
-                    or message.height > cfg.max_height):
-                self._fail(P.ERR_BAD_JOB, message.first_layer)
-                return
-            same = self.job_active and message.job_id == self.job_id and message.first_layer == self.next_execute
-            self._say(f"job {message.job_id:08x}: {'continued' if same else 'begun'} at layer "
-                      f"{message.first_layer} of {message.layer_count} by host {self.host_id:08x}")
-            self.run_id = self.host_id
-            self._heard = time.monotonic()
-            if not same:
-                self._queue.clear()
-                self.job_id = message.job_id
-                self.next_execute = message.first_layer
-                self.last_queued = message.first_layer - 1
-                self.last_completed = message.first_layer - 1
-                self.layer_count = message.layer_count
-                self.job_active = True
-                self.job_end = False
-            self.state = P.STATE_PAUSED if self._paused else P.STATE_RECEIVING
-            self._send_status()
+            self._begin_job(message)
         elif not self.job_active:
             return
         elif isinstance(message, P.LayerBegin):
             self._layer = None
             if message.layer >= self.next_execute and message.channels >= 1:
-                self._layer = _Layer(message.layer, message.channels, message.size, message.crc,
-                                     bytearray(message.channels * message.size))
+                self._layer = LayerAssembly.begin(message)
         elif isinstance(message, P.Chunk):
             layer = self._layer
-            if layer is None or message.layer != layer.index:
-                return
-            if message.channel >= layer.channels or message.offset + message.raw_len > layer.size:
+            if layer is not None and message.layer == layer.index and not layer.write_chunk(message):
                 self._fail(P.ERR_LAYER_CRC, message.layer)
-                return
-            try:
-                raw = P.decode_chunk(message.encoding, message.data, message.raw_len)
-            except ProtocolError:
-                self._fail(P.ERR_LAYER_CRC, message.layer)
-                return
-            start = message.channel * layer.size + message.offset
-            layer.data[start:start + len(raw)] = raw
-            layer.cursor = start + len(raw)
         elif isinstance(message, P.Data):
             layer = self._layer
-            if layer is None:
-                return
-            if layer.cursor + len(message.data) > len(layer.data):
+            if layer is not None and not layer.write_data(message):
                 self._fail(P.ERR_LAYER_CRC, layer.index)
-                return
-            layer.data[layer.cursor:layer.cursor + len(message.data)] = message.data
-            layer.cursor += len(message.data)
         elif isinstance(message, P.LayerEnd):
             layer = self._layer
-            if layer is None or message.layer != layer.index:
-                return
-            actual = P.crc32(layer.data)
-            if actual != layer.crc:
+            if layer is not None and message.layer == layer.index and not layer.finish():
                 self._fail(P.ERR_LAYER_CRC, layer.index)
-                return
-            layer.crc_received = actual
-            layer.complete = True
         elif isinstance(message, P.Execute):
-            if message.layer < self.next_execute:
-                return  # already queued or printed: executed once only
-            layer = self._layer
-            if message.layer != self.next_execute or layer is None or layer.index != message.layer \
-                    or not layer.complete:
-                self._fail(P.ERR_OUT_OF_ORDER, message.layer)
-                return
-            self._queue.append((layer.index, layer.crc_received))
-            self.last_queued = layer.index
-            self.next_execute = layer.index + 1
-            self._layer = None
+            self._queue_layer(message.layer)
         elif isinstance(message, P.JobEnd):
             self.job_end = True
             self._check_done()
+
+    def _begin_job(self, message: P.JobBegin) -> None:
+        """JOB_BEGIN: continue the active job at its next layer, or start it afresh at ``first_layer``."""
+        cfg = self.config
+        if message.channels > cfg.channels or message.width > cfg.max_width or message.height > cfg.max_height:
+            self._fail(P.ERR_BAD_JOB, message.first_layer)
+            return
+        same = self.job_active and message.job_id == self.job_id and message.first_layer == self.next_execute
+        self._say(f"job {message.job_id:08x}: {'continued' if same else 'begun'} at layer "
+                  f"{message.first_layer} of {message.layer_count} by host {self.host_id:08x}")
+        self.run_id = self.host_id
+        self._heard = time.monotonic()
+        if not same:
+            self._queue.clear()
+            self.job_id = message.job_id
+            self.next_execute = message.first_layer
+            self.last_queued = message.first_layer - 1
+            self.last_completed = message.first_layer - 1
+            self.layer_count = message.layer_count
+            self.job_active = True
+            self.job_end = False
+        self.state = P.STATE_PAUSED if self._paused else P.STATE_RECEIVING
+        self._send_status()
+
+    def _queue_layer(self, index: int) -> None:
+        """EXECUTE: queue the verified layer once; a repeat is ignored, any other is error 2."""
+        if index < self.next_execute:
+            return  # already queued or printed: executed once only
+        layer = self._layer
+        if index != self.next_execute or layer is None or layer.index != index or not layer.complete:
+            self._fail(P.ERR_OUT_OF_ORDER, index)
+            return
+        self._queue.append((layer.index, layer.crc_received))
+        self.last_queued = layer.index
+        self.next_execute = layer.index + 1
+        self._layer = None
 
     # -- the head ----------------------------------------------------------------------
 
