@@ -231,18 +231,19 @@ def test_two_concurrent_prints_and_the_stack_lock(tmp_path, controller):
     first completes exactly once;
     while a print runs its stack is held (a slice's lock is refused, a second print of it exits 18); a SIGKILLed
     print leaves no stale lock."""
-    ctl = controller("--set", "rx_buffer=400", layer_time=0.05)
+    ctl = controller("--set", "rx_buffer=400", layer_time=0.1)
     a = make_stack(tmp_path / "a", disc_masks(40))
     b = make_stack(tmp_path / "b", disc_masks(5, 48, 32))
     proc = start_print(a, ctl.port)
     wait_layers(tmp_path / "a.print-log.jsonl", 1)
+    second = run("print", b, "--port", ctl.port, "--baud", 1000000)
+    assert second.returncode == 16 and "busy" in one_line(second.stderr)
     with pytest.raises(StackBusyError):
         with hold_stack(a, "slicing into it"):
             pass
     same = run("print", a, "--port", ctl.port, "--baud", 1000000, "--log", tmp_path / "other.jsonl")
     assert same.returncode == 18 and "another heoslice process" in one_line(same.stderr)
-    second = run("print", b, "--port", ctl.port, "--baud", 1000000)
-    assert second.returncode == 16 and "busy" in one_line(second.stderr)
+    assert proc.poll() is None, "the first print ended before the checks ran"
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
     assert ctl.executed(job_of(tmp_path / "a.print-log.jsonl")) == list(range(40))
