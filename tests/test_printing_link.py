@@ -7,7 +7,6 @@ case has its documented exit code and a one-line message; the CLI verifies first
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import signal
@@ -15,7 +14,6 @@ import subprocess
 import sys
 import time
 import tty
-from pathlib import Path
 
 import numpy as np
 import pytest

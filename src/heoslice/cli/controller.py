@@ -88,7 +88,8 @@ def controller(use_pty: bool, listen: str | None, baud: int | None, layer_time: 
         where = "socket://{}:{}".format(*transport.address)
     click.echo(where)
     if not quiet:
-        log(f"serving on {where}: {config.baud} baud, {config.layer_time_s:g} s a layer, boot id {sim.boot_id:08x}")
+        log(f"serving on {where}: {config.baud} baud, {config.layer_time_s:g} s a layer, boot id {sim.boot_id:08x}; "
+            f"print with --port {where} --baud {config.baud}")
     sim.start(transport)
     try:
         end = None if duration is None else time.monotonic() + duration

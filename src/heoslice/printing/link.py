@@ -14,8 +14,8 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from heoslice.errors import (ControllerBusyError, ControllerFaultError, ControllerResetError, IncompatibleControllerError,
-                             InputError, LinkDeadError, PortError, PrintInterrupted, ProtocolError, RetryLimitError,
+from heoslice.errors import (ControllerBusyError, ControllerFaultError, ControllerResetError,
+                             IncompatibleControllerError, InputError, LinkDeadError, PortError, PrintInterrupted, ProtocolError, RetryLimitError,
                              StackChangedError, UnfinishedJobError)
 from heoslice.printing import protocol as P
 from heoslice.printing.job import JobSpec, LayerSource
@@ -23,7 +23,7 @@ from heoslice.printing.log import PrintLog
 from heoslice.printing.ports import Connector, connector_for
 from heoslice.printing.resume import decide_start
 from heoslice.printing.session import LinkLost, LinkTiming, Session
-from heoslice.printing.stream import CHUNK_HEADER, check_from_layer, job_messages
+from heoslice.printing.stream import CHUNK_HEADER, job_messages
 from heoslice.printing.window import MIN_CHUNK_PAYLOAD, FrameSizer, OutFrame, SendWindow
 
 
@@ -220,13 +220,14 @@ class PrinterLink:
         return job_id == self.job.job_id and run_id == self.host_id
 
     def _accept_hello(self, ack: P.HelloAck) -> None:
-        """Take the controller's capabilities; refuse a busy, unusable or reset controller, or a job that does not fit."""
+        """Take the controller's capabilities; refuse a busy, unusable or reset controller, or a job too big."""
         job = self.job
         if ack.flags & P.HELLO_BUSY:
             raise ControllerBusyError(
                 f"{self.name}: the controller is busy: another host is printing job {ack.job_id:08x} on it "
                 f"(last completed layer {ack.last_completed}); nothing was changed; wait for that print to end")
-        if ack.window < 1 or ack.max_payload < MIN_CHUNK_PAYLOAD or ack.rx_buffer < MIN_CHUNK_PAYLOAD + P.FRAME_OVERHEAD:
+        smallest_frame = MIN_CHUNK_PAYLOAD + P.FRAME_OVERHEAD
+        if ack.window < 1 or ack.max_payload < MIN_CHUNK_PAYLOAD or ack.rx_buffer < smallest_frame:
             raise IncompatibleControllerError(
                 f"{self.name}: the controller offers a window of {ack.window} frame(s), a {ack.rx_buffer}-byte "
                 f"receive buffer and {ack.max_payload}-byte payloads: too little to send one data frame")
