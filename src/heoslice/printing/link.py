@@ -167,7 +167,7 @@ class PrinterLink:
         finally:
             self.session.close()
         result = self.result()
-        self.log.write("done", **dict(result.__dict__))
+        self.log.write("done", **{**result.__dict__, "boot_id": f"{result.boot_id:08x}"})
         return result
 
     def result(self) -> PrintResult:
