@@ -214,11 +214,13 @@ def test_kill_9_then_reruns_execute_each_layer_once(tmp_path, controller, after_
     proc.kill()
     proc.communicate(timeout=10)
     busy = run("print", stack, "--port", ctl.port, "--baud", 1000000)
-    assert busy.returncode == 16 and "busy" in one_line(busy.stderr)
+    assert busy.returncode == 16 and "busy" in one_line(busy.stderr) and "('s')" in busy.stderr
     time.sleep(3.2)
     logged = [r["layer"] for r in events(log) if r["event"] == "layer"]
     plain = run("print", stack, "--port", ctl.port, "--baud", 1000000)
     assert plain.returncode == 17 and "--resume" in one_line(plain.stderr)
+    other = run("print", make_stack(tmp_path / "c", disc_masks(3)), "--port", ctl.port, "--baud", 1000000)
+    assert other.returncode == 17 and "another stack, 's'" in one_line(other.stderr) and "--restart" in other.stderr
     below = run("print", stack, "--port", ctl.port, "--baud", 1000000, "--from-layer", logged[-1] + 1)
     assert below.returncode == 17 and "--from-layer" in one_line(below.stderr)
     resumed = run("print", stack, "--port", ctl.port, "--baud", 1000000, "--resume")

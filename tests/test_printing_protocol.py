@@ -27,8 +27,8 @@ GOLDEN = {
     "HELLO_ACK": (P.HelloAck(3, 0xDEADBEEF, 8192, 64, 1024, 7, 4, 20000, 20000, 600.0, 600.0, 0, 0, -1, -1, 0, 0, 1, 0),
                   0, 0),
     "HELLO_ACK_BUSY": (P.HelloAck(3, 0xDEADBEEF, 8192, 64, 1024, 7, 4, 20000, 20000, 600.0, 600.0, 0x5EED, 0xC0FFEE02,
-                                  7, 9, 20, P.STATE_RECEIVING, 0, P.HELLO_BUSY), 0, 0),
-    "JOB_BEGIN": (P.JobBegin(0x5EED, 0, 20, 1, 48, 48), 0, 1),
+                                  7, 9, 20, P.STATE_RECEIVING, 0, P.HELLO_BUSY, b"vase_stack"), 0, 0),
+    "JOB_BEGIN": (P.JobBegin(0x5EED, 0, 20, 1, 48, 48, b"vase_stack"), 0, 1),
     "LAYER_BEGIN": (P.LayerBegin(0, 1, 24, 0x31F3F484), 1, 2),
     "CHUNK": (P.Chunk(0, 0, 0, P.ENC_PACKBITS, 24, TN1023_PACKED), 2, 3),
     "CHUNK_RAW": (P.Chunk(0, 0, 0, P.ENC_RAW, 4, b"\x00\x00\x01\x00"), 2, 4),
@@ -237,11 +237,14 @@ def test_message_payload_lengths_are_checked(name):
     """A message payload one byte too long or too short is refused."""
     message = GOLDEN[name][0]
     kind, payload = P.pack_message(message)
-    if kind in (P.Chunk.TYPE, P.Data.TYPE):
-        assert P.unpack_message(kind, payload + b"\x07") == replace(message, data=message.data + b"\x07")
-        if kind == P.Chunk.TYPE:
+    tail = getattr(message, "TAIL", None)
+    if tail is not None:
+        longer = replace(message, **{tail: getattr(message, tail) + b"\x07"})
+        assert P.unpack_message(kind, payload + b"\x07") == longer
+        fixed = len(payload) - len(getattr(message, tail))
+        if fixed:
             with pytest.raises(ProtocolError):
-                P.unpack_message(kind, payload[:11])
+                P.unpack_message(kind, payload[:fixed - 1])
         return
     with pytest.raises(ProtocolError):
         P.unpack_message(kind, payload + b"\x00")

@@ -90,7 +90,7 @@ def _print(stack: Path, port: str, baud: int, from_layer: int | None, resume: bo
     with _progress(job.layer_count - (from_layer or 0)) as progress:
         result = print_job(port, job, get_layer, baud=baud, from_layer=from_layer, resume=resume, restart=restart,
                            log_path=log_path, on_progress=progress, max_payload=max_payload,
-                           label=f"stack {stack}")
+                           label=f"stack {stack}", name=Path(stack).resolve().name)
     if as_json:
         click.echo(json.dumps({"stack": str(stack), "port": port, "log": str(log_path),
                                "job_id": f"{job.job_id:08x}", **result.__dict__}))

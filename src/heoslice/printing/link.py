@@ -101,10 +101,10 @@ class PrinterLink:
                  timing: LinkTiming = LinkTiming(), max_payload: int = 1024, encodings: int = P.ALL_ENCODINGS,
                  features: int = P.ALL_FEATURES, log: PrintLog | None = None,
                  on_progress: Callable[[Progress], None] | None = None, session_seed: int | None = None,
-                 label: str = "this stack"):
+                 label: str = "this stack", name: str = ""):
         if job.layer_count < 1:
             raise InputError("the job has no layers")
-        self.job, self.get_layer, self.label = job, get_layer, label
+        self.job, self.get_layer, self.label, self.job_name = job, get_layer, label, name
         self.name = connector.name
         self.timing = timing
         self.max_payload = min(max_payload, P.MAX_PAYLOAD_LIMIT)
@@ -223,8 +223,10 @@ class PrinterLink:
         """Take the controller's capabilities; refuse a busy, unusable or reset controller, or a job too big."""
         job = self.job
         if ack.flags & P.HELLO_BUSY:
+            theirs = ack.job_name.decode("utf-8", "replace")
             raise ControllerBusyError(
-                f"{self.name}: the controller is busy: another host is printing job {ack.job_id:08x} on it "
+                f"{self.name}: the controller is busy: another host is printing job {ack.job_id:08x}"
+                f"{f' ({theirs!r})' if theirs else ''} on it "
                 f"(last completed layer {ack.last_completed}); nothing was changed; wait for that print to end")
         smallest_frame = MIN_CHUNK_PAYLOAD + P.FRAME_OVERHEAD
         if ack.window < 1 or ack.max_payload < MIN_CHUNK_PAYLOAD or ack.rx_buffer < smallest_frame:
@@ -338,7 +340,8 @@ class PrinterLink:
     def _restart_stream(self, start: int) -> None:
         """Begin a fresh data stream (seq 0) at layer ``start``; the round count is per job, not per stream."""
         self.window.restart()
-        self._generator = job_messages(self.job, self.get_layer, start, self._chunk_budget, self._negotiated)
+        self._generator = job_messages(self.job, self.get_layer, start, self._chunk_budget, self._negotiated,
+                                       self.job_name)
         self._generator_done = start >= self.job.layer_count and self.last_completed >= self.job.layer_count - 1
 
     def _chunk_budget(self) -> int:
@@ -526,14 +529,17 @@ def print_job(port: str, job: JobSpec, get_layer: LayerSource, *, baud: int = 11
               timing: LinkTiming = LinkTiming(), log_path: Path | None = None,
               on_progress: Callable[[Progress], None] | None = None, connector: Connector | None = None,
               max_payload: int = 1024, encodings: int = P.ALL_ENCODINGS, features: int = P.ALL_FEATURES,
-              label: str = "this stack") -> PrintResult:
-    """Print ``job`` on ``port`` (device path, pyserial URL or ``sim://``); raise a PrinterError subclass on failure."""
+              label: str = "this stack", name: str = "") -> PrintResult:
+    """Print ``job`` on ``port`` (device path, pyserial URL or ``sim://``); raise a PrinterError subclass on failure.
+
+    ``label`` names the stack in messages, ``name`` goes to the controller with the job (JOB_BEGIN).
+    """
     own = connector is None
     connector = connector or connector_for(port, baud)
     log = PrintLog(log_path)
     try:
         link = PrinterLink(connector, job, get_layer, timing=timing, max_payload=max_payload, encodings=encodings,
-                           features=features, log=log, on_progress=on_progress, label=label)
+                           features=features, log=log, on_progress=on_progress, label=label, name=name)
         return link.run(from_layer, resume=resume, restart=restart)
     finally:
         log.close()

@@ -250,6 +250,8 @@ class HelloAck:
     state: int
     features: int = 0
     flags: int = 0  # bit 0 HELLO_BUSY: another host holds the controller, no session was opened
+    job_name: bytes = b""  # the job's name as JOB_BEGIN gave it (UTF-8), the rest of the payload
+    TAIL: ClassVar[str] = "job_name"
 
 
 @dataclass(frozen=True)
@@ -264,6 +266,8 @@ class JobBegin:
     channels: int
     width: int
     height: int
+    name: bytes = b""  # UTF-8, at most JOB_NAME_LIMIT bytes (the stack's name), the rest of the payload
+    TAIL: ClassVar[str] = "name"
 
 
 @dataclass(frozen=True)
@@ -290,6 +294,7 @@ class Chunk:
     encoding: int
     raw_len: int
     data: bytes = b""
+    TAIL: ClassVar[str] = "data"
 
 
 @dataclass(frozen=True)
@@ -305,6 +310,7 @@ class Data:
     TYPE: ClassVar[int] = 0x16
     FORMAT: ClassVar[str] = "<"
     data: bytes = b""
+    TAIL: ClassVar[str] = "data"
 
 
 @dataclass(frozen=True)
@@ -417,21 +423,24 @@ MESSAGE_TYPES: dict[int, type] = {cls.TYPE: cls for cls in (
 #: Types carried in the sequenced data stream (go-back-N); all others bypass it.
 DATA_TYPES = frozenset({JobBegin.TYPE, LayerBegin.TYPE, Chunk.TYPE, Data.TYPE, LayerEnd.TYPE, Execute.TYPE,
                         JobEnd.TYPE})
-#: Types whose fixed fields are followed by a variable number of data bytes.
-_VARIABLE_TYPES = frozenset({Chunk.TYPE, Data.TYPE})
+#: Type -> name of the bytes field that follows the fixed fields (the rest of the payload).
+_TAILS = {kind: cls.TAIL for kind, cls in MESSAGE_TYPES.items() if hasattr(cls, "TAIL")}
+#: Longest job name JOB_BEGIN carries and HELLO_ACK reports, bytes.
+JOB_NAME_LIMIT = 64
 _STRUCTS = {kind: struct.Struct(cls.FORMAT) for kind, cls in MESSAGE_TYPES.items()}
 
 
 def pack_message(message: Message) -> tuple[int, bytes]:
     """(type, payload bytes) of a message."""
     kind = message.TYPE
-    values = [getattr(message, f.name) for f in fields(message) if f.name != "data"]
+    tail = _TAILS.get(kind)
+    values = [getattr(message, f.name) for f in fields(message) if f.name != tail]
     try:
         payload = _STRUCTS[kind].pack(*values)
     except struct.error as err:
         raise ProtocolError(f"cannot pack {type(message).__name__}: {err}") from err
-    if kind in _VARIABLE_TYPES:
-        payload += message.data
+    if tail is not None:
+        payload += getattr(message, tail)
     return kind, payload
 
 
@@ -441,10 +450,11 @@ def unpack_message(kind: int, payload: bytes) -> Message:
     if cls is None:
         raise ProtocolError(f"unknown message type 0x{kind:02x}")
     layout = _STRUCTS[kind]
-    if kind in _VARIABLE_TYPES:
+    tail = _TAILS.get(kind)
+    if tail is not None:
         if len(payload) < layout.size:
             raise ProtocolError(f"{cls.__name__} payload of {len(payload)} bytes is too short")
-        return cls(*layout.unpack_from(payload), data=bytes(payload[layout.size:]))
+        return cls(*layout.unpack_from(payload), **{tail: bytes(payload[layout.size:])})
     if len(payload) != layout.size:
         raise ProtocolError(f"{cls.__name__} payload is {len(payload)} bytes, expected {layout.size}")
     return cls(*layout.unpack(payload))

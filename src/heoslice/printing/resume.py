@@ -55,8 +55,9 @@ def decide_start(ack: P.HelloAck, job: JobSpec, port: str, label: str, *, from_l
                              f"job {ack.job_id:08x}); rerun without --resume to print from layer 0")
         return Start(from_layer or 0)
     mine = ack.job_id == job.job_id
-    held = (f"job {ack.job_id:08x} ({label if mine else 'another stack'}), {state}, last completed layer "
-            f"{ack.last_completed}")
+    theirs = ack.job_name.decode("utf-8", "replace")
+    stack = label if mine else f"another stack, {theirs!r}" if theirs else "another stack"
+    held = f"job {ack.job_id:08x} ({stack}), {state}, last completed layer {ack.last_completed}"
     if restart:
         return Start(0, abort_first=ack.state != P.STATE_IDLE, event="restart")
     if not mine:

@@ -63,6 +63,7 @@ class SimController:
         self.job_id = 0
         self.run_id = 0
         self.layer_count = 0
+        self.job_name = b""
         self.last_completed = -1
         self._power_on()
 
@@ -368,7 +369,7 @@ class SimController:
         reply = P.HelloAck(cfg.version, self.boot_id, self._credit(), cfg.window, cfg.max_payload,
                            cfg.encodings, cfg.channels, cfg.max_width, cfg.max_height, cfg.dpi_x, cfg.dpi_y,
                            self.job_id, self.run_id, self._claimed(), self.last_queued, self.layer_count,
-                           self.state, features, flags)
+                           self.state, features, flags, self.job_name)
         saved = self.session
         self.session = frame.session
         self._send(reply)
@@ -557,6 +558,7 @@ class SimController:
             self.last_queued = message.first_layer - 1
             self.last_completed = message.first_layer - 1
             self.layer_count = message.layer_count
+            self.job_name = message.name[:P.JOB_NAME_LIMIT]
             self.job_active = True
             self.job_end = False
         self.state = P.STATE_PAUSED if self._paused else P.STATE_RECEIVING
