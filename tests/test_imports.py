@@ -13,18 +13,12 @@ SOURCE = Path(heoslice.__file__).resolve().parent
 #: The stages in pipeline order; a module may import its own stage or an earlier one, never a later one.
 STAGES = ("base", "mesh", "material", "layers", "grading", "stack", "pipeline", "preview", "export", "printing",
           "cli")
-#: The stage of each first name under heoslice (a package, or a flat module by the package it is moving to).
+#: The stage of each first name under heoslice (a package, or a base module that every stage may use).
 STAGE_OF = {
-    "__init__": "base", "errors": "base", "files": "base", "locks": "base",
-    "mesh": "mesh", "loading": "mesh", "procedural": "mesh",
-    "material": "material", "distribution": "material", "coloring": "material", "materials": "material",
-    "layers": "layers", "slicing": "layers", "contours": "layers", "rasterising": "layers",
-    "grading": "grading", "regions": "grading", "regions_compiled": "grading", "halftone": "grading",
-    "stack": "stack",
-    "pipeline": "pipeline",
-    "preview": "preview",
-    "export": "export",
-    "printing": "printing", "protocol": "printing", "printer": "printing", "controller": "printing",
+    "__init__": "base", "errors": "base", "files": "base", "locks": "base", "signals": "base",
+    "mesh": "mesh", "procedural": "mesh",
+    "material": "material", "layers": "layers", "grading": "grading", "stack": "stack", "pipeline": "pipeline",
+    "preview": "preview", "export": "export", "printing": "printing",
     "cli": "cli", "__main__": "cli",
 }
 

@@ -23,9 +23,12 @@ S = 0x1234
 
 #: name -> (message, seq, ack) exactly as listed in docs/protocol.md section 9.
 GOLDEN = {
-    "HELLO": (P.Hello(2, 1024, 7, 1), 0, 0),
-    "HELLO_ACK": (P.HelloAck(2, 0xDEADBEEF, 8192, 64, 1024, 7, 4, 20000, 20000, 600.0, 600.0, 0, -1, -1, 0, 1), 0, 0),
-    "JOB_BEGIN": (P.JobBegin(0x5EED, 0, 20, 1, 48, 48), 0, 1),
+    "HELLO": (P.Hello(3, 1024, 7, 1, 0xC0FFEE01), 0, 0),
+    "HELLO_ACK": (P.HelloAck(3, 0xDEADBEEF, 8192, 64, 1024, 7, 4, 20000, 20000, 600.0, 600.0, 0, 0, -1, -1, 0, 0, 1, 0),
+                  0, 0),
+    "HELLO_ACK_BUSY": (P.HelloAck(3, 0xDEADBEEF, 8192, 64, 1024, 7, 4, 20000, 20000, 600.0, 600.0, 0x5EED, 0xC0FFEE02,
+                                  7, 9, 20, P.STATE_RECEIVING, 0, P.HELLO_BUSY, b"vase_stack"), 0, 0),
+    "JOB_BEGIN": (P.JobBegin(0x5EED, 0, 20, 1, 48, 48, b"vase_stack"), 0, 1),
     "LAYER_BEGIN": (P.LayerBegin(0, 1, 24, 0x31F3F484), 1, 2),
     "CHUNK": (P.Chunk(0, 0, 0, P.ENC_PACKBITS, 24, TN1023_PACKED), 2, 3),
     "CHUNK_RAW": (P.Chunk(0, 0, 0, P.ENC_RAW, 4, b"\x00\x00\x01\x00"), 2, 4),
@@ -33,9 +36,9 @@ GOLDEN = {
     "LAYER_END": (P.LayerEnd(0), 3, 5),
     "EXECUTE": (P.Execute(0), 4, 6),
     "JOB_END": (P.JobEnd(0x5EED), 5, 7),
-    "ACK": (P.Ack(8100, 0, -1, 0), 0, 5),
+    "ACK": (P.Ack(8100, 0x5EED, 0xC0FFEE01, 0, -1, 0), 0, 5),
     "NAK": (P.Nak(4, 8150, P.NAK_OUT_OF_ORDER, 0b101), 0, 3),
-    "STATUS": (P.Status(0xDEADBEEF, P.STATE_RECEIVING, 0x5EED, 0, 0, 8192, 0, -1), 0, 6),
+    "STATUS": (P.Status(0xDEADBEEF, P.STATE_RECEIVING, 0x5EED, 0xC0FFEE01, 0, 0, 8192, 0, -1), 0, 6),
     "ABORT": (P.Abort(), 0, 0),
 }
 
@@ -74,7 +77,7 @@ def test_golden_frame_decodes_to_the_message(name):
     assert wire.endswith(b"\x00") and wire.count(0) == 1
     frame = P.decode_frame(wire[:-1])
     message, seq, ack = GOLDEN[name]
-    assert (frame.version, frame.session, frame.seq, frame.ack) == (2, S, seq, ack)
+    assert (frame.version, frame.session, frame.seq, frame.ack) == (3, S, seq, ack)
     assert P.unpack_message(frame.type, frame.payload) == message
 
 
@@ -86,9 +89,9 @@ def test_golden_packbits_and_layer_crc():
 
 
 def test_golden_data_frame_by_hand():
-    """The DATA golden frame is, independently of the codec: version 2, type 0x16, session, seq 2, tag 8,
+    """The DATA golden frame is, independently of the codec: version 3, type 0x16, session, seq 2, tag 8,
     length 24, the 24 raw bytes, zlib's CRC-32 of all that, COBS with its zeros moved into code bytes."""
-    body = bytes([2, 0x16, 0x34, 0x12, 2, 0, 8, 0, 24, 0]) + TN1023_RAW
+    body = bytes([3, 0x16, 0x34, 0x12, 2, 0, 8, 0, 24, 0]) + TN1023_RAW
     body += zlib.crc32(body).to_bytes(4, "little")
     blocks = body.split(b"\x00")
     assert all(len(block) < 254 for block in blocks)
@@ -234,11 +237,14 @@ def test_message_payload_lengths_are_checked(name):
     """A message payload one byte too long or too short is refused."""
     message = GOLDEN[name][0]
     kind, payload = P.pack_message(message)
-    if kind in (P.Chunk.TYPE, P.Data.TYPE):
-        assert P.unpack_message(kind, payload + b"\x07") == replace(message, data=message.data + b"\x07")
-        if kind == P.Chunk.TYPE:
+    tail = getattr(message, "TAIL", None)
+    if tail is not None:
+        longer = replace(message, **{tail: getattr(message, tail) + b"\x07"})
+        assert P.unpack_message(kind, payload + b"\x07") == longer
+        fixed = len(payload) - len(getattr(message, tail))
+        if fixed:
             with pytest.raises(ProtocolError):
-                P.unpack_message(kind, payload[:11])
+                P.unpack_message(kind, payload[:fixed - 1])
         return
     with pytest.raises(ProtocolError):
         P.unpack_message(kind, payload + b"\x00")
@@ -273,12 +279,12 @@ def test_zlib_chunk_refuses_wrong_length():
 def test_ack_and_nak_carry_the_held_bitmap():
     """ACK and NAK round-trip the 64-bit held bitmap (SACK) and default it to 0 (plain go-back-N)."""
     full = (1 << P.SACK_SPAN) - 1
-    for message in (P.Ack(100, 3, 2, full), P.Nak(7, 9, P.NAK_BAD_FRAME, 1 << 63), P.Ack(1, 2, 3)):
+    for message in (P.Ack(100, 5, 6, 3, 2, full), P.Nak(7, 9, P.NAK_BAD_FRAME, 1 << 63), P.Ack(1, 5, 6, 2, 3)):
         kind, payload = P.pack_message(message)
         assert P.unpack_message(kind, payload) == message
-    assert P.Ack(1, 2, 3).held == 0 and P.Nak(1, 2, 3).held == 0
+    assert P.Ack(1, 5, 6, 2, 3).held == 0 and P.Nak(1, 2, 3).held == 0
     with pytest.raises(ProtocolError):
-        P.pack_message(P.Ack(1, 2, 3, 1 << P.SACK_SPAN))
+        P.pack_message(P.Ack(1, 5, 6, 2, 3, 1 << P.SACK_SPAN))
 
 
 def test_seq_diff_wraps():

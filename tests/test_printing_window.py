@@ -69,13 +69,14 @@ def test_stale_nak_and_timeout_backoff():
 
 
 def test_frame_sizer_shrinks_with_errors():
-    """Clean traffic grows frames to the full payload; retransmission rounds shrink them."""
+    """Clean traffic grows frames to the full payload; retransmissions shrink them."""
     sizer = FrameSizer()
     for _ in range(400):
         sizer.on_sent(1040)
     clean = sizer.budget(1024, sack=True)
     for _ in range(40):
-        sizer.on_error()
+        sizer.on_sent(1040, resent=True)
+    sizer.on_error()
     assert clean > 900 and sizer.budget(1024, sack=True) < clean / 2
 
 

@@ -12,7 +12,22 @@ EXIT_BUG = 1
 EXIT_INPUT = 2  # bad input file, bad option value (click usage errors also exit 2)
 EXIT_OUTPUT = 3  # output cannot be written: exists, unwritable, disk full
 EXIT_VERIFY = 4  # a stack failed verification
-EXIT_INTERRUPTED = 130  # Ctrl-C
+EXIT_INTERRUPTED = 130  # Ctrl-C (SIGINT); any signal ends with 128 + its number (SIGHUP 129, SIGTERM 143)
+EXIT_STACK_BUSY = 18  # another process holds the stack (a print, or a slice writing it)
+EXIT_HANGUP = 129  # SIGHUP
+EXIT_TERMINATED = 143  # SIGTERM
+
+
+class Interrupted(KeyboardInterrupt):
+    """A terminating signal (SIGTERM, SIGHUP) delivered as an interruption, so every Ctrl-C path handles it.
+
+    ``exit_code`` is 128 + the signal number, the shell's convention.
+    """
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+        self.exit_code = 128 + signum
 
 
 class HeosliceError(Exception):
@@ -53,6 +68,9 @@ EXIT_PROTOCOL = 12  # protocol version mismatch, no controller answering, or a j
 EXIT_RETRIES = 13  # retry cap reached; the job was paused on the controller
 EXIT_RESET = 14  # the controller was reset (new boot id) during the print: rerun with --from-layer
 EXIT_CONTROLLER = 15  # the controller reported an error (layer CRC mismatch, hardware fault)
+EXIT_BUSY = 16  # another host is printing on this controller
+EXIT_UNFINISHED = 17  # the controller holds an unfinished job: --resume or --restart
+EXIT_STACK_CHANGED = 19  # a file of the stack changed while it was being printed
 
 
 class ProtocolError(HeosliceError):
@@ -107,8 +125,32 @@ class ControllerFaultError(PrinterError):
     exit_code = EXIT_CONTROLLER
 
 
+class ControllerBusyError(PrinterError):
+    """Another host holds the controller with a job in progress; nothing was changed."""
+
+    exit_code = EXIT_BUSY
+
+
+class UnfinishedJobError(PrinterError):
+    """The controller holds an unfinished job; the user must say --resume or --restart."""
+
+    exit_code = EXIT_UNFINISHED
+
+
+class StackBusyError(HeosliceError):
+    """Another process holds the stack directory (a print reading it, or a slice writing it)."""
+
+    exit_code = EXIT_STACK_BUSY
+
+
+class StackChangedError(PrinterError):
+    """A file of the stack changed while the stack was being printed; ABORT was sent."""
+
+    exit_code = EXIT_STACK_CHANGED
+
+
 class PrintInterrupted(PrinterError):
-    """The user interrupted the print (Ctrl-C); ABORT was sent to the controller."""
+    """The user interrupted the print (Ctrl-C, SIGTERM, SIGHUP); ABORT was sent to the controller."""
 
     exit_code = EXIT_INTERRUPTED
 
@@ -126,5 +168,11 @@ EXIT_CODES: dict[int, str] = {
     EXIT_RETRIES: "retry limit reached; the job was paused on the controller",
     EXIT_RESET: "the controller was reset during the print: rerun with --from-layer",
     EXIT_CONTROLLER: "the controller reported an error (layer CRC mismatch, hardware fault)",
+    EXIT_BUSY: "the controller is busy with another host",
+    EXIT_UNFINISHED: "the controller holds an unfinished job: rerun with --resume or --restart",
+    EXIT_STACK_BUSY: "another heoslice process holds the stack (a print, or a slice writing it)",
+    EXIT_STACK_CHANGED: "a file of the stack changed while it was being printed",
+    EXIT_HANGUP: "hung up (SIGHUP); a print sends ABORT first",
     EXIT_INTERRUPTED: "interrupted (Ctrl-C); a print sends ABORT first",
+    EXIT_TERMINATED: "terminated (SIGTERM); a print sends ABORT first",
 }

@@ -16,9 +16,12 @@ import click
 
 from heoslice import __version__
 from heoslice.cli.common import error_line, exit_status_epilog
-from heoslice.errors import (EXIT_BUG, EXIT_CODES, EXIT_CONTROLLER, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_LINK_DEAD,
-                             EXIT_OK, EXIT_OUTPUT, EXIT_PORT, EXIT_PROTOCOL, EXIT_RESET, EXIT_RETRIES, EXIT_VERIFY)
+from heoslice.errors import (EXIT_BUG, EXIT_BUSY, EXIT_CODES, EXIT_CONTROLLER, EXIT_HANGUP, EXIT_INPUT,
+                             EXIT_INTERRUPTED, EXIT_LINK_DEAD, EXIT_OK, EXIT_OUTPUT, EXIT_PORT, EXIT_PROTOCOL,
+                             EXIT_RESET, EXIT_RETRIES, EXIT_STACK_BUSY, EXIT_STACK_CHANGED, EXIT_TERMINATED,
+                             EXIT_UNFINISHED, EXIT_VERIFY)
 from heoslice.pipeline import parallel
+from heoslice.signals import interrupt_on_terminating_signals
 
 EPILOG = """\b
 Examples:
@@ -47,8 +50,9 @@ COMMANDS = {
 }
 
 
-_COMMON_EXITS = (EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_INTERRUPTED)
-_PRINTER_EXITS = (EXIT_PORT, EXIT_LINK_DEAD, EXIT_PROTOCOL, EXIT_RETRIES, EXIT_RESET, EXIT_CONTROLLER)
+_COMMON_EXITS = (EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_HANGUP, EXIT_INTERRUPTED, EXIT_TERMINATED)
+_PRINTER_EXITS = (EXIT_PORT, EXIT_LINK_DEAD, EXIT_PROTOCOL, EXIT_RETRIES, EXIT_RESET, EXIT_CONTROLLER, EXIT_BUSY,
+                  EXIT_UNFINISHED, EXIT_STACK_BUSY, EXIT_STACK_CHANGED)
 
 #: Sub-command name -> the exit statuses it can end with, listed in its --help (meanings from errors.EXIT_CODES).
 EXIT_STATUSES = {
@@ -58,7 +62,7 @@ EXIT_STATUSES = {
     "preview": (*_COMMON_EXITS, EXIT_OUTPUT),
     "verify": (*_COMMON_EXITS, EXIT_VERIFY),
     "print": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_VERIFY, *_PRINTER_EXITS),
-    "controller": _COMMON_EXITS,
+    "controller": (EXIT_OK, EXIT_BUG, EXIT_INPUT),  # a signal stops it normally
 }
 
 
@@ -113,6 +117,7 @@ def main(argv: list[str] | None = None) -> None:
         parallel.single_blas_thread()
     debug = "--debug" in args
     state: dict = {}
+    interrupt_on_terminating_signals()
     try:
         cli.main(args=args, prog_name="heoslice", standalone_mode=False, obj=state)
         if argv is None:
@@ -124,12 +129,12 @@ def main(argv: list[str] | None = None) -> None:
         hint = f" (see '{where} --help')" if isinstance(err, click.UsageError) else ""
         click.echo(f"heoslice: error: {' '.join(err.format_message().split())}{hint}", err=True)
         sys.exit(err.exit_code)
-    except click.exceptions.Abort:
+    except click.exceptions.Abort as abort:
         click.echo("heoslice: interrupted", err=True)
-        sys.exit(EXIT_INTERRUPTED)
-    except KeyboardInterrupt:
+        sys.exit(getattr(abort.__cause__ or abort.__context__, "exit_code", EXIT_INTERRUPTED))
+    except KeyboardInterrupt as interrupt:
         click.echo("heoslice: interrupted", err=True)
-        sys.exit(EXIT_INTERRUPTED)
+        sys.exit(getattr(interrupt, "exit_code", EXIT_INTERRUPTED))
     except Exception as err:  # noqa: BLE001 - the last line of defence for users; a HeosliceError is theirs
         line, code = error_line(err, debug)
         where = state["defaults"].origin(str(err), args) if "defaults" in state and code != EXIT_BUG else None

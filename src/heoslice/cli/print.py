@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from heoslice.locks import hold_stack
 from heoslice.printing import Progress, default_log_path, job_summary, plan_transfer, print_job, stack_job
 from heoslice.stack import check_input_path
 
@@ -17,7 +18,10 @@ Examples:
   heoslice print vase_stack/ --port /dev/ttyUSB0
   heoslice print vase_stack/ --port socket://192.168.1.40:7000 --baud 1000000
   heoslice print vase_stack/ --port /dev/ttyACM0 --from-layer 120   # after a controller reset
-  heoslice print vase_stack/ --port 'sim://?layer_time_s=0.01'        # built-in simulator
+  heoslice print vase_stack/ --port /dev/ttyACM0 --resume            # continue an interrupted job
+  heoslice print vase_stack/ --port /dev/ttyACM0 --restart           # abort it, start at layer 0
+  heoslice print vase_stack/ --port sim://                           # built-in simulator, fast
+  heoslice print vase_stack/ --port 'sim://?pace=real'               # ... at 115200 baud, 0.2 s a layer
   heoslice print vase_stack/ --dry-run                               # verify and size, no port
 """)
 @click.argument("stack", type=click.Path(path_type=Path))
@@ -27,38 +31,61 @@ Examples:
               help="Link rate, bits/s (also paces writes on URLs that ignore it).")
 @click.option("--from-layer", type=click.IntRange(min=0), default=None,
               help="Start at this layer (after a controller reset) instead of 0 or the controller's resume point.")
+@click.option("--resume", is_flag=True, help="Continue the controller's unfinished job of this stack.")
+@click.option("--restart", is_flag=True, help="Abort the controller's unfinished job and print from layer 0.")
 @click.option("--dry-run", is_flag=True, help="Verify the stack and size the transfer; open no port.")
 @click.option("--log", "log_path", type=click.Path(path_type=Path), default=None,
               help="Print log, JSON lines [default: STACK.print-log.jsonl beside the stack].")
 @click.option("--max-payload", type=click.IntRange(80, 4096), default=1024, show_default=True,
               help="Largest frame payload offered to the controller, bytes.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
-def print_cmd(stack: Path, port: str | None, baud: int, from_layer: int | None, dry_run: bool,
-              log_path: Path | None, max_payload: int, as_json: bool) -> None:
+def print_cmd(stack: Path, port: str | None, baud: int, from_layer: int | None, resume: bool, restart: bool,
+              dry_run: bool, log_path: Path | None, max_payload: int, as_json: bool) -> None:
     """Verify STACK (manifest, sha256 of every file, paths inside it), then print it on PORT.
 
     Each layer's solid mask is sent as channel 0 (bit-packed rows), droplet masks as
     channels 1.. when the stack has them. Progress shows on a terminal; Ctrl-C sends
-    ABORT to the controller and exits cleanly. Every executed layer is logged.
+    ABORT to the controller and exits cleanly, as do SIGTERM and SIGHUP. Every executed
+    layer is logged. The stack is held for the whole print: a slice into it is refused.
+    A controller holding an unfinished job is never continued or overwritten silently.
     """
     check_input_path(stack)
-    job, get_layer = stack_job(stack)
     if dry_run:
-        summary = {"stack": str(stack), "ok": True, **plan_transfer(job, get_layer, baud=baud, max_payload=max_payload,
-                                                         from_layer=from_layer or 0)}
-        click.echo(json.dumps(summary) if as_json else
-                   f"{stack}: verified; {job_summary(job)}\n"
-                   f"would send {summary['frames']} frames, {summary['wire_bytes']} bytes "
-                   f"({summary['raw_bytes']} raw), about {summary['seconds_at_baud']:.1f} s at {baud} baud")
+        _dry_run(stack, baud, max_payload, from_layer, as_json)
         return
     if not port:
         raise click.UsageError("--port is required (or use --dry-run)")
+    if resume and restart:
+        raise click.UsageError("--resume and --restart exclude each other")
+    if restart and from_layer is not None:
+        raise click.UsageError("--restart starts at layer 0; it excludes --from-layer")
+    with hold_stack(stack, "printing it"):
+        _print(stack, port, baud, from_layer, resume, restart, log_path, max_payload, as_json)
+
+
+def _dry_run(stack: Path, baud: int, max_payload: int, from_layer: int | None, as_json: bool) -> None:
+    """Verify and size the transfer; no port."""
+    job, get_layer = stack_job(stack)
+    summary = {"stack": str(stack), "ok": True, "job_id": f"{job.job_id:08x}",
+               **plan_transfer(job, get_layer, baud=baud, max_payload=max_payload, from_layer=from_layer or 0)}
+    click.echo(json.dumps(summary) if as_json else
+               f"{stack}: verified; {job_summary(job)}\n"
+               f"would send {summary['frames']} frames, {summary['wire_bytes']} bytes "
+               f"({summary['raw_bytes']} raw), about {summary['seconds_at_baud']:.1f} s at {baud} baud")
+
+
+def _print(stack: Path, port: str, baud: int, from_layer: int | None, resume: bool, restart: bool,
+           log_path: Path | None, max_payload: int, as_json: bool) -> None:
+    """Print the held stack and report."""
+    job, get_layer = stack_job(stack)
     log_path = log_path or default_log_path(stack)
     with _progress(job.layer_count - (from_layer or 0)) as progress:
-        result = print_job(port, job, get_layer, baud=baud, from_layer=from_layer, log_path=log_path,
-                           on_progress=progress, max_payload=max_payload)
+        result = print_job(port, job, get_layer, baud=baud, from_layer=from_layer, resume=resume, restart=restart,
+                           log_path=log_path, on_progress=progress, max_payload=max_payload,
+                           label=f"stack {stack}", name=Path(stack).resolve().name)
     if as_json:
-        click.echo(json.dumps({"stack": str(stack), "ok": True, "port": port, "log": str(log_path), **result.__dict__}))
+        click.echo(json.dumps({"stack": str(stack), "ok": True, "port": port, "log": str(log_path),
+                               "job_id": f"{job.job_id:08x}", **result.__dict__}))
         return
     rate = result.bytes_sent / result.elapsed_s if result.elapsed_s > 0 else 0.0
     click.echo(f"{stack}: printed layers {result.first_layer}..{result.last_completed} on {port} "

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from heoslice.errors import InputError
+from heoslice.errors import HeosliceError, InputError, StackChangedError
 from heoslice.printing import protocol as P
 
 LayerSource = Callable[[int], Sequence[bytes]]
@@ -45,6 +45,8 @@ def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
 
     Channel 0 is the solid mask; channels 1.. are the droplet masks of a layer entry's
     ``"channels"`` list when present (layers with fewer channels are padded with empty masks).
+    Each layer is checked against its sha256 again when it is read for sending; a mismatch or a
+    missing file raises StackChangedError (exit 19).
     """
     from heoslice.stack import decode_mask, load_verified, read_layer_mask, resolve_inside
 
@@ -59,13 +61,21 @@ def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
     job = JobSpec(job_id, len(layers), channels, width, height)
     as_nonzero = {**manifest, "mask": "nonzero"}
 
-    def get_layer(index: int) -> list[bytes]:
+    def read(index: int) -> list[bytes]:
         out = [pack_mask(read_layer_mask(directory, manifest, index))]
         for channel in layers[index].get("channels") or []:
             out.append(pack_mask(decode_mask(resolve_inside(directory, channel["file"]), as_nonzero,
                                              sha256=channel["sha256"])))
         empty = bytes(job.channel_bytes)
         return out + [empty] * (channels - len(out))
+
+    def get_layer(index: int) -> list[bytes]:
+        """Layer ``index``, read and checked again now: a file that changed since verification stops the print."""
+        try:
+            return read(index)
+        except (HeosliceError, OSError, ValueError) as err:
+            raise StackChangedError(f"{directory}: the stack changed while it was being printed (layer {index}: "
+                                    f"{err}); ABORT sent; verify the stack and print it again") from None
 
     return job, get_layer
 

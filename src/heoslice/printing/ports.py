@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from heoslice.errors import HeosliceError, PortError
+from heoslice.errors import ControllerBusyError, HeosliceError, PortError
 
 #: Where pyserial looks for ``protocol_<scheme>`` URL handlers beyond its own (``sim://``).
 SIM_HANDLER_PACKAGE = "heoslice.printing.simulator"
@@ -52,17 +52,26 @@ class SerialConnector:
         self.name, self.baud = port, baud
 
     def open(self) -> Port:
-        """A fresh open port (PortError when it cannot be opened); a modelled rate (sim://) replaces ``baud``."""
+        """A fresh open port (PortError when it cannot be opened); a modelled rate (sim://) replaces ``baud``.
+
+        Device ports are opened exclusively (pyserial's ``exclusive``: TIOCEXCL and flock), so a second
+        print on this machine cannot share the controller's port (ControllerBusyError, exit 16).
+        """
         import serial
 
         if SIM_HANDLER_PACKAGE not in serial.protocol_handler_packages:
             serial.protocol_handler_packages.append(SIM_HANDLER_PACKAGE)
         try:
             handle = serial.serial_for_url(self.name, baudrate=int(self.baud), timeout=0.005,
-                                           write_timeout=WRITE_TIMEOUT_S)
+                                           write_timeout=WRITE_TIMEOUT_S, exclusive=True)
         except HeosliceError:
             raise
-        except (serial.SerialException, OSError, ValueError) as err:
+        except serial.SerialException as err:
+            if "exclusively lock" in str(err):
+                raise ControllerBusyError(f"{self.name}: the port is busy: another process (another print?) has "
+                                          "it open; nothing was sent") from None
+            raise PortError(f"{self.name}: cannot open port ({' '.join(str(err).split())})") from err
+        except (OSError, ValueError) as err:
             raise PortError(f"{self.name}: cannot open port ({' '.join(str(err).split())})") from err
         self.baud = getattr(handle, "modelled_baud", self.baud)
         try:

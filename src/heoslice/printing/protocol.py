@@ -1,4 +1,4 @@
-"""The heoslice printer wire protocol, version 2: pure codecs, no I/O.
+"""The heoslice printer wire protocol, version 3: pure codecs, no I/O.
 
 Specified in ``docs/protocol.md``. A frame is ``COBS(header + payload + CRC-32) + 0x00``;
 the header is ``<BBHHHH`` (version, type, session, seq, ack, payload length), all
@@ -18,7 +18,7 @@ import numpy as np
 
 from heoslice.errors import ProtocolError
 
-PROTOCOL_VERSION = 2
+PROTOCOL_VERSION = 3
 HEADER = struct.Struct("<BBHHHH")
 CRC = struct.Struct("<I")
 #: Largest payload any peer may send or accept, bytes.
@@ -64,6 +64,10 @@ ERR_BAD_JOB = 4
 ERROR_NAMES = {ERR_NONE: "none", ERR_LAYER_CRC: "layer CRC mismatch",
                ERR_OUT_OF_ORDER: "layer out of order", ERR_HARDWARE: "hardware fault",
                ERR_BAD_JOB: "job does not fit this printer"}
+
+# HELLO_ACK flags.
+#: Another host's run holds the controller (a live job of another host id): no session was opened.
+HELLO_BUSY = 1 << 0
 
 # NAK reasons.
 NAK_OUT_OF_ORDER = 1
@@ -213,11 +217,12 @@ class Hello:
     """Host -> controller: open a session (header.session is the new session id)."""
 
     TYPE: ClassVar[int] = 0x01
-    FORMAT: ClassVar[str] = "<BHBB"
+    FORMAT: ClassVar[str] = "<BHBBI"
     version: int
     max_payload: int
     encodings: int
     features: int = 0
+    host_id: int = 0  # the print run saying HELLO: random, non-zero, the same across its reconnects
 
 
 @dataclass(frozen=True)
@@ -225,7 +230,7 @@ class HelloAck:
     """Controller -> host: capabilities and the state a resuming host needs."""
 
     TYPE: ClassVar[int] = 0x02
-    FORMAT: ClassVar[str] = "<BIIHHBBIIffIiiBB"
+    FORMAT: ClassVar[str] = "<BIIHHBBIIffIIiiIBBB"
     version: int
     boot_id: int
     rx_buffer: int
@@ -238,10 +243,15 @@ class HelloAck:
     dpi_x: float
     dpi_y: float
     job_id: int
+    run_id: int  # host id of the run that began or last continued the job (0: none)
     last_completed: int
     last_queued: int
+    layer_count: int
     state: int
     features: int = 0
+    flags: int = 0  # bit 0 HELLO_BUSY: another host holds the controller, no session was opened
+    job_name: bytes = b""  # the job's name as JOB_BEGIN gave it (UTF-8), the rest of the payload
+    TAIL: ClassVar[str] = "job_name"
 
 
 @dataclass(frozen=True)
@@ -256,6 +266,8 @@ class JobBegin:
     channels: int
     width: int
     height: int
+    name: bytes = b""  # UTF-8, at most JOB_NAME_LIMIT bytes (the stack's name), the rest of the payload
+    TAIL: ClassVar[str] = "name"
 
 
 @dataclass(frozen=True)
@@ -282,6 +294,7 @@ class Chunk:
     encoding: int
     raw_len: int
     data: bytes = b""
+    TAIL: ClassVar[str] = "data"
 
 
 @dataclass(frozen=True)
@@ -297,6 +310,7 @@ class Data:
     TYPE: ClassVar[int] = 0x16
     FORMAT: ClassVar[str] = "<"
     data: bytes = b""
+    TAIL: ClassVar[str] = "data"
 
 
 @dataclass(frozen=True)
@@ -363,8 +377,10 @@ class Ack:
     """Controller -> host: header.ack = next expected seq (cumulative); free buffer and progress."""
 
     TYPE: ClassVar[int] = 0x30
-    FORMAT: ClassVar[str] = "<IiiQ"
+    FORMAT: ClassVar[str] = "<IIIiiQ"
     credit: int
+    job_id: int
+    run_id: int
     last_queued: int
     last_completed: int
     held: int = 0
@@ -387,10 +403,11 @@ class Status:
     """Controller -> host, at least once a second and on every change."""
 
     TYPE: ClassVar[int] = 0x32
-    FORMAT: ClassVar[str] = "<IBIiiIBi"
+    FORMAT: ClassVar[str] = "<IBIIiiIBi"
     boot_id: int
     state: int
     job_id: int
+    run_id: int
     last_completed: int
     last_queued: int
     credit: int
@@ -406,21 +423,24 @@ MESSAGE_TYPES: dict[int, type] = {cls.TYPE: cls for cls in (
 #: Types carried in the sequenced data stream (go-back-N); all others bypass it.
 DATA_TYPES = frozenset({JobBegin.TYPE, LayerBegin.TYPE, Chunk.TYPE, Data.TYPE, LayerEnd.TYPE, Execute.TYPE,
                         JobEnd.TYPE})
-#: Types whose fixed fields are followed by a variable number of data bytes.
-_VARIABLE_TYPES = frozenset({Chunk.TYPE, Data.TYPE})
+#: Type -> name of the bytes field that follows the fixed fields (the rest of the payload).
+_TAILS = {kind: cls.TAIL for kind, cls in MESSAGE_TYPES.items() if hasattr(cls, "TAIL")}
+#: Longest job name JOB_BEGIN carries and HELLO_ACK reports, bytes.
+JOB_NAME_LIMIT = 64
 _STRUCTS = {kind: struct.Struct(cls.FORMAT) for kind, cls in MESSAGE_TYPES.items()}
 
 
 def pack_message(message: Message) -> tuple[int, bytes]:
     """(type, payload bytes) of a message."""
     kind = message.TYPE
-    values = [getattr(message, f.name) for f in fields(message) if f.name != "data"]
+    tail = _TAILS.get(kind)
+    values = [getattr(message, f.name) for f in fields(message) if f.name != tail]
     try:
         payload = _STRUCTS[kind].pack(*values)
     except struct.error as err:
         raise ProtocolError(f"cannot pack {type(message).__name__}: {err}") from err
-    if kind in _VARIABLE_TYPES:
-        payload += message.data
+    if tail is not None:
+        payload += getattr(message, tail)
     return kind, payload
 
 
@@ -430,10 +450,11 @@ def unpack_message(kind: int, payload: bytes) -> Message:
     if cls is None:
         raise ProtocolError(f"unknown message type 0x{kind:02x}")
     layout = _STRUCTS[kind]
-    if kind in _VARIABLE_TYPES:
+    tail = _TAILS.get(kind)
+    if tail is not None:
         if len(payload) < layout.size:
             raise ProtocolError(f"{cls.__name__} payload of {len(payload)} bytes is too short")
-        return cls(*layout.unpack_from(payload), data=bytes(payload[layout.size:]))
+        return cls(*layout.unpack_from(payload), **{tail: bytes(payload[layout.size:])})
     if len(payload) != layout.size:
         raise ProtocolError(f"{cls.__name__} payload is {len(payload)} bytes, expected {layout.size}")
     return cls(*layout.unpack(payload))

@@ -28,8 +28,13 @@ class LinkTiming:
     retry_limit: int = 12  # consecutive retransmission rounds without progress before pausing
     silence_s: float = 2.5  # no valid frame for this long: the link is suspect, reconnect
     reconnect_s: float = 1.5  # reconnecting for this long without an answer: the link is dead
-    abort_wait_s: float = 1.0  # how long ABORT / PAUSE wait for the controller's confirmation
+    abort_wait_s: float = 1.0  # how long PAUSE / RESUME wait for the controller's confirmation (ABORT: +1 s)
     poll_s: float = 0.005  # read granularity
+    keepalive_s: float = 1.0  # nothing written for this long: STATUS_REQ (the controller's lease on us)
+    stall_s: float = 5.0  # nothing acknowledged or progressing while nothing is queued: a stuck controller
+    head_stall_s: float = 120.0  # no layer completed for this long while layers are queued
+    max_reconnects: int = 8  # per job, not per connection
+    max_resplits: int = 32  # new sessions opened to shrink frames, per job
 
 
 class LinkLost(Exception):
@@ -48,6 +53,7 @@ class Session:
         self.rate: float | None = None  # bytes/s the writes are paced to (None: unpaced)
         self.wire_busy = 0.0  # when the bytes written so far will have left the wire
         self.last_rx = 0.0
+        self.last_tx = 0.0
         self._splitter = P.FrameSplitter()
 
     # -- the port ----------------------------------------------------------------------
@@ -78,6 +84,12 @@ class Session:
             self.port.write(data)
         except (serial.SerialException, OSError) as err:
             raise LinkLost(f"cannot write ({' '.join(str(err).split())})") from err
+        self.last_tx = time.monotonic()
+
+    def keepalive(self, now: float) -> None:
+        """STATUS_REQ when nothing was written for ``keepalive_s``, so the controller knows this host is live."""
+        if self.id and now - self.last_tx > self.timing.keepalive_s:
+            self.write(P.encode_frame(P.message_frame(P.StatusRequest(), self.id)))
 
     def waiting(self) -> int:
         """Bytes ready to read (LinkLost when the port has failed)."""
@@ -159,18 +171,18 @@ class Session:
         except ProtocolError:
             return None
 
-    def out_of_band(self, message: P.Message, wanted_state: int) -> P.Status | None:
+    def out_of_band(self, message: P.Message, wanted_state: int, wait_s: float | None = None) -> P.Status | None:
         """Send an out-of-band message until a STATUS of this session shows ``wanted_state``; that STATUS or None."""
         if self.port is None or not self.id:
             return None
         wire = P.encode_frame(P.message_frame(message, self.id))
-        deadline = time.monotonic() + self.timing.abort_wait_s
+        deadline = time.monotonic() + (self.timing.abort_wait_s if wait_s is None else wait_s)
         next_send = 0.0
         try:
             while time.monotonic() < deadline:
                 if time.monotonic() >= next_send:
                     self.write(wire)
-                    next_send = time.monotonic() + self.timing.abort_wait_s / 4
+                    next_send = time.monotonic() + 0.25
                 for frame in self.read_frames():
                     if frame.type == P.Status.TYPE and frame.session == self.id:
                         try:

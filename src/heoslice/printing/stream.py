@@ -42,12 +42,14 @@ def next_chunk(layer: int, channel: int, data: bytes, offset: int, payload: int,
 
 
 def job_messages(job: JobSpec, get_layer: LayerSource, start: int, payload: Callable[[], int],
-                 encodings: int) -> Iterator[tuple[P.Message, int, int]]:
+                 encodings: int, name: str = "") -> Iterator[tuple[P.Message, int, int]]:
     """(message, layer, raw bytes carried) of the data stream from layer ``start``.
 
-    ``payload()`` is asked for the frame payload budget before each chunk is made.
+    ``payload()`` is asked for the frame payload budget before each chunk is made; ``name`` (the
+    stack's) goes with JOB_BEGIN, cut to ``JOB_NAME_LIMIT`` bytes on a character boundary.
     """
-    yield P.JobBegin(job.job_id, start, job.layer_count, job.channels, job.width, job.height), -1, 0
+    encoded = name.encode("utf-8")[:P.JOB_NAME_LIMIT].decode("utf-8", "ignore").encode("utf-8")
+    yield P.JobBegin(job.job_id, start, job.layer_count, job.channels, job.width, job.height, encoded), -1, 0
     for index in range(start, job.layer_count):
         channels = list(get_layer(index))
         if len(channels) != job.channels or any(len(c) != job.channel_bytes for c in channels):

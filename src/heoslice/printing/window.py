@@ -18,8 +18,8 @@ import numpy as np
 
 from heoslice.printing import protocol as P
 
-#: Smallest chunk payload the adaptive sizing goes down to, bytes.
-MIN_CHUNK_PAYLOAD = 64
+#: Smallest chunk payload the adaptive sizing goes down to, bytes (a 1e-2 link wants ~35).
+MIN_CHUNK_PAYLOAD = 16
 #: Prior of the byte error estimate: one error in this many bytes until the link shows better (frames
 #: start near 250 bytes and reach the full payload after ~64 KiB sent cleanly).
 ERROR_PRIOR_BYTES = 4096
@@ -201,10 +201,10 @@ def optimal_frame_bytes(error_rate: float, overhead: int, largest: int, waste: f
 class FrameSizer:
     """The payload size of new data frames, from the byte error rate the retransmissions reveal.
 
-    The rate is estimated from retransmission rounds per byte sent (with the prior of one in
-    ``ERROR_PRIOR_BYTES``) as e = -ln(1 - p) / L, p the rounds per frame of mean size L; the
-    frame size is then chosen by :func:`optimal_frame_bytes`. Re-estimated every 32 chunks and
-    after every retransmission round.
+    The rate is estimated from retransmissions per byte sent (each resend means an earlier copy
+    was lost; with the prior of one in ``ERROR_PRIOR_BYTES``) as e = -ln(1 - p) / L, p the
+    resends per frame of mean size L; the frame size is then chosen by :func:`optimal_frame_bytes`.
+    Re-estimated every 32 chunks and after every retransmission round.
     """
 
     def __init__(self) -> None:
@@ -214,14 +214,18 @@ class FrameSizer:
         self._budget: int | None = None
         self._age = 0
 
-    def on_sent(self, wire_bytes: int) -> None:
-        """A frame of ``wire_bytes`` was written."""
+    def on_sent(self, wire_bytes: int, resent: bool = False, sack: bool = True) -> None:
+        """A frame of ``wire_bytes`` was written (``resent``: again, so an earlier copy was lost).
+
+        Without SACK about half the resends follow a loss in vain (the frame behind the lost one), so a
+        resend counts half an error there.
+        """
         self.bytes += wire_bytes
         self.frames += 1
+        self.events += resent * (1.0 if sack else 0.5)
 
     def on_error(self) -> None:
-        """A retransmission round: one more error event; old evidence is halved past 256 KiB."""
-        self.events += 1
+        """A retransmission round: estimate again; old evidence is halved past 256 KiB."""
         self._budget = None
         if self.bytes > 1 << 18:
             self.bytes /= 2
@@ -238,9 +242,9 @@ class FrameSizer:
         mean = self.bytes / self.frames if self.frames else 1.0
         return -math.log1p(-min(per_byte * mean, 0.5)) / mean
 
-    def budget(self, link_payload: int, sack: bool) -> int:
-        """Payload bytes for the next data frame, at most ``link_payload``."""
-        self._age += 1
+    def budget(self, link_payload: int, sack: bool, count: bool = True) -> int:
+        """Payload bytes for the next data frame, at most ``link_payload`` (``count`` False: only look)."""
+        self._age += count
         if self._budget is None or self._age >= 32:
             frame = optimal_frame_bytes(self.error_rate(), P.WIRE_OVERHEAD, P.wire_size(link_payload),
                                         waste=0.0 if sack else 1.0)

@@ -15,39 +15,37 @@ The controller runs one thread over a byte :class:`~.transports.Transport`.
 
 from __future__ import annotations
 
+import secrets
 import threading
 import time
+from collections.abc import Callable
 from collections import deque
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from heoslice.errors import ProtocolError
 from heoslice.printing import protocol as P
+from heoslice.printing.simulator.assembly import LayerAssembly
 from heoslice.printing.simulator.config import ExecutedLayer, FaultSpec, SimConfig
 from heoslice.printing.simulator.transports import Transport
 
 
-@dataclass
-class _Layer:
-    """A layer being received: its channels concatenated in ``data`` and the DATA write cursor."""
-
-    index: int
-    channels: int
-    size: int
-    crc: int
-    data: bytearray = field(default_factory=bytearray)
-    cursor: int = 0
-    complete: bool = False
-    crc_received: int = -1  # CRC-32 of the data actually received, set at LAYER_END
+#: A host whose session sent nothing for this long no longer holds the controller, s.
+OWNER_LEASE_S = 3.0
 
 
 class SimController:
-    """The simulated controller: call :meth:`run` on a thread (or :meth:`start`), :meth:`stop` to end it."""
+    """The simulated controller: call :meth:`run` on a thread (or :meth:`start`), :meth:`stop` to end it.
 
-    def __init__(self, config: SimConfig = SimConfig(), faults: FaultSpec = FaultSpec()):
+    ``log`` (e.g. a stderr writer) receives one line per connection, job, executed layer, abort,
+    pause, resume and reset; None keeps it quiet.
+    """
+
+    def __init__(self, config: SimConfig = SimConfig(), faults: FaultSpec = FaultSpec(),
+                 log: Callable[[str], None] | None = None):
         self.config = config
         self.faults = faults
+        self.log = log
         self._rng = np.random.default_rng(config.seed)
         self.executed: list[ExecutedLayer] = []
         self.stats = {"frames": 0, "bad_frames": 0, "duplicates": 0, "out_of_order": 0, "naks": 0,
@@ -61,20 +59,32 @@ class SimController:
         self._fired: set[str] = set()
         self.died_at: float | None = None  # monotonic time the dead-link fault struck
         self.boot_id = self._new_boot_id()
-        # persisted across resets (as in non-volatile memory): the job and its last printed layer
+        # persisted across resets (as in non-volatile memory): the job, its run, size and last printed layer
         self.job_id = 0
+        self.run_id = 0
+        self.layer_count = 0
+        self.job_name = b""
         self.last_completed = -1
         self._power_on()
+
+    def _say(self, text: str) -> None:
+        """One line of the controller's log."""
+        if self.log is not None:
+            self.log(text)
 
     # -- lifecycle ---------------------------------------------------------------------
 
     def _new_boot_id(self) -> int:
-        """A random non-zero 32-bit boot id (seeded)."""
-        return int(self._rng.integers(1, 1 << 32))
+        """A random non-zero 32-bit boot id, fresh at every start and reset (not from the fault seed)."""
+        return secrets.randbelow((1 << 32) - 1) + 1
 
     def _power_on(self) -> None:
         """State lost on a reset."""
         self.session = 0
+        self.host_id = 0  # HELLO host id of the current session
+        self._heard = 0.0  # monotonic time of the latest frame of the job's run (its host's session)
+        self._aborting = False  # ABORT came while a layer was on the head: confirm once it is done
+        self._stop_reading = False
         self.sack = False  # selective acknowledgement negotiated in this session
         self.state = P.STATE_IDLE
         self.error = P.ERR_NONE
@@ -82,7 +92,6 @@ class SimController:
         self.expected = 0
         self.job_active = False
         self.job_end = False
-        self.layer_count = 0
         self.next_execute = 0
         self.last_queued = self.last_completed
         self._rx: deque = deque()
@@ -92,7 +101,7 @@ class SimController:
         self._rx_layer = -1  # layer of the latest layer-bearing data message received (DATA's link fault)
         self._in_layer = -1  # layer of the latest LAYER_BEGIN taken in order (DATA's layer faults)
         self._advertised = self.config.rx_buffer
-        self._layer: _Layer | None = None
+        self._layer: LayerAssembly | None = None
         self._queue: deque = deque()
         self._printing: tuple | None = None
         self._print_end = 0.0
@@ -144,6 +153,13 @@ class SimController:
                     self._arrivals.clear()
             transport = self._transport
             now = time.monotonic()
+            if self._stop_reading and not self._dead:
+                self._run_head(now)
+                if now >= next_status:
+                    self._send_status()
+                    next_status = now + self.config.status_interval_s
+                time.sleep(0.01)
+                continue
             if transport is None or self._dead:
                 time.sleep(0.01)
                 continue
@@ -239,12 +255,18 @@ class SimController:
     def _send_ack(self) -> None:
         """Cumulative ACK with the current credit, progress and held frames."""
         self._advertised = self._credit()
-        self._send(P.Ack(self._credit(), self.last_queued, self.last_completed, self._held_mask()))
+        self._send(P.Ack(self._credit(), self.job_id, self.run_id, self.last_queued, self._claimed(),
+                         self._held_mask()))
+
+    def _claimed(self) -> int:
+        """The last_completed reported: the truth, unless the claim_completed fault makes it lie."""
+        claim = self.faults.claim_completed
+        return self.last_completed if claim is None else claim
 
     def _send_status(self) -> None:
         """STATUS: boot id, state, progress, credit, error."""
         self._advertised = self._credit()
-        self._send(P.Status(self.boot_id, self.state, self.job_id, self.last_completed, self.last_queued,
+        self._send(P.Status(self.boot_id, self.state, self.job_id, self.run_id, self._claimed(), self.last_queued,
                             self._credit(), self.error, self.error_layer))
 
     # -- frames ------------------------------------------------------------------------
@@ -268,6 +290,8 @@ class SimController:
             return
         if frame.version != self.config.version:
             return
+        if self.session and frame.session == self.session and self.host_id == self.run_id:
+            self._heard = time.monotonic()
         if frame.type == P.StatusRequest.TYPE:
             self._send_status()
             return
@@ -276,41 +300,76 @@ class SimController:
         if frame.type in P.DATA_TYPES:
             self._on_data(frame)
         elif frame.type == P.Abort.TYPE:
-            self.stats["aborts"] += 1
-            self._queue.clear()
-            self._drop_received()
-            self.job_active = False
-            self.state = P.STATE_ABORTED if self.state != P.STATE_ERROR else self.state
-            self._send_status()
+            self._on_abort()
         elif frame.type == P.Pause.TYPE:
+            self._say("pause")
             self._paused = True
             if self.state == P.STATE_RECEIVING:
                 self.state = P.STATE_PAUSED
             self._send_status()
         elif frame.type == P.Resume.TYPE:
+            self._say("resume")
             self._paused = False
             if self.state == P.STATE_PAUSED:
                 self.state = P.STATE_RECEIVING
             self._send_status()
 
+    def _on_abort(self) -> None:
+        """ABORT: drop the queue and the stream; confirm (state aborted) once the head has stopped."""
+        self.stats["aborts"] += 1
+        self._queue.clear()
+        self._drop_received()
+        self.job_active = False
+        if self.state == P.STATE_ERROR:
+            self._send_status()
+            return
+        self._say(f"abort: job {self.job_id:08x} after layer {self.last_completed}"
+                  + (f", layer {self._printing[0]} finishing on the head" if self._printing else ""))
+        self._aborting = True
+        self._confirm_abort()
+
+    def _confirm_abort(self) -> None:
+        """Enter state aborted once nothing is on the head; nothing is queued any more."""
+        if self._aborting and self._printing is None:
+            self._aborting = False
+            self.state = P.STATE_ABORTED
+            self.last_queued = self.last_completed
+            self._send_status()
+
+    def _busy_for(self, host_id: int) -> bool:
+        """True when the host of the job in progress (its run) is live and another host says HELLO."""
+        return (self.run_id != 0 and host_id != self.run_id
+                and self.state == P.STATE_RECEIVING and time.monotonic() - self._heard < OWNER_LEASE_S)
+
     def _on_hello(self, frame: P.Frame) -> None:
-        """Open the host's session (same version only) and answer with HELLO_ACK in our own version."""
+        """Open the host's session (same version, not busy) and answer with HELLO_ACK in our own version."""
         self.stats["hellos"] += 1
         cfg = self.config
-        features = 0
+        features = flags = 0
         if frame.version == cfg.version:
             try:
                 hello = P.unpack_message(frame.type, frame.payload)
             except ProtocolError:
                 return
-            self.session = frame.session
-            self.expected = 0
-            self._drop_received()
-            features = hello.features & cfg.features
-            self.sack = bool(features & P.FEATURE_SACK)
+            if self._busy_for(hello.host_id):
+                flags = P.HELLO_BUSY
+                self._say(f"busy: refused host {hello.host_id:08x} (host {self.run_id:08x} is printing "
+                          f"job {self.job_id:08x})")
+            else:
+                if hello.host_id != self.host_id or frame.session != self.session:
+                    self._say(f"connection: session {frame.session:04x}, host {hello.host_id:08x}")
+                self.session = frame.session
+                self.host_id = hello.host_id
+                if self.host_id == self.run_id:
+                    self._heard = time.monotonic()
+                self.expected = 0
+                self._drop_received()
+                features = hello.features & cfg.features
+                self.sack = bool(features & P.FEATURE_SACK)
         reply = P.HelloAck(cfg.version, self.boot_id, self._credit(), cfg.window, cfg.max_payload,
                            cfg.encodings, cfg.channels, cfg.max_width, cfg.max_height, cfg.dpi_x, cfg.dpi_y,
-                           self.job_id, self.last_completed, self.last_queued, self.state, features)
+                           self.job_id, self.run_id, self._claimed(), self.last_queued, self.layer_count,
+                           self.state, features, flags, self.job_name)
         saved = self.session
         self.session = frame.session
         self._send(reply)
@@ -415,6 +474,9 @@ class SimController:
         elif self._once("dead", faults.dead_at_layer, layer):
             self._dead = True
             self.died_at = time.monotonic()
+        elif self._once("stop-reading", faults.stop_reading_at_layer, layer):
+            self._stop_reading = True
+            self.died_at = time.monotonic()
 
     def _reset(self) -> None:
         """Reboot: the layer on the head completes, everything else in memory is lost; new boot id."""
@@ -422,6 +484,8 @@ class SimController:
         if self._printing is not None:
             self._finish_layer()
         self.boot_id = self._new_boot_id()
+        self._say(f"reset: new boot id {self.boot_id:08x}; job {self.job_id:08x} kept after layer "
+                  f"{self.last_completed}")
         self._power_on()
         self._send_status()
 
@@ -450,80 +514,68 @@ class SimController:
 
     def _apply(self, message: P.Message) -> None:
         """Apply one in-order data message to the job, the layer being assembled or the print queue."""
-        cfg = self.config
         if isinstance(message, P.JobBegin):
-            if (message.channels > cfg.channels or message.width > cfg.max_width
-                    or message.height > cfg.max_height):
-                self._fail(P.ERR_BAD_JOB, message.first_layer)
-                return
-            same = self.job_active and message.job_id == self.job_id and message.first_layer == self.next_execute
-            if not same:
-                self._queue.clear()
-                self.job_id = message.job_id
-                self.next_execute = message.first_layer
-                self.last_queued = message.first_layer - 1
-                self.last_completed = message.first_layer - 1
-                self.layer_count = message.layer_count
-                self.job_active = True
-                self.job_end = False
-            self.state = P.STATE_PAUSED if self._paused else P.STATE_RECEIVING
-            self._send_status()
+            self._begin_job(message)
         elif not self.job_active:
             return
         elif isinstance(message, P.LayerBegin):
             self._layer = None
             if message.layer >= self.next_execute and message.channels >= 1:
-                self._layer = _Layer(message.layer, message.channels, message.size, message.crc,
-                                     bytearray(message.channels * message.size))
+                self._layer = LayerAssembly.begin(message)
         elif isinstance(message, P.Chunk):
             layer = self._layer
-            if layer is None or message.layer != layer.index:
-                return
-            if message.channel >= layer.channels or message.offset + message.raw_len > layer.size:
+            if layer is not None and message.layer == layer.index and not layer.write_chunk(message):
                 self._fail(P.ERR_LAYER_CRC, message.layer)
-                return
-            try:
-                raw = P.decode_chunk(message.encoding, message.data, message.raw_len)
-            except ProtocolError:
-                self._fail(P.ERR_LAYER_CRC, message.layer)
-                return
-            start = message.channel * layer.size + message.offset
-            layer.data[start:start + len(raw)] = raw
-            layer.cursor = start + len(raw)
         elif isinstance(message, P.Data):
             layer = self._layer
-            if layer is None:
-                return
-            if layer.cursor + len(message.data) > len(layer.data):
+            if layer is not None and not layer.write_data(message):
                 self._fail(P.ERR_LAYER_CRC, layer.index)
-                return
-            layer.data[layer.cursor:layer.cursor + len(message.data)] = message.data
-            layer.cursor += len(message.data)
         elif isinstance(message, P.LayerEnd):
             layer = self._layer
-            if layer is None or message.layer != layer.index:
-                return
-            actual = P.crc32(layer.data)
-            if actual != layer.crc:
+            if layer is not None and message.layer == layer.index and not layer.finish():
                 self._fail(P.ERR_LAYER_CRC, layer.index)
-                return
-            layer.crc_received = actual
-            layer.complete = True
         elif isinstance(message, P.Execute):
-            if message.layer < self.next_execute:
-                return  # already queued or printed: executed once only
-            layer = self._layer
-            if message.layer != self.next_execute or layer is None or layer.index != message.layer \
-                    or not layer.complete:
-                self._fail(P.ERR_OUT_OF_ORDER, message.layer)
-                return
-            self._queue.append((layer.index, layer.crc_received))
-            self.last_queued = layer.index
-            self.next_execute = layer.index + 1
-            self._layer = None
+            self._queue_layer(message.layer)
         elif isinstance(message, P.JobEnd):
             self.job_end = True
             self._check_done()
+
+    def _begin_job(self, message: P.JobBegin) -> None:
+        """JOB_BEGIN: continue the active job at its next layer, or start it afresh at ``first_layer``."""
+        cfg = self.config
+        if message.channels > cfg.channels or message.width > cfg.max_width or message.height > cfg.max_height:
+            self._fail(P.ERR_BAD_JOB, message.first_layer)
+            return
+        same = self.job_active and message.job_id == self.job_id and message.first_layer == self.next_execute
+        self._say(f"job {message.job_id:08x}: {'continued' if same else 'begun'} at layer "
+                  f"{message.first_layer} of {message.layer_count} by host {self.host_id:08x}")
+        self.run_id = self.host_id
+        self._heard = time.monotonic()
+        if not same:
+            self._queue.clear()
+            self.job_id = message.job_id
+            self.next_execute = message.first_layer
+            self.last_queued = message.first_layer - 1
+            self.last_completed = message.first_layer - 1
+            self.layer_count = message.layer_count
+            self.job_name = message.name[:P.JOB_NAME_LIMIT]
+            self.job_active = True
+            self.job_end = False
+        self.state = P.STATE_PAUSED if self._paused else P.STATE_RECEIVING
+        self._send_status()
+
+    def _queue_layer(self, index: int) -> None:
+        """EXECUTE: queue the verified layer once; a repeat is ignored, any other is error 2."""
+        if index < self.next_execute:
+            return  # already queued or printed: executed once only
+        layer = self._layer
+        if index != self.next_execute or layer is None or layer.index != index or not layer.complete:
+            self._fail(P.ERR_OUT_OF_ORDER, index)
+            return
+        self._queue.append((layer.index, layer.crc_received))
+        self.last_queued = layer.index
+        self.next_execute = layer.index + 1
+        self._layer = None
 
     # -- the head ----------------------------------------------------------------------
 
@@ -546,9 +598,11 @@ class SimController:
         """Record the layer on the head as executed."""
         index, crc = self._printing
         with self._lock:
-            self.executed.append(ExecutedLayer(self.job_id, index, crc, self.boot_id))
+            self.executed.append(ExecutedLayer(self.job_id, index, crc, self.boot_id, self.run_id))
         self.last_completed = index
         self._printing = None
+        self._say(f"layer {index} executed (job {self.job_id:08x})")
+        self._confirm_abort()
 
     def _check_done(self) -> None:
         """Report DONE once JOB_END came and the last layer is printed."""
@@ -556,4 +610,5 @@ class SimController:
                 and self.last_completed == self.layer_count - 1:
             self.state = P.STATE_DONE
             self.job_active = False
+            self._say(f"job {self.job_id:08x} done: {self.layer_count} layers")
             self._send_status()
