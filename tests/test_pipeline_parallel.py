@@ -312,3 +312,31 @@ def test_a_signal_ends_a_slice_with_one_line_and_nothing_left_running(tmp_path, 
     time.sleep(0.5)
     assert _living(process.pid) == []
     assert not (directory / "manifest.json").exists()
+
+
+def test_a_workers_error_reaches_the_parent_and_a_dead_worker_is_reported(tmp_path, monkeypatch):
+    """An error raised in a worker is raised in the parent as itself (one-line errors stay one line); a worker
+    that dies without answering is a RuntimeError saying so; either way no worker is left running."""
+    import multiprocessing
+    import os
+
+    from heoslice.errors import OutputError
+    from heoslice.pipeline import parallel
+
+    mesh = load_mesh(write_mesh(procedural.shell_with_island(8.0, 5.0, 2.0, 3), tmp_path / "m.ply"))
+    spec = SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), jobs=2, max_segments=400)
+    parent = os.getpid()
+
+    def failing(self, context, start, stop, cache):
+        if os.getpid() != parent:
+            raise OutputError("stack: cannot write (no space left on device)")
+
+    monkeypatch.setattr(parallel.Ahead, "slice_run", failing)
+    with pytest.raises(OutputError, match="^stack: cannot write"):
+        slice_to_stack(mesh, tmp_path / "a", spec)
+    assert multiprocessing.active_children() == []
+
+    monkeypatch.setattr(parallel.Ahead, "slice_run", lambda *args: os._exit(3))
+    with pytest.raises(RuntimeError, match="slice worker ended unexpectedly"):
+        slice_to_stack(mesh, tmp_path / "b", spec)
+    assert multiprocessing.active_children() == []
