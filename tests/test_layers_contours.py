@@ -203,3 +203,72 @@ def test_overlapping_loops_of_a_broken_mesh_get_parents_that_end():
     area = np.array([shapely.Polygon(small).area, shapely.Polygon(large).area])
     parent = loop_parents(points, np.array([0, 4, 8]), np.array([0, 0]), area)
     assert list(parent) == [1, -1]
+
+
+def _pyramid(apex_up: bool = True) -> trimesh.Trimesh:
+    """A square pyramid, base 4 x 4 mm at z = 0, apex at z = 2 (or upside down: base at 2, apex at 0)."""
+    vertices = np.array([[-2.0, -2.0, 0.0], [2.0, -2.0, 0.0], [2.0, 2.0, 0.0], [-2.0, 2.0, 0.0], [0.0, 0.0, 2.0]])
+    faces = np.array([[0, 2, 1], [0, 3, 2], [0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    if not apex_up:
+        vertices[:, 2] = 2.0 - vertices[:, 2]
+        faces = faces[:, ::-1]
+    return trimesh.Trimesh(vertices, faces, process=False)
+
+
+def _step(overhang: bool) -> trimesh.Trimesh:
+    """One closed solid of two blocks: a 6 x 6 x 1 mm slab with a 2 x 2 x 1 mm block on it (or, as an
+    overhang, the block under the slab); the step's horizontal face lies at z = 1."""
+    import manifold3d
+
+    slab, block = manifold3d.Manifold.cube([6.0, 6.0, 1.0]), manifold3d.Manifold.cube([2.0, 2.0, 1.0])
+    part = (slab.translate([0.0, 0.0, 1.0]) + block.translate([2.0, 2.0, 0.0]) if overhang
+            else slab + block.translate([2.0, 2.0, 1.0]))
+    mesh = part.to_mesh()
+    return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts), process=False)
+
+
+def _closed_loops(contours) -> bool:
+    return not contours.closed_by_join.any() and bool(np.all(np.diff(contours.offsets) >= 3))
+
+
+def test_an_apex_on_a_plane_gives_no_loop():
+    """Singular point, apex: a pyramid's apex pointing up exactly on a plane leaves no loop in that layer (the
+    section just below it shrinks to the apex), not a one-point loop of zero area; one pointing down exactly on
+    a plane touches nothing; the layer below is the exact square section."""
+    for apex_up, planes in ((True, [1.0, 2.0]), (False, [0.0, 1.0])):
+        mesh = _pyramid(apex_up)
+        contours = build_contours(slice_mesh(mesh.vertices, mesh.faces, np.array(planes)))
+        at_apex = 1 if apex_up else 0
+        assert contours.layer_offsets[at_apex + 1] - contours.layer_offsets[at_apex] == 0
+        assert contours.loop_count == 1 and _closed_loops(contours)
+        np.testing.assert_allclose(contours.layer_area()[1 - at_apex], 4.0)
+
+
+@pytest.mark.parametrize("overhang", [False, True])
+def test_a_face_on_a_plane_belongs_to_the_section_just_below(overhang):
+    """Singular points, face: a horizontal face exactly on a plane gives closed loops with the area of the
+    section just below the plane (the symbolic rule moves the plane down): the slab's 36 mm^2 under a block
+    standing on it, the block's 4 mm^2 under an overhanging slab."""
+    mesh = _step(overhang)
+    exact = build_contours(slice_mesh(mesh.vertices, mesh.faces, np.array([1.0])))
+    below = build_contours(slice_mesh(mesh.vertices, mesh.faces, np.array([1.0 - 1e-7])))
+    assert _closed_loops(exact)
+    np.testing.assert_allclose(exact.layer_area(), 4.0 if overhang else 36.0)
+    np.testing.assert_allclose(exact.layer_area(), below.layer_area(), rtol=1e-6)
+
+
+def test_an_edge_on_a_plane_gives_closed_loops_with_the_section_area():
+    """Singular points, edges: a plane through a ring of a box's vertices (every side's edge on it) and
+    through a tilted box's single edge gives closed loops with the area of the section just below; a ridge (the
+    tilted box's top edge) on a plane leaves only a loop of zero area along it."""
+    box = procedural.box((4.0, 3.0, 2.0), z_cuts=(1.0,))
+    tilted = trimesh.creation.box((2.0, 2.0, 2.0))
+    tilted.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 4, [1.0, 0.0, 0.0]))
+    edge_z = float(tilted.vertices[:, 2].max())  # an edge of the rotated cube is its top
+    for mesh, plane in ((box, 1.0), (tilted, 0.0), (tilted, edge_z - 1e-3)):
+        exact = build_contours(slice_mesh(mesh.vertices, mesh.faces, np.array([plane])))
+        below = build_contours(slice_mesh(mesh.vertices, mesh.faces, np.array([plane - 1e-9])))
+        assert _closed_loops(exact)
+        np.testing.assert_allclose(exact.layer_area(), below.layer_area(), rtol=1e-6)
+    on_top_edge = build_contours(slice_mesh(tilted.vertices, tilted.faces, np.array([edge_z])))
+    np.testing.assert_allclose(on_top_edge.layer_area(), 0.0, atol=1e-12)

@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import platform
+import signal
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 from test_pipeline_slice_job import write_mesh
 
-from heoslice import procedural
+from heoslice import errors, procedural
 from heoslice.material import make_function
 from heoslice.mesh import load_mesh
 from heoslice.material import DEFAULT_MATERIALS, Material
@@ -230,4 +233,110 @@ def test_a_helper_that_does_not_answer_is_left_aside_and_ended(tmp_path, monkeyp
     with parallel._sliced_ahead(context, plane_runs(context)) as collect:
         assert collect() == parallel.Ahead()
     assert time.monotonic() - started < 30
+    assert multiprocessing.active_children() == []
+
+
+def _living(group: int) -> list[int]:
+    """Processes of process group ``group`` that have not ended (zombies count as ended)."""
+    living = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            state, _, pgrp = (entry / "stat").read_text().rsplit(")", 1)[1].split()[:3]
+        except (OSError, ValueError):
+            continue
+        if int(pgrp) == group and state not in ("Z", "X"):
+            living.append(int(entry.name))
+    return living
+
+
+def _files(directory: Path) -> dict:
+    """Every file of a directory: name -> (size, modification time in ns)."""
+    return {entry.name: (entry.stat().st_size, entry.stat().st_mtime_ns) for entry in directory.iterdir()}
+
+
+@pytest.fixture(scope="module")
+def slow_slice(tmp_path_factory):
+    """A graded slice with droplet masks that takes a few seconds on two workers (480 layers), as arguments."""
+    model = tmp_path_factory.mktemp("slow") / "ball.ply"
+    procedural.shell_with_island(12.0, 8.0, 3.0, 4).export(model)
+    return [str(model), "--layer", "0.05", "--dpi", "400", "-j", "2", "--grade", "linear", "--channels",
+            "--nozzle", "0.3"]
+
+
+def _started(slow_slice, directory: Path, until_files: int, at_least_s: float = 0.0):
+    """`heoslice slice` in a session of its own, once ``directory`` holds ``until_files`` files and
+    ``at_least_s`` have passed."""
+    process = subprocess.Popen([sys.executable, "-m", "heoslice", "slice", *slow_slice, "-o", str(directory)],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    began = time.monotonic()
+    while time.monotonic() - began < 60 and process.poll() is None:
+        count = len(list(directory.iterdir())) if directory.is_dir() else 0
+        if count >= until_files and time.monotonic() - began >= at_least_s:
+            break
+        time.sleep(0.02)
+    assert process.poll() is None, "the slice ended before it could be stopped"
+    return process
+
+
+@pytest.mark.parametrize("moment", ["loading", "first layer", "workers"])
+def test_a_killed_slice_leaves_no_process_and_no_writer_behind(tmp_path, slow_slice, moment):
+    """SIGKILL of `heoslice slice` while it loads, renders its first layer (the helper slicing ahead) or has
+    its workers writing: 1 s later no process of it is alive, and the stack directory does not change after."""
+    directory = tmp_path / "stack"
+    until_files, at_least_s = {"loading": (0, 0.3), "first layer": (1, 0.0), "workers": (100, 0.0)}[moment]
+    process = _started(slow_slice, directory, until_files, at_least_s)
+    process.kill()
+    process.wait()
+    time.sleep(1.0)
+    assert _living(process.pid) == []
+    before = _files(directory) if directory.is_dir() else {}
+    time.sleep(0.5)
+    assert (_files(directory) if directory.is_dir() else {}) == before
+    assert "manifest.json" not in before and not [name for name in before if name.endswith(".tmp")]
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_a_signal_ends_a_slice_with_one_line_and_nothing_left_running(tmp_path, slow_slice, signum):
+    """SIGINT (Ctrl-C), SIGTERM and SIGHUP to a slicing `heoslice slice` with its workers writing: it ends
+    with 128 + the signal's number and one line, no traceback, no process of it left, no manifest."""
+    if signum != signal.SIGINT and not hasattr(errors, "Interrupted"):
+        pytest.skip("SIGTERM and SIGHUP end the command as Ctrl-C does only with heoslice.errors.Interrupted")
+    directory = tmp_path / "stack"
+    process = _started(slow_slice, directory, 100)
+    process.send_signal(signum)
+    _, stderr = process.communicate(timeout=30)
+    lines = stderr.decode().strip().splitlines()
+    assert process.returncode == 128 + signum and len(lines) == 1 and "interrupted" in lines[0], lines
+    time.sleep(0.5)
+    assert _living(process.pid) == []
+    assert not (directory / "manifest.json").exists()
+
+
+def test_a_workers_error_reaches_the_parent_and_a_dead_worker_is_reported(tmp_path, monkeypatch):
+    """An error raised in a worker is raised in the parent as itself (one-line errors stay one line); a worker
+    that dies without answering is a RuntimeError saying so; either way no worker is left running."""
+    import multiprocessing
+    import os
+
+    from heoslice.errors import OutputError
+    from heoslice.pipeline import parallel
+
+    mesh = load_mesh(write_mesh(procedural.shell_with_island(8.0, 5.0, 2.0, 3), tmp_path / "m.ply"))
+    spec = SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), jobs=2, max_segments=400)
+    parent = os.getpid()
+
+    def failing(self, context, start, stop, cache):
+        if os.getpid() != parent:
+            raise OutputError("stack: cannot write (no space left on device)")
+
+    monkeypatch.setattr(parallel.Ahead, "slice_run", failing)
+    with pytest.raises(OutputError, match="^stack: cannot write"):
+        slice_to_stack(mesh, tmp_path / "a", spec)
+    assert multiprocessing.active_children() == []
+
+    monkeypatch.setattr(parallel.Ahead, "slice_run", lambda *args: os._exit(3))
+    with pytest.raises(RuntimeError, match="slice worker ended unexpectedly"):
+        slice_to_stack(mesh, tmp_path / "b", spec)
     assert multiprocessing.active_children() == []

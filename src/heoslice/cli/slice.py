@@ -11,13 +11,14 @@ from heoslice.cli.common import echo_warnings, expand_inputs, plural, progress_b
 from heoslice.cli.options import flags, function_from_options, function_options, option
 from heoslice.errors import InputError
 from heoslice.mesh import load_mesh, scaled
-from heoslice.pipeline import MAX_DPI, SliceSpec, slice_to_stack
+from heoslice.pipeline import MAX_DPI, SliceSpec, check_scale, slice_to_stack, slice_warnings
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3
 
 #: SliceSpec and slice_to_stack parameters -> the options that set them (library errors name the parameter).
 SPEC_FLAGS = {
     "layer_height_mm": "--layer", "dpi": "--dpi", "margin_mm": "--margin", "canvas_mm": "--canvas",
     "compression": "--compress", "jobs": "--jobs", "channels": "--channels", "materials": "--materials",
+    "scale": "--scale",
 }
 
 
@@ -38,11 +39,17 @@ def stack_directories(models: tuple[Path, ...], output: Path | None, into: Path 
     return targets
 
 
-def flag_error(err: InputError) -> InputError:
-    """``err`` with the parameter its message starts with (``layer_height_mm: ...``) named as its option."""
-    parameter, colon, rest = str(err).partition(":")
+def flag_message(text: str) -> str:
+    """``text`` with the parameter it starts with (``layer_height_mm: ...``) named as its option."""
+    parameter, colon, rest = text.partition(":")
     flag = SPEC_FLAGS.get(parameter)
-    return InputError(f"{flag}:{rest}") if colon and flag else err
+    return f"{flag}:{rest}" if colon and flag else text
+
+
+def flag_error(err: InputError) -> InputError:
+    """``err`` with the parameter its message starts with named as its option (:func:`flag_message`)."""
+    shown = flag_message(str(err))
+    return InputError(shown) if shown != str(err) else err
 
 
 def parse_dpi(text: str) -> tuple[float, float]:
@@ -54,7 +61,7 @@ def parse_dpi(text: str) -> tuple[float, float]:
         values = []
     if len(values) == 1:
         values = values * 2
-    if len(values) != 2 or not all(0 < value <= MAX_DPI for value in values):
+    if len(values) != 2 or not all(value > 0 for value in values):
         raise InputError(f"--dpi: expected N or NxM with positive numbers, got {text!r}")
     return (values[0], values[1])
 
@@ -200,9 +207,13 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
     """Slice one model into ``directory`` and report it (one text line, or nothing with --json); its summary."""
     mesh = load_mesh(model)
     if scale != 1.0:
+        try:
+            check_scale(scale, mesh.bounds)
+        except InputError as err:
+            raise flag_error(err) from None
         mesh = scaled(mesh, scale)
     if not as_json:
-        echo_warnings(model, mesh.warnings)
+        echo_warnings(model, [*mesh.warnings, *(flag_message(text) for text in slice_warnings(mesh, spec))])
     with progress_bar(f"slicing {model.name}" if several else "slicing", unit="layer") as update:
         try:
             manifest, times = slice_to_stack(mesh, directory, spec, force=force, progress=update)

@@ -259,15 +259,17 @@ def assign_families(area: np.ndarray, parent: np.ndarray) -> np.ndarray:
 
 
 def _drop_repeated_points(points, point_edge, point_t, offsets):
-    """Remove a loop point equal to its predecessor; a loop whose points are all equal keeps one.
+    """Remove a loop point equal to its predecessor, and a loop whose points are all one point.
 
     Repeats only arise where a mesh vertex lies exactly on the plane (t is 0 or 1),
-    so only those points are examined.
+    so only those points are examined. A loop of one point is what an apex exactly on a plane
+    leaves (the section just below it shrunk to the apex): zero area, and no loop of the layer.
+    Returns the points, edges, positions, offsets and which of the loops are kept ((loops,) bool).
     """
+    loops = len(offsets) - 1
     on_vertex = np.nonzero((point_t == 0.0) | (point_t == 1.0))[0]
     if len(on_vertex) == 0:
-        return points, point_edge, point_t, offsets
-    loops = len(offsets) - 1
+        return points, point_edge, point_t, offsets, np.ones(loops, dtype=bool)
     loop_of_point = np.repeat(np.arange(loops), np.diff(offsets))
     previous = on_vertex - 1
     loop_first = offsets[loop_of_point[on_vertex]]
@@ -276,10 +278,9 @@ def _drop_repeated_points(points, point_edge, point_t, offsets):
     keep[on_vertex] = ~np.all(points[on_vertex] == points[previous], axis=1)
     kept_any = np.zeros(loops, dtype=bool)
     kept_any[loop_of_point[keep]] = True
-    keep[offsets[:-1][~kept_any]] = True
-    sizes = np.bincount(loop_of_point[keep], minlength=loops)
+    sizes = np.bincount(loop_of_point[keep], minlength=loops)[kept_any]
     new_offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-    return points[keep], point_edge[keep], point_t[keep], new_offsets
+    return points[keep], point_edge[keep], point_t[keep], new_offsets, kept_any
 
 
 def build_contours(sections: Sections, hierarchy: bool = True) -> Contours:
@@ -301,7 +302,8 @@ def build_contours(sections: Sections, hierarchy: bool = True) -> Contours:
         point_edge = np.insert(point_edge, at, sections.end_edge[tails], axis=0)
         point_t = np.insert(point_t, at, sections.end_t[tails])
         offsets = offsets + np.concatenate([[0], np.cumsum(closed_by_join)])
-    points, point_edge, point_t, offsets = _drop_repeated_points(points, point_edge, point_t, offsets)
+    points, point_edge, point_t, offsets, kept = _drop_repeated_points(points, point_edge, point_t, offsets)
+    first_segment, loop_layer, closed_by_join = first_segment[kept], loop_layer[kept], closed_by_join[kept]
 
     area = signed_areas(points, offsets)
     parent = loop_parents(points, offsets, loop_layer, area) if hierarchy else None

@@ -11,10 +11,22 @@ The paper's section IV.A-B, vectorised with numpy:
   counter-clockwise seen from +z and holes clockwise. :mod:`heoslice.layers.contours`
   chains the segments into loops through those shared edge names.
 
-A vertex exactly on a plane counts as above it (the comparison is ``z < plane``
-for below), so every crossed triangle has exactly two crossing edges, and the
-intersection of an edge is computed from its lower-numbered vertex, making the
-point bit-identical in both triangles that share the edge.
+Singular points (a vertex, an edge or a face exactly on a plane) follow one symbolic rule: a vertex
+on a plane counts as above it (the comparison is ``z < plane`` for below). This is the section of
+the plane moved an infinitesimal distance down, which is in general position: every crossed
+triangle has exactly one vertex alone on its side and two crossing edges, so each segment has two
+well-named ends and, on a closed mesh, the segments chain into closed loops through the edges they
+share (the chaining follows the perturbed topology, so loops that touch at a vertex stay apart). The
+section's area is the limit from below, so layer areas (and the stack's volume) are those of a
+generic plane: a face on a plane belongs to the layer when the solid is below it (a box's top at the
+plane: the full outline) and not when it is above (an overhang's underside: the part below only).
+An apex pointing up exactly on a plane leaves a loop shrunk to one point, of zero area, which
+:mod:`heoslice.layers.contours` drops; one pointing down touches nothing; a ridge (an edge at a local
+top) on a plane leaves a loop of zero area along it, which fills no pixel. The paper (section IV)
+instead perturbs with a micro-triangle vertex and picks the direction by the number of such
+vertices and the support volume; the rule here needs no choice and gives the same closed loops.
+The intersection of an edge is computed from its lower-numbered vertex, making the point
+bit-identical in both triangles that share the edge.
 """
 
 from __future__ import annotations

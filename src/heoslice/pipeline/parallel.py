@@ -200,10 +200,13 @@ def _sliced_ahead(context: RunContext, runs: list[tuple[int, int]]) -> Iterator[
 
     try:
         yield collect
-    finally:
+    except BaseException:
         ours.close()
-        helper.join(timeout=_AHEAD_WAIT_S)
-        _end(helper)
+        _end(helper)  # an error or an interruption: nothing more is wanted of it
+        raise
+    ours.close()
+    helper.join(timeout=_AHEAD_WAIT_S)
+    _end(helper)
 
 
 def _slice_ahead(context: RunContext, runs: list[tuple[int, int]], buffer: mmap.mmap, conn,

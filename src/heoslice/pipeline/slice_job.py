@@ -7,6 +7,7 @@ soon as it is done, so memory does not grow with the number of layers) and write
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -20,21 +21,62 @@ from heoslice.layers.slicing import face_z_range
 from heoslice.mesh import Mesh
 from heoslice.pipeline.parallel import run_all
 from heoslice.pipeline.runs import RunContext, RunResult
-from heoslice.pipeline.spec import SliceSpec, StageTimes
 from heoslice.grading import GradeSpec
+from heoslice.pipeline.spec import MAX_COORDINATE_MM, SliceSpec, StageTimes, channel_name
 from heoslice.stack import (
+    MAX_IMAGE_PIXELS,
+    MAX_MANIFEST_BYTES,
+    MAX_MANIFEST_CONTAINERS,
     ChannelRecord,
     ImageRecord,
     LayerRecord,
     build_manifest,
+    layer_file_name,
     check_image_size,
     grading_summary,
     prepare_directory,
     write_manifest,
 )
 
-#: Most layers one stack may have (a 1 m part at 1 micrometre layers).
+#: Most layers one stack may have, whatever its manifest's size allows (:func:`layer_limit`).
 MAX_LAYERS = 1_000_000
+
+
+def layer_limit(spec: SliceSpec) -> int:
+    """Most layers a stack sliced with ``spec`` may have so that its manifest, at its longest, stays within
+    what the readers accept (MAX_MANIFEST_BYTES, MAX_MANIFEST_CONTAINERS): a stack heoslice writes, it can
+    verify and print. At most MAX_LAYERS."""
+    materials = spec.grade.channel_materials() if spec.channels else ()
+    channels = [{"material": m.name, "file": layer_file_name(MAX_LAYERS, channel_name(m)), "sha256": "f" * 64,
+                 "solid_pixels": MAX_IMAGE_PIXELS} for m in materials]
+    entry = {"index": MAX_LAYERS, "z_mm": -1.2345678901234567e-300, "file": layer_file_name(MAX_LAYERS),
+             "sha256": "f" * 64, "solid_pixels": MAX_IMAGE_PIXELS, "open_contours": False,
+             **({"channels": channels} if spec.channels else {})}
+    one, two = (len(json.dumps({"layers": [entry] * count}, indent=1)) for count in (1, 2))
+    header_bytes, header_containers = 64 << 10, 64
+    return min(MAX_LAYERS, (MAX_MANIFEST_BYTES - header_bytes) // (two - one),
+               (MAX_MANIFEST_CONTAINERS - header_containers) // (1 + (1 + len(channels) if channels else 0)))
+
+
+def slice_warnings(mesh: Mesh, spec: SliceSpec) -> list[str]:
+    """What about this slice the user should know before it runs (one line each), e.g. a layer height
+    above the part's height, which makes one layer of the whole part."""
+    z_min, z_max = (float(v) for v in mesh.bounds[:, 2])
+    height, cut = z_max - z_min, z_min + spec.layer_height_mm / 2
+    if spec.layer_height_mm <= height:
+        return []
+    outcome = "above the part: the stack is empty" if cut >= z_max else "through the part"
+    return [f"layer_height_mm: {spec.layer_height_mm:g} mm is more than the part's height ({height:g} mm): "
+            f"the stack is one layer, cut at z = {cut:g} mm, {outcome}"]
+
+
+def _check_sizes(mesh: Mesh, spec: SliceSpec) -> None:
+    """Refuse a mesh whose coordinates are not finite or lie beyond MAX_COORDINATE_MM, before any size is
+    derived from them."""
+    largest = float(np.abs(mesh.bounds).max()) if np.all(np.isfinite(mesh.bounds)) else float("inf")
+    if not largest <= MAX_COORDINATE_MM:
+        raise InputError(f"{mesh.source.name}: coordinates reach {largest:g} mm from the origin, beyond the "
+                         f"{MAX_COORDINATE_MM:g} mm a slice can hold")
 
 
 def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool = False,
@@ -47,13 +89,14 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     directory = Path(directory)
     times = StageTimes()
     started = time.perf_counter()
+    _check_sizes(mesh, spec)
     grid = grid_for(mesh.bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
     check_image_size(grid.width, grid.height)
     bounds = mesh.bounds
-    layers = layer_count(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
-    if layers > MAX_LAYERS:
-        raise InputError(f"layer_height_mm: {spec.layer_height_mm} mm gives {layers} layers for this part "
-                         f"(at most {MAX_LAYERS})")
+    limit = layer_limit(spec)
+    if layer_count(bounds[0, 2], bounds[1, 2], spec.layer_height_mm, limit) > limit:
+        raise InputError(f"layer_height_mm: {spec.layer_height_mm:g} mm gives more than {limit} layers for this "
+                         f"part's {float(bounds[1, 2] - bounds[0, 2]):g} mm (the most one stack's manifest holds)")
     prepare_directory(directory, force)
     z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
     results: dict[int, tuple] = {}

@@ -15,8 +15,39 @@ from heoslice.errors import InputError
 from heoslice.grading import GradeSpec
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION
 
-MIN_LAYER_MM = 1e-3
+MIN_LAYER_MM, MAX_LAYER_MM = 1e-3, 10_000.0
 MIN_DPI, MAX_DPI = 1.0, 100_000.0
+#: Widest margin and canvas side, mm (10 m: far beyond any build plate).
+MAX_MARGIN_MM, MAX_CANVAS_MM = 10_000.0, 10_000.0
+#: Most worker processes one slice forks.
+MAX_JOBS = 256
+#: Largest coordinate a mesh may have after scaling, mm (1 km): every size derived from it stays finite.
+MAX_COORDINATE_MM = 1e6
+#: Most coordinate scale factor, and least (a part in km, in nanometres).
+MIN_SCALE, MAX_SCALE = 1e-6, 1e6
+
+
+def check_range(parameter: str, value, low: float, high: float, unit: str = "", low_open: bool = False) -> None:
+    """Refuse (InputError naming ``parameter``) a value that is not a finite number within [low, high]
+    (``low`` excluded with ``low_open``), before any arithmetic is done with it."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{parameter}: must be a number, got {value!r}") from None
+    inside = (number > low if low_open else number >= low) and number <= high
+    if not (np.isfinite(number) and inside):
+        bound = f"above {low:g}" if low_open else f"at least {low:g}"
+        raise InputError(f"{parameter}: must be {bound} and at most {high:g}{unit}, got {number:g}")
+
+
+def check_scale(scale: float, bounds: np.ndarray) -> None:
+    """Refuse a coordinate scale factor outside MIN_SCALE .. MAX_SCALE, or one that takes a mesh whose bounds
+    are ``bounds`` ((2, 3) float, mm) beyond MAX_COORDINATE_MM, before the coordinates are multiplied."""
+    check_range("scale", scale, MIN_SCALE, MAX_SCALE)
+    largest = float(np.abs(bounds).max()) * float(scale)
+    if not largest <= MAX_COORDINATE_MM:
+        raise InputError(f"scale: x{float(scale):g} takes the mesh to {largest:g} mm from the origin, "
+                         f"beyond the {MAX_COORDINATE_MM:g} mm a slice can hold")
 
 
 @dataclass(frozen=True)
@@ -43,17 +74,14 @@ class SliceSpec:
         if self.compression not in COMPRESSIONS:
             raise InputError(f"compression: unknown compression {self.compression!r}; "
                              f"choose one of {', '.join(COMPRESSIONS)}")
-        if not (np.isfinite(self.layer_height_mm) and self.layer_height_mm >= MIN_LAYER_MM):
-            raise InputError(f"layer_height_mm: layer height must be a number of at least {MIN_LAYER_MM} mm, "
-                             f"got {self.layer_height_mm}")
-        if not (np.isfinite(self.margin_mm) and self.margin_mm >= 0):
-            raise InputError(f"margin_mm: must be a finite number >= 0, got {self.margin_mm}")
-        if not all(np.isfinite(d) and MIN_DPI <= d <= MAX_DPI for d in self.dpi):
-            raise InputError(f"dpi: each resolution must be between {MIN_DPI} and {MAX_DPI}, got {self.dpi}")
-        if self.canvas_mm is not None and not all(np.isfinite(v) and v > 0 for v in self.canvas_mm):
-            raise InputError(f"canvas_mm: width and height must be finite and positive, got {self.canvas_mm}")
-        if self.jobs < 0:
-            raise InputError(f"jobs: must be 0 (all cores) or more, got {self.jobs}")
+        check_range("layer_height_mm", self.layer_height_mm, MIN_LAYER_MM, MAX_LAYER_MM, " mm")
+        for value in self.dpi:
+            check_range("dpi", value, MIN_DPI, MAX_DPI, " dpi")
+        check_range("margin_mm", self.margin_mm, 0.0, MAX_MARGIN_MM, " mm")
+        for value in self.canvas_mm or ():
+            check_range("canvas_mm", value, 0.0, MAX_CANVAS_MM, " mm", low_open=True)
+        check_range("jobs", self.jobs, 0, MAX_JOBS, " (0: one per core)")
+        check_range("max_segments", self.max_segments, 1, 2**40)
         if self.channels and self.grade is None:
             raise InputError("channels: droplet masks need a graded slice (grade)")
         if self.grade is not None:
