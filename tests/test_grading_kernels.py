@@ -1,4 +1,4 @@
-"""Tests of heoslice.grading kernels: the compiled kernels of the grading step against brute force
+"""Tests of the grading kernels (heoslice.grading.*_kernels): the compiled loops against brute force
 (every edge tried, float64 numpy) and against the plain formulas they implement."""
 
 from __future__ import annotations
