@@ -1,4 +1,5 @@
-"""Tests of heoslice.grading.render: exact band colours, the rings' colours, the start colour per pixel."""
+"""Tests of heoslice.grading.render and eq. 8's precision: exact band colours, the rings' colours, the start
+colour per pixel, and N_R of a single-precision wall."""
 
 from __future__ import annotations
 
@@ -6,8 +7,9 @@ import numpy as np
 import shapely
 
 from heoslice.distribution import make_function
-from heoslice.grading import GradeSpec, RegionSpec, layer_regions
+from heoslice.grading import GradeSpec, RegionSpec, band_count, family_field, layer_families, layer_regions
 from heoslice.grading import render_graded
+from heoslice.grading.spec import coordinate_precision
 from heoslice.materials import DEFAULT_MATERIALS, Material
 from heoslice.rasterising import Grid, contour_pixels, solid_mask
 
@@ -139,3 +141,17 @@ def test_no_step_inside_a_band_exceeds_one_level_beyond_the_contour_colours():
         allowed = np.abs(reference[a] - reference[c])[pair] + 1.5
         assert (step <= allowed).all(), float((step - allowed).max())
 
+
+def test_a_single_precision_wall_of_5_mm_gives_25_bands():
+    """eq. 8's floor allows for the rounding of float32 coordinates: a square tube stored in float32 whose
+    wall measures 4.99999976 mm gets N_R = 25 at a 0.2 mm nozzle (24 with a fixed 1e-9 tolerance); the
+    same numbers in double precision are what they say."""
+    outer, hole = square(7.7, dtype=np.float32), square(2.7, clockwise=True, dtype=np.float32)
+    wall = float(np.float32(7.7)) - float(np.float32(2.7))
+    assert wall < 5.0 and band_count(wall, 0.2) == 24
+    assert band_count(wall, 0.2, coordinate_precision(outer[:, 0], outer[:, 1])) == 25
+    assert band_count(wall, 0.2, coordinate_precision(np.array([7.7 + 1e-7]), np.array([0.1]))) == 24
+    points, offsets, area, parent = layer(outer, hole)
+    family = layer_families(area, parent)[0]
+    field = family_field(points, offsets, family, grid_around(8.0), RegionSpec(nozzle_mm=0.2))
+    assert field.layout.count == 25

@@ -42,7 +42,7 @@ from heoslice.grading.field_kernels import CellPixels, band_field, curve_cells, 
 from heoslice.grading.lattice import (CELL_MM, Lattice, lattice_for, measured_centres, padded, ring_measures)
 from heoslice.grading.refine import cell_hessians, cells_to_refine, fit_ring_models, refine_cells, ring_vertices
 from heoslice.grading.search import RingSet, rings_apart, rings_apart_kept, ring_tree
-from heoslice.grading.spec import RegionSpec
+from heoslice.grading.spec import RegionSpec, coordinate_precision
 from heoslice.rasterising import Grid
 
 
@@ -165,7 +165,8 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     if not pixels:
         return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
                            lattice=lattice, start_edges=lambda: start.edges, nearest=nearest)
-    layout = family_layout(family, spec, *_grading_length(family, spec, outer, rings, grid, memo))
+    precision = coordinate_precision(outer.edges.x, outer.edges.y)
+    layout = family_layout(family, spec, *_grading_length(family, spec, outer, rings, grid, memo), precision)
     ends = [rings(loops, outward) for loops in layout.end]
     shape = (row1 - row0, col1 - col0)
     if direct:
