@@ -46,7 +46,7 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
                             LayerMixes(np.zeros(1, np.int64), np.zeros(1), np.zeros((0, 5), np.int64), np.zeros(0),
                                        np.zeros(len(materials))),
                             Dither(layer_tile(layer), np.full((1, 256), base_channel, np.int8), base_channel), planes)
-    _, mixes = family_starts(regions, spec, loop_shell, None, point_material, colors=False)
+    mixes = family_starts(regions, spec, loop_shell, point_material)
     target_mix = np.zeros(len(materials))
     if spec.target is not None and spec.function is not None:
         target_mix[position[(spec.target.name, spec.target.color)]] = 1.0

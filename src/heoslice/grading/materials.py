@@ -32,40 +32,27 @@ def _start_material(spec: GradeSpec, family: Family, own):
     return spec.start if spec.start is not None and not family.nested else None
 
 
-def family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_colors, point_material,
-                   colors: bool = True):
-    """Per family, what its interior starts from at each lattice cell (its contour's material, or
-    its shell's, or --from): colour ((cells_r, cells_c, 3) int16 0..255; None without ``colors``)
-    and the mix of the K channel materials ((cells_r, cells_c, K) float, summing to 1)."""
+def family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_material) -> list[np.ndarray]:
+    """Per family, the mix of the K channel materials its interior starts from at each lattice cell (its
+    contour's material, or its shell's, or --from): (cells_r, cells_c, K) float, summing to 1."""
     materials = spec.channel_materials()
     position = {(m.name, m.color): i for i, m in enumerate(materials)}
-    starts, mixes = [], []
+    mixes = []
     for family, field in zip(regions.families, regions.fields):
         shell = None if loop_shell is None else loop_shell[family.outer]
         own, use_fraction = _family_sources(spec, shell, point_material)
         start = _start_material(spec, family, own)
-        cells = (field.lattice.rows, field.lattice.cols)
-        mix = np.zeros((*cells, len(materials)))
+        mix = np.zeros((field.lattice.rows, field.lattice.cols, len(materials)))
         if start is not None:
             mix[..., position[(start.name, start.color)]] = 1.0
-            color = np.asarray(start.color, dtype=np.float64)
         elif use_fraction:
             m = np.clip(contour_values(field, point_material), 0.0, 1.0)
             mix[..., position[(spec.base.name, spec.base.color)]] = 1.0 - m
             mix[..., position[(spec.second.name, spec.second.color)]] += m
-            color = (np.asarray(spec.base.color, dtype=np.float64) * (1.0 - m)[..., None]
-                     + np.asarray(spec.second.color, dtype=np.float64) * m[..., None])
         else:
             mix[..., position[(spec.base.name, spec.base.color)]] = 1.0
-            color = np.asarray(spec.base.color, dtype=np.float64)
         mixes.append(mix)
-        if not colors:
-            starts.append(None)
-            continue
-        if point_colors is not None and start is None:
-            color = contour_values(field, point_colors)
-        starts.append(np.broadcast_to(np.clip(np.rint(color), 0, 255).astype(np.int16), (*cells, 3)))
-    return starts, mixes
+    return mixes
 
 
 def target_fractions(regions: LayerRegions, spec: GradeSpec) -> np.ndarray:
@@ -87,23 +74,6 @@ def contour_values(field: FamilyField, values: np.ndarray) -> np.ndarray:
     if values.ndim == 1:
         return np.interp(at, edges.knots, values)
     return np.stack([np.interp(at, edges.knots, column) for column in values.T], axis=-1)
-
-
-def paint_cells(regions: LayerRegions, per_family: list[np.ndarray], dtype=np.float32) -> np.ndarray:
-    """Per-pixel values over the layer box from per-cell values of each family ((cells_r, cells_c, c)).
-
-    Each family's cells are expanded to its pixels (blocks of cell x cell) and written
-    where the family's labels are: (rows, cols, c) of ``dtype``, 0 elsewhere.
-    """
-    channels = per_family[0].shape[-1] if per_family else 1
-    b = regions.box
-    out = np.zeros((b[1] - b[0], b[3] - b[2], channels), dtype=dtype)
-    for field, cells, own in zip(regions.fields, per_family, family_of(regions)):
-        r0, r1, c0, c1 = field.box
-        f = field.lattice.cell
-        pixels = np.repeat(np.repeat(cells.astype(dtype), f, axis=0), f, axis=1)[: r1 - r0, : c1 - c0]
-        np.copyto(out[r0 - b[0]:r1 - b[0], c0 - b[2]:c1 - b[2]], pixels, where=own[..., None])
-    return out
 
 
 def pixel_start_colors(regions: LayerRegions, spec: GradeSpec, loop_shell, point_colors, point_material,
