@@ -9,6 +9,7 @@ import shapely
 from heoslice.layers.contours import Contours, build_contours
 from heoslice.grading.edges import ring_edges
 from heoslice.grading.halftone import thresholds
+from heoslice.grading.labels import family_of
 from heoslice.grading.search import RingSet, ring_tree
 from heoslice.grading.search_kernels import edge_tree
 from heoslice.layers import plane_heights, slice_mesh
@@ -156,3 +157,20 @@ def droplet_masks(fractions: np.ndarray, solid: np.ndarray, layer: int,
     """One 1-bit mask per material: (K, rows, cols) bool, exactly one True per solid pixel, none elsewhere."""
     chosen = choose_materials(fractions, solid, layer, origin)
     return chosen[None, :, :] == np.arange(fractions.shape[0], dtype=np.int8)[:, None, None]
+
+
+def paint_cells(regions, per_family: list[np.ndarray], dtype=np.float32) -> np.ndarray:
+    """Per-pixel values over the layer box from per-cell values of each family ((cells_r, cells_c, c)).
+
+    Each family's cells are expanded to its pixels (blocks of cell x cell) and written
+    where the family's labels are: (rows, cols, c) of ``dtype``, 0 elsewhere.
+    """
+    channels = per_family[0].shape[-1] if per_family else 1
+    b = regions.box
+    out = np.zeros((b[1] - b[0], b[3] - b[2], channels), dtype=dtype)
+    for field, cells, own in zip(regions.fields, per_family, family_of(regions)):
+        r0, r1, c0, c1 = field.box
+        f = field.lattice.cell
+        pixels = np.repeat(np.repeat(cells.astype(dtype), f, axis=0), f, axis=1)[: r1 - r0, : c1 - c0]
+        np.copyto(out[r0 - b[0]:r1 - b[0], c0 - b[2]:c1 - b[2]], pixels, where=own[..., None])
+    return out

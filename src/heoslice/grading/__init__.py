@@ -16,7 +16,7 @@ from heoslice.grading.families import Family, FamilyLayout, family_layout, layer
 from heoslice.grading.field import FamilyField, family_field
 from heoslice.grading.halftone import TILE, bayer_matrix, layer_tile, thresholds
 from heoslice.grading.labels import LayerRegions, family_of, label_fractions, layer_regions
-from heoslice.grading.materials import contour_values, paint_cells
+from heoslice.grading.materials import contour_values
 from heoslice.grading.render import GradedLayer, render_graded
 from heoslice.grading.spec import DIRECTIONS, GradeSpec, RegionSpec, band_count
 
@@ -24,5 +24,5 @@ __all__ = [
     "DIRECTIONS", "TILE", "Family", "FamilyField", "FamilyLayout", "GradeSpec", "GradedLayer", "GradingCache",
     "LayerRegions", "RegionSpec", "band_count", "bayer_matrix", "contour_values", "droplet_planes", "family_field",
     "family_layout", "family_of", "label_fractions", "layer_families", "layer_regions", "layer_tile",
-    "paint_cells", "render_graded", "thresholds",
+    "render_graded", "thresholds",
 ]

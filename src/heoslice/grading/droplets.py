@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from heoslice.grading.cache import ChoiceTable, GradingCache
-from heoslice.grading.droplets_kernels import droplet_bits
+from heoslice.grading.droplets_kernels import Dither, LabelledLayer, LayerMixes, droplet_bits
 from heoslice.grading.halftone import TILE, layer_tile
 from heoslice.grading.labels import LayerRegions, layer_regions
 from heoslice.grading.materials import family_starts, target_fractions
@@ -42,10 +42,11 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
     position = {(m.name, m.color): i for i, m in enumerate(materials)}
     base_channel = position[(spec.base.name, spec.base.color)]
     if not regions.fields:
-        return droplet_bits(np.zeros((0, 0), np.int16), (0, 0), packed, np.zeros(1, np.int64), np.zeros(1),
-                            np.zeros((0, 5), np.int64), np.zeros(0), np.zeros(len(materials)),
-                            layer_tile(layer), base_channel, planes, np.full((1, 256), base_channel, np.int8))
-    _, mixes = family_starts(regions, spec, loop_shell, None, point_material, colors=False)
+        return droplet_bits(LabelledLayer(np.zeros((0, 0), np.int16), 0, 0, packed),
+                            LayerMixes(np.zeros(1, np.int64), np.zeros(1), np.zeros((0, 5), np.int64), np.zeros(0),
+                                       np.zeros(len(materials))),
+                            Dither(layer_tile(layer), np.full((1, 256), base_channel, np.int8), base_channel), planes)
+    mixes = family_starts(regions, spec, loop_shell, point_material)
     target_mix = np.zeros(len(materials))
     if spec.target is not None and spec.function is not None:
         target_mix[position[(spec.target.name, spec.target.color)]] = 1.0
@@ -57,9 +58,9 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
     layout = np.array([(field.box[0], field.box[2], field.lattice.cell, field.lattice.cols, start)
                        for field, start in zip(regions.fields, np.cumsum(sizes) - sizes)], dtype=np.int64)
     table = _layer_choice_table(regions, mixes, fractions, target_mix, base_channel, cache)
-    return droplet_bits(regions.label, regions.box[::2], packed, family_of_label, fractions,
-                        layout, np.concatenate([mix.ravel() for mix in mixes]), target_mix, layer_tile(layer),
-                        base_channel, planes, table)
+    mixing = LayerMixes(family_of_label, fractions, layout, np.concatenate([mix.ravel() for mix in mixes]), target_mix)
+    return droplet_bits(LabelledLayer(regions.label, *regions.box[::2], packed), mixing,
+                        Dither(layer_tile(layer), table, base_channel), planes)
 
 
 def _layer_choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.ndarray,

@@ -2,10 +2,45 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
 from heoslice.grading.jit import EXACT, f32, i64
+
+
+class LabelledLayer(NamedTuple):
+    """A layer's labels ((rows, cols) int, 0 empty) from pixel (row0, col0), and its packed solid mask
+    ((h, ceil(w/8)) uint8, rows MSB first, padding bits clear)."""
+
+    label: np.ndarray
+    row0: int
+    col0: int
+    packed: np.ndarray
+
+
+class LayerMixes(NamedTuple):
+    """What each label's pixels mix: the family of each label ((labels,) int), its fraction of the target
+    ((labels,) float), per family (box row, box column, cell pixels, cells per row, first cell in
+    ``mixes``) ((families, 5) int), every family's per-cell start mixes flattened ((cells * K,) float),
+    and the target's mix ((K,) float)."""
+
+    family_of_label: np.ndarray
+    fraction: np.ndarray
+    layout: np.ndarray
+    mixes: np.ndarray
+    target: np.ndarray
+
+
+class Dither(NamedTuple):
+    """The layer's ordered-dither ``tile`` ((n, n) thresholds in (0, 1), n a power of two), the ``table``
+    of channels per label and dither level ((labels, n * n) int8, -1: mix per pixel) and the
+    ``base_channel`` of solid pixels without a label."""
+
+    tile: np.ndarray
+    table: np.ndarray
+    base_channel: int
 
 
 @numba.njit(inline="always", **EXACT)
@@ -72,27 +107,11 @@ def _droplet_run(line, solid, pattern, first, planes, count, channels):  # pragm
 
 
 @numba.njit(**EXACT)
-def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixes, target, tile, base_channel,
-                  planes, table, level):  # pragma: no cover - compiled
-    """Set one bit per solid pixel in the plane of the material it jets (see :func:`droplet_bits`).
-
-    The table is first turned into bit patterns: per tile row, block of 16 columns and label,
-    one 16-bit field per channel but the last (the block's columns where the label jets it)
-    and one more for the columns without a table entry, four fields to an int64 word. A row
-    is then halftoned 16 pixels at a time, OR-ing each pixel's word masked to its own column
-    (no branch, no compare per channel); the last channel's byte is the solid byte less the
-    others', and the pixels without a table entry take the general per-pixel mix. With one
-    word (K <= 4), the chunks inside the labels go to :func:`_droplet_run` until one has such
-    a pixel; after it, the run resumes past the next chunk without any (no call per chunk
-    along a family of per-pixel mixes)."""
-    channels = planes.shape[0]
-    size = tile.shape[0]
+def _pattern_words(table, level, channels, size, words, blocks):  # pragma: no cover - compiled
+    """The choice table as bit patterns ((size, words, blocks, labels) int64, see :func:`_droplet_bits`): per
+    tile row, block of 16 columns and label, one 16-bit field per channel but the last and one for the
+    columns without a table entry, four fields to a word."""
     wrap = size - 1
-    blocks = max(size, 16) // 16
-    words = (channels + 3) // 4
-    rows, cols = label.shape
-    width = packed.shape[1]
-    spread = np.int64(0x0001000100010001)
     pattern = np.empty((size, words, blocks, table.shape[0]), dtype=np.int64)
     for number in range(table.shape[0]):
         entries = table[number]
@@ -105,6 +124,62 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
                         slot = channels - 1 if got < 0 else got
                         value |= np.int64(got != channels - 1 and slot >> 2 == w) << (16 * (slot & 3) + 15 - j)
                     pattern[phase, w, block, number] = value
+    return pattern
+
+
+@numba.njit(inline="always", **EXACT)
+def _solid_span(solid, width):  # pragma: no cover - compiled
+    """(first, last) bytes of a packed row that hold solid pixels (first > last: none), skipping empty
+    stretches 16 bytes at a time."""
+    first, last = 0, width - 1
+    while first + 16 <= width:
+        seen = 0
+        for k in range(16):
+            seen |= solid[first + k]
+        if seen:
+            break
+        first += 16
+    while first <= last and solid[first] == 0:
+        first += 1
+    if first > last:
+        return first, last
+    while last - 16 >= first:
+        seen = 0
+        for k in range(16):
+            seen |= solid[last - k]
+        if seen:
+            break
+        last -= 16
+    while solid[last] == 0:
+        last -= 1
+    return first, last
+
+
+@numba.njit(**EXACT)
+def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
+    """Set one bit per solid pixel in the plane of the material it jets (see :func:`droplet_bits`).
+
+    The table is first turned into bit patterns: per tile row, block of 16 columns and label,
+    one 16-bit field per channel but the last (the block's columns where the label jets it)
+    and one more for the columns without a table entry, four fields to an int64 word. A row
+    is then halftoned 16 pixels at a time, OR-ing each pixel's word masked to its own column
+    (no branch, no compare per channel); the last channel's byte is the solid byte less the
+    others', and the pixels without a table entry take the general per-pixel mix. With one
+    word (K <= 4), the chunks inside the labels go to :func:`_droplet_run` until one has such
+    a pixel; after it, the run resumes past the next chunk without any (no call per chunk
+    along a family of per-pixel mixes)."""
+    label, r0, c0, packed = layer
+    family_of_label, fraction, layout, mixes, target = mixing
+    tile, level, table, base_channel = dither
+    channels = planes.shape[0]
+    size = tile.shape[0]
+    wrap = size - 1
+    blocks = max(size, 16) // 16
+    words = (channels + 3) // 4
+    rows, cols = label.shape
+    width = packed.shape[1]
+    spread = np.int64(0x0001000100010001)
+    pattern = _pattern_words(table, level, channels, size, words, blocks)
     outside = np.zeros(words, dtype=np.int64)
     if base_channel < channels - 1:
         outside[base_channel >> 2] = np.int64(0xFFFF) << (16 * (base_channel & 3))
@@ -115,27 +190,9 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
     empty = label.ravel()[:0]
     for row in range(packed.shape[0]):
         solid = packed[row]
-        first, last = 0, width - 1
-        while first + 16 <= width:
-            seen = 0
-            for k in range(16):
-                seen |= solid[first + k]
-            if seen:
-                break
-            first += 16
-        while first <= last and solid[first] == 0:
-            first += 1
+        first, last = _solid_span(solid, width)
         if first > last:
             continue
-        while last - 16 >= first:
-            seen = 0
-            for k in range(16):
-                seen |= solid[last - k]
-            if seen:
-                break
-            last -= 16
-        while solid[last] == 0:
-            last -= 1
         r = row - r0
         inside = 0 <= r < rows
         line = label[r] if inside else empty
@@ -218,12 +275,10 @@ def _droplet_bits(label, r0, c0, packed, family_of_label, fraction, layout, mixe
     return planes
 
 
-def droplet_bits(label: np.ndarray, origin: tuple[int, int], packed: np.ndarray, family_of_label: np.ndarray,
-                 fraction: np.ndarray, layout: np.ndarray, mixes: np.ndarray, target: np.ndarray, tile: np.ndarray,
-                 base_channel: int, planes: np.ndarray, table: np.ndarray) -> np.ndarray:
+def droplet_bits(layer: LabelledLayer, mixing: LayerMixes, dither: Dither, planes: np.ndarray) -> np.ndarray:
     """Halftone a labelled layer into bit-packed droplet masks, in place in ``planes`` ((K, h, ceil(w/8)) uint8).
 
-    label ((rows, cols) int, 0 empty) covers the layer from pixel ``origin``; a labelled
+    label ((rows, cols) int, 0 empty) covers the layer from pixel (row0, col0); a labelled
     pixel's mix is its family's start mix at its lattice cell (``mixes`` flat, family f's
     cells from layout[f, 4], cells of layout[f, 2] pixels from row layout[f, 0], column
     layout[f, 1], layout[f, 3] cells per row) moved by fraction[label] towards ``target``
@@ -236,18 +291,17 @@ def droplet_bits(label: np.ndarray, origin: tuple[int, int], packed: np.ndarray,
     whose entry at the pixel's threshold level is not -1 (the level of threshold t is
     t n^2 - 1/2: the tile holds the ordered-dither values (k + 1/2) / n^2); its row 0 (no
     label) must hold ``base_channel``. Labels are read as unsigned (none is negative); bytes
-    of ``planes`` without a solid pixel are left as they are. About 0.55 ns per solid pixel where
-    the table has entries (an organ layer of ``slice --channels``, K = 2), ~20 ns where it has none.
+    of ``planes`` without a solid pixel are left as they are.
     """
+    tile, table, base_channel = dither
     size = tile.shape[0]
     # C order whichever symmetry the layer's tile has (a transposed one is Fortran-ordered): one compiled signature
     level = np.ascontiguousarray(np.rint(np.asarray(tile, dtype=np.float64) * size * size - 0.5).astype(np.int64))
-    label = np.ascontiguousarray(label)
+    label = np.ascontiguousarray(layer.label)
     if label.dtype.kind == "i":
         label = label.view(f"u{label.itemsize}")
-    return _droplet_bits(label, int(origin[0]), int(origin[1]), np.ascontiguousarray(packed),
-                         i64(family_of_label),
-                         f32(fraction), i64(layout),
-                         f32(mixes), f32(target),
-                         f32(tile), int(base_channel), planes,
-                         np.ascontiguousarray(table, dtype=np.int8), level)
+    layer = (label, int(layer.row0), int(layer.col0), np.ascontiguousarray(layer.packed))
+    mixing = (i64(mixing.family_of_label), f32(mixing.fraction), i64(mixing.layout), f32(mixing.mixes),
+              f32(mixing.target))
+    return _droplet_bits(layer, mixing, (f32(tile), level, np.ascontiguousarray(table, dtype=np.int8),
+                                         int(base_channel)), planes)

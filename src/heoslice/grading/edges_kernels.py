@@ -3,10 +3,28 @@ ring's straight points out of its edges."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
 from heoslice.grading.jit import JIT, f64, i64
+
+
+class EdgeArrays(NamedTuple):
+    """Edges of closed rings as the kernels take them: edge i runs from (x[i], y[i]) by (vx[i], vy[i])
+    ((n,) float64, mm); ``inv_len2`` is 1 / |v|^2 (0 for a zero-length edge)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    vx: np.ndarray
+    vy: np.ndarray
+    inv_len2: np.ndarray
+
+
+def edge_arrays(edges) -> EdgeArrays:
+    """The EdgeArrays of anything with those five arrays (a :class:`heoslice.grading.edges.RingEdges`)."""
+    return EdgeArrays(f64(edges.x), f64(edges.y), f64(edges.vx), f64(edges.vy), f64(edges.inv_len2))
 
 
 @numba.njit(inline="always", **JIT)

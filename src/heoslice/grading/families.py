@@ -57,18 +57,19 @@ class FamilyLayout:
 
 
 def family_layout(family: Family, spec: RegionSpec, inradius: float | None = None,
-                  apart: float | None = None) -> FamilyLayout:
+                  apart: float | None = None, precision_mm: float = 0.0) -> FamilyLayout:
     """Which rings start and end the grading of a family, and N_R by eq. 8.
 
     L_S is the target depth when given; otherwise the shortest distance between the
     starting and ending rings (``apart``, mm: :func:`rings_apart` of the outer ring and
     the holes); for a family without holes, its largest inscribed distance
-    (``inradius``, mm), so that the target is reached at its deepest point.
+    (``inradius``, mm), so that the target is reached at its deepest point; ``precision_mm`` as
+    :func:`band_count`.
     """
     holes = family.holes
 
     def count(length: float) -> int:
-        return int(spec.count) if spec.count is not None else band_count(length, spec.nozzle_mm)
+        return int(spec.count) if spec.count is not None else band_count(length, spec.nozzle_mm, precision_mm)
 
     if spec.direction == "out" and holes:
         start, end = holes, ((family.outer,),)

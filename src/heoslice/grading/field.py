@@ -38,11 +38,11 @@ import shapely
 from heoslice.grading.cache import RingMemo
 from heoslice.grading.edges import RingEdges, convex_rings, edges_key, ring_edges
 from heoslice.grading.families import Family, FamilyLayout, family_layout
-from heoslice.grading.field_kernels import band_field, curve_cells, expand_planes
+from heoslice.grading.field_kernels import CellPixels, band_field, curve_cells, expand_planes, label_target
 from heoslice.grading.lattice import (CELL_MM, Lattice, lattice_for, measured_centres, padded, ring_measures)
 from heoslice.grading.refine import cell_hessians, cells_to_refine, fit_ring_models, refine_cells, ring_vertices
 from heoslice.grading.search import RingSet, rings_apart, rings_apart_kept, ring_tree
-from heoslice.grading.spec import RegionSpec
+from heoslice.grading.spec import RegionSpec, coordinate_precision
 from heoslice.layers.rasterising import Grid
 
 
@@ -165,7 +165,8 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     if not pixels:
         return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
                            lattice=lattice, start_edges=lambda: start.edges, nearest=nearest)
-    layout = family_layout(family, spec, *_grading_length(family, spec, outer, rings, grid, memo))
+    precision = coordinate_precision(outer.edges.x, outer.edges.y)
+    layout = family_layout(family, spec, *_grading_length(family, spec, outer, rings, grid, memo), precision)
     ends = [rings(loops, outward) for loops in layout.end]
     shape = (row1 - row0, col1 - col0)
     if direct:
@@ -243,8 +244,8 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
     index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, shape, mask, label_base, ~touched)
     curved = np.nonzero((hessian != 0).any(axis=0) & candidate & ~refine)
     if len(curved[0]):
-        curve_cells(index, curved[0], curved[1], lattice.cell, s, grad, hessian, grid.px, grid.py, layout.count,
-                    mask, (lattice.row0, lattice.col0), label_base)
+        curve_cells(label_target(index, mask, (lattice.row0, lattice.col0), label_base), curved[0], curved[1],
+                    CellPixels(lattice.cell, grid.px, grid.py), s, grad, hessian, layout.count)
     if len(refined[0]):
         cells = (refined[0] - 1, refined[1] - 1)
         refine_cells(index, lattice, cells, grid, layout,
@@ -259,8 +260,8 @@ def _exact_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: 
     each from its exact distance to every ring set (:func:`refine_cells` over every cell).
 
     Below DIRECT_PIXELS (box pixels x ring sets) this beats fitting the lattice, whose fixed
-    cost (~2.5 ms a family) dominates a small island's; each cell's bound is its distance
-    to a ring set's first point."""
+    cost per family dominates a small island's (benchmarks/README.md); each cell's bound is its
+    distance to a ring set's first point."""
     index = np.empty(shape, dtype=label_dtype(layout.count + label_base))
     ci, cj = (a.ravel() for a in np.indices((lattice.rows, lattice.cols)))
     x, y = lattice.centres()
@@ -286,5 +287,5 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
     gx = np.where(flat, 0.0, grad[..., 0])
     gy = np.where(flat, 0.0, grad[..., 1])
     out = np.empty(shape, dtype=label_dtype(count + label_base))
-    return expand_planes(s, gx, gy, lattice.cell, grid.px, grid.py, count, out, mask,
-                         (lattice.row0, lattice.col0), label_base, empty)
+    return expand_planes(s, gx, gy, CellPixels(lattice.cell, grid.px, grid.py), count,
+                         label_target(out, mask, (lattice.row0, lattice.col0), label_base), empty)

@@ -3,10 +3,39 @@ expansion of one plane (or quadratic) per lattice cell to its pixels."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
 from heoslice.grading.jit import JIT, f64, i64
+
+
+class CellPixels(NamedTuple):
+    """A lattice's cells in pixels: ``cell`` pixels a side, each pixel px x py mm."""
+
+    cell: int
+    px: float
+    py: float
+
+
+class LabelTarget(NamedTuple):
+    """Where a kernel writes sub-region labels: ``out`` ((rows, cols) int16/int32) covers the layer's pixels
+    from (row0, col0); with a ``mask`` ((h, w) bool over the layer; 0 x 0: none) pixels where it is False
+    get 0; ``base`` is added to every k (a family's labels in the same pass)."""
+
+    out: np.ndarray
+    mask: np.ndarray
+    row0: int
+    col0: int
+    base: float
+
+
+def label_target(out: np.ndarray, mask: np.ndarray | None = None, origin: tuple[int, int] = (0, 0),
+                 base: int = 0) -> LabelTarget:
+    """The LabelTarget writing ``out`` from pixel ``origin`` (row, col) of the layer, masked by ``mask``."""
+    mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
+    return LabelTarget(out, mask, int(origin[0]), int(origin[1]), float(base))
 
 
 @numba.njit(inline="always", **JIT)
@@ -71,13 +100,15 @@ def band_field(d: np.ndarray, g: np.ndarray, count: int) -> tuple[np.ndarray, np
 
 
 @numba.njit(**JIT)
-def _expand_planes(s, gx, gy, empty, cell, px, py, count, out, mask, r0, c0, base):  # pragma: no cover - compiled
+def _expand_planes(s, gx, gy, empty, pixels, count, target):  # pragma: no cover - compiled
     """out[i*cell + v, j*cell + u] = clip(floor(s_ij + gx_ij x_u - gy_ij y_v) + 1, 1, count) over the
     part of the lattice that ``out`` covers; x_u, y_v are pixel offsets from the cell centre (mm),
     plus ``base``; with a ``mask`` (not 0 x 0), pixels where mask[r0 + row, c0 + col] is False get
     0. ``empty`` cells (no pixel of the family) get 0 without evaluating. Per row of
     cells the column terms are laid out once (float32: s to ~1e-4 of a band), so each pixel
     row is a few long branch-free loops, one per run of cells that are not empty."""
+    cell, px, py = pixels
+    out, mask, r0, c0, base = target
     rows, cols = out.shape
     masked = mask.shape[0] > 0
     half = 0.5 * cell
@@ -135,28 +166,27 @@ def _expand_run(line, column, slope, keep, down, low, high, offset, masked):  # 
             line[c] = np.int32(value + offset)
 
 
-def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: int, px: float, py: float,
-                  count: int, out: np.ndarray, mask: np.ndarray | None = None, origin: tuple[int, int] = (0, 0),
-                  base: int = 0, empty: np.ndarray | None = None) -> np.ndarray:
-    """Sub-region k = clip(floor(s) + 1, 1, count) at every pixel of ``out`` ((rows, cols) int16/int32,
+def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, pixels: CellPixels, count: int,
+                  target: LabelTarget, empty: np.ndarray | None = None) -> np.ndarray:
+    """Sub-region k = clip(floor(s) + 1, 1, count) at every pixel of ``target.out`` ((rows, cols),
     rows <= cells_r * cell) from one plane per lattice cell: s (cells_r, cells_c) at the cell
-    centre, gradient (gx, gy) per mm (y up, rows down), plus ``base``: a family's labels in the
-    same pass. With ``mask`` ((h, w) bool, C order; ``out`` covers rows/columns from ``origin``
-    of it) pixels where it is False get 0. ``empty`` ((cells_r, cells_c) bool) cells are written
-    0 throughout."""
+    centre, gradient (gx, gy) per mm (y up, rows down), written as :class:`LabelTarget` says.
+    ``empty`` ((cells_r, cells_c) bool) cells are written 0 throughout. Returns ``target.out``."""
+    cell, out = int(pixels.cell), target.out
     if out.shape[0] > np.shape(s)[0] * cell or out.shape[1] > np.shape(s)[1] * cell:
         raise ValueError(f"expand_planes: {out.shape} pixels exceed {np.shape(s)} cells of {cell}")
-    mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
     empty = np.zeros(np.shape(s), dtype=np.bool_) if empty is None else np.ascontiguousarray(empty, dtype=np.bool_)
-    return _expand_planes(f64(s), f64(gx), f64(gy), empty, int(cell), float(px), float(py), float(count), out, mask,
-                          int(origin[0]), int(origin[1]), int(base))
+    pixels = CellPixels(cell, float(pixels.px), float(pixels.py))
+    return _expand_planes(f64(s), f64(gx), f64(gy), empty, pixels, float(count), target)
 
 
 @numba.njit(**JIT)
-def _curve_cells(index, ci, cj, cell, s, gx, gy, hxx, hxy, hyy, px, py, count, mask, r0, c0,
-                 base):  # pragma: no cover - compiled
+def _curve_cells(target, ci, cj, pixels, quadratics, count):  # pragma: no cover - compiled
     """Rewrite whole cells (ci, cj) from their quadratics (see :func:`curve_cells`): along each pixel
     row of a cell the quadratic is A + (B + C x) x, one branch-free loop."""
+    index, mask, r0, c0, base = target
+    cell, px, py = pixels
+    s, gx, gy, hxx, hxy, hyy = quadratics
     rows, cols = index.shape
     masked = mask.shape[0] > 0
     half = 0.5 * cell
@@ -186,15 +216,12 @@ def _curve_cells(index, ci, cj, cell, s, gx, gy, hxx, hxy, hyy, px, py, count, m
     return index
 
 
-def curve_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, s: np.ndarray, grad: np.ndarray,
-                hessian: np.ndarray, px: float, py: float, count: int, mask: np.ndarray | None = None,
-                origin: tuple[int, int] = (0, 0), base: int = 0) -> np.ndarray:
+def curve_cells(target: LabelTarget, ci: np.ndarray, cj: np.ndarray, pixels: CellPixels, s: np.ndarray,
+                grad: np.ndarray, hessian: np.ndarray, count: int) -> np.ndarray:
     """Sub-region k of every pixel of lattice cells (ci, cj) ((n,) int) from the cell's quadratic
     s + g.d + d.H.d / 2 (s (rows, cols), grad (rows, cols, 2) per mm, hessian (3, rows, cols)
-    s_xx, s_xy, s_yy per mm^2; d the pixel's offset from the cell centre, y up), in place;
-    ``mask``, ``origin`` and ``base`` as in :func:`expand_planes`."""
-    mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
-    return _curve_cells(index, i64(ci), i64(cj),
-                        int(cell), f64(s), f64(grad[..., 0]), f64(grad[..., 1]), f64(hessian[0]),
-                        f64(hessian[1]), f64(hessian[2]), float(px), float(py), float(count), mask,
-                        int(origin[0]), int(origin[1]), float(base))
+    s_xx, s_xy, s_yy per mm^2; d the pixel's offset from the cell centre, y up), in place in
+    ``target`` (as :func:`expand_planes`)."""
+    quadratics = (f64(s), f64(grad[..., 0]), f64(grad[..., 1]), f64(hessian[0]), f64(hessian[1]), f64(hessian[2]))
+    pixels = CellPixels(int(pixels.cell), float(pixels.px), float(pixels.py))
+    return _curve_cells(target, i64(ci), i64(cj), pixels, quadratics, float(count))

@@ -92,7 +92,7 @@ def block_bounds(edges: RingEdges, lattice: Lattice, tree: tuple) -> BlockBounds
     cy = np.broadcast_to(y[:, None], (blocks.rows, blocks.cols)).ravel()
     reach = np.hypot(cx - edges.x[0], cy - edges.y[0]) * (1 + 1e-6) + 1e-6
     edge = nearest_edges(cx, cy, reach, np.zeros(1), np.zeros(1), edges, tree)[:, 0].astype(np.int64)
-    upper = feet(cx, cy, edge, edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2)[0]
+    upper = feet(cx, cy, edge, edges)[0]
     shape = (blocks.rows, blocks.cols)
     return BlockBounds(blocks, edge.reshape(shape), upper.reshape(shape))
 
@@ -128,9 +128,7 @@ def lattice_edges(edges: RingEdges, lattice: Lattice, tree: tuple | None = None,
 def _inside_loops(rings: RingSet, lattice: Lattice) -> np.ndarray:
     """(rows, cols) bool: cell centres inside any of the ring set's loops (a family's holes, or its outer
     ring: they neither cross nor nest, so the parity of crossings decides)."""
-    e = rings.edges
-    return inside_centres(e.x, e.y, e.vx, e.vy, lattice.x0, lattice.y0, lattice.dx, lattice.dy, lattice.rows,
-                          lattice.cols)
+    return inside_centres(rings.edges, lattice, lattice.rows, lattice.cols)
 
 
 @dataclass(frozen=True)
@@ -179,9 +177,7 @@ def measured_centres(rings: RingSet, measures: RingMeasures, lattice: Lattice, w
                                done=measures.done | todo)
         seeds = lattice_edges(rings.edges, lattice, rings.tree, measures.bounds, np.zeros_like(wanted))
         edge = np.where(_block_cells(wanted, lattice), measures.edge, seeds)
-    e = rings.edges
-    at = signed_feet(edge, lattice.x0, lattice.y0, lattice.dx, lattice.dy, e.x, e.y, e.vx, e.vy, e.inv_len2,
-                     measures.inside, rings.encloses) + (edge,)
+    at = signed_feet(edge, lattice, rings.edges, measures.inside, rings.encloses) + (edge,)
     for array in at:
         array.flags.writeable = False
     return at, replace(measures, centres=(wanted, at))

@@ -3,16 +3,35 @@ which centres are inside a ring set, and points' distances to given edges."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
+from heoslice.grading.edges_kernels import EdgeArrays, edge_arrays
 from heoslice.grading.jit import JIT, f64, i64
 
 
+class LatticeFrame(NamedTuple):
+    """Where a lattice's cell centres are: (x0 + (j + 1/2) dx, y0 - (i + 1/2) dy), mm (x0, y0 its top-left corner)."""
+
+    x0: float
+    y0: float
+    dx: float
+    dy: float
+
+
+def frame_of(lattice) -> LatticeFrame:
+    """The LatticeFrame of anything with x0, y0, dx, dy (a :class:`heoslice.grading.lattice.Lattice`)."""
+    return LatticeFrame(float(lattice.x0), float(lattice.y0), float(lattice.dx), float(lattice.dy))
+
+
 @numba.njit(**JIT)
-def _signed_feet(edge, x0, y0, dx, dy, ex, ey, evx, evy, einv, inside, encloses):  # pragma: no cover - compiled
+def _signed_feet(edge, frame, edges, inside, encloses):  # pragma: no cover - compiled
     """At every lattice centre (x0 + (j + 1/2) dx, y0 - (i + 1/2) dy): signed distance to its edge
     (> 0 where ``inside`` equals ``encloses``), its unit gradient (0 on the edge) and the foot."""
+    x0, y0, dx, dy = frame
+    ex, ey, evx, evy, einv = edges
     rows, cols = edge.shape
     signed = np.empty((rows, cols))
     gradient = np.empty((rows, cols, 2))
@@ -34,21 +53,21 @@ def _signed_feet(edge, x0, y0, dx, dy, ex, ey, evx, evy, einv, inside, encloses)
     return signed, gradient, foot
 
 
-def signed_feet(edge: np.ndarray, x0: float, y0: float, dx: float, dy: float, ex: np.ndarray, ey: np.ndarray,
-                evx: np.ndarray, evy: np.ndarray, einv: np.ndarray, inside: np.ndarray,
+def signed_feet(edge: np.ndarray, frame: LatticeFrame, edges: EdgeArrays, inside: np.ndarray,
                 encloses: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(signed distance (rows, cols) mm, unit gradient (rows, cols, 2), foot (2, rows, cols) mm) of every
-    centre of a lattice (x0, y0 its top-left corner, dx, dy its cells, mm) from its nearest edge ``edge``
-    ((rows, cols) int); > 0 where ``inside`` ((rows, cols) bool) equals ``encloses`` (compiled)."""
-    return _signed_feet(i64(edge), float(x0), float(y0), float(dx), float(dy),
-                        f64(ex), f64(ey), f64(evx), f64(evy), f64(einv), np.ascontiguousarray(inside), bool(encloses))
+    centre of a lattice (``frame``, or a Lattice) from its nearest edge ``edge`` ((rows, cols) int into
+    ``edges``, or RingEdges); > 0 where ``inside`` ((rows, cols) bool) equals ``encloses`` (compiled)."""
+    return _signed_feet(i64(edge), frame_of(frame), edge_arrays(edges), np.ascontiguousarray(inside), bool(encloses))
 
 
 @numba.njit(**JIT)
-def _inside_centres(ex, ey, evx, evy, x0, y0, dx, dy, rows, cols):  # pragma: no cover - compiled
+def _inside_centres(edges, frame, rows, cols):  # pragma: no cover - compiled
     """(rows, cols) bool: lattice centres (x0 + (j + 1/2) dx, y0 - (i + 1/2) dy) inside the closed rings
     whose edges run from (ex, ey) by (evx, evy), by the parity of the edges crossed to their left
     (each edge half-open in y)."""
+    ex, ey, evx, evy, _ = edges
+    x0, y0, dx, dy = frame
     flips = np.zeros((rows, cols + 1), dtype=np.uint8)
     for e in range(len(ex)):
         if evy[e] == 0.0:
@@ -72,18 +91,17 @@ def _inside_centres(ex, ey, evx, evy, x0, y0, dx, dy, rows, cols):  # pragma: no
     return inside
 
 
-def inside_centres(ex: np.ndarray, ey: np.ndarray, evx: np.ndarray, evy: np.ndarray, x0: float, y0: float,
-                   dx: float, dy: float, rows: int, cols: int) -> np.ndarray:
-    """(rows, cols) bool: the centres of a lattice (x0, y0 its top-left corner, dx, dy its cells, mm) inside
-    the closed rings of the edges from (ex, ey) by (evx, evy) ((n,) mm), even-odd: inside any of
-    them when they neither cross nor nest (compiled :func:`_inside_centres`)."""
-    return _inside_centres(f64(ex), f64(ey), f64(evx), f64(evy), float(x0), float(y0), float(dx), float(dy),
-                           int(rows), int(cols))
+def inside_centres(edges: EdgeArrays, frame: LatticeFrame, rows: int, cols: int) -> np.ndarray:
+    """(rows, cols) bool: the centres of a lattice (``frame``, or a Lattice) inside the closed rings of
+    ``edges`` (EdgeArrays or RingEdges), even-odd: inside any of them when they neither cross nor nest
+    (compiled :func:`_inside_centres`)."""
+    return _inside_centres(edge_arrays(edges), frame_of(frame), int(rows), int(cols))
 
 
 @numba.njit(**JIT)
-def _feet(qx, qy, edge, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
+def _feet(qx, qy, edge, edges):  # pragma: no cover - compiled
     """Distance from each point to its given edge, and the nearest point on it (the foot)."""
+    ex, ey, evx, evy, einv = edges
     n = len(qx)
     distance, fx, fy = np.empty(n), np.empty(n), np.empty(n)
     for i in range(n):
@@ -95,9 +113,8 @@ def _feet(qx, qy, edge, ex, ey, evx, evy, einv):  # pragma: no cover - compiled
     return distance, fx, fy
 
 
-def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, ex: np.ndarray, ey: np.ndarray, evx: np.ndarray,
-         evy: np.ndarray, einv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Distance (n,) mm from points (qx, qy) to the given edges ((n,) int) and the nearest point on each
-    (foot x, foot y (n,) mm); edges as in :func:`nearest_in_groups`."""
-    return _feet(f64(qx), f64(qy), i64(edge), f64(ex), f64(ey), f64(evx), f64(evy),
-                 f64(einv))
+def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, edges: EdgeArrays) -> tuple[np.ndarray, np.ndarray,
+                                                                                     np.ndarray]:
+    """Distance (n,) mm from points (qx, qy) to the given edges ((n,) int into ``edges``, EdgeArrays or
+    RingEdges) and the nearest point on each (foot x, foot y (n,) mm)."""
+    return _feet(f64(qx), f64(qy), i64(edge), edge_arrays(edges))

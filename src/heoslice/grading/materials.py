@@ -6,9 +6,15 @@ from __future__ import annotations
 import numpy as np
 
 from heoslice.material import evaluate
+from heoslice.grading.families import Family
 from heoslice.grading.field import FamilyField
 from heoslice.grading.labels import LayerRegions, family_of, label_fractions
+from heoslice.grading.search import nearest_edges, ring_tree
 from heoslice.grading.spec import GradeSpec
+from heoslice.layers.rasterising import Grid
+
+#: Most pixels whose nearest starting-ring point is measured at once by :func:`pixel_contour_values`.
+_PIXELS_AT_ONCE = 1 << 20
 
 
 def _family_sources(spec: GradeSpec, shell, point_material):
@@ -19,45 +25,34 @@ def _family_sources(spec: GradeSpec, shell, point_material):
     return None, point_material is not None and spec.second is not None
 
 
-def family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_colors, point_material,
-                   colors: bool = True):
-    """Per family, what its interior starts from at each lattice cell (its contour's material, or
-    its shell's, or --from): colour ((cells_r, cells_c, 3) int16 0..255; None without ``colors``)
-    and the mix of the K channel materials ((cells_r, cells_c, K) float, summing to 1)."""
+def _start_material(spec: GradeSpec, family: Family, own):
+    """The Material a family's interior starts from when it is one material (its shell's, or --from), else None."""
+    if own is not None:
+        return own
+    return spec.start if spec.start is not None and not family.nested else None
+
+
+def family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_material) -> list[np.ndarray]:
+    """Per family, the mix of the K channel materials its interior starts from at each lattice cell (its
+    contour's material, or its shell's, or --from): (cells_r, cells_c, K) float, summing to 1."""
     materials = spec.channel_materials()
     position = {(m.name, m.color): i for i, m in enumerate(materials)}
-    starts, mixes = [], []
+    mixes = []
     for family, field in zip(regions.families, regions.fields):
         shell = None if loop_shell is None else loop_shell[family.outer]
         own, use_fraction = _family_sources(spec, shell, point_material)
-        if own is not None:
-            start = own
-        elif spec.start is not None and not family.nested:
-            start = spec.start
-        else:
-            start = None
-        cells = (field.lattice.rows, field.lattice.cols)
-        mix = np.zeros((*cells, len(materials)))
+        start = _start_material(spec, family, own)
+        mix = np.zeros((field.lattice.rows, field.lattice.cols, len(materials)))
         if start is not None:
             mix[..., position[(start.name, start.color)]] = 1.0
-            color = np.asarray(start.color, dtype=np.float64)
         elif use_fraction:
             m = np.clip(contour_values(field, point_material), 0.0, 1.0)
             mix[..., position[(spec.base.name, spec.base.color)]] = 1.0 - m
             mix[..., position[(spec.second.name, spec.second.color)]] += m
-            color = (np.asarray(spec.base.color, dtype=np.float64) * (1.0 - m)[..., None]
-                     + np.asarray(spec.second.color, dtype=np.float64) * m[..., None])
         else:
             mix[..., position[(spec.base.name, spec.base.color)]] = 1.0
-            color = np.asarray(spec.base.color, dtype=np.float64)
         mixes.append(mix)
-        if not colors:
-            starts.append(None)
-            continue
-        if point_colors is not None and start is None:
-            color = contour_values(field, point_colors)
-        starts.append(np.broadcast_to(np.clip(np.rint(color), 0, 255).astype(np.int16), (*cells, 3)))
-    return starts, mixes
+    return mixes
 
 
 def target_fractions(regions: LayerRegions, spec: GradeSpec) -> np.ndarray:
@@ -81,18 +76,67 @@ def contour_values(field: FamilyField, values: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(at, edges.knots, column) for column in values.T], axis=-1)
 
 
-def paint_cells(regions: LayerRegions, per_family: list[np.ndarray], dtype=np.float32) -> np.ndarray:
-    """Per-pixel values over the layer box from per-cell values of each family ((cells_r, cells_c, c)).
-
-    Each family's cells are expanded to its pixels (blocks of cell x cell) and written
-    where the family's labels are: (rows, cols, c) of ``dtype``, 0 elsewhere.
-    """
-    channels = per_family[0].shape[-1] if per_family else 1
+def pixel_start_colors(regions: LayerRegions, spec: GradeSpec, loop_shell, point_colors, point_material,
+                       grid: Grid) -> np.ndarray:
+    """The colour each family's interior starts from at each of its pixels ((rows, cols, 3) float 0..255 over
+    the layer's box, 0 off every family): its shell's or --from's colour, or else its contour's colour (or
+    material fraction m, as (1 - m) base + m second) at the pixel centre's nearest starting-ring point."""
     b = regions.box
-    out = np.zeros((b[1] - b[0], b[3] - b[2], channels), dtype=dtype)
-    for field, cells, own in zip(regions.fields, per_family, family_of(regions)):
+    out = np.zeros((b[1] - b[0], b[3] - b[2], 3))
+    for family, field, own_pixels in zip(regions.families, regions.fields, family_of(regions)):
+        shell = None if loop_shell is None else loop_shell[family.outer]
+        own, use_fraction = _family_sources(spec, shell, point_material)
+        start = _start_material(spec, family, own)
+        if start is not None:
+            color = np.asarray(start.color, dtype=np.float64)
+        elif point_colors is not None:
+            color = pixel_contour_values(field, point_colors, own_pixels, grid)
+        elif use_fraction:
+            m = np.clip(pixel_contour_values(field, point_material, own_pixels, grid), 0.0, 1.0)[..., None]
+            color = np.asarray(spec.base.color, np.float64) * (1.0 - m) + np.asarray(spec.second.color, np.float64) * m
+        else:
+            color = np.asarray(spec.base.color, dtype=np.float64)
         r0, r1, c0, c1 = field.box
-        f = field.lattice.cell
-        pixels = np.repeat(np.repeat(cells.astype(dtype), f, axis=0), f, axis=1)[: r1 - r0, : c1 - c0]
-        np.copyto(out[r0 - b[0]:r1 - b[0], c0 - b[2]:c1 - b[2]], pixels, where=own[..., None])
+        target = out[r0 - b[0]:r1 - b[0], c0 - b[2]:c1 - b[2]]
+        np.copyto(target, np.broadcast_to(color, target.shape), where=own_pixels[..., None])
     return out
+
+
+def pixel_contour_values(field: FamilyField, values: np.ndarray, own: np.ndarray, grid: Grid) -> np.ndarray:
+    """Per-point values ((p,) or (p, c)) of the layer's loops at the nearest starting-ring point of each
+    pixel centre of the family's box where ``own`` ((rows, cols) bool) holds, interpolated between the
+    layer's points either side of it: (rows, cols[, c]) float, 0 elsewhere.
+
+    A pixel p within h (half a cell's diagonal) of its cell's centre c, whose nearest starting-ring
+    point (:meth:`FamilyField.nearest`) is d(c) away, has its own nearest point within d(c) + 2 h of
+    c: the edges there are every candidate, and their nearest (:func:`nearest_edges`) is exact.
+    """
+    edges = field.start_edges()
+    foot, _ = field.nearest()
+    lattice, f = field.lattice, field.lattice.cell
+    rows, cols = own.shape
+    padded = np.zeros((lattice.rows * f, lattice.cols * f), dtype=bool)
+    padded[:rows, :cols] = own
+    ci, cj = np.nonzero(padded.reshape(lattice.rows, f, lattice.cols, f).any(axis=(1, 3)))
+    v, u = (a.ravel() for a in np.meshgrid(np.arange(f), np.arange(f), indexing="ij"))
+    ox, oy = (u + 0.5 - 0.5 * f) * grid.px, -(v + 0.5 - 0.5 * f) * grid.py
+    reach = np.hypot(lattice.dx, lattice.dy) * (1 + 1e-9) + 1e-6
+    values = np.asarray(values, dtype=np.float64)[edges.knot_point]
+    columns = values.reshape(len(values), -1)
+    out = np.zeros((lattice.rows * f, lattice.cols * f, columns.shape[1]))
+    tree = ring_tree(edges)
+    step = max(1, _PIXELS_AT_ONCE // (f * f))
+    for first in range(0, len(ci), step):
+        i, j = ci[first:first + step], cj[first:first + step]
+        cx, cy = lattice.x0 + (j + 0.5) * lattice.dx, lattice.y0 - (i + 0.5) * lattice.dy
+        radius = np.hypot(cx - foot[0][i, j], cy - foot[1][i, j]) + reach
+        edge = np.maximum(nearest_edges(cx, cy, radius, ox, oy, edges, tree), 0).astype(np.int64)
+        x, y = cx[:, None] + ox[None, :], cy[:, None] + oy[None, :]
+        t = ((x - edges.x[edge]) * edges.vx[edge] + (y - edges.y[edge]) * edges.vy[edge]) * edges.inv_len2[edge]
+        at = edge + edges.ring[edge] + np.clip(t, 0.0, 1.0)
+        rows_at = (i[:, None] * f + v[None, :]).ravel()
+        cols_at = (j[:, None] * f + u[None, :]).ravel()
+        for column in range(columns.shape[1]):
+            out[rows_at, cols_at, column] = np.interp(at.ravel(), edges.knots, columns[:, column])
+    out = np.where(own[..., None], out[:rows, :cols], 0.0)
+    return out[..., 0] if values.ndim == 1 else out

@@ -7,7 +7,8 @@ import numpy as np
 
 from heoslice.grading.families import FamilyLayout
 from heoslice.grading.lattice import Lattice
-from heoslice.grading.refine_kernels import band_cells, hessian_of, refine_flags, ring_models
+from heoslice.grading.field_kernels import CellPixels, label_target
+from heoslice.grading.refine_kernels import CellField, FitTest, RingVertices, band_cells, hessian_of, refine_flags, ring_models
 from heoslice.grading.search import RingSet, nearest_edges
 from heoslice.layers.rasterising import Grid
 
@@ -54,11 +55,11 @@ def cells_to_refine(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np
     """
     tolerance = 2.0 * TOLERANCE_PX * min(grid.px, grid.py)
     limit = np.sqrt(max(0.0, 1.0 - (2.0 * TOLERANCE_PX / lattice.cell) ** 2))
-    return refine_flags(s, grad, known, side, candidate, lattice.dx, lattice.dy, tolerance, limit, count, hessian,
-                        vertices)
+    return refine_flags(CellField(s, grad, known, side, candidate), FitTest(lattice.dx, lattice.dy, tolerance, limit,
+                                                                             count), hessian, vertices)
 
 
-def ring_vertices(ring_sets: list[tuple[RingSet, float]], lattice: Lattice) -> tuple:
+def ring_vertices(ring_sets: list[tuple[RingSet, float]], lattice: Lattice) -> RingVertices:
     """The vertices of the given ring sets, each with the exact s on its rings, grouped by the lattice
     cell holding them: (start (rows * cols + 1,) int, x, y, s, x0, y0) for :func:`cells_to_refine`."""
     x = np.concatenate([rings.edges.x for rings, _ in ring_sets])
@@ -70,11 +71,11 @@ def ring_vertices(ring_sets: list[tuple[RingSet, float]], lattice: Lattice) -> t
     key = (row * lattice.cols + col)[keep]
     order = np.argsort(key, kind="stable")
     start = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=lattice.rows * lattice.cols))])
-    return start, x[keep][order], y[keep][order], s[keep][order], lattice.x0, lattice.y0
+    return RingVertices(start, x[keep][order], y[keep][order], s[keep][order], lattice.x0, lattice.y0)
 
 
 def fit_ring_models(layout: FamilyLayout, d: np.ndarray, g: np.ndarray, grad: np.ndarray, lattice: Lattice, grid: Grid,
-                 cells: tuple[np.ndarray, np.ndarray]) -> list[np.ndarray]:
+                    cells: tuple[np.ndarray, np.ndarray]) -> list[np.ndarray]:
     """Per ring set of an eq. 10 family, a quadratic of its signed distance over each given cell
     ((n, 6): d, d_x, d_y, d_xx, d_xy, d_yy at the centre, mm), NaN where the exact distance
     must be measured per pixel instead.
@@ -121,6 +122,8 @@ def refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, n
     ox = (u + 0.5 - 0.5 * f) * grid.px
     oy = -(v + 0.5 - 0.5 * f) * grid.py
     reach = np.hypot(lattice.dx, lattice.dy)
+    target = label_target(index, mask, (lattice.row0, lattice.col0), label_base)
+    pixels = CellPixels(f, grid.px, grid.py)
     # cells in batches, so that the measured distances held at once stay within _MEASURED_VALUES
     step = max(1, _MEASURED_VALUES // (len(ring_sets) * f * f))
     for first in range(0, len(cells[0]), step):
@@ -139,5 +142,4 @@ def refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, n
                 slot[j, measure] = sum(len(part) for part in measured) + np.arange(len(squared))
                 measured.append(np.sqrt(squared))
         measured = np.concatenate(measured) if measured else np.zeros((0, f * f), dtype=np.float32)
-        band_cells(index, ci, cj, f, grid.px, grid.py, models, measured, slot, layout.count, layout.length_mm, mask,
-                   (lattice.row0, lattice.col0), label_base)
+        band_cells(target, ci, cj, pixels, models, measured, slot, layout.count, layout.length_mm)

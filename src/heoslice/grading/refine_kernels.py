@@ -3,11 +3,48 @@ quadratic serves a cell no plane fits, and eq. 10 per pixel of those cells."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
-from heoslice.grading.field_kernels import inverse_distance, nearest_end
+from heoslice.grading.field_kernels import CellPixels, LabelTarget, inverse_distance, nearest_end
 from heoslice.grading.jit import JIT, f32, f64, i64
+
+
+class CellField(NamedTuple):
+    """s at a lattice's cell centres ((rows, cols)), its gradient ((rows, cols, 2) per mm), where s is
+    ``known``, which centres are on the family's ``side`` of every ring, and the ``candidate`` cells
+    to test ((rows, cols) bool each)."""
+
+    s: np.ndarray
+    grad: np.ndarray
+    known: np.ndarray
+    side: np.ndarray
+    candidate: np.ndarray
+
+
+class FitTest(NamedTuple):
+    """The fit test's terms: the cell (dx, dy mm), the misfit allowed (``tolerance``, mm of s's slope), the
+    cosine ``limit`` of a turn, and N_R (``count``)."""
+
+    dx: float
+    dy: float
+    tolerance: float
+    limit: float
+    count: float
+
+
+class RingVertices(NamedTuple):
+    """Ring vertices grouped by lattice cell (a CSR: ``start`` (rows * cols + 1,) int), their positions
+    (x, y mm), the exact s on their rings, and the lattice's top-left corner (x0, y0 mm)."""
+
+    start: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    s: np.ndarray
+    x0: float
+    y0: float
 
 
 @numba.njit(inline="always", **JIT)
@@ -56,8 +93,7 @@ def _vertices_fit(vstart, vx, vy, vs, i, j, rows, cols, x0, y0, dx, dy, centre, 
 
 
 @numba.njit(**JIT)
-def _refine_flags(s, grad, hxx, hxy, hyy, known, side, candidate, dx, dy, tolerance, limit,
-                  count, vstart, vx, vy, vs, x0, y0):  # pragma: no cover - compiled
+def _refine_flags(field, hessian, test, vertices):  # pragma: no cover - compiled
     """Cells to evaluate per pixel: candidates whose plane (s, gradient) misses s at a neighbour's
     centre (where s is ``known``) by more than ``tolerance`` x the slope, and so does their
     quadratic when a Hessian is given (hxx, hxy, hyy not 0 x 0; zeroed in place where the plane
@@ -74,6 +110,10 @@ def _refine_flags(s, grad, hxx, hxy, hyy, known, side, candidate, dx, dy, tolera
     neighbour's (nothing checks their plane). Neighbours past the lattice's border repeat the
     border cell (offset as a neighbour would be, so a border cell's plane is checked against
     its own centre value; the turn test skips them)."""
+    s, grad, known, side, candidate = field
+    hxx, hxy, hyy = hessian
+    dx, dy, tolerance, limit, count = test
+    vstart, vx, vy, vs, x0, y0 = vertices
     rows, cols = s.shape
     curved = hxx.shape[0] > 0
     out = np.zeros((rows, cols), dtype=np.bool_)
@@ -125,23 +165,18 @@ def _refine_flags(s, grad, hxx, hxy, hyy, known, side, candidate, dx, dy, tolera
     return out
 
 
-def refine_flags(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np.ndarray, candidate: np.ndarray,
-                 dx: float, dy: float, tolerance: float, limit: float, count: int,
-                 hessian: np.ndarray | None = None, vertices: tuple | None = None) -> np.ndarray:
+def refine_flags(field: CellField, test: FitTest, hessian: np.ndarray | None = None,
+                 vertices: RingVertices | None = None) -> np.ndarray:
     """(rows, cols) bool: lattice cells whose plane (and quadratic, with a ``hessian``) does not fit
-    (see :func:`_refine_flags`); s (rows, cols), grad (rows, cols, 2) per mm, known/side/candidate
-    (rows, cols) bool, dx/dy the cell (mm), count N_R; hessian (3, rows, cols) s_xx, s_xy, s_yy
-    per mm^2, zeroed in place where the plane is kept. ``vertices``: (start (rows * cols + 1,),
-    x, y, s, x0, y0), the ring vertices in each cell (a CSR), their exact s, and the lattice's
-    top-left corner (mm); None: no vertex check."""
+    (see :func:`_refine_flags`); hessian (3, rows, cols) s_xx, s_xy, s_yy per mm^2, zeroed in
+    place where the plane is kept; ``vertices`` None: no vertex check."""
     parts = f64(hessian) if hessian is not None else np.zeros((3, 0, 0))
     if vertices is None:
-        vertices = (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), np.zeros(0), 0.0, 0.0)
-    vstart, vx, vy, vs, x0, y0 = vertices
-    out = _refine_flags(f64(s), f64(grad), parts[0], parts[1], parts[2],
-                        np.ascontiguousarray(known), np.ascontiguousarray(side), np.ascontiguousarray(candidate),
-                        float(dx), float(dy), float(tolerance), float(limit), float(count),
-                        i64(vstart), f64(vx), f64(vy), f64(vs), float(x0), float(y0))
+        vertices = RingVertices(np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), np.zeros(0), 0.0, 0.0)
+    vertices = RingVertices(i64(vertices.start), f64(vertices.x), f64(vertices.y), f64(vertices.s),
+                            float(vertices.x0), float(vertices.y0))
+    field = CellField(f64(field.s), f64(field.grad), *(np.ascontiguousarray(a) for a in field[2:]))
+    out = _refine_flags(field, (parts[0], parts[1], parts[2]), FitTest(*(float(value) for value in test)), vertices)
     if hessian is not None and parts is not hessian:
         hessian[...] = parts
     return out
@@ -304,14 +339,15 @@ def ring_models(d: np.ndarray, g: np.ndarray, grad: np.ndarray, ci: np.ndarray, 
 
 
 @numba.njit(**JIT)
-def _band_cells(index, ci, cj, cell, px, py, models, measured, slot, count, length, mask, r0, c0,
-                base):  # pragma: no cover - compiled
+def _band_cells(target, ci, cj, cell_pixels, models, measured, slot, count, length):  # pragma: no cover - compiled
     """Sub-region k of every pixel of whole cells (ci, cj) from each ring set's distance there: the
     ring's quadratic models[j, n] (d, d_x, d_y, d_xx, d_xy, d_yy at the cell centre) or, where
     its d is NaN, measured[slot[j, n], pixel]; s by eq. 10 (pole-free form of field._band_coordinate)
     with ring set 0 starting, or s = d_0 count / length with one ring set. Per cell, each ring
     set's distances fill a row of pixels, and eq. 10 runs over the cell's pixels with the
     nearest ending ring kept as a running minimum (the first of equals), so the loops vectorise."""
+    index, mask, r0, c0, base = target
+    cell, px, py = cell_pixels
     rows, cols = index.shape
     masked = mask.shape[0] > 0
     sets = models.shape[0]
@@ -365,18 +401,15 @@ def _band_cells(index, ci, cj, cell, px, py, models, measured, slot, count, leng
     return index
 
 
-def band_cells(index: np.ndarray, ci: np.ndarray, cj: np.ndarray, cell: int, px: float, py: float,
-               models: np.ndarray, measured: np.ndarray, slot: np.ndarray, count: int, length: float,
-               mask: np.ndarray | None = None, origin: tuple[int, int] = (0, 0), base: int = 0) -> np.ndarray:
+def band_cells(target: LabelTarget, ci: np.ndarray, cj: np.ndarray, pixels: CellPixels, models: np.ndarray,
+               measured: np.ndarray, slot: np.ndarray, count: int, length: float) -> np.ndarray:
     """Sub-region k = clip(floor(s) + 1, 1, count) of every pixel of lattice cells (ci, cj) ((n,) int), in
     place, from per ring set (starting rings first) either a quadratic of its distance per cell
     (models (sets, n, 6): d, d_x, d_y, d_xx, d_xy, d_yy, mm, at the cell centre; pixel offsets
     from the centre y up) or, where models[j, n, 0] is NaN, the distance at each pixel
     (measured[slot[j, n]], measured (m, cell * cell) row-major in a cell, slot (sets, n) int);
-    s by eq. 10 for two or more ring sets, d count / length for one; ``mask``, ``origin`` and
-    ``base`` as in :func:`expand_planes`."""
-    mask = np.zeros((0, 0), dtype=np.bool_) if mask is None else np.ascontiguousarray(mask)
-    return _band_cells(index, i64(ci), i64(cj),
-                       int(cell), float(px), float(py), f64(models), f32(measured),
-                       i64(slot), float(count), float(length), mask,
-                       int(origin[0]), int(origin[1]), float(base))
+    s by eq. 10 for two or more ring sets, d count / length for one; written in place in ``target``
+    (as :func:`heoslice.grading.field_kernels.expand_planes`)."""
+    pixels = CellPixels(int(pixels.cell), float(pixels.px), float(pixels.py))
+    return _band_cells(target, i64(ci), i64(cj), pixels, f64(models), f32(measured), i64(slot), float(count),
+                       float(length))

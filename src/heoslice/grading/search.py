@@ -35,8 +35,7 @@ def nearest_edges(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np.nda
     """The nearest edge ((g, k) int, -1: none), or without ``track`` the squared distance to it ((g, k)
     mm^2), of the points (cx + ox[k], cy + oy[k]) ((g,), (k,) mm) among the edges within radius[g]
     of (cx[g], cy[g]) (compiled, :func:`heoslice.grading.search_kernels.nearest_in_groups`)."""
-    return nearest_in_groups(cx, cy, radius, ox, oy, edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2, tree,
-                             track)
+    return nearest_in_groups(cx, cy, radius, ox, oy, edges, tree, track)
 
 
 def rings_apart(first: RingSet, second: RingSet) -> float:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from heoslice.grading.edges_kernels import point_to_edge
+from heoslice.grading.edges_kernels import EdgeArrays, edge_arrays, point_to_edge
 from heoslice.grading.jit import JIT, f32, f64
 
 
@@ -77,8 +77,7 @@ def _squared(rx, ry, vx, vy, inv):  # pragma: no cover - compiled
 
 
 @numba.njit(**JIT)
-def _nearest_in_chunks(cx, cy, ox, oy, start, chunk, capsules, ex, ey, evx, evy, einv,
-                       track):  # pragma: no cover - compiled
+def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  # pragma: no cover - compiled
     """The nearest edge of group g's candidate chunks to each point (cx[g] + ox[k], cy[g] + oy[k]):
     (squared distance (g, k) float32, inf where none; edge (g, k) int32, -1 where none, or
     (0, 0) without ``track``).
@@ -90,6 +89,8 @@ def _nearest_in_chunks(cx, cy, ox, oy, start, chunk, capsules, ex, ey, evx, evy,
     float32 from each group's centre (a near tie may pick an edge ~1e-5 mm farther);
     selects, not branches, so the loops over points vectorise.
     """
+    start, chunk = candidates
+    ex, ey, evx, evy, einv = edge_set
     groups, points, edges = len(cx), len(ox), len(ex)
     reach = 0.0
     for k in range(points):
@@ -237,18 +238,16 @@ def _chunk_capsules(x0, y0, x1, y1):  # pragma: no cover - compiled
 
 
 def nearest_in_groups(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np.ndarray, oy: np.ndarray,
-                      ex: np.ndarray, ey: np.ndarray, evx: np.ndarray, evy: np.ndarray, einv: np.ndarray,
-                      tree, track: bool = True) -> np.ndarray:
+                      edges: EdgeArrays, tree, track: bool = True) -> np.ndarray:
     """The points (cx[g] + ox[k], cy[g] + oy[k]) against the edges of the chunks within radius[g] of
     (cx[g], cy[g]) (every edge within the radius, and maybe a few beyond: exact wherever the
     radius holds each point's nearest edge): with ``track`` the nearest edge ((g, k) int32, -1
     where none), else the squared distance to it ((g, k) float32, mm^2; inf where none). Both in
     float32 from the group's centre (see :func:`_nearest_in_chunks`).
 
-    Edges run from (ex, ey) by (evx, evy) ((n,) float, mm), einv = 1 / |v|^2 (0 for a
-    zero-length edge); ``tree`` is :func:`edge_tree` of the same edges.
+    ``edges``: EdgeArrays (or RingEdges); ``tree`` is :func:`edge_tree` of the same edges.
     """
-    cx, cy, radius, ex, ey, evx, evy, einv = (f64(a) for a in (cx, cy, radius, ex, ey, evx, evy, einv))
+    cx, cy, radius, edges = f64(cx), f64(cy), f64(radius), edge_arrays(edges)
     ox, oy = f32(ox), f32(oy)
     boxes, level_start, capsules = tree
     parts = []
@@ -256,9 +255,8 @@ def nearest_in_groups(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np
     step = max(1, _PAIRS // max(1, len(capsules)))
     for first in range(0, max(len(cx), 1), step):
         group = slice(first, first + step)
-        start, chunk = _candidates(cx[group], cy[group], radius[group], boxes, level_start)
-        best, which = _nearest_in_chunks(cx[group], cy[group], ox, oy, start, chunk, capsules, ex, ey, evx, evy, einv,
-                                         track)
+        candidates = _candidates(cx[group], cy[group], radius[group], boxes, level_start)
+        best, which = _nearest_in_chunks(cx[group], cy[group], ox, oy, candidates, capsules, edges, track)
         parts.append(which if track else best)
     return parts[0] if len(parts) == 1 else np.concatenate(parts)
 

@@ -612,13 +612,15 @@ def composed_masks(points, offsets, area, parent, shells, mask, grid, spec, laye
     its sub-region's fraction towards the target (eq. 1), halftoned by helpers.droplet_masks;
     solid pixels outside every family jet the base material."""
     from helpers import droplet_masks
-    from heoslice.grading.materials import family_starts as _family_starts, paint_cells, target_fractions as _target_fractions
+    from helpers import paint_cells
+
+    from heoslice.grading.materials import family_starts as _family_starts, target_fractions as _target_fractions
 
     regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions)
     materials = spec.channel_materials()
     masks = np.zeros((len(materials), grid.height, grid.width), dtype=bool)
     if regions.fields:
-        _, mixes = _family_starts(regions, spec, shells, None, point_material)
+        mixes = _family_starts(regions, spec, shells, point_material)
         fraction = paint_cells(regions, mixes)
         if spec.target is not None and spec.function is not None:
             target_mix = np.zeros(len(materials), dtype=np.float32)

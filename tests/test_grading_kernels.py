@@ -1,4 +1,4 @@
-"""Tests of heoslice.grading kernels: the compiled kernels of the grading step against brute force
+"""Tests of the grading kernels (heoslice.grading.*_kernels): the compiled loops against brute force
 (every edge tried, float64 numpy) and against the plain formulas they implement."""
 
 from __future__ import annotations
@@ -12,11 +12,20 @@ from helpers import brute_squared, random_rings, ring_weights, tree_of
 
 from heoslice.grading.edges import ring_edges
 from heoslice.grading.edges_kernels import straight_runs
-from heoslice.grading.field_kernels import band_field, curve_cells, expand_planes
+from heoslice.grading.field_kernels import CellPixels, band_field, curve_cells, expand_planes, label_target
 from heoslice.grading.labels_kernels import disc_winding
-from heoslice.grading.lattice_kernels import feet, inside_centres, signed_feet
-from heoslice.grading.refine_kernels import band_cells, hessian_of, refine_flags, ring_models
+from heoslice.grading.lattice_kernels import LatticeFrame, feet, inside_centres, signed_feet
+from heoslice.grading.refine_kernels import CellField, FitTest, band_cells, hessian_of, refine_flags, ring_models
 from heoslice.grading.search_kernels import _candidates, edge_tree, nearest_in_groups
+
+
+def halftone_bits(label, origin, packed, family_of_label, fraction, layout, mixes, target, tile, base_channel, planes,
+                  table):
+    """droplet_bits of the given arrays, grouped as it takes them."""
+    from heoslice.grading.droplets_kernels import Dither, LabelledLayer, LayerMixes, droplet_bits
+
+    mixing = LayerMixes(family_of_label, fraction, layout, mixes, target)
+    return droplet_bits(LabelledLayer(label, *origin, packed), mixing, Dither(tile, table, base_channel), planes)
 
 
 @settings(max_examples=25, deadline=None)
@@ -83,12 +92,11 @@ def test_nearest_in_groups_matches_brute_force(seed):
     # the nearest edge of p is within d(p) + |p - c| of c
     radius = (exact + np.hypot(ox, oy)[None, :]).max(axis=1) + 1e-6
     tree = tree_of(edges)
-    squared = nearest_in_groups(cx, cy, radius, ox, oy, edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2,
-                                tree, track=False)
+    squared = nearest_in_groups(cx, cy, radius, ox, oy, edges, tree, track=False)
     np.testing.assert_allclose(np.sqrt(squared), exact, atol=2e-5)
-    edge = nearest_in_groups(cx, cy, radius, ox, oy, edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2, tree)
+    edge = nearest_in_groups(cx, cy, radius, ox, oy, edges, tree)
     assert edge.min() >= 0
-    distance, fx, fy = feet(qx, qy, edge.ravel(), edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2)
+    distance, fx, fy = feet(qx, qy, edge.ravel(), edges)
     np.testing.assert_allclose(distance.reshape(groups, points), exact, atol=2e-5)
     np.testing.assert_allclose(np.hypot(qx - fx, qy - fy), distance, atol=1e-9)
 
@@ -97,7 +105,7 @@ def test_nearest_in_groups_reports_no_edge_beyond_the_radius():
     """A group whose radius reaches no edge gets -1 and inf, not some edge."""
     edges = ring_edges(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]), np.array([0, 3]), [0])
     args = (np.array([50.0]), np.array([50.0]), np.array([1.0]), np.zeros(2), np.zeros(2),
-            edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2, tree_of(edges))
+            edges, tree_of(edges))
     assert (nearest_in_groups(*args) == -1).all()
     assert np.isinf(nearest_in_groups(*args, track=False)).all()
 
@@ -116,7 +124,8 @@ def test_expand_planes_is_the_plane_formula(seed, cell, masked):
     px, py = 0.04, 0.05
     shape = (rows * cell - int(rng.integers(0, cell)), cols * cell - int(rng.integers(0, cell)))
     mask = rng.random((shape[0] + 5, shape[1] + 4)) < 0.7 if masked else None
-    out = expand_planes(s, gx, gy, cell, px, py, count, np.full(shape, -5, np.int16), mask, (3, 2), base, empty)
+    out = expand_planes(s, gx, gy, CellPixels(cell, px, py), count,
+                        label_target(np.full(shape, -5, np.int16), mask, (3, 2), base), empty)
     r, c = np.indices(shape)
     i, j = r // cell, c // cell
     x = (c - j * cell + 0.5 - cell / 2) * px
@@ -153,8 +162,8 @@ def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked
     # the measured rows are handed over packed, in a shuffled order, and found through their slots
     order = rng.permutation(sets * 4)
     slot = np.argsort(order).reshape(sets, 4)
-    band_cells(index, ci, cj, cell, px, py, models, measured.reshape(sets * 4, -1)[order], slot, count, length, mask,
-               (0, 0), base)
+    band_cells(label_target(index, mask, (0, 0), base), ci, cj, CellPixels(cell, px, py), models,
+               measured.reshape(sets * 4, -1)[order], slot, count, length)
     v, u = np.divmod(np.arange(cell * cell), cell)
     x, y = (u + 0.5 - cell / 2) * px, -(v + 0.5 - cell / 2) * py
     m = models[..., None]
@@ -201,7 +210,8 @@ def flags_of(s, grad, hessian, lattice, known=None, side=None, tolerance=0.042, 
     known = np.ones(s.shape, dtype=bool) if known is None else known
     side = np.ones(s.shape, dtype=bool) if side is None else side
     limit = np.sqrt(1.0 - (1.0 / 12) ** 2)
-    return refine_flags(s, grad, known, side, candidate, lattice.dx, lattice.dy, tolerance, limit, count, hessian)
+    return refine_flags(CellField(s, grad, known, side, candidate), FitTest(lattice.dx, lattice.dy, tolerance, limit,
+                                                                             count), hessian)
 
 
 def test_refine_flags_keeps_planes_and_quadratics_that_fit_and_refines_kinks():
@@ -286,11 +296,10 @@ def test_signed_feet_are_the_distance_to_the_given_edge_signed_by_side(seed, enc
     rows, cols, dx, dy, x0, y0 = 7, 9, 0.7, 0.6, -3.0, 2.0
     edge = rng.integers(0, len(edges.x), (rows, cols))
     inside = rng.random((rows, cols)) < 0.5
-    signed, gradient, foot = signed_feet(edge, x0, y0, dx, dy, edges.x, edges.y, edges.vx, edges.vy,
-                                         edges.inv_len2, inside, encloses)
+    signed, gradient, foot = signed_feet(edge, LatticeFrame(x0, y0, dx, dy), edges, inside, encloses)
     qx = np.broadcast_to(x0 + (np.arange(cols) + 0.5) * dx, (rows, cols)).ravel()
     qy = np.broadcast_to((y0 - (np.arange(rows) + 0.5) * dy)[:, None], (rows, cols)).ravel()
-    distance, fx, fy = feet(qx, qy, edge.ravel(), edges.x, edges.y, edges.vx, edges.vy, edges.inv_len2)
+    distance, fx, fy = feet(qx, qy, edge.ravel(), edges)
     sign = np.where(inside.ravel() == encloses, 1.0, -1.0)
     np.testing.assert_allclose(signed.ravel(), sign * distance, atol=1e-12)
     np.testing.assert_allclose(foot.reshape(2, -1), np.stack([fx, fy]), atol=1e-12)
@@ -320,8 +329,7 @@ def test_inside_centres_is_the_solid_mask_of_disjoint_rings(seed, rings, clockwi
     edges = ring_edges(points, offsets, list(range(rings)))
     grid = Grid(width=int(rng.integers(20, 120)), height=int(rng.integers(10, 60)), x_left=-5.0, y_top=5.0,
                 px=float(rng.uniform(0.1, 0.6)), py=float(rng.uniform(0.1, 0.6)))
-    inside = inside_centres(edges.x, edges.y, edges.vx, edges.vy, grid.x_left, grid.y_top, grid.px, grid.py,
-                            grid.height, grid.width)
+    inside = inside_centres(edges, LatticeFrame(grid.x_left, grid.y_top, grid.px, grid.py), grid.height, grid.width)
     forward = [loop if shapely.LinearRing(loop).is_ccw else loop[::-1] for loop in loops]
     expected = solid_mask(np.concatenate(forward), offsets, grid)
     x = grid.x_left + (np.arange(grid.width) + 0.5) * grid.px
@@ -585,7 +593,7 @@ def test_curve_cells_is_the_quadratic_formula(seed, masked):
     index = np.full((rows * cell - 2, cols * cell - 1), -7, dtype=np.int32)
     mask = rng.random(index.shape) < 0.6 if masked else None
     ci, cj = np.array([0, 3, 2]), np.array([1, 4, 0])
-    curve_cells(index, ci, cj, cell, s, grad, hessian, px, py, count, mask, (0, 0), base)
+    curve_cells(label_target(index, mask, (0, 0), base), ci, cj, CellPixels(cell, px, py), s, grad, hessian, count)
     r, c = np.indices(index.shape)
     i, j = r // cell, c // cell
     x = (c - j * cell + 0.5 - cell / 2) * px
@@ -653,7 +661,6 @@ def assert_droplet_bits_are_the_per_pixel_choice(rng, case: dict, channels: int,
     pixel's dither ``level``, choose_materials of its eq. 1 mix where that is -1, the base channel outside
     the labels and on label 0), and it leaves every byte without a solid pixel as it was."""
     from helpers import choose_materials
-    from heoslice.grading.droplets_kernels import droplet_bits
 
     solid, label, (r0, c0), table = case["solid"], case["label"], case["origin"], case["table"]
     size = level.shape[0]
@@ -675,9 +682,9 @@ def assert_droplet_bits_are_the_per_pixel_choice(rng, case: dict, channels: int,
 
     args = (label, (r0, c0), np.packbits(solid, axis=1), case["family_of_label"], case["fraction"], case["layout"],
             case["mixes"], case["target"], tile, case["base"])
-    assert np.array_equal(droplet_bits(*args, np.zeros_like(expected), table), expected)
+    assert np.array_equal(halftone_bits(*args, np.zeros_like(expected), table), expected)
     junk = rng.integers(0, 256, expected.shape, dtype=np.uint8)
-    got = droplet_bits(*args, junk.copy(), table)
+    got = halftone_bits(*args, junk.copy(), table)
     written = np.packbits(solid, axis=1).astype(bool)[None].repeat(channels, axis=0)
     assert np.array_equal(got[written], expected[written])
     assert np.array_equal(got[~written], junk[~written])
@@ -708,7 +715,6 @@ def test_droplet_bits_follows_a_dither_tile_of_any_size(size):
     or larger: several blocks per tile row), each labelled pixel jets table[label, level] at its level
     bayer[row % n, col % n] (levels (k + 1/2) / n^2), exactly as a per-pixel look-up."""
     from heoslice.grading.halftone import bayer_matrix
-    from heoslice.grading.droplets_kernels import droplet_bits
 
     rng = np.random.default_rng(size)
     channels, height, width = 3, 70, 133
@@ -723,7 +729,7 @@ def test_droplet_bits_follows_a_dither_tile_of_any_size(size):
     chosen = table[number, bayer[r % size, c % size]]
     expected = np.packbits((chosen[None] == np.arange(channels)[:, None, None]) & solid[None], axis=2)
     planes = np.zeros_like(expected)
-    got = droplet_bits(label, (2, 7), np.packbits(solid, axis=1), np.zeros(20, np.int64), np.zeros(20),
+    got = halftone_bits(label, (2, 7), np.packbits(solid, axis=1), np.zeros(20, np.int64), np.zeros(20),
                        np.zeros((1, 5), np.int64), np.zeros(channels), np.zeros(channels),
                        (bayer + 0.5) / (size * size), 1, planes, table)
     assert np.array_equal(got, expected)
@@ -733,16 +739,16 @@ def test_droplet_bits_takes_every_layers_tile_through_one_compiled_signature():
     """Tiles of layers under every symmetry (transposed ones are Fortran-ordered) reach the kernel as the same
     argument types: the workers load one compiled version, not one per layout."""
     from heoslice.grading.halftone import layer_tile
-    from heoslice.grading.droplets_kernels import _droplet_bits, droplet_bits
+    from heoslice.grading.droplets_kernels import _droplet_bits
 
     label = np.ones((4, 16), np.int16)
     table = np.ones((2, 256), np.int8)
     for layer in range(8):
-        droplet_bits(label, (0, 0), np.full((4, 2), 255, np.uint8), np.zeros(2, np.int64), np.zeros(2),
+        halftone_bits(label, (0, 0), np.full((4, 2), 255, np.uint8), np.zeros(2, np.int64), np.zeros(2),
                      np.zeros((1, 5), np.int64), np.zeros(2), np.zeros(2), layer_tile(layer), 0,
                      np.zeros((2, 4, 2), np.uint8), table)
     assert {layer_tile(layer).flags.f_contiguous for layer in range(8)} == {True, False}
-    layouts = {signature[-1].layout for signature in _droplet_bits.overloads}
+    layouts = {array.layout for signature in _droplet_bits.overloads for array in signature[2].types[:3]}
     assert layouts == {"C"}
 
 
