@@ -41,6 +41,7 @@ from heoslice.stack import (
     encode_bilevel_tiff,
     encode_tiff,
     layer_file_name,
+    max_layer_count,
     prepare_directory,
     write_file,
     write_manifest,
@@ -49,8 +50,6 @@ from heoslice.stack import (
 
 MIN_LAYER_MM = 1e-3
 MIN_DPI, MAX_DPI = 1.0, 100_000.0
-#: Most layers one stack may have (a 1 m part at 1 micrometre layers).
-MAX_LAYERS = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -566,9 +565,10 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     check_image_size(grid.width, grid.height)
     bounds = mesh.bounds
     layers = int(np.ceil((bounds[1, 2] - bounds[0, 2]) / spec.layer_height_mm))
-    if layers > MAX_LAYERS:
+    most = max_layer_count([m.name for m in spec.grade.channel_materials()] if spec.channels else ())
+    if layers > most:
         raise InputError(f"--layer {spec.layer_height_mm} mm gives {layers} layers for this part "
-                         f"(at most {MAX_LAYERS})")
+                         f"(a stack holds at most {most}{' with these droplet masks' if spec.channels else ''})")
     prepare_directory(directory, force)
     z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
     results: dict[int, tuple] = {}

@@ -95,9 +95,8 @@ def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:
                 problems.append(f"layer {index}: {problem}")
         if entry.get("channels") and check_pixels and not any(p.startswith(f"layer {index}:") for p in problems):
             problems += _channel_problems(directory, manifest, index)
-    z_range = manifest.get("z_range_mm")
-    if z_range is not None:
-        problems += layer_height_problems(manifest, z_range[0], z_range[1], "the manifest's")
+    z_min, z_max = manifest["z_range_mm"]
+    problems += layer_height_problems(manifest, z_min, z_max, "the manifest's")
     names = {path.name for path in listed if path.parent == directory.resolve()}
     for entry in sorted(directory.iterdir()):
         if LAYER_PATTERN.match(entry.name) and entry.name not in names:
