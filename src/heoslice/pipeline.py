@@ -121,6 +121,7 @@ class LayerJob:
     grid: Grid
     dpi: tuple[float, float]
     compression: str
+    layer_height_mm: float
     base_color: tuple[int, int, int]
     path: Path
     graded: "GradedJob | None" = None
@@ -159,7 +160,7 @@ def render_and_write(job: LayerJob, reuse: dict | None = None) -> tuple:
     if job.point_colors is None:
         data = _solid_tiff(image, solid, job, reuse)
     else:
-        data = encode_tiff(image, job.dpi, job.compression)
+        data = encode_tiff(image, job.dpi, job.compression, job.layer_height_mm)
     encoded = time.perf_counter()
     digest = write_file(job.path, data)
     return job.index, digest, solid, rendered - started, encoded - rendered, ()
@@ -173,7 +174,7 @@ def _solid_tiff(packed: np.ndarray, solid: int, job: LayerJob, reuse: dict | Non
     last = None if reuse is None else reuse.get("solid_tiff")
     if last is not None and last[0] == form and np.array_equal(last[1], packed):
         return last[2]
-    data = encode_bilevel_tiff(packed, job.grid.width, job.dpi, job.compression)
+    data = encode_bilevel_tiff(packed, job.grid.width, job.dpi, job.compression, job.layer_height_mm)
     if reuse is not None:
         reuse["solid_tiff"] = (form, packed, data)
     return data
@@ -193,7 +194,7 @@ def _render_graded_and_write(job: LayerJob, reuse: dict | None) -> tuple:
         width = job.grid.width
         solid = count_solid(packed)
         data = _solid_tiff(packed, solid, job, reuse)
-        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression), count_solid(plane))
+        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm), count_solid(plane))
                   for path, plane in zip(graded.channel_paths, planes)]
         encoded = time.perf_counter()
         digest = write_file(job.path, data)
@@ -204,7 +205,7 @@ def _render_graded_and_write(job: LayerJob, reuse: dict | None) -> tuple:
                           graded.spec, job.index, point_colors=job.point_colors,
                           point_material=graded.point_material, reuse=reuse)
     rendered = time.perf_counter()
-    data = encode_tiff(layer.image, job.dpi, job.compression)
+    data = encode_tiff(layer.image, job.dpi, job.compression, job.layer_height_mm)
     encoded = time.perf_counter()
     digest = write_file(job.path, data)
     return job.index, digest, layer.solid, rendered - started, encoded - rendered, ()
@@ -248,6 +249,7 @@ def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, dire
             grid=grid,
             dpi=spec.dpi,
             compression=spec.compression,
+            layer_height_mm=spec.layer_height_mm,
             base_color=spec.base_color,
             path=directory / layer_file_name(index),
             graded=graded,
