@@ -37,6 +37,7 @@ COMMANDS = {
     "slice": "heoslice.cli.slice:slice_cmd",
     "preview": "heoslice.cli.preview:preview",
     "verify": "heoslice.cli.verify:verify",
+    "export": "heoslice.cli.export:export",
     "print": "heoslice.cli.print:print_cmd",
     "controller": "heoslice.cli.controller:controller",
 }

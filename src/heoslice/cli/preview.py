@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from heoslice.preview.sheet import MAX_SHEET_LAYERS, MAX_TILE, MIN_TILE
 from heoslice.stack import check_input_path, read_manifest
 
 #: Library parameter names -> the options that set them, for error messages.
-FLAGS = {"size": "--size", "tile": "--tile", "columns": "--columns", "layers": "--layers", "layer": "--layer"}
+FLAGS = {"section": "--section", "size": "--size", "tile": "--tile", "columns": "--columns", "layers": "--layers", "layer": "--layer"}
 
 
 @contextmanager
@@ -35,6 +36,9 @@ Examples:
   heoslice preview vase_stack --layer 40 --size 800        # at most 800 px wide or high
   heoslice preview liver_stack --sheet --layers 0:100:10 -o sheet.png
   heoslice preview liver_stack --sheet                     # 16 layers spread over the stack
+  heoslice preview vase_linear_stack --section x=0 -o section.png
+\b
+Exit status: 0 written, 2 bad option, 3 output not writable, 4 the stack is damaged.
 """)
 @click.argument("stack", type=click.Path(path_type=Path))
 @click.option("--layer", "layer", type=int, default=None, help="Layer number to show [default: the middle layer].")
@@ -47,10 +51,13 @@ Examples:
               help="Longest side of each sheet tile, px.")
 @click.option("--columns", type=click.IntRange(1, MAX_SHEET_LAYERS), default=None,
               help="Sheet columns [default: square].")
+@click.option("--section", "section", default=None,
+              help="A vertical section instead: x=MM or y=MM, in material colours at true aspect ratio.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
-              help="PNG file to write [default: ./STACK_layer_NNNNN.png or ./STACK_sheet.png].")
+              help="PNG file to write [default: ./STACK_layer_NNNNN.png, ./STACK_sheet.png or ./STACK_section_x12.5.png].")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, size: int | None, tile: int,
-            columns: int | None, output: Path | None) -> None:
+            columns: int | None, section: str | None, output: Path | None, as_json: bool) -> None:
     """Write a PNG of one layer of STACK (or a contact sheet with --sheet).
 
     Files are checked against the manifest (inside the stack, sha256, size) before
@@ -64,7 +71,7 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
     if count == 0:
         raise InputError(f"{stack}: the stack has no layers")
     with flags_named():
-        target, draw = _plan(stack, manifest, layer, sheet, layers, size, tile, columns, output)
+        target, draw = _plan(stack, manifest, layer, sheet, layers, size, tile, columns, section, output)
         if target.suffix.lower() != ".png":
             raise InputError(f"{target}: the preview is a PNG; give a file name ending in .png")
         image = draw()
@@ -72,16 +79,28 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
         image.save(target, format="PNG")
     except OSError as err:
         raise OutputError(f"{target}: cannot write ({err.strerror or err})") from err
-    click.echo(f"{target}: {image.size[0]} x {image.size[1]} px")
+    if as_json:
+        click.echo(json.dumps({"stack": str(stack), "output": str(target), "width": image.size[0],
+                               "height": image.size[1]}))
+    else:
+        click.echo(f"{target}: {image.size[0]} x {image.size[1]} px")
 
 
 def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: str | None, size: int | None,
-          tile: int, columns: int | None, output: Path | None):
+          tile: int, columns: int | None, section: str | None, output: Path | None):
     """(target PNG path, function drawing the PIL image) of the requested preview, options checked."""
-    from heoslice.preview import contact_sheet, layer_image, parse_layers, sheet_size
+    from heoslice.preview import contact_sheet, layer_image, parse_layers, parse_section, section_image, sheet_size
+    from heoslice.preview.section import section_line
 
     count = len(manifest["layers"])
     name = stack.resolve().name
+    if section is not None:
+        if sheet or layer is not None or layers is not None:
+            raise InputError("--section: not with --layer, --sheet or --layers")
+        axis, position = parse_section(section)
+        section_line(manifest, axis, position)
+        return (output or Path.cwd() / f"{name}_section_{axis}{position:g}.png",
+                lambda: section_image(stack, axis, position, size, manifest))
     if sheet:
         if layer is not None:
             raise InputError("--layer: use --layers with --sheet")

@@ -109,7 +109,9 @@ def load_verified(directory: Path) -> dict:
     report = verify_stack(directory)
     if not report.ok:
         more = f" (and {len(report.problems) - 1} more problem(s))" if len(report.problems) > 1 else ""
-        raise VerifyError(f"{directory}: {report.problems[0]}{more}")
+        first = report.problems[0]
+        named = first if first.startswith(f"{directory}:") or first.startswith(f"{directory}/") else f"{directory}: {first}"
+        raise VerifyError(f"{named}{more}")
     return report.manifest
 
 
