@@ -13,15 +13,24 @@ from PIL import Image
 from heoslice import procedural
 
 
+def in_process(*args) -> int:
+    """Run the heoslice command line in this process (shares compiled kernels between tests); exit code."""
+    from heoslice.cli import main
+
+    try:
+        main([str(a) for a in args])
+    except SystemExit as done:
+        return done.code if isinstance(done.code, int) else 0
+    return 0
+
+
 def test_layers_are_calibrated_in_mm_with_the_layer_height_as_z_spacing(tmp_path):
     """Every layer and droplet mask carries ImageJ metadata unit=mm, spacing=layer height, and a resolution
     in pixels per mm that matches the manifest's dpi; 1-bit files are min-is-white, so Pillow (like Fiji)
     shows solid pixels dark, the same way `preview` draws them."""
     procedural.sphere(4.0, subdivisions=3).export(tmp_path / "ball.ply")
-    done = subprocess.run([sys.executable, "-m", "heoslice", "slice", tmp_path / "ball.ply", "--layer", "1",
-                           "--dpi", "200x100", "--grade", "linear", "--to", "0,255,0", "--channels",
-                           "-o", tmp_path / "s"], capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr
+    assert in_process("slice", tmp_path / "ball.ply", "--layer", "1", "--dpi", "200x100", "--grade", "linear",
+                      "--to", "0,255,0", "--channels", "-o", tmp_path / "s") == 0
     files = sorted((tmp_path / "s").glob("layer_00004*.tif"))
     assert len(files) == 3
     for path in files:

@@ -15,7 +15,8 @@ from heoslice.preview.sheet import MAX_SHEET_LAYERS, MAX_TILE, MIN_TILE
 from heoslice.stack import check_input_path, read_manifest
 
 #: Library parameter names -> the options that set them, for error messages.
-FLAGS = {"section": "--section", "size": "--size", "tile": "--tile", "columns": "--columns", "layers": "--layers", "layer": "--layer"}
+FLAGS = {"section": "--section", "size": "--size", "tile": "--tile", "columns": "--columns", "layers": "--layers",
+         "layer": "--layer"}
 
 
 @contextmanager
@@ -54,7 +55,8 @@ Exit status: 0 written, 2 bad option, 3 output not writable, 4 the stack is dama
 @click.option("--section", "section", default=None,
               help="A vertical section instead: x=MM or y=MM, in material colours at true aspect ratio.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
-              help="PNG file to write [default: ./STACK_layer_NNNNN.png, ./STACK_sheet.png or ./STACK_section_x12.5.png].")
+              help="PNG file to write [default: ./STACK_layer_NNNNN.png, ./STACK_sheet.png or "
+                   "./STACK_section_x12.5.png].")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, size: int | None, tile: int,
             columns: int | None, section: str | None, output: Path | None, as_json: bool) -> None:

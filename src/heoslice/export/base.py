@@ -117,7 +117,8 @@ def check_options(options: ExportOptions) -> None:
     if options.pitch_mm is not None and not 0.001 <= options.pitch_mm <= 1.0:
         raise InputError(f"pitch_mm: must be from 0.001 to 1 mm, not {options.pitch_mm:g}")
     if options.dpi is not None and not all(10.0 <= d <= 10_000.0 for d in options.dpi):
-        raise InputError(f"dpi: each resolution must be from 10 to 10000 dpi, not {options.dpi[0]:g} x {options.dpi[1]:g}")
+        raise InputError(f"dpi: each resolution must be from 10 to 10000 dpi, "
+                         f"not {options.dpi[0]:g} x {options.dpi[1]:g}")
     if options.background is not None and not (len(options.background) == 3
                                                and all(0 <= v <= 255 for v in options.background)):
         raise InputError("background: must be three integers 0..255")

@@ -28,7 +28,8 @@ def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -
     dpi = tuple(manifest["dpi"])
     for entry in manifest["layers"]:
         index = entry["index"]
-        sink.add(Path(entry["file"]).with_suffix(".png").name, png_bytes(read_layer_pixels(directory, manifest, index), dpi))
+        pixels = read_layer_pixels(directory, manifest, index)
+        sink.add(Path(entry["file"]).with_suffix(".png").name, png_bytes(pixels, dpi))
         for channel, mask in zip(entry.get("channels", []), read_layer_channels(directory, manifest, index)):
             sink.add(Path(channel["file"]).with_suffix(".png").name, png_bytes(mask, dpi))
     sink.add(MANIFEST, resolve_inside(directory, MANIFEST).read_bytes())

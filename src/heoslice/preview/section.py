@@ -29,9 +29,11 @@ def section_line(manifest: dict, axis: str, position_mm: float) -> int:
     image, (px, py) = manifest["image"], manifest["pixel_size_mm"]
     x_left, y_top = image["origin_mm"]
     if axis == "x":
-        line, count, low, high = np.floor((position_mm - x_left) / px), image["width"], x_left, x_left + image["width"] * px
+        line, count = np.floor((position_mm - x_left) / px), image["width"]
+        low, high = x_left, x_left + image["width"] * px
     else:
-        line, count, low, high = np.floor((y_top - position_mm) / py), image["height"], y_top - image["height"] * py, y_top
+        line, count = np.floor((y_top - position_mm) / py), image["height"]
+        low, high = y_top - image["height"] * py, y_top
     if not 0 <= line < count:
         raise InputError(f"section: {axis}={position_mm:g} mm lies outside the stack ({axis} from {low:.6g} to "
                          f"{high:.6g} mm)")
@@ -78,7 +80,8 @@ def section_image(directory: Path, axis: str, position_mm: float, size: int | No
     width_out, height_out = max(1, round(across * scale)), max(1, round(true_height * scale))
     factor = max(1, across // max(width_out, 1))
     sources = np.clip(np.floor((np.arange(height_out) + 0.5) / height_out * layers).astype(np.int64), 0, layers - 1)
-    lines = {int(index): _layer_line(directory, manifest, int(index), axis, line, factor) for index in np.unique(sources)}
+    lines = {int(index): _layer_line(directory, manifest, int(index), axis, line, factor)
+             for index in np.unique(sources)}
     rows = np.stack([lines[int(index)] for index in sources[::-1]])
     return Image.fromarray(rows).resize((width_out, height_out), Image.Resampling.BOX)
 

@@ -48,7 +48,8 @@ __all__ = [
     "MANIFEST", "MAX_IMAGE_PIXELS", "MAX_LAYERS", "MAX_MANIFEST_BYTES", "MAX_MANIFEST_CONTAINERS", "ChannelRecord",
     "ImageRecord", "LayerRecord", "StackReport", "build_manifest", "check_image_size", "check_input_path",
     "decode_mask", "encode_bilevel_tiff", "encode_tiff", "expected_layer_count", "grading_summary",
-    "layer_file_name", "layer_height_problems", "layer_strips", "load_verified", "manifest_problem", "max_layer_count", "parse_manifest",
+    "layer_file_name", "layer_height_problems", "layer_strips", "load_verified", "manifest_problem",
+    "max_layer_count", "parse_manifest",
     "prepare_directory", "read_layer_channels", "read_layer_mask", "read_layer_pixels", "read_manifest",
     "resolve_inside", "stack_volume_mm3", "verify_stack", "write_file", "write_manifest",
 ]

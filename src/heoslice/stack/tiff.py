@@ -59,8 +59,7 @@ def _strip_codec(compression: str):
     """bytes -> compressed bytes for one TIFF strip.
 
     Deflate uses zlib-ng at level 1 when imagecodecs has it: the same zlib stream
-    format at about half the time of zlib (measured on 3827 x 3945 px layers: 1.0 ms
-    and 37 KB against 2.2 ms and 30 KB per layer). Other codecs are tifffile's own.
+    format, faster than zlib (figures in benchmarks/README.md). Other codecs are tifffile's own.
     """
     import tifffile
 
@@ -84,8 +83,7 @@ def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float]
     The strips are compressed here, straight from the packed bits, with tifffile's
     own codec for the chosen compression, and handed to tifffile already encoded:
     the mask is never expanded to one byte per pixel. Strips of 256 rows (~120 KB of
-    bits at 3800 px) cost a fifth less to write than 64 (0.86 -> 0.65 ms for a
-    1937 x 1937 px droplet mask, deflate).
+    bits at 3800 px) are cheaper to write than 64 (figures in benchmarks/README.md).
     """
     import tifffile
 

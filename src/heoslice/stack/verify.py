@@ -10,7 +10,8 @@ import numpy as np
 
 from heoslice.errors import VerifyError
 from heoslice.stack.manifest import LAYER_PATTERN, layer_height_problems
-from heoslice.stack.read import decode_checked, decode_mask, read_checked, read_layer_mask, read_manifest, resolve_inside
+from heoslice.stack.read import (decode_checked, decode_mask, read_checked, read_layer_mask, read_manifest,
+                                 resolve_inside)
 
 
 @dataclass(frozen=True)
@@ -110,7 +111,7 @@ def load_verified(directory: Path) -> dict:
     if not report.ok:
         more = f" (and {len(report.problems) - 1} more problem(s))" if len(report.problems) > 1 else ""
         first = report.problems[0]
-        named = first if first.startswith(f"{directory}:") or first.startswith(f"{directory}/") else f"{directory}: {first}"
+        named = first if first.startswith((f"{directory}:", f"{directory}/")) else f"{directory}: {first}"
         raise VerifyError(f"{named}{more}")
     return report.manifest
 
