@@ -9,7 +9,10 @@ counts within 1 %. ``--profile`` adds a cProfile of heoslice on the organ, split
 ``--graded`` also times a graded stack with droplet masks (``GRADED_ARGS`` added to the
 same heoslice command) in the same alternation, reports its ratio to PrusaSlicer's
 one-material time, and checks that its layers' solid pixels equal the one-material
-stack's; one untimed 3-layer graded slice first fills numba's kernel cache. heoslice's modules
+stack's; ``--coloured`` likewise times a coloured mesh sliced without grading, with
+droplet masks (the mesh coloured once, untimed, by ``heoslice color --func linear``, then
+sliced with ``COLOURED_ARGS``). The meshes are the procedural ones and, where
+../shared/data is present, real scans scaled to organ size (prusa_meshes.SCANS); one untimed 3-layer graded slice first fills numba's kernel cache. heoslice's modules
 are compiled to bytecode first, as an installed package has them. Every run
 writes to a new path, and everything written so far is flushed to disk (os.sync) before
 it: no run pays for another's writeback, and outputs are deleted only when the benchmark
@@ -24,6 +27,7 @@ Examples:
   python benchmarks/bench_prusa.py --meshes vase,organ --repeats 5 --json results.json
   python benchmarks/bench_prusa.py --mesh liver.stl --profile
   python benchmarks/bench_prusa.py --meshes vase --graded   # graded + droplet masks vs one-material PrusaSlicer
+  python benchmarks/bench_prusa.py --meshes liver_scan,lucy,dragon --graded --coloured   # the real scans
 
 PrusaSlicer is not installed by this script; without it heoslice runs alone.
 """
@@ -58,6 +62,8 @@ from heoslice.stack import read_layer_mask, read_manifest  # noqa: E402
 MB = 1024 * 1024
 #: What ``--graded`` adds to the heoslice command: the paper's Fig. 3b grading with droplet masks.
 GRADED_ARGS = ["--grade", "linear", "--to", "0,255,0", "--nozzle", "0.2", "--channels"]
+#: What ``--coloured`` adds when it slices the coloured copy of a mesh: droplet masks, no grading.
+COLOURED_ARGS = ["--channels"]
 
 
 def heoslice_base() -> list[str]:
@@ -78,8 +84,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="small, short meshes and 1 repeat: a smoke test")
     parser.add_argument("--meshes", default=None,
-                        help=f"comma-separated procedural meshes from {','.join(prusa_meshes.FULL)} "
-                             "[default: all, or none when --mesh is given]")
+                        help=f"comma-separated meshes from {','.join(prusa_meshes.FULL)} and the scans "
+                             f"{','.join(prusa_meshes.SCANS)} [default: all that can be built here, "
+                             "or none when --mesh is given]")
     parser.add_argument("--mesh", action="append", type=Path, default=[], metavar="PATH",
                         help="a mesh file to benchmark too (repeatable); non-STL files are converted to binary STL")
     parser.add_argument("--repeats", type=int, default=None, help="runs per tool and mesh [default: 2, quick: 1]")
@@ -93,6 +100,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="also profile heoslice (-j 1, cProfile) on the organ mesh (or the last mesh)")
     parser.add_argument("--graded", action="store_true",
                         help=f"also time heoslice with {' '.join(GRADED_ARGS)} (ratio to PrusaSlicer's one-material time)")
+    parser.add_argument("--coloured", action="store_true",
+                        help="also time heoslice on a coloured copy of each mesh (color --func linear), sliced with "
+                             f"{' '.join(COLOURED_ARGS)}")
     parser.add_argument("--workdir", type=Path, default=None, help="where meshes and outputs go [a temp dir]")
     parser.add_argument("--json", nargs="?", const="-", default=None, metavar="PATH",
                         help="also write all results as JSON to PATH ('-' or no value: stdout, instead of the table)")
@@ -101,10 +111,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         args.repeats = 1 if args.quick else 2
     if args.repeats < 1 or args.check_stride < 1:
         parser.error("--repeats and --check-stride must be at least 1")
-    names = args.meshes.split(",") if args.meshes else ([] if args.mesh else list(prusa_meshes.FULL))
-    unknown = [name for name in names if name not in prusa_meshes.FULL]
+    known = prusa_meshes.names(args.quick)
+    names = args.meshes.split(",") if args.meshes else ([] if args.mesh else known)
+    unknown = [name for name in names if name not in known]
     if unknown:
-        parser.error(f"--meshes: unknown mesh(es) {', '.join(unknown)}; choose from {', '.join(prusa_meshes.FULL)}")
+        parser.error(f"--meshes: unknown or unavailable mesh(es) {', '.join(unknown)}; choose from {', '.join(known)}")
     missing = [str(path) for path in args.mesh if not path.is_file()]
     if missing:
         parser.error(f"--mesh: no such file: {', '.join(missing)}")
@@ -158,6 +169,7 @@ def summarise_runs(runs: list) -> dict:
     walls = [run.wall_s for run in runs]
     trees = [run.tree_pss_mb for run in runs if run.tree_pss_mb is not None]
     return {"median_s": statistics.median(walls), "min_s": min(walls), "max_s": max(walls),
+            "cpu_median_s": statistics.median(run.cpu_s for run in runs),
             "max_rss_mb": max(run.max_rss_mb for run in runs), "tree_pss_mb": max(trees) if trees else None}
 
 
@@ -188,18 +200,23 @@ def bench_mesh(name: str, model: Path, mesh: trimesh.Trimesh, folder: Path, args
     ini = folder / "sla.ini"
     display = prusa_sla.display_for(mesh.extents[:2], args.dpi)
     ini.write_text(prusa_sla.sla_ini(display, args.layer, float(mesh.extents[2])))
-    tools = ["heoslice"] + (["graded"] if args.graded else []) + (["prusa"] if prusa else [])
+    tools = (["heoslice"] + (["graded"] if args.graded else []) + (["coloured"] if args.coloured else [])
+             + (["prusa"] if prusa else []))
+    coloured_model = folder / f"{model.stem}_linear.ply"
+    if args.coloured:
+        run_measured(heoslice_base() + ["color", str(model), "--func", "linear", "-o", str(coloured_model)],
+                     folder / "color.log")
 
     def output(tool: str, repeat: int) -> Path:
         """Where one run writes: a new path per tool and repeat (see the module docstring)."""
-        return folder / {"heoslice": f"heoslice_stack-{repeat}", "graded": f"graded_stack-{repeat}",
-                         "prusa": f"prusa-{repeat}.sl1"}[tool]
+        return folder / (f"prusa-{repeat}.sl1" if tool == "prusa" else f"{tool}_stack-{repeat}")
 
     def command(tool: str, repeat: int) -> list[str]:
         if tool == "prusa":
             return prusa_sla.prusa_command(prusa, ini, output(tool, repeat), model)
-        extra = GRADED_ARGS if tool == "graded" else []
-        return heoslice_base() + heoslice_args(model, output(tool, repeat), args.layer, args.dpi, args.jobs) + extra
+        extra = {"graded": GRADED_ARGS, "coloured": COLOURED_ARGS}.get(tool, [])
+        source = coloured_model if tool == "coloured" else model
+        return heoslice_base() + heoslice_args(source, output(tool, repeat), args.layer, args.dpi, args.jobs) + extra
 
     runs: dict[str, list] = {tool: [] for tool in tools}
     failed: dict[str, str] = {}
@@ -216,7 +233,7 @@ def bench_mesh(name: str, model: Path, mesh: trimesh.Trimesh, folder: Path, args
             if run.returncode != 0:
                 failed[tool] = f"exit {run.returncode}: {tail(run.log)}"
     last = {tool: output(tool, len(runs[tool]) - 1) for tool in tools}
-    stack, graded, sl1 = last["heoslice"], last.get("graded"), last.get("prusa")
+    stack, sl1 = last["heoslice"], last.get("prusa")
     result = {
         "mesh": name, "file": str(model), "triangles": int(len(mesh.faces)),
         "extents_mm": [round(float(e), 3) for e in mesh.extents],
@@ -231,11 +248,12 @@ def bench_mesh(name: str, model: Path, mesh: trimesh.Trimesh, folder: Path, args
         result["heoslice_image"] = [manifest["image"]["width"], manifest["image"]["height"]]
         result["heoslice_layers"] = len(manifest["layers"])
         result["size_bytes"] = {"heoslice": size_on_disk(stack)}
-    if args.graded and "graded" not in failed and "heoslice" not in failed:
-        graded_manifest = read_manifest(graded)
-        plain = [entry["solid_pixels"] for entry in read_manifest(stack)["layers"]]
-        result["graded_same_solid"] = plain == [entry["solid_pixels"] for entry in graded_manifest["layers"]]
-        result.setdefault("size_bytes", {})["graded"] = size_on_disk(graded)
+    for tool in ("graded", "coloured"):
+        if tool in tools and tool not in failed and "heoslice" not in failed:
+            multi = [entry["solid_pixels"] for entry in read_manifest(last[tool])["layers"]]
+            plain = [entry["solid_pixels"] for entry in read_manifest(stack)["layers"]]
+            result[f"{tool}_same_solid"] = plain == multi
+            result.setdefault("size_bytes", {})[tool] = size_on_disk(last[tool])
     if prusa and "prusa" not in failed:
         result["prusa_image"] = [display.pixels_x, display.pixels_y]
         result.setdefault("size_bytes", {})["prusa"] = size_on_disk(sl1)
@@ -283,20 +301,27 @@ def table(results: list[dict]) -> str:
             f"{fmt(ratio(h.get('tree_pss_mb'), p.get('tree_pss_mb'))):>5}  "
             f"{pair(size.get('heoslice'), size.get('prusa'), '.1f'):>12} "
             f"{fmt(ratio(size.get('heoslice'), size.get('prusa'))):>5}")
-    graded = [r for r in results if "graded" in r["summary"]]
-    if graded:
-        lines += ["", f"Graded with droplet masks (heoslice ... {' '.join(GRADED_ARGS)}) against PrusaSlicer's "
-                  "one-material stack:",
-                  f"{'mesh':<{w}}{'graded s':>18}  {'prusa s':>18}  {'ratio':>5}  {'RSS MB g/p':>10}  "
-                  f"{'size MB g/p':>12}  solid pixels = one-material stack's"]
-        for r in graded:
-            g, p = r["summary"]["graded"], r["summary"].get("prusa", {})
-            size = {tool: value / MB for tool, value in r.get("size_bytes", {}).items()}
+    for tool, title in (("graded", f"Graded with droplet masks (heoslice ... {' '.join(GRADED_ARGS)})"),
+                        ("coloured", f"Coloured, not graded (color --func linear, then slice ... "
+                                     f"{' '.join(COLOURED_ARGS)})")):
+        multi = [r for r in results if tool in r["summary"]]
+        if not multi:
+            continue
+        lines += ["", f"{title} against PrusaSlicer's one-material stack (cpu = user + system s, medians):",
+                  f"{'mesh':<{w}}{tool + ' s':>18}  {'prusa s':>18}  {'ratio':>5}  {'cpu s m/p':>11} {'ratio':>5}  "
+                  f"{'RSS MB m/p':>10} {'ratio':>5}  {'size MB m/p':>12} {'ratio':>5}  solid pixels = one-material's"]
+        for r in multi:
+            g, p = r["summary"][tool], r["summary"].get("prusa", {})
+            size = {name: value / MB for name, value in r.get("size_bytes", {}).items()}
             lines.append(f"{r['mesh']:<{w}}{timing(g):>18}  {timing(p):>18}  "
                          f"{fmt(ratio(g.get('median_s'), p.get('median_s'))):>5}  "
-                         f"{pair(g.get('max_rss_mb'), p.get('max_rss_mb'), '.0f'):>10}  "
-                         f"{pair(size.get('graded'), size.get('prusa'), '.1f'):>12}  "
-                         f"{ {True: 'yes', False: 'NO'}.get(r.get('graded_same_solid'), '-')}")
+                         f"{pair(g.get('cpu_median_s'), p.get('cpu_median_s'), '.1f'):>11} "
+                         f"{fmt(ratio(g.get('cpu_median_s'), p.get('cpu_median_s'))):>5}  "
+                         f"{pair(g.get('max_rss_mb'), p.get('max_rss_mb'), '.0f'):>10} "
+                         f"{fmt(ratio(g.get('max_rss_mb'), p.get('max_rss_mb'))):>5}  "
+                         f"{pair(size.get(tool), size.get('prusa'), '.1f'):>12} "
+                         f"{fmt(ratio(size.get(tool), size.get('prusa'))):>5}  "
+                         f"{ {True: 'yes', False: 'NO'}.get(r.get(f'{tool}_same_solid'), '-')}")
     agreeing = [r for r in results if "agreement" in r]
     if agreeing:
         lines += ["", "Agreement (solid pixels per layer, matched by height; rel = |h - p| / max(h, p)):",
@@ -405,8 +430,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{report['cores']} cores, load average {load_start[0]:.2f} at start, "
               f"{report['loadavg_end'][0]:.2f} at end; whole run {report['total_s']:.0f} s. "
               "Figures on a shared machine are noisy: compare ratios from one run.")
-    everything_ok = all(not r["failed"] and r.get("agreement", {"ok": True})["ok"] and r.get("graded_same_solid", True)
-                        for r in results)
+    everything_ok = all(not r["failed"] and r.get("agreement", {"ok": True})["ok"]
+                        and r.get("graded_same_solid", True) and r.get("coloured_same_solid", True) for r in results)
     return 0 if everything_ok else 1
 
 

@@ -30,9 +30,11 @@ from pathlib import Path
 
 @dataclass(frozen=True)
 class Measured:
-    """One measured run: wall time (s), exit code, peak RSS of the largest process and peak tree PSS (MB)."""
+    """One measured run: wall and CPU time (s, user + system of the process and the children it waited for),
+    exit code, peak RSS of the largest process and peak tree PSS (MB)."""
 
     wall_s: float
+    cpu_s: float
     returncode: int
     max_rss_mb: float
     tree_pss_mb: float | None
@@ -87,6 +89,7 @@ if pid == 0:
 _, status, usage = os.wait4(pid, 0)
 with open(sys.argv[1], "w") as out:
     out.write(f"Maximum resident set size (kbytes): {usage.ru_maxrss}\\n")
+    out.write(f"User time (seconds): {usage.ru_utime}\\nSystem time (seconds): {usage.ru_stime}\\n")
 sys.exit(os.waitstatus_to_exitcode(status) % 256)
 """
 
@@ -103,6 +106,13 @@ def max_rss_kb(report: Path) -> float:
     text = report.read_text(errors="replace") if report.exists() else ""
     found = re.search(r"Maximum resident set size \(kbytes\): (\d+)", text)
     return float(found.group(1)) if found else float("nan")
+
+
+def cpu_seconds(report: Path) -> float:
+    """User + system seconds of a GNU time -v (or launcher) report, NaN if absent."""
+    text = report.read_text(errors="replace") if report.exists() else ""
+    times = [float(found) for found in re.findall(r"(?:User|System) time \(seconds\): ([0-9.]+)", text)]
+    return sum(times) if len(times) == 2 else float("nan")
 
 
 def tree_sampling_available() -> bool:
@@ -134,7 +144,7 @@ def run_measured(command: list[str], log: Path, *, interval: float = 0.5, env: d
         stop.set()
         if sample:
             thread.join()
-    return Measured(wall_s=wall, returncode=process.returncode, max_rss_mb=max_rss_kb(report) / 1024.0,
+    return Measured(wall_s=wall, cpu_s=cpu_seconds(report), returncode=process.returncode, max_rss_mb=max_rss_kb(report) / 1024.0,
                     tree_pss_mb=peak_kb / 1024.0 if sample else None, log=log)
 
 
