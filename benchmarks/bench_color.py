@@ -25,11 +25,16 @@ import math
 from pathlib import Path
 
 import numpy as np
-from timing import best_of
 import trimesh
+from timing import best_of
 
-from heoslice.material import ColorSpec, color_mesh
-from heoslice.material import build_surface_index, make_function, surface_distance
+from heoslice.material import (
+    ColorSpec,
+    build_surface_index,
+    color_mesh,
+    make_function,
+    surface_distance,
+)
 from heoslice.mesh import Mesh
 
 

@@ -61,9 +61,9 @@ STAGES = (("lattice", "lattice_edges"), ("lattice", "_inside_loops"), ("field", 
 def stage_timers(totals: dict):
     """Within the block, CPU seconds spent in each of STAGES (and shapely.maximum_inscribed_circle)
     add up in ``totals``."""
-    import shapely
-
     import importlib
+
+    import shapely
 
     def timed(name, function):
         @functools.wraps(function)
@@ -159,8 +159,8 @@ def main() -> None:
     if args.quick:
         args.scale, args.layers = 0.4, 3
 
-    from heoslice.layers.rasterising import grid_for, solid_mask
     from heoslice.grading import RegionSpec, layer_regions
+    from heoslice.layers.rasterising import grid_for, solid_mask
 
     contours, z = part_layers(args.scale, args.layers)
     spec = RegionSpec(nozzle_mm=args.nozzle, depth_mm=args.depth)

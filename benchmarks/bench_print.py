@@ -21,7 +21,12 @@ from pathlib import Path
 
 from heoslice.printing import print_job
 from heoslice.printing import protocol as P
-from heoslice.printing.simulator import FaultSpec, SimConfig, SimConnector, SimController
+from heoslice.printing.simulator import (
+    FaultSpec,
+    SimConfig,
+    SimConnector,
+    SimController,
+)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from printing_jobs import random_job, synthetic_job  # noqa: E402  (test fixtures, beside the tests)

@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 from timing import best_of
 
-
 _WRAPPER = (
     "import resource, subprocess, sys\n"
     "done = subprocess.run(sys.argv[1:])\n"
@@ -84,9 +83,9 @@ def slicing_ratio(mesh_path: Path, layer: float, repeats: int) -> dict:
     """heoslice slice+contours vs manifold3d slice over the same planes (best of repeats, seconds)."""
     import manifold3d
 
+    from heoslice.layers import plane_heights, slice_mesh
     from heoslice.layers.contours import build_contours
     from heoslice.mesh import load_mesh
-    from heoslice.layers import plane_heights, slice_mesh
 
     mesh = load_mesh(mesh_path)
     z = plane_heights(mesh.bounds[0, 2], mesh.bounds[1, 2], layer)

@@ -19,8 +19,8 @@ try:
     import numpy as np
     from PIL import Image, ImageDraw
 
-    from heoslice.mesh import load_mesh
     from heoslice.material import ColorSpec, color_mesh, make_function
+    from heoslice.mesh import load_mesh
 except ImportError as missing:
     sys.exit(f"fig2.py: error: cannot import {missing.name or missing}: run it with the Python that heoslice "
              "is installed in, e.g. .venv/bin/python examples/fig2.py")

@@ -23,12 +23,20 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from heoslice import procedural
-from heoslice.layers.contours import build_contours
-from heoslice.material import evaluate, make_function, make_reference, normalise, reference_distance
-from heoslice.material import DEFAULT_MATERIALS, Material, blend
-from heoslice.layers.rasterising import grid_for, solid_mask
 from heoslice.grading import GradeSpec, RegionSpec, render_graded
-from heoslice.layers.slicing import interpolate_at, plane_heights, slice_mesh
+from heoslice.layers import interpolate_at, plane_heights, slice_mesh
+from heoslice.layers.contours import build_contours
+from heoslice.layers.rasterising import grid_for, solid_mask
+from heoslice.material import (
+    DEFAULT_MATERIALS,
+    Material,
+    blend,
+    evaluate,
+    make_function,
+    make_reference,
+    normalise,
+    reference_distance,
+)
 
 HERE = Path(__file__).resolve().parent
 

@@ -23,12 +23,16 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from heoslice import procedural
-from heoslice.layers.contours import build_contours
-from heoslice.material import make_function
-from heoslice.material import Material
-from heoslice.layers.rasterising import grid_for, paint_contour, render_layer, solid_mask
 from heoslice.grading import GradeSpec, RegionSpec, render_graded
-from heoslice.layers.slicing import interpolate_at, plane_heights, slice_mesh
+from heoslice.layers import interpolate_at, plane_heights, slice_mesh
+from heoslice.layers.contours import build_contours
+from heoslice.layers.rasterising import (
+    grid_for,
+    paint_contour,
+    render_layer,
+    solid_mask,
+)
+from heoslice.material import Material, make_function
 
 HERE = Path(__file__).resolve().parent
 LIVER = Material("liver", (150, 60, 45), 1)

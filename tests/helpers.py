@@ -6,13 +6,13 @@ import manifold3d
 import numpy as np
 import shapely
 
-from heoslice.layers.contours import Contours, build_contours
 from heoslice.grading.edges import ring_edges
 from heoslice.grading.halftone import thresholds
 from heoslice.grading.labels import family_of
 from heoslice.grading.search import RingSet, ring_tree
 from heoslice.grading.search_kernels import edge_tree
 from heoslice.layers import plane_heights, slice_mesh
+from heoslice.layers.contours import Contours, build_contours
 
 
 def contours_of(mesh, layer_height: float) -> tuple[np.ndarray, Contours]:

@@ -8,7 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from heoslice.cli.common import echo_json, exit_status_epilog, expand_inputs, plural, run_each, signed_percent
+from heoslice.cli.common import (
+    echo_json,
+    exit_status_epilog,
+    expand_inputs,
+    plural,
+    run_each,
+    signed_percent,
+)
 from heoslice.errors import EXIT_CODES, EXIT_INTERRUPTED, HeosliceError
 
 
@@ -69,7 +76,7 @@ def test_controller_json_prints_its_port_as_one_object(run_cli):
 
 
 def test_json_convention_holds_for_every_command_with_json(run_cli, tmp_path, monkeypatch):
-    """info, slice, verify, print --dry-run: one line of strict JSON on stdout, an object with ok and its input."""
+    """info, slice, verify, print --dry-run, color, preview, export: one line of strict JSON on stdout, an object with ok and its input."""
     from test_cli_slice import write_box
 
     monkeypatch.chdir(tmp_path)
@@ -77,7 +84,10 @@ def test_json_convention_holds_for_every_command_with_json(run_cli, tmp_path, mo
     calls = {"slice": (("slice", "box.off", "--dpi", "254", "--layer", "2", "-j", "1"), "model"),
              "info": (("info", "box.off"), "model"),
              "verify": (("verify", "box_stack", "--mesh", "box.off"), "stack"),
-             "print": (("print", "box_stack", "--dry-run"), "stack")}
+             "print": (("print", "box_stack", "--dry-run"), "stack"),
+             "color": (("color", "box.off", "--func", "linear"), "model"),
+             "preview": (("preview", "box_stack", "-o", "layer.png"), "stack"),
+             "export": (("export", "box_stack", "--format", "png", "-o", "box_png"), "stack")}
     for name, (arguments, key) in calls.items():
         code, out, err = run_cli(*arguments, "--json")
         assert code == 0, (name, err)

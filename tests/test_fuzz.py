@@ -22,7 +22,13 @@ from heoslice import procedural
 from heoslice.errors import InputError, VerifyError
 from heoslice.mesh import load_mesh
 from heoslice.pipeline import SliceSpec, slice_to_stack
-from heoslice.stack import MANIFEST, layer_file_name, read_layer_mask, read_manifest, verify_stack
+from heoslice.stack import (
+    MANIFEST,
+    layer_file_name,
+    read_layer_mask,
+    read_manifest,
+    verify_stack,
+)
 
 #: A RuntimeWarning would reach the user's terminal as extra lines: treat it as a failure.
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
@@ -39,7 +45,13 @@ COUNTS = st.one_of(st.integers(0, 12), st.sampled_from([10**9, 10**12, 2**31, 2*
 
 def seed_files() -> list[bytes]:
     """Valid PLY files in every format, with colours, polygons and extra properties, to mutate."""
-    from test_mesh_ply import CUBE_QUADS, CUBE_VERTICES, TETRA_FACES, TETRA_VERTICES, ply_bytes
+    from test_mesh_ply import (
+        CUBE_QUADS,
+        CUBE_VERTICES,
+        TETRA_FACES,
+        TETRA_VERTICES,
+        ply_bytes,
+    )
 
     colours = [(c, "uchar", np.array([10, 20, 30, 40])) for c in ("red", "green", "blue")]
     files = []

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import choose_materials, droplet_masks
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from helpers import choose_materials, droplet_masks
 
 from heoslice.grading.halftone import TILE, bayer_matrix, layer_tile, thresholds
 

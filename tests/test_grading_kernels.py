@@ -6,23 +6,46 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import shapely
+from helpers import brute_squared, random_rings, ring_weights, tree_of
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from helpers import brute_squared, random_rings, ring_weights, tree_of
 
 from heoslice.grading.edges import ring_edges
 from heoslice.grading.edges_kernels import straight_runs
-from heoslice.grading.field_kernels import CellPixels, band_field, curve_cells, expand_planes, label_target
+from heoslice.grading.field_kernels import (
+    CellPixels,
+    band_field,
+    curve_cells,
+    expand_planes,
+    label_target,
+)
 from heoslice.grading.labels_kernels import disc_winding
-from heoslice.grading.lattice_kernels import LatticeFrame, feet, inside_centres, signed_feet
-from heoslice.grading.refine_kernels import CellField, FitTest, band_cells, hessian_of, refine_flags, ring_models
+from heoslice.grading.lattice_kernels import (
+    LatticeFrame,
+    feet,
+    inside_centres,
+    signed_feet,
+)
+from heoslice.grading.refine_kernels import (
+    CellField,
+    FitTest,
+    band_cells,
+    hessian_of,
+    refine_flags,
+    ring_models,
+)
 from heoslice.grading.search_kernels import _candidates, edge_tree, nearest_in_groups
 
 
 def halftone_bits(label, origin, packed, family_of_label, fraction, layout, mixes, target, tile, base_channel, planes,
                   table):
     """droplet_bits of the given arrays, grouped as it takes them."""
-    from heoslice.grading.droplets_kernels import Dither, LabelledLayer, LayerMixes, droplet_bits
+    from heoslice.grading.droplets_kernels import (
+        Dither,
+        LabelledLayer,
+        LayerMixes,
+        droplet_bits,
+    )
 
     mixing = LayerMixes(family_of_label, fraction, layout, mixes, target)
     return droplet_bits(LabelledLayer(label, *origin, packed), mixing, Dither(tile, table, base_channel), planes)
@@ -738,8 +761,8 @@ def test_droplet_bits_follows_a_dither_tile_of_any_size(size):
 def test_droplet_bits_takes_every_layers_tile_through_one_compiled_signature():
     """Tiles of layers under every symmetry (transposed ones are Fortran-ordered) reach the kernel as the same
     argument types: the workers load one compiled version, not one per layout."""
-    from heoslice.grading.halftone import layer_tile
     from heoslice.grading.droplets_kernels import _droplet_bits
+    from heoslice.grading.halftone import layer_tile
 
     label = np.ones((4, 16), np.int16)
     table = np.ones((2, 256), np.int8)

@@ -9,28 +9,38 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 import shapely
+from helpers import (
+    brute_squared,
+    random_rings,
+    ring_set,
+    ring_weights,
+    subregion_index,
+    tree_of,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from helpers import brute_squared, random_rings, ring_set, ring_weights, subregion_index, tree_of
 
-from heoslice.grading import edges, field as field_module, labels, lattice as lattice_module, search
-from heoslice.material import make_function
 from heoslice.errors import InputError
-from heoslice.material import DEFAULT_MATERIALS, Material
-from heoslice.layers.rasterising import Grid, solid_mask
 from heoslice.grading import (
     GradeSpec,
     GradingCache,
     RegionSpec,
     band_count,
     contour_values,
+    edges,
     family_field,
+    labels,
     layer_families,
     layer_regions,
     render_graded,
+    search,
 )
+from heoslice.grading import field as field_module
+from heoslice.grading import lattice as lattice_module
 from heoslice.grading.cache import RingMemo
 from heoslice.grading.edges import ring_edges
+from heoslice.layers.rasterising import Grid, solid_mask
+from heoslice.material import DEFAULT_MATERIALS, Material, make_function
 
 PX = 25.4 / 600
 
@@ -611,10 +621,10 @@ def composed_masks(points, offsets, area, parent, shells, mask, grid, spec, laye
     path: each labelled pixel's mix is its family's start mix at its lattice cell (paint_cells) moved by
     its sub-region's fraction towards the target (eq. 1), halftoned by helpers.droplet_masks;
     solid pixels outside every family jet the base material."""
-    from helpers import droplet_masks
-    from helpers import paint_cells
+    from helpers import droplet_masks, paint_cells
 
-    from heoslice.grading.materials import family_starts as _family_starts, target_fractions as _target_fractions
+    from heoslice.grading.materials import family_starts as _family_starts
+    from heoslice.grading.materials import target_fractions as _target_fractions
 
     regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions)
     materials = spec.channel_materials()

@@ -6,12 +6,18 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from heoslice.material import make_function
-from heoslice.grading import GradeSpec, RegionSpec, band_count, family_field, layer_families, layer_regions
-from heoslice.grading import render_graded
+from heoslice.grading import (
+    GradeSpec,
+    RegionSpec,
+    band_count,
+    family_field,
+    layer_families,
+    layer_regions,
+    render_graded,
+)
 from heoslice.grading.spec import coordinate_precision
-from heoslice.material import DEFAULT_MATERIALS, Material
 from heoslice.layers.rasterising import Grid, contour_pixels, solid_mask
+from heoslice.material import DEFAULT_MATERIALS, Material, make_function
 
 PX = 25.4 / 600
 GREEN = Material("green", (0, 255, 0))

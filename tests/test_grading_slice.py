@@ -158,9 +158,8 @@ def counted_plate(tmp_path, monkeypatch):
     """The benchmark's plate with holes, pins and a cavity, small; a graded slice spec with droplet masks
     (300 dpi, 0.2 mm layers, in this process); and a list that grows by one per family measured afresh."""
     from heoslice import grading, pipeline
-    from heoslice.material import make_function
+    from heoslice.material import DEFAULT_MATERIALS, Material, make_function
     from heoslice.mesh import load_mesh
-    from heoslice.material import DEFAULT_MATERIALS, Material
 
     path = tmp_path / "plate.ply"
     procedural.holes_and_islands((20.0, 12.5, 4.0), 48).export(path)

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 import shapely
 import trimesh
+from helpers import contours_of, manifold_areas
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from helpers import contours_of, manifold_areas
 
 from heoslice import procedural
-from heoslice.layers.contours import _rank_paths, build_contours, successors
 from heoslice.layers import plane_heights, slice_mesh
+from heoslice.layers.contours import _rank_paths, build_contours, successors
 
 REFERENCE_MESHES = {
     "sphere": lambda: procedural.sphere(25.0, 5),

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import shapely
+from helpers import contours_of, layer_loops, near_contour, winding_reference
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from helpers import contours_of, layer_loops, near_contour, winding_reference
 
 from heoslice import procedural
 from heoslice.errors import InputError

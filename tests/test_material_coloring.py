@@ -15,11 +15,18 @@ import pytest
 import trimesh
 
 from heoslice import procedural
-from heoslice.material import ColorSpec, color_mesh, default_output, ply_bytes, subdivide, write_ply
-from heoslice.material import make_function
 from heoslice.errors import InputError, OutputError
+from heoslice.material import (
+    ColorSpec,
+    Material,
+    color_mesh,
+    default_output,
+    make_function,
+    ply_bytes,
+    subdivide,
+    write_ply,
+)
 from heoslice.mesh import MATERIAL_PROPERTY, Mesh, load_mesh
-from heoslice.material import Material
 
 REPO = Path(__file__).resolve().parents[1]
 VASE = REPO / "examples" / "vase.ply"

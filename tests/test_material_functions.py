@@ -13,7 +13,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from heoslice.errors import InputError
-from heoslice.material import FUNCTION_KINDS, DistributionFunction, evaluate, make_function
+from heoslice.material import (
+    FUNCTION_KINDS,
+    DistributionFunction,
+    evaluate,
+    make_function,
+)
 
 R = np.linspace(0.0, 1.0, 1001)
 coefficient = st.floats(-10, 10, allow_nan=False)

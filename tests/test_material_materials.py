@@ -12,8 +12,16 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from heoslice.errors import InputError
-from heoslice.material import (DEFAULT_MATERIALS, Material, blend, load_materials, load_shell_materials,
-                                parse_color, resolve_material, to_rgb8)
+from heoslice.material import (
+    DEFAULT_MATERIALS,
+    Material,
+    blend,
+    load_materials,
+    load_shell_materials,
+    parse_color,
+    resolve_material,
+    to_rgb8,
+)
 
 channel = st.integers(0, 255)
 

@@ -12,7 +12,13 @@ import trimesh
 
 from heoslice import procedural
 from heoslice.errors import InputError
-from heoslice.material import make_function, make_reference, material_fraction, normalise, reference_distance
+from heoslice.material import (
+    make_function,
+    make_reference,
+    material_fraction,
+    normalise,
+    reference_distance,
+)
 
 
 def brute_force_distance(points: np.ndarray, mesh: trimesh.Trimesh) -> np.ndarray:

@@ -16,8 +16,12 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from heoslice import procedural
-from heoslice.material import (build_surface_index, closest_points_on_triangles, point_triangle_distance,
-                               surface_distance)
+from heoslice.material import (
+    build_surface_index,
+    closest_points_on_triangles,
+    point_triangle_distance,
+    surface_distance,
+)
 
 
 def brute_force_distance(points: np.ndarray, mesh: trimesh.Trimesh) -> np.ndarray:

@@ -177,9 +177,9 @@ def test_counts_beyond_the_limits_are_refused(tmp_path, monkeypatch, limit, valu
     """Declared vertices, faces, STL triangles and the triangles polygons make are checked against the limits
     (lowered here so that a small file reaches them) before their arrays are made."""
     import trimesh
+    from test_mesh_ply import CUBE_QUADS, CUBE_VERTICES
 
     from heoslice.mesh import off, ply, raw, stl
-    from test_mesh_ply import CUBE_QUADS, CUBE_VERTICES
 
     for module in (ply, off, stl, raw):
         if hasattr(module, limit):

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import pytest
 import trimesh
-from test_mesh_ply import CUBE_QUADS, CUBE_VERTICES, TETRA_FACES, TETRA_VERTICES, one_line_error
+from test_mesh_ply import (
+    CUBE_QUADS,
+    CUBE_VERTICES,
+    TETRA_FACES,
+    TETRA_VERTICES,
+    one_line_error,
+)
 
 from heoslice.mesh import load_mesh
 

@@ -21,7 +21,6 @@ from heoslice import procedural
 from heoslice.errors import InputError
 from heoslice.mesh import check_ply_header, load_mesh, read_ply
 
-
 PLY_NUMPY = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4", "uint": "u4",
              "float": "f4", "double": "f8", "int32": "i4", "uint8": "u1", "float32": "f4", "float64": "f8"}
 

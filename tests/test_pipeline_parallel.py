@@ -14,11 +14,10 @@ import pytest
 from test_pipeline_slice_job import write_mesh
 
 from heoslice import errors, procedural
-from heoslice.material import make_function
-from heoslice.mesh import load_mesh
-from heoslice.material import DEFAULT_MATERIALS, Material
-from heoslice.pipeline import SliceSpec, plane_runs, slice_to_stack
 from heoslice.grading import GradeSpec, RegionSpec
+from heoslice.material import DEFAULT_MATERIALS, Material, make_function
+from heoslice.mesh import load_mesh
+from heoslice.pipeline import SliceSpec, plane_runs, slice_to_stack
 
 _REUSE_PROBE = """
 import os, resource, sys
@@ -78,9 +77,9 @@ class _Asked:
 
 
 def _run_context(tmp_path, mesh, spec):
-    from heoslice.pipeline import RunContext
-    from heoslice.layers.rasterising import grid_for
     from heoslice.layers import face_z_range, plane_heights
+    from heoslice.layers.rasterising import grid_for
+    from heoslice.pipeline import RunContext
 
     loaded = load_mesh(write_mesh(mesh, tmp_path / "part.ply"))
     return RunContext(mesh=loaded, z=plane_heights(loaded.bounds[0, 2], loaded.bounds[1, 2], spec.layer_height_mm),
@@ -97,9 +96,9 @@ def test_runs_sliced_ahead_into_shared_memory_are_the_runs_sliced_in_place(tmp_p
     run_contours takes a run the context holds instead of slicing it."""
     import mmap
 
+    from heoslice.layers.rasterising import packed_mask
     from heoslice.pipeline import layer_jobs, run_contours
     from heoslice.pipeline.parallel import Ahead, _shared_array, _slice_ahead
-    from heoslice.layers.rasterising import packed_mask
 
     spec = _graded_spec(max_segments=400) if graded else SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0),
                                                                    max_segments=400)

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 import tifffile
+import trimesh
 from helpers import layer_loops
 from PIL import Image
 
@@ -202,3 +205,49 @@ def test_nested_shells_fill_once_and_verify_against_the_union(tmp_path, run_cli)
     assert stack_volume_mm3(manifest) == pytest.approx(union, rel=5e-3)
     code, out, err = run_cli("verify", tmp_path / "stack", "--mesh", model)
     assert code == 0, out + err
+
+
+def _holder(directory: Path) -> subprocess.Popen:
+    """A separate process holding ``directory`` as a print does (locks.hold_stack) until it is killed."""
+    code = ("import sys, time\nfrom heoslice.locks import hold_stack\n"
+            "with hold_stack(sys.argv[1], 'printing it'):\n    print('held', flush=True)\n    time.sleep(60)\n")
+    holder = subprocess.Popen([sys.executable, "-c", code, str(directory)], stdout=subprocess.PIPE, text=True)
+    assert holder.stdout.readline().strip() == "held"
+    return holder
+
+
+def test_slice_force_into_a_held_stack_is_refused_and_leaves_it_unchanged(tmp_path, run_cli):
+    """slice --force into a stack another process holds (a print) exits 18 with one line, and no file of the
+    stack is removed or rewritten; once the holder has gone, the same command succeeds."""
+    from heoslice.errors import EXIT_STACK_BUSY
+
+    model = write_mesh(trimesh.creation.box(extents=(4.0, 4.0, 2.0)), tmp_path / "cube.ply")
+    stack = tmp_path / "stack"
+    code, _, err = run_cli("slice", model, "-o", stack, "--dpi", "100", "--layer", "0.5", "-j", "1")
+    assert code == 0, err
+    before = {path.name: path.read_bytes() for path in stack.iterdir()}
+    holder = _holder(stack)
+    try:
+        code, _, err = run_cli("slice", model, "-o", stack, "--force", "--dpi", "200", "--layer", "0.5", "-j", "1")
+    finally:
+        holder.kill()
+        holder.wait()
+    assert code == EXIT_STACK_BUSY and len(err.strip().splitlines()) == 1 and str(stack) in err, err
+    assert {path.name: path.read_bytes() for path in stack.iterdir()} == before
+    code, _, err = run_cli("slice", model, "-o", stack, "--force", "--dpi", "200", "--layer", "0.5", "-j", "1")
+    assert code == 0, err
+
+
+def test_two_slices_into_one_directory_cannot_both_succeed(tmp_path):
+    """Two slice --force runs started together into one new directory: exactly one writes the stack, the
+    other exits 18 (or, if it started after the first ended, also succeeds); the stack verifies either way."""
+    from heoslice.errors import EXIT_STACK_BUSY
+
+    model = write_mesh(trimesh.creation.icosphere(subdivisions=4, radius=10.0), tmp_path / "ball.ply")
+    stack = tmp_path / "stack"
+    runs = [subprocess.Popen([sys.executable, "-m", "heoslice", "slice", str(model), "-o", str(stack), "--force",
+                              "--dpi", dpi, "--layer", "0.2", "-j", "1"], stderr=subprocess.PIPE, text=True)
+            for dpi in ("300", "150")]
+    codes = [run.wait(timeout=120) for run in runs]
+    assert sorted(codes) in ([0, EXIT_STACK_BUSY], [0, 0]), [run.stderr.read() for run in runs]
+    assert verify_stack(stack).ok

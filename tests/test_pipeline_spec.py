@@ -14,7 +14,12 @@ from heoslice import procedural
 from heoslice.errors import InputError
 from heoslice.mesh import load_mesh
 from heoslice.pipeline import SliceSpec, check_scale, layer_limit, slice_to_stack
-from heoslice.stack import MAX_IMAGE_PIXELS, MAX_MANIFEST_BYTES, layer_file_name, read_manifest
+from heoslice.stack import (
+    MAX_IMAGE_PIXELS,
+    MAX_MANIFEST_BYTES,
+    layer_file_name,
+    read_manifest,
+)
 
 
 @pytest.fixture(scope="module")
@@ -88,10 +93,10 @@ def test_the_largest_layer_count_makes_a_manifest_the_readers_accept(tmp_path, c
     """A manifest of layer_limit layers at their longest (largest index, solid counts and z, with droplet masks
     of the default materials) is within MAX_MANIFEST_BYTES and read back; it is the limit (a few more layers
     would not fit: it uses at least 90 % of the bytes allowed, or it is the absolute limit)."""
-    from heoslice.material import make_function
-    from heoslice.material import DEFAULT_MATERIALS, Material
-    from heoslice.pipeline import MAX_LAYERS, channel_name
     from heoslice.grading import GradeSpec, RegionSpec
+    from heoslice.material import DEFAULT_MATERIALS, Material, make_function
+    from heoslice.pipeline import channel_name
+    from heoslice.stack import MAX_LAYERS
 
     grade = GradeSpec(RegionSpec(nozzle_mm=0.5), make_function("linear"), Material("green", (0, 255, 0)), None,
                       DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"]) if channels else None

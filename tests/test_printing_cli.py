@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from printing_jobs import disc_masks, make_stack
 
 from heoslice.errors import StackBusyError
 from heoslice.locks import hold_stack
-from printing_jobs import disc_masks, make_stack
 
 HEOSLICE = [sys.executable, "-m", "heoslice"]
 

@@ -18,16 +18,37 @@ import tty
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from printing_jobs import disc_masks, make_stack, random_job, synthetic_job
 
 from heoslice.cli import cli, main
-from heoslice.errors import (ControllerFaultError, ControllerResetError, IncompatibleControllerError, LinkDeadError,
-                             PortError, PrintInterrupted, RetryLimitError, UnfinishedJobError)
-from heoslice.printing import CHUNK_HEADER, LinkTiming, next_chunk, optimal_frame_bytes, print_job, stack_job
+from heoslice.errors import (
+    ControllerFaultError,
+    ControllerResetError,
+    IncompatibleControllerError,
+    LinkDeadError,
+    PortError,
+    PrintInterrupted,
+    RetryLimitError,
+    UnfinishedJobError,
+)
+from heoslice.printing import (
+    CHUNK_HEADER,
+    LinkTiming,
+    next_chunk,
+    optimal_frame_bytes,
+    print_job,
+    stack_job,
+)
 from heoslice.printing import protocol as P
-from heoslice.printing.simulator import (FaultSpec, FdTransport, SimConfig, SimConnector, SimController,
-                                         TcpServerTransport)
+from heoslice.printing.simulator import (
+    FaultSpec,
+    FdTransport,
+    SimConfig,
+    SimConnector,
+    SimController,
+    TcpServerTransport,
+)
 from heoslice.printing.window import MIN_CHUNK_PAYLOAD
-from printing_jobs import disc_masks, make_stack, random_job, synthetic_job
 
 FAST = dict(baud=1_000_000, layer_time_s=0.0005, status_interval_s=0.2)
 #: A finer read/pacing granularity than the default 5 ms keeps fewer frames in flight at the tests' 100 kB/s.

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from heoslice.printing import protocol as P
 from heoslice.errors import HeosliceError, ProtocolError
+from heoslice.printing import protocol as P
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 TN1023_RAW = bytes.fromhex("AAAAAA80002AAAAAAAAA80002A22AAAAAAAAAAAAAAAAAAAA")

@@ -7,9 +7,15 @@ import time
 import numpy as np
 import pytest
 
-from heoslice.printing import protocol as P
-from heoslice.printing.simulator import FaultSpec, SimConfig, SimController, pipe_pair, sim_from_url
 from heoslice.errors import PortError
+from heoslice.printing import protocol as P
+from heoslice.printing.simulator import (
+    FaultSpec,
+    SimConfig,
+    SimController,
+    pipe_pair,
+    sim_from_url,
+)
 
 FAST = dict(baud=10_000_000, layer_time_s=0.001, status_interval_s=0.05)
 

@@ -16,10 +16,27 @@ import click
 
 from heoslice import __version__
 from heoslice.cli.common import error_line, exit_status_epilog
-from heoslice.errors import (EXIT_BUG, EXIT_BUSY, EXIT_CODES, EXIT_CONTROLLER, EXIT_HANGUP, EXIT_INPUT,
-                             EXIT_INTERRUPTED, EXIT_LINK_DEAD, EXIT_OK, EXIT_OUTPUT, EXIT_PORT, EXIT_PROTOCOL,
-                             EXIT_RESET, EXIT_RETRIES, EXIT_STACK_BUSY, EXIT_STACK_CHANGED, EXIT_TERMINATED,
-                             EXIT_UNFINISHED, EXIT_VERIFY)
+from heoslice.errors import (
+    EXIT_BUG,
+    EXIT_BUSY,
+    EXIT_CODES,
+    EXIT_CONTROLLER,
+    EXIT_HANGUP,
+    EXIT_INPUT,
+    EXIT_INTERRUPTED,
+    EXIT_LINK_DEAD,
+    EXIT_OK,
+    EXIT_OUTPUT,
+    EXIT_PORT,
+    EXIT_PROTOCOL,
+    EXIT_RESET,
+    EXIT_RETRIES,
+    EXIT_STACK_BUSY,
+    EXIT_STACK_CHANGED,
+    EXIT_TERMINATED,
+    EXIT_UNFINISHED,
+    EXIT_VERIFY,
+)
 from heoslice.pipeline import parallel
 from heoslice.signals import interrupt_on_terminating_signals
 
@@ -45,6 +62,7 @@ COMMANDS = {
     "slice": "heoslice.cli.slice:slice_cmd",
     "preview": "heoslice.cli.preview:preview",
     "verify": "heoslice.cli.verify:verify",
+    "export": "heoslice.cli.export:export",
     "print": "heoslice.cli.print:print_cmd",
     "controller": "heoslice.cli.controller:controller",
 }
@@ -59,9 +77,10 @@ EXIT_STATUSES = {
     "info": _COMMON_EXITS,
     "color": (*_COMMON_EXITS, EXIT_OUTPUT),
     "slice": (*_COMMON_EXITS, EXIT_OUTPUT),
-    "preview": (*_COMMON_EXITS, EXIT_OUTPUT),
+    "preview": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_VERIFY),
     "verify": (*_COMMON_EXITS, EXIT_VERIFY),
     "print": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_VERIFY, *_PRINTER_EXITS),
+    "export": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_VERIFY),
     "controller": (EXIT_OK, EXIT_BUG, EXIT_INPUT),  # a signal stops it normally
 }
 

@@ -8,12 +8,28 @@ from pathlib import Path
 import click
 
 from heoslice.cli.common import echo_warnings, progress_bar
-from heoslice.cli.options import FUNCTION_FLAGS, flags, function_from_options, function_options, option
+from heoslice.cli.options import (
+    FUNCTION_FLAGS,
+    flags,
+    function_from_options,
+    function_options,
+    option,
+)
 from heoslice.errors import InputError
+from heoslice.material import (
+    FUNCTION_KINDS,
+    REFERENCE_KINDS,
+    ColorSpec,
+    color_mesh,
+    default_output,
+    load_materials,
+    load_shell_materials,
+    material_roles,
+    reference_kinds_taking,
+    resolve_material,
+    write_ply,
+)
 from heoslice.mesh import load_mesh
-from heoslice.material import (FUNCTION_KINDS, REFERENCE_KINDS, ColorSpec, color_mesh, default_output,
-                               load_materials, load_shell_materials, material_roles, reference_kinds_taking,
-                               resolve_material, write_ply)
 
 #: Library parameters of color_mesh and material_roles -> the options of this command.
 COLOR_FLAGS = {**FUNCTION_FLAGS, "reference": "--ref", "at": "--at", "normal": "--normal",
@@ -165,7 +181,7 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
     if as_json:
         material = lambda m: {"name": m.name, "color": list(m.color), "channel": m.channel}  # noqa: E731
         click.echo(json.dumps({
-            "output": str(target), "vertices": len(colored.vertices), "triangles": len(colored.faces),
+            "model": str(model), "ok": True, "output": str(target), "vertices": len(colored.vertices), "triangles": len(colored.faces),
             "function": function.describe(), "reference": colored.reference.describe(),
             "r": [float(colored.r.min()), float(colored.r.max())], "f": [float(f.min()), float(f.max())],
             "from": material(roles.m1), "to": material(roles.m2),

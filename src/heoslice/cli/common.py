@@ -21,7 +21,13 @@ from pathlib import Path
 
 import click
 
-from heoslice.errors import EXIT_BUG, EXIT_CODES, EXIT_INPUT, EXIT_INTERRUPTED, HeosliceError
+from heoslice.errors import (
+    EXIT_BUG,
+    EXIT_CODES,
+    EXIT_INPUT,
+    EXIT_INTERRUPTED,
+    HeosliceError,
+)
 
 #: Characters that make a MODEL argument a pattern for heoslice to expand (when no file has that name).
 GLOB_CHARACTERS = frozenset("*?[")

@@ -52,7 +52,12 @@ def controller(use_pty: bool, listen: str | None, baud: int | None, layer_time: 
                time_scale: float, seed: int, settings: tuple[str, ...], duration: float | None,
                quiet: bool, as_json: bool) -> None:
     """Run the simulated controller so a pipeline can be dry-run end to end without hardware."""
-    from heoslice.printing.simulator import FdTransport, SimController, TcpServerTransport, sim_from_url
+    from heoslice.printing.simulator import (
+        FdTransport,
+        SimController,
+        TcpServerTransport,
+        sim_from_url,
+    )
 
     if use_pty == (listen is not None):
         raise click.UsageError("give exactly one of --pty and --listen HOST:PORT")

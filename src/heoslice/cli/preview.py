@@ -2,13 +2,33 @@
 
 from __future__ import annotations
 
+import json
+from contextlib import contextmanager
 from pathlib import Path
 
 import click
 import numpy as np
 
 from heoslice.errors import InputError, OutputError
+from heoslice.preview.layer import MAX_PREVIEW_SIDE, MIN_PREVIEW_SIDE
+from heoslice.preview.sheet import MAX_SHEET_LAYERS, MAX_TILE, MIN_TILE
 from heoslice.stack import check_input_path, read_manifest
+
+#: Library parameter names -> the options that set them, for error messages.
+FLAGS = {"section": "--section", "size": "--size", "tile": "--tile", "columns": "--columns", "layers": "--layers",
+         "layer": "--layer"}
+
+
+@contextmanager
+def flags_named():
+    """Re-raise a library InputError that names a parameter with the option's name instead."""
+    try:
+        yield
+    except InputError as err:
+        name, _, rest = str(err).partition(": ")
+        if name in FLAGS:
+            raise InputError(f"{FLAGS[name]}: {rest}") from err
+        raise
 
 
 @click.command("preview", epilog="""\b
@@ -17,53 +37,88 @@ Examples:
   heoslice preview vase_stack --layer 40 --size 800        # at most 800 px wide or high
   heoslice preview liver_stack --sheet --layers 0:100:10 -o sheet.png
   heoslice preview liver_stack --sheet                     # 16 layers spread over the stack
+  heoslice preview vase_linear_stack --section x=0 -o section.png
 """)
 @click.argument("stack", type=click.Path(path_type=Path))
 @click.option("--layer", "layer", type=int, default=None, help="Layer number to show [default: the middle layer].")
 @click.option("--sheet", is_flag=True, help="A contact sheet of several layers instead of one.")
 @click.option("--layers", "layers", default=None,
               help="Layers of the sheet: N, A,B,C or START:STOP[:STEP] [default: 16 spread evenly].")
-@click.option("--size", type=click.IntRange(min=16), default=None,
-              help="Longest side of a single-layer image, px [default: full resolution].")
-@click.option("--tile", type=click.IntRange(min=32), default=256, show_default=True,
+@click.option("--size", type=click.IntRange(MIN_PREVIEW_SIDE, MAX_PREVIEW_SIDE), default=None,
+              help=f"Longest side of a single-layer image, px [default: full resolution, at most {MAX_PREVIEW_SIDE}].")
+@click.option("--tile", type=click.IntRange(MIN_TILE, MAX_TILE), default=256, show_default=True,
               help="Longest side of each sheet tile, px.")
-@click.option("--columns", type=click.IntRange(min=1), default=None, help="Sheet columns [default: square].")
+@click.option("--columns", type=click.IntRange(1, MAX_SHEET_LAYERS), default=None,
+              help="Sheet columns [default: square].")
+@click.option("--section", "section", default=None,
+              help="A vertical section instead: x=MM or y=MM, in material colours at true aspect ratio.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
-              help="PNG file to write [default: ./STACK_layer_NNNNN.png or ./STACK_sheet.png].")
+              help="PNG file to write [default: ./STACK_layer_NNNNN.png, ./STACK_sheet.png or "
+                   "./STACK_section_x12.5.png].")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, size: int | None, tile: int,
-            columns: int | None, output: Path | None) -> None:
+            columns: int | None, section: str | None, output: Path | None, as_json: bool) -> None:
     """Write a PNG of one layer of STACK (or a contact sheet with --sheet).
 
     Files are checked against the manifest (inside the stack, sha256, size) before
-    they are decoded. Coloured layers are shown over dark grey, layers with droplet masks
-    (slice --channels) in their materials' colours over dark grey; other 1-bit layers dark on white.
+    they are decoded, and decoded at the size they are drawn. Coloured layers are shown
+    over dark grey, layers with droplet masks (slice --channels) in their materials'
+    colours over dark grey; other 1-bit layers dark on white.
     """
-    from heoslice.preview import contact_sheet, layer_image, parse_layers
-
     check_input_path(stack)
     manifest = read_manifest(stack)
     count = len(manifest["layers"])
     if count == 0:
         raise InputError(f"{stack}: the stack has no layers")
+    with flags_named():
+        target, draw = _plan(stack, manifest, layer, sheet, layers, size, tile, columns, section, output)
+        if target.suffix.lower() != ".png":
+            raise InputError(f"{target}: the preview is a PNG; give a file name ending in .png")
+        image = draw()
+    try:
+        image.save(target, format="PNG")
+    except OSError as err:
+        raise OutputError(f"{target}: cannot write ({err.strerror or err})") from err
+    if as_json:
+        click.echo(json.dumps({"stack": str(stack), "ok": True, "output": str(target), "width": image.size[0],
+                               "height": image.size[1]}))
+    else:
+        click.echo(f"{target}: {image.size[0]} x {image.size[1]} px")
+
+
+def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: str | None, size: int | None,
+          tile: int, columns: int | None, section: str | None, output: Path | None):
+    """(target PNG path, function drawing the PIL image) of the requested preview, options checked."""
+    from heoslice.preview import (
+        contact_sheet,
+        layer_image,
+        parse_layers,
+        parse_section,
+        section_image,
+        sheet_size,
+    )
+    from heoslice.preview.section import section_line
+
+    count = len(manifest["layers"])
     name = stack.resolve().name
+    if section is not None:
+        if sheet or layer is not None or layers is not None:
+            raise InputError("--section: not with --layer, --sheet or --layers")
+        axis, position = parse_section(section)
+        section_line(manifest, axis, position)
+        return (output or Path.cwd() / f"{name}_section_{axis}{position:g}.png",
+                lambda: section_image(stack, axis, position, size, manifest))
     if sheet:
         if layer is not None:
             raise InputError("--layer: use --layers with --sheet")
         chosen = parse_layers(layers, count) if layers else sorted(set(np.linspace(0, count - 1, min(16, count))
                                                                        .round().astype(int).tolist()))
-        image = contact_sheet(stack, chosen, tile=tile, columns=columns, manifest=manifest)
-        target = output or Path.cwd() / f"{name}_sheet.png"
-    else:
-        if layers is not None:
-            raise InputError("--layers: only used with --sheet")
-        index = count // 2 if layer is None else layer
-        image = layer_image(stack, index, size, manifest)
-        target = output or Path.cwd() / f"{name}_layer_{index:05d}.png"
-    if target.suffix.lower() != ".png":
-        raise InputError(f"{target}: the preview is a PNG; give a file name ending in .png")
-    try:
-        image.save(target, format="PNG")
-    except OSError as err:
-        raise OutputError(f"{target}: cannot write ({err.strerror or err})") from err
-    click.echo(f"{target}: {image.size[0]} x {image.size[1]} px")
-
+        sheet_size(len(chosen), tile, columns)
+        return (output or Path.cwd() / f"{name}_sheet.png",
+                lambda: contact_sheet(stack, chosen, tile=tile, columns=columns, manifest=manifest))
+    if layers is not None:
+        raise InputError("--layers: only used with --sheet")
+    index = count // 2 if layer is None else layer
+    if not 0 <= index < count:
+        raise InputError(f"--layer: layer {index} does not exist (the stack has layers 0..{count - 1})")
+    return output or Path.cwd() / f"{name}_layer_{index:05d}.png", lambda: layer_image(stack, index, size, manifest)

@@ -9,7 +9,14 @@ from pathlib import Path
 import click
 
 from heoslice.locks import hold_stack
-from heoslice.printing import Progress, default_log_path, job_summary, plan_transfer, print_job, stack_job
+from heoslice.printing import (
+    Progress,
+    default_log_path,
+    job_summary,
+    plan_transfer,
+    print_job,
+    stack_job,
+)
 from heoslice.stack import check_input_path
 
 

@@ -7,11 +7,17 @@ from pathlib import Path
 
 import click
 
-from heoslice.cli.common import echo_warnings, expand_inputs, plural, progress_bar, run_each
+from heoslice.cli.common import (
+    echo_warnings,
+    expand_inputs,
+    plural,
+    progress_bar,
+    run_each,
+)
 from heoslice.cli.options import flags, function_from_options, function_options, option
 from heoslice.errors import InputError
 from heoslice.mesh import load_mesh, scaled
-from heoslice.pipeline import MAX_DPI, SliceSpec, check_scale, slice_to_stack, slice_warnings
+from heoslice.pipeline import SliceSpec, check_scale, slice_to_stack, slice_warnings
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3
 
 #: SliceSpec and slice_to_stack parameters -> the options that set them (library errors name the parameter).

@@ -11,7 +11,12 @@ import click
 from heoslice.cli.common import plural, signed_percent
 from heoslice.errors import VerifyError
 from heoslice.mesh import Mesh, load_mesh, scaled, volume_check
-from heoslice.stack import check_input_path, layer_height_problems, stack_volume_mm3, verify_stack
+from heoslice.stack import (
+    check_input_path,
+    layer_height_problems,
+    stack_volume_mm3,
+    verify_stack,
+)
 
 
 def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float) -> tuple[list[str], list[str], dict]:

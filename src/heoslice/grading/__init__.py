@@ -12,10 +12,20 @@ compiled loops of the module it is named after.
 
 from heoslice.grading.cache import GradingCache
 from heoslice.grading.droplets import droplet_planes
-from heoslice.grading.families import Family, FamilyLayout, family_layout, layer_families
+from heoslice.grading.families import (
+    Family,
+    FamilyLayout,
+    family_layout,
+    layer_families,
+)
 from heoslice.grading.field import FamilyField, family_field
 from heoslice.grading.halftone import TILE, bayer_matrix, layer_tile, thresholds
-from heoslice.grading.labels import LayerRegions, family_of, label_fractions, layer_regions
+from heoslice.grading.labels import (
+    LayerRegions,
+    family_of,
+    label_fractions,
+    layer_regions,
+)
 from heoslice.grading.materials import contour_values
 from heoslice.grading.render import GradedLayer, render_graded
 from heoslice.grading.spec import DIRECTIONS, GradeSpec, RegionSpec, band_count

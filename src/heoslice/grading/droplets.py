@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 from heoslice.grading.cache import ChoiceTable, GradingCache
-from heoslice.grading.droplets_kernels import Dither, LabelledLayer, LayerMixes, droplet_bits
+from heoslice.grading.droplets_kernels import (
+    Dither,
+    LabelledLayer,
+    LayerMixes,
+    droplet_bits,
+)
 from heoslice.grading.halftone import TILE, layer_tile
 from heoslice.grading.labels import LayerRegions, layer_regions
 from heoslice.grading.materials import family_starts, target_fractions

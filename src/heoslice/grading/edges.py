@@ -13,7 +13,6 @@ import numpy as np
 
 from heoslice.grading.edges_kernels import straight_runs
 
-
 #: Largest distance (mm) of a ring point from the edge that replaces it for it to be left out of the ring's edges.
 _STRAIGHT_MM = 1e-5
 

@@ -38,13 +38,31 @@ import shapely
 from heoslice.grading.cache import RingMemo
 from heoslice.grading.edges import RingEdges, convex_rings, edges_key, ring_edges
 from heoslice.grading.families import Family, FamilyLayout, family_layout
-from heoslice.grading.field_kernels import CellPixels, band_field, curve_cells, expand_planes, label_target
-from heoslice.grading.lattice import (CELL_MM, Lattice, lattice_for, measured_centres, padded, ring_measures)
-from heoslice.grading.refine import cell_hessians, cells_to_refine, fit_ring_models, refine_cells, ring_vertices
-from heoslice.grading.search import RingSet, rings_apart, rings_apart_kept, ring_tree
+from heoslice.grading.field_kernels import (
+    CellPixels,
+    band_field,
+    curve_cells,
+    expand_planes,
+    label_target,
+)
+from heoslice.grading.lattice import (
+    CELL_MM,
+    Lattice,
+    lattice_for,
+    measured_centres,
+    padded,
+    ring_measures,
+)
+from heoslice.grading.refine import (
+    cell_hessians,
+    cells_to_refine,
+    fit_ring_models,
+    refine_cells,
+    ring_vertices,
+)
+from heoslice.grading.search import RingSet, ring_tree, rings_apart, rings_apart_kept
 from heoslice.grading.spec import RegionSpec, coordinate_precision
 from heoslice.layers.rasterising import Grid
-
 
 #: The same for families of one or two convex rings (a disc, a tube's wall): their fields have no
 #: creases but the deep medial axis (none where the nearest of several holes changes, none beside a

@@ -20,7 +20,6 @@ import functools
 
 import numpy as np
 
-
 #: Side of the ordered-dither matrix (256 threshold levels).
 TILE = 16
 

@@ -21,7 +21,6 @@ from heoslice.grading.labels_kernels import disc_winding
 from heoslice.grading.spec import RegionSpec
 from heoslice.layers.rasterising import Grid, solid_mask
 
-
 #: How far (mm) the disc around an island's pixel centres must stay from the layer's other loops for
 #: :func:`_alone_in_boxes`: far beyond the rounding of the rasteriser's inside test.
 _DISC_MARGIN_MM = 1e-6

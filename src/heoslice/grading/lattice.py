@@ -16,7 +16,6 @@ from heoslice.grading.lattice_kernels import feet, inside_centres, signed_feet
 from heoslice.grading.search import RingSet, nearest_edges, ring_tree
 from heoslice.layers.rasterising import Grid
 
-
 #: Target lattice cell size, mm (cells are a whole number of pixels, 4 to 16).
 CELL_MM = 0.5
 

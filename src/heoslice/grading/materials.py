@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from heoslice.material import evaluate
 from heoslice.grading.families import Family
 from heoslice.grading.field import FamilyField
 from heoslice.grading.labels import LayerRegions, family_of, label_fractions
 from heoslice.grading.search import nearest_edges, ring_tree
 from heoslice.grading.spec import GradeSpec
 from heoslice.layers.rasterising import Grid
+from heoslice.material import evaluate
 
 #: Most pixels whose nearest starting-ring point is measured at once by :func:`pixel_contour_values`.
 _PIXELS_AT_ONCE = 1 << 20

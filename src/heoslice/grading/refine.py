@@ -6,12 +6,19 @@ from __future__ import annotations
 import numpy as np
 
 from heoslice.grading.families import FamilyLayout
-from heoslice.grading.lattice import Lattice
 from heoslice.grading.field_kernels import CellPixels, label_target
-from heoslice.grading.refine_kernels import CellField, FitTest, RingVertices, band_cells, hessian_of, refine_flags, ring_models
+from heoslice.grading.lattice import Lattice
+from heoslice.grading.refine_kernels import (
+    CellField,
+    FitTest,
+    RingVertices,
+    band_cells,
+    hessian_of,
+    refine_flags,
+    ring_models,
+)
 from heoslice.grading.search import RingSet, nearest_edges
 from heoslice.layers.rasterising import Grid
-
 
 #: Largest error of a sub-region boundary, in pixels, before a lattice cell is evaluated per pixel.
 TOLERANCE_PX = 0.5

@@ -8,7 +8,12 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from heoslice.grading.field_kernels import CellPixels, LabelTarget, inverse_distance, nearest_end
+from heoslice.grading.field_kernels import (
+    CellPixels,
+    LabelTarget,
+    inverse_distance,
+    nearest_end,
+)
 from heoslice.grading.jit import JIT, f32, f64, i64
 
 

@@ -9,7 +9,11 @@ import numpy as np
 
 from heoslice.grading.cache import RingMemo
 from heoslice.grading.edges import RingEdges
-from heoslice.grading.search_kernels import edge_sets_apart, edge_tree, nearest_in_groups
+from heoslice.grading.search_kernels import (
+    edge_sets_apart,
+    edge_tree,
+    nearest_in_groups,
+)
 
 
 @dataclass(frozen=True)

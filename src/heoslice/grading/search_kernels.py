@@ -10,7 +10,6 @@ import numpy as np
 from heoslice.grading.edges_kernels import EdgeArrays, edge_arrays, point_to_edge
 from heoslice.grading.jit import JIT, f32, f64
 
-
 #: Children per node of the edge hierarchy (:func:`edge_tree`).
 FAN = 8
 

@@ -13,7 +13,6 @@ import numpy as np
 
 from heoslice.errors import InputError
 
-
 DIRECTIONS = ("in", "out")
 
 

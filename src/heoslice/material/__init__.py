@@ -8,19 +8,63 @@ distance), ``references`` (plane, point, axis, surface as one table of kinds, an
 M2), ``coloring`` (a mesh coloured by a function and written as PLY).
 """
 
-from heoslice.material.coloring import (MAX_SUBDIVIDED_TRIANGLES, ColoredMesh, ColorSpec, color_mesh,
-                                        default_output, material_comment, ply_bytes, subdivide, write_ply)
-from heoslice.material.expressions import (EXPRESSION_CONSTANTS, EXPRESSION_FUNCTIONS, compile_expression,
-                                           evaluate_expression)
-from heoslice.material.functions import (FUNCTION_KINDS, FUNCTIONS, DistributionFunction, FunctionKind, evaluate,
-                                         make_function)
-from heoslice.material.materials import (DEFAULT_MATERIALS, Material, MaterialRoles, blend, load_materials,
-                                         load_shell_materials, material_roles, parse_color, resolve_material,
-                                         to_rgb8)
-from heoslice.material.references import (REFERENCE_KINDS, REFERENCES, Reference, ReferenceKind, make_reference,
-                                          material_fraction, normalise, reference_distance, reference_kinds_taking)
-from heoslice.material.surface import SurfaceIndex, build_surface_index, surface_distance
-from heoslice.material.triangles import closest_points_on_triangles, point_triangle_distance
+from heoslice.material.coloring import (
+                                        MAX_SUBDIVIDED_TRIANGLES,
+                                        ColoredMesh,
+                                        ColorSpec,
+                                        color_mesh,
+                                        default_output,
+                                        material_comment,
+                                        ply_bytes,
+                                        subdivide,
+                                        write_ply,
+)
+from heoslice.material.expressions import (
+                                        EXPRESSION_CONSTANTS,
+                                        EXPRESSION_FUNCTIONS,
+                                        compile_expression,
+                                        evaluate_expression,
+)
+from heoslice.material.functions import (
+                                        FUNCTION_KINDS,
+                                        FUNCTIONS,
+                                        DistributionFunction,
+                                        FunctionKind,
+                                        evaluate,
+                                        make_function,
+)
+from heoslice.material.materials import (
+                                        DEFAULT_MATERIALS,
+                                        Material,
+                                        MaterialRoles,
+                                        blend,
+                                        load_materials,
+                                        load_shell_materials,
+                                        material_roles,
+                                        parse_color,
+                                        resolve_material,
+                                        to_rgb8,
+)
+from heoslice.material.references import (
+                                        REFERENCE_KINDS,
+                                        REFERENCES,
+                                        Reference,
+                                        ReferenceKind,
+                                        make_reference,
+                                        material_fraction,
+                                        normalise,
+                                        reference_distance,
+                                        reference_kinds_taking,
+)
+from heoslice.material.surface import (
+                                        SurfaceIndex,
+                                        build_surface_index,
+                                        surface_distance,
+)
+from heoslice.material.triangles import (
+                                        closest_points_on_triangles,
+                                        point_triangle_distance,
+)
 
 __all__ = [
     "MAX_SUBDIVIDED_TRIANGLES", "ColoredMesh", "ColorSpec", "color_mesh", "default_output", "material_comment",

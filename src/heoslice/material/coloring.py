@@ -30,10 +30,16 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import InputError, OutputError
-from heoslice.mesh import MATERIAL_PROPERTY, Mesh, load_mesh, shell_labels
 from heoslice.material.functions import DistributionFunction, evaluate, make_function
 from heoslice.material.materials import DEFAULT_MATERIALS, Material, blend, to_rgb8
-from heoslice.material.references import REFERENCES, Reference, make_reference, normalise, reference_distance
+from heoslice.material.references import (
+    REFERENCES,
+    Reference,
+    make_reference,
+    normalise,
+    reference_distance,
+)
+from heoslice.mesh import MATERIAL_PROPERTY, Mesh, load_mesh, shell_labels
 
 #: Subdivision refuses to make more triangles than this (memory: about 1 KB each on the way).
 MAX_SUBDIVIDED_TRIANGLES = 20_000_000

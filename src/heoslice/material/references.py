@@ -17,7 +17,11 @@ import numpy as np
 
 from heoslice.errors import InputError
 from heoslice.material.functions import DistributionFunction, evaluate, finite
-from heoslice.material.surface import SurfaceIndex, build_surface_index, surface_distance
+from heoslice.material.surface import (
+    SurfaceIndex,
+    build_surface_index,
+    surface_distance,
+)
 
 
 @dataclass(frozen=True, eq=False)

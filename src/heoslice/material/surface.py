@@ -16,7 +16,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from heoslice.errors import InputError
-from heoslice.material.surface_kernels import LEAF_SIZE, Hierarchy, build_nodes, nearest_distances
+from heoslice.material.surface_kernels import (
+    LEAF_SIZE,
+    Hierarchy,
+    build_nodes,
+    nearest_distances,
+)
 
 
 @dataclass(frozen=True, eq=False)

@@ -22,7 +22,7 @@ _EXPORTS = {
     "RunContext": "runs", "RunResult": "runs", "run_contours": "runs", "slice_run": "runs", "plane_runs": "runs",
     "MAX_LAYER_MM": "spec", "MAX_MARGIN_MM": "spec", "MAX_CANVAS_MM": "spec", "MAX_JOBS": "spec",
     "MAX_COORDINATE_MM": "spec", "check_range": "spec", "check_scale": "spec",
-    "slice_to_stack": "slice_job", "grading_summary": "slice_job", "MAX_LAYERS": "slice_job",
+    "slice_to_stack": "slice_job", "grading_summary": "slice_job",
     "layer_limit": "slice_job", "slice_warnings": "slice_job",
     "run_all": "parallel", "keep_freed_memory": "parallel",
 }

@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
+from heoslice.grading import GradeSpec, GradingCache, droplet_planes, render_graded
 from heoslice.layers.contours import Contours
 from heoslice.layers.rasterising import Grid, count_solid, packed_mask, render_layer
 from heoslice.layers.slicing import interpolate_at
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec, channel_name
-from heoslice.grading import GradeSpec, GradingCache, droplet_planes, render_graded
 from heoslice.stack import encode_bilevel_tiff, encode_tiff, layer_file_name, write_file
 
 
@@ -66,6 +66,7 @@ class LayerJob:
     grid: Grid
     dpi: tuple[float, float]
     compression: str
+    layer_height_mm: float
     base_color: tuple[int, int, int]
     path: Path
     graded: GradedJob | None = None
@@ -91,7 +92,7 @@ def render_and_write(job: LayerJob, cache: PipelineCache | None = None, packed: 
     if job.point_colors is None:
         data = _solid_tiff(image, solid, job, cache)
     else:
-        data = encode_tiff(image, job.dpi, job.compression)
+        data = encode_tiff(image, job.dpi, job.compression, job.layer_height_mm)
     encoded = time.perf_counter()
     digest = write_file(job.path, data)
     return job.index, digest, solid, rendered - started, encoded - rendered, ()
@@ -105,7 +106,7 @@ def _solid_tiff(packed: np.ndarray, solid: int, job: LayerJob, cache: PipelineCa
     last = None if cache is None else cache.solid
     if last is not None and last.form == form and np.array_equal(last.packed, packed):
         return last.data
-    data = encode_bilevel_tiff(packed, job.grid.width, job.dpi, job.compression)
+    data = encode_bilevel_tiff(packed, job.grid.width, job.dpi, job.compression, job.layer_height_mm)
     if cache is not None:
         cache.solid = EncodedSolid(form, packed, data)
     return data
@@ -126,7 +127,8 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed:
         width = job.grid.width
         solid = count_solid(packed)
         data = _solid_tiff(packed, solid, job, cache)
-        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression), count_solid(plane))
+        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm),
+                   count_solid(plane))
                   for path, plane in zip(graded.channel_paths, planes)]
         encoded = time.perf_counter()
         digest = write_file(job.path, data)
@@ -137,7 +139,7 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed:
                           graded.spec, job.index, point_colors=job.point_colors,
                           point_material=graded.point_material, cache=grading_cache)
     rendered = time.perf_counter()
-    data = encode_tiff(layer.image, job.dpi, job.compression)
+    data = encode_tiff(layer.image, job.dpi, job.compression, job.layer_height_mm)
     encoded = time.perf_counter()
     digest = write_file(job.path, data)
     return job.index, digest, layer.solid, rendered - started, encoded - rendered, ()
@@ -181,6 +183,7 @@ def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, dire
             grid=grid,
             dpi=spec.dpi,
             compression=spec.compression,
+            layer_height_mm=spec.layer_height_mm,
             base_color=spec.base_color,
             path=directory / layer_file_name(index),
             graded=graded,

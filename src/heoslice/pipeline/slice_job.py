@@ -7,55 +7,46 @@ soon as it is done, so memory does not grow with the number of layers) and write
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
 
 from heoslice.errors import InputError
+from heoslice.grading import GradeSpec
 from heoslice.layers.planes import layer_count, plane_heights
 from heoslice.layers.rasterising import grid_for
 from heoslice.layers.slicing import face_z_range
+from heoslice.locks import hold_stack
 from heoslice.mesh import Mesh
 from heoslice.pipeline.parallel import run_all
 from heoslice.pipeline.runs import RunContext, RunResult
-from heoslice.grading import GradeSpec
-from heoslice.pipeline.spec import MAX_COORDINATE_MM, SliceSpec, StageTimes, channel_name
+from heoslice.pipeline.spec import (
+    MAX_COORDINATE_MM,
+    SliceSpec,
+    StageTimes,
+    channel_name,
+)
 from heoslice.stack import (
-    MAX_IMAGE_PIXELS,
-    MAX_MANIFEST_BYTES,
-    MAX_MANIFEST_CONTAINERS,
     ChannelRecord,
     ImageRecord,
     LayerRecord,
     build_manifest,
-    layer_file_name,
     check_image_size,
     grading_summary,
+    max_layer_count,
     prepare_directory,
     write_manifest,
 )
 
-#: Most layers one stack may have, whatever its manifest's size allows (:func:`layer_limit`).
-MAX_LAYERS = 1_000_000
-
 
 def layer_limit(spec: SliceSpec) -> int:
-    """Most layers a stack sliced with ``spec`` may have so that its manifest, at its longest, stays within
-    what the readers accept (MAX_MANIFEST_BYTES, MAX_MANIFEST_CONTAINERS): a stack heoslice writes, it can
-    verify and print. At most MAX_LAYERS."""
+    """Most layers a stack sliced with ``spec`` may have: :func:`heoslice.stack.max_layer_count` for its
+    droplet-mask channels, so that a stack heoslice writes is one it can verify and print."""
     materials = spec.grade.channel_materials() if spec.channels else ()
-    channels = [{"material": m.name, "file": layer_file_name(MAX_LAYERS, channel_name(m)), "sha256": "f" * 64,
-                 "solid_pixels": MAX_IMAGE_PIXELS} for m in materials]
-    entry = {"index": MAX_LAYERS, "z_mm": -1.2345678901234567e-300, "file": layer_file_name(MAX_LAYERS),
-             "sha256": "f" * 64, "solid_pixels": MAX_IMAGE_PIXELS, "open_contours": False,
-             **({"channels": channels} if spec.channels else {})}
-    one, two = (len(json.dumps({"layers": [entry] * count}, indent=1)) for count in (1, 2))
-    header_bytes, header_containers = 64 << 10, 64
-    return min(MAX_LAYERS, (MAX_MANIFEST_BYTES - header_bytes) // (two - one),
-               (MAX_MANIFEST_CONTAINERS - header_containers) // (1 + (1 + len(channels) if channels else 0)))
+    return max_layer_count([channel_name(m) for m in materials])
 
 
 def slice_warnings(mesh: Mesh, spec: SliceSpec) -> list[str]:
@@ -97,38 +88,46 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     if layer_count(bounds[0, 2], bounds[1, 2], spec.layer_height_mm, limit) > limit:
         raise InputError(f"layer_height_mm: {spec.layer_height_mm:g} mm gives more than {limit} layers for this "
                          f"part's {float(bounds[1, 2] - bounds[0, 2]):g} mm (the most one stack's manifest holds)")
-    prepare_directory(directory, force)
-    z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
-    results: dict[int, tuple] = {}
-    open_layers = np.zeros(len(z), dtype=bool)
+    with ExitStack() as held:
+        # held from before --force empties the directory to the manifest: a print holding the stack, or a
+        # second slice into it, makes this one stop with one line (locks.StackBusyError) instead of racing
+        existed = directory.is_dir()
+        if existed:
+            held.enter_context(hold_stack(directory, "slicing into it"))
+        prepare_directory(directory, force)
+        if not existed:
+            held.enter_context(hold_stack(directory, "slicing into it"))
+        z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
+        results: dict[int, tuple] = {}
+        open_layers = np.zeros(len(z), dtype=bool)
 
-    def on_done(run: RunResult) -> None:
-        for index, digest, solid, raster_s, encode_s, channels in run.layers:
-            results[index] = (digest, solid, channels)
-            times.raster += raster_s
-            times.encode += encode_s
-        open_layers[run.open_layers] = True
-        times.slice += run.slice_s
-        times.contours += run.contours_s
-        if progress is not None:
-            progress(len(results), len(z))
+        def on_done(run: RunResult) -> None:
+            for index, digest, solid, raster_s, encode_s, channels in run.layers:
+                results[index] = (digest, solid, channels)
+                times.raster += raster_s
+                times.encode += encode_s
+            open_layers[run.open_layers] = True
+            times.slice += run.slice_s
+            times.contours += run.contours_s
+            if progress is not None:
+                progress(len(results), len(z))
 
-    context = RunContext(mesh=mesh, z=z, face_range=face_z_range(mesh.vertices, mesh.faces), grid=grid,
-                         spec=spec, directory=directory)
-    run_all(context, spec.worker_count(), on_done)
-    mode = _image_mode(mesh, spec)
-    manifest = build_manifest(
-        source_file=mesh.source.name, source_sha256=mesh.sha256, layer_height_mm=spec.layer_height_mm,
-        dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
-        image=ImageRecord(grid.width, grid.height, (grid.x_left, grid.y_top), mode, spec.compression),
-        z_range_mm=(bounds[0, 2], bounds[1, 2]), warnings=mesh.warnings,
-        layers=[LayerRecord(z[index], results[index][0], results[index][1], open_layers[index],
-                            _channel_records(spec.grade, results[index][2]) if spec.channels else None)
-                for index in range(len(z))],
-        grading=None if spec.grade is None else grading_summary(spec.grade))
-    write_manifest(directory, manifest)
-    times.total = time.perf_counter() - started
-    return manifest, times
+        context = RunContext(mesh=mesh, z=z, face_range=face_z_range(mesh.vertices, mesh.faces), grid=grid,
+                             spec=spec, directory=directory)
+        run_all(context, spec.worker_count(), on_done)
+        mode = _image_mode(mesh, spec)
+        manifest = build_manifest(
+            source_file=mesh.source.name, source_sha256=mesh.sha256, layer_height_mm=spec.layer_height_mm,
+            dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
+            image=ImageRecord(grid.width, grid.height, (grid.x_left, grid.y_top), mode, spec.compression),
+            z_range_mm=(bounds[0, 2], bounds[1, 2]), warnings=mesh.warnings,
+            layers=[LayerRecord(z[index], results[index][0], results[index][1], open_layers[index],
+                                _channel_records(spec.grade, results[index][2]) if spec.channels else None)
+                    for index in range(len(z))],
+            grading=None if spec.grade is None else grading_summary(spec.grade))
+        write_manifest(directory, manifest)
+        times.total = time.perf_counter() - started
+        return manifest, times
 
 
 def _image_mode(mesh: Mesh, spec: SliceSpec) -> str:

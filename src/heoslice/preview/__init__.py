@@ -5,7 +5,8 @@ file must stay inside the stack and match its sha256 and layout before it is dec
 """
 
 from heoslice.preview.layer import channel_colors, channels_rgb, fit, layer_display, layer_image, layer_rgb
-from heoslice.preview.sheet import contact_sheet, parse_layers
+from heoslice.preview.section import parse_section, section_image
+from heoslice.preview.sheet import contact_sheet, parse_layers, sheet_size
 
 __all__ = ["channel_colors", "channels_rgb", "contact_sheet", "fit", "layer_display", "layer_image", "layer_rgb",
-           "parse_layers"]
+           "parse_layers", "parse_section", "section_image", "sheet_size"]

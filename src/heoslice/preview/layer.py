@@ -15,8 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import InputError, VerifyError
-from heoslice.stack import read_layer_channels, read_layer_mask, read_layer_pixels, read_manifest
+from heoslice.stack import layer_strips, read_manifest
 
+#: Longest side of a drawn preview, px: larger requests are refused, larger layers reduced to it
+#: (memory: at most about 4 x MAX_PREVIEW_SIDE^2 x 3 bytes for the image being reduced).
+MAX_PREVIEW_SIDE = 4096
+MIN_PREVIEW_SIDE = 16
 #: Colour of solid pixels in 1-bit layers.
 SOLID_GREY = (64, 64, 64)
 BACKGROUND = (255, 255, 255)
@@ -68,18 +72,104 @@ def channel_colors(manifest: dict, index: int) -> np.ndarray:
     return np.array(colors, dtype=np.uint8).reshape(-1, 3)
 
 
-def layer_display(directory: Path, manifest: dict, index: int) -> np.ndarray:
-    """(h, w, 3) uint8 display image of layer ``index``: from its droplet masks when it has them
-    (checked to cover exactly the layer's solid pixels, once each), else from its stored pixels."""
-    if not manifest["layers"][index].get("channels"):
-        return layer_rgb(read_layer_pixels(directory, manifest, index))
-    colors = channel_colors(manifest, index)
-    solid = read_layer_mask(directory, manifest, index)
-    masks = read_layer_channels(directory, manifest, index)
-    if not np.array_equal(masks.sum(axis=0, dtype=np.uint16), solid):
+class BoxReducer:
+    """Box-filter reduction by an integer ``factor`` of an image fed as row strips of C feature planes
+    ((rows, w) each, any real dtype), drawn as (ceil(h / factor), ceil(w / factor), 3) uint8 by ``to_rgb``
+    (block means (r, w', C) float32 -> (r, w', 3) uint8). The display colour is linear in the features,
+    so the mean colour of a block is ``to_rgb`` of its mean features. Memory: the drawn image and fewer
+    than ``factor`` rows of the planes."""
+
+    def __init__(self, width: int, height: int, factor: int, to_rgb):
+        self.factor, self.to_rgb = factor, to_rgb
+        self.out = np.empty((-(-height // factor), -(-width // factor), 3), dtype=np.uint8)
+        self._carry: list[np.ndarray] | None = None
+        self._row = 0
+        self._columns = np.arange(0, width, factor)
+        self._column_counts = np.diff(np.append(self._columns, width)).astype(np.float32)
+
+    def feed(self, planes: list[np.ndarray]) -> None:
+        """Add the next rows of the image: one (rows, w) array per feature."""
+        if self._carry is not None:
+            planes = [np.concatenate([carry, plane]) for carry, plane in zip(self._carry, planes)]
+        rows = len(planes[0])
+        whole = rows // self.factor * self.factor
+        if whole:
+            self._emit([plane[:whole] for plane in planes])
+        self._carry = [plane[whole:] for plane in planes] if whole < rows else None
+
+    def finish(self) -> np.ndarray:
+        """The drawn image, after the last rows were fed."""
+        if self._carry is not None:
+            self._emit(self._carry)
+            self._carry = None
+        return self.out
+
+    def _emit(self, planes: list[np.ndarray]) -> None:
+        if self.factor == 1:
+            means = np.stack([plane.astype(np.float32) for plane in planes], axis=-1)
+        else:
+            starts = np.arange(0, len(planes[0]), self.factor)
+            counts = np.diff(np.append(starts, len(planes[0]))).astype(np.float32)[:, None] * self._column_counts
+            means = np.stack([np.add.reduceat(np.add.reduceat(plane, starts, axis=0, dtype=np.float32),
+                                              self._columns, axis=1) / counts for plane in planes], axis=-1)
+        self.out[self._row:self._row + len(means)] = self.to_rgb(means)
+        self._row += len(means)
+
+
+def _rgb(values: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(values), 0, 255).astype(np.uint8)
+
+
+def _display(kind: str, colors: np.ndarray | None):
+    """``to_rgb`` of a layer kind: block means of its features -> display colour (see :func:`_planes`)."""
+    solid, background = np.asarray(SOLID_GREY, np.float32), np.asarray(BACKGROUND, np.float32)
+    dark = np.asarray(RGBA_BACKGROUND, np.float32)
+    if kind == "bilevel":
+        return lambda m: _rgb(background + (solid - background) * m)
+    if kind == "rgb":
+        return _rgb
+    if kind == "rgba":
+        return lambda m: _rgb(m[..., :3] + dark * (1.0 - m[..., 3:4]))
+    palette = np.asarray(colors, np.float32)
+    return lambda m: _rgb(m @ palette + dark * (1.0 - m.sum(axis=-1, keepdims=True)))
+
+
+def _planes(kind: str, pixels: np.ndarray, masks: list[np.ndarray], index: int, alpha: bool) -> list[np.ndarray]:
+    """The feature planes of one strip ((rows, w) each), linear in the display colour: solid (bilevel),
+    R, G, B (rgb), alpha-premultiplied R, G, B and alpha in 0..1 (rgba), or one plane per droplet mask
+    (channels, checked to cover exactly the strip's solid pixels once each)."""
+    if kind == "bilevel":
+        return [pixels[:, :, 0] != 0]
+    if kind == "rgb":
+        return [pixels[:, :, c] for c in range(3)]
+    if kind == "rgba":
+        weight = pixels[:, :, 3].astype(np.float32) / 255.0
+        return [pixels[:, :, c] * weight for c in range(3)] + [weight]
+    solid = pixels[:, :, 3] > 0 if alpha and pixels.shape[2] == 4 else np.any(pixels != 0, axis=2)
+    planes = [mask[:, :, 0] != 0 for mask in masks]
+    covered = np.zeros(solid.shape, dtype=np.uint16)
+    for plane in planes:
+        covered += plane
+    if not np.array_equal(covered, solid):
         raise VerifyError(f"layer {index}: the droplet masks do not cover exactly the layer's solid pixels "
                           "once each")
-    return channels_rgb(masks, colors)
+    return planes
+
+
+def layer_display(directory: Path, manifest: dict, index: int, factor: int = 1) -> np.ndarray:
+    """(ceil(h / factor), ceil(w / factor), 3) uint8 display image of layer ``index``, reduced while it is
+    decoded (box filter): from its droplet masks when it has them, else from its stored pixels.
+    Memory: the reduced image and one strip of each file."""
+    with_channels = bool(manifest["layers"][index].get("channels"))
+    colors = channel_colors(manifest, index) if with_channels else None
+    image = manifest["image"]
+    samples = {"1": "bilevel", "L": "bilevel", "RGB": "rgb", "RGBA": "rgba"}[image.get("mode", "1")]
+    kind = "channels" if with_channels else samples
+    reducer = BoxReducer(image["width"], image["height"], factor, _display(kind, colors))
+    alpha = manifest["mask"] == "alpha"
+    for _, pixels, masks in layer_strips(directory, manifest, index, channels=with_channels):
+        reducer.feed(_planes(kind, pixels, masks, index, alpha))
+    return reducer.finish()
 
 
 def fit(image, size: int | None):
@@ -93,12 +183,27 @@ def fit(image, size: int | None):
     return image.resize(target, Image.Resampling.BOX)
 
 
+def check_size(size: int | None, what: str = "size") -> int:
+    """The longest side a preview is drawn at: ``size`` (16 .. MAX_PREVIEW_SIDE) or MAX_PREVIEW_SIDE when None."""
+    if size is None:
+        return MAX_PREVIEW_SIDE
+    if not (isinstance(size, int) and MIN_PREVIEW_SIDE <= size <= MAX_PREVIEW_SIDE):
+        raise InputError(f"{what}: must be an integer from {MIN_PREVIEW_SIDE} to {MAX_PREVIEW_SIDE} px, "
+                         f"not {size!r}"[:200])
+    return size
+
+
 def layer_image(directory: Path, index: int, size: int | None = None, manifest: dict | None = None):
-    """PIL RGB image of one layer of a stack, reduced to ``size`` pixels on its longer side."""
+    """PIL RGB image of one layer of a stack, its longer side reduced to ``size`` pixels (at most
+    MAX_PREVIEW_SIDE; the full layer when it fits). The layer is decimated by an integer factor while it
+    is decoded, then box-filtered to the exact size, so memory follows the drawn size, not the layer's."""
     from PIL import Image
 
+    size = check_size(size)
     manifest = read_manifest(Path(directory)) if manifest is None else manifest
     count = len(manifest["layers"])
     if not 0 <= index < count:
-        raise InputError(f"--layer: layer {index} does not exist (the stack has layers 0..{count - 1})")
-    return fit(Image.fromarray(layer_display(Path(directory), manifest, index)), size)
+        raise InputError(f"layer: layer {index} does not exist (the stack has layers 0..{count - 1})")
+    longest = max(manifest["image"]["width"], manifest["image"]["height"])
+    factor = max(1, longest // size)
+    return fit(Image.fromarray(layer_display(Path(directory), manifest, index, factor)), size)

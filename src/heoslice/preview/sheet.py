@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from itertools import islice
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +10,12 @@ import numpy as np
 from heoslice.errors import InputError
 from heoslice.preview.layer import layer_image
 from heoslice.stack import read_manifest
+
+#: Most layers one sheet shows, the range of its tile side (px) and its largest size (pixels, ~100 MB RGB).
+MAX_SHEET_LAYERS = 400
+MIN_TILE, MAX_TILE = 32, 1024
+MAX_SHEET_PIXELS = 1 << 25
+LABEL_HEIGHT = 14
 
 
 def parse_layers(text: str, count: int) -> list[int]:
@@ -29,36 +36,57 @@ def parse_layers(text: str, count: int) -> list[int]:
                 step = int(pieces[2]) if len(pieces) > 2 and pieces[2] else 1
                 if step <= 0:
                     raise ValueError
-                layers.extend(range(start, min(stop, count), step))
+                layers.extend(islice(range(start, min(stop, count), step), MAX_SHEET_LAYERS + 1 - len(layers)))
             else:
                 layers.append(int(part))
+            if len(layers) > MAX_SHEET_LAYERS:
+                break
     except ValueError:
-        raise InputError(f"--layers: expected N, A,B,C or START:STOP[:STEP], got {text!r}") from None
+        raise InputError(f"--layers: expected N, A,B,C or START:STOP[:STEP], got {text[:60]!r}") from None
+    if len(layers) > MAX_SHEET_LAYERS:
+        raise InputError(f"--layers: {text[:40]!r} selects more than the {MAX_SHEET_LAYERS} layers a sheet shows")
     bad = [layer for layer in layers if not 0 <= layer < count]
     if bad:
         raise InputError(f"--layers: layer {bad[0]} does not exist (the stack has layers 0..{count - 1})")
     if not layers:
-        raise InputError(f"--layers: {text!r} selects no layer (the stack has layers 0..{count - 1})")
+        raise InputError(f"--layers: {text[:60]!r} selects no layer (the stack has layers 0..{count - 1})")
     return layers
+
+
+def sheet_size(count: int, tile: int, columns: int | None) -> tuple[int, int, int]:
+    """(columns, width px, height px) of a sheet of ``count`` tiles, after range-checking ``tile``,
+    ``columns`` and the sheet's pixels (InputError naming the parameter)."""
+    if not (isinstance(tile, int) and MIN_TILE <= tile <= MAX_TILE):
+        raise InputError(f"tile: must be an integer from {MIN_TILE} to {MAX_TILE} px, not {tile!r}"[:160])
+    if not 1 <= count <= MAX_SHEET_LAYERS:
+        raise InputError(f"layers: a sheet shows 1 to {MAX_SHEET_LAYERS} layers, not {count}")
+    columns = columns or int(np.ceil(np.sqrt(count)))
+    if not (isinstance(columns, int) and 1 <= columns <= MAX_SHEET_LAYERS):
+        raise InputError(f"columns: must be an integer from 1 to {MAX_SHEET_LAYERS}, not {columns!r}"[:160])
+    rows = -(-count // columns)
+    width, height = columns * (tile + 4) + 4, rows * (tile + LABEL_HEIGHT + 4) + 4
+    if width * height > MAX_SHEET_PIXELS:
+        raise InputError(f"tile: a sheet of {count} layers in {columns} columns at {tile} px would be "
+                         f"{width} x {height} px, more than {MAX_SHEET_PIXELS} pixels; use a smaller --tile")
+    return columns, width, height
 
 
 def contact_sheet(directory: Path, layers: list[int], tile: int = 256, columns: int | None = None,
                   manifest: dict | None = None):
-    """PIL RGB image: the given layers side by side, each reduced to ``tile`` pixels and labelled with its number and z."""
+    """PIL RGB image: the given layers side by side, each reduced to ``tile`` pixels and labelled with its
+    number and z. Its size is checked (:func:`sheet_size`) before anything is decoded."""
     from PIL import Image, ImageDraw
 
     directory = Path(directory)
+    columns, width, height = sheet_size(len(layers), tile, columns)
     manifest = read_manifest(directory) if manifest is None else manifest
-    columns = columns or int(np.ceil(np.sqrt(len(layers))))
-    rows = -(-len(layers) // columns)
-    label = 14
-    sheet = Image.new("RGB", (columns * (tile + 4) + 4, rows * (tile + label + 4) + 4), (200, 200, 200))
+    sheet = Image.new("RGB", (width, height), (200, 200, 200))
     draw = ImageDraw.Draw(sheet)
     for position, index in enumerate(layers):
         image = layer_image(directory, index, tile, manifest)
         x = 4 + (position % columns) * (tile + 4)
-        y = 4 + (position // columns) * (tile + label + 4)
-        sheet.paste(image, (x + (tile - image.size[0]) // 2, y + label + (tile - image.size[1]) // 2))
+        y = 4 + (position // columns) * (tile + LABEL_HEIGHT + 4)
+        sheet.paste(image, (x + (tile - image.size[0]) // 2, y + LABEL_HEIGHT + (tile - image.size[1]) // 2))
         z = manifest["layers"][index]["z_mm"]
         draw.text((x + 2, y + 1), f"layer {index}  z {z:.2f} mm", fill=(0, 0, 0))
     return sheet

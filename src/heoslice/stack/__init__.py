@@ -12,6 +12,7 @@ from heoslice.stack.manifest import (
     LAYER_PATTERN,
     MANIFEST,
     MAX_IMAGE_PIXELS,
+    MAX_LAYERS,
     MAX_MANIFEST_BYTES,
     MAX_MANIFEST_CONTAINERS,
     ChannelRecord,
@@ -24,12 +25,14 @@ from heoslice.stack.manifest import (
     layer_file_name,
     layer_height_problems,
     manifest_problem,
+    max_layer_count,
     parse_manifest,
     stack_volume_mm3,
 )
 from heoslice.stack.read import (
     check_input_path,
     decode_mask,
+    layer_strips,
     read_layer_channels,
     read_layer_mask,
     read_layer_pixels,
@@ -42,10 +45,11 @@ from heoslice.stack.write import prepare_directory, write_file, write_manifest
 
 __all__ = [
     "COMPRESSIONS", "DEFAULT_COMPRESSION", "FORMAT_NAME", "FORMAT_VERSION", "IMAGE_MODES", "LAYER_PATTERN",
-    "MANIFEST", "MAX_IMAGE_PIXELS", "MAX_MANIFEST_BYTES", "MAX_MANIFEST_CONTAINERS", "ChannelRecord",
+    "MANIFEST", "MAX_IMAGE_PIXELS", "MAX_LAYERS", "MAX_MANIFEST_BYTES", "MAX_MANIFEST_CONTAINERS", "ChannelRecord",
     "ImageRecord", "LayerRecord", "StackReport", "build_manifest", "check_image_size", "check_input_path",
     "decode_mask", "encode_bilevel_tiff", "encode_tiff", "expected_layer_count", "grading_summary",
-    "layer_file_name", "layer_height_problems", "load_verified", "manifest_problem", "parse_manifest",
+    "layer_file_name", "layer_height_problems", "layer_strips", "load_verified", "manifest_problem",
+    "max_layer_count", "parse_manifest",
     "prepare_directory", "read_layer_channels", "read_layer_mask", "read_layer_pixels", "read_manifest",
     "resolve_inside", "stack_volume_mm3", "verify_stack", "write_file", "write_manifest",
 ]

@@ -31,6 +31,12 @@ MAX_MANIFEST_CONTAINERS = 1 << 18
 MAX_IMAGE_PIXELS = 1 << 30
 #: Manifest image modes -> (bits per sample, samples per pixel) of the layer TIFFs.
 IMAGE_MODES = {"1": (1, 1), "L": (8, 1), "RGB": (8, 3), "RGBA": (8, 4)}
+#: Most layers one stack may have (a 500 mm part at 10 micrometre layers); fewer with droplet masks, whose
+#: entries make each layer's manifest entry longer (see max_layer_count).
+MAX_LAYERS = 50_000
+#: Manifest bytes and containers kept for everything but the layer entries (header, grading, warnings).
+HEADER_BYTES = 1 << 20
+HEADER_CONTAINERS = 1 << 12
 #: Image mode -> how its solid mask is read ("mask" field).
 MASK_OF_MODE = {"1": "nonzero", "L": "nonzero", "RGB": "nonzero", "RGBA": "alpha"}
 
@@ -79,6 +85,21 @@ def check_image_size(width: int, height: int) -> None:
     if width * height > MAX_IMAGE_PIXELS:
         raise InputError(f"layer images of {width} x {height} pixels exceed the limit of {MAX_IMAGE_PIXELS} "
                          "pixels; lower --dpi or the canvas")
+
+
+def max_layer_count(channel_materials: Sequence[str] = ()) -> int:
+    """Most layers a stack whose layers have droplet masks of these materials can hold: MAX_LAYERS, or fewer
+    where that many layer entries (at their longest) would not fit MAX_MANIFEST_BYTES or
+    MAX_MANIFEST_CONTAINERS beside HEADER_BYTES and HEADER_CONTAINERS. The slicer checks its layer
+    count against this before slicing, so every stack it writes is one the readers accept."""
+    channels = tuple(ChannelRecord(name, layer_file_name(MAX_LAYERS, "x" * len(name)), "f" * 64, MAX_IMAGE_PIXELS)
+                     for name in channel_materials) or None
+    longest = LayerRecord(-1.2345678901234567e-300, "f" * 64, MAX_IMAGE_PIXELS, False, channels)
+    one, two = ({"layers": [_layer_entry(MAX_LAYERS, longest)] * count} for count in (1, 2))
+    entry_bytes = len(json.dumps(two, indent=1)) - len(json.dumps(one, indent=1))
+    entry_containers = 1 + (1 + len(channels) if channels else 0)
+    return min(MAX_LAYERS, (MAX_MANIFEST_BYTES - HEADER_BYTES) // entry_bytes,
+               (MAX_MANIFEST_CONTAINERS - HEADER_CONTAINERS) // entry_containers)
 
 
 def build_manifest(*, source_file: str, source_sha256: str, layer_height_mm: float, dpi: tuple[float, float],
@@ -247,9 +268,9 @@ def _header_problem(manifest: dict) -> str | None:
     if not (_is_number(manifest.get("layer_height_mm")) and manifest["layer_height_mm"] > 0):
         return "'layer_height_mm' must be a positive number"
     z_range = manifest.get("z_range_mm")
-    if z_range is not None and not (isinstance(z_range, list) and len(z_range) == 2
-                                    and all(_is_number(v) for v in z_range) and z_range[0] <= z_range[1]):
-        return "'z_range_mm' must be two numbers [z_min, z_max]"
+    if not (isinstance(z_range, list) and len(z_range) == 2 and all(_is_number(v) for v in z_range)
+            and z_range[0] <= z_range[1]):
+        return "'z_range_mm' must be two numbers [z_min, z_max] (the layer count and heights follow from it)"
     return None
 
 
@@ -284,18 +305,24 @@ def expected_layer_count(z_min: float, z_max: float, layer_height: float) -> int
 
 
 def layer_height_problems(manifest: dict, z_min: float, z_max: float, source: str) -> list[str]:
-    """Layer count and heights against a z-range: z_i = z_min + (i + 1/2) h, count = ceil((z_max - z_min) / h)."""
+    """Layer count and heights against a z-range: z_i = z_min + (i + 1/2) h, count = ceil((z_max - z_min) / h).
+
+    Uses only the required fields (``layer_height_mm``, ``layers[].z_mm``), so a stack cut short
+    or reordered is caught whatever optional fields say.
+    """
     h = manifest["layer_height_mm"]
     layers = manifest["layers"]
     problems = []
     expected = expected_layer_count(z_min, z_max, h)
     if len(layers) != expected:
+        needs = f"more than {MAX_LAYERS}" if expected > MAX_LAYERS else str(expected)
         problems.append(f"{len(layers)} layers, but {source} z-range {z_min:g} .. {z_max:g} mm at "
-                        f"{h:g} mm needs {expected}")
+                        f"{h:g} mm needs {needs}")
     z = np.array([entry["z_mm"] for entry in layers], dtype=np.float64)
-    want = z_min + (np.arange(len(z)) + 0.5) * h
-    tolerance = 1e-6 * max(1.0, abs(z_min), abs(z_max)) + 1e-9 * len(z) * h
-    off = np.flatnonzero(np.abs(z - want) > tolerance)
+    with np.errstate(all="ignore"):
+        want = z_min + (np.arange(len(z)) + 0.5) * h
+        tolerance = 1e-6 * max(1.0, abs(z_min), abs(z_max)) + 1e-9 * len(z) * h
+        off = np.flatnonzero(~(np.abs(z - want) <= tolerance))
     if len(off):
         first = int(off[0])
         problems.append(f"layer {first}: z_mm {z[first]:.6g}, expected {want[first]:.6g} from {source} "

@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import io
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,9 @@ from heoslice.errors import InputError, VerifyError
 from heoslice.stack.manifest import MANIFEST, MAX_MANIFEST_BYTES, parse_manifest
 from heoslice.stack.tiff import checked_page, decode_solid, file_limit, open_tiff
 
+#: Largest decoded strip a streaming reader accepts, bytes (heoslice writes strips of 64 or 256 rows:
+#: a 1 m wide layer at 600 dpi decodes to 6 MB per strip).
+MAX_STRIP_BYTES = 1 << 26
 
 def read_manifest(directory: Path) -> dict:
     """Parse and structurally check ``manifest.json``; raise VerifyError naming the first problem.
@@ -34,7 +38,7 @@ def read_manifest(directory: Path) -> dict:
     if not inside.is_file():
         raise VerifyError(f"{path}: is not a regular file")
     try:
-        with open(inside, "rb") as handle:  # read(n) allocates n bytes up front: ask for the file's size only
+        with open_regular(inside, str(path)) as handle:  # read(n) allocates n bytes: ask for the size only
             size = os.fstat(handle.fileno()).st_size
             if size > MAX_MANIFEST_BYTES:
                 raise VerifyError(f"{path}: manifest is larger than {MAX_MANIFEST_BYTES} bytes")
@@ -59,11 +63,22 @@ def resolve_inside(directory: Path, name: str) -> Path | None:
 
 
 
+def open_regular(path: Path, name: str):
+    """``path`` opened for binary reading if it is a regular file; VerifyError otherwise. Opened without
+    blocking, so a FIFO or device planted in a stack is refused instead of waited on forever."""
+    handle = open(path, "rb", opener=lambda target, flags: os.open(target, flags | os.O_NONBLOCK))
+    if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
+        handle.close()
+        raise VerifyError(f"{name}: is not a regular file")
+    os.set_blocking(handle.fileno(), True)
+    return handle
+
+
 def read_checked(path: Path, name: str, sha256: str | None, manifest: dict, mode: str | None) -> bytes:
     """The bytes of a layer file whose TIFF layout passed :func:`checked_page`, at most what that layout
     can need, and matching ``sha256`` when given. Memory: bounded by twice the raw image size."""
     try:
-        with open(path, "rb") as handle:
+        with open_regular(path, name) as handle:
             size = os.fstat(handle.fileno()).st_size
             with open_tiff(handle, name) as tiff:
                 limit = file_limit(checked_page(tiff, name, size, manifest, mode))
@@ -150,6 +165,56 @@ def read_layer_channels(directory: Path, manifest: dict, index: int) -> np.ndarr
         masks[number] = decode_mask(path, manifest, sha256=channel["sha256"])
     return masks
 
+
+
+def _file_strips(path: Path | None, name: str, sha256: str, manifest: dict, mode: str | None):
+    """Yield (first row, (rows, width, samples) pixels) for each strip of one checked layer file, in order.
+
+    Memory: the file's bytes (bounded by its layout) and one decoded strip, at most
+    MAX_STRIP_BYTES (refused before decoding otherwise).
+    """
+    if path is None:
+        raise VerifyError(f"{name}: lies outside the stack")
+    data = read_checked(path, name, sha256, manifest, mode)
+    with open_tiff(io.BytesIO(data), name) as tiff:
+        page = checked_page(tiff, name, len(data), manifest, mode)
+        rows = min(int(page.rowsperstrip or page.imagelength), page.imagelength)
+        decoded = rows * page.imagewidth * page.samplesperpixel
+        if decoded > MAX_STRIP_BYTES:
+            raise VerifyError(f"{name}: strips of {rows} rows decode to {decoded} bytes, more than the "
+                              f"{MAX_STRIP_BYTES} a reader decodes at once")
+        try:
+            for segment, index, shape in page.segments(maxworkers=1):
+                if segment is None:
+                    raise VerifyError(f"{name}: a strip is missing")
+                yield index[2], segment.reshape(shape[1], shape[2], shape[3])
+        except VerifyError:
+            raise
+        except Exception as err:  # imagecodecs and tifffile raise many types on corrupt strips
+            raise VerifyError(f"{name}: cannot decode ({' '.join(str(err).split())[:120]})") from err
+
+
+def layer_strips(directory: Path, manifest: dict, index: int, channels: bool = False):
+    """Yield (first row, layer pixels, droplet-mask pixels) strip by strip for layer ``index`` of a stack.
+
+    Layer pixels are (rows, width, samples) as stored; droplet-mask pixels a list of
+    (rows, width, 1) arrays in channel order (empty unless ``channels``). Every file must
+    stay inside the stack, match its sha256 and pass the layout checks; the masks must
+    be cut into the same strips as their layer. Memory: one strip of each file.
+    """
+    directory = Path(directory)
+    entry = manifest["layers"][index]
+    mode = manifest["image"].get("mode", "1")
+    readers = [_file_strips(resolve_inside(directory, entry["file"]), f"layer {index}: {entry['file']}",
+                            entry["sha256"], manifest, mode)]
+    for channel in entry.get("channels", []) if channels else []:
+        readers.append(_file_strips(resolve_inside(directory, channel["file"]), f"layer {index}: {channel['file']}",
+                                    channel["sha256"], manifest, None))
+    for strips in zip(*readers):
+        row, pixels = strips[0]
+        if any(other_row != row or other.shape[:2] != pixels.shape[:2] for other_row, other in strips[1:]):
+            raise VerifyError(f"layer {index}: its droplet masks are cut into other strips than the layer image")
+        yield row, pixels, [other for _, other in strips[1:]]
 
 
 def check_input_path(path: Path) -> Path:

@@ -15,20 +15,31 @@ from heoslice.stack.manifest import IMAGE_MODES
 #: Compression name -> tifffile argument. Default chosen by measurement (see README).
 COMPRESSIONS = {"deflate": "adobe_deflate", "packbits": "packbits", "lzw": "lzw", "none": None}
 DEFAULT_COMPRESSION = "deflate"
+MM_PER_INCH = 25.4
 #: TIFF compression codes a layer may use: none, LZW, deflate (Adobe and old code), PackBits.
 TIFF_COMPRESSIONS = (1, 5, 8, 32946, 32773)
 
 
-def encode_tiff(image: np.ndarray, dpi: tuple[float, float], compression: str) -> bytes:
+def calibration(dpi: tuple[float, float], spacing_mm: float | None) -> dict:
+    """tifffile options that calibrate a layer in millimetres for Fiji/ImageJ, napari and tifffile: resolution
+    in pixels per mm (ResolutionUnit none, as ImageJ writes it) and an ImageJ description with unit=mm and
+    the layer height as Z spacing."""
+    description = "ImageJ=1.11a\nunit=mm\n" + (f"spacing={float(spacing_mm)!r}\n" if spacing_mm else "")
+    return {"resolution": (float(dpi[0]) / MM_PER_INCH, float(dpi[1]) / MM_PER_INCH), "resolutionunit": "NONE",
+            "description": description, "metadata": None}
+
+
+def encode_tiff(image: np.ndarray, dpi: tuple[float, float], compression: str,
+                spacing_mm: float | None = None) -> bytes:
     """TIFF bytes of one layer image: bool (h, w) as 1-bit, uint8 (h, w) grey, or (h, w, 4) RGBA.
 
-    Resolution tags carry the dpi with ResolutionUnit inch, so viewers show true size.
+    Calibrated in mm (:func:`calibration`), so viewers show true size and the stack's Z spacing;
+    1-bit and grey layers are min-is-white, so solid shows dark on white as in ``preview``.
     """
     import tifffile
 
     options: dict = {
-        "resolution": (float(dpi[0]), float(dpi[1])),
-        "resolutionunit": "INCH",
+        **calibration(dpi, spacing_mm),
         "rowsperstrip": 64,
         "compression": COMPRESSIONS[compression],
         "software": f"heoslice {__version__}",
@@ -38,19 +49,17 @@ def encode_tiff(image: np.ndarray, dpi: tuple[float, float], compression: str) -
     if image.ndim == 3:
         options.update(photometric="rgb", extrasamples=["unassalpha"])
     else:
-        options["photometric"] = "minisblack"
+        options["photometric"] = "miniswhite"
     buffer = io.BytesIO()
     tifffile.imwrite(buffer, image, **options)
     return buffer.getvalue()
-
 
 
 def _strip_codec(compression: str):
     """bytes -> compressed bytes for one TIFF strip.
 
     Deflate uses zlib-ng at level 1 when imagecodecs has it: the same zlib stream
-    format at about half the time of zlib (measured on 3827 x 3945 px layers: 1.0 ms
-    and 37 KB against 2.2 ms and 30 KB per layer). Other codecs are tifffile's own.
+    format, faster than zlib (figures in benchmarks/README.md). Other codecs are tifffile's own.
     """
     import tifffile
 
@@ -68,14 +77,13 @@ def _strip_codec(compression: str):
 
 
 def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float], compression: str,
-                        rows_per_strip: int = 256) -> bytes:
+                        spacing_mm: float | None = None, rows_per_strip: int = 256) -> bytes:
     """TIFF bytes of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, MSB first).
 
     The strips are compressed here, straight from the packed bits, with tifffile's
     own codec for the chosen compression, and handed to tifffile already encoded:
     the mask is never expanded to one byte per pixel. Strips of 256 rows (~120 KB of
-    bits at 3800 px) cost a fifth less to write than 64 (0.86 -> 0.65 ms for a
-    1937 x 1937 px droplet mask, deflate).
+    bits at 3800 px) are cheaper to write than 64 (figures in benchmarks/README.md).
     """
     import tifffile
 
@@ -83,9 +91,8 @@ def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float]
     options: dict = {
         "shape": (height, width),
         "dtype": bool,
-        "resolution": (float(dpi[0]), float(dpi[1])),
-        "resolutionunit": "INCH",
-        "photometric": "minisblack",
+        **calibration(dpi, spacing_mm),
+        "photometric": "miniswhite",
         "rowsperstrip": rows_per_strip,
         "software": f"heoslice {__version__}",
     }
@@ -160,11 +167,12 @@ def _checked_page_unsafe(tiff, name: str, file_size: int, manifest: dict, mode: 
         found = (xres[0] / xres[1], yres[0] / yres[1])
     except (TypeError, IndexError, ZeroDivisionError):
         raise VerifyError(f"{name}: malformed resolution tags") from None
-    unit = tags["ResolutionUnit"].value if "ResolutionUnit" in tags else 2
-    if int(unit) != 2 or not np.allclose(found, dpi, rtol=1e-6):
-        raise VerifyError(f"{name}: resolution {found[0]:g} x {found[1]:g} "
-                          f"{'dpi' if int(unit) == 2 else 'per unit ' + str(int(unit))}, "
-                          f"manifest says {dpi[0]:g} x {dpi[1]:g} dpi")
+    unit = int(tags["ResolutionUnit"].value) if "ResolutionUnit" in tags else 2
+    per_inch = {1: MM_PER_INCH, 2: 1.0, 3: 2.54}.get(unit)  # none (px/mm, as heoslice writes), inch, cm
+    if per_inch is None or not np.allclose(np.multiply(found, per_inch), dpi, rtol=1e-6):
+        shown = (f"{found[0] * per_inch:g} x {found[1] * per_inch:g} dpi" if per_inch is not None
+                 else f"{found[0]:g} x {found[1]:g} per unit {unit}")
+        raise VerifyError(f"{name}: resolution {shown}, manifest says {dpi[0]:g} x {dpi[1]:g} dpi")
     return page
 
 

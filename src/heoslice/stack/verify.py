@@ -10,7 +10,8 @@ import numpy as np
 
 from heoslice.errors import VerifyError
 from heoslice.stack.manifest import LAYER_PATTERN, layer_height_problems
-from heoslice.stack.read import decode_checked, decode_mask, read_checked, read_layer_mask, read_manifest, resolve_inside
+from heoslice.stack.read import (decode_checked, decode_mask, read_checked, read_layer_mask, read_manifest,
+                                 resolve_inside)
 
 
 @dataclass(frozen=True)
@@ -95,9 +96,8 @@ def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:
                 problems.append(f"layer {index}: {problem}")
         if entry.get("channels") and check_pixels and not any(p.startswith(f"layer {index}:") for p in problems):
             problems += _channel_problems(directory, manifest, index)
-    z_range = manifest.get("z_range_mm")
-    if z_range is not None:
-        problems += layer_height_problems(manifest, z_range[0], z_range[1], "the manifest's")
+    z_min, z_max = manifest["z_range_mm"]
+    problems += layer_height_problems(manifest, z_min, z_max, "the manifest's")
     names = {path.name for path in listed if path.parent == directory.resolve()}
     for entry in sorted(directory.iterdir()):
         if LAYER_PATTERN.match(entry.name) and entry.name not in names:
@@ -110,7 +110,9 @@ def load_verified(directory: Path) -> dict:
     report = verify_stack(directory)
     if not report.ok:
         more = f" (and {len(report.problems) - 1} more problem(s))" if len(report.problems) > 1 else ""
-        raise VerifyError(f"{directory}: {report.problems[0]}{more}")
+        first = report.problems[0]
+        named = first if first.startswith((f"{directory}:", f"{directory}/")) else f"{directory}: {first}"
+        raise VerifyError(f"{named}{more}")
     return report.manifest
 
 

@@ -7,6 +7,7 @@ complete stack only when its manifest says so.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import hashlib
 import json
@@ -14,7 +15,7 @@ import os
 from pathlib import Path
 
 from heoslice.errors import OutputError
-from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST
+from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST, MAX_MANIFEST_BYTES
 
 
 def prepare_directory(directory: Path, force: bool) -> None:
@@ -84,19 +85,28 @@ def _fsync_directory(directory: Path) -> None:
 
 
 def write_manifest(directory: Path, manifest: dict) -> Path:
-    """Write ``manifest.json`` atomically: temporary file, fsync, rename, fsync of the directory."""
+    """Write ``manifest.json`` atomically: temporary file, fsync, rename, fsync of the directory.
+
+    A manifest longer than MAX_MANIFEST_BYTES (which readers refuse) is not written; when
+    writing fails (disk full, quota), the temporary file is removed: nothing is left behind
+    that looks like a manifest.
+    """
     directory = Path(directory)
     target = directory / MANIFEST
     temporary = directory / (MANIFEST + ".tmp")
-    text = json.dumps(manifest, indent=1, allow_nan=False) + "\n"
+    data = (json.dumps(manifest, indent=1, allow_nan=False) + "\n").encode("utf-8")
+    if len(data) > MAX_MANIFEST_BYTES:
+        raise OutputError(f"{target}: the manifest would be {len(data)} bytes, more than the "
+                          f"{MAX_MANIFEST_BYTES} readers accept (fewer layers or droplet masks)")
     try:
         with _create(temporary) as handle:
-            handle.write(text.encode("utf-8"))
+            handle.write(data)
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(temporary, target)
     except OSError as err:
+        with contextlib.suppress(OSError):
+            temporary.unlink()
         raise _write_error(target, err) from err
     _fsync_directory(directory)
     return target
-

@@ -1,0 +1,47 @@
+"""Stacks to other printers' formats: one module per format (``png``, ``voxel_print``), each defining a
+``FORMAT`` behind the small writer interface of :mod:`heoslice.export.base`; a new format is one new module.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from pathlib import Path
+
+from heoslice.errors import InputError
+from heoslice.export.base import ExportFormat, ExportOptions, Sink, check_options
+from heoslice.stack import load_verified
+
+
+def formats() -> dict[str, ExportFormat]:
+    """Every export format of this package, by name: the ``FORMAT`` of each module beside ``base``."""
+    found = {}
+    for module in sorted(info.name for info in pkgutil.iter_modules(__path__)):
+        if module != "base":
+            fmt = getattr(importlib.import_module(f"{__name__}.{module}"), "FORMAT", None)
+            if isinstance(fmt, ExportFormat):
+                found[fmt.name] = fmt
+    return found
+
+
+def export_stack(directory: Path, format_name: str, output: Path, options: ExportOptions = ExportOptions(),
+                 force: bool = False) -> dict:
+    """Verify the stack in ``directory``, then write it as ``format_name`` to ``output`` (a folder, or a zip
+    when it ends in .zip); return the format's summary with the files written."""
+    known = formats()
+    if format_name not in known:
+        raise InputError(f"format: unknown export format {format_name!r}; choose from {', '.join(known)}")
+    check_options(options)
+    manifest = load_verified(Path(directory))
+    sink = Sink(output, force=force)
+    try:
+        summary = known[format_name].write(Path(directory), manifest, sink, options)
+    except BaseException:
+        sink.discard()
+        raise
+    sink.commit()
+    return {"stack": str(directory), "format": format_name, "output": str(output), "files": len(sink.files),
+            **summary}
+
+
+__all__ = ["ExportFormat", "ExportOptions", "Sink", "export_stack", "formats"]

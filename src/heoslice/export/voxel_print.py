@@ -1,0 +1,115 @@
+"""``voxel-print``: a GrabCAD Voxel Print slice folder for Stratasys PolyJet printers (J-series).
+
+Conventions (``docs/export-formats.md``): one RGB PNG per printer layer, all the same size, named
+``slice_NNNNN.png`` bottom first; each material one exact colour (its ``grading.materials`` colour,
+or white for a one-material stack), empty pixels the background colour (default black); 600 x 300 dpi
+at a 0.027 mm pitch (the J750's high-mix mode) unless asked otherwise. The stack is resampled by
+nearest sample, never blended, so every printed voxel keeps exactly one material: in the plane each
+slice pixel takes the stack pixel under its centre, in z each slice the stack layer holding its
+centre height. Refused: stacks whose pixels carry blended colours (RGBA, sliced without
+``--channels``), materials without a colour, two materials of one colour or one of the background's.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.errors import InputError
+from heoslice.export.base import ExportFormat, ExportOptions, Sink
+from heoslice.stack import MAX_IMAGE_PIXELS, MAX_LAYERS, read_layer_channels, read_layer_mask
+
+#: The J750's Voxel Print resolution (dpi x, y) and layer pitch (mm).
+DEFAULT_DPI = (600.0, 300.0)
+DEFAULT_PITCH_MM = 0.027
+DEFAULT_BACKGROUND = (0, 0, 0)
+#: Colour of the one material of a stack without droplet masks.
+SINGLE_MATERIAL = ("model", (255, 255, 255))
+SUMMARY_FILE = "voxelprint.json"
+
+
+def palette(manifest: dict, background: tuple[int, int, int]) -> list[tuple[str, tuple[int, int, int]]]:
+    """(name, colour) of every material in label order (label m + 1 is material m); InputError when the
+    stack cannot be printed with one exact colour per material."""
+    if manifest["image"].get("mode", "1") != "1":
+        raise InputError("format: voxel-print needs one material per pixel, but this stack's layers carry blended "
+                         "colours (RGBA); slice it with --channels")
+    channels = manifest["layers"][0].get("channels") if manifest["layers"] else None
+    if not channels:
+        materials = [SINGLE_MATERIAL]
+    else:
+        grading = manifest.get("grading") or {}
+        colours = {m.get("name"): m.get("color") for m in grading.get("materials") or [] if isinstance(m, dict)}
+        materials = []
+        for channel in channels:
+            colour = colours.get(channel.get("material"))
+            if not (isinstance(colour, list) and len(colour) == 3 and all(isinstance(v, int) for v in colour)):
+                raise InputError(f"format: material {channel.get('material')!r} has no colour in the manifest")
+            materials.append((channel["material"], tuple(colour)))
+    seen = {tuple(background): "the background"}
+    for name, colour in materials:
+        if colour in seen:
+            raise InputError(f"background: material {name!r} has colour {list(colour)}, the same as {seen[colour]}; "
+                             "Voxel Print tells materials apart by colour (choose another --background)")
+        seen[colour] = f"material {name!r}"
+    return materials
+
+
+def sample_indices(count: int, step: float, new_step: float, new_count: int) -> np.ndarray:
+    """Index of the source cell (size ``step``) holding the centre of each of ``new_count`` cells of size
+    ``new_step`` laid from the same origin: (new_count,) int, clipped to 0..count-1."""
+    centres = (np.arange(new_count) + 0.5) * new_step
+    return np.clip(np.floor(centres / step).astype(np.int64), 0, count - 1)
+
+
+def layer_labels(directory: Path, manifest: dict, index: int) -> np.ndarray:
+    """(h, w) uint8 material label of each pixel of a stack layer: 0 empty, m + 1 material m."""
+    solid = read_layer_mask(directory, manifest, index)
+    if not manifest["layers"][index].get("channels"):
+        return solid.astype(np.uint8)
+    labels = np.zeros(solid.shape, dtype=np.uint8)
+    for number, mask in enumerate(read_layer_channels(directory, manifest, index)):
+        labels[mask] = number + 1
+    return labels
+
+
+def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -> dict:
+    """Write the slices and ``voxelprint.json`` (materials, colours, resolution, pitch)."""
+    from PIL import Image
+
+    dpi = options.dpi or DEFAULT_DPI
+    pitch = options.pitch_mm or DEFAULT_PITCH_MM
+    background = tuple(options.background or DEFAULT_BACKGROUND)
+    materials = palette(manifest, background)
+    image, (px, py), h = manifest["image"], manifest["pixel_size_mm"], manifest["layer_height_mm"]
+    new_px, new_py = 25.4 / dpi[0], 25.4 / dpi[1]
+    width, height = max(1, round(image["width"] * px / new_px)), max(1, round(image["height"] * py / new_py))
+    z_min, z_max = manifest["z_range_mm"]
+    slices = max(1, int(np.ceil((z_max - z_min) / pitch - 1e-9)))
+    if width * height > MAX_IMAGE_PIXELS or slices > 4 * MAX_LAYERS:
+        raise InputError(f"dpi: {slices} slices of {width} x {height} px at {dpi[0]:g} x {dpi[1]:g} dpi and "
+                         f"{pitch:g} mm is more than an export writes")
+    columns = sample_indices(image["width"], px, new_px, width)
+    rows = sample_indices(image["height"], py, new_py, height)
+    sources = sample_indices(len(manifest["layers"]), h, pitch, slices)
+    colours = np.array([background] + [colour for _, colour in materials], dtype=np.uint8)
+    cached = (None, None)
+    for number, source in enumerate(sources):
+        if cached[0] != source:
+            cached = (source, colours[layer_labels(directory, manifest, int(source))[np.ix_(rows, columns)]])
+        buffer = io.BytesIO()
+        Image.fromarray(cached[1], "RGB").save(buffer, format="PNG", dpi=(round(dpi[0]), round(dpi[1])))
+        sink.add(f"slice_{number:05d}.png", buffer.getvalue())
+    summary = {"format": "voxel-print", "slices": slices, "width": width, "height": height, "dpi": list(dpi),
+               "pitch_mm": pitch, "background": list(background),
+               "materials": [{"name": name, "color": list(colour)} for name, colour in materials],
+               "source": {"layers": len(manifest["layers"]), "layer_height_mm": h, "dpi": manifest["dpi"]}}
+    sink.add(SUMMARY_FILE, (json.dumps(summary, indent=1) + "\n").encode())
+    return summary
+
+
+FORMAT = ExportFormat("voxel-print", "GrabCAD Voxel Print slices (Stratasys PolyJet): one RGB PNG per layer, "
+                      "one colour per material, 600 x 300 dpi at 0.027 mm by default", write)

@@ -1,0 +1,89 @@
+"""Vertical sections: a stack cut at ``x = MM`` or ``y = MM``, every layer's row of pixels in its material
+colours, bottom layer at the bottom, drawn at the true aspect ratio (pixel size across, layer height up)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.errors import InputError
+from heoslice.preview.layer import MAX_PREVIEW_SIDE, _display, _planes, channel_colors, check_size
+from heoslice.stack import layer_strips, read_manifest
+
+SECTION_PATTERN = re.compile(r"^\s*([xyXY])\s*=\s*([-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)\s*$")
+
+
+def parse_section(text: str) -> tuple[str, float]:
+    """('x' or 'y', position mm) from 'x=MM' or 'y=MM'; InputError naming ``section`` otherwise."""
+    match = SECTION_PATTERN.match(str(text))
+    value = float(match.group(2)) if match else float("nan")
+    if not match or not np.isfinite(value):
+        raise InputError(f"section: expected x=MM or y=MM, got {str(text)[:40]!r}")
+    return match.group(1).lower(), value
+
+
+def section_line(manifest: dict, axis: str, position_mm: float) -> int:
+    """The image column (axis 'x') or row (axis 'y') through ``position_mm``; InputError when outside."""
+    image, (px, py) = manifest["image"], manifest["pixel_size_mm"]
+    x_left, y_top = image["origin_mm"]
+    if axis == "x":
+        line, count = np.floor((position_mm - x_left) / px), image["width"]
+        low, high = x_left, x_left + image["width"] * px
+    else:
+        line, count = np.floor((y_top - position_mm) / py), image["height"]
+        low, high = y_top - image["height"] * py, y_top
+    if not 0 <= line < count:
+        raise InputError(f"section: {axis}={position_mm:g} mm lies outside the stack ({axis} from {low:.6g} to "
+                         f"{high:.6g} mm)")
+    return int(line)
+
+
+def _layer_line(directory: Path, manifest: dict, index: int, axis: str, line: int, factor: int) -> np.ndarray:
+    """(ceil(n / factor), 3) uint8: the display colours along the section line of one layer, box-reduced."""
+    entry = manifest["layers"][index]
+    with_channels = bool(entry.get("channels"))
+    colors = channel_colors(manifest, index) if with_channels else None
+    samples = {"1": "bilevel", "L": "bilevel", "RGB": "rgb", "RGBA": "rgba"}[manifest["image"].get("mode", "1")]
+    kind = "channels" if with_channels else samples
+    alpha = manifest["mask"] == "alpha"
+    parts = []
+    for row, pixels, masks in layer_strips(directory, manifest, index, channels=with_channels):
+        if axis == "y" and not row <= line < row + len(pixels):
+            continue
+        planes = _planes(kind, pixels, masks, index, alpha)
+        parts.append(np.stack([plane[line - row] if axis == "y" else plane[:, line] for plane in planes], axis=-1))
+    features = np.concatenate(parts).astype(np.float32)
+    starts = np.arange(0, len(features), factor)
+    counts = np.diff(np.append(starts, len(features))).astype(np.float32)[:, None]
+    means = np.add.reduceat(features, starts, axis=0) / counts
+    return _display(kind, colors)(means[None])[0]
+
+
+def section_image(directory: Path, axis: str, position_mm: float, size: int | None = None,
+                  manifest: dict | None = None):
+    """PIL RGB image of the vertical section at ``axis`` = ``position_mm`` (mm): one row per layer, top layer at
+    the top, stretched to the true aspect ratio (layer height against pixel size) and reduced so its longer
+    side is at most ``size`` (default MAX_PREVIEW_SIDE). Only the layers drawn are read, strip by strip."""
+    from PIL import Image
+
+    directory = Path(directory)
+    size = check_size(size)
+    manifest = read_manifest(directory) if manifest is None else manifest
+    line = section_line(manifest, axis, position_mm)
+    image, (px, py), h = manifest["image"], manifest["pixel_size_mm"], manifest["layer_height_mm"]
+    across, pixel = (image["height"], py) if axis == "x" else (image["width"], px)
+    layers = len(manifest["layers"])
+    true_height = layers * h / pixel
+    scale = min(1.0, size / max(across, true_height))
+    width_out, height_out = max(1, round(across * scale)), max(1, round(true_height * scale))
+    factor = max(1, across // max(width_out, 1))
+    sources = np.clip(np.floor((np.arange(height_out) + 0.5) / height_out * layers).astype(np.int64), 0, layers - 1)
+    lines = {int(index): _layer_line(directory, manifest, int(index), axis, line, factor)
+             for index in np.unique(sources)}
+    rows = np.stack([lines[int(index)] for index in sources[::-1]])
+    return Image.fromarray(rows).resize((width_out, height_out), Image.Resampling.BOX)
+
+
+__all__ = ["MAX_PREVIEW_SIDE", "parse_section", "section_image", "section_line"]

@@ -1,0 +1,112 @@
+"""`heoslice export --format voxel-print` and `--format png`, through the command line: a Voxel Print folder
+with sequential slice names, 600 x 300 dpi, one exact colour per material and none blended; clear refusals."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import zipfile
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from heoslice import procedural
+from heoslice.stack import read_layer_channels, read_layer_mask, read_manifest
+
+
+def in_process(*args) -> int:
+    """Run the heoslice command line in this process (shares compiled kernels between tests); exit code."""
+    from heoslice.cli import main
+
+    try:
+        main([str(a) for a in args])
+    except SystemExit as done:
+        return done.code if isinstance(done.code, int) else 0
+    return 0
+
+
+def heoslice(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "heoslice", *map(str, args)], capture_output=True, text=True,
+                          timeout=120, stdin=subprocess.DEVNULL)
+
+
+@pytest.fixture(scope="module")
+def stacks(tmp_path_factory):
+    """A graded ball with droplet masks (two materials) and the same ball graded without (RGBA)."""
+    folder = tmp_path_factory.mktemp("export")
+    procedural.sphere(4.0, subdivisions=3).export(folder / "ball.ply")
+    for name, extra in (("masks", ["--channels"]), ("rgba", [])):
+        assert in_process("slice", folder / "ball.ply", "--layer", "1", "--dpi", "200", "--grade", "linear",
+                          "--to", "0,255,0", "-o", folder / name, *extra) == 0
+    return folder
+
+
+def test_voxel_print_folder_naming_resolution_palette_and_one_material_per_pixel(stacks, tmp_path):
+    """Slices slice_00000.png.. bottom first, one per 0.027 mm of the part; each 600 x 300 dpi RGB of the
+    part's extent; only the background and the materials' exact colours; every solid voxel (the stack's
+    nearest layer and pixel) exactly its material's colour, every empty one the background."""
+    out = tmp_path / "voxels"
+    done = heoslice("export", stacks / "masks", "--format", "voxel-print", "-o", out, "--json")
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    manifest = read_manifest(stacks / "masks")
+    z_min, z_max = manifest["z_range_mm"]
+    count = int(np.ceil((z_max - z_min) / 0.027 - 1e-9))
+    names = sorted(p.name for p in out.glob("*.png"))
+    assert names == [f"slice_{k:05d}.png" for k in range(count)] and summary["slices"] == count
+    width = round(manifest["image"]["width"] * manifest["pixel_size_mm"][0] / (25.4 / 600))
+    height = round(manifest["image"]["height"] * manifest["pixel_size_mm"][1] / (25.4 / 300))
+    colours = {m["name"]: tuple(m["color"]) for m in manifest["grading"]["materials"]}
+    palette = [tuple(m["color"]) for m in json.loads((out / "voxelprint.json").read_text())["materials"]]
+    assert palette == [colours[c["material"]] for c in manifest["layers"][0]["channels"]]
+    assert len(set(palette) | {(0, 0, 0)}) == len(palette) + 1
+    columns = np.minimum(((np.arange(width) + 0.5) * (25.4 / 600) / manifest["pixel_size_mm"][0]).astype(int),
+                         manifest["image"]["width"] - 1)
+    rows = np.minimum(((np.arange(height) + 0.5) * (25.4 / 300) / manifest["pixel_size_mm"][1]).astype(int),
+                      manifest["image"]["height"] - 1)
+    for k in (0, count // 3, count // 2, count - 1):
+        image = Image.open(out / f"slice_{k:05d}.png")
+        assert image.mode == "RGB" and image.size == (width, height)
+        assert tuple(round(v) for v in image.info["dpi"]) == (600, 300)
+        pixels = np.asarray(image)
+        layer = min(int((k + 0.5) * 0.027 / manifest["layer_height_mm"]), len(manifest["layers"]) - 1)
+        solid = read_layer_mask(stacks / "masks", manifest, layer)[np.ix_(rows, columns)]
+        masks = read_layer_channels(stacks / "masks", manifest, layer)[:, rows][:, :, columns]
+        assert solid.any()
+        assert (pixels[~solid] == 0).all()
+        matches = np.stack([(pixels == colour).all(axis=-1) for colour in palette])
+        assert (matches.sum(axis=0)[solid] == 1).all()
+        assert np.array_equal(matches, masks)
+
+
+def test_voxel_print_refuses_what_it_cannot_honour(stacks, tmp_path):
+    """Blended RGBA colours and a material coloured like the background: one line, exit 2, nothing written."""
+    done = heoslice("export", stacks / "rgba", "--format", "voxel-print", "-o", tmp_path / "a")
+    assert done.returncode == 2 and "--channels" in done.stderr and done.stderr.count("\n") == 1
+    colour = read_manifest(stacks / "masks")["grading"]["materials"][0]["color"]
+    done = heoslice("export", stacks / "masks", "--format", "voxel-print", "-o", tmp_path / "b",
+                    "--background", ",".join(map(str, colour)))
+    assert done.returncode == 2 and "--background" in done.stderr
+    done = heoslice("export", stacks / "masks", "--format", "voxel-print", "-o", tmp_path / "c", "--pitch", "0")
+    assert done.returncode == 2 and "--pitch" in done.stderr
+    assert not any(tmp_path.iterdir())
+
+
+def test_png_zip_holds_every_layer_and_the_manifest(stacks, tmp_path):
+    """`--format png -o X.zip`: one PNG per layer image and droplet mask at the stack's size, solid black
+    on white as in the TIFFs, with manifest.json beside them."""
+    done = heoslice("export", stacks / "masks", "--format", "png", "-o", tmp_path / "layers.zip")
+    assert done.returncode == 0, done.stderr
+    manifest = read_manifest(stacks / "masks")
+    with zipfile.ZipFile(tmp_path / "layers.zip") as archive:
+        names = set(archive.namelist())
+        assert json.loads(archive.read("manifest.json")) == manifest
+        expected = {e["file"][:-4] + ".png" for e in manifest["layers"]}
+        expected |= {c["file"][:-4] + ".png" for e in manifest["layers"] for c in e["channels"]}
+        assert names == expected | {"manifest.json"}
+        with archive.open("layer_00004.png") as handle:
+            shown = np.asarray(Image.open(handle).convert("L"))
+    solid = read_layer_mask(stacks / "masks", manifest, 4)
+    assert shown.shape == solid.shape and (shown[solid] == 0).all() and (shown[~solid] == 255).all()

@@ -1,0 +1,65 @@
+"""`heoslice preview --section x=MM / y=MM`, through the command line: a vertical cut in material colours at
+true aspect ratio, bottom layer at the bottom; positions outside the stack refused in one line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+from PIL import Image
+
+from heoslice import procedural
+
+
+def in_process(*args) -> int:
+    """Run the heoslice command line in this process (shares compiled kernels between tests); exit code."""
+    from heoslice.cli import main
+
+    try:
+        main([str(a) for a in args])
+    except SystemExit as done:
+        return done.code if isinstance(done.code, int) else 0
+    return 0
+
+
+def heoslice(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "heoslice", *map(str, args)], capture_output=True, text=True,
+                          timeout=120, stdin=subprocess.DEVNULL)
+
+
+def test_section_of_a_z_graded_box_shows_the_gradient_at_true_aspect(tmp_path):
+    """A 10 x 10 x 20 mm box coloured by `color --func linear` along z, cut at x=5 and y=5: an image of
+    the part's width by twice that height (20 mm of layers against 10 mm across), its contour colour
+    changing from the bottom row to the top row; --json reports the size; x=50 is outside: exit 2 naming --section."""
+    procedural.box(extents=(10.0, 10.0, 20.0)).export(tmp_path / "box.ply")
+    assert in_process("color", tmp_path / "box.ply", "--func", "linear", "-o", tmp_path / "coloured.ply") == 0
+    model = tmp_path / "coloured.ply"
+    assert in_process("slice", model, "--layer", "0.5", "--dpi", "50", "--margin", "0", "-o", tmp_path / "s") == 0
+    manifest = json.loads((tmp_path / "s" / "manifest.json").read_text())
+    for axis in ("x", "y"):
+        done = heoslice("preview", tmp_path / "s", "--section", f"{axis}=5", "-o", tmp_path / f"{axis}.png", "--json")
+        assert done.returncode == 0, done.stderr
+        reported = json.loads(done.stdout)
+        image = np.asarray(Image.open(tmp_path / f"{axis}.png"))
+        across = manifest["image"]["height" if axis == "x" else "width"]
+        pixel = manifest["pixel_size_mm"][1 if axis == "x" else 0]
+        assert image.shape[:2] == (round(len(manifest["layers"]) * 0.5 / pixel), across)
+        assert (reported["width"], reported["height"]) == (image.shape[1], image.shape[0])
+        solid = (image != [32, 32, 32]).any(axis=-1)
+        assert solid[0].any() and solid[-1].any()
+        edge_top, edge_bottom = image[0][np.argmax(solid[0])], image[-1][np.argmax(solid[-1])]
+        assert not np.array_equal(edge_top, edge_bottom)
+    done = heoslice("preview", tmp_path / "s", "--section", "x=50", "-o", tmp_path / "out.png")
+    assert done.returncode == 2 and "--section" in done.stderr and "outside" in done.stderr
+    assert not (tmp_path / "out.png").exists()
+
+
+def test_error_names_the_stack_once(tmp_path):
+    """A directory without a manifest: export, print and preview name it once ('full: no manifest.json')."""
+    (tmp_path / "full").mkdir()
+    for args in (("export", "full", "--format", "png", "-o", "x"), ("preview", "full")):
+        done = subprocess.run([sys.executable, "-m", "heoslice", *args], capture_output=True, text=True,
+                              cwd=tmp_path)
+        assert done.returncode != 0 and "full: full:" not in done.stderr and "full: no manifest.json" in done.stderr
