@@ -70,7 +70,7 @@ def cases() -> list[Case]:
 
 def heoslice(*args: str) -> None:
     """Run this Python's heoslice command; raise with its stderr when it fails."""
-    done = subprocess.run([sys.executable, "-m", "heoslice", *args], capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-m", "heoslice", "--no-config", *args], capture_output=True, text=True)
     if done.returncode != 0:
         raise RuntimeError(f"heoslice {' '.join(args)}: exit {done.returncode}: {done.stderr.strip()}")
 

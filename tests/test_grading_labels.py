@@ -1297,3 +1297,14 @@ def test_the_distance_from_the_outer_ring_to_its_holes_is_the_least_hole_by_hole
         measured.append(len(counted) - start)
         before = memo.now
     assert measured == [len(holes) + 1, 1, 0]
+
+
+@pytest.mark.parametrize("options, message", [({"count": 10**9}, "--offsets"), ({"nozzle_mm": 1e-9}, "--nozzle"),
+                                              ({"nozzle_mm": 1e308}, "--nozzle")])
+def test_absurd_sub_region_options_are_refused_before_any_allocation(options, message):
+    """--offsets 1e9 and --nozzle 1e-9 (7-37 GiB of bands) or 1e308 are one-line input errors in RegionSpec."""
+    from heoslice.errors import InputError
+    from heoslice.grading import RegionSpec
+
+    with pytest.raises(InputError, match=message):
+        RegionSpec(**options)

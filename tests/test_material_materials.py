@@ -6,6 +6,8 @@ its misprint corrected (M1 where f <= 0, M2 where f >= 1, M1 + f (M2 - M1) betwe
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given
@@ -140,3 +142,31 @@ def test_resolve_material():
     assert resolve_material("#0000ff", table) == Material("#0000ff", (0, 0, 255), None)
     with pytest.raises(InputError, match="neither a material name"):
         resolve_material("unobtainium", table)
+
+
+@pytest.mark.parametrize("special", ["/dev/zero", "fifo"])
+def test_a_materials_file_that_is_not_a_regular_file_is_refused_at_once(tmp_path, special):
+    """--materials /dev/zero or a FIFO is one line (exit 2) naming it, read no further (no hang, no 10 GB read)."""
+    import os
+    import subprocess
+    import sys
+
+    if special == "fifo":
+        special = tmp_path / "materials.toml"
+        os.mkfifo(special)
+    model = tmp_path / "vase.ply"
+    model.write_bytes((Path(__file__).resolve().parents[1] / "examples" / "vase.ply").read_bytes())
+    done = subprocess.run([sys.executable, "-m", "heoslice", "--no-config", "slice", str(model), "--grade", "linear",
+                           "--materials", str(special), "-o", str(tmp_path / "s")], capture_output=True, text=True,
+                          timeout=30)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1 and str(special) in done.stderr
+
+
+def test_a_materials_file_larger_than_the_limit_is_refused_before_reading(tmp_path):
+    """A materials file over MAX_MATERIALS_FILE_BYTES is refused by its size, naming the limit."""
+    from heoslice.material.materials import MAX_MATERIALS_FILE_BYTES, load_materials
+
+    big = tmp_path / "big.toml"
+    big.write_bytes(b"#" * (MAX_MATERIALS_FILE_BYTES + 1))
+    with pytest.raises(InputError, match="limit"):
+        load_materials(big)

@@ -16,6 +16,12 @@ from heoslice.errors import InputError
 DIRECTIONS = ("in", "out")
 
 
+#: Most sub-regions a family may be cut into (eq. 8's N_R, or --offsets): far more than 8-bit colours can tell apart.
+MAX_BANDS = 100_000
+#: Nozzle diameters D_N a jetting head can have, mm (a micrometre to a centimetre).
+MIN_NOZZLE_MM, MAX_NOZZLE_MM = 1e-3, 10.0
+
+
 @dataclass(frozen=True)
 class RegionSpec:
     """How sub-regions are laid out: nozzle diameter D_N (mm), optional target depth (mm), direction.
@@ -35,8 +41,12 @@ class RegionSpec:
         if self.count is not None and (isinstance(self.count, bool) or int(self.count) != self.count
                                        or self.count < 1):
             raise InputError(f"--offsets: the number of sub-regions must be a whole number >= 1, got {self.count}")
-        if not (np.isfinite(self.nozzle_mm) and self.nozzle_mm > 0):
-            raise InputError(f"--nozzle: nozzle diameter must be a positive number of mm, got {self.nozzle_mm}")
+        if self.count is not None and self.count > MAX_BANDS:
+            raise InputError(f"--offsets: at most {MAX_BANDS} sub-regions, "
+                             f"got {self.count:g}")
+        if not (np.isfinite(self.nozzle_mm) and MIN_NOZZLE_MM <= self.nozzle_mm <= MAX_NOZZLE_MM):
+            raise InputError(f"--nozzle: nozzle diameter must be between {MIN_NOZZLE_MM:g} and {MAX_NOZZLE_MM:g} mm, "
+                             f"got {self.nozzle_mm:g}")
         if self.depth_mm is not None and not (np.isfinite(self.depth_mm) and self.depth_mm > 0):
             raise InputError(f"--depth: target depth must be a positive number of mm, got {self.depth_mm}")
         if self.direction not in DIRECTIONS:

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import InputError
+from heoslice.files import read_bounded
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -106,6 +107,10 @@ def _material_from_table(name: str, entry, path: Path) -> Material:
     return Material(name, color, channel)
 
 
+#: A materials file is a few named colours; anything larger than this is not one (and is not read).
+MAX_MATERIALS_FILE_BYTES = 1 << 20
+
+
 def _read_toml(path: Path) -> dict:
     path = Path(path)
     if not path.exists():
@@ -113,8 +118,7 @@ def _read_toml(path: Path) -> dict:
     if path.is_dir():
         raise InputError(f"{path}: is a directory, not a materials file")
     try:
-        with open(path, "rb") as handle:
-            return tomllib.load(handle)
+        return tomllib.loads(read_bounded(path, MAX_MATERIALS_FILE_BYTES, "materials").decode("utf-8"))
     except tomllib.TOMLDecodeError as err:
         raise InputError(f"{path}: not a valid TOML materials file ({err})") from None
     except (OSError, UnicodeDecodeError) as err:
