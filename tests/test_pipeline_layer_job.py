@@ -14,7 +14,8 @@ def test_a_layer_takes_the_last_layers_tiff_only_for_the_same_solid_bits():
 
     from heoslice.pipeline.layer_job import PipelineCache, _solid_tiff
 
-    job = SimpleNamespace(grid=SimpleNamespace(width=40), dpi=(600.0, 600.0), compression="deflate")
+    job = SimpleNamespace(grid=SimpleNamespace(width=40), dpi=(600.0, 600.0), compression="deflate",
+                          layer_height_mm=0.1)
     mask = np.zeros((30, 40), dtype=bool)
     mask[5:15, 8:20] = True
     moved = np.roll(mask, 7, axis=1)

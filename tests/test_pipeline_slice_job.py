@@ -67,12 +67,15 @@ def test_manifest_describes_the_images(tmp_path):
         with tifffile.TiffFile(path) as tiff:
             page = tiff.pages[0]
             assert (page.imagewidth, page.imagelength) == (width, height)
-            assert page.tags["XResolution"].value == (200, 1) and page.tags["YResolution"].value == (100, 1)
-            assert page.tags["ResolutionUnit"].value == 2  # inch
+            x_res, y_res = page.tags["XResolution"].value, page.tags["YResolution"].value
+            assert np.isclose(x_res[0] / x_res[1] * 25.4, 200) and np.isclose(y_res[0] / y_res[1] * 25.4, 100)
+            assert page.tags["ResolutionUnit"].value == 1  # pixels per mm, with the ImageJ unit=mm
+            assert tiff.imagej_metadata["unit"] == "mm"
+            assert tiff.imagej_metadata["spacing"] == manifest["layer_height_mm"]
         mask = read_layer_mask(tmp_path / "stack", manifest, entry["index"])
         assert mask.sum() == entry["solid_pixels"]
         np.testing.assert_array_equal(mask, solid_mask(*layer_loops(contours, entry["index"]), grid))
-        assert np.array_equal(np.array(Image.open(path)).astype(bool), mask)  # Pillow reads it the same
+        assert np.array_equal(~np.array(Image.open(path)).astype(bool), mask)  # Pillow: solid dark (min-is-white)
     assert verify_stack(tmp_path / "stack").ok
 
 
