@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import manifold3d
 import numpy as np
 import shapely
@@ -173,4 +176,33 @@ def paint_cells(regions, per_family: list[np.ndarray], dtype=np.float32) -> np.n
         f = field.lattice.cell
         pixels = np.repeat(np.repeat(cells.astype(dtype), f, axis=0), f, axis=1)[: r1 - r0, : c1 - c0]
         np.copyto(out[r0 - b[0]:r1 - b[0], c0 - b[2]:c1 - b[2]], pixels, where=own[..., None])
+    return out
+
+
+def in_process(*args) -> int:
+    """Run the heoslice command line in this process (shares compiled kernels between tests); exit code."""
+    from heoslice.cli import main
+
+    try:
+        main([str(a) for a in args])
+    except SystemExit as done:
+        return done.code if isinstance(done.code, int) else 0
+    return 0
+
+
+def heoslice(*args) -> subprocess.CompletedProcess:
+    """Run the heoslice command line in a new process (stdin closed, 120 s at most); its outcome."""
+    return subprocess.run([sys.executable, "-m", "heoslice", *map(str, args)], capture_output=True, text=True,
+                          timeout=120, stdin=subprocess.DEVNULL)
+
+
+def brute_force_distance(points: np.ndarray, mesh) -> np.ndarray:
+    """The literal nearest-surface distance, (n,) mm: min over all triangles of |p - closest point| with trimesh's own point-triangle routine."""
+    import trimesh
+
+    out = np.empty(len(points))
+    triangles = mesh.triangles
+    for i, p in enumerate(points):
+        closest = trimesh.triangles.closest_point(triangles, np.repeat(p[None], len(triangles), axis=0))
+        out[i] = np.linalg.norm(closest - p, axis=1).min()
     return out

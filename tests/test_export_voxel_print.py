@@ -4,32 +4,15 @@ with sequential slice names, 600 x 300 dpi, one exact colour per material and no
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import zipfile
 
 import numpy as np
 import pytest
+from helpers import heoslice, in_process
 from PIL import Image
 
 from heoslice import procedural
 from heoslice.stack import read_layer_channels, read_layer_mask, read_manifest
-
-
-def in_process(*args) -> int:
-    """Run the heoslice command line in this process (shares compiled kernels between tests); exit code."""
-    from heoslice.cli import main
-
-    try:
-        main([str(a) for a in args])
-    except SystemExit as done:
-        return done.code if isinstance(done.code, int) else 0
-    return 0
-
-
-def heoslice(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "heoslice", *map(str, args)], capture_output=True, text=True,
-                          timeout=120, stdin=subprocess.DEVNULL)
 
 
 @pytest.fixture(scope="module")

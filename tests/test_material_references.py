@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from helpers import brute_force_distance
 
 from heoslice import procedural
 from heoslice.errors import InputError
@@ -19,17 +20,6 @@ from heoslice.material import (
     normalise,
     reference_distance,
 )
-
-
-def brute_force_distance(points: np.ndarray, mesh: trimesh.Trimesh) -> np.ndarray:
-    """min over all triangles of |p - closest point| with trimesh's own point-triangle routine."""
-    out = np.empty(len(points))
-    triangles = mesh.triangles
-    for i, p in enumerate(points):
-        closest = trimesh.triangles.closest_point(triangles, np.repeat(p[None], len(triangles), axis=0))
-        out[i] = np.linalg.norm(closest - p, axis=1).min()
-    return out
-
 
 # --- references and normalisation -----------------------------------------------------------
 

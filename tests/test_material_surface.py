@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from helpers import brute_force_distance
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -22,17 +23,6 @@ from heoslice.material import (
     point_triangle_distance,
     surface_distance,
 )
-
-
-def brute_force_distance(points: np.ndarray, mesh: trimesh.Trimesh) -> np.ndarray:
-    """min over all triangles of |p - closest point| with trimesh's own point-triangle routine."""
-    out = np.empty(len(points))
-    triangles = mesh.triangles
-    for i, p in enumerate(points):
-        closest = trimesh.triangles.closest_point(triangles, np.repeat(p[None], len(triangles), axis=0))
-        out[i] = np.linalg.norm(closest - p, axis=1).min()
-    return out
-
 
 # --- surface distance -----------------------------------------------------------------------
 

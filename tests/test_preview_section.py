@@ -8,25 +8,10 @@ import subprocess
 import sys
 
 import numpy as np
+from helpers import heoslice, in_process
 from PIL import Image
 
 from heoslice import procedural
-
-
-def in_process(*args) -> int:
-    """Run the heoslice command line in this process (shares compiled kernels between tests); exit code."""
-    from heoslice.cli import main
-
-    try:
-        main([str(a) for a in args])
-    except SystemExit as done:
-        return done.code if isinstance(done.code, int) else 0
-    return 0
-
-
-def heoslice(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "heoslice", *map(str, args)], capture_output=True, text=True,
-                          timeout=120, stdin=subprocess.DEVNULL)
 
 
 def test_section_of_a_z_graded_box_shows_the_gradient_at_true_aspect(tmp_path):

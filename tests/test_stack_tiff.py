@@ -8,20 +8,10 @@ import sys
 
 import numpy as np
 import tifffile
+from helpers import in_process
 from PIL import Image
 
 from heoslice import procedural
-
-
-def in_process(*args) -> int:
-    """Run the heoslice command line in this process (shares compiled kernels between tests); exit code."""
-    from heoslice.cli import main
-
-    try:
-        main([str(a) for a in args])
-    except SystemExit as done:
-        return done.code if isinstance(done.code, int) else 0
-    return 0
 
 
 def test_layers_are_calibrated_in_mm_with_the_layer_height_as_z_spacing(tmp_path):
