@@ -12,16 +12,14 @@ import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from heoslice.errors import InputError
-from heoslice.material.surface_kernels import (
-    LEAF_SIZE,
-    Hierarchy,
-    build_nodes,
-    nearest_distances,
-)
+
+if TYPE_CHECKING:  # the kernels load numba; only a surface reference needs them, so they are imported when used
+    from heoslice.material.surface_kernels import Hierarchy
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,6 +49,8 @@ def build_surface_index(vertices: np.ndarray, faces: np.ndarray) -> SurfaceIndex
         raise InputError("surface: the reference surface has face indices outside its vertex list")
     if not np.isfinite(vertices).all():
         raise InputError("surface: the reference surface has NaN or infinite coordinates")
+    from heoslice.material.surface_kernels import LEAF_SIZE, Hierarchy, build_nodes
+
     corners = vertices[faces]
     order, low, high, left, right, first, count = build_nodes(
         corners.mean(axis=1), corners.min(axis=1), corners.max(axis=1), LEAF_SIZE)
@@ -76,6 +76,8 @@ def surface_distance(points: np.ndarray, index: SurfaceIndex, chunk: int = 65536
     Chunks of ``chunk`` points are measured on ``workers`` threads (default: the usable
     cores; the kernel releases the GIL); ``progress(done, total)`` follows the chunks in order.
     """
+    from heoslice.material.surface_kernels import nearest_distances
+
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     out = np.empty(len(points))
     starts = list(range(0, len(points), max(1, int(chunk))))

@@ -4,18 +4,21 @@ one layer leaves to the next that the same process renders (:class:`PipelineCach
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from heoslice.grading import GradeSpec, GradingCache, droplet_planes, render_graded
 from heoslice.layers.contours import Contours
 from heoslice.layers.rasterising import Grid, count_solid, packed_mask, render_layer
 from heoslice.layers.slicing import interpolate_at
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec, channel_name
 from heoslice.stack import encode_bilevel_tiff, encode_tiff, layer_file_name, write_file
+
+if TYPE_CHECKING:  # the grading package loads numba's kernels: a one-material slice never imports it
+    from heoslice.grading import GradeSpec, GradingCache
 
 
 @dataclass(frozen=True, slots=True)
@@ -37,7 +40,7 @@ class PipelineCache:
     (the same slice); a worker starts from a copy of the one its parent's first layer filled.
     """
 
-    grading: GradingCache = field(default_factory=GradingCache)
+    grading: GradingCache | None = None
     solid: EncodedSolid | None = None
 
 
@@ -116,6 +119,14 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed:
     """The graded branch of :func:`render_and_write`: the RGBA layer, or with droplet masks the
     1-bit solid layer plus one 1-bit TIFF per material."""
     graded = job.graded
+    from heoslice.grading import (  # loaded by graded slices only
+        GradingCache,
+        droplet_planes,
+        render_graded,
+    )
+
+    if cache is not None and cache.grading is None:
+        cache.grading = GradingCache()
     grading_cache = None if cache is None else cache.grading
     started = time.perf_counter()
     packed = packed if packed is not None else packed_mask(job.points, job.offsets, job.grid)

@@ -11,11 +11,11 @@ import time
 from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from heoslice.errors import InputError
-from heoslice.grading import GradeSpec
 from heoslice.layers.planes import layer_count, plane_heights
 from heoslice.layers.rasterising import grid_for
 from heoslice.layers.slicing import face_z_range
@@ -40,6 +40,9 @@ from heoslice.stack import (
     prepare_directory,
     write_manifest,
 )
+
+if TYPE_CHECKING:  # the grading package loads numba's kernels: a one-material slice never imports it
+    from heoslice.grading import GradeSpec
 
 
 def layer_limit(spec: SliceSpec) -> int:

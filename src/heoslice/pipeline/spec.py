@@ -8,12 +8,15 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from heoslice.errors import InputError
-from heoslice.grading import GradeSpec
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION
+
+if TYPE_CHECKING:  # the grading package loads numba's kernels: a one-material slice never imports it
+    from heoslice.grading import GradeSpec
 
 MIN_LAYER_MM, MAX_LAYER_MM = 1e-3, 10_000.0
 MIN_DPI, MAX_DPI = 1.0, 100_000.0
