@@ -94,9 +94,6 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
     function's coefficients without --grade are refused (they would be ignored). The
     materials play the parts :func:`heoslice.material.material_roles` gives them.
     """
-    from heoslice.grading import GradeSpec, RegionSpec
-    from heoslice.material import load_materials, load_shell_materials, material_roles
-
     if kind is None:
         given = {"--alpha": alpha, "--beta": beta, "--lambda": lam, "--periods": periods,
                  "--expr": expression, "--depth": depth, "--offsets": offset_count}
@@ -107,6 +104,10 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
             raise InputError(f"{', '.join(stray)}: only used with --grade FUNC (ignored without it)")
         if not (channels or materials_file):
             return None
+    # imported here, past the plain path's return: the grading package loads numba's kernels
+    from heoslice.grading import GradeSpec, RegionSpec
+    from heoslice.material import load_materials, load_shell_materials, material_roles
+
     with option("--materials"):
         table = load_materials(materials_file)
         shells = load_shell_materials(materials_file, table)
