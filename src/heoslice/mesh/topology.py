@@ -53,20 +53,29 @@ def edge_groups(faces: np.ndarray) -> EdgeGroups:
 def shell_labels(faces: np.ndarray, groups: EdgeGroups | None = None) -> np.ndarray:
     """(m,) int: connected shell of each face, faces being connected through shared edges.
 
-    scipy's connected components of the face graph (one edge per pair of faces adjacent
-    in the sorted edge order that share an edge), so shells are numbered in the order of
-    their first face.
+    Shells are numbered in the order of their first face (as scipy's connected
+    components). Found by hooking and pointer jumping in numpy: every round, each root
+    label that meets smaller labels across shared edges is pointed at the smallest of
+    them, then every face follows its labels to the root; labels only ever decrease, so
+    each shell ends labelled by its first face. numpy rather than scipy.sparse.csgraph,
+    whose import costs every slice more than the labelling (benchmarks/README.md).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     groups = groups if groups is not None else edge_groups(faces)
     same = np.ones(len(groups.order), dtype=bool)
     same[groups.starts] = False  # entry i shares its edge with entry i - 1 in sorted order
     owner = groups.order // 3
     a, b = owner[:-1][same[1:]], owner[1:][same[1:]]
-    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(len(faces), len(faces)))
-    return connected_components(graph, directed=False)[1].astype(np.int64)
+    label = np.arange(len(faces), dtype=np.int64)
+    while True:
+        label_a, label_b = label[a], label[b]
+        crossing = label_a != label_b
+        if not crossing.any():
+            break
+        a, b, label_a, label_b = a[crossing], b[crossing], label_a[crossing], label_b[crossing]
+        np.minimum.at(label, np.maximum(label_a, label_b), np.minimum(label_a, label_b))
+        while not np.array_equal(deeper := label[label], label):
+            label = deeper
+    return (np.cumsum(label == np.arange(len(faces))) - 1)[label]
 
 
 def edge_use_counts(faces: np.ndarray) -> np.ndarray:
