@@ -254,3 +254,16 @@ def test_two_slices_into_one_directory_cannot_both_succeed(tmp_path):
     codes = [run.wait(timeout=120) for run in runs]
     assert sorted(codes) in ([0, EXIT_STACK_BUSY], [0, 0]), [run.stderr.read() for run in runs]
     assert verify_stack(stack).ok
+
+
+def test_one_material_slice_loads_no_heavy_library(tmp_path):
+    """A one-material `heoslice slice` (a fresh process) loads neither numba nor scipy's sparse graphs or
+    spatial trees: importing them costs every such slice more than slicing a small part (benchmarks/README.md)."""
+    model = write_mesh(procedural.sphere(5.0, 3), tmp_path / "ball.ply")
+    script = ("import sys\nfrom heoslice.cli import main\n"
+              f"sys.argv = ['heoslice', '--no-config', 'slice', {str(model)!r}, '-o', {str(tmp_path / 'out')!r}]\n"
+              "try:\n    main()\nfinally:\n"
+              "    print(sorted(m for m in ('numba', 'scipy.sparse', 'scipy.spatial') if m in sys.modules))\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "[]"
