@@ -128,6 +128,8 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
 @click.command("slice", epilog="""\b
 Examples:
   heoslice slice vase.ply                       # 0.1 mm layers, 600 dpi, into ./vase_stack/
+  heoslice slice vase_linear.ply                # `color`'s output: M1 and M2 droplet masks per layer
+  heoslice slice vase_linear.ply --rgba         # a preview-only RGBA stack in the materials' colours
   heoslice slice liver.ply --layer 0.1 --dpi 600 -o liver_stack
   heoslice slice part.stl --dpi 600x300 --canvas 200x150 --compress packbits
   heoslice slice scan.ply --scale 1000 --json   # a model in metres
@@ -136,7 +138,7 @@ Examples:
 Graded interiors (the paper's Fig. 3b, 9b):
   heoslice slice model.ply --grade linear --to 0,255,0 --nozzle 0.2
   heoslice slice vase.ply --grade linear --to 0,255,0 --offsets 200
-  heoslice slice liver.ply --grade sine --periods 2 --to M2 --depth 10 --channels
+  heoslice slice liver.ply --grade sine --periods 2 --to M2 --depth 10
   heoslice slice part.ply --grade linear --from M1 --to M2 --direction out --materials mats.toml
 """)
 @click.argument("models", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="MODEL...")
@@ -194,6 +196,14 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
 
     Layers are cut at their centres, z = z_min + (i + 1/2) x layer; a pixel is solid
     when its centre is inside the model. The stack format is in docs/stack-format.md.
+
+    A model that carries materials (the material fraction `heoslice color` writes,
+    colours that map to more than one material of the table, per-shell materials) or a
+    graded slice gives a multi-material stack: each layer's 1-bit solid mask plus one
+    1-bit droplet mask per material, what `heoslice print` sends; every solid pixel
+    takes the material of the nearest point of its contour (or its graded sub-region).
+    Colours map to the material of nearest display colour. A one-material model gives
+    the solid mask alone.
     Several models (or a quoted pattern such as "scans/*.ply", expanded by heoslice)
     each go to their own stack; one that fails is reported and the others still run.
     """
