@@ -204,6 +204,7 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     takes the material of the nearest point of its contour (or its graded sub-region).
     Colours map to the material of nearest display colour. A one-material model gives
     the solid mask alone.
+
     Several models (or a quoted pattern such as "scans/*.ply", expanded by heoslice)
     each go to their own stack; one that fails is reported and the others still run.
     """
