@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from heoslice.errors import InputError
+from heoslice.errors import InputError, shown
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION
 
 if TYPE_CHECKING:  # the grading package loads numba's kernels: a one-material slice never imports it
@@ -36,7 +36,7 @@ def check_range(parameter: str, value, low: float, high: float, unit: str = "", 
     try:
         number = float(value)
     except (TypeError, ValueError):
-        raise InputError(f"{parameter}: must be a number, got {value!r}") from None
+        raise InputError(f"{parameter}: must be a number, got {shown(value)}") from None
     inside = (number > low if low_open else number >= low) and number <= high
     if not (np.isfinite(number) and inside):
         bound = f"above {low:g}" if low_open else f"at least {low:g}"

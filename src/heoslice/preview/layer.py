@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from heoslice.errors import InputError, VerifyError
+from heoslice.errors import InputError, VerifyError, shown
 from heoslice.stack import layer_strips, read_manifest
 
 #: Longest side of a drawn preview, px: larger requests are refused, larger layers reduced to it
@@ -189,7 +189,7 @@ def check_size(size: int | None, what: str = "size") -> int:
         return MAX_PREVIEW_SIDE
     if not (isinstance(size, int) and MIN_PREVIEW_SIDE <= size <= MAX_PREVIEW_SIDE):
         raise InputError(f"{what}: must be an integer from {MIN_PREVIEW_SIDE} to {MAX_PREVIEW_SIDE} px, "
-                         f"not {size!r}"[:200])
+                         f"not {shown(size)}"[:200])
     return size
 
 
