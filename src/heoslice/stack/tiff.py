@@ -20,7 +20,7 @@ MM_PER_INCH = 25.4
 TIFF_COMPRESSIONS = (1, 5, 8, 32946, 32773)
 #: zlib level of a droplet mask's deflate strips: a halftone's dither patterns repeat at a short
 #: distance, which level 1's matcher misses and level 2's finds (sizes and times in benchmarks/README.md).
-MASK_DEFLATE_LEVEL = 1
+MASK_DEFLATE_LEVEL = 2
 
 
 def calibration(dpi: tuple[float, float], spacing_mm: float | None) -> dict:
