@@ -133,8 +133,8 @@ def _choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.
 def _distinct_rows(flat: np.ndarray) -> np.ndarray:
     """The distinct rows of (n, K) float32 mixes, by their bits (np.unique's axis=0 sort of row records
     is slow; a lexsort of the bit columns is not)."""
-    if len(flat) < 2:
-        return flat
+    if len(flat) < 2 or (flat == flat[0]).all():
+        return flat[:1]
     bits = np.ascontiguousarray(flat).view(np.uint32)
     ordered = bits[np.lexsort(bits.T[::-1])]
     keep = np.r_[True, (ordered[1:] != ordered[:-1]).any(axis=1)]
