@@ -1,8 +1,10 @@
 """Reading meshes: one reader per format, each giving a :class:`RawMesh`; welding, topology, volume; the loaded Mesh.
 
-3MF (objects, names, materials) is read at library level by :func:`read_3mf`; ``load_mesh`` does not take it yet.
+A 3MF (objects, names, materials: :func:`read_3mf`) loads as an assembly, each build item a part;
+:func:`load_assembly` makes one mesh of several files, each face labelled with its part.
 """
 
+from heoslice.mesh.assembly import Part, assemble, load_assembly, uniform_color
 from heoslice.mesh.checks import VolumeCheck, volume_check
 from heoslice.mesh.load import MAX_COORDINATE, SUPPORTED_SUFFIXES, Mesh, column_bounds, file_sha256, load_mesh, \
     mesh_info, scaled
@@ -17,5 +19,5 @@ __all__ = [
     "RawMesh", "ThreeMF", "check_ply_header", "read_3mf",
     "column_bounds", "edge_groups", "edge_use_counts", "file_sha256", "load_mesh", "mesh_info", "parse_ply_header",
     "read_ply", "scaled", "shell_labels", "signed_volume_mm3", "solid_volume_mm3", "winding_number",
-    "VolumeCheck", "volume_check",
+    "VolumeCheck", "volume_check", "Part", "assemble", "load_assembly", "uniform_color",
 ]

@@ -2,7 +2,8 @@
 
 spec (what is asked, checked) -> slice_job (sizes checked, directory prepared, manifest last) -> runs
 (consecutive planes sliced, chained, then rendered and written layer by layer) -> layer_job (one layer:
-render, encode, write; what it leaves to the next) ; parallel holds every process matter (forks, the
+render, encode, write; what it leaves to the next), or parts (a multi-part job's layers: each part's
+loops rasterised on their own, composed by priority); parallel holds every process matter (forks, the
 slice-ahead helper, shared memory, allocator, collector, BLAS threads, dying with the parent).
 
 The names below are loaded on first use (PEP 562), not when the package is imported: the ``heoslice``
@@ -25,6 +26,7 @@ _EXPORTS = {
     "slice_to_stack": "slice_job", "grading_summary": "slice_job",
     "layer_limit": "slice_job", "slice_warnings": "slice_job",
     "run_all": "parallel", "keep_freed_memory": "parallel",
+    "PartsPlan": "parts", "plan_parts": "parts", "part_order": "parts", "compose_part_masks": "parts",
 }
 
 __all__ = sorted(_EXPORTS)
