@@ -114,6 +114,22 @@ def test_info_verify_and_color_take_a_3mf(tmp_path, run_cli):
     assert len(load_mesh(tmp_path / "organ.ply").faces) >= sum(len(m.faces) for m in objects.values())
 
 
+def test_a_plain_one_object_3mf_slices_like_its_mesh(tmp_path, run_cli):
+    """An uncoloured one-object 3MF is a one-part job of the table's first material: its stack is the 1-bit
+    solid mask only, with the same layers as the same object given as an STL."""
+    box = exact(trimesh.creation.box(extents=(6.0, 5.0, 4.0)))
+    write_3mf(tmp_path / "box.3mf", mesh_xml(box, 1, "box"), '<item objectid="1"/>')
+    box.export(tmp_path / "box.stl")
+    for name in ("box.3mf", "box.stl"):
+        code, out, err = run_cli("slice", tmp_path / name, "-o", tmp_path / f"{name}_stack", "--layer", "0.5",
+                                 "--dpi", "100")
+        assert code == 0, err
+    first, second = (json.loads((tmp_path / f"{name}_stack" / "manifest.json").read_text())
+                     for name in ("box.3mf", "box.stl"))
+    assert first["parts"][0]["material"] == "M1" and "grading" not in first
+    assert [e["sha256"] for e in first["layers"]] == [e["sha256"] for e in second["layers"]]
+
+
 def test_assembly_labels_faces_with_their_part(tmp_path):
     """Several files: faces keep their part label in file order (a 3MF's objects each a part), each part's
     volume its own mesh's."""

@@ -50,7 +50,8 @@ def part_settings(materials_file: Path | None, part_options: tuple[str, ...], pa
     shown = ", ".join(dict.fromkeys(part_names))
     for name in settings:
         if name not in part_names:
-            raise InputError(f"{materials_file}: [parts] {name}: no part of this job has that name (its parts: {shown})")
+            raise InputError(f"{materials_file}: [parts] {name}: no part of this job has that name "
+                             f"(its parts: {shown})")
     for name in given:
         if name not in part_names:
             raise InputError(f"--part {name}=...: no part of this job has that name (its parts: {shown})")

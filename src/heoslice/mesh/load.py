@@ -213,7 +213,8 @@ def prepared_mesh(path: Path, raw: RawMesh, sha256) -> Mesh:
     if extent.max() < 1.0:
         notes.append(_metres_note(float(extent.max())))
     return Mesh(vertices=vertices, faces=faces, colors=colors, material=material, shell=shell, source=path,
-                sha256=sha256() if callable(sha256) else sha256, warnings=tuple(notes), color_source=raw.color_source if colors is not None else None,
+                sha256=sha256() if callable(sha256) else sha256, warnings=tuple(notes),
+                color_source=raw.color_source if colors is not None else None,
                 duplicate_faces=duplicate)
 
 

@@ -87,7 +87,8 @@ def plan_parts(parts: Sequence[Part], table: dict[str, Material], settings: Mapp
     """The :class:`PartsPlan` of ``parts`` with the materials ``table`` and the per-part ``settings`` (by part
     name); ``channels`` asks for droplet masks even when every part has the same material.
 
-    The droplet masks' materials are those the parts use, ordered by printer channel (unassigned last,
+    A job of one part that nothing maps takes the table's first material. The droplet masks' materials are
+    those the parts use, ordered by printer channel (unassigned last,
     then in the table's order). Raises InputError for a setting naming no part, an unknown material, two
     used materials on one printer channel or more materials than a layer's channels can carry.
     """
@@ -96,7 +97,11 @@ def plan_parts(parts: Sequence[Part], table: dict[str, Material], settings: Mapp
     if unknown:
         raise InputError(f"parts: no part named {unknown[0]!r} in this job (its parts: {', '.join(names)})")
     palette = tuple(table.values())
-    chosen = [_part_material(part, settings.get(part.name), table, palette) for part in parts]
+    if len(parts) == 1 and parts[0].name not in settings and parts[0].color is None and (
+            table_material(parts[0].material_name or "", table) is None):
+        chosen = [palette[0]]  # one plain part (an uncoloured one-object 3MF): the table's first material
+    else:
+        chosen = [_part_material(part, settings.get(part.name), table, palette) for part in parts]
     rank = {material.name: position for position, material in enumerate(palette)}
     used = sorted({material.name: material for material in chosen}.values(),
                   key=lambda m: (m.channel is None, m.channel or 0, rank.get(m.name, len(rank))))
