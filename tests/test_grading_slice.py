@@ -36,11 +36,11 @@ def organ(tmp_path_factory):
 
 
 def test_grade_command_as_documented(run_cli, ball, tmp_path):
-    """`heoslice slice model.ply --grade linear --to 0,255,0 --nozzle 0.2` writes a verified RGBA stack whose
-    interior goes from the base material at the contour to green at the centre."""
+    """`heoslice slice model.ply --grade linear --to 0,255,0 --nozzle 0.2 --rgba` writes a verified RGBA
+    preview stack whose interior goes from the base material at the contour to green at the centre."""
     out = tmp_path / "stack"
     code, stdout, stderr = run_cli("slice", ball, "--grade", "linear", "--to", "0,255,0", "--nozzle", "0.2",
-                                   "--layer", "0.5", "-o", out)
+                                   "--layer", "0.5", "--rgba", "-o", out)
     assert code == 0, stderr
     report = verify_stack(out)
     assert report.ok, report.problems
@@ -95,14 +95,14 @@ def test_altered_channel_file_fails_verification(run_cli, ball, tmp_path):
 
 def test_nested_shell_keeps_its_material_through_the_cli(run_cli, organ, tmp_path):
     """A lesion shell given its own material in the materials file keeps it in every layer it crosses:
-    its droplet channel holds exactly the pixels the RGBA rendering (the same slice without
-    --channels) paints in the tumour's colour, while the organ around it is graded."""
+    its droplet channel holds exactly the pixels the RGBA rendering (the same slice with
+    --rgba) paints in the tumour's colour, while the organ around it is graded."""
     mesh, materials = organ
     out, rgba = tmp_path / "stack", tmp_path / "rgba"
     common = ("--grade", "linear", "--to", "cells", "--materials", materials, "--layer", "0.5")
     code, _, stderr = run_cli("slice", mesh, *common, "--channels", "-o", out)
     assert code == 0, stderr
-    assert run_cli("slice", mesh, *common, "-o", rgba)[0] == 0
+    assert run_cli("slice", mesh, *common, "--rgba", "-o", rgba)[0] == 0
     manifest = json.loads((out / "manifest.json").read_text())
     names = [c["material"] for c in manifest["layers"][0]["channels"]]
     assert names == ["gel", "cells", "tumour"]

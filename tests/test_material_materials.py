@@ -170,3 +170,20 @@ def test_a_materials_file_larger_than_the_limit_is_refused_before_reading(tmp_pa
     big.write_bytes(b"#" * (MAX_MATERIALS_FILE_BYTES + 1))
     with pytest.raises(InputError, match="limit"):
         load_materials(big)
+
+
+def test_nearest_materials_maps_display_colours_to_themselves_and_others_to_the_closest():
+    """A material's own display colour maps to it; any other colour to the material whose display colour is
+    nearest in RGB (checked against a literal loop over the palette); ties go to the first listed."""
+    from heoslice.material import Material, nearest_materials
+
+    palette = [Material("gel", (240, 240, 240), 1), Material("cells", (0, 255, 0), 2), Material("red", (255, 0, 0), 3)]
+    rng = np.random.default_rng(3)
+    colors = np.vstack([[m.color for m in palette], rng.integers(0, 256, (200, 3))])
+    got = nearest_materials(colors, palette)
+    expected = [min(range(3), key=lambda k: sum((int(c[i]) - palette[k].color[i]) ** 2 for i in range(3)))
+                for c in colors]
+    assert list(got[:3]) == [0, 1, 2]
+    assert list(got) == expected
+    twins = [Material("a", (10, 10, 10)), Material("b", (10, 10, 10))]
+    assert list(nearest_materials([[10, 10, 10]], twins)) == [0]

@@ -19,6 +19,7 @@ from heoslice import procedural
 from heoslice.layers.contours import build_contours
 from heoslice.layers.rasterising import Grid, contour_pixels, solid_mask
 from heoslice.layers.slicing import slice_mesh
+from heoslice.material import Material
 from heoslice.mesh import load_mesh
 from heoslice.pipeline import SliceSpec, slice_to_stack
 from heoslice.stack import read_layer_mask, stack_volume_mm3, verify_stack
@@ -92,26 +93,35 @@ def test_parallel_and_serial_stacks_are_identical(tmp_path, layer_mm, layers):
     assert [e["sha256"] for e in one["layers"]] == [e["sha256"] for e in two["layers"]]
 
 
-def test_coloured_mesh_gives_rgba_layers_with_contour_colours(tmp_path):
-    """Vertex colours make RGBA layers; contour pixels carry colours interpolated from the vertices."""
+def test_coloured_mesh_gives_a_droplet_mask_per_material_of_its_colours(tmp_path):
+    """Vertex colours map to the materials table by the nearest display colour: a sphere red on top and blue
+    below, with red and blue materials, gives 1-bit layers with a red and a blue mask; a layer whose every
+    contour point is red is all red inside (the contour's material fills the layer, not a one-pixel ring),
+    and the masks partition the solid pixels. With the built-in table both colours are nearest M1: one
+    material, a solid mask alone."""
     mesh = procedural.sphere(6.0, 3)
     red_top = np.where(mesh.vertices[:, 2:3] > 0, [255, 0, 0, 255], [0, 0, 255, 255]).astype(np.uint8)
     mesh.visual.vertex_colors = red_top
     model = write_mesh(mesh, tmp_path / "coloured.ply")
-    manifest, _ = slice_to_stack(load_mesh(model), tmp_path / "stack", SliceSpec(layer_height_mm=1.0,
-                                                                               dpi=(100.0, 100.0), jobs=1))
-    assert manifest["mask"] == "alpha" and manifest["image"]["mode"] == "RGBA"
-    top = tifffile.imread(tmp_path / "stack" / manifest["layers"][-2]["file"])
-    bottom = tifffile.imread(tmp_path / "stack" / manifest["layers"][1]["file"])
-    assert top.shape[2] == 4
-    for image, colour in ((top, (255, 0, 0)), (bottom, (0, 0, 255))):
-        rows, cols = contour_pixels(image[..., 3] > 0).T
-        assert len(rows) > 0
-        assert np.all(image[rows, cols, :3] == colour)
-        interior = image[..., 3] > 0
-        interior[rows, cols] = False
-        assert np.all(image[interior][:, :3] == 255)  # base material (default white) inside
-    assert verify_stack(tmp_path / "stack").ok
+    table = (Material("red", (255, 0, 0), 1), Material("blue", (0, 0, 255), 2))
+    spec = SliceSpec(layer_height_mm=1.0, dpi=(100.0, 100.0), jobs=1, materials=table)
+    stack = tmp_path / "stack"
+    manifest, _ = slice_to_stack(load_mesh(model), stack, spec)
+    assert manifest["image"]["mode"] == "1"
+    assert [m["name"] for m in manifest["grading"]["materials"]] == ["red", "blue"]
+    for entry, expected in ((manifest["layers"][-2], "red"), (manifest["layers"][1], "blue")):
+        solid = tifffile.imread(stack / entry["file"]).astype(bool)
+        masks = {c["material"]: tifffile.imread(stack / c["file"]).astype(bool) for c in entry["channels"]}
+        assert solid.any()
+        assert np.array_equal(masks[expected], solid)
+        assert not any(mask.any() for name, mask in masks.items() if name != expected)
+    for entry in manifest["layers"]:
+        solid = tifffile.imread(stack / entry["file"]).astype(bool)
+        red, blue = (tifffile.imread(stack / c["file"]).astype(bool) for c in entry["channels"])
+        assert not (red & blue).any() and np.array_equal(red | blue, solid)
+    assert verify_stack(stack).ok
+    plain, _ = slice_to_stack(load_mesh(model), tmp_path / "plain", replace(spec, materials=()))
+    assert plain.get("grading") is None and "channels" not in plain["layers"][0]
 
 
 def test_slice_command_writes_the_default_directory(tmp_path, monkeypatch, run_cli):

@@ -16,7 +16,8 @@ from heoslice.cli.common import (
 )
 from heoslice.cli.options import flags, function_from_options, function_options, option
 from heoslice.errors import InputError
-from heoslice.mesh import load_mesh, scaled
+from heoslice.material import load_materials, load_shell_materials, material_roles
+from heoslice.mesh import load_mesh, scaled, without_materials
 from heoslice.pipeline import SliceSpec, check_scale, slice_to_stack, slice_warnings
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3
 
@@ -87,12 +88,13 @@ def parse_canvas(text: str | None) -> tuple[float, float] | None:
 
 def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth, offset_count,
                direction, materials_file, channels):
-    """The GradeSpec the grading options ask for, or None when none is given (the plain, fast path).
+    """The GradeSpec the grading options ask for, or None when none is given: the mesh's own materials then
+    decide (:func:`heoslice.pipeline.material_job`).
 
-    --channels or a materials file without --grade still build one: the families keep
-    their own (or their shell's) materials, without a gradient; --to, --from and the
-    function's coefficients without --grade are refused (they would be ignored). The
-    materials play the parts :func:`heoslice.material.material_roles` gives them.
+    Per-shell materials in the materials file, or --channels, without --grade still build one: the
+    families keep their own (or their shell's) materials, without a gradient; --to, --from and the
+    function's coefficients without --grade are refused (they would be ignored). The materials play the
+    parts :func:`heoslice.material.material_roles` gives them.
     """
     if kind is None:
         given = {"--alpha": alpha, "--beta": beta, "--lambda": lam, "--periods": periods,
@@ -102,11 +104,12 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
         stray += [name for name, value in ignored.items() if value]
         if stray:
             raise InputError(f"{', '.join(stray)}: only used with --grade FUNC (ignored without it)")
-        if not (channels or materials_file):
+        with option("--materials"):
+            shells = load_shell_materials(materials_file)
+        if not (channels or shells):
             return None
     # imported here, past the plain path's return: the grading package loads numba's kernels
     from heoslice.grading import GradeSpec, RegionSpec
-    from heoslice.material import load_materials, load_shell_materials, material_roles
 
     with option("--materials"):
         table = load_materials(materials_file)
@@ -125,6 +128,8 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
 @click.command("slice", epilog="""\b
 Examples:
   heoslice slice vase.ply                       # 0.1 mm layers, 600 dpi, into ./vase_stack/
+  heoslice slice vase_linear.ply                # `color`'s output: M1 and M2 droplet masks per layer
+  heoslice slice vase_linear.ply --rgba         # a preview-only RGBA stack in the materials' colours
   heoslice slice liver.ply --layer 0.1 --dpi 600 -o liver_stack
   heoslice slice part.stl --dpi 600x300 --canvas 200x150 --compress packbits
   heoslice slice scan.ply --scale 1000 --json   # a model in metres
@@ -133,7 +138,7 @@ Examples:
 Graded interiors (the paper's Fig. 3b, 9b):
   heoslice slice model.ply --grade linear --to 0,255,0 --nozzle 0.2
   heoslice slice vase.ply --grade linear --to 0,255,0 --offsets 200
-  heoslice slice liver.ply --grade sine --periods 2 --to M2 --depth 10 --channels
+  heoslice slice liver.ply --grade sine --periods 2 --to M2 --depth 10
   heoslice slice part.ply --grade linear --from M1 --to M2 --direction out --materials mats.toml
 """)
 @click.argument("models", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="MODEL...")
@@ -173,9 +178,12 @@ Graded interiors (the paper's Fig. 3b, 9b):
               help="Offset the outer ring inwards, or the inner rings outwards.")
 @click.option("--materials", "materials_file", type=click.Path(path_type=Path), default=None,
               help="Materials file (TOML): names, display colours, channels, per-shell materials.")
-@click.option("--channels", is_flag=True,
-              help="Write one 1-bit droplet mask per material per layer (halftoned fractions); "
-                   "the layer image is then the 1-bit solid mask.")
+@click.option("--channels/--rgba", "channels", default=None,
+              help="Droplet masks (one 1-bit mask per material per layer, beside the 1-bit solid mask; the "
+                   "print job), or an RGBA preview stack in the materials' display colours instead "
+                   "[default: masks whenever the stack holds more than one material].")
+@click.option("--solid", "solid_only", is_flag=True,
+              help="One material: ignore the mesh's material fractions and colours (a 1-bit solid mask per layer).")
 @click.pass_context
 def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None, into: Path | None,
               layer_height: float, dpi: str, canvas: str | None,
@@ -183,11 +191,20 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
               grade_kind: str | None, alpha: float | None, beta: float | None, lam: float | None,
               periods: float | None, expression: str | None, target: str | None, start: str | None,
               nozzle: float, depth: float | None, offset_count: int | None, direction: str,
-              materials_file: Path | None, channels: bool) -> None:
+              materials_file: Path | None, channels: bool | None, solid_only: bool) -> None:
     """Slice each MODEL (PLY, STL, OBJ, OFF) into one TIFF per layer plus manifest.json.
 
     Layers are cut at their centres, z = z_min + (i + 1/2) x layer; a pixel is solid
     when its centre is inside the model. The stack format is in docs/stack-format.md.
+
+    A model that carries materials (the material fraction `heoslice color` writes,
+    colours that map to more than one material of the table, per-shell materials) or a
+    graded slice gives a multi-material stack: each layer's 1-bit solid mask plus one
+    1-bit droplet mask per material, what `heoslice print` sends; every solid pixel
+    takes the material of the nearest point of its contour (or its graded sub-region).
+    Colours map to the material of nearest display colour. A one-material model gives
+    the solid mask alone.
+
     Several models (or a quoted pattern such as "scans/*.ply", expanded by heoslice)
     each go to their own stack; one that fails is reported and the others still run.
     """
@@ -196,7 +213,7 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     try:
         spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
                          canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
-                         grade=grade, channels=channels)
+                         grade=grade, channels=channels, materials=materials_table(materials_file))
     except InputError as err:
         raise flag_error(err) from None
     inputs = expand_inputs(models)
@@ -205,14 +222,36 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     if output is not None and into is not None:
         raise click.UsageError("give -o/--output (one stack) or --into DIR, not both")
     targets = stack_directories(inputs.paths, output, into)
-    run_each(inputs, lambda model: slice_model(model, targets[model], spec, scale, force, as_json, inputs.several),
+    run_each(inputs, lambda model: slice_model(model, targets[model], spec, scale, force, as_json, inputs.several,
+                                               solid_only),
              key="model", as_json=as_json, debug=(ctx.find_root().obj or {}).get("debug", False))
 
 
+def materials_table(materials_file: Path | None) -> tuple:
+    """The materials of ``materials_file`` in file order (() without one: the built-in M1, M2)."""
+    if materials_file is None:
+        return ()
+    with option("--materials"):
+        return tuple(load_materials(materials_file).values())
+
+
+def material_line(names: list[str], masks: bool, mode: str) -> str:
+    """What a stack's layers hold, for the summary line: e.g. 'materials M1, M2: a solid mask and 2 droplet
+    masks per layer'."""
+    if masks:
+        return f"materials {', '.join(names)}: a solid mask and {plural(len(names), 'droplet mask')} per layer"
+    if mode == "RGBA":
+        return f"materials {', '.join(names)}: an RGBA preview image per layer (no droplet masks: not a print job)"
+    return "one material: a solid mask per layer"
+
+
 def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, force: bool, as_json: bool,
-                several: bool) -> dict:
-    """Slice one model into ``directory`` and report it (one text line, or nothing with --json); its summary."""
+                several: bool, solid_only: bool = False) -> dict:
+    """Slice one model into ``directory`` and report it (one text line, or nothing with --json); its summary.
+    ``solid_only`` slices it as one material, whatever it carries."""
     mesh = load_mesh(model)
+    if solid_only:
+        mesh = without_materials(mesh)
     if scale != 1.0:
         try:
             check_scale(scale, mesh.bounds)
@@ -227,6 +266,8 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
         except InputError as err:
             raise flag_error(err) from None
     open_layers = [entry["index"] for entry in manifest["layers"] if entry["open_contours"]]
+    materials = (manifest.get("grading") or {}).get("materials") or []
+    masks = bool(manifest["layers"]) and "channels" in manifest["layers"][0]
     summary = {
         "model": str(model),
         "ok": True,
@@ -235,6 +276,8 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
         "image": [manifest["image"]["width"], manifest["image"]["height"]],
         "dpi": manifest["dpi"],
         "volume_mm3": stack_volume_mm3(manifest),
+        "materials": [m["name"] for m in materials],
+        "droplet_masks": masks,
         "open_contour_layers": open_layers,
         "warnings": list(mesh.warnings),
         "seconds": {"slice": times.slice, "contours": times.contours, "raster_cpu": times.raster,
@@ -249,6 +292,6 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
     click.echo(f"{directory}: {plural(summary['layers'], 'layer')} of "
                f"{summary['image'][0]} x {summary['image'][1]} px "
                f"at {manifest['dpi'][0]:g} x {manifest['dpi'][1]:g} dpi, volume {summary['volume_mm3']:.1f} mm^3, "
-               f"{times.total:.1f} s")
+               f"{times.total:.1f} s; {material_line(summary['materials'], masks, manifest['image']['mode'])}")
     sys.stdout.flush()
     return summary

@@ -17,12 +17,32 @@ from heoslice.material import evaluate
 _PIXELS_AT_ONCE = 1 << 20
 
 
-def _family_sources(spec: GradeSpec, shell, point_material):
-    """How one family's contour material is read: (its shell's own Material or None, use the mesh's fraction?)."""
+def _family_sources(spec: GradeSpec, shell, point_mix):
+    """How one family's contour material is read: (its shell's own Material or None, use the points' mixes?)."""
     shells = dict(spec.shells)
     if shell is not None and int(shell) in shells:
         return shells[int(shell)], False
-    return None, point_material is not None and spec.second is not None
+    return None, point_mix is not None
+
+
+def point_mixes(spec: GradeSpec, point_material: np.ndarray | None) -> np.ndarray | None:
+    """The contour points' material mixes over ``spec.channel_materials()`` ((p, K) float, rows summing to 1):
+    ``point_material`` as it is when it is already (p, K), or a material fraction m ((p,) in [0, 1]) as
+    1 - m of the base and m of the second material; None without one (or without a second material)."""
+    if point_material is None:
+        return None
+    values = np.asarray(point_material, dtype=np.float64)
+    if values.ndim == 2:
+        return values
+    if spec.second is None:
+        return None
+    materials = spec.channel_materials()
+    position = {(m.name, m.color): i for i, m in enumerate(materials)}
+    m = np.clip(values, 0.0, 1.0)
+    mix = np.zeros((len(m), len(materials)))
+    mix[:, position[(spec.base.name, spec.base.color)]] = 1.0 - m
+    mix[:, position[(spec.second.name, spec.second.color)]] += m
+    return mix
 
 
 def _start_material(spec: GradeSpec, family: Family, own):
@@ -34,21 +54,21 @@ def _start_material(spec: GradeSpec, family: Family, own):
 
 def family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_material) -> list[np.ndarray]:
     """Per family, the mix of the K channel materials its interior starts from at each lattice cell (its
-    contour's material, or its shell's, or --from): (cells_r, cells_c, K) float, summing to 1."""
+    contour's material, or its shell's, or --from): (cells_r, cells_c, K) float, summing to 1.
+    ``point_material``: the contour points' mixes or fractions (:func:`point_mixes`)."""
     materials = spec.channel_materials()
     position = {(m.name, m.color): i for i, m in enumerate(materials)}
+    point_mix = point_mixes(spec, point_material)
     mixes = []
     for family, field in zip(regions.families, regions.fields):
         shell = None if loop_shell is None else loop_shell[family.outer]
-        own, use_fraction = _family_sources(spec, shell, point_material)
+        own, use_mix = _family_sources(spec, shell, point_mix)
         start = _start_material(spec, family, own)
         mix = np.zeros((field.lattice.rows, field.lattice.cols, len(materials)))
         if start is not None:
             mix[..., position[(start.name, start.color)]] = 1.0
-        elif use_fraction:
-            m = np.clip(contour_values(field, point_material), 0.0, 1.0)
-            mix[..., position[(spec.base.name, spec.base.color)]] = 1.0 - m
-            mix[..., position[(spec.second.name, spec.second.color)]] += m
+        elif use_mix:
+            mix[...] = np.clip(contour_values(field, point_mix), 0.0, 1.0)
         else:
             mix[..., position[(spec.base.name, spec.base.color)]] = 1.0
         mixes.append(mix)
@@ -79,21 +99,23 @@ def contour_values(field: FamilyField, values: np.ndarray) -> np.ndarray:
 def pixel_start_colors(regions: LayerRegions, spec: GradeSpec, loop_shell, point_colors, point_material,
                        grid: Grid) -> np.ndarray:
     """The colour each family's interior starts from at each of its pixels ((rows, cols, 3) float 0..255 over
-    the layer's box, 0 off every family): its shell's or --from's colour, or else its contour's colour (or
-    material fraction m, as (1 - m) base + m second) at the pixel centre's nearest starting-ring point."""
+    the layer's box, 0 off every family): its shell's or --from's colour, or else its contour's colour, or
+    the display colour of its contour's material mix (:func:`point_mixes`: the materials' colours mixed),
+    at the pixel centre's nearest starting-ring point."""
     b = regions.box
     out = np.zeros((b[1] - b[0], b[3] - b[2], 3))
+    point_mix = point_mixes(spec, point_material)
+    palette = np.array([m.color for m in spec.channel_materials()], dtype=np.float64)
     for family, field, own_pixels in zip(regions.families, regions.fields, family_of(regions)):
         shell = None if loop_shell is None else loop_shell[family.outer]
-        own, use_fraction = _family_sources(spec, shell, point_material)
+        own, use_mix = _family_sources(spec, shell, point_mix)
         start = _start_material(spec, family, own)
         if start is not None:
             color = np.asarray(start.color, dtype=np.float64)
         elif point_colors is not None:
             color = pixel_contour_values(field, point_colors, own_pixels, grid)
-        elif use_fraction:
-            m = np.clip(pixel_contour_values(field, point_material, own_pixels, grid), 0.0, 1.0)[..., None]
-            color = np.asarray(spec.base.color, np.float64) * (1.0 - m) + np.asarray(spec.second.color, np.float64) * m
+        elif use_mix:
+            color = np.clip(pixel_contour_values(field, point_mix, own_pixels, grid), 0.0, 1.0) @ palette
         else:
             color = np.asarray(spec.base.color, dtype=np.float64)
         r0, r1, c0, c1 = field.box

@@ -38,9 +38,10 @@ def render_graded(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     in the contour's colours, and optionally the droplet masks (:mod:`heoslice.grading.halftone`).
 
     points (p, 2) mm, offsets (l+1,), area/parent/loop_shell (l,) of the layer's loops;
-    mask (h, w) bool its solid pixels; point_colors (p, 3) float 0..255 and
-    point_material (p,) in [0, 1] the attributes interpolated at the contour points; ``cache``
-    as :func:`layer_regions`.
+    mask (h, w) bool its solid pixels; point_colors (p, 3) float 0..255 and point_material (a
+    fraction (p,) in [0, 1] or a mix (p, K) over the channel materials,
+    :func:`heoslice.grading.materials.point_mixes`) the attributes interpolated at the contour points;
+    ``cache`` as :func:`layer_regions`.
     """
     started = time.process_time()
     regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions, cache=cache)

@@ -88,7 +88,8 @@ class GradeSpec:
     material (``--from``); ``base``/``second``: the materials a mesh's per-vertex
     material fraction m mixes as (1 - m) base + m second (without it a contour is
     ``base``); ``shells``: (shell number, Material) pairs, a shell's own material
-    (its region keeps it, nested shells win).
+    (its region keeps it, nested shells win); ``mapped``: the table materials a mesh's
+    colours were mapped to (:func:`heoslice.material.nearest_materials`), each a channel.
     """
 
     regions: RegionSpec
@@ -98,11 +99,12 @@ class GradeSpec:
     base: object
     second: object | None = None
     shells: tuple = ()
+    mapped: tuple = ()
 
     def channel_materials(self) -> tuple:
         """The K materials of the droplet masks, without repeats (same name and colour), in a fixed order."""
         found = []
-        for material in (self.base, self.second, self.start, self.target, *(m for _, m in self.shells)):
+        for material in (self.base, self.second, self.start, self.target, *(m for _, m in self.shells), *self.mapped):
             if material is not None and all((material.name, material.color) != (m.name, m.color) for m in found):
                 found.append(material)
         return tuple(found)

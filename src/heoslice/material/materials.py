@@ -232,6 +232,18 @@ def blend(m1, m2, f: np.ndarray) -> np.ndarray:
     return c1 + weight * (c2 - c1)
 
 
+def nearest_materials(colors: np.ndarray, materials: tuple[Material, ...] | list[Material]) -> np.ndarray:
+    """The material each colour stands for: (n,) int index into ``materials`` of the display colour nearest
+    to it in RGB (ties to the first listed), so a colour that is a material's display colour is that
+    material. colors: (n, 3) 0..255. The rule that maps a scan's or a part's colours to the materials table."""
+    palette = np.array([m.color for m in materials], dtype=np.float64)
+    rgb = np.asarray(colors, dtype=np.float64).reshape(-1, 3)
+    if not len(palette):
+        raise InputError("materials: no materials to map colours to")
+    distance = ((rgb[:, None, :] - palette[None, :, :]) ** 2).sum(axis=-1)
+    return np.argmin(distance, axis=1)
+
+
 def to_rgb8(colors: np.ndarray) -> np.ndarray:
     """(n, 3) float colours 0..255 rounded to (n, 3) uint8."""
     return np.clip(np.rint(colors), 0, 255).astype(np.uint8)

@@ -5,7 +5,7 @@
 
 from heoslice.mesh.checks import VolumeCheck, volume_check
 from heoslice.mesh.load import MAX_COORDINATE, SUPPORTED_SUFFIXES, Mesh, column_bounds, file_sha256, load_mesh, \
-    mesh_info, scaled
+    mesh_info, scaled, without_materials
 from heoslice.mesh.ply import check_ply_header, parse_ply_header, read_ply
 from heoslice.mesh.raw import MATERIAL_PROPERTY, RawMesh
 from heoslice.mesh.threemf import Material, ModelObject, ThreeMF, read_3mf
@@ -16,6 +16,6 @@ __all__ = [
     "MATERIAL_PROPERTY", "MAX_COORDINATE", "SUPPORTED_SUFFIXES", "EdgeGroups", "Material", "Mesh", "ModelObject",
     "RawMesh", "ThreeMF", "check_ply_header", "read_3mf",
     "column_bounds", "edge_groups", "edge_use_counts", "file_sha256", "load_mesh", "mesh_info", "parse_ply_header",
-    "read_ply", "scaled", "shell_labels", "signed_volume_mm3", "solid_volume_mm3", "winding_number",
+    "read_ply", "scaled", "shell_labels", "signed_volume_mm3", "solid_volume_mm3", "winding_number", "without_materials",
     "VolumeCheck", "volume_check",
 ]

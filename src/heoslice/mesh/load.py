@@ -243,6 +243,11 @@ def scaled(mesh: Mesh, factor: float) -> Mesh:
     return replace(mesh, vertices=vertices, warnings=tuple(notes))
 
 
+def without_materials(mesh: Mesh) -> Mesh:
+    """The same geometry with no colours or material fractions: a mesh sliced as one material."""
+    return replace(mesh, colors=None, material=None, color_source=None)
+
+
 def mesh_info(mesh: Mesh) -> dict:
     """Summary for ``heoslice info``: counts, bounding box (mm), watertight, winding, shells, volume.
 

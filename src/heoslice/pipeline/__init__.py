@@ -1,8 +1,9 @@
 """The slice pipeline: a :class:`SliceSpec` in, a stack on disk out.
 
-spec (what is asked, checked) -> slice_job (sizes checked, directory prepared, manifest last) -> runs
-(consecutive planes sliced, chained, then rendered and written layer by layer) -> layer_job (one layer:
-render, encode, write; what it leaves to the next) ; parallel holds every process matter (forks, the
+spec (what is asked, checked) -> materials (the material model: what a mesh's materials make of the
+slice) -> slice_job (sizes checked, directory prepared, manifest last) -> runs (consecutive planes sliced,
+chained, then rendered and written layer by layer) -> layer_job (one layer: render, encode, write; what it
+leaves to the next); parallel holds every process matter (forks, the
 slice-ahead helper, shared memory, allocator, collector, BLAS threads, dying with the parent).
 
 The names below are loaded on first use (PEP 562), not when the package is imported: the ``heoslice``
@@ -24,6 +25,7 @@ _EXPORTS = {
     "MAX_COORDINATE_MM": "spec", "check_range": "spec", "check_scale": "spec",
     "slice_to_stack": "slice_job", "grading_summary": "slice_job",
     "layer_limit": "slice_job", "slice_warnings": "slice_job",
+    "MaterialJob": "materials", "material_job": "materials",
     "run_all": "parallel", "keep_freed_memory": "parallel",
 }
 

@@ -16,6 +16,7 @@ from heoslice.layers.slicing import interpolate_at
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec, channel_name
 from heoslice.stack import encode_bilevel_tiff, encode_tiff, layer_file_name, write_file
+from heoslice.stack.tiff import MASK_DEFLATE_LEVEL
 
 if TYPE_CHECKING:  # the grading package loads numba's kernels: a one-material slice never imports it
     from heoslice.grading import GradeSpec, GradingCache
@@ -47,7 +48,8 @@ class PipelineCache:
 @dataclass(frozen=True)
 class GradedJob:
     """The extra a graded layer needs: its loops' signed areas, parents and shells ((l,), within
-    the layer), the contour points' material fractions ((p,) or None), and the channel files."""
+    the layer), the contour points' material mixes ((p, K) float over the channel materials, or None),
+    and the channel files."""
 
     spec: GradeSpec
     area: np.ndarray
@@ -60,17 +62,15 @@ class GradedJob:
 @dataclass(frozen=True)
 class LayerJob:
     """Everything needed to render and write one layer: its loops ((p, 2) float points, mm, and
-    (loops + 1,) offsets), point colours ((p, 3) float or None), the grid and encoding, the file."""
+    (loops + 1,) offsets), the grid and encoding, the file, and what grading it needs."""
 
     index: int
     points: np.ndarray
     offsets: np.ndarray
-    point_colors: np.ndarray | None
     grid: Grid
     dpi: tuple[float, float]
     compression: str
     layer_height_mm: float
-    base_color: tuple[int, int, int]
     path: Path
     graded: GradedJob | None = None
 
@@ -89,13 +89,9 @@ def render_and_write(job: LayerJob, cache: PipelineCache | None = None, packed: 
     if job.graded is not None:
         return _render_graded_and_write(job, cache, packed)
     started = time.perf_counter()
-    image, solid = render_layer(job.points, job.offsets, job.grid, point_colors=job.point_colors,
-                                base_color=job.base_color)
+    packed, solid = render_layer(job.points, job.offsets, job.grid)
     rendered = time.perf_counter()
-    if job.point_colors is None:
-        data = _solid_tiff(image, solid, job, cache)
-    else:
-        data = encode_tiff(image, job.dpi, job.compression, job.layer_height_mm)
+    data = _solid_tiff(packed, solid, job, cache)
     encoded = time.perf_counter()
     digest = write_file(job.path, data)
     return job.index, digest, solid, rendered - started, encoded - rendered, ()
@@ -138,8 +134,8 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed:
         width = job.grid.width
         solid = count_solid(packed)
         data = _solid_tiff(packed, solid, job, cache)
-        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm),
-                   count_solid(plane))
+        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm,
+                                             level=MASK_DEFLATE_LEVEL), count_solid(plane))
                   for path, plane in zip(graded.channel_paths, planes)]
         encoded = time.perf_counter()
         digest = write_file(job.path, data)
@@ -147,7 +143,7 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed:
         return job.index, digest, solid, rendered - started, encoded - rendered, channels
     mask = np.unpackbits(packed, axis=1, count=job.grid.width).view(bool)
     layer = render_graded(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, mask, job.grid,
-                          graded.spec, job.index, point_colors=job.point_colors,
+                          graded.spec, job.index,
                           point_material=graded.point_material, cache=grading_cache)
     rendered = time.perf_counter()
     data = encode_tiff(layer.image, job.dpi, job.compression, job.layer_height_mm)
@@ -157,9 +153,13 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed:
 
 
 def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, directory: Path,
-               first_layer: int = 0):
-    """One LayerJob per layer of ``contours`` (layer k is stack layer first_layer + k), built lazily."""
-    colors = None if mesh.colors is None else mesh.colors.astype(np.float64)
+               first_layer: int = 0, vertex_mix: np.ndarray | None = None):
+    """One LayerJob per layer of ``contours`` (layer k is stack layer first_layer + k), built lazily.
+
+    A graded layer's contour points carry ``vertex_mix`` ((n, K) float,
+    :class:`heoslice.pipeline.materials.MaterialJob`) interpolated along their edges; its colours come from
+    the materials, never from the mesh's own colours (which :func:`material_job` mapped to materials).
+    """
     grade = spec.grade
     materials = grade.channel_materials() if grade is not None else ()
     loop_shell = None if grade is None or mesh.shell is None or not len(contours.face) else mesh.shell[contours.face]
@@ -167,15 +167,12 @@ def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, dire
         index = first_layer + local
         first, last = contours.layer_offsets[local], contours.layer_offsets[local + 1]
         start, stop = contours.offsets[first], contours.offsets[last]
-        point_colors = None
-        if colors is not None:
-            point_colors = interpolate_at(colors, contours.point_edge[start:stop], contours.point_t[start:stop])
         graded = None
         if grade is not None:
             parent = contours.parent[first:last]
             point_material = None
-            if mesh.material is not None:
-                point_material = interpolate_at(mesh.material, contours.point_edge[start:stop],
+            if vertex_mix is not None:
+                point_material = interpolate_at(vertex_mix, contours.point_edge[start:stop],
                                                 contours.point_t[start:stop])
             graded = GradedJob(
                 spec=grade,
@@ -190,12 +187,10 @@ def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, dire
             index=index,
             points=contours.points[start:stop],
             offsets=contours.offsets[first:last + 1] - start,
-            point_colors=point_colors,
             grid=grid,
             dpi=spec.dpi,
             compression=spec.compression,
             layer_height_mm=spec.layer_height_mm,
-            base_color=spec.base_color,
             path=directory / layer_file_name(index),
             graded=graded,
         )

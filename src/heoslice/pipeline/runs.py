@@ -26,7 +26,8 @@ SlicedRun = tuple[Contours, float, float]
 @dataclass(frozen=True)
 class RunContext:
     """What every run of planes needs: the mesh, the planes ((L,) float, mm), each face's z-range
-    ((m,) lowest and highest, mm), the grid, the spec and the stack directory."""
+    ((m,) lowest and highest, mm), the grid, the spec (as :func:`heoslice.pipeline.materials.material_job` settled it), the stack
+    directory and each vertex's material mix ((n, K) float or None, :class:`MaterialJob`)."""
 
     mesh: Mesh
     z: np.ndarray
@@ -34,6 +35,7 @@ class RunContext:
     grid: Grid
     spec: SliceSpec
     directory: Path
+    vertex_mix: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -66,7 +68,8 @@ def slice_run(context: RunContext, start: int, stop: int, cache: PipelineCache |
     they were made already, ``masks`` ((stop - start, h, ceil(w / 8)) uint8) its layers' solid bits.
     """
     contours, slice_s, contours_s = sliced if sliced is not None else run_contours(context, start, stop)
-    jobs = layer_jobs(contours, context.mesh, context.grid, context.spec, context.directory, first_layer=start)
+    jobs = layer_jobs(contours, context.mesh, context.grid, context.spec, context.directory, first_layer=start,
+                      vertex_mix=context.vertex_mix)
     cache = PipelineCache() if cache is None else cache
     layers = [render_and_write(job, cache, None if masks is None else masks[local])
               for local, job in enumerate(jobs)]

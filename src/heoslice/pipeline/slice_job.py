@@ -21,6 +21,7 @@ from heoslice.layers.rasterising import grid_for
 from heoslice.layers.slicing import face_z_range
 from heoslice.locks import hold_stack
 from heoslice.mesh import Mesh
+from heoslice.pipeline.materials import material_job
 from heoslice.pipeline.parallel import run_all
 from heoslice.pipeline.runs import RunContext, RunResult
 from heoslice.pipeline.spec import (
@@ -84,6 +85,8 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     times = StageTimes()
     started = time.perf_counter()
     _check_sizes(mesh, spec)
+    job = material_job(mesh, spec)
+    spec = job.spec
     grid = grid_for(mesh.bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
     check_image_size(grid.width, grid.height)
     bounds = mesh.bounds
@@ -116,7 +119,7 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
                 progress(len(results), len(z))
 
         context = RunContext(mesh=mesh, z=z, face_range=face_z_range(mesh.vertices, mesh.faces), grid=grid,
-                             spec=spec, directory=directory)
+                             spec=spec, directory=directory, vertex_mix=job.vertex_mix)
         run_all(context, spec.worker_count(), on_done)
         mode = _image_mode(mesh, spec)
         manifest = build_manifest(
@@ -134,9 +137,9 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
 
 
 def _image_mode(mesh: Mesh, spec: SliceSpec) -> str:
-    """The layer images' mode: RGBA for colours (a coloured mesh, graded interiors), except that
-    with droplet masks the layer image is the 1-bit solid mask and the masks carry the materials."""
-    return "RGBA" if (mesh.colors is not None or spec.grade is not None) and not spec.channels else "1"
+    """The layer images' mode: RGBA for a graded preview stack (materials' colours), else 1-bit: the solid
+    mask (with droplet masks, which carry the materials)."""
+    return "RGBA" if spec.grade is not None and not spec.channels else "1"
 
 
 def _channel_records(grade: GradeSpec, written: tuple) -> tuple[ChannelRecord, ...]:

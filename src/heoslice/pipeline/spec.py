@@ -57,8 +57,11 @@ def check_scale(scale: float, bounds: np.ndarray) -> None:
 class SliceSpec:
     """What to slice and how: layer height (mm), resolution (dpi x, y), canvas, encoding, workers.
 
-    ``grade`` asks for graded interiors (:mod:`heoslice.grading`), ``channels`` for one
-    droplet mask per material per layer (:mod:`heoslice.grading.halftone`; needs ``grade``).
+    ``grade`` asks for graded interiors (:mod:`heoslice.grading`); ``channels`` for one droplet mask per
+    material per layer (:mod:`heoslice.grading.halftone`): None (the default) whenever the stack holds more
+    than one material, False for an RGBA preview stack instead; ``materials`` is the materials table a
+    mesh's colours map to (empty: the built-in M1, M2). :func:`heoslice.pipeline.material_job` settles
+    both for a mesh.
     """
 
     layer_height_mm: float = 0.1
@@ -67,9 +70,9 @@ class SliceSpec:
     canvas_mm: tuple[float, float] | None = None
     compression: str = DEFAULT_COMPRESSION
     jobs: int = 0
-    base_color: tuple[int, int, int] = (255, 255, 255)
     grade: GradeSpec | None = None
-    channels: bool = False
+    channels: bool | None = None
+    materials: tuple = ()
     #: Segments sliced and chained at once; bounds memory (a few hundred bytes per segment).
     max_segments: int = 50_000
 

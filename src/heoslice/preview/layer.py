@@ -1,7 +1,7 @@
 """One layer of a stack as a display image, in material colours or dark solid on white.
 
 RGBA layers are shown in their material colours over dark grey (so a white or light
-material stays visible). Layers with droplet masks (``slice --channels``) are shown the
+material stays visible). Layers with droplet masks (a multi-material stack) are shown the
 same way, composed from the masks: each set pixel of a material's mask in that
 material's display colour (``grading.materials[].color``). Other 1-bit layers are dark
 solid on white. Large layers are reduced (box filter) to fit the requested size, so

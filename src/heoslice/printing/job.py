@@ -21,13 +21,15 @@ LayerSource = Callable[[int], Sequence[bytes]]
 
 @dataclass(frozen=True)
 class JobSpec:
-    """A print job: ``layer_count`` layers of ``channels`` bit-packed masks of ``width`` x ``height`` pixels."""
+    """A print job: ``layer_count`` layers of ``channels`` bit-packed masks of ``width`` x ``height`` pixels;
+    ``names``: what each channel carries ('solid', then the droplet masks' materials), when known."""
 
     job_id: int
     layer_count: int
     channels: int
     width: int
     height: int
+    names: tuple[str, ...] = ()
 
     @property
     def channel_bytes(self) -> int:
@@ -56,9 +58,12 @@ def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
     if not layers:
         raise InputError(f"{directory}: the stack has no layers")
     width, height = manifest["image"]["width"], manifest["image"]["height"]
-    channels = 1 + max(len(entry.get("channels") or []) for entry in layers)
+    widest = max(layers, key=lambda entry: len(entry.get("channels") or []))
+    names = ("solid", *(str(channel.get("material", f"channel {number}"))
+                        for number, channel in enumerate(widest.get("channels") or [], start=1)))
+    channels = len(names)
     job_id = P.crc32(json.dumps(manifest, sort_keys=True).encode()) or 1
-    job = JobSpec(job_id, len(layers), channels, width, height)
+    job = JobSpec(job_id, len(layers), channels, width, height, names)
     as_nonzero = {**manifest, "mask": "nonzero"}
 
     def read(index: int) -> list[bytes]:
@@ -82,5 +87,6 @@ def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
 
 def job_summary(job: JobSpec) -> str:
     """One line describing a job."""
-    return (f"{job.layer_count} layers, {job.channels} channel(s) of {job.width} x {job.height} px "
+    shown = f" ({', '.join(job.names)})" if job.names else ""
+    return (f"{job.layer_count} layers, {job.channels} channel(s){shown} of {job.width} x {job.height} px "
             f"({job.channel_bytes} bytes each), job id {job.job_id:08x}")

@@ -1,0 +1,95 @@
+"""The material model of a slice: what a mesh's materials make of it, from mesh to printer (issue 18).
+
+One rule, :func:`material_job`, decides per mesh:
+
+- A mesh carries materials when it has a per-vertex material fraction (``heoslice color`` writes it:
+  m mixes (1 - m) M1 + m M2, exactly), vertex or face colours that map to more than one material of
+  the table (each colour to the material of nearest display colour,
+  :func:`heoslice.material.nearest_materials`), or a grading specification (``--grade``, per-shell
+  materials).
+- Such a mesh gets a :class:`heoslice.grading.GradeSpec` even without ``--grade``: every solid pixel takes
+  the material of its contour, at the nearest point of the contour's outer ring (section III.A's Z-axis
+  distribution over the whole layer, not a one-pixel ring).
+- A stack that holds more than one material writes one 1-bit droplet mask per material per layer (the
+  print job) unless asked for an RGBA preview stack; a one-material stack stays a 1-bit solid mask.
+
+Each vertex's material is a mix over the spec's channel materials ((n, K) float, rows summing to 1),
+interpolated along the sliced edges like any vertex attribute.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from heoslice.material import DEFAULT_MATERIALS, Material, material_roles, nearest_materials
+from heoslice.mesh import Mesh
+from heoslice.pipeline.spec import SliceSpec
+
+
+@dataclass(frozen=True)
+class MaterialJob:
+    """A slice's spec as the mesh's materials settle it, and each vertex's material mix ((n, K) float
+    over ``spec.grade.channel_materials()``, or None where every contour keeps the spec's own materials)."""
+
+    spec: SliceSpec
+    vertex_mix: np.ndarray | None
+
+    @property
+    def materials(self) -> tuple:
+        """The materials of the stack's droplet masks, in channel order (() for a one-material stack)."""
+        return self.spec.grade.channel_materials() if self.spec.channels else ()
+
+
+def _plain_grade(table: tuple[Material, ...]):
+    """The grading specification of a mesh that carries materials but asks for no gradient: every
+    family keeps its contour's material, the table's first two playing M1 and M2."""
+    from heoslice.grading import GradeSpec, RegionSpec  # the grading package loads numba's kernels
+
+    roles = material_roles({m.name: m for m in table})
+    return GradeSpec(regions=RegionSpec(), function=None, target=None, start=None,
+                     base=roles.first, second=roles.second)
+
+
+def _position(materials: tuple, material) -> int:
+    return next(i for i, m in enumerate(materials) if (m.name, m.color) == (material.name, material.color))
+
+
+def _fraction_mix(fraction: np.ndarray, grade) -> np.ndarray:
+    """(n, K) mix of a per-vertex material fraction m ((n,) float): 1 - m of the base, m of the second."""
+    materials = grade.channel_materials()
+    m = np.clip(np.nan_to_num(np.asarray(fraction, dtype=np.float64)), 0.0, 1.0)
+    mix = np.zeros((len(m), len(materials)))
+    mix[:, _position(materials, grade.base)] = 1.0 - m
+    if grade.second is not None:
+        mix[:, _position(materials, grade.second)] += m
+    return mix
+
+
+def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
+    """The material model of slicing ``mesh`` with ``spec`` (the module's rule); ``spec.materials`` is the
+    table colours map to (the built-in M1, M2 when empty)."""
+    table = spec.materials or tuple(DEFAULT_MATERIALS.values())
+    grade, mix = spec.grade, None
+    if mesh.material is not None:
+        grade = grade if grade is not None else _plain_grade(table)
+        if grade.second is not None:
+            mix = _fraction_mix(mesh.material, grade)
+    elif mesh.colors is not None:
+        chosen = nearest_materials(mesh.colors, table)
+        used = np.unique(chosen)
+        if len(used) > 1 or grade is not None:
+            grade = grade if grade is not None else _plain_grade(table)
+            grade = replace(grade, mapped=tuple(table[i] for i in used))
+            materials = grade.channel_materials()
+            columns = np.array([_position(materials, table[i]) for i in range(len(table))])
+            mix = np.zeros((len(chosen), len(materials)))
+            mix[np.arange(len(chosen)), columns[chosen]] = 1.0
+    if grade is None:
+        return MaterialJob(replace(spec, channels=bool(spec.channels)), None)
+    several = len(grade.channel_materials()) > 1
+    if not several and grade.function is None and spec.channels is None:
+        return MaterialJob(replace(spec, grade=None, channels=False), None)
+    channels = several if spec.channels is None else spec.channels
+    return MaterialJob(replace(spec, grade=grade, channels=channels), mix)

@@ -1,0 +1,178 @@
+"""The material model (pipeline/materials.py): the design card's flow prints what ``color`` designed.
+
+The expected material share is the paper's distribution function written out literally (eq. 3-5 with
+the ``color`` defaults) of r = z / height (the reference plane z = 0); the masks are read back with
+tifffile, and what the printer executed is checked against the CRC of those masks.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+from heoslice import procedural
+from heoslice.material import Material
+from heoslice.mesh import load_mesh, without_materials
+from heoslice.pipeline import SliceSpec, material_job, slice_to_stack
+from heoslice.printing import print_job, stack_job
+from heoslice.printing import protocol as P
+from heoslice.printing.simulator import SimConfig, SimConnector, SimController
+
+#: The distribution functions as the paper writes them, with ``heoslice color``'s default coefficients.
+LITERAL = {
+    "linear": lambda r: r,
+    "quadratic": lambda r: r * r,
+    "sine": lambda r: 0.5 * math.sin(2 * math.pi * r) + 0.5,
+}
+LAYER_MM, DPI, WINDOW_MM = 1.0, 600.0, 2.0
+
+
+@pytest.fixture(scope="module")
+def vase_file(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("vase") / "vase.ply"
+    path.write_bytes(procedural.vase().export(file_type="ply", encoding="binary"))
+    return path
+
+
+def window_shares(solid: np.ndarray, part: np.ndarray, size: int) -> np.ndarray:
+    """The share of ``part`` among the solid pixels of every size x size window (stride size / 4) that is at
+    least 90 % solid: (n,) float."""
+    def box_sums(image):
+        total = np.pad(image.astype(np.int64).cumsum(0).cumsum(1), ((1, 0), (1, 0)))
+        return total[size:, size:] - total[:-size, size:] - total[size:, :-size] + total[:-size, :-size]
+
+    stride = max(1, size // 4)
+    solid_sum = box_sums(solid)[::stride, ::stride]
+    part_sum = box_sums(part & solid)[::stride, ::stride]
+    keep = solid_sum >= 0.9 * size * size
+    return part_sum[keep] / solid_sum[keep]
+
+
+@pytest.mark.parametrize("func", sorted(LITERAL))
+def test_design_card_flow_prints_both_materials(run_cli, vase_file, tmp_path, func):
+    """`color vase.ply --func F`, `slice` with no other option, `print` to the simulated controller: every
+    layer has an M1 and an M2 mask partitioning its solid pixels; M2's share in every 2 mm x 2 mm window
+    (at least 90 % solid) is the function of the layer's height within 2 %; the controller executes every
+    layer once with the CRC of all three channels (solid, M1, M2) as read back from the TIFFs."""
+    coloured = tmp_path / f"vase_{func}.ply"
+    code, _, stderr = run_cli("color", str(vase_file), "--func", func, "-o", str(coloured))
+    assert code == 0, stderr
+    stack = tmp_path / "stack"
+    code, stdout, stderr = run_cli("slice", str(coloured), "--layer", str(LAYER_MM), "--dpi", str(DPI),
+                                   "-o", str(stack))
+    assert code == 0, stderr
+    assert "materials M1, M2: a solid mask and 2 droplet masks per layer" in stdout
+    manifest = json.loads((stack / "manifest.json").read_text())
+    assert manifest["image"]["mode"] == "1"
+    height = manifest["z_range_mm"][1] - manifest["z_range_mm"][0]
+    size = round(WINDOW_MM / 25.4 * DPI)
+    packed_layers = []
+    for entry in manifest["layers"]:
+        assert [c["material"] for c in entry["channels"]] == ["M1", "M2"]
+        solid = tifffile.imread(stack / entry["file"]).astype(bool)
+        m1, m2 = (tifffile.imread(stack / c["file"]).astype(bool) for c in entry["channels"])
+        assert not (m1 & m2).any() and np.array_equal(m1 | m2, solid)
+        expected = LITERAL[func]((entry["z_mm"] - manifest["z_range_mm"][0]) / height)
+        shares = window_shares(solid, m2, size)
+        assert len(shares) > 0
+        assert np.abs(shares - expected).max() <= 0.02, (entry["index"], expected, shares.min(), shares.max())
+        packed_layers.append(b"".join(np.packbits(mask, axis=1).tobytes() for mask in (solid, m1, m2)))
+    job, get_layer = stack_job(stack)
+    assert job.channels == 3 and job.names == ("solid", "M1", "M2")
+    controller = SimController(SimConfig(baud=100_000_000, layer_time_s=0.0, status_interval_s=0.2))
+    try:
+        print_job("sim://", job, get_layer, connector=SimConnector(controller))
+        executed = [e for e in controller.executed if e.job_id == job.job_id]
+    finally:
+        controller.stop()
+    assert [e.layer for e in executed] == list(range(len(manifest["layers"])))
+    assert [e.crc for e in executed] == [P.crc32(data) for data in packed_layers]
+
+
+def test_rgba_preview_stack_is_coloured_by_the_materials(run_cli, vase_file, tmp_path):
+    """`slice --rgba` of a coloured mesh writes an RGBA preview stack, no droplet masks, whose solid pixels are
+    all (1 - f) M1 + f M2 in display colours (never white, never the mesh's own colours off the M1-M2 line)."""
+    coloured = tmp_path / "vase_linear.ply"
+    assert run_cli("color", str(vase_file), "--func", "linear", "-o", str(coloured))[0] == 0
+    stack = tmp_path / "rgba"
+    code, stdout, stderr = run_cli("slice", str(coloured), "--layer", "6", "--dpi", "100", "--rgba", "-o", str(stack))
+    assert code == 0, stderr
+    assert "RGBA preview" in stdout
+    manifest = json.loads((stack / "manifest.json").read_text())
+    assert manifest["image"]["mode"] == "RGBA" and "channels" not in manifest["layers"][0]
+    m1, m2 = np.array([240, 240, 240]), np.array([0, 255, 0])
+    for entry in manifest["layers"]:
+        image = tifffile.imread(stack / entry["file"])
+        rgb = image[image[..., 3] > 0][:, :3].astype(float)
+        f = (240 - rgb[:, 0]) / 240
+        assert np.abs(rgb - (m1 + f[:, None] * (m2 - m1))).max() <= 1.0
+
+
+def test_material_job_rule(vase_file, tmp_path):
+    """The rule: an uncoloured mesh is one material (no grading, a solid mask); a material fraction gives
+    M1 and M2 masks; colours that all map to one material are one material; an RGBA request keeps the grade
+    without masks; without_materials drops what a mesh carries."""
+    plain = load_mesh(vase_file)
+    spec = SliceSpec(layer_height_mm=1.0)
+    assert material_job(plain, spec).spec.grade is None and not material_job(plain, spec).spec.channels
+    fraction = load_mesh(vase_file)
+    fraction = type(fraction)(**{**fraction.__dict__, "material": fraction.vertices[:, 2] / 60.0})
+    job = material_job(fraction, spec)
+    assert job.spec.channels and [m.name for m in job.materials] == ["M1", "M2"]
+    assert np.allclose(job.vertex_mix.sum(axis=1), 1.0)
+    assert np.allclose(job.vertex_mix[:, 1], np.clip(fraction.vertices[:, 2] / 60.0, 0, 1))
+    rgba = material_job(fraction, SliceSpec(layer_height_mm=1.0, channels=False))
+    assert rgba.spec.grade is not None and not rgba.spec.channels and rgba.materials == ()
+    grey = np.full((len(plain.vertices), 3), 200, dtype=np.uint8)
+    one_colour = type(plain)(**{**plain.__dict__, "colors": grey})
+    assert material_job(one_colour, spec).spec.grade is None
+    table = (Material("a", (200, 200, 200), 1), Material("b", (0, 0, 255), 2), Material("c", (255, 0, 0), 3))
+    two = grey.copy()
+    two[plain.vertices[:, 2] > 30] = (250, 10, 10)
+    job = material_job(type(plain)(**{**plain.__dict__, "colors": two}), SliceSpec(layer_height_mm=1.0,
+                                                                                    materials=table))
+    assert [m.name for m in job.materials] == ["a", "b", "c"]
+    assert set(np.unique(job.vertex_mix.argmax(axis=1))) == {0, 2}
+    assert without_materials(fraction).material is None and without_materials(one_colour).colors is None
+
+
+def test_interior_takes_the_material_of_the_nearest_outer_ring_point(tmp_path):
+    """Where a ring's materials differ (an L-shaped prism whose vertices are red where x > 4 mm, blue elsewhere),
+    every solid pixel jets the material of the outer ring's point nearest its centre, computed independently
+    with shapely as the nearer of the ring's red and blue parts; only pixels whose distances to the two parts
+    differ by less than 0.75 mm may differ (the start mix is taken per 0.5 mm lattice cell, whose diagonal is
+    0.71 mm, and the ring's material is interpolated between its last blue and first red vertex)."""
+    import shapely
+    import trimesh
+
+    outline = shapely.Polygon([(0, 0), (12, 0), (12, 4), (5, 4), (5, 10), (0, 10)]).segmentize(0.25)
+    prism = trimesh.creation.extrude_polygon(outline, 3.0)
+    red = prism.vertices[:, 0] > 4.0
+    prism.visual.vertex_colors = np.where(red[:, None], [255, 0, 0, 255], [0, 0, 255, 255]).astype(np.uint8)
+    model = tmp_path / "prism.ply"
+    model.write_bytes(prism.export(file_type="ply", encoding="binary"))
+    table = (Material("red", (255, 0, 0), 1), Material("blue", (0, 0, 255), 2))
+    stack = tmp_path / "stack"
+    manifest, _ = slice_to_stack(load_mesh(model), stack, SliceSpec(layer_height_mm=1.0, dpi=(300.0, 300.0),
+                                                                     jobs=1, materials=table))
+    entry = manifest["layers"][1]
+    solid = tifffile.imread(stack / entry["file"]).astype(bool)
+    masks = {c["material"]: tifffile.imread(stack / c["file"]).astype(bool) for c in entry["channels"]}
+    rows, cols = np.nonzero(solid)
+    (x_left, y_top), (px, py) = manifest["image"]["origin_mm"], manifest["pixel_size_mm"]
+    centres = shapely.points(x_left + (cols + 0.5) * px, y_top - (rows + 0.5) * py)
+    ring = outline.exterior
+    red_part = ring.intersection(shapely.box(4.25, -1, 13, 11))
+    blue_part = ring.intersection(shapely.box(-1, -1, 4.0, 11))
+    to_red, to_blue = shapely.distance(centres, red_part), shapely.distance(centres, blue_part)
+    decided = np.abs(to_red - to_blue) > 0.75
+    expected_red = to_red < to_blue
+    got_red = masks["red"][rows, cols]
+    assert decided.sum() > 0.6 * len(rows) and expected_red[decided].any() and not expected_red[decided].all()
+    assert np.array_equal(got_red[decided], expected_red[decided])
+    assert np.array_equal(masks["blue"][rows, cols][decided], ~expected_red[decided])
