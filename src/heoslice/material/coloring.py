@@ -100,7 +100,8 @@ def subdivide(vertices: np.ndarray, faces: np.ndarray, max_edge: float) -> tuple
     from trimesh.remesh import subdivide_to_size
 
     if not (isinstance(max_edge, (int, float)) and math.isfinite(max_edge) and max_edge >= MIN_MAX_EDGE_MM):
-        raise InputError(f"max_edge: must be a length of at least {MIN_MAX_EDGE_MM:g} mm, got {shown(max_edge)}")
+        raise InputError(f"max_edge: must be a positive length of at least {MIN_MAX_EDGE_MM:g} mm, "
+                         f"got {shown(max_edge)}")
     corners = vertices[faces]
     longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
     halvings = np.ceil(np.log2(np.maximum(longest / max_edge, 1.0)))
