@@ -9,8 +9,11 @@ Prints:
   (issue 7 target: under 1 s and 100 MB);
 - the hostile mesh inputs of issue 22 (sparse PLY and STL whose size agrees with the
   header, repeated faces, blank-line and comment floods, FIFO, /dev/zero, symlink loop,
-  OBJ index 0, --scale 1e308), each through the command line, and the worst wall time
-  and peak RSS over them;
+  OBJ index 0, --scale 1e308; previews of small files declaring 32768^2 1-bit and 16384^2
+  RGBA layers, absurd sheets, FIFO layers; --materials /dev/zero and FIFO; --canvas, --margin,
+  --offsets, --nozzle, --depth and verify --scale beyond range; 100,000 layers; a manifest
+  without z_range_mm), each through the command line, and the worst wall time and peak RSS
+  over them;
 - the strict PLY reader (``heoslice.mesh.read_ply``) against trimesh's PLY reader on the same
   binary and ASCII files (ratio = heoslice / trimesh);
 - ``verify_stack`` (hash, header checks and a full strip-by-strip decode of every
@@ -35,9 +38,11 @@ HOSTILE = (b"ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty f
 
 
 def run_measured(args: list[str]) -> tuple[float, int, int]:
-    """(wall seconds, peak RSS KiB, exit code) of ``python -m heoslice ARGS`` in a fresh child process."""
+    """(wall seconds, peak RSS KiB, exit code) of ``python -m heoslice ARGS`` in a fresh child process
+    (killed after 300 s: exit -9)."""
     probe = ("import resource, subprocess, sys, time; t = time.perf_counter(); "
-             "r = subprocess.run([sys.executable, '-m', 'heoslice'] + sys.argv[1:], capture_output=True); "
+             "r = subprocess.run([sys.executable, '-m', 'heoslice'] + sys.argv[1:], capture_output=True, "
+             "stdin=subprocess.DEVNULL, timeout=300); "
              "print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, r.returncode)")
     out = subprocess.run([sys.executable, "-c", probe, *args], capture_output=True, text=True, check=True).stdout
     seconds, rss, code = out.split()
@@ -93,6 +98,93 @@ def hostile_cases(work: Path) -> list[tuple[str, list[str]]]:
             ("--scale 1e308", ["slice", str(repeated), "-o", str(work / "scaled"), "--scale", "1e308"])]
 
 
+def fake_stack(directory: Path, width: int, height: int, mode: str = "1", layers: int = 1) -> Path:
+    """A complete stack of blank deflate layers of ``width`` x ``height`` px, written without holding a
+    layer's pixels (the strips are compressed from one repeated row): a small file declaring a huge layer."""
+    import hashlib
+    import io
+    import json
+    import zlib
+
+    import numpy as np
+    import tifffile
+
+    from heoslice.stack import encode_bilevel_tiff
+
+    directory.mkdir()
+    entries = []
+    for index in range(layers):
+        if mode == "1":
+            rows = np.broadcast_to(np.zeros((1, -(-width // 8)), np.uint8), (height, -(-width // 8)))
+            data = encode_bilevel_tiff(rows, width, (600.0, 600.0), "deflate")
+        else:
+            buffer = io.BytesIO()
+            strips = (zlib.compress(bytes(min(64, height - row) * width * 4), 1) for row in range(0, height, 64))
+            tifffile.imwrite(buffer, data=strips, shape=(height, width, 4), dtype=np.uint8, photometric="rgb",
+                             extrasamples=["unassalpha"], compression="adobe_deflate", rowsperstrip=64,
+                             resolution=(600.0, 600.0), resolutionunit="INCH")
+            data = buffer.getvalue()
+        name = f"layer_{index:05d}.tif"
+        (directory / name).write_bytes(data)
+        entries.append({"index": index, "z_mm": 0.05 + 0.1 * index, "file": name,
+                        "sha256": hashlib.sha256(data).hexdigest(), "solid_pixels": 0, "open_contours": False})
+    manifest = {"format": "heoslice-stack", "version": 1, "complete": True, "created_by": "bench",
+                "source": {"file": "x.ply", "sha256": "0" * 64}, "layer_height_mm": 0.1, "dpi": [600.0, 600.0],
+                "pixel_size_mm": [25.4 / 600.0, 25.4 / 600.0],
+                "image": {"width": width, "height": height, "origin_mm": [0.0, 0.0], "mode": mode,
+                          "compression": "deflate"},
+                "mask": "nonzero" if mode == "1" else "alpha", "z_range_mm": [0.0, 0.1 * layers], "layers": entries}
+    (directory / "manifest.json").write_text(json.dumps(manifest))
+    return directory
+
+
+def option_cases(work: Path) -> list[tuple[str, list[str]]]:
+    """(name, heoslice arguments) of issue 22's hostile previews, special files and absurd option values."""
+    import json
+    import shutil as shell
+
+    from heoslice import procedural
+
+    box = work / "box.ply"
+    procedural.box((5.0, 5.0, 2.0)).export(box)
+    pillar = work / "pillar.ply"
+    procedural.box((1.0, 1.0, 100.0)).export(pillar)
+    bilevel = fake_stack(work / "bilevel_32768", 32768, 32768)
+    rgba = fake_stack(work / "rgba_16384", 16384, 16384, mode="RGBA")
+    small = fake_stack(work / "small", 64, 64, layers=3)
+    fifo_stack = fake_stack(work / "fifo_stack", 64, 64, layers=2)
+    (fifo_stack / "layer_00001.tif").unlink()
+    os.mkfifo(fifo_stack / "layer_00001.tif")
+    materials_fifo = work / "materials.toml"
+    os.mkfifo(materials_fifo)
+    shell.copytree(small, work / "cut_short")
+    manifest = work / "cut_short" / "manifest.json"
+    fields = json.loads(manifest.read_text())
+    del fields["z_range_mm"]
+    manifest.write_text(json.dumps(fields))
+    graded = ["slice", str(box), "-o", str(work / "graded"), "--grade", "linear", "--layer", "0.5", "--dpi", "100"]
+    plain = ["slice", str(box), "-o", str(work / "plain"), "--layer", "0.5", "--dpi", "100"]
+    return [("preview 32768^2 1-bit layer (1.3 MB)", ["preview", str(bilevel), "-o", str(work / "a.png")]),
+            ("preview 16384^2 RGBA layer (4.7 MB)", ["preview", str(rgba), "-o", str(work / "b.png")]),
+            ("preview --sheet --layers x20000", ["preview", str(small), "--sheet", "--layers",
+                                                  ",".join(["0"] * 20000), "-o", str(work / "c.png")]),
+            ("preview --tile 1e6", ["preview", str(small), "--sheet", "--tile", "1000000", "-o", str(work / "d.png")]),
+            ("preview --columns 1e9", ["preview", str(small), "--sheet", "--columns", "1000000000",
+                                       "-o", str(work / "e.png")]),
+            ("preview of a FIFO layer", ["preview", str(fifo_stack), "--layer", "1", "-o", str(work / "f.png")]),
+            ("--materials /dev/zero", graded + ["--materials", "/dev/zero"]),
+            ("--materials FIFO", graded + ["--materials", str(materials_fifo)]),
+            ("--canvas 1e308x1e308", plain + ["--canvas", "1e308x1e308"]),
+            ("--margin 1e308", plain + ["--margin", "1e308"]),
+            ("--offsets 1e9", graded + ["--offsets", "1000000000"]),
+            ("--nozzle 1e-9", graded + ["--nozzle", "1e-9"]),
+            ("--depth 1e9", graded + ["--depth", "1e9"]),
+            ("verify --scale 1e308", ["verify", str(small), "--mesh", str(box), "--scale", "1e308"]),
+            ("--layer 0.001 on a 100 mm pillar", ["slice", str(pillar), "-o", str(work / "thin"), "--layer", "0.001",
+                                                 "--dpi", "50"]),
+            ("verify without z_range_mm", ["verify", str(work / "cut_short")])]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="smaller meshes and stack")
@@ -117,10 +209,10 @@ def main() -> None:
 
     print("== hostile mesh inputs (subprocess, wall time and peak RSS)")
     worst_s, worst_rss = 0.0, 0
-    for name, command in hostile_cases(work):
+    for name, command in hostile_cases(work) + option_cases(work):
         seconds, rss, code = run_measured(command)
         worst_s, worst_rss = max(worst_s, seconds), max(worst_rss, rss)
-        print(f"{name:34s} exit {code}, {seconds:.2f} s, {rss / 1024:.0f} MB")
+        print(f"{name:36s} exit {code}, {seconds:.2f} s, {rss / 1024:.0f} MB")
     print(f"worst over the hostile inputs: {worst_s:.2f} s, {worst_rss / 1024:.0f} MB")
 
     print("== PLY reading: heoslice read_ply / trimesh (best of 3)")

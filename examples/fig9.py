@@ -4,7 +4,8 @@
 Usage: python examples/fig9.py [OUT.png] [--layer-number 83] [--layer 0.1] [--scale 1] [--dpi 600] [--depth 8]
        [--size 480] [--small]
 
-heoslice.procedural.liver_phantom gives the organ and a lesion shell inside it; the
+heoslice.procedural.liver_phantom gives the organ and a lesion shell inside it, the lesion
+placed low (``lesion_height``) so that the chosen layer cuts both; the
 organ's vertices carry a liver colour, the lesion's a dark purple (the PLY colour
 information of Fig. 8b). Layer 83 of the stack (0.1 mm layers from the phantom's
 lowest point) is rendered (a) as the plain slicer does (contour colours at the
@@ -38,6 +39,7 @@ HERE = Path(__file__).resolve().parent
 LIVER = Material("liver", (150, 60, 45), 1)
 CELLS = Material("cells", (235, 190, 90), 2)
 TUMOUR = Material("tumour", (90, 20, 110), 3)
+LESION_RADIUS = 18.0  # mm at scale 1 (heoslice.procedural.liver_phantom)
 
 
 def shown(rgba: np.ndarray, size: int) -> Image.Image:
@@ -62,21 +64,25 @@ def main() -> None:
     if args.small:
         args.scale, args.dpi, args.size = 0.3, 150.0, 240
 
-    organ, lesion = procedural.liver_phantom(scale=args.scale)
+    organ, _ = procedural.liver_phantom(scale=args.scale)
+    z = plane_heights(organ.vertices[:, 2].min(), organ.vertices[:, 2].max(), args.layer)[args.layer_number - 1]
+    organ, lesion = procedural.liver_phantom(scale=args.scale, lesion_height=max(z, 1.25 * LESION_RADIUS * args.scale))
     mesh = procedural.concatenate(organ, lesion)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     shell = np.concatenate([np.zeros(len(organ.faces), np.int64), np.ones(len(lesion.faces), np.int64)])
     shade = 0.85 + 0.15 * np.sin(vertices[:, 0] / 7.0)[:, None]
     colors = np.where(np.arange(len(vertices))[:, None] < len(organ.vertices),
                       np.asarray(LIVER.color) * shade, np.asarray(TUMOUR.color, dtype=float))
-    z = plane_heights(vertices[:, 2].min(), vertices[:, 2].max(), args.layer)[args.layer_number - 1]
     contours = build_contours(slice_mesh(vertices, faces, np.array([z])))
     points, offsets = contours.points, contours.offsets
     point_colors = interpolate_at(colors, contours.point_edge, contours.point_t)
     lesion_loops = int(np.count_nonzero(shell[contours.face] == 1))
     print(f"Fig. 9: layer {args.layer_number} of a {args.layer} mm, {args.dpi:g} dpi stack of the liver phantom "
-          f"(scale {args.scale:g}; z = {z:.2f} mm): {contours.loop_count} loops ({lesion_loops} of the lesion), "
+          f"with a lesion (scale {args.scale:g}; z = {z:.2f} mm): {contours.loop_count} loops, "
+          f"{contours.loop_count - lesion_loops} of the organ and {lesion_loops} of the lesion, "
           f"{len(points)} intersection points; (a) without, (b) with internal material distribution")
+    if lesion_loops == 0:
+        print(f"note: layer {args.layer_number} does not cut the lesion at this scale")
 
     grid = grid_for(np.array([points.min(axis=0), points.max(axis=0)]), (args.dpi, args.dpi), 1.0)
     plain, _ = render_layer(points, offsets, grid, point_colors=point_colors, base_color=(240, 240, 240))

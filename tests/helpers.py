@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import zipfile
 
 import manifold3d
 import numpy as np
@@ -206,3 +207,32 @@ def brute_force_distance(points: np.ndarray, mesh) -> np.ndarray:
         closest = trimesh.triangles.closest_point(triangles, np.repeat(p[None], len(triangles), axis=0))
         out[i] = np.linalg.norm(closest - p, axis=1).min()
     return out
+
+
+# --- 3MF files written in the tests (the 3MF core and material XML) ---------------------------------------
+
+CORE = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
+MATERIAL = "http://schemas.microsoft.com/3dmanufacturing/material/2015/02"
+RELS = ('<?xml version="1.0" encoding="UTF-8"?><Relationships xmlns="http://schemas.openxmlformats.org/package/2006/'
+        'relationships"><Relationship Target="/3D/3dmodel.model" Id="rel0" '
+        'Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/></Relationships>')
+
+
+def mesh_xml(mesh, object_id: int, name: str, attributes: str = "", triangle=lambda i: "") -> str:
+    """An <object> element holding ``mesh``; ``triangle(i)`` gives extra attributes of triangle i."""
+    vertices = "".join(f'<vertex x="{x!r}" y="{y!r}" z="{z!r}"/>' for x, y, z in mesh.vertices.tolist())
+    triangles = "".join(f'<triangle v1="{a}" v2="{b}" v3="{c}"{triangle(i)}/>'
+                        for i, (a, b, c) in enumerate(mesh.faces.tolist()))
+    return (f'<object id="{object_id}" type="model" name="{name}"{attributes}><mesh><vertices>{vertices}</vertices>'
+            f'<triangles>{triangles}</triangles></mesh></object>')
+
+
+def write_3mf(path, resources: str, build: str, unit: str = "millimeter", rels: bool = True) -> None:
+    """A 3MF archive at ``path``: the model part holding ``resources`` and ``build`` (XML), with the package
+    relationships unless ``rels`` is False."""
+    model = (f'<?xml version="1.0" encoding="UTF-8"?><model unit="{unit}" xmlns="{CORE}" xmlns:m="{MATERIAL}">'
+             f"<resources>{resources}</resources><build>{build}</build></model>")
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive:
+        if rels:
+            archive.writestr("_rels/.rels", RELS)
+        archive.writestr("3D/3dmodel.model", model)

@@ -20,7 +20,7 @@ def stacks(tmp_path_factory):
     """A graded ball with droplet masks (two materials) and the same ball graded without (RGBA)."""
     folder = tmp_path_factory.mktemp("export")
     procedural.sphere(4.0, subdivisions=3).export(folder / "ball.ply")
-    for name, extra in (("masks", ["--channels"]), ("rgba", [])):
+    for name, extra in (("masks", ["--channels"]), ("rgba", ["--rgba"])):
         assert in_process("slice", folder / "ball.ply", "--layer", "1", "--dpi", "200", "--grade", "linear",
                           "--to", "0,255,0", "-o", folder / name, *extra) == 0
     return folder
@@ -67,7 +67,7 @@ def test_voxel_print_folder_naming_resolution_palette_and_one_material_per_pixel
 def test_voxel_print_refuses_what_it_cannot_honour(stacks, tmp_path):
     """Blended RGBA colours and a material coloured like the background: one line, exit 2, nothing written."""
     done = heoslice("export", stacks / "rgba", "--format", "voxel-print", "-o", tmp_path / "a")
-    assert done.returncode == 2 and "--channels" in done.stderr and done.stderr.count("\n") == 1
+    assert done.returncode == 2 and "--rgba" in done.stderr and done.stderr.count("\n") == 1
     colour = read_manifest(stacks / "masks")["grading"]["materials"][0]["color"]
     done = heoslice("export", stacks / "masks", "--format", "voxel-print", "-o", tmp_path / "b",
                     "--background", ",".join(map(str, colour)))

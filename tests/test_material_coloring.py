@@ -268,13 +268,19 @@ def test_cli_expression_and_surface(run_cli, vase_copy, tmp_path):
     (["--expr", "sqrt(r - 2)"], "--expr"),
     (["--max-edge", "0"], "--max-edge"),
     (["--max-edge", "0.00001"], "--max-edge"),
+    (["--max-edge", "1e-308"], "--max-edge"),
+    (["--at", "1e308,1e308,1e308"], "--at"),
+    (["--ref", "point", "--at", "1e308,0,0"], "--at"),
+    (["--ref", "axis", "--at", "0,-1e308,0"], "--at"),
     (["--shell-colors", "7=red"], "--shell-colors"),
     (["--shell-colors", "red"], "--shell-colors"),
     (["--materials", "absent.toml"], "--materials"),
     (["--ref", "point", "--at", "0,0,30", "--range", "0", "0"], "--range"),
 ])
+@pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_cli_bad_input(run_cli, vase_copy, monkeypatch, args, option):
-    """Bad input: exit 2, one line naming the option, and no output file (nor temporary) left behind."""
+    """Bad input: exit 2, one line naming the option, and no output file (nor temporary) left behind; no
+    overflow (a RuntimeWarning, made an error here) on the way."""
     monkeypatch.chdir(vase_copy.parent)
     (vase_copy.parent / "garbage.ply").write_bytes(b"ply\nthis is not a mesh\n")
     before = sorted(os.listdir(vase_copy.parent))
@@ -283,6 +289,20 @@ def test_cli_bad_input(run_cli, vase_copy, monkeypatch, args, option):
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("heoslice: error: ") and option in lines[0], err
     assert sorted(os.listdir(vase_copy.parent)) == before
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+@pytest.mark.parametrize("flag, huge, plain", [("--normal", "1e308,1e308,0", "1,1,0"),
+                                               ("--direction", "0,-1e308,1e308", "0,-1,1")])
+def test_cli_huge_direction_is_the_same_direction(run_cli, vase_copy, flag, huge, plain):
+    """A normal or axis direction of huge components is the direction it points in: the same colours as
+    the small one, without overflow."""
+    ref = ["--ref", "axis"] if flag == "--direction" else []
+    for name, vector in (("huge", huge), ("plain", plain)):
+        code, _, err = run_cli("color", vase_copy, *ref, flag, vector, "-o", vase_copy.parent / f"{name}.ply")
+        assert code == 0, err
+    assert np.array_equal(load_mesh(vase_copy.parent / "huge.ply").material,
+                          load_mesh(vase_copy.parent / "plain.ply").material)
 
 
 def test_cli_existing_output(run_cli, vase_copy):

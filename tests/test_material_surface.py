@@ -85,6 +85,26 @@ def test_surface_distance_on_a_fine_sphere_in_chunks():
     assert calls == [(32, 120), (64, 120), (96, 120), (120, 120)]
 
 
+def test_curve_order_is_a_permutation_that_keeps_neighbours_close():
+    """curve_order is a permutation of the points, and consecutive points in it are on average far closer
+    than in a random order (what makes the previous nearest triangle a tight first bound)."""
+    from heoslice.material.surface import curve_order
+
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-50, 50, size=(20_000, 3))
+    order = curve_order(points)
+    assert np.array_equal(np.sort(order), np.arange(len(points)))
+    step = np.linalg.norm(np.diff(points[order], axis=0), axis=1).mean()
+    shuffled = np.linalg.norm(np.diff(points, axis=0), axis=1).mean()
+    assert step < shuffled / 10, (step, shuffled)
+    assert len(surface_distance(np.empty((0, 3)), build_surface_index(*_tetra()))) == 0
+
+
+def _tetra():
+    return np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float), np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2],
+                                                                                   [1, 2, 3]])
+
+
 # --- exact on non-convex references (issue 19) ----------------------------------------------
 
 def literal_point_triangle_distance(point: np.ndarray, triangles: np.ndarray) -> np.ndarray:

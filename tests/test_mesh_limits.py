@@ -195,3 +195,16 @@ def test_counts_beyond_the_limits_are_refused(tmp_path, monkeypatch, limit, valu
         path.write_bytes(trimesh.Trimesh(TETRA_VERTICES, TETRA_FACES).export(file_type="stl"))
     with pytest.raises(InputError, match=needle):
         load_mesh(path)
+
+
+@pytest.mark.parametrize("declared", [13, 11, 0])
+def test_binary_stl_with_a_wrong_count_is_one_line(tmp_path, declared):
+    """A binary STL whose triangle count disagrees with its size is refused in one line naming both (not
+    handed to a text decoder: no "No module named 'charset_normalizer'")."""
+    import trimesh
+
+    data = bytearray(trimesh.creation.box((10.0, 10.0, 10.0)).export(file_type="stl"))
+    data[80:84] = np.uint32(declared).tobytes()
+    path = tmp_path / "wrong.stl"
+    path.write_bytes(bytes(data))
+    assert_one_line_refusal(run_bounded("info", path), f"declares {declared} triangles", "holds 684 bytes")

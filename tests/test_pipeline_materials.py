@@ -18,7 +18,7 @@ import tifffile
 from heoslice import procedural
 from heoslice.material import Material
 from heoslice.mesh import load_mesh, without_materials
-from heoslice.pipeline import SliceSpec, material_job
+from heoslice.pipeline import SliceSpec, material_job, slice_to_stack
 from heoslice.printing import print_job, stack_job
 from heoslice.printing import protocol as P
 from heoslice.printing.simulator import SimConfig, SimConnector, SimController
@@ -139,3 +139,40 @@ def test_material_job_rule(vase_file, tmp_path):
     assert [m.name for m in job.materials] == ["a", "b", "c"]
     assert set(np.unique(job.vertex_mix.argmax(axis=1))) == {0, 2}
     assert without_materials(fraction).material is None and without_materials(one_colour).colors is None
+
+
+def test_interior_takes_the_material_of_the_nearest_outer_ring_point(tmp_path):
+    """Where a ring's materials differ (an L-shaped prism whose vertices are red where x > 4 mm, blue elsewhere),
+    every solid pixel jets the material of the outer ring's point nearest its centre, computed independently
+    with shapely as the nearer of the ring's red and blue parts; only pixels whose distances to the two parts
+    differ by less than 0.75 mm may differ (the start mix is taken per 0.5 mm lattice cell, whose diagonal is
+    0.71 mm, and the ring's material is interpolated between its last blue and first red vertex)."""
+    import shapely
+    import trimesh
+
+    outline = shapely.Polygon([(0, 0), (12, 0), (12, 4), (5, 4), (5, 10), (0, 10)]).segmentize(0.25)
+    prism = trimesh.creation.extrude_polygon(outline, 3.0)
+    red = prism.vertices[:, 0] > 4.0
+    prism.visual.vertex_colors = np.where(red[:, None], [255, 0, 0, 255], [0, 0, 255, 255]).astype(np.uint8)
+    model = tmp_path / "prism.ply"
+    model.write_bytes(prism.export(file_type="ply", encoding="binary"))
+    table = (Material("red", (255, 0, 0), 1), Material("blue", (0, 0, 255), 2))
+    stack = tmp_path / "stack"
+    manifest, _ = slice_to_stack(load_mesh(model), stack, SliceSpec(layer_height_mm=1.0, dpi=(300.0, 300.0),
+                                                                     jobs=1, materials=table))
+    entry = manifest["layers"][1]
+    solid = tifffile.imread(stack / entry["file"]).astype(bool)
+    masks = {c["material"]: tifffile.imread(stack / c["file"]).astype(bool) for c in entry["channels"]}
+    rows, cols = np.nonzero(solid)
+    (x_left, y_top), (px, py) = manifest["image"]["origin_mm"], manifest["pixel_size_mm"]
+    centres = shapely.points(x_left + (cols + 0.5) * px, y_top - (rows + 0.5) * py)
+    ring = outline.exterior
+    red_part = ring.intersection(shapely.box(4.25, -1, 13, 11))
+    blue_part = ring.intersection(shapely.box(-1, -1, 4.0, 11))
+    to_red, to_blue = shapely.distance(centres, red_part), shapely.distance(centres, blue_part)
+    decided = np.abs(to_red - to_blue) > 0.75
+    expected_red = to_red < to_blue
+    got_red = masks["red"][rows, cols]
+    assert decided.sum() > 0.6 * len(rows) and expected_red[decided].any() and not expected_red[decided].all()
+    assert np.array_equal(got_red[decided], expected_red[decided])
+    assert np.array_equal(masks["blue"][rows, cols][decided], ~expected_red[decided])

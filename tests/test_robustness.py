@@ -391,3 +391,21 @@ def test_the_command_runs_openblas_on_one_thread_unless_told_otherwise(given, ex
     out = subprocess.run([sys.executable, "-c", _THREADS_PROBE], capture_output=True, text=True, env=env, check=True)
     lines = out.stdout.split("\n")
     assert lines[0] == "False" and lines[-2] == f"{expected} False"
+
+
+@pytest.mark.parametrize("options, needle", [
+    (["--offsets", "1000000000"], "--offsets"), (["--nozzle", "1e-9"], "--nozzle"),
+    (["--depth", "1e9"], "--depth"), (["--depth", "1e308"], "--depth"),
+    (["--materials", "/dev/zero"], "/dev/zero"),
+])
+def test_absurd_grading_options_are_refused_in_bounded_time_and_memory(tmp_path, options, needle):
+    """--offsets 1e9, --nozzle 1e-9 and --depth 1e9 (5e9 sub-regions: 37 GiB of bands), --depth 1e308 (an
+    overflow) and --materials /dev/zero (an endless read) are one line, exit 2, in start-up time and memory."""
+    from test_mesh_limits import assert_one_line_refusal, run_bounded
+
+    model = tmp_path / "box.ply"
+    procedural.box((5.0, 5.0, 2.0)).export(model)
+    result = run_bounded("--no-config", "slice", model, "-o", tmp_path / "s", "--layer", "0.5", "--dpi", "100",
+                         "--grade", "linear", *options, timeout=60)
+    assert_one_line_refusal(result, needle, rss_mib=300.0)
+    assert not (tmp_path / "s" / MANIFEST).exists()

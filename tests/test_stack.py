@@ -12,6 +12,7 @@ import json
 import os
 import tracemalloc
 import zlib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -44,14 +45,16 @@ SPEC = SliceSpec(layer_height_mm=1.0, dpi=(100.0, 100.0), jobs=1)
 
 
 def make_stack(tmp_path: Path, mesh=None, name: str = "stack", colors: bool = False) -> Path:
-    """Slice a procedural mesh (default: 10 mm cube) into a small stack; return its directory."""
+    """Slice a procedural mesh (default: 10 mm cube) into a small stack; return its directory. ``colors``: the
+    top half coloured M2, the rest M1, sliced as an RGBA preview stack."""
     mesh = mesh if mesh is not None else procedural.box(z_cuts=(3.0, 6.0))
     if colors:
-        mesh.visual.vertex_colors = np.tile([200, 40, 40, 255], (len(mesh.vertices), 1)).astype(np.uint8)
+        top = mesh.vertices[:, 2:3] > mesh.bounds[:, 2].mean()
+        mesh.visual.vertex_colors = np.where(top, [0, 255, 0, 255], [240, 240, 240, 255]).astype(np.uint8)
     model = tmp_path / f"{name}.ply"
     mesh.export(model)
     directory = tmp_path / name
-    slice_to_stack(load_mesh(model), directory, SPEC)
+    slice_to_stack(load_mesh(model), directory, replace(SPEC, channels=False) if colors else SPEC)
     return directory
 
 
@@ -93,7 +96,7 @@ def test_fresh_stack_verifies_clean(stack):
 
 
 def test_rgba_stack_verifies_clean(tmp_path):
-    """A coloured mesh gives RGBA layers (mask 'alpha') that also verify clean."""
+    """An RGBA preview stack of a coloured mesh (mask 'alpha') verifies clean."""
     directory = make_stack(tmp_path, colors=True)
     report = verify_stack(directory)
     assert report.ok, report.problems

@@ -18,6 +18,17 @@ EXIT_HANGUP = 129  # SIGHUP
 EXIT_TERMINATED = 143  # SIGTERM
 
 
+def shown(value, limit: int = 40) -> str:
+    """``value`` for a one-line message: its repr, numpy scalars and arrays as plain Python numbers (never
+    ``np.float64(...)``), cut to ``limit`` characters."""
+    text = repr(value)
+    if hasattr(value, "dtype") and hasattr(value, "tolist"):
+        more = getattr(value, "size", 1) > 8
+        text = repr(value.ravel()[:8].tolist() if getattr(value, "ndim", 0) else value.tolist())
+        text = text[:-1] + ", ...]" if more else text
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 class Interrupted(KeyboardInterrupt):
     """A terminating signal (SIGTERM, SIGHUP) delivered as an interruption, so every Ctrl-C path handles it.
 

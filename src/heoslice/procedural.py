@@ -137,10 +137,14 @@ def holes_and_islands(size: tuple[float, float, float], segments: int) -> trimes
     return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts), process=False)
 
 
-def liver_phantom(scale: float = 1.0, subdivisions: int = 5) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
-    """A smooth liver-like blob (about 160 x 165 x 200 mm at scale 1) and a lesion shell inside it.
+def liver_phantom(scale: float = 1.0, subdivisions: int = 5,
+                  lesion_height: float | None = None) -> tuple[trimesh.Trimesh, trimesh.Trimesh]:
+    """A smooth liver-like blob (about 116 x 125 x 190 mm at scale 1) and a lesion shell (radius 18 mm x scale)
+    inside it.
 
-    Returns (organ, lesion), each closed and outward-oriented.
+    ``lesion_height`` (mm) puts the lesion's centre that high above the organ's lowest point, over it (the
+    figure of a low layer, e.g. Fig. 9's layer 83 at 8.25 mm, cuts both); None keeps it 5 mm above the
+    organ's middle. The organ is the same either way. Returns (organ, lesion), each closed and outward-oriented.
     """
     organ = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
     v = organ.vertices
@@ -149,5 +153,9 @@ def liver_phantom(scale: float = 1.0, subdivisions: int = 5) -> tuple[trimesh.Tr
     lower = organ.vertices[:, 2].min()
     organ.vertices[:, 2] -= lower
     lesion = trimesh.creation.icosphere(subdivisions=max(subdivisions - 2, 2), radius=18.0 * scale)
-    lesion.apply_translation(np.array([20.0, 10.0, -lower + 5.0]) * np.array([scale, scale, 1.0]))
+    if lesion_height is None:
+        lesion.apply_translation(np.array([20.0, 10.0, -lower + 5.0]) * np.array([scale, scale, 1.0]))
+    else:
+        lowest = organ.vertices[np.argmin(organ.vertices[:, 2])]
+        lesion.apply_translation((lowest[0], lowest[1], float(lesion_height)))
     return organ, lesion

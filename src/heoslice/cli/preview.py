@@ -62,7 +62,7 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
 
     Files are checked against the manifest (inside the stack, sha256, size) before
     they are decoded, and decoded at the size they are drawn. Coloured layers are shown
-    over dark grey, layers with droplet masks (slice --channels) in their materials'
+    over dark grey, layers with droplet masks in their materials'
     colours over dark grey; other 1-bit layers dark on white.
     """
     check_input_path(stack)

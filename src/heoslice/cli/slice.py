@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from heoslice.cli.common import (
+    echo_json,
     echo_warnings,
     expand_inputs,
     plural,
@@ -15,10 +16,11 @@ from heoslice.cli.common import (
     run_each,
 )
 from heoslice.cli.options import flags, function_from_options, function_options, option
+from heoslice.cli.parts import GRADE_REFUSAL, is_parts_job, part_settings, report_parts
 from heoslice.errors import InputError
 from heoslice.material import load_materials, load_shell_materials, material_roles
-from heoslice.mesh import load_mesh, scaled, without_materials
-from heoslice.pipeline import SliceSpec, check_scale, slice_to_stack, slice_warnings
+from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, without_materials
+from heoslice.pipeline import SliceSpec, check_scale, plan_parts, slice_to_stack, slice_warnings
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3
 
 #: SliceSpec and slice_to_stack parameters -> the options that set them (library errors name the parameter).
@@ -128,6 +130,8 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
 @click.command("slice", epilog="""\b
 Examples:
   heoslice slice vase.ply                       # 0.1 mm layers, 600 dpi, into ./vase_stack/
+  heoslice slice vase_linear.ply                # `color`'s output: M1 and M2 droplet masks per layer
+  heoslice slice vase_linear.ply --rgba         # a preview-only RGBA stack in the materials' colours
   heoslice slice liver.ply --layer 0.1 --dpi 600 -o liver_stack
   heoslice slice part.stl --dpi 600x300 --canvas 200x150 --compress packbits
   heoslice slice scan.ply --scale 1000 --json   # a model in metres
@@ -136,8 +140,17 @@ Examples:
 Graded interiors (the paper's Fig. 3b, 9b):
   heoslice slice model.ply --grade linear --to 0,255,0 --nozzle 0.2
   heoslice slice vase.ply --grade linear --to 0,255,0 --offsets 200
-  heoslice slice liver.ply --grade sine --periods 2 --to M2 --depth 10 --channels
+  heoslice slice liver.ply --grade sine --periods 2 --to M2 --depth 10
   heoslice slice part.ply --grade linear --from M1 --to M2 --direction out --materials mats.toml
+\b
+Several parts in one stack (a multi-part job; one 1-bit droplet mask per material per layer):
+  heoslice slice liver.stl lesion.stl vessels.stl --materials mats.toml -o liver_stack   # mats.toml has [parts]
+  heoslice slice liver.stl lesion.stl --parts --part liver=M1 --part lesion=M2
+  heoslice slice organ.3mf --materials mats.toml  # each 3MF object is a part
+  A part is named by its file's stem or its 3MF object's name; its material is the one [parts] or
+  --part names, else its 3MF base material's name if that is a table material, else the table
+  material nearest its one colour. Where parts overlap the higher [parts] priority wins, then
+  the smaller part (so an enclosed lesion wins over its organ). Not graded: --grade is refused.
 """)
 @click.argument("models", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="MODEL...")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
@@ -182,6 +195,12 @@ Graded interiors (the paper's Fig. 3b, 9b):
                    "[default: masks whenever the stack holds more than one material].")
 @click.option("--solid", "solid_only", is_flag=True,
               help="One material: ignore the mesh's material fractions and colours (a 1-bit solid mask per layer).")
+@click.option("--parts", "parts_flag", is_flag=True,
+              help="Slice every MODEL as a part of ONE stack, each part's pixels carrying its material "
+                   "[implied by --part, a 3MF model or a [parts] table in --materials].")
+@click.option("--part", "part_options", multiple=True, metavar="NAME=MATERIAL",
+              help="Material of the part NAME (a file's stem or a 3MF object's name) in a multi-part job; "
+                   "repeat for each part (overrides the materials file's [parts]).")
 @click.pass_context
 def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None, into: Path | None,
               layer_height: float, dpi: str, canvas: str | None,
@@ -189,14 +208,36 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
               grade_kind: str | None, alpha: float | None, beta: float | None, lam: float | None,
               periods: float | None, expression: str | None, target: str | None, start: str | None,
               nozzle: float, depth: float | None, offset_count: int | None, direction: str,
-              materials_file: Path | None, channels: bool | None, solid_only: bool) -> None:
-    """Slice each MODEL (PLY, STL, OBJ, OFF) into one TIFF per layer plus manifest.json.
+              materials_file: Path | None, channels: bool | None, solid_only: bool, parts_flag: bool,
+              part_options: tuple[str, ...]) -> None:
+    """Slice each MODEL (PLY, STL, OBJ, OFF, 3MF) into one TIFF per layer plus manifest.json.
 
     Layers are cut at their centres, z = z_min + (i + 1/2) x layer; a pixel is solid
     when its centre is inside the model. The stack format is in docs/stack-format.md.
+
+    A model that carries materials (the material fraction `heoslice color` writes,
+    colours that map to more than one material of the table, per-shell materials) or a
+    graded slice gives a multi-material stack: each layer's 1-bit solid mask plus one
+    1-bit droplet mask per material, what `heoslice print` sends; every solid pixel
+    takes the material of the nearest point of its contour (or its graded sub-region).
+    Colours map to the material of nearest display colour. A one-material model gives
+    the solid mask alone.
+
     Several models (or a quoted pattern such as "scans/*.ply", expanded by heoslice)
     each go to their own stack; one that fails is reported and the others still run.
+    With --parts (or --part, a 3MF, a [parts] table) they are the parts of one stack.
     """
+    if is_parts_job(models, parts_flag, part_options, materials_file):
+        if grade_kind is not None:
+            raise InputError(GRADE_REFUSAL)
+        grade_spec(None, alpha, beta, lam, periods, expression, target, start, nozzle, depth, offset_count,
+                   direction, None, False)  # refuses the grading options that would be ignored
+        if into is not None:
+            raise click.UsageError("--into: a multi-part job makes one stack; name it with -o/--output")
+        slice_parts(models, output, dict(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
+                                         canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs),
+                    scale, force, as_json, materials_file, part_options, bool(channels))
+        return
     grade = grade_spec(grade_kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth,
                        offset_count, direction, materials_file, channels)
     try:
@@ -234,11 +275,32 @@ def material_line(names: list[str], masks: bool, mode: str) -> str:
     return "one material: a solid mask per layer"
 
 
+def slice_parts(models: tuple[Path, ...], output: Path | None, spec_fields: dict, scale: float, force: bool,
+                as_json: bool, materials_file: Path | None, part_options: tuple[str, ...], channels: bool) -> None:
+    """A multi-part job: every part loaded (a failing file is named before anything is written), their
+    materials and priorities planned, then one stack sliced and reported (:mod:`heoslice.cli.parts`)."""
+    inputs = expand_inputs(models)
+    missing = [item for item in inputs.items if isinstance(item, str)]
+    if missing:
+        raise InputError(f"{missing[0]}: no file matches this pattern")
+    mesh = load_assembly(inputs.paths)
+    table, settings = part_settings(materials_file, part_options, [part.name for part in mesh.parts])
+    try:
+        spec = SliceSpec(**spec_fields, parts=plan_parts(mesh.parts, table, settings, channels=channels))
+    except InputError as err:
+        raise flag_error(err) from None
+    directory = output if output is not None else default_output(inputs.paths[0])
+    summary = slice_model(mesh.source, directory, spec, scale, force, as_json, False, mesh=mesh)
+    if as_json:
+        echo_json(summary)
+
+
 def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, force: bool, as_json: bool,
-                several: bool, solid_only: bool = False) -> dict:
-    """Slice one model into ``directory`` and report it (one text line, or nothing with --json); its summary.
-    ``solid_only`` slices it as one material, whatever it carries."""
-    mesh = load_mesh(model)
+                several: bool, solid_only: bool = False, mesh: Mesh | None = None) -> dict:
+    """Slice one model (``mesh`` when it is loaded already) into ``directory`` and report it (one text line,
+    two for a multi-part job, or nothing with --json); its summary. ``solid_only`` slices it as one
+    material, whatever it carries."""
+    mesh = load_mesh(model) if mesh is None else mesh
     if solid_only:
         mesh = without_materials(mesh)
     if scale != 1.0:
@@ -269,6 +331,7 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
         "droplet_masks": masks,
         "open_contour_layers": open_layers,
         "warnings": list(mesh.warnings),
+        **({"parts": manifest["parts"]} if "parts" in manifest else {}),
         "seconds": {"slice": times.slice, "contours": times.contours, "raster_cpu": times.raster,
                     "encode_cpu": times.encode, "total": times.total},
     }
@@ -282,5 +345,7 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
                f"{summary['image'][0]} x {summary['image'][1]} px "
                f"at {manifest['dpi'][0]:g} x {manifest['dpi'][1]:g} dpi, volume {summary['volume_mm3']:.1f} mm^3, "
                f"{times.total:.1f} s; {material_line(summary['materials'], masks, manifest['image']['mode'])}")
+    if "parts" in manifest:
+        report_parts(directory, manifest)
     sys.stdout.flush()
     return summary

@@ -6,8 +6,8 @@ or white for a one-material stack), empty pixels the background colour (default 
 at a 0.027 mm pitch (the J750's high-mix mode) unless asked otherwise. The stack is resampled by
 nearest sample, never blended, so every printed voxel keeps exactly one material: in the plane each
 slice pixel takes the stack pixel under its centre, in z each slice the stack layer holding its
-centre height. Refused: stacks whose pixels carry blended colours (RGBA, sliced without
-``--channels``), materials without a colour, two materials of one colour or one of the background's.
+centre height. Refused: stacks whose pixels carry blended colours (RGBA, sliced with
+``--rgba``), materials without a colour, two materials of one colour or one of the background's.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ def palette(manifest: dict, background: tuple[int, int, int]) -> list[tuple[str,
     stack cannot be printed with one exact colour per material."""
     if manifest["image"].get("mode", "1") != "1":
         raise InputError("format: voxel-print needs one material per pixel, but this stack's layers carry blended "
-                         "colours (RGBA); slice it with --channels")
+                         "colours (RGBA, a --rgba preview stack); slice it without --rgba")
     channels = manifest["layers"][0].get("channels") if manifest["layers"] else None
     if not channels:
         materials = [SINGLE_MATERIAL]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from heoslice.grading.cache import ChoiceTable, GradingCache
@@ -14,8 +16,14 @@ from heoslice.grading.droplets_kernels import (
 from heoslice.grading.halftone import TILE, layer_tile
 from heoslice.grading.labels import LayerRegions, layer_regions
 from heoslice.grading.materials import family_starts, target_fractions
-from heoslice.grading.spec import GradeSpec
+from heoslice.grading.spec import GradeSpec, RegionSpec
 from heoslice.layers.rasterising import Grid
+
+#: Most (distinct fraction, distinct cell mix) pairs whose choices :func:`_choice_table` tabulates for one
+#: family (a family beyond it is halftoned per pixel), and how many of them at once (~10 bytes per pair and
+#: threshold level).
+_TABLE_SHARES = 1 << 16
+_SHARES_AT_ONCE = 1 << 12
 
 
 def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, parent: np.ndarray,
@@ -34,8 +42,17 @@ def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, pa
     mask may be None (no per-pixel mask built or read: :func:`layer_regions`); ``cache`` as there.
     """
     packed = np.packbits(mask, axis=1) if packed is None else packed
-    regions = layer_regions(points, offsets, area, parent, mask, grid, spec.regions, packed, cache)
+    regions = layer_regions(points, offsets, area, parent, mask, grid, _layout_spec(spec), packed, cache)
     return labelled_droplet_planes(regions, spec, loop_shell, point_material, packed, grid, layer, cache)
+
+
+def _layout_spec(spec: GradeSpec) -> RegionSpec:
+    """The sub-region layout the masks need: without a gradient every sub-region of a family jets its
+    start mix, so one sub-region per family (N_R = 1) gives the same masks, without the per-pixel
+    sub-region index (the cells' nearest contour points, which the start mix reads, are the same)."""
+    if spec.function is None:
+        return replace(spec.regions, count=1)
+    return spec.regions
 
 
 def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, point_material, packed: np.ndarray,
@@ -85,31 +102,58 @@ def _layer_choice_table(regions: LayerRegions, mixes: list[np.ndarray], fraction
 
 def _choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.ndarray,
                   target_mix: np.ndarray) -> np.ndarray:
-    """The channel each label jets at each of the 256 dither thresholds ((labels, 256) int8), for the
-    labels of families whose start mix is the same at every cell (-1 for the others, which
-    are halftoned per pixel). Computed in choose_materials' float32 arithmetic, so a pixel's
-    channel is the same either way; it turns the per-pixel mix into one table look-up."""
+    """The channel each label jets at each of the 256 dither thresholds ((labels, 256) int8), where every
+    lattice cell of the label's family agrees on it (-1 where they do not: those pixels are halftoned
+    per pixel). Computed in the kernel's float32 arithmetic over the family's distinct cell mixes, so a
+    pixel's channel is the same either way; it turns the per-pixel mix into one table look-up, also for
+    a family whose start mix varies only in rounding (a contour material that is level over a layer)."""
     count = TILE * TILE
     table = np.full((regions.label_count, count), -1, dtype=np.int8)
     levels = ((np.arange(count) + 0.5) / count).astype(np.float32)
     target = target_mix.astype(np.float32)
     for number, mix in enumerate(mixes):
         flat = mix.reshape(-1, mix.shape[-1]).astype(np.float32)
-        if not len(flat) or (flat != flat[0]).any():
-            continue
         labels = np.arange(regions.base[number], regions.base[number + 1])
-        share = flat[0] + fractions.astype(np.float32)[labels, None] * (target - flat[0])
-        total = np.zeros(len(labels), dtype=np.float32)
-        for column in share.T:
-            total += column
-        threshold = levels[None, :] * np.where(total > 0, total, np.float32(1.0))[:, None]
-        chosen = np.full(threshold.shape, share.shape[1] - 1, dtype=np.int8)
-        running = np.zeros(len(labels), dtype=np.float32)
-        undecided = np.ones(threshold.shape, dtype=bool)
-        for channel in range(share.shape[1] - 1):
-            running += share[:, channel]
-            here = undecided & (threshold < running[:, None])
-            chosen[here] = channel
-            undecided &= ~here
-        table[labels] = chosen
+        moved, of_label = np.unique(fractions.astype(np.float32)[labels], return_inverse=True)
+        cells = _distinct_rows(flat)
+        if not len(flat) or len(cells) * len(moved) > _TABLE_SHARES:
+            continue
+        first, agreed = None, np.ones((len(moved), count), dtype=bool)
+        step = max(1, _SHARES_AT_ONCE // len(moved))
+        for low in range(0, len(cells), step):
+            part = cells[low:low + step]
+            share = part[None, :, :] + moved[:, None, None] * (target - part)[None, :, :]
+            chosen = _running_choice(share.reshape(-1, share.shape[-1]), levels).reshape(len(moved), len(part), count)
+            first = chosen[:, 0] if first is None else first
+            agreed &= (chosen == first[:, None]).all(axis=1)
+        table[labels] = np.where(agreed, first, np.int8(-1))[of_label]
     return table
+
+
+def _distinct_rows(flat: np.ndarray) -> np.ndarray:
+    """The distinct rows of (n, K) float32 mixes, by their bits (np.unique's axis=0 sort of row records
+    is slow; a lexsort of the bit columns is not)."""
+    if len(flat) < 2 or (flat == flat[0]).all():
+        return flat[:1]
+    bits = np.ascontiguousarray(flat).view(np.uint32)
+    ordered = bits[np.lexsort(bits.T[::-1])]
+    keep = np.r_[True, (ordered[1:] != ordered[:-1]).any(axis=1)]
+    return ordered[keep].view(np.float32)
+
+
+def _running_choice(share: np.ndarray, levels: np.ndarray) -> np.ndarray:
+    """Per mix ((n, K) float32) and threshold level ((256,) float32), the first channel whose running sum
+    of the mix exceeds the level times the mix's total ((n, 256) int8), summed as the kernel sums."""
+    total = np.zeros(len(share), dtype=np.float32)
+    for column in share.T:
+        total += column
+    threshold = levels[None, :] * np.where(total > 0, total, np.float32(1.0))[:, None]
+    chosen = np.full(threshold.shape, share.shape[1] - 1, dtype=np.int8)
+    running = np.zeros(len(share), dtype=np.float32)
+    undecided = np.ones(threshold.shape, dtype=bool)
+    for channel in range(share.shape[1] - 1):
+        running += share[:, channel]
+        here = undecided & (threshold < running[:, None])
+        chosen[here] = channel
+        undecided &= ~here
+    return chosen

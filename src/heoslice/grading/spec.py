@@ -49,6 +49,9 @@ class RegionSpec:
                              f"got {self.nozzle_mm:g}")
         if self.depth_mm is not None and not (np.isfinite(self.depth_mm) and self.depth_mm > 0):
             raise InputError(f"--depth: target depth must be a positive number of mm, got {self.depth_mm}")
+        if self.depth_mm is not None and self.count is None and self.depth_mm / self.nozzle_mm > MAX_BANDS:
+            raise InputError(f"--depth: {self.depth_mm:g} mm at a {self.nozzle_mm:g} mm nozzle makes more than "
+                             f"{MAX_BANDS} sub-regions (eq. 8)")
         if self.direction not in DIRECTIONS:
             raise InputError(f"--direction: expected 'in' or 'out', got {self.direction!r}")
 

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from heoslice.errors import InputError, OutputError
+from heoslice.errors import InputError, OutputError, shown
 from heoslice.material.functions import DistributionFunction, evaluate, make_function
 from heoslice.material.materials import DEFAULT_MATERIALS, Material, blend, to_rgb8
 from heoslice.material.references import (
@@ -43,6 +43,8 @@ from heoslice.mesh import MATERIAL_PROPERTY, Mesh, load_mesh, shell_labels
 
 #: Subdivision refuses to make more triangles than this (memory: about 1 KB each on the way).
 MAX_SUBDIVIDED_TRIANGLES = 20_000_000
+#: The shortest edge length subdivision is asked for (a nanometre; shorter ones overflow the estimate).
+MIN_MAX_EDGE_MM = 1e-6
 
 
 @dataclass(frozen=True)
@@ -97,8 +99,9 @@ def subdivide(vertices: np.ndarray, faces: np.ndarray, max_edge: float) -> tuple
     """
     from trimesh.remesh import subdivide_to_size
 
-    if not (isinstance(max_edge, (int, float)) and math.isfinite(max_edge) and max_edge > 0):
-        raise InputError(f"max_edge: must be a positive length in mm, got {max_edge!r}")
+    if not (isinstance(max_edge, (int, float)) and math.isfinite(max_edge) and max_edge >= MIN_MAX_EDGE_MM):
+        raise InputError(f"max_edge: must be a positive length of at least {MIN_MAX_EDGE_MM:g} mm, "
+                         f"got {shown(max_edge)}")
     corners = vertices[faces]
     longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
     halvings = np.ceil(np.log2(np.maximum(longest / max_edge, 1.0)))

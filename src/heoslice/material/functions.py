@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from heoslice.errors import InputError
+from heoslice.errors import InputError, shown
 from heoslice.material.expressions import compile_expression, evaluate_expression
 
 
@@ -114,9 +114,9 @@ def finite(name: str, value) -> float:
     try:
         number = float(value)
     except (TypeError, ValueError):
-        raise InputError(f"{name}: must be a number, got {value!r}") from None
+        raise InputError(f"{name}: must be a number, got {shown(value)}") from None
     if not math.isfinite(number):
-        raise InputError(f"{name}: must be finite, got {value!r}")
+        raise InputError(f"{name}: must be finite, got {shown(value)}")
     return number
 
 

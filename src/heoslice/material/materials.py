@@ -17,6 +17,10 @@ jetting head; channel 0 of a print job is the solid mask). ``color``, ``slice`` 
     [shells]                 # optional: material of a connected shell, by shell number
     1 = "cells"
 
+    [parts]                  # optional: material of a part of a multi-part job, by part name
+    liver = "gel"            # (a file's stem, a 3MF object's name)
+    lesion = { material = "cells", priority = 1 }   # higher priority wins where parts overlap
+
 Without a file the built-in default has two materials, ``M1`` (light grey
 (240, 240, 240), channel 1) and ``M2`` (green (0, 255, 0), channel 2).
 
@@ -154,6 +158,49 @@ def load_shell_materials(path: Path | None, table: dict[str, Material] | None = 
         except InputError as err:
             raise InputError(f"{path}: [shells] {key}: {err}") from None
     return out
+
+
+@dataclass(frozen=True)
+class PartSetting:
+    """What the materials file says of one part: its material's name, and its priority where parts overlap
+    (None: the default rule, :func:`heoslice.pipeline.parts.part_order`)."""
+
+    material: str
+    priority: int | None = None
+
+
+def load_part_materials(path: Path | None, table: dict[str, Material] | None = None) -> dict[str, PartSetting]:
+    """{part name: PartSetting} from the optional [parts] table of a materials file ({} without one); each
+    material must be one of the file's materials."""
+    if path is None:
+        return {}
+    parts = _read_toml(Path(path)).get("parts", {})
+    if not isinstance(parts, dict):
+        raise InputError(f"{path}: [parts] must map part names to material names")
+    table = load_materials(path) if table is None else table
+    out = {}
+    for name, value in parts.items():
+        entry = {"material": value} if isinstance(value, str) else value
+        if not isinstance(entry, dict) or not isinstance(entry.get("material"), str) or set(entry) - {"material",
+                                                                                                      "priority"}:
+            raise InputError(f"{path}: [parts] {name}: give a material name, or "
+                             "{ material = NAME, priority = N }")
+        priority = entry.get("priority")
+        if priority is not None and (isinstance(priority, bool) or not isinstance(priority, int)):
+            raise InputError(f"{path}: [parts] {name}: priority must be a whole number, got {priority!r}")
+        if table_material(entry["material"], table) is None:
+            raise InputError(f"{path}: [parts] {name}: unknown material {entry['material']!r} "
+                             f"(materials: {', '.join(table)})")
+        out[str(name)] = PartSetting(entry["material"], priority)
+    return out
+
+
+def table_material(name: str, table: dict[str, Material]) -> Material | None:
+    """The material of ``table`` named ``name`` (exactly, else ignoring case), or None."""
+    if name in table:
+        return table[name]
+    folded = {key.lower(): material for key, material in table.items()}
+    return folded.get(str(name).lower())
 
 
 def resolve_material(text: str, table: dict[str, Material]) -> Material:

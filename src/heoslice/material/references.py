@@ -15,8 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from heoslice.errors import InputError
+from heoslice.errors import InputError, shown
 from heoslice.material.functions import DistributionFunction, evaluate, finite
+from heoslice.mesh import MAX_COORDINATE
 from heoslice.material.surface import (
     SurfaceIndex,
     build_surface_index,
@@ -52,14 +53,17 @@ def _vector(name: str, value, unit: bool = False) -> np.ndarray:
     try:
         vector = np.asarray(value, dtype=np.float64).reshape(3)
     except (TypeError, ValueError):
-        raise InputError(f"{name}: must be three numbers x,y,z, got {value!r}") from None
+        raise InputError(f"{name}: must be three numbers x,y,z, got {shown(value)}") from None
     if not np.isfinite(vector).all():
-        raise InputError(f"{name}: must be finite, got {value!r}")
+        raise InputError(f"{name}: must be finite, got {shown(value)}")
     if unit:
-        length = float(np.linalg.norm(vector))
-        if length == 0.0:
+        largest = float(np.abs(vector).max())
+        if largest == 0.0:
             raise InputError(f"{name}: must not be the zero vector")
-        vector = vector / length
+        vector = vector / largest  # scaled first, so that no square overflows (1e308,1e308,0 is a direction)
+        return vector / float(np.linalg.norm(vector))
+    if float(np.abs(vector).max()) > MAX_COORDINATE:
+        raise InputError(f"{name}: coordinates must be within +-{MAX_COORDINATE:g} mm, got {shown(value)}")
     return vector
 
 

@@ -69,22 +69,48 @@ def _workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def _spread_bits(v: np.ndarray) -> np.ndarray:
+    """10-bit integers (n,) uint64 with two zero bits inserted after each bit (for a 3-D Morton code)."""
+    v = (v | (v << np.uint64(16))) & np.uint64(0x030000FF)
+    v = (v | (v << np.uint64(8))) & np.uint64(0x0300F00F)
+    v = (v | (v << np.uint64(4))) & np.uint64(0x030C30C3)
+    return (v | (v << np.uint64(2))) & np.uint64(0x09249249)
+
+
+def curve_order(points: np.ndarray) -> np.ndarray:
+    """The order (n,) of points (n, 3) along a Morton (Z-order) curve over their box, 1024 cells a side:
+    queries in this order start from a nearby point's nearest triangle, a tight first bound."""
+    low = points.min(axis=0)
+    extent = np.maximum(points.max(axis=0) - low, 1e-300)
+    cells = np.clip((points - low) * (1023.0 / extent), 0.0, 1023.0).astype(np.uint64)
+    code = _spread_bits(cells[:, 0]) | (_spread_bits(cells[:, 1]) << np.uint64(1)) | (
+        _spread_bits(cells[:, 2]) << np.uint64(2))
+    return np.argsort(code, kind="stable")
+
+
 def surface_distance(points: np.ndarray, index: SurfaceIndex, chunk: int = 65536,
                      progress: Callable[[int, int], None] | None = None, workers: int | None = None) -> np.ndarray:
     """Exact unsigned distance (n,) mm from points (n, 3) mm to the nearest triangle of the surface.
 
-    Chunks of ``chunk`` points are measured on ``workers`` threads (default: the usable
+    The points are measured in :func:`curve_order` (each search starts from the previous point's
+    nearest triangle), in chunks of ``chunk`` points on ``workers`` threads (default: the usable
     cores; the kernel releases the GIL); ``progress(done, total)`` follows the chunks in order.
     """
     from heoslice.material.surface_kernels import nearest_distances
 
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if not len(points):
+        return np.empty(0)
+    order = curve_order(points)
+    ordered = np.ascontiguousarray(points[order])
+    measured = np.empty(len(points))
     out = np.empty(len(points))
     starts = list(range(0, len(points), max(1, int(chunk))))
 
     def measure(start: int) -> int:
         stop = min(start + chunk, len(points))
-        nearest_distances(points[start:stop], index.tree, out[start:stop])
+        nearest_distances(ordered[start:stop], index.tree, measured[start:stop])
+        out[order[start:stop]] = measured[start:stop]
         return stop
 
     threads = max(1, min(workers or _workers(), len(starts)))

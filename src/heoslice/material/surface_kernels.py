@@ -16,7 +16,7 @@ import numpy as np
 
 _JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
 #: Triangles per leaf at most.
-LEAF_SIZE = 4
+LEAF_SIZE = 8
 #: Depth of the traversal stack; a tree built by halving has depth about log2(m / LEAF_SIZE) + 1.
 STACK_DEPTH = 128
 

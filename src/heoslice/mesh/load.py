@@ -1,4 +1,4 @@
-"""Loading: one mesh file (PLY, STL, OBJ, OFF) into the welded, checked, outward-oriented mesh heoslice slices.
+"""Loading: one mesh file (PLY, STL, OBJ, OFF, 3MF) into the welded, checked, outward-oriented mesh heoslice slices.
 
 Each format has its own reader returning a :class:`~heoslice.mesh.raw.RawMesh`: PLY,
 OFF and binary STL are heoslice's strict readers; OBJ and ASCII STL are parsed by
@@ -6,7 +6,8 @@ trimesh. This module adds what a slicer needs on top: one-line errors naming the
 vertices welded by coordinate (so STL soups share edges), degenerate faces dropped,
 orientation made outward, per-vertex colour and the material fraction written by
 ``heoslice color``, and the warnings a lab should see (open, non-manifold, inverted,
-metre-sized, degenerate).
+metre-sized, degenerate). A 3MF is an assembly: each build item is prepared on its own
+and becomes a part (:mod:`heoslice.mesh.assembly`).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from heoslice.mesh.topology import edge_groups, orient_outward, topology_notes
 from heoslice.mesh.volume import face_volumes, solid_volume_mm3
 from heoslice.mesh.weld import duplicate_faces, weld_vertices
 
-SUPPORTED_SUFFIXES = (".ply", ".stl", ".obj", ".off")
+SUPPORTED_SUFFIXES = (".ply", ".stl", ".obj", ".off", ".3mf")
 
 #: Largest coordinate magnitude accepted (1000 km in mm): beyond, squares of lengths overflow.
 MAX_COORDINATE = 1e9
@@ -47,7 +48,9 @@ class Mesh:
     label per face. warnings: human-readable notes about the input. color_source:
     'vertex' or 'face', what the file's colours were given for (face colours are
     spread to the vertices as the mean of the faces around each). duplicate_faces: how
-    many faces repeated an earlier one and were dropped.
+    many faces repeated an earlier one and were dropped. part: (m,) int64 part label per face of an
+    assembly (several files, a 3MF's objects), index into ``parts`` (:class:`heoslice.mesh.assembly.Part`),
+    or None for a mesh of one file that is not an assembly.
     """
 
     vertices: np.ndarray
@@ -60,6 +63,8 @@ class Mesh:
     warnings: tuple[str, ...] = field(default=())
     color_source: str | None = None
     duplicate_faces: int = 0
+    part: np.ndarray | None = None
+    parts: tuple = ()
 
     @property
     def bounds(self) -> np.ndarray:
@@ -105,17 +110,21 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
         raise InputError(f"{path}: permission denied")
     suffix = path.suffix.lower()
     if suffix not in SUPPORTED_SUFFIXES:
-        raise InputError(f"{path}: unsupported file type {suffix or '(none)'}; use PLY, STL, OBJ or OFF")
+        raise InputError(f"{path}: unsupported file type {suffix or '(none)'}; use PLY, STL, OBJ, OFF or 3MF")
     if status.st_size == 0:
         raise InputError(f"{path}: file is empty")
     if status.st_size > MAX_MESH_BYTES:
         raise InputError(f"{path}: mesh file of {status.st_size} bytes is larger than the {MAX_MESH_BYTES}-byte limit")
     refuse_sparse(path, status, "mesh")
+    if suffix == ".3mf":
+        from heoslice.mesh.assembly import load_3mf  # assembly builds on this module
+
+        return load_3mf(path)
     from concurrent.futures import ThreadPoolExecutor
 
     with ThreadPoolExecutor(max_workers=1) as hasher:  # hashing overlaps parsing (hashlib releases the GIL)
         digest = hasher.submit(file_sha256, path)
-        return _prepared(path, _read_raw(path, suffix), digest.result)
+        return prepared_mesh(path, _read_raw(path, suffix), digest.result)
 
 
 #: Magic bytes of files that are often renamed by mistake, and what they are.
@@ -144,8 +153,9 @@ def _read_raw(path: Path, suffix: str) -> RawMesh:
     return read_with_trimesh(path)
 
 
-def _prepared(path: Path, raw: RawMesh, sha256) -> Mesh:
-    """Check, weld, clean and orient a raw mesh; ``sha256()`` gives the file's digest when it is ready."""
+def prepared_mesh(path: Path, raw: RawMesh, sha256) -> Mesh:
+    """Check, weld, clean and orient a raw mesh; ``sha256`` is the file's digest, or a callable giving it when
+    it is ready."""
     notes: list[str] = []
     vertices = np.asarray(raw.vertices)
     if vertices.dtype != np.float32:  # binary STL stays float32 until welded
@@ -203,7 +213,8 @@ def _prepared(path: Path, raw: RawMesh, sha256) -> Mesh:
     if extent.max() < 1.0:
         notes.append(_metres_note(float(extent.max())))
     return Mesh(vertices=vertices, faces=faces, colors=colors, material=material, shell=shell, source=path,
-                sha256=sha256(), warnings=tuple(notes), color_source=raw.color_source if colors is not None else None,
+                sha256=sha256() if callable(sha256) else sha256, warnings=tuple(notes),
+                color_source=raw.color_source if colors is not None else None,
                 duplicate_faces=duplicate)
 
 

@@ -68,6 +68,7 @@ def as_type(path: Path, values: np.ndarray, kind: str, where: np.ndarray, what: 
                | (values < float(info.min)) | (values >= float(info.max) + 1.0))  # exact powers of two
     if bad.any():
         first = int(np.argmax(bad))
-        raise InputError(f"{path}: line {where[first]}: {what} {values[first]!r} is not a {np.dtype(kind).name}")
+        raise InputError(f"{path}: line {where[first]}: {what} {float(values[first]):.15g} is not a "
+                         f"{np.dtype(kind).name} (a whole number {info.min}..{info.max})")
     return values.astype(kind)
 

@@ -3,7 +3,8 @@
 spec (what is asked, checked) -> materials (the material model: what a mesh's materials make of the
 slice) -> slice_job (sizes checked, directory prepared, manifest last) -> runs (consecutive planes sliced,
 chained, then rendered and written layer by layer) -> layer_job (one layer: render, encode, write; what it
-leaves to the next); parallel holds every process matter (forks, the
+leaves to the next), or parts (a multi-part job's layers: each part's loops rasterised on their own,
+composed by priority); parallel holds every process matter (forks, the
 slice-ahead helper, shared memory, allocator, collector, BLAS threads, dying with the parent).
 
 The names below are loaded on first use (PEP 562), not when the package is imported: the ``heoslice``
@@ -27,6 +28,7 @@ _EXPORTS = {
     "layer_limit": "slice_job", "slice_warnings": "slice_job",
     "MaterialJob": "materials", "material_job": "materials",
     "run_all": "parallel", "keep_freed_memory": "parallel",
+    "PartsPlan": "parts", "plan_parts": "parts", "part_order": "parts", "compose_part_masks": "parts",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -16,6 +16,7 @@ from heoslice.layers.slicing import interpolate_at
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec, channel_name
 from heoslice.stack import encode_bilevel_tiff, encode_tiff, layer_file_name, write_file
+from heoslice.stack.tiff import MASK_DEFLATE_LEVEL
 
 if TYPE_CHECKING:  # the grading package loads numba's kernels: a one-material slice never imports it
     from heoslice.grading import GradeSpec, GradingCache
@@ -133,8 +134,8 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed:
         width = job.grid.width
         solid = count_solid(packed)
         data = _solid_tiff(packed, solid, job, cache)
-        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm),
-                   count_solid(plane))
+        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm,
+                                             level=MASK_DEFLATE_LEVEL), count_solid(plane))
                   for path, plane in zip(graded.channel_paths, planes)]
         encoded = time.perf_counter()
         digest = write_file(job.path, data)

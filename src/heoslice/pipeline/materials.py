@@ -70,6 +70,8 @@ def _fraction_mix(fraction: np.ndarray, grade) -> np.ndarray:
 def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
     """The material model of slicing ``mesh`` with ``spec`` (the module's rule); ``spec.materials`` is the
     table colours map to (the built-in M1, M2 when empty)."""
+    if spec.parts is not None:  # a multi-part job: each part is one material (heoslice.pipeline.parts)
+        return MaterialJob(spec, None)
     table = spec.materials or tuple(DEFAULT_MATERIALS.values())
     grade, mix = spec.grade, None
     if mesh.material is not None:

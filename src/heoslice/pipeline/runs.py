@@ -68,11 +68,16 @@ def slice_run(context: RunContext, start: int, stop: int, cache: PipelineCache |
     they were made already, ``masks`` ((stop - start, h, ceil(w / 8)) uint8) its layers' solid bits.
     """
     contours, slice_s, contours_s = sliced if sliced is not None else run_contours(context, start, stop)
-    jobs = layer_jobs(contours, context.mesh, context.grid, context.spec, context.directory, first_layer=start,
-                      vertex_mix=context.vertex_mix)
-    cache = PipelineCache() if cache is None else cache
-    layers = [render_and_write(job, cache, None if masks is None else masks[local])
-              for local, job in enumerate(jobs)]
+    if context.spec.parts is not None:  # a multi-part job: each part's loops on their own, composed by priority
+        from heoslice.pipeline.parts import render_parts_run
+
+        layers = render_parts_run(contours, context, start)
+    else:
+        jobs = layer_jobs(contours, context.mesh, context.grid, context.spec, context.directory,
+                          first_layer=start, vertex_mix=context.vertex_mix)
+        cache = PipelineCache() if cache is None else cache
+        layers = [render_and_write(job, cache, None if masks is None else masks[local])
+                  for local, job in enumerate(jobs)]
     return RunResult(layers=layers, open_layers=start + contours.layer[contours.closed_by_join],
                      slice_s=slice_s, contours_s=contours_s)
 

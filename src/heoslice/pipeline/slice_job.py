@@ -11,7 +11,6 @@ import time
 from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,6 +22,7 @@ from heoslice.locks import hold_stack
 from heoslice.mesh import Mesh
 from heoslice.pipeline.materials import material_job
 from heoslice.pipeline.parallel import run_all
+from heoslice.pipeline.parts import parts_records
 from heoslice.pipeline.runs import RunContext, RunResult
 from heoslice.pipeline.spec import (
     MAX_COORDINATE_MM,
@@ -36,21 +36,25 @@ from heoslice.stack import (
     LayerRecord,
     build_manifest,
     check_image_size,
+    droplet_summary,
     grading_summary,
     max_layer_count,
     prepare_directory,
     write_manifest,
 )
 
-if TYPE_CHECKING:  # the grading package loads numba's kernels: a one-material slice never imports it
-    from heoslice.grading import GradeSpec
-
 
 def layer_limit(spec: SliceSpec) -> int:
     """Most layers a stack sliced with ``spec`` may have: :func:`heoslice.stack.max_layer_count` for its
     droplet-mask channels, so that a stack heoslice writes is one it can verify and print."""
-    materials = spec.grade.channel_materials() if spec.channels else ()
-    return max_layer_count([channel_name(m) for m in materials])
+    return max_layer_count([channel_name(m) for m in _droplet_materials(spec) or ()])
+
+
+def _droplet_materials(spec: SliceSpec) -> tuple | None:
+    """The droplet masks' materials in channel order, or None for a stack without droplet masks."""
+    if spec.parts is not None:
+        return spec.parts.channel_materials() or None
+    return spec.grade.channel_materials() if spec.channels else None
 
 
 def slice_warnings(mesh: Mesh, spec: SliceSpec) -> list[str]:
@@ -122,15 +126,16 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
                              spec=spec, directory=directory, vertex_mix=job.vertex_mix)
         run_all(context, spec.worker_count(), on_done)
         mode = _image_mode(mesh, spec)
+        droplets = _droplet_materials(spec)
         manifest = build_manifest(
             source_file=mesh.source.name, source_sha256=mesh.sha256, layer_height_mm=spec.layer_height_mm,
             dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
             image=ImageRecord(grid.width, grid.height, (grid.x_left, grid.y_top), mode, spec.compression),
             z_range_mm=(bounds[0, 2], bounds[1, 2]), warnings=mesh.warnings,
             layers=[LayerRecord(z[index], results[index][0], results[index][1], open_layers[index],
-                                _channel_records(spec.grade, results[index][2]) if spec.channels else None)
+                                None if droplets is None else _channel_records(droplets, results[index][2]))
                     for index in range(len(z))],
-            grading=None if spec.grade is None else grading_summary(spec.grade))
+            grading=_grading(spec), parts=None if spec.parts is None else parts_records(mesh.parts, spec.parts))
         write_manifest(directory, manifest)
         times.total = time.perf_counter() - started
         return manifest, times
@@ -138,11 +143,18 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
 
 def _image_mode(mesh: Mesh, spec: SliceSpec) -> str:
     """The layer images' mode: RGBA for a graded preview stack (materials' colours), else 1-bit: the solid
-    mask (with droplet masks, which carry the materials)."""
-    return "RGBA" if spec.grade is not None and not spec.channels else "1"
+    mask (with droplet masks, which carry the materials; a multi-part job's too)."""
+    return "RGBA" if spec.parts is None and spec.grade is not None and not spec.channels else "1"
 
 
-def _channel_records(grade: GradeSpec, written: tuple) -> tuple[ChannelRecord, ...]:
+def _grading(spec: SliceSpec) -> dict | None:
+    """The manifest's ``grading`` object: the grading's, a multi-part job's droplet masks', or None."""
+    if spec.parts is not None:
+        return droplet_summary(spec.parts.materials) if spec.parts.channels else None
+    return None if spec.grade is None else grading_summary(spec.grade)
+
+
+def _channel_records(materials: tuple, written: tuple) -> tuple[ChannelRecord, ...]:
     """The manifest records of one layer's droplet masks: material, file, sha256, solid pixels."""
     return tuple(ChannelRecord(material.name, name, digest, solid)
-                 for material, (name, digest, solid) in zip(grade.channel_materials(), written))
+                 for material, (name, digest, solid) in zip(materials, written))

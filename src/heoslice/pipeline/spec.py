@@ -12,11 +12,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from heoslice.errors import InputError
+from heoslice.errors import InputError, shown
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION
 
 if TYPE_CHECKING:  # the grading package loads numba's kernels: a one-material slice never imports it
     from heoslice.grading import GradeSpec
+    from heoslice.pipeline.parts import PartsPlan
 
 MIN_LAYER_MM, MAX_LAYER_MM = 1e-3, 10_000.0
 MIN_DPI, MAX_DPI = 1.0, 100_000.0
@@ -36,7 +37,7 @@ def check_range(parameter: str, value, low: float, high: float, unit: str = "", 
     try:
         number = float(value)
     except (TypeError, ValueError):
-        raise InputError(f"{parameter}: must be a number, got {value!r}") from None
+        raise InputError(f"{parameter}: must be a number, got {shown(value)}") from None
     inside = (number > low if low_open else number >= low) and number <= high
     if not (np.isfinite(number) and inside):
         bound = f"above {low:g}" if low_open else f"at least {low:g}"
@@ -62,6 +63,7 @@ class SliceSpec:
     than one material, False for an RGBA preview stack instead; ``materials`` is the materials table a
     mesh's colours map to (empty: the built-in M1, M2). :func:`heoslice.pipeline.material_job` settles
     both for a mesh.
+    ``parts`` makes the slice a multi-part job (:mod:`heoslice.pipeline.parts`; not graded).
     """
 
     layer_height_mm: float = 0.1
@@ -75,6 +77,7 @@ class SliceSpec:
     materials: tuple = ()
     #: Segments sliced and chained at once; bounds memory (a few hundred bytes per segment).
     max_segments: int = 50_000
+    parts: PartsPlan | None = None
 
     def __post_init__(self):
         if self.compression not in COMPRESSIONS:
@@ -88,6 +91,8 @@ class SliceSpec:
             check_range("canvas_mm", value, 0.0, MAX_CANVAS_MM, " mm", low_open=True)
         check_range("jobs", self.jobs, 0, MAX_JOBS, " (0: one per core)")
         check_range("max_segments", self.max_segments, 1, 2**40)
+        if self.parts is not None and (self.grade is not None or self.channels):
+            raise InputError("grade: a multi-part job is not graded (slice a part on its own to grade it)")
         if self.channels and self.grade is None:
             raise InputError("channels: droplet masks need a graded slice (grade)")
         if self.grade is not None:

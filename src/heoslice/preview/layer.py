@@ -1,7 +1,7 @@
 """One layer of a stack as a display image, in material colours or dark solid on white.
 
 RGBA layers are shown in their material colours over dark grey (so a white or light
-material stays visible). Layers with droplet masks (``slice --channels``) are shown the
+material stays visible). Layers with droplet masks (a multi-material stack) are shown the
 same way, composed from the masks: each set pixel of a material's mask in that
 material's display colour (``grading.materials[].color``). Other 1-bit layers are dark
 solid on white. Large layers are reduced (box filter) to fit the requested size, so
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from heoslice.errors import InputError, VerifyError
+from heoslice.errors import InputError, VerifyError, shown
 from heoslice.stack import layer_strips, read_manifest
 
 #: Longest side of a drawn preview, px: larger requests are refused, larger layers reduced to it
@@ -189,7 +189,7 @@ def check_size(size: int | None, what: str = "size") -> int:
         return MAX_PREVIEW_SIDE
     if not (isinstance(size, int) and MIN_PREVIEW_SIDE <= size <= MAX_PREVIEW_SIDE):
         raise InputError(f"{what}: must be an integer from {MIN_PREVIEW_SIDE} to {MAX_PREVIEW_SIDE} px, "
-                         f"not {size!r}"[:200])
+                         f"not {shown(size)}"[:200])
     return size
 
 

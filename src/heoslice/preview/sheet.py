@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from heoslice.errors import InputError
+from heoslice.errors import InputError, shown
 from heoslice.preview.layer import layer_image
 from heoslice.stack import read_manifest
 
@@ -57,12 +57,12 @@ def sheet_size(count: int, tile: int, columns: int | None) -> tuple[int, int, in
     """(columns, width px, height px) of a sheet of ``count`` tiles, after range-checking ``tile``,
     ``columns`` and the sheet's pixels (InputError naming the parameter)."""
     if not (isinstance(tile, int) and MIN_TILE <= tile <= MAX_TILE):
-        raise InputError(f"tile: must be an integer from {MIN_TILE} to {MAX_TILE} px, not {tile!r}"[:160])
+        raise InputError(f"tile: must be an integer from {MIN_TILE} to {MAX_TILE} px, not {shown(tile)}"[:160])
     if not 1 <= count <= MAX_SHEET_LAYERS:
         raise InputError(f"layers: a sheet shows 1 to {MAX_SHEET_LAYERS} layers, not {count}")
     columns = columns or int(np.ceil(np.sqrt(count)))
     if not (isinstance(columns, int) and 1 <= columns <= MAX_SHEET_LAYERS):
-        raise InputError(f"columns: must be an integer from 1 to {MAX_SHEET_LAYERS}, not {columns!r}"[:160])
+        raise InputError(f"columns: must be an integer from 1 to {MAX_SHEET_LAYERS}, not {shown(columns)}"[:160])
     rows = -(-count // columns)
     width, height = columns * (tile + 4) + 4, rows * (tile + LABEL_HEIGHT + 4) + 4
     if width * height > MAX_SHEET_PIXELS:

@@ -59,7 +59,8 @@ def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
         raise InputError(f"{directory}: the stack has no layers")
     width, height = manifest["image"]["width"], manifest["image"]["height"]
     widest = max(layers, key=lambda entry: len(entry.get("channels") or []))
-    names = ("solid", *(str(channel["material"]) for channel in widest.get("channels") or []))
+    names = ("solid", *(str(channel.get("material", f"channel {number}"))
+                        for number, channel in enumerate(widest.get("channels") or [], start=1)))
     channels = len(names)
     job_id = P.crc32(json.dumps(manifest, sort_keys=True).encode()) or 1
     job = JobSpec(job_id, len(layers), channels, width, height, names)

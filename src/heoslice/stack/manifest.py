@@ -104,9 +104,11 @@ def max_layer_count(channel_materials: Sequence[str] = ()) -> int:
 
 def build_manifest(*, source_file: str, source_sha256: str, layer_height_mm: float, dpi: tuple[float, float],
                    pixel_size_mm: tuple[float, float], image: ImageRecord, z_range_mm: tuple[float, float],
-                   warnings: Sequence[str], layers: Sequence[LayerRecord], grading: dict | None = None) -> dict:
+                   warnings: Sequence[str], layers: Sequence[LayerRecord], grading: dict | None = None,
+                   parts: Sequence[dict] | None = None) -> dict:
     """The ``manifest.json`` object of a finished stack, checked by :func:`manifest_problem` before it is
-    returned (a failure is a bug in the slicer, raised as ValueError)."""
+    returned (a failure is a bug in the slicer, raised as ValueError). ``parts``: a multi-part job's parts
+    (:func:`heoslice.pipeline.parts.parts_records`)."""
     manifest = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
@@ -125,6 +127,8 @@ def build_manifest(*, source_file: str, source_sha256: str, layer_height_mm: flo
     }
     if grading is not None:
         manifest["grading"] = grading
+    if parts is not None:
+        manifest["parts"] = list(parts)
     problem = manifest_problem(manifest)
     if problem:
         raise ValueError(f"the slicer built a manifest its readers refuse: {problem}")
@@ -144,10 +148,7 @@ def grading_summary(grade) -> dict:
     """The manifest's ``grading`` object of a grading specification (``GradeSpec``): what the interiors
     were graded with, and the materials of the droplet masks in channel order."""
     regions = grade.regions
-
-    def material(m):
-        return None if m is None else {"name": m.name, "color": list(m.color), "channel": m.channel}
-
+    material = _material_record
     return {
         "function": None if grade.function is None else grade.function.describe(),
         "target": material(grade.target),
@@ -158,6 +159,21 @@ def grading_summary(grade) -> dict:
         "offsets": regions.count,
         "materials": [material(m) for m in grade.channel_materials()],
     }
+
+
+def droplet_summary(materials) -> dict:
+    """The manifest's ``grading`` object of an ungraded stack with droplet masks (a multi-part job): the fields
+    of :func:`grading_summary`, without a function or sub-region layout (null), and the droplet masks'
+    materials in channel order."""
+    return {"function": None, "target": None, "from": None, "nozzle_mm": None, "depth_mm": None, "direction": None,
+            "offsets": None, "materials": [_material_record(m) for m in materials]}
+
+
+def _material_record(material) -> dict | None:
+    """A material as the manifest records it: name, [r, g, b] display colour, printer channel (or null)."""
+    if material is None:
+        return None
+    return {"name": material.name, "color": list(material.color), "channel": material.channel}
 
 
 def _refuse_constant(name: str):

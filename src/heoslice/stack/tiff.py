@@ -18,6 +18,9 @@ DEFAULT_COMPRESSION = "deflate"
 MM_PER_INCH = 25.4
 #: TIFF compression codes a layer may use: none, LZW, deflate (Adobe and old code), PackBits.
 TIFF_COMPRESSIONS = (1, 5, 8, 32946, 32773)
+#: zlib level of a droplet mask's deflate strips: a halftone's dither patterns repeat at a short
+#: distance, which level 1's matcher misses and level 2's finds (sizes and times in benchmarks/README.md).
+MASK_DEFLATE_LEVEL = 2
 
 
 def calibration(dpi: tuple[float, float], spacing_mm: float | None) -> dict:
@@ -55,10 +58,10 @@ def encode_tiff(image: np.ndarray, dpi: tuple[float, float], compression: str,
     return buffer.getvalue()
 
 
-def _strip_codec(compression: str):
+def _strip_codec(compression: str, level: int = 1):
     """bytes -> compressed bytes for one TIFF strip.
 
-    Deflate uses zlib-ng at level 1 when imagecodecs has it: the same zlib stream
+    Deflate uses zlib-ng at ``level`` (1 unless told) when imagecodecs has it: the same zlib stream
     format, faster than zlib (figures in benchmarks/README.md). Other codecs are tifffile's own.
     """
     import tifffile
@@ -69,16 +72,18 @@ def _strip_codec(compression: str):
         except ImportError:
             zlibng_encode = None
         if zlibng_encode is not None:
-            return lambda data: zlibng_encode(data, level=1)
+            return lambda data: zlibng_encode(data, level=level)
     codec = tifffile.TIFF.COMPRESSORS[tifffile.COMPRESSION[COMPRESSIONS[compression].upper()].value]
     if compression == "deflate":
-        return lambda data: codec(data, level=1)
+        return lambda data: codec(data, level=level)
     return codec
 
 
 def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float], compression: str,
-                        spacing_mm: float | None = None, rows_per_strip: int = 256) -> bytes:
+                        spacing_mm: float | None = None, rows_per_strip: int = 256, level: int = 1) -> bytes:
     """TIFF bytes of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, MSB first).
+
+    ``level`` is deflate's (droplet masks use :data:`MASK_DEFLATE_LEVEL`; other codecs ignore it).
 
     The strips are compressed here, straight from the packed bits, with tifffile's
     own codec for the chosen compression, and handed to tifffile already encoded:
@@ -102,7 +107,7 @@ def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float]
         mask = np.unpackbits(packed, axis=1, count=width).astype(bool)
         tifffile.imwrite(buffer, mask, **{k: v for k, v in options.items() if k not in ("shape", "dtype")})
         return buffer.getvalue()
-    codec = _strip_codec(compression)
+    codec = _strip_codec(compression, level)
     strips = (codec(packed[row:row + rows_per_strip].tobytes()) for row in range(0, height, rows_per_strip))
     tifffile.imwrite(buffer, data=strips, compression=codec_name, **options)
     return buffer.getvalue()

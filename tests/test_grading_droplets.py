@@ -1,0 +1,86 @@
+"""Tests of heoslice.grading.droplets: the choice table over families whose cells agree, and the
+one-sub-region layout of masks without a gradient."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from heoslice.grading import GradeSpec, RegionSpec, layer_regions
+from heoslice.grading.droplets import _choice_table, droplet_planes, labelled_droplet_planes
+from heoslice.grading.halftone import TILE
+from heoslice.layers.rasterising import Grid, packed_mask
+from heoslice.material import DEFAULT_MATERIALS
+
+PX = 25.4 / 600
+LEVELS = ((np.arange(TILE * TILE) + 0.5) / (TILE * TILE)).astype(np.float32)
+
+
+def square_tube(outer: float, inner: float):
+    """points, offsets, signed areas and parents of a square tube about the origin (half-sides, mm), and a
+    600 dpi grid over it."""
+    ring = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=np.float64)
+    points = np.concatenate([outer * ring, inner * ring[::-1]])
+    size = int(np.ceil(2 * (outer + 0.5) / PX))
+    grid = Grid(width=size, height=size, x_left=-outer - 0.5, y_top=outer + 0.5, px=PX, py=PX)
+    return points, np.array([0, 4, 8]), np.array([4 * outer**2, -4 * inner**2]), np.array([-1, 0]), grid
+
+
+def brute_choice(mix: np.ndarray, fraction: float, target: np.ndarray) -> np.ndarray:
+    """(256,) the channel one pixel of this start mix and fraction jets at each threshold level, written
+    as the kernel's per-pixel loop (float32, running sum)."""
+    share = mix.astype(np.float32) + np.float32(fraction) * (target.astype(np.float32) - mix.astype(np.float32))
+    total = np.float32(0.0)
+    for value in share:
+        total += value
+    out = np.empty(len(LEVELS), dtype=np.int8)
+    for number, level in enumerate(LEVELS):
+        t = level * (total if total > 0 else np.float32(1.0))
+        pick, running = len(share) - 1, np.float32(0.0)
+        for channel in range(len(share) - 1):
+            running += share[channel]
+            if t < running:
+                pick = channel
+                break
+        out[number] = pick
+    return out
+
+
+@pytest.mark.parametrize("spread", [1e-7, 0.3])
+def test_choice_table_entries_are_every_cells_choice_where_the_cells_agree(spread):
+    """Each entry of the choice table that is not -1 is the per-pixel choice of every cell of the label's
+    family; a family whose cells differ only in rounding (spread 1e-7) has no -1 entry at all, one whose
+    cells differ widely (0.3) has some."""
+    rng = np.random.default_rng(5)
+    m = 0.4 + spread * rng.uniform(-1, 1, (6, 7))
+    mixes = [np.stack([1 - m, m], axis=-1), np.tile([0.25, 0.75], (2, 3, 1))]
+    base = np.array([1, 5, 8])
+    fractions = np.r_[0.0, rng.uniform(0, 1, 4), 0.0, 0.5, 0.5]
+    target = np.array([0.0, 1.0])
+    table = _choice_table(SimpleNamespace(base=base, label_count=int(base[-1])), mixes, fractions, target)
+    for number, mix in enumerate(mixes):
+        for label in range(base[number], base[number + 1]):
+            for cell in mix.reshape(-1, 2):
+                known = table[label] >= 0
+                assert np.array_equal(table[label][known], brute_choice(cell, fractions[label], target)[known])
+    assert (table[1:5] < 0).any() == (spread > 1e-3)
+    assert (table[5:] >= 0).all()
+
+
+def test_masks_without_a_gradient_are_those_of_the_full_sub_region_layout():
+    """Without a distribution function, droplet_planes (one sub-region per family) gives the masks of the
+    layer labelled with eq. 8's full sub-region layout, with a contour material that varies along the
+    rings (per-pixel mixes) and one level to rounding (the table)."""
+    points, offsets, area, parent, grid = square_tube(6.0, 2.0)
+    packed = packed_mask(points, offsets, grid)
+    spec = GradeSpec(RegionSpec(nozzle_mm=0.2), None, None, None, DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
+    for material in (np.linspace(0.1, 0.9, len(points)), np.full(len(points), 0.3) + 1e-9 * np.arange(len(points))):
+        full = layer_regions(points, offsets, area, parent, None, grid, spec.regions, packed)
+        assert full.label_count > 10
+        expected = labelled_droplet_planes(full, spec, None, material, packed, grid, 3)
+        got = droplet_planes(points, offsets, area, parent, None, None, grid, spec, 3, point_material=material,
+                             packed=packed)
+        assert np.array_equal(got, expected)
+        assert got.any()
