@@ -123,11 +123,11 @@ def test_material_job_rule(vase_file, tmp_path):
     fraction = load_mesh(vase_file)
     fraction = type(fraction)(**{**fraction.__dict__, "material": fraction.vertices[:, 2] / 60.0})
     job = material_job(fraction, spec)
-    assert job.spec.channels and [m.name for m in job.materials] == ["M1", "M2"]
+    assert job.spec.channels and [m.name for m in job.spec.grade.channel_materials()] == ["M1", "M2"]
     assert np.allclose(job.vertex_mix.sum(axis=1), 1.0)
     assert np.allclose(job.vertex_mix[:, 1], np.clip(fraction.vertices[:, 2] / 60.0, 0, 1))
     rgba = material_job(fraction, SliceSpec(layer_height_mm=1.0, channels=False))
-    assert rgba.spec.grade is not None and not rgba.spec.channels and rgba.materials == ()
+    assert rgba.spec.grade is not None and rgba.spec.channels is False
     grey = np.full((len(plain.vertices), 3), 200, dtype=np.uint8)
     one_colour = type(plain)(**{**plain.__dict__, "colors": grey})
     assert material_job(one_colour, spec).spec.grade is None
@@ -136,7 +136,7 @@ def test_material_job_rule(vase_file, tmp_path):
     two[plain.vertices[:, 2] > 30] = (250, 10, 10)
     job = material_job(type(plain)(**{**plain.__dict__, "colors": two}), SliceSpec(layer_height_mm=1.0,
                                                                                     materials=table))
-    assert [m.name for m in job.materials] == ["a", "b", "c"]
+    assert [m.name for m in job.spec.grade.channel_materials()] == ["a", "b", "c"]
     assert set(np.unique(job.vertex_mix.argmax(axis=1))) == {0, 2}
     assert without_materials(fraction).material is None and without_materials(one_colour).colors is None
 

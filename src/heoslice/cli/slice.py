@@ -192,9 +192,11 @@ Several parts in one stack (a multi-part job; one 1-bit droplet mask per materia
 @click.option("--channels/--rgba", "channels", default=None,
               help="Droplet masks (one 1-bit mask per material per layer, beside the 1-bit solid mask; the "
                    "print job), or an RGBA preview stack in the materials' display colours instead "
-                   "[default: masks whenever the stack holds more than one material].")
+                   "[default: masks whenever the stack holds more than one material; a one-material "
+                   "model stays a solid mask either way].")
 @click.option("--solid", "solid_only", is_flag=True,
-              help="One material: ignore the mesh's material fractions and colours (a 1-bit solid mask per layer).")
+              help="One material: ignore the mesh's material fractions and colours (a 1-bit solid mask per "
+                   "layer; not with --grade or --channels).")
 @click.option("--parts", "parts_flag", is_flag=True,
               help="Slice every MODEL as a part of ONE stack, each part's pixels carrying its material "
                    "[implied by --part, a 3MF model or a [parts] table in --materials].")
@@ -238,6 +240,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
                                          canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs),
                     scale, force, as_json, materials_file, part_options, bool(channels))
         return
+    if solid_only and (grade_kind is not None or channels):
+        raise InputError("--solid: slices one material; it cannot be combined with --grade or --channels")
     grade = grade_spec(grade_kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth,
                        offset_count, direction, materials_file, channels)
     try:

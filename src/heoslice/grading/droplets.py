@@ -35,7 +35,7 @@ def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, pa
     Each solid pixel's mix is its family's start mix at its lattice cell moved by its
     sub-region's fraction towards the target (eq. 1), halftoned by the ordered dither of
     :mod:`heoslice.grading.halftone` (in its float32 arithmetic), in one compiled pass over the
-    layer's pixels, without the RGBA image: the path of ``slice --channels`` (and of
+    layer's pixels, without the RGBA image: the path of every multi-material slice (and of
     ``render_graded(..., channels=True)``). Solid pixels outside every family jet the base
     material. Arguments as :func:`render_graded`; mask (h, w) bool, ``packed`` the same mask
     bit-packed (:func:`heoslice.layers.rasterising.packed_mask`) when the caller has it; with it, the

@@ -6,7 +6,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from heoslice.grading.cache import GradingCache
 from heoslice.grading.droplets import labelled_droplet_planes
@@ -94,6 +93,8 @@ def _paint_start_contours(image: np.ndarray, mask: np.ndarray, points: np.ndarra
     with the colour at that edge's nearest point (interpolated between the layer's points, (p, 3) float
     0..255); the others keep their graded colour. The nearest edge is searched within the distance to the
     nearest point (its edge is at most that far, plus the straight points' 1e-5 mm)."""
+    from scipy.spatial import cKDTree  # here, not at the top: only contours painted in given colours need it
+
     pixels = contour_pixels(mask)
     if len(pixels) == 0 or len(points) == 0 or not loops:
         return

@@ -36,11 +36,6 @@ class MaterialJob:
     spec: SliceSpec
     vertex_mix: np.ndarray | None
 
-    @property
-    def materials(self) -> tuple:
-        """The materials of the stack's droplet masks, in channel order (() for a one-material stack)."""
-        return self.spec.grade.channel_materials() if self.spec.channels else ()
-
 
 def _plain_grade(table: tuple[Material, ...]):
     """The grading specification of a mesh that carries materials but asks for no gradient: every
@@ -53,6 +48,7 @@ def _plain_grade(table: tuple[Material, ...]):
 
 
 def _position(materials: tuple, material) -> int:
+    """The index of ``material`` among ``materials`` (the same name and colour)."""
     return next(i for i, m in enumerate(materials) if (m.name, m.color) == (material.name, material.color))
 
 

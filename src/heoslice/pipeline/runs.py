@@ -26,8 +26,9 @@ SlicedRun = tuple[Contours, float, float]
 @dataclass(frozen=True)
 class RunContext:
     """What every run of planes needs: the mesh, the planes ((L,) float, mm), each face's z-range
-    ((m,) lowest and highest, mm), the grid, the spec (as :func:`heoslice.pipeline.materials.material_job` settled it), the stack
-    directory and each vertex's material mix ((n, K) float or None, :class:`MaterialJob`)."""
+    ((m,) lowest and highest, mm), the grid, the spec (as
+    :func:`heoslice.pipeline.materials.material_job` settled it), the stack directory and each vertex's
+    material mix ((n, K) float or None, :class:`heoslice.pipeline.materials.MaterialJob`)."""
 
     mesh: Mesh
     z: np.ndarray

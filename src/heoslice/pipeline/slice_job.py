@@ -125,7 +125,7 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
         context = RunContext(mesh=mesh, z=z, face_range=face_z_range(mesh.vertices, mesh.faces), grid=grid,
                              spec=spec, directory=directory, vertex_mix=job.vertex_mix)
         run_all(context, spec.worker_count(), on_done)
-        mode = _image_mode(mesh, spec)
+        mode = _image_mode(spec)
         droplets = _droplet_materials(spec)
         manifest = build_manifest(
             source_file=mesh.source.name, source_sha256=mesh.sha256, layer_height_mm=spec.layer_height_mm,
@@ -141,7 +141,7 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
         return manifest, times
 
 
-def _image_mode(mesh: Mesh, spec: SliceSpec) -> str:
+def _image_mode(spec: SliceSpec) -> str:
     """The layer images' mode: RGBA for a graded preview stack (materials' colours), else 1-bit: the solid
     mask (with droplet masks, which carry the materials; a multi-part job's too)."""
     return "RGBA" if spec.parts is None and spec.grade is not None and not spec.channels else "1"
