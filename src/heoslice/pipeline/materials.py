@@ -53,14 +53,11 @@ def _position(materials: tuple, material) -> int:
 
 
 def _fraction_mix(fraction: np.ndarray, grade) -> np.ndarray:
-    """(n, K) mix of a per-vertex material fraction m ((n,) float): 1 - m of the base, m of the second."""
-    materials = grade.channel_materials()
-    m = np.clip(np.nan_to_num(np.asarray(fraction, dtype=np.float64)), 0.0, 1.0)
-    mix = np.zeros((len(m), len(materials)))
-    mix[:, _position(materials, grade.base)] = 1.0 - m
-    if grade.second is not None:
-        mix[:, _position(materials, grade.second)] += m
-    return mix
+    """(n, K) mix of a per-vertex material fraction m ((n,) float): 1 - m of the base, m of the second
+    (:func:`heoslice.grading.materials.point_mixes`, the one place that rule is written)."""
+    from heoslice.grading.materials import point_mixes  # grading is loaded already: _plain_grade or --grade
+
+    return point_mixes(grade, np.nan_to_num(np.asarray(fraction, dtype=np.float64)))
 
 
 def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
