@@ -3,14 +3,18 @@ and solid shown dark on white in the files as in the previews."""
 
 from __future__ import annotations
 
+import io
 import subprocess
 import sys
 
 import numpy as np
 import tifffile
 from helpers import in_process
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from PIL import Image
 
+import heoslice
 from heoslice import procedural
 
 
@@ -38,3 +42,46 @@ def test_layers_are_calibrated_in_mm_with_the_layer_height_as_z_spacing(tmp_path
     done = subprocess.run([sys.executable, "-m", "heoslice", "preview", tmp_path / "s", "--layer", "4",
                            "-o", preview], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
+
+
+def _tifffile_reference(packed: np.ndarray, width: int, dpi, compression: str, spacing, rows: int, level: int) -> bytes:
+    """The file tifffile itself writes from the same compressed strips and tags (the test's reference)."""
+    from heoslice.stack.tiff import COMPRESSIONS, _strip_codec, calibration
+
+    codec = _strip_codec(compression, level)
+    strips = [codec(packed[row:row + rows].tobytes()) for row in range(0, packed.shape[0], rows)]
+    buffer = io.BytesIO()
+    tifffile.imwrite(buffer, data=iter(strips), shape=(packed.shape[0], width), dtype=bool,
+                     compression=COMPRESSIONS[compression], photometric="miniswhite", rowsperstrip=rows,
+                     software=f"heoslice {heoslice.__version__}", **calibration(dpi, spacing))
+    return buffer.getvalue()
+
+
+@settings(max_examples=60, deadline=None)
+@given(height=st.integers(1, 700), width=st.integers(1, 90), rows=st.sampled_from([1, 7, 64, 256]),
+       compression=st.sampled_from(["deflate", "lzw", "packbits"]), level=st.integers(1, 3),
+       dpi=st.sampled_from([(600.0, 600.0), (200.0, 100.0), (1234.5, 77.0)]),
+       spacing=st.sampled_from([None, 0.1, 0.025]), density=st.floats(0, 1), seed=st.integers(0, 2**16))
+def test_bilevel_layers_are_the_bytes_tifffile_writes(height, width, rows, compression, level, dpi, spacing,
+                                                       density, seed):
+    """A 1-bit layer laid out from the recalled layout of its form is byte for byte the file tifffile writes
+    from the same strips, for any size, strip height, codec, resolution and spacing (one strip, many)."""
+    from heoslice.stack.tiff import encode_bilevel_tiff
+
+    rng = np.random.default_rng(seed)
+    bits = rng.random((height, width)) < density
+    packed = np.packbits(bits, axis=1)
+    data = encode_bilevel_tiff(packed, width, dpi, compression, spacing, rows_per_strip=rows, level=level)
+    assert data == _tifffile_reference(packed, width, dpi, compression, spacing, rows, level)
+    assert np.array_equal(tifffile.imread(io.BytesIO(data)), bits)
+
+
+def test_a_layout_tifffile_no_longer_writes_falls_back_to_tifffile(monkeypatch):
+    """When the recalled layout is unusable (a tifffile that lays files out otherwise), the layer is still
+    tifffile's own file."""
+    from heoslice.stack import tiff
+
+    monkeypatch.setattr(tiff, "bilevel_layout", lambda form: None)
+    packed = np.packbits(np.eye(300, 40, dtype=bool), axis=1)
+    data = tiff.encode_bilevel_tiff(packed, 40, (600.0, 600.0), "deflate", 0.1)
+    assert data == _tifffile_reference(packed, 40, (600.0, 600.0), "deflate", 0.1, 256, 1)

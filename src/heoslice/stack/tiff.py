@@ -3,8 +3,10 @@ defensive decoding that checks a file's layout against the manifest before any p
 
 from __future__ import annotations
 
+import functools
 import io
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -79,38 +81,102 @@ def _strip_codec(compression: str, level: int = 1):
     return codec
 
 
+@dataclass(frozen=True, slots=True)
+class BilevelLayout:
+    """Where tifffile puts a 1-bit layer's strips, for one form (size, dpi, spacing, codec, strip rows):
+    its header and tags (``head``, bytes up to the first strip), the file offsets of the StripOffsets and
+    StripByteCounts values (uint32 each, little-endian) and of the first strip. Strips follow one
+    another to the end of the file, so a layer of this form is ``head`` with the two tables patched,
+    then its strips: the bytes tifffile writes, without its per-file cost."""
+
+    head: bytes
+    offsets_at: int
+    counts_at: int
+    strips: int
+
+
 def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float], compression: str,
                         spacing_mm: float | None = None, rows_per_strip: int = 256, level: int = 1) -> bytes:
     """TIFF bytes of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, MSB first).
 
     ``level`` is deflate's (droplet masks use :data:`MASK_DEFLATE_LEVEL`; other codecs ignore it).
 
-    The strips are compressed here, straight from the packed bits, with tifffile's
-    own codec for the chosen compression, and handed to tifffile already encoded:
-    the mask is never expanded to one byte per pixel. Strips of 256 rows (~120 KB of
-    bits at 3800 px) are cheaper to write than 64 (figures in benchmarks/README.md).
+    The strips are compressed here, straight from the packed bits (the mask is never expanded to
+    one byte per pixel), and laid out as tifffile lays them out for this form
+    (:func:`bilevel_layout`, asked once per form): the same bytes as tifffile's own file.
+    Strips of 256 rows (~120 KB of bits at 3800 px) are cheaper to write than 64 (figures in
+    benchmarks/README.md).
     """
+    height = packed.shape[0]
+    form = (height, width, tuple(float(d) for d in dpi), compression, spacing_mm, rows_per_strip)
+    if COMPRESSIONS[compression] is None:
+        return _tifffile_bilevel(packed, form, None)
+    codec = _strip_codec(compression, level)
+    strips = [codec(packed[row:row + rows_per_strip].tobytes()) for row in range(0, height, rows_per_strip)]
+    layout = bilevel_layout(form)
+    if layout is None:
+        return _tifffile_bilevel(packed, form, strips)
+    counts = np.array([len(strip) for strip in strips], dtype="<u4")
+    if counts.sum(dtype=np.int64) + len(layout.head) >= 1 << 32:
+        return _tifffile_bilevel(packed, form, strips)
+    offsets = (len(layout.head) + np.cumsum(counts) - counts).astype("<u4")
+    head = bytearray(layout.head)
+    head[layout.offsets_at:layout.offsets_at + 4 * len(strips)] = offsets.tobytes()
+    head[layout.counts_at:layout.counts_at + 4 * len(strips)] = counts.tobytes()
+    return b"".join([head, *strips])
+
+
+@functools.lru_cache(maxsize=16)
+def bilevel_layout(form: tuple) -> BilevelLayout | None:
+    """The :class:`BilevelLayout` tifffile gives a 1-bit layer of ``form`` (as
+    :func:`encode_bilevel_tiff` builds it), read from a file it writes with placeholder strips of
+    distinct lengths; None when its layout is not the one described there (tifffile changed)."""
     import tifffile
 
-    height = packed.shape[0]
+    height, width = form[0], form[1]
+    strips = -(-height // form[5])
+    sample = [bytes([number % 251]) * (3 + 2 * number) for number in range(strips)]
+    data = _tifffile_bilevel(None, form, sample)
+    with tifffile.TiffFile(io.BytesIO(data)) as tiff:
+        page = tiff.pages.first
+        tags = page.tags
+        offsets, counts = list(page.dataoffsets), list(page.databytecounts)
+        offsets_tag, counts_tag = tags.get(273), tags.get(279)
+        if tiff.byteorder != "<" or tiff.is_bigtiff or offsets_tag is None or counts_tag is None:
+            return None
+        if offsets_tag.dtype != 4 or counts_tag.dtype != 4:
+            return None
+        positions = (offsets_tag.valueoffset, counts_tag.valueoffset)
+    first = offsets[0]
+    expected = list(first + np.cumsum([0] + [len(s) for s in sample[:-1]]))
+    if counts != [len(s) for s in sample] or offsets != expected or first + sum(counts) != len(data):
+        return None
+    if b"".join(sample) != data[first:]:
+        return None
+    return BilevelLayout(data[:first], positions[0], positions[1], strips)
+
+
+def _tifffile_bilevel(packed: np.ndarray | None, form: tuple, strips: list[bytes] | None) -> bytes:
+    """tifffile's own file of a 1-bit layer of ``form``: from encoded ``strips``, or (no compression)
+    from the ``packed`` bits expanded."""
+    import tifffile
+
+    height, width, dpi, compression, spacing_mm, rows_per_strip = form
     options: dict = {
-        "shape": (height, width),
-        "dtype": bool,
         **calibration(dpi, spacing_mm),
         "photometric": "miniswhite",
         "rowsperstrip": rows_per_strip,
         "software": f"heoslice {__version__}",
     }
     buffer = io.BytesIO()
-    codec_name = COMPRESSIONS[compression]
-    if codec_name is None:
+    if strips is None:
         mask = np.unpackbits(packed, axis=1, count=width).astype(bool)
-        tifffile.imwrite(buffer, mask, **{k: v for k, v in options.items() if k not in ("shape", "dtype")})
-        return buffer.getvalue()
-    codec = _strip_codec(compression, level)
-    strips = (codec(packed[row:row + rows_per_strip].tobytes()) for row in range(0, height, rows_per_strip))
-    tifffile.imwrite(buffer, data=strips, compression=codec_name, **options)
+        tifffile.imwrite(buffer, mask, **options)
+    else:
+        tifffile.imwrite(buffer, data=iter(strips), shape=(height, width), dtype=bool,
+                         compression=COMPRESSIONS[compression], **options)
     return buffer.getvalue()
+
 
 def quiet_tifffile() -> None:
     """tifffile logs warnings about odd files to stderr; heoslice reports problems itself, one line each."""
