@@ -25,3 +25,29 @@ def test_a_layer_takes_the_last_layers_tiff_only_for_the_same_solid_bits():
     other = _solid_tiff(np.packbits(moved, axis=1), int(moved.sum()), job, cache)
     assert np.array_equal(tifffile.imread(io.BytesIO(other)).astype(bool), moved)
     assert np.array_equal(tifffile.imread(io.BytesIO(first)).astype(bool), mask)
+
+
+def test_multi_material_layers_are_deflated_harder_than_one_material_ones(tmp_path):
+    """Every 1-bit file of a droplet-mask stack (solid layers and masks) holds its pixels deflated at
+    MULTI_MATERIAL_DEFLATE_LEVEL; a one-material stack's layers at level 1 (its fastest)."""
+    from helpers import in_process
+
+    from heoslice import procedural
+    from heoslice.stack import encode_bilevel_tiff
+    from heoslice.stack.tiff import MULTI_MATERIAL_DEFLATE_LEVEL
+
+    procedural.sphere(6.0, subdivisions=3).export(tmp_path / "ball.ply")
+    for name, extra, level in (("plain", (), 1),
+                               ("graded", ("--grade", "linear", "--to", "0,255,0", "--channels"),
+                                MULTI_MATERIAL_DEFLATE_LEVEL)):
+        assert in_process("slice", tmp_path / "ball.ply", "--layer", "2", "--dpi", "300", "-o", tmp_path / name,
+                          *extra) == 0
+        files = sorted((tmp_path / name).glob("layer_*.tif"))
+        assert len(files) == (6 if name == "plain" else 18)
+        for path in files:
+            with tifffile.TiffFile(path) as tiff:
+                page = tiff.pages.first
+                pixels, spacing = page.asarray(), tiff.imagej_metadata["spacing"]
+            again = encode_bilevel_tiff(np.packbits(pixels, axis=1), pixels.shape[1], (300.0, 300.0), "deflate",
+                                        spacing, level=level)
+            assert path.read_bytes() == again, path.name

@@ -16,7 +16,7 @@ from heoslice.layers.slicing import interpolate_at
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec, channel_name
 from heoslice.stack import encode_bilevel_tiff, encode_tiff, layer_file_name, write_file
-from heoslice.stack.tiff import MASK_DEFLATE_LEVEL
+from heoslice.stack.tiff import MULTI_MATERIAL_DEFLATE_LEVEL
 
 if TYPE_CHECKING:  # the grading package loads numba's kernels: a one-material slice never imports it
     from heoslice.grading import GradeSpec, GradingCache
@@ -97,15 +97,16 @@ def render_and_write(job: LayerJob, cache: PipelineCache | None = None, packed: 
     return job.index, digest, solid, rendered - started, encoded - rendered, ()
 
 
-def _solid_tiff(packed: np.ndarray, solid: int, job: LayerJob, cache: PipelineCache | None) -> bytes:
-    """The 1-bit TIFF of a layer's solid bits ((h, ceil(w / 8)) uint8, ``solid`` of them set): the last
-    layer's (kept in ``cache``) when the bits are the same, as an extruded part's layers are (the bits are
-    compared only when their counts are equal)."""
-    form = (job.grid.width, job.dpi, job.compression, solid)
+def _solid_tiff(packed: np.ndarray, solid: int, job: LayerJob, cache: PipelineCache | None,
+                level: int = 1) -> bytes:
+    """The 1-bit TIFF of a layer's solid bits ((h, ceil(w / 8)) uint8, ``solid`` of them set) at deflate
+    ``level``: the last layer's (kept in ``cache``) when the bits are the same, as an extruded part's layers
+    are (the bits are compared only when their counts are equal)."""
+    form = (job.grid.width, job.dpi, job.compression, level, solid)
     last = None if cache is None else cache.solid
     if last is not None and last.form == form and np.array_equal(last.packed, packed):
         return last.data
-    data = encode_bilevel_tiff(packed, job.grid.width, job.dpi, job.compression, job.layer_height_mm)
+    data = encode_bilevel_tiff(packed, job.grid.width, job.dpi, job.compression, job.layer_height_mm, level=level)
     if cache is not None:
         cache.solid = EncodedSolid(form, packed, data)
     return data
@@ -133,9 +134,9 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed:
         rendered = time.perf_counter()
         width = job.grid.width
         solid = count_solid(packed)
-        data = _solid_tiff(packed, solid, job, cache)
+        data = _solid_tiff(packed, solid, job, cache, MULTI_MATERIAL_DEFLATE_LEVEL)
         pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm,
-                                             level=MASK_DEFLATE_LEVEL), count_solid(plane))
+                                             level=MULTI_MATERIAL_DEFLATE_LEVEL), count_solid(plane))
                   for path, plane in zip(graded.channel_paths, planes)]
         encoded = time.perf_counter()
         digest = write_file(job.path, data)

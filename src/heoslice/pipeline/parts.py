@@ -27,6 +27,7 @@ from heoslice.layers.rasterising import Grid, count_solid, packed_mask
 from heoslice.material import Material, PartSetting, nearest_materials, table_material
 from heoslice.pipeline.spec import channel_name
 from heoslice.stack import encode_bilevel_tiff, layer_file_name, write_file
+from heoslice.stack.tiff import MULTI_MATERIAL_DEFLATE_LEVEL
 
 if TYPE_CHECKING:
     from heoslice.layers.contours import Contours
@@ -170,9 +171,11 @@ def render_parts_run(contours: Contours, context: RunContext, first_layer: int) 
                                  contours.offsets[first:last + 1] - start, loop_part[first:last], grid)
         solid, planes = compose_part_masks(masks, plan, shape)
         rendered = time.perf_counter()
-        data = encode_bilevel_tiff(solid, grid.width, spec.dpi, spec.compression, spec.layer_height_mm)
+        data = encode_bilevel_tiff(solid, grid.width, spec.dpi, spec.compression, spec.layer_height_mm,
+                                   level=MULTI_MATERIAL_DEFLATE_LEVEL)
         pieces = [(layer_file_name(index, channel_name(material)),
-                   encode_bilevel_tiff(plane, grid.width, spec.dpi, spec.compression, spec.layer_height_mm),
+                   encode_bilevel_tiff(plane, grid.width, spec.dpi, spec.compression, spec.layer_height_mm,
+                                       level=MULTI_MATERIAL_DEFLATE_LEVEL),
                    count_solid(plane))
                   for material, plane in zip(plan.channel_materials(), planes)]
         encoded = time.perf_counter()

@@ -20,9 +20,11 @@ DEFAULT_COMPRESSION = "deflate"
 MM_PER_INCH = 25.4
 #: TIFF compression codes a layer may use: none, LZW, deflate (Adobe and old code), PackBits.
 TIFF_COMPRESSIONS = (1, 5, 8, 32946, 32773)
-#: zlib level of a droplet mask's deflate strips: a halftone's dither patterns repeat at a short
-#: distance, which level 1's matcher misses and level 2's finds (sizes and times in benchmarks/README.md).
-MASK_DEFLATE_LEVEL = 2
+#: zlib level of every 1-bit layer of a multi-material stack (solid layers and droplet masks): a
+#: halftone's dither patterns repeat at a short distance, which level 1's matcher misses and level 2's
+#: finds, and the solid layers shrink by 40 % for a small part of a graded layer's cost (sizes and times
+#: in benchmarks/README.md). A one-material stack keeps level 1, its fastest.
+MULTI_MATERIAL_DEFLATE_LEVEL = 2
 
 
 def calibration(dpi: tuple[float, float], spacing_mm: float | None) -> dict:
@@ -99,7 +101,7 @@ def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float]
                         spacing_mm: float | None = None, rows_per_strip: int = 256, level: int = 1) -> bytes:
     """TIFF bytes of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, MSB first).
 
-    ``level`` is deflate's (droplet masks use :data:`MASK_DEFLATE_LEVEL`; other codecs ignore it).
+    ``level`` is deflate's (multi-material stacks use :data:`MULTI_MATERIAL_DEFLATE_LEVEL`; other codecs ignore it).
 
     The strips are compressed here, straight from the packed bits (the mask is never expanded to
     one byte per pixel), and laid out as tifffile lays them out for this form
