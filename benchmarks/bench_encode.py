@@ -1,0 +1,89 @@
+"""Size and time of a stack's 1-bit files re-encoded at each deflate level, and the cost of laying a file
+out from its recalled layout against tifffile writing it (the figures behind stack/tiff.py's choices).
+
+Reads every ``--every``-th layer of STACK (its solid layers and, per material, its droplet masks),
+re-encodes each at zlib levels 1-5 with :func:`heoslice.stack.encode_bilevel_tiff` (best of
+``--repeats``) and prints the mean size and time per file; then times one solid layer through
+tifffile.imwrite from the same strips against the recalled layout, alternating.
+
+Examples:
+  heoslice slice liver.ply --grade linear --to 0,255,0 --channels -o liver_stack
+  python benchmarks/bench_encode.py liver_stack
+  python benchmarks/bench_encode.py liver_stack --every 10 --levels 1,2,6
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import time
+from pathlib import Path
+
+import numpy as np
+import tifffile
+
+from heoslice.stack import encode_bilevel_tiff, read_manifest
+from heoslice.stack.tiff import COMPRESSIONS, _strip_codec, calibration
+
+
+def best_of(repeats: int, work) -> float:
+    """The fastest of ``repeats`` runs of ``work()``, s."""
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        work()
+        times.append(time.perf_counter() - started)
+    return min(times)
+
+
+def by_tifffile(packed: np.ndarray, width: int, dpi, spacing) -> bytes:
+    """tifffile.imwrite's file of the same deflate strips (the layout's baseline)."""
+    codec = _strip_codec("deflate", 1)
+    strips = [codec(packed[row:row + 256].tobytes()) for row in range(0, len(packed), 256)]
+    buffer = io.BytesIO()
+    tifffile.imwrite(buffer, data=iter(strips), shape=(len(packed), width), dtype=bool,
+                     compression=COMPRESSIONS["deflate"], photometric="miniswhite", rowsperstrip=256,
+                     software="bench", **calibration(dpi, spacing))
+    return buffer.getvalue()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="\n".join(__doc__.split("\n\n")[-1:]))
+    parser.add_argument("stack", type=Path)
+    parser.add_argument("--every", type=int, default=25, help="take every N-th layer [25]")
+    parser.add_argument("--levels", default="1,2,3,4,5", help="zlib levels [1,2,3,4,5]")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per figure, best taken [3]")
+    args = parser.parse_args(argv)
+    manifest = read_manifest(args.stack)
+    width, dpi, spacing = manifest["image"]["width"], tuple(manifest["dpi"]), manifest["layer_height_mm"]
+    kinds: dict[str, list[np.ndarray]] = {}
+    for entry in manifest["layers"][::args.every]:
+        files = [("solid", entry["file"])] + [(channel["material"], channel["file"])
+                                              for channel in entry.get("channels", [])]
+        for kind, name in files:
+            bits = tifffile.imread(args.stack / name).astype(bool)
+            kinds.setdefault(kind, []).append(np.packbits(bits, axis=1))
+    print(f"{args.stack}: {width} px wide, every {args.every}th layer")
+    for kind, layers in kinds.items():
+        for level in (int(v) for v in args.levels.split(",")):
+            size = np.mean([len(encode_bilevel_tiff(p, width, dpi, "deflate", spacing, level=level))
+                            for p in layers])
+            seconds = best_of(args.repeats, lambda: [encode_bilevel_tiff(p, width, dpi, "deflate", spacing,
+                                                                         level=level) for p in layers])
+            print(f"  {kind:8s} level {level}: {size / 1024:6.1f} KB  {seconds / len(layers) * 1e3:6.3f} ms a file")
+    solid = kinds["solid"][len(kinds["solid"]) // 2]
+    pair = {"tifffile.imwrite": lambda: by_tifffile(solid, width, dpi, spacing),
+            "recalled layout": lambda: encode_bilevel_tiff(solid, width, dpi, "deflate", spacing)}
+    times: dict[str, list[float]] = {name: [] for name in pair}
+    for _ in range(5):
+        for name, work in pair.items():
+            times[name].append(best_of(40, work))
+    for name, values in times.items():
+        print(f"  one solid layer, level 1, {name}: {np.median(values) * 1e3:.3f} ms (median of 5, best of 40 each)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
