@@ -131,11 +131,15 @@ def _choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.
 
 
 def _distinct_rows(flat: np.ndarray) -> np.ndarray:
-    """The distinct rows of (n, K) float32 mixes, by their bits (np.unique's axis=0 sort of row records
-    is slow; a lexsort of the bit columns is not)."""
+    """The distinct rows of (n, K) float32 mixes, by their bits: np.unique of one word per row when a row
+    fits one (K <= 2: two materials, the common case), else a lexsort of the bit columns (np.unique's
+    axis=0 sort of row records is slow)."""
     if len(flat) < 2 or (flat == flat[0]).all():
         return flat[:1]
     bits = np.ascontiguousarray(flat).view(np.uint32)
+    word = {1: np.uint32, 2: np.uint64}.get(bits.shape[1])
+    if word is not None:
+        return np.unique(bits.view(word).ravel()).view(np.float32).reshape(-1, bits.shape[1])
     ordered = bits[np.lexsort(bits.T[::-1])]
     keep = np.r_[True, (ordered[1:] != ordered[:-1]).any(axis=1)]
     return ordered[keep].view(np.float32)
