@@ -4,12 +4,15 @@ out from its recalled layout against tifffile writing it (the figures behind sta
 Reads every ``--every``-th layer of STACK (its solid layers and, per material, its droplet masks),
 re-encodes each at zlib levels 1-5 with :func:`heoslice.stack.encode_bilevel_tiff` (best of
 ``--repeats``) and prints the mean size and time per file; then times one solid layer through
-tifffile.imwrite from the same strips against the recalled layout, alternating.
+tifffile.imwrite from the same strips against the recalled layout, alternating. ``--codecs`` adds, per
+droplet mask of the first material, whole-mask sizes under other lossless codecs (imagecodecs'), to see
+how small any codec gets a dithered mask.
 
 Examples:
   heoslice slice liver.ply --grade linear --to 0,255,0 --channels -o liver_stack
   python benchmarks/bench_encode.py liver_stack
   python benchmarks/bench_encode.py liver_stack --every 10 --levels 1,2,6
+  python benchmarks/bench_encode.py liver_stack --every 50 --codecs
 """
 
 from __future__ import annotations
@@ -47,6 +50,27 @@ def by_tifffile(packed: np.ndarray, width: int, dpi, spacing) -> bytes:
     return buffer.getvalue()
 
 
+def codec_survey(packed: list[np.ndarray], width: int) -> None:
+    """Mean size and time a mask of each codec over whole packed masks (no strips, no TIFF)."""
+    import imagecodecs
+
+    codecs = {
+        "zlib-ng 2 (the stack's)": lambda p: imagecodecs.zlibng_encode(p.tobytes(), level=2),
+        "zlib-ng 9": lambda p: imagecodecs.zlibng_encode(p.tobytes(), level=9),
+        "zstd 3": lambda p: imagecodecs.zstd_encode(p.tobytes(), level=3),
+        "zstd 19": lambda p: imagecodecs.zstd_encode(p.tobytes(), level=19),
+        "lzma 6": lambda p: imagecodecs.lzma_encode(p.tobytes()),
+        "brotli 5": lambda p: imagecodecs.brotli_encode(p.tobytes(), level=5),
+        "webp lossless": lambda p: imagecodecs.webp_encode(
+            np.repeat(np.unpackbits(p, axis=1, count=width)[..., None] * np.uint8(255), 3, axis=2),
+            lossless=True, level=3),
+    }
+    for name, encode in codecs.items():
+        started = time.perf_counter()
+        size = np.mean([len(encode(p)) for p in packed])
+        print(f"  {name:24s} {size / 1024:7.1f} KB  {(time.perf_counter() - started) / len(packed) * 1e3:7.1f} ms")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -55,6 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--every", type=int, default=25, help="take every N-th layer [25]")
     parser.add_argument("--levels", default="1,2,3,4,5", help="zlib levels [1,2,3,4,5]")
     parser.add_argument("--repeats", type=int, default=3, help="runs per figure, best taken [3]")
+    parser.add_argument("--codecs", action="store_true", help="also whole-mask sizes under other codecs")
     args = parser.parse_args(argv)
     manifest = read_manifest(args.stack)
     width, dpi, spacing = manifest["image"]["width"], tuple(manifest["dpi"]), manifest["layer_height_mm"]
@@ -82,6 +107,10 @@ def main(argv: list[str] | None = None) -> int:
             times[name].append(best_of(40, work))
     for name, values in times.items():
         print(f"  one solid layer, level 1, {name}: {np.median(values) * 1e3:.3f} ms (median of 5, best of 40 each)")
+    masks = [kind for kind in kinds if kind != "solid"]
+    if args.codecs and masks:
+        print(f"  whole {masks[0]} masks under other codecs:")
+        codec_survey(kinds[masks[0]], width)
     return 0
 
 
