@@ -925,3 +925,27 @@ def test_rings_differing_only_in_their_straight_points_have_the_same_edges(seed,
     assert len(first.x) == count
     for name in ("x", "y", "vx", "vy"):
         assert np.array_equal(getattr(first, name), getattr(second, name)), name
+
+
+def test_inside_centres_counts_a_vertex_once_where_an_edges_end_rounds_off_it():
+    """A ring vertex V at a tiny height after an edge from far below it: that edge's start plus its vector
+    rounds to another height than V (a symmetric vase's contour on its axis). A row of centres between
+    the two heights crosses the ring once at V, as solid_mask says, not zero times (the whole row left
+    of the opposite side taken as outside)."""
+    from heoslice.layers.rasterising import Grid, solid_mask
+
+    low, tiny = -1.5100663520656847, 1.8867087487162623e-15
+    loop = np.array([[-15.40614612290143, tiny], [-14.0, -low], [14.0, -low], [15.4, 0.0], [14.0, low],
+                     [-14.0, low]])
+    edges = ring_edges(loop, np.array([0, len(loop)]), [0])
+    arrived = low + (tiny - low)  # where the edge from (-14, low) ends: not tiny
+    assert arrived != tiny
+    gap = 0.5 * (arrived + tiny)
+    grid = Grid(width=70, height=4, x_left=-17.5, y_top=0.25 + gap, px=0.5, py=0.5)
+    row_height = grid.y_top - 0.5 * grid.py
+    assert min(arrived, tiny) <= row_height < max(arrived, tiny)
+    inside = inside_centres(edges, LatticeFrame(grid.x_left, grid.y_top, grid.px, grid.py), grid.height, grid.width)
+    expected = solid_mask(loop[::-1] if not shapely.LinearRing(loop).is_ccw else loop, np.array([0, len(loop)]), grid)
+    assert expected[0].sum() > 50
+    assert np.array_equal(inside, expected)
+

@@ -43,12 +43,18 @@ class RingEdges:
     knot_point: np.ndarray
 
 
+def following_edges(edges: RingEdges) -> np.ndarray:
+    """(n,) int: the edge after each edge round its ring (a ring's last edge is followed by its first)."""
+    last = np.r_[np.flatnonzero(np.diff(edges.ring)), len(edges.ring) - 1]
+    following = np.arange(1, len(edges.ring) + 1)
+    following[last] = np.r_[0, last[:-1] + 1]
+    return following
+
+
 def convex_rings(edges: RingEdges) -> bool:
     """Whether every ring of the edges turns one way only (no reflex vertex; turns under 1e-9 rad ignored)."""
-    last = np.r_[np.flatnonzero(np.diff(edges.ring)), len(edges.ring) - 1]
-    first = np.r_[0, last[:-1] + 1]
-    following = np.arange(1, len(edges.ring) + 1)
-    following[last] = first
+    first = np.r_[0, np.flatnonzero(np.diff(edges.ring)) + 1]
+    following = following_edges(edges)
     cross = edges.vx * edges.vy[following] - edges.vy * edges.vx[following]
     scale = np.sqrt(edges.inv_len2 * edges.inv_len2[following])
     turn = np.sign(np.where(np.abs(cross * scale) > 1e-9, cross, 0.0))

@@ -8,6 +8,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
+from heoslice.grading.edges import RingEdges, following_edges
 from heoslice.grading.edges_kernels import EdgeArrays, edge_arrays
 from heoslice.grading.jit import JIT, f64, i64
 
@@ -62,17 +63,18 @@ def signed_feet(edge: np.ndarray, frame: LatticeFrame, edges: EdgeArrays, inside
 
 
 @numba.njit(**JIT)
-def _inside_centres(edges, frame, rows, cols):  # pragma: no cover - compiled
+def _inside_centres(edges, end_y, frame, rows, cols):  # pragma: no cover - compiled
     """(rows, cols) bool: lattice centres (x0 + (j + 1/2) dx, y0 - (i + 1/2) dy) inside the closed rings
-    whose edges run from (ex, ey) by (evx, evy), by the parity of the edges crossed to their left
-    (each edge half-open in y)."""
+    whose edges run from (ex, ey) by (evx, evy) to a point at height end_y (the next edge's ey), by the
+    parity of the edges crossed to their left (each edge half-open in y, between the very values of its
+    two end points, so a vertex at a centre's height is crossed once where the ring passes it)."""
     ex, ey, evx, evy, _ = edges
     x0, y0, dx, dy = frame
     flips = np.zeros((rows, cols + 1), dtype=np.uint8)
     for e in range(len(ex)):
-        if evy[e] == 0.0:
+        if end_y[e] == ey[e]:
             continue
-        low, high = min(ey[e], ey[e] + evy[e]), max(ey[e], ey[e] + evy[e])
+        low, high = min(ey[e], end_y[e]), max(ey[e], end_y[e])
         first = max(int(np.ceil((y0 - high) / dy - 0.5)) - 1, 0)
         last = min(int(np.floor((y0 - low) / dy - 0.5)) + 1, rows - 1)
         for i in range(first, last + 1):
@@ -91,11 +93,13 @@ def _inside_centres(edges, frame, rows, cols):  # pragma: no cover - compiled
     return inside
 
 
-def inside_centres(edges: EdgeArrays, frame: LatticeFrame, rows: int, cols: int) -> np.ndarray:
+def inside_centres(edges: RingEdges, frame: LatticeFrame, rows: int, cols: int) -> np.ndarray:
     """(rows, cols) bool: the centres of a lattice (``frame``, or a Lattice) inside the closed rings of
-    ``edges`` (EdgeArrays or RingEdges), even-odd: inside any of them when they neither cross nor nest
-    (compiled :func:`_inside_centres`)."""
-    return _inside_centres(edge_arrays(edges), frame_of(frame), int(rows), int(cols))
+    ``edges``, even-odd: inside any of them when they neither cross nor nest (compiled
+    :func:`_inside_centres`; each edge ends at the height its ring's next edge starts at, not at
+    y + vy, which rounds)."""
+    end_y = f64(edges.y)[following_edges(edges)]
+    return _inside_centres(edge_arrays(edges), end_y, frame_of(frame), int(rows), int(cols))
 
 
 @numba.njit(**JIT)
