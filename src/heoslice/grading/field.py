@@ -225,10 +225,15 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
     measures = [memo.earlier((rings.key, padded_lattice)) or ring_measures(rings, padded_lattice)
                 for rings in ring_sets]
     wanted = ~np.logical_or.reduce([m.far for m in measures])
-    centres = [measured_centres(rings, m, padded_lattice, wanted) for rings, m in zip(ring_sets, measures)]
-    for rings, (_, m) in zip(ring_sets, centres):
+    # one sub-region (a layout without a gradient): only the starting rings' feet are read, and k = 1 throughout
+    measured = ring_sets if layout.count > 1 else ring_sets[:1]
+    centres = [measured_centres(rings, m, padded_lattice, wanted) for rings, m in zip(measured, measures)]
+    for rings, (_, m) in zip(measured, centres):
         memo.keep((rings.key, padded_lattice), m)
     start_at, ends_at = centres[0][0], [at for at, _ in centres[1:]]
+    if layout.count == 1:
+        return (_single_region_index(shape, mask, (lattice.row0, lattice.col0), label_base),
+                start_at[2][:, 1:-1, 1:-1], start_at[3][1:-1, 1:-1])
     d = np.stack([start_at[0]] + [at[0] for at in ends_at])
     g = np.stack([start_at[1]] + [at[1] for at in ends_at])
     s, grad = _band_coordinate(layout, d, g)
@@ -270,6 +275,18 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
                      [(rings, np.abs(at[0][inner][cells]), model)
                       for rings, at, model in zip(ring_sets, [start_at] + ends_at, models)], mask, label_base)
     return index, start_at[2][:, 1:-1, 1:-1], start_at[3][inner]
+
+
+def _single_region_index(shape: tuple[int, int], mask: np.ndarray | None, origin: tuple[int, int],
+                         label_base: int) -> np.ndarray:
+    """k = 1 at every pixel of a one-sub-region family's box ((rows, cols), labelled like
+    :func:`_expand_planes`: 1 + label_base, with the layer's ``mask`` on its solid pixels only). Pixels of
+    the box off the family hold the label too; they are solid only where another family paints its own."""
+    index = np.full(shape, 1 + label_base, dtype=label_dtype(1 + label_base))
+    if mask is not None:
+        row, col = origin
+        index[~mask[row:row + shape[0], col:col + shape[1]]] = 0
+    return index
 
 
 def _exact_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: list[RingSet],
