@@ -136,3 +136,53 @@ def test_two_models_with_one_stack_name_are_refused(run_cli, models):
     code, _, err = run_cli("slice", "a/x.off", "b/x.off", *FAST)
     assert code == EXIT_INPUT and "would both be sliced into" in err
     assert not (models / "x_stack").exists()
+
+
+MATERIALS = '[materials.gel]\ncolor = "#f0f0f0"\nchannel = 1\n\n[materials.cells]\ncolor = "0,255,0"\nchannel = 2\n'
+
+
+def count_reads(monkeypatch, path: Path) -> list[Path]:
+    """The reads of ``path`` by the materials loader from now on (each call of its bounded read, listed)."""
+    from heoslice.material import materials as module
+
+    reads: list[Path] = []
+    real = module.read_bounded
+
+    def counted(target, *args, **kwargs):
+        if Path(target).resolve() == path.resolve():
+            reads.append(Path(target))
+        return real(target, *args, **kwargs)
+
+    monkeypatch.setattr(module, "read_bounded", counted)
+    return reads
+
+
+@pytest.mark.parametrize("extra, arguments", [
+    ("", ("scans/tall.off",)),
+    ("\n[shells]\n0 = \"cells\"\n", ("scans/tall.off", "--grade", "linear", "--to", "gel")),
+    ("\n[parts]\ntall = \"gel\"\nshort = \"cells\"\n", ("scans/tall.off", "scans/short.off")),
+], ids=["plain", "graded-with-shells", "parts"])
+def test_materials_file_is_read_once_per_slice(run_cli, models, monkeypatch, extra, arguments):
+    """One slice reads its --materials file once (its materials, [shells] and [parts] come from that read),
+    whether it is plain, graded with per-shell materials, or a multi-part job; the stack is still made."""
+    path = models / "mats.toml"
+    path.write_text(MATERIALS + extra)
+    reads = count_reads(monkeypatch, path)
+    code, _, err = run_cli("slice", *arguments, "--materials", path, "-o", "out", *FAST)
+    assert code == 0, err
+    assert len(reads) == 1
+    assert verify_stack(models / "out").ok
+
+
+@pytest.mark.parametrize("text", ["[materials.gel\ncolor = 1\n", "[shells]\n0 = \"gel\"\n",
+                                  MATERIALS + "\n[shells]\n0 = \"nothing-such\"\n"],
+                         ids=["not-toml", "no-materials", "bad-shell"])
+def test_a_bad_materials_file_is_one_line_naming_it(run_cli, models, text):
+    """A materials file that is not TOML, has no materials or names an unknown shell material: one line
+    naming --materials and the file, exit 2, nothing written."""
+    path = models / "mats.toml"
+    path.write_text(text)
+    code, out, err = run_cli("slice", "scans/tall.off", "--materials", path, "-o", "out", *FAST)
+    assert code == EXIT_INPUT and out == ""
+    assert err.count("\n") == 1 and err.startswith(f"heoslice: error: --materials: {path}: ")
+    assert not (models / "out").exists()

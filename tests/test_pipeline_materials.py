@@ -141,6 +141,21 @@ def test_material_job_rule(vase_file, tmp_path):
     assert without_materials(fraction).material is None and without_materials(one_colour).colors is None
 
 
+
+def test_colours_of_some_of_a_larger_table_map_to_their_own_masks(vase_file):
+    """A four-material table whose colours the mesh uses only two of (the first and the fourth): the masks are
+    the first two (M1, M2 by the default roles) and the used fourth, each vertex's mix is one at its own
+    material's column (a table material the mesh does not use has no column to look up)."""
+    plain = load_mesh(vase_file)
+    table = (Material("a", (255, 0, 0), 1), Material("b", (0, 255, 0), 2), Material("c", (0, 0, 255), 3),
+             Material("d", (255, 255, 0), 4))
+    upper = plain.vertices[:, 2] > 30
+    colors = np.where(upper[:, None], [250, 250, 5], [250, 5, 5]).astype(np.uint8)
+    job = material_job(type(plain)(**{**plain.__dict__, "colors": colors}), SliceSpec(materials=table))
+    assert [m.name for m in job.spec.grade.channel_materials()] == ["a", "b", "d"]
+    assert np.array_equal(job.vertex_mix.argmax(axis=1), np.where(upper, 2, 0))
+    assert np.array_equal(job.vertex_mix.sum(axis=1), np.ones(len(plain.vertices)))
+
 def test_interior_takes_the_material_of_the_nearest_outer_ring_point(tmp_path):
     """Where a ring's materials differ (an L-shaped prism whose vertices are red where x > 4 mm, blue elsewhere),
     every solid pixel jets the material of the outer ring's point nearest its centre, computed independently

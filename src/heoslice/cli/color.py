@@ -22,9 +22,8 @@ from heoslice.material import (
     ColorSpec,
     color_mesh,
     default_output,
-    load_materials,
-    load_shell_materials,
     material_roles,
+    read_materials_file,
     reference_kinds_taking,
     resolve_material,
     write_ply,
@@ -155,8 +154,8 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
     if max_edge is not None and not max_edge > 0:
         raise InputError(f"--max-edge: must be a positive length in mm, got {max_edge:g}")
     with option("--materials"):
-        table = load_materials(materials_file)
-        file_shells = load_shell_materials(materials_file, table)
+        materials = read_materials_file(materials_file)
+        table, file_shells = materials.materials, materials.shells()
     with flags(COLOR_FLAGS):
         roles = material_roles(table, start=m1_text, target=m2_text)
     if roles.m2 is None:

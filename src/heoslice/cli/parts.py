@@ -9,20 +9,20 @@ import click
 
 from heoslice.cli.options import option
 from heoslice.errors import InputError
-from heoslice.material import PartSetting, load_materials, load_part_materials, table_material
+from heoslice.material import MaterialsFile, PartSetting, table_material
 
 #: What a multi-part job refuses, and why (one line each).
 GRADE_REFUSAL = "--grade: a multi-part job is not graded (slice a part on its own to grade it)"
 
 
 def is_parts_job(models: tuple[Path, ...], parts_flag: bool, part_options: tuple[str, ...],
-                 materials_file: Path | None) -> bool:
+                 materials: MaterialsFile) -> bool:
     """Whether the call is one multi-part job: --parts, a --part option, a 3MF among the models, or a [parts]
     table in the materials file. Otherwise every model is its own stack, as before."""
     if parts_flag or part_options or any(str(model).lower().endswith(".3mf") for model in models):
         return True
     with option("--materials"):
-        return bool(materials_file is not None and load_part_materials(materials_file))
+        return bool(materials.parts())
 
 
 def parse_part_options(part_options: tuple[str, ...], table: dict) -> dict[str, str]:
@@ -38,19 +38,19 @@ def parse_part_options(part_options: tuple[str, ...], table: dict) -> dict[str, 
     return chosen
 
 
-def part_settings(materials_file: Path | None, part_options: tuple[str, ...], part_names: list[str]
+def part_settings(materials: MaterialsFile, part_options: tuple[str, ...], part_names: list[str]
                   ) -> tuple[dict, dict[str, PartSetting]]:
     """(materials table, {part name: setting}): the materials file's [parts], with --part options overriding
     their material (a file's priority stays). A name that is no part of the job is refused, naming where it
     was given."""
+    table = materials.materials
     with option("--materials"):
-        table = load_materials(materials_file)
-        settings = load_part_materials(materials_file, table)
+        settings = materials.parts()
     given = parse_part_options(part_options, table)
     shown = ", ".join(dict.fromkeys(part_names))
     for name in settings:
         if name not in part_names:
-            raise InputError(f"{materials_file}: [parts] {name}: no part of this job has that name "
+            raise InputError(f"{materials.path}: [parts] {name}: no part of this job has that name "
                              f"(its parts: {shown})")
     for name in given:
         if name not in part_names:

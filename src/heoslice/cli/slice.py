@@ -18,7 +18,7 @@ from heoslice.cli.common import (
 from heoslice.cli.options import flags, function_from_options, function_options, option
 from heoslice.cli.parts import GRADE_REFUSAL, is_parts_job, part_settings, report_parts
 from heoslice.errors import InputError
-from heoslice.material import load_materials, load_shell_materials, material_roles
+from heoslice.material import MaterialsFile, material_roles, read_materials_file
 from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, without_materials
 from heoslice.pipeline import SliceSpec, check_scale, plan_parts, slice_to_stack, slice_warnings
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3
@@ -89,14 +89,14 @@ def parse_canvas(text: str | None) -> tuple[float, float] | None:
 
 
 def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth, offset_count,
-               direction, materials_file, channels):
+               direction, materials: MaterialsFile, channels):
     """The GradeSpec the grading options ask for, or None when none is given: the mesh's own materials then
     decide (:func:`heoslice.pipeline.material_job`).
 
     Per-shell materials in the materials file, or --channels, without --grade still build one: the
     families keep their own (or their shell's) materials, without a gradient; --to, --from and the
-    function's coefficients without --grade are refused (they would be ignored). The materials play the
-    parts :func:`heoslice.material.material_roles` gives them.
+    function's coefficients without --grade are refused (they would be ignored). The materials (of the
+    file, read once by the caller) play the parts :func:`heoslice.material.material_roles` gives them.
     """
     if kind is None:
         given = {"--alpha": alpha, "--beta": beta, "--lambda": lam, "--periods": periods,
@@ -106,16 +106,14 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
         stray += [name for name, value in ignored.items() if value]
         if stray:
             raise InputError(f"{', '.join(stray)}: only used with --grade FUNC (ignored without it)")
-        with option("--materials"):
-            shells = load_shell_materials(materials_file)
-        if not (channels or shells):
-            return None
+    with option("--materials"):
+        shells = materials.shells()
+    if kind is None and not (channels or shells):
+        return None
     # imported here, past the plain path's return: the grading package loads numba's kernels
     from heoslice.grading import GradeSpec, RegionSpec
 
-    with option("--materials"):
-        table = load_materials(materials_file)
-        shells = load_shell_materials(materials_file, table)
+    table = materials.materials
     function = None if kind is None else function_from_options("--grade", kind, alpha, beta, lam, periods,
                                                                 expression)
     with flags({"start": "--from", "target": "--to"}):
@@ -229,25 +227,28 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     each go to their own stack; one that fails is reported and the others still run.
     With --parts (or --part, a 3MF, a [parts] table) they are the parts of one stack.
     """
-    if is_parts_job(models, parts_flag, part_options, materials_file):
+    with option("--materials"):
+        materials = read_materials_file(materials_file)  # the one read of the file: its tables are passed on
+    if is_parts_job(models, parts_flag, part_options, materials):
         if grade_kind is not None:
             raise InputError(GRADE_REFUSAL)
+        no_file = read_materials_file(None)  # grade_spec refuses the grading options that would be ignored
         grade_spec(None, alpha, beta, lam, periods, expression, target, start, nozzle, depth, offset_count,
-                   direction, None, False)  # refuses the grading options that would be ignored
+                   direction, no_file, False)
         if into is not None:
             raise click.UsageError("--into: a multi-part job makes one stack; name it with -o/--output")
         slice_parts(models, output, dict(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
                                          canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs),
-                    scale, force, as_json, materials_file, part_options, bool(channels))
+                    scale, force, as_json, materials, part_options, bool(channels))
         return
     if solid_only and (grade_kind is not None or channels):
         raise InputError("--solid: slices one material; it cannot be combined with --grade or --channels")
     grade = grade_spec(grade_kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth,
-                       offset_count, direction, materials_file, channels)
+                       offset_count, direction, materials, channels)
     try:
         spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
                          canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
-                         grade=grade, channels=channels, materials=materials_table(materials_file))
+                         grade=grade, channels=channels, materials=materials_table(materials))
     except InputError as err:
         raise flag_error(err) from None
     inputs = expand_inputs(models)
@@ -261,12 +262,9 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
              key="model", as_json=as_json, debug=(ctx.find_root().obj or {}).get("debug", False))
 
 
-def materials_table(materials_file: Path | None) -> tuple:
-    """The materials of ``materials_file`` in file order (() without one: the built-in M1, M2)."""
-    if materials_file is None:
-        return ()
-    with option("--materials"):
-        return tuple(load_materials(materials_file).values())
+def materials_table(materials: MaterialsFile) -> tuple:
+    """The materials of the materials file in file order (() without one: the built-in M1, M2)."""
+    return () if materials.path is None else tuple(materials.materials.values())
 
 
 def material_line(names: list[str], masks: bool, mode: str) -> str:
@@ -280,7 +278,7 @@ def material_line(names: list[str], masks: bool, mode: str) -> str:
 
 
 def slice_parts(models: tuple[Path, ...], output: Path | None, spec_fields: dict, scale: float, force: bool,
-                as_json: bool, materials_file: Path | None, part_options: tuple[str, ...], channels: bool) -> None:
+                as_json: bool, materials: MaterialsFile, part_options: tuple[str, ...], channels: bool) -> None:
     """A multi-part job: every part loaded (a failing file is named before anything is written), their
     materials and priorities planned, then one stack sliced and reported (:mod:`heoslice.cli.parts`)."""
     inputs = expand_inputs(models)
@@ -288,7 +286,7 @@ def slice_parts(models: tuple[Path, ...], output: Path | None, spec_fields: dict
     if missing:
         raise InputError(f"{missing[0]}: no file matches this pattern")
     mesh = load_assembly(inputs.paths)
-    table, settings = part_settings(materials_file, part_options, [part.name for part in mesh.parts])
+    table, settings = part_settings(materials, part_options, [part.name for part in mesh.parts])
     try:
         spec = SliceSpec(**spec_fields, parts=plan_parts(mesh.parts, table, settings, channels=channels))
     except InputError as err:

@@ -9,8 +9,8 @@ from pathlib import Path
 import click
 
 from heoslice.cli.common import plural, signed_percent
-from heoslice.errors import VerifyError
-from heoslice.mesh import Mesh, load_mesh, scaled, volume_check
+from heoslice.errors import InputError, VerifyError
+from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, volume_check
 from heoslice.stack import (
     check_input_path,
     layer_height_problems,
@@ -19,18 +19,53 @@ from heoslice.stack import (
 )
 
 
-def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float) -> tuple[list[str], list[str], dict]:
-    """Compare a stack with its (scaled) mesh: volume (the library's rule) and layers against the z-range.
+def part_files(manifest: dict) -> list[tuple[str, str]]:
+    """The files a multi-part stack's parts came from, each once, in the manifest's part order: (file name,
+    sha256) pairs; [] for a stack without parts. A 3MF's objects are one file."""
+    parts = manifest.get("parts")
+    if not isinstance(parts, list):
+        return []
+    return list(dict.fromkeys((str(part.get("file")), str(part.get("sha256"))) for part in parts
+                              if isinstance(part, dict)))
+
+
+def check_mesh_count(stack: Path, manifest: dict, models: tuple[Path, ...]) -> None:
+    """One --mesh per file the stack's parts came from, or one for a stack of one file; InputError (one line)
+    otherwise, naming the files the stack needs in their order."""
+    files = part_files(manifest)
+    if len(models) == max(1, len(files)):
+        return
+    if len(files) > 1:
+        raise InputError(f"--mesh: {stack} was sliced from the {len(files)} part files "
+                         f"{', '.join(name for name, _ in files)}: give one --mesh for each, in that order "
+                         f"(got {len(models)})")
+    raise InputError(f"--mesh: {stack} was sliced from one mesh file: give one --mesh (got {len(models)})")
+
+
+def source_warnings(manifest: dict, mesh: Mesh, models: tuple[Path, ...]) -> list[str]:
+    """A warning per mesh file that is not the one the stack was sliced from (its sha256 differs): each part
+    file's against its --mesh with several, else the stack's source against the one mesh."""
+    if len(models) > 1:
+        given = {Path(part.source): part.sha256 for part in mesh.parts}
+        return [f"{model}: not the file of the stack's parts from {name} (sha256 differs)"
+                for model, (name, digest) in zip(models, part_files(manifest)) if given.get(Path(model)) != digest]
+    source = manifest.get("source")
+    if isinstance(source, dict) and source.get("sha256") not in (None, mesh.sha256):
+        return [f"{mesh.source}: not the file this stack was sliced from "
+                f"({source.get('file', '?')}, sha256 differs)"]
+    return []
+
+
+def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float,
+                models: tuple[Path, ...] = ()) -> tuple[list[str], list[str], dict]:
+    """Compare a stack with its (scaled) mesh (of the --mesh files ``models``): which files they are, volume
+    (the library's rule) and layers against the z-range.
 
     Returns (problems, warnings, summary).
     """
     model = mesh.source
     problems: list[str] = []
-    warnings = [f"{model}: {text}" for text in mesh.warnings]
-    source = manifest.get("source")
-    if isinstance(source, dict) and source.get("sha256") not in (None, mesh.sha256):
-        warnings.append(f"{model}: not the file this stack was sliced from "
-                        f"({source.get('file', '?')}, sha256 differs)")
+    warnings = [f"{model}: {text}" for text in mesh.warnings] + source_warnings(manifest, mesh, models)
     volume = volume_check(mesh, stack_volume_mm3(manifest), tolerance)
     problems += [volume.problem] if volume.problem else []
     warnings += [volume.warning] if volume.warning else []
@@ -47,32 +82,36 @@ Examples:
   heoslice verify vase_stack/
   heoslice verify vase_stack/ --mesh vase.ply
   heoslice verify scan_stack/ --mesh scan.ply --scale 1000 --json
+  heoslice verify liver_stack/ --mesh liver.stl --mesh lesion.stl   # a multi-part stack: one per part file
 """)
 @click.argument("stack", type=click.Path(path_type=Path))
-@click.option("--mesh", "model", type=click.Path(path_type=Path), default=None,
-              help="Also compare volume and layer heights with this mesh file.")
+@click.option("--mesh", "models", type=click.Path(path_type=Path), multiple=True,
+              help="Also compare volume and layer heights with this mesh file; for a multi-part stack (slice "
+                   "--parts) repeat it, one per part file in the order they were sliced.")
 @click.option("--scale", type=click.FloatRange(min=0.0, min_open=True), default=1.0, show_default=True,
               help="Scale the mesh was sliced with (as given to 'heoslice slice --scale').")
 @click.option("--tolerance", type=click.FloatRange(min=0.0), default=0.01, show_default=True,
               help="Largest relative volume difference accepted with --mesh (0.01 = 1 %).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-def verify(stack: Path, model: Path | None, scale: float, tolerance: float, as_json: bool) -> None:
+def verify(stack: Path, models: tuple[Path, ...], scale: float, tolerance: float, as_json: bool) -> None:
     """Check STACK before printing: manifest (format, version, complete), every layer file
     (inside the stack, present, sha256, size, dpi, solid pixel count), no missing or extra
-    layers; with --mesh also the volume and layer heights against the mesh.
+    layers; with --mesh also the volume and layer heights against the mesh (the parts' meshes
+    together, one --mesh per part file, for a multi-part stack).
 
     Prints one line per problem. Exit status 0 only when the stack is clean, 4 when it
     has problems, 2 when STACK or the mesh cannot be read at all.
     """
     check_input_path(stack)
     mesh = None
-    if model is not None:
-        mesh = load_mesh(model)
+    if models:
+        mesh = load_mesh(models[0]) if len(models) == 1 else load_assembly(models)
         mesh = scaled(mesh, scale) if scale != 1.0 else mesh
     report = verify_stack(stack)
     problems, warnings, mesh_summary = list(report.problems), [], None
     if mesh is not None and report.manifest:
-        mesh_problems, warnings, mesh_summary = mesh_checks(report.manifest, mesh, scale, tolerance)
+        check_mesh_count(stack, report.manifest, models)
+        mesh_problems, warnings, mesh_summary = mesh_checks(report.manifest, mesh, scale, tolerance, models)
         problems += mesh_problems
     layers = report.manifest.get("layers", []) if report.manifest else []
     summary = {

@@ -61,8 +61,7 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
     choice table for the next layer (:func:`_layer_choice_table`)."""
     materials = spec.channel_materials()
     planes = np.zeros((len(materials), grid.height, -(-grid.width // 8)), dtype=np.uint8)
-    position = {(m.name, m.color): i for i, m in enumerate(materials)}
-    base_channel = position[(spec.base.name, spec.base.color)]
+    base_channel = spec.channel_index(spec.base)
     if not regions.fields:
         return droplet_bits(LabelledLayer(np.zeros((0, 0), np.int16), 0, 0, packed),
                             LayerMixes(np.zeros(1, np.int64), np.zeros(1), np.zeros((0, 5), np.int64), np.zeros(0),
@@ -71,7 +70,7 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
     mixes = family_starts(regions, spec, loop_shell, point_material)
     target_mix = np.zeros(len(materials))
     if spec.target is not None and spec.function is not None:
-        target_mix[position[(spec.target.name, spec.target.color)]] = 1.0
+        target_mix[spec.channel_index(spec.target)] = 1.0
     fractions = target_fractions(regions, spec)
     family_of_label = np.zeros(regions.label_count, dtype=np.int64)
     for number in range(len(regions.fields)):

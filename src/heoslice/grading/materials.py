@@ -36,12 +36,10 @@ def point_mixes(spec: GradeSpec, point_material: np.ndarray | None) -> np.ndarra
         return values
     if spec.second is None:
         return None
-    materials = spec.channel_materials()
-    position = {(m.name, m.color): i for i, m in enumerate(materials)}
     m = np.clip(values, 0.0, 1.0)
-    mix = np.zeros((len(m), len(materials)))
-    mix[:, position[(spec.base.name, spec.base.color)]] = 1.0 - m
-    mix[:, position[(spec.second.name, spec.second.color)]] += m
+    mix = np.zeros((len(m), len(spec.channel_materials())))
+    mix[:, spec.channel_index(spec.base)] = 1.0 - m
+    mix[:, spec.channel_index(spec.second)] += m
     return mix
 
 
@@ -57,7 +55,6 @@ def family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_mate
     contour's material, or its shell's, or --from): (cells_r, cells_c, K) float, summing to 1.
     ``point_material``: the contour points' mixes or fractions (:func:`point_mixes`)."""
     materials = spec.channel_materials()
-    position = {(m.name, m.color): i for i, m in enumerate(materials)}
     point_mix = point_mixes(spec, point_material)
     mixes = []
     for family, field in zip(regions.families, regions.fields):
@@ -66,11 +63,11 @@ def family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_mate
         start = _start_material(spec, family, own)
         mix = np.zeros((field.lattice.rows, field.lattice.cols, len(materials)))
         if start is not None:
-            mix[..., position[(start.name, start.color)]] = 1.0
+            mix[..., spec.channel_index(start)] = 1.0
         elif use_mix:
             mix[...] = np.clip(contour_values(field, point_mix), 0.0, 1.0)
         else:
-            mix[..., position[(spec.base.name, spec.base.color)]] = 1.0
+            mix[..., spec.channel_index(spec.base)] = 1.0
         mixes.append(mix)
     return mixes
 

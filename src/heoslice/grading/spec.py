@@ -105,6 +105,21 @@ class GradeSpec:
         """The K materials of the droplet masks, without repeats (same name and colour), in a fixed order."""
         found = []
         for material in (self.base, self.second, self.start, self.target, *(m for _, m in self.shells), *self.mapped):
-            if material is not None and all((material.name, material.color) != (m.name, m.color) for m in found):
+            if material is not None and all(_identity(material) != _identity(m) for m in found):
                 found.append(material)
         return tuple(found)
+
+    def channel_index(self, material) -> int:
+        """The index of ``material`` (by name and colour) among :meth:`channel_materials`: its column of a
+        (..., K) mix and its plane of the droplet masks. Raises ValueError for a material not among them."""
+        identities = [_identity(m) for m in self.channel_materials()]
+        try:
+            return identities.index(_identity(material))
+        except ValueError:
+            raise ValueError(f"material {material.name!r} {tuple(material.color)} is not one of the droplet "
+                             f"masks' materials") from None
+
+
+def _identity(material) -> tuple:
+    """What makes two materials the same droplet-mask material: the same name and display colour."""
+    return (material.name, material.color)

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import re
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -129,26 +129,19 @@ def _read_toml(path: Path) -> dict:
         raise InputError(f"{path}: cannot be read ({type(err).__name__}: {err})") from None
 
 
-def load_materials(path: Path | None) -> dict[str, Material]:
-    """{name: Material} from a materials TOML file, or the built-in two when ``path`` is None."""
-    if path is None:
-        return dict(DEFAULT_MATERIALS)
-    data = _read_toml(Path(path))
+def _materials_of(data: dict, path: Path) -> dict[str, Material]:
+    """{name: Material} of the [materials.NAME] tables of a parsed materials file, in file order."""
     table = data.get("materials")
     if not isinstance(table, dict) or not table:
         raise InputError(f"{path}: no [materials.NAME] tables (see heoslice color --help)")
-    return {str(name): _material_from_table(str(name), entry, Path(path)) for name, entry in table.items()}
+    return {str(name): _material_from_table(str(name), entry, path) for name, entry in table.items()}
 
 
-def load_shell_materials(path: Path | None, table: dict[str, Material] | None = None) -> dict[int, Material]:
-    """{shell number: Material} from the optional [shells] table of a materials file ({} without one)."""
-    if path is None:
-        return {}
-    data = _read_toml(Path(path))
+def _shells_of(data: dict, path: Path, table: dict[str, Material]) -> dict[int, Material]:
+    """{shell number: Material} of the optional [shells] table of a parsed materials file ({} without one)."""
     shells = data.get("shells", {})
     if not isinstance(shells, dict):
         raise InputError(f"{path}: [shells] must map shell numbers to material names")
-    table = load_materials(path) if table is None else table
     out: dict[int, Material] = {}
     for key, value in shells.items():
         if not str(key).isdigit():
@@ -169,15 +162,11 @@ class PartSetting:
     priority: int | None = None
 
 
-def load_part_materials(path: Path | None, table: dict[str, Material] | None = None) -> dict[str, PartSetting]:
-    """{part name: PartSetting} from the optional [parts] table of a materials file ({} without one); each
-    material must be one of the file's materials."""
-    if path is None:
-        return {}
-    parts = _read_toml(Path(path)).get("parts", {})
+def _parts_of(data: dict, path: Path, table: dict[str, Material]) -> dict[str, PartSetting]:
+    """{part name: PartSetting} of the optional [parts] table of a parsed materials file ({} without one)."""
+    parts = data.get("parts", {})
     if not isinstance(parts, dict):
         raise InputError(f"{path}: [parts] must map part names to material names")
-    table = load_materials(path) if table is None else table
     out = {}
     for name, value in parts.items():
         entry = {"material": value} if isinstance(value, str) else value
@@ -193,6 +182,58 @@ def load_part_materials(path: Path | None, table: dict[str, Material] | None = N
                              f"(materials: {', '.join(table)})")
         out[str(name)] = PartSetting(entry["material"], priority)
     return out
+
+
+@dataclass(frozen=True)
+class MaterialsFile:
+    """A materials file read once (:func:`read_materials_file`): its path (None: no file, the built-in
+    default), its materials table in file order, and its parsed TOML, from which the optional [shells] and
+    [parts] tables are checked when a command asks for them (so one read serves a whole command)."""
+
+    path: Path | None
+    materials: dict[str, Material]
+    data: dict = field(default_factory=dict, repr=False)
+
+    def shells(self) -> dict[int, Material]:
+        """{shell number: Material} of the file's [shells] table ({} without one, or without a file)."""
+        return {} if self.path is None else _shells_of(self.data, self.path, self.materials)
+
+    def parts(self) -> dict[str, PartSetting]:
+        """{part name: PartSetting} of the file's [parts] table ({} without one, or without a file); each
+        material must be one of the file's materials."""
+        return {} if self.path is None else _parts_of(self.data, self.path, self.materials)
+
+
+def read_materials_file(path: Path | None) -> MaterialsFile:
+    """The materials file at ``path``, read and its materials table checked (InputError naming the file),
+    or the built-in two materials when ``path`` is None (nothing read)."""
+    if path is None:
+        return MaterialsFile(None, dict(DEFAULT_MATERIALS))
+    data = _read_toml(Path(path))
+    return MaterialsFile(Path(path), _materials_of(data, Path(path)), data)
+
+
+def load_materials(path: Path | None) -> dict[str, Material]:
+    """{name: Material} from a materials TOML file, or the built-in two when ``path`` is None."""
+    return read_materials_file(path).materials
+
+
+def load_shell_materials(path: Path | None, table: dict[str, Material] | None = None) -> dict[int, Material]:
+    """{shell number: Material} from the optional [shells] table of a materials file ({} without one);
+    names resolve in ``table`` (default: the file's own materials)."""
+    if path is None:
+        return {}
+    data = _read_toml(Path(path))
+    return _shells_of(data, Path(path), _materials_of(data, Path(path)) if table is None else table)
+
+
+def load_part_materials(path: Path | None, table: dict[str, Material] | None = None) -> dict[str, PartSetting]:
+    """{part name: PartSetting} from the optional [parts] table of a materials file ({} without one); each
+    material must be one of ``table`` (default: the file's own materials)."""
+    if path is None:
+        return {}
+    data = _read_toml(Path(path))
+    return _parts_of(data, Path(path), _materials_of(data, Path(path)) if table is None else table)
 
 
 def table_material(name: str, table: dict[str, Material]) -> Material | None:

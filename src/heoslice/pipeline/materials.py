@@ -47,11 +47,6 @@ def _plain_grade(table: tuple[Material, ...]):
                      base=roles.first, second=roles.second)
 
 
-def _position(materials: tuple, material) -> int:
-    """The index of ``material`` among ``materials`` (the same name and colour)."""
-    return next(i for i, m in enumerate(materials) if (m.name, m.color) == (material.name, material.color))
-
-
 def _fraction_mix(fraction: np.ndarray, grade) -> np.ndarray:
     """(n, K) mix of a per-vertex material fraction m ((n,) float): 1 - m of the base, m of the second
     (:func:`heoslice.grading.materials.point_mixes`, the one place that rule is written)."""
@@ -77,10 +72,9 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
         if len(used) > 1 or grade is not None:
             grade = grade if grade is not None else _plain_grade(table)
             grade = replace(grade, mapped=tuple(table[i] for i in used))
-            materials = grade.channel_materials()
-            columns = np.array([_position(materials, table[i]) for i in range(len(table))])
-            mix = np.zeros((len(chosen), len(materials)))
-            mix[np.arange(len(chosen)), columns[chosen]] = 1.0
+            columns = np.array([grade.channel_index(table[i]) for i in used])
+            mix = np.zeros((len(chosen), len(grade.channel_materials())))
+            mix[np.arange(len(chosen)), columns[np.searchsorted(used, chosen)]] = 1.0
     if grade is None:
         return MaterialJob(replace(spec, channels=bool(spec.channels)), None)
     several = len(grade.channel_materials()) > 1

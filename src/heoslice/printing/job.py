@@ -1,7 +1,8 @@
 """A print job and where it comes from: a verified stack becomes a :class:`JobSpec` and a layer source.
 
 Channel 0 of a layer is its solid mask, channels 1.. its droplet masks, each bit-packed by rows
-(docs/protocol.md section 3). The job id is the CRC-32 of the stack's manifest.
+(docs/protocol.md section 3), each mask on the printer channel its material names in the manifest
+(:func:`mask_channels`). The job id is the CRC-32 of the stack's manifest.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from heoslice.errors import HeosliceError, InputError, StackChangedError
+from heoslice.errors import HeosliceError, InputError, StackChangedError, VerifyError
 from heoslice.printing import protocol as P
 
 LayerSource = Callable[[int], Sequence[bytes]]
@@ -42,13 +43,43 @@ def pack_mask(mask: np.ndarray) -> bytes:
     return np.packbits(np.asarray(mask, dtype=bool), axis=1).tobytes()
 
 
+def mask_channels(manifest: dict, label: object = "stack") -> tuple[int, ...]:
+    """The printer channel (1-based) of each droplet mask, in the order of a layer's ``channels`` list: the
+    ``channel`` of its ``grading.materials`` entry (the same order, docs/stack-format.md). A mask whose
+    material names no channel (null, or a stack without ``grading.materials``) takes the lowest channel no
+    other mask names, in mask order, so a stack whose materials name none is sent on 1..K as listed.
+    The one place a stack's material -> channel map is read. Raises VerifyError (naming ``label``) when a
+    mask's material is not its entry's, a channel is not a whole number >= 1, or two masks name one channel."""
+    widest = max((entry.get("channels") or [] for entry in manifest["layers"]), key=len)
+    recorded = (manifest.get("grading") or {}).get("materials") or []
+    wanted: list[int | None] = []
+    for number, channel in enumerate(widest):
+        material = recorded[number] if number < len(recorded) and isinstance(recorded[number], dict) else {}
+        if "material" in channel and "name" in material and channel["material"] != material["name"]:
+            raise VerifyError(f"{label}: droplet mask {number + 1} is of {channel['material']!r}, but "
+                              f"grading.materials lists {material['name']!r} there; do not print this stack")
+        value = material.get("channel")
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise VerifyError(f"{label}: material {material.get('name')!r} has printer channel {value!r}, "
+                              "not a whole number >= 1; do not print this stack")
+        wanted.append(value)
+    named = [value for value in wanted if value is not None]
+    twice = sorted({value for value in named if named.count(value) > 1})
+    if twice:
+        sharing = [str(widest[n].get("material", f"mask {n + 1}")) for n, v in enumerate(wanted) if v == twice[0]]
+        raise VerifyError(f"{label}: materials {', '.join(sharing)} all name printer channel {twice[0]}; give each "
+                          "material its own channel in the materials file and slice again")
+    free = (number for number in range(1, len(wanted) + len(named) + 1) if number not in named)
+    return tuple(value if value is not None else next(free) for value in wanted)
+
+
 def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
     """Verify a stack (VerifyError if it fails) and return its job and layer source.
 
-    Channel 0 is the solid mask; channels 1.. are the droplet masks of a layer entry's
-    ``"channels"`` list when present (layers with fewer channels are padded with empty masks).
-    Each layer is checked against its sha256 again when it is read for sending; a mismatch or a
-    missing file raises StackChangedError (exit 19).
+    Channel 0 is the solid mask; each droplet mask of a layer entry's ``"channels"`` list goes on the printer
+    channel :func:`mask_channels` gives it, and channels no mask names (below the highest, or of a layer
+    with fewer masks) carry empty masks. Each layer is checked against its sha256 again when it is read for
+    sending; a mismatch or a missing file raises StackChangedError (exit 19).
     """
     from heoslice.stack import decode_mask, load_verified, read_layer_mask, resolve_inside
 
@@ -58,21 +89,22 @@ def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
     if not layers:
         raise InputError(f"{directory}: the stack has no layers")
     width, height = manifest["image"]["width"], manifest["image"]["height"]
-    widest = max(layers, key=lambda entry: len(entry.get("channels") or []))
-    names = ("solid", *(str(channel.get("material", f"channel {number}"))
-                        for number, channel in enumerate(widest.get("channels") or [], start=1)))
-    channels = len(names)
+    widest = max((entry.get("channels") or [] for entry in layers), key=len)
+    targets = mask_channels(manifest, directory)
+    channels = 1 + max(targets, default=0)
+    names = ["solid", *(["unused"] * (channels - 1))]
+    for channel, target in zip(widest, targets):
+        names[target] = str(channel.get("material", f"channel {target}"))
     job_id = P.crc32(json.dumps(manifest, sort_keys=True).encode()) or 1
-    job = JobSpec(job_id, len(layers), channels, width, height, names)
+    job = JobSpec(job_id, len(layers), channels, width, height, tuple(names))
     as_nonzero = {**manifest, "mask": "nonzero"}
 
     def read(index: int) -> list[bytes]:
-        out = [pack_mask(read_layer_mask(directory, manifest, index))]
-        for channel in layers[index].get("channels") or []:
-            out.append(pack_mask(decode_mask(resolve_inside(directory, channel["file"]), as_nonzero,
-                                             sha256=channel["sha256"])))
-        empty = bytes(job.channel_bytes)
-        return out + [empty] * (channels - len(out))
+        out = [pack_mask(read_layer_mask(directory, manifest, index))] + [bytes(job.channel_bytes)] * (channels - 1)
+        for channel, target in zip(layers[index].get("channels") or [], targets):
+            out[target] = pack_mask(decode_mask(resolve_inside(directory, channel["file"]), as_nonzero,
+                                                sha256=channel["sha256"]))
+        return out
 
     def get_layer(index: int) -> list[bytes]:
         """Layer ``index``, read and checked again now: a file that changed since verification stops the print."""

@@ -1,7 +1,7 @@
 """The simulated printer controller (a test double of the firmware), reached by the host only as ``sim://``.
 
-``config`` (what it is and its faults), ``transports`` (pty, TCP, pipe), ``controller`` (the protocol's
-controller side), ``protocol_sim`` (the pyserial URL handler).
+``config`` (what it is and its faults), ``faults`` (which faults strike, and when), ``transports`` (pty, TCP,
+pipe), ``controller`` (the protocol's controller side), ``protocol_sim`` (the pyserial URL handler).
 """
 
 from heoslice.printing.simulator.config import ExecutedLayer, FaultSpec, SimConfig, sim_from_url

@@ -6,7 +6,7 @@ buffer whose free space is the credit it grants, a print queue and a head that
 takes ``layer_time_s`` per layer. ``time_scale`` multiplies both modelled durations
 so tests run fast. Faults (corrupted, dropped and duplicated bytes and frames, lost
 acks, delays, a reset mid-layer, a disconnect, a dead link, a persistent hardware
-fault, another protocol version) are drawn from a seeded generator.
+fault, another protocol version) are drawn from a seeded generator (:mod:`.faults`).
 
 Every executed layer is recorded in :attr:`SimController.executed` (job, index, CRC of
 the data printed, boot id) so tests can check exactly-once, in-order execution.
@@ -21,12 +21,11 @@ import time
 from collections.abc import Callable
 from collections import deque
 
-import numpy as np
-
 from heoslice.errors import ProtocolError
 from heoslice.printing import protocol as P
 from heoslice.printing.simulator.assembly import LayerAssembly
 from heoslice.printing.simulator.config import ExecutedLayer, FaultSpec, SimConfig
+from heoslice.printing.simulator.faults import FaultInjector
 from heoslice.printing.simulator.transports import Transport
 
 
@@ -44,9 +43,8 @@ class SimController:
     def __init__(self, config: SimConfig = SimConfig(), faults: FaultSpec = FaultSpec(),
                  log: Callable[[str], None] | None = None):
         self.config = config
-        self.faults = faults
         self.log = log
-        self._rng = np.random.default_rng(config.seed)
+        self._inject = FaultInjector(faults, config.seed)
         self.executed: list[ExecutedLayer] = []
         self.stats = {"frames": 0, "bad_frames": 0, "duplicates": 0, "out_of_order": 0, "naks": 0,
                       "acks_lost": 0, "resets": 0, "disconnects": 0, "hellos": 0, "aborts": 0, "held": 0,
@@ -56,7 +54,6 @@ class SimController:
         self._transport: Transport | None = None
         self._pending_transport: Transport | None = None
         self._thread: threading.Thread | None = None
-        self._fired: set[str] = set()
         self.died_at: float | None = None  # monotonic time the dead-link fault struck
         self.boot_id = self._new_boot_id()
         # persisted across resets (as in non-volatile memory): the job, its run, size and last printed layer
@@ -66,6 +63,15 @@ class SimController:
         self.job_name = b""
         self.last_completed = -1
         self._power_on()
+
+    @property
+    def faults(self) -> FaultSpec:
+        """The faults injected from now on (another FaultSpec assigned keeps the generator and struck faults)."""
+        return self._inject.spec
+
+    @faults.setter
+    def faults(self, spec: FaultSpec) -> None:
+        self._inject.spec = spec
 
     def _say(self, text: str) -> None:
         """One line of the controller's log."""
@@ -184,8 +190,7 @@ class SimController:
 
     def _on_bytes(self, data: bytes, now: float) -> None:
         """Apply byte faults and give each delimited piece its modelled arrival time."""
-        if self.faults.any_byte_faults:
-            data = self._corrupt(data, self.faults.byte_error_rate, self.faults.byte_drop_rate)
+        data = self._inject.inbound(data)
         byte_time = self.config.byte_time_s
         start = 0
         while start < len(data):
@@ -197,14 +202,8 @@ class SimController:
             start = end
 
     def _corrupt(self, data: bytes, error_rate: float, drop_rate: float) -> bytes:
-        """``data`` with bytes replaced (probability ``error_rate``) and removed (``drop_rate``)."""
-        buf = np.frombuffer(data, dtype=np.uint8).copy()
-        if error_rate > 0:
-            hit = self._rng.random(buf.size) < error_rate
-            buf[hit] ^= self._rng.integers(1, 256, int(hit.sum()), dtype=np.uint8)
-        if drop_rate > 0:
-            buf = buf[self._rng.random(buf.size) >= drop_rate]
-        return buf.tobytes()
+        """``data`` with bytes replaced and removed at these rates (:meth:`.faults.FaultInjector.corrupt`)."""
+        return self._inject.corrupt(data, error_rate, drop_rate)
 
     def _deliver(self, now: float) -> None:
         """Hand pieces whose modelled arrival time has passed to the frame splitter."""
@@ -228,10 +227,7 @@ class SimController:
             return
         frame = P.message_frame(message, self.session, 0, self.expected,
                                 self.config.version if version is None else version)
-        wire = P.encode_frame(frame)
-        if self.faults.byte_error_rate > 0:
-            wire = self._corrupt(wire, self.faults.byte_error_rate, 0.0)
-        self._transport.send(wire)
+        self._transport.send(self._inject.outbound(P.encode_frame(frame)))
 
     def _credit(self) -> int:
         """Free receive-buffer bytes (frames held after a gap occupy it too): the credit granted to the host."""
@@ -260,8 +256,7 @@ class SimController:
 
     def _claimed(self) -> int:
         """The last_completed reported: the truth, unless the claim_completed fault makes it lie."""
-        claim = self.faults.claim_completed
-        return self.last_completed if claim is None else claim
+        return self._inject.claimed_completed(self.last_completed)
 
     def _send_status(self) -> None:
         """STATUS: boot id, state, progress, credit, error."""
@@ -274,13 +269,12 @@ class SimController:
     def _on_frame(self, frame: P.Frame, now: float) -> None:
         """Apply frame-level faults (drop, delay, duplicate), then handle the frame."""
         self.stats["frames"] += 1
-        rng, faults = self._rng, self.faults
-        if faults.frame_drop_rate and rng.random() < faults.frame_drop_rate:
+        fate = self._inject.frame_fate()
+        if fate is None:
             return
-        if faults.delay_rate and rng.random() < faults.delay_rate:
-            self._stall_until = now + faults.delay_s * self.config.time_scale
-        repeats = 2 if faults.frame_dup_rate and rng.random() < faults.frame_dup_rate else 1
-        for _ in range(repeats):
+        if fate.delayed:
+            self._stall_until = now + self.faults.delay_s * self.config.time_scale
+        for _ in range(fate.repeats):
             self._handle(frame)
 
     def _handle(self, frame: P.Frame) -> None:
@@ -423,7 +417,7 @@ class SimController:
             self._accept(message, cost)
         if self.session != session or self._dead:
             return
-        if self.faults.ack_loss_rate and self._rng.random() < self.faults.ack_loss_rate:
+        if self._inject.ack_lost():
             self.stats["acks_lost"] += 1
         else:
             self._send_ack()
@@ -438,10 +432,7 @@ class SimController:
         layer = getattr(message, "layer", None)
         if layer is not None:
             self._rx_layer = layer
-        start = self.faults.lose_data_from_layer
-        if start is not None and self._rx_layer >= start and (layer is not None or isinstance(message, P.Data)):
-            return None
-        return message
+        return None if self._inject.data_lost(message, self._rx_layer) else message
 
     def _accept(self, message: P.Message, cost: int) -> None:
         """Take the next in-order message into the receive buffer; strike the faults tied to its layer."""
@@ -455,26 +446,20 @@ class SimController:
         elif isinstance(message, P.Data):
             self._chunk_faults(self._in_layer)
 
-    def _once(self, name: str, layer: int | None, at: int) -> bool:
-        """True the first time fault ``name`` meets its layer."""
-        if layer is None or layer != at or name in self._fired:
-            return False
-        self._fired.add(name)
-        return True
-
     def _chunk_faults(self, layer: int) -> None:
-        """Faults that strike while a layer is being received: reset, disconnect, dead link."""
-        faults = self.faults
-        if self._once("reset", faults.reset_at_layer, layer):
+        """Act on the fault that strikes while a layer is being received: reset, disconnect, dead link, stop
+        reading (:meth:`.faults.FaultInjector.layer_fault`)."""
+        fault = self._inject.layer_fault(layer)
+        if fault == "reset":
             self._reset()
-        elif self._once("disconnect", faults.disconnect_at_layer, layer):
+        elif fault == "disconnect":
             self.stats["disconnects"] += 1
             if self._transport is not None:
-                self._transport.disconnect(faults.disconnect_s)
-        elif self._once("dead", faults.dead_at_layer, layer):
+                self._transport.disconnect(self.faults.disconnect_s)
+        elif fault == "dead":
             self._dead = True
             self.died_at = time.monotonic()
-        elif self._once("stop-reading", faults.stop_reading_at_layer, layer):
+        elif fault == "stop-reading":
             self._stop_reading = True
             self.died_at = time.monotonic()
 
@@ -587,7 +572,7 @@ class SimController:
             self._check_done()
         if self._printing is None and self._queue and not self._paused and self.state != P.STATE_ERROR:
             index, crc = self._queue[0]
-            if self.faults.fail_at_layer is not None and index >= self.faults.fail_at_layer:
+            if self._inject.hardware_fault(index):
                 self._fail(P.ERR_HARDWARE, index)
                 return
             self._queue.popleft()

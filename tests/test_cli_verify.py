@@ -1,0 +1,72 @@
+"""Tests of cli/verify.py: `verify --mesh` against the meshes a stack was sliced from, one per part file of a
+multi-part stack, in the manifest's part order."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from heoslice import procedural
+from heoslice.errors import EXIT_INPUT, EXIT_VERIFY
+
+
+@pytest.fixture
+def two_part_stack(tmp_path, run_cli):
+    """A stack sliced from two boxes side by side as the parts of one job (`slice a.ply b.ply --part a=M1
+    --part b=M2`), and the folder holding the meshes (a 10 x 10 x 5 mm box, b 5 x 5 x 3 mm, b_tall 5 x 5 x 8 mm)."""
+    procedural.box((10.0, 10.0, 5.0)).export(tmp_path / "a.ply")
+    procedural.box((5.0, 5.0, 3.0), origin=(15.0, 0.0, 0.0)).export(tmp_path / "b.ply")
+    procedural.box((5.0, 5.0, 8.0), origin=(15.0, 0.0, 0.0)).export(tmp_path / "b_tall.ply")
+    code, _, err = run_cli("slice", tmp_path / "a.ply", tmp_path / "b.ply", "--part", "a=M1", "--part", "b=M2",
+                           "--layer", "0.5", "--dpi", "100", "-j", "1", "-o", tmp_path / "stack")
+    assert code == 0, err
+    manifest = json.loads((tmp_path / "stack" / "manifest.json").read_text())
+    assert [part["file"] for part in manifest["parts"]] == ["a.ply", "b.ply"]
+    return tmp_path
+
+
+def test_a_two_part_stack_verifies_against_its_two_meshes(two_part_stack, run_cli):
+    """One --mesh per part, in order: OK (exit 0, no warning), and --json compares the parts' volume together."""
+    folder = two_part_stack
+    code, out, err = run_cli("verify", folder / "stack", "--mesh", folder / "a.ply", "--mesh", folder / "b.ply")
+    assert code == 0, out + err
+    assert out.startswith(f"{folder / 'stack'}: OK, 10 layers") and err == ""
+    code, out, err = run_cli("verify", folder / "stack", "--mesh", folder / "a.ply", "--mesh", folder / "b.ply",
+                             "--json")
+    summary = json.loads(out)
+    assert code == 0 and summary["ok"] and summary["mesh"]["volume_mm3"] == pytest.approx(500.0 + 75.0)
+
+
+def test_a_wrong_part_mesh_fails(two_part_stack, run_cli):
+    """A taller second part: the volume and layer-height problems, one line each, and one error line, exit 4;
+    the swapped order verifies the same volume but warns that each file is not its part's."""
+    folder = two_part_stack
+    code, out, err = run_cli("verify", folder / "stack", "--mesh", folder / "a.ply", "--mesh", folder / "b_tall.ply")
+    assert code == EXIT_VERIFY
+    assert any("differs from the mesh volume" in line for line in out.splitlines())
+    assert any("z-range" in line for line in out.splitlines())
+    errors = [line for line in err.splitlines() if line.startswith("heoslice: error: ")]
+    assert errors == [f"heoslice: error: {folder / 'stack'}: 2 problem(s); do not print this stack"]
+    assert "b_tall.ply: not the file of the stack's parts from b.ply" in err
+    code, out, err = run_cli("verify", folder / "stack", "--mesh", folder / "b.ply", "--mesh", folder / "a.ply")
+    assert code == 0 and err.count("sha256 differs") == 2
+
+
+@pytest.mark.parametrize("meshes, needs", [(("a.ply",), "the 2 part files a.ply, b.ply"),
+                                           (("a.ply", "b.ply", "a.ply"), "the 2 part files a.ply, b.ply")])
+def test_one_mesh_per_part_file(two_part_stack, run_cli, meshes, needs):
+    """Fewer or more --mesh than the stack's part files: one line naming the files it needs, exit 2."""
+    folder = two_part_stack
+    options = [item for name in meshes for item in ("--mesh", folder / name)]
+    code, out, err = run_cli("verify", folder / "stack", *options)
+    assert code == EXIT_INPUT and out == ""
+    assert err.count("\n") == 1 and err.startswith("heoslice: error: --mesh: ") and needs in err
+
+
+def test_several_meshes_for_a_one_mesh_stack_are_refused(tmp_path, run_cli):
+    """A stack of one mesh takes one --mesh: two are one line, exit 2."""
+    procedural.box((10.0, 10.0, 5.0)).export(tmp_path / "a.ply")
+    assert run_cli("slice", tmp_path / "a.ply", "--layer", "1", "--dpi", "100", "-o", tmp_path / "stack")[0] == 0
+    code, _, err = run_cli("verify", tmp_path / "stack", "--mesh", tmp_path / "a.ply", "--mesh", tmp_path / "a.ply")
+    assert code == EXIT_INPUT and err.count("\n") == 1 and "one mesh file: give one --mesh (got 2)" in err

@@ -1,0 +1,96 @@
+"""Tests of printing/job.py: a stack as a print job, each droplet mask on the printer channel its material
+names in the manifest (not its place in the list)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+from helpers import in_process
+
+from heoslice import procedural
+from heoslice.errors import VerifyError
+from heoslice.printing import mask_channels, print_job, stack_job
+from heoslice.printing import protocol as P
+from heoslice.printing.simulator import SimConfig, SimConnector, SimController
+
+#: gel is the table's first material (M1, the contour's) on printer channel 3, cells (M2, --to) on channel 1.
+MATERIALS = '[materials.gel]\ncolor = "#f0f0f0"\nchannel = 3\n\n[materials.cells]\ncolor = "0,255,0"\nchannel = 1\n'
+
+
+@pytest.fixture(scope="module")
+def graded_stack(tmp_path_factory) -> Path:
+    """A box graded from gel to cells, sliced by `heoslice slice` with the materials file above."""
+    folder = tmp_path_factory.mktemp("channels")
+    model = folder / "box.ply"
+    model.write_bytes(procedural.box((8.0, 6.0, 3.0)).export(file_type="ply", encoding="binary"))
+    (folder / "mats.toml").write_text(MATERIALS)
+    assert in_process("slice", model, "--materials", folder / "mats.toml", "--grade", "linear", "--to", "cells",
+                      "--nozzle", "0.5", "--layer", "1", "--dpi", "100", "-j", "1", "-o", folder / "stack") == 0
+    return folder / "stack"
+
+
+def test_each_mask_goes_on_the_channel_its_material_names(graded_stack):
+    """The manifest lists gel (channel 3) before cells (channel 1): the job has channels 0..3, the solid mask on
+    0, cells' mask on 1, nothing on 2, gel's on 3; the simulated controller executes every layer once with the
+    CRC of exactly that layout, read back from the TIFFs."""
+    manifest = json.loads((graded_stack / "manifest.json").read_text())
+    assert [(m["name"], m["channel"]) for m in manifest["grading"]["materials"]] == [("gel", 3), ("cells", 1)]
+    job, get_layer = stack_job(graded_stack)
+    assert job.channels == 4 and job.names == ("solid", "cells", "unused", "gel")
+    expected = []
+    for entry in manifest["layers"]:
+        read = {"solid": tifffile.imread(graded_stack / entry["file"]).astype(bool)}
+        read.update({c["material"]: tifffile.imread(graded_stack / c["file"]).astype(bool) for c in entry["channels"]})
+        assert read["gel"].any() and read["cells"].any()
+        layout = [read["solid"], read["cells"], np.zeros_like(read["solid"]), read["gel"]]
+        expected.append(b"".join(np.packbits(mask, axis=1).tobytes() for mask in layout))
+        assert b"".join(get_layer(entry["index"])) == expected[-1]
+    controller = SimController(SimConfig(baud=100_000_000, layer_time_s=0.0, status_interval_s=0.2))
+    try:
+        print_job("sim://", job, get_layer, connector=SimConnector(controller))
+        executed = [e for e in controller.executed if e.job_id == job.job_id]
+    finally:
+        controller.stop()
+    assert [e.crc for e in executed] == [P.crc32(data) for data in expected]
+
+
+def manifest_of(*materials: tuple[str, int | None]) -> dict:
+    """A manifest with one layer whose droplet masks are of ``materials`` ((name, channel) pairs)."""
+    return {"layers": [{"channels": [{"material": name, "file": f"{name}.tif"} for name, _ in materials]}],
+            "grading": {"materials": [{"name": name, "channel": channel} for name, channel in materials]}}
+
+
+@pytest.mark.parametrize("materials, channels", [
+    ((("a", 2), ("b", 1)), (2, 1)),
+    ((("a", None), ("b", None), ("c", None)), (1, 2, 3)),
+    ((("a", None), ("b", 1), ("c", None)), (2, 1, 3)),
+    ((("a", 4), ("b", None)), (4, 1)),
+])
+def test_mask_channels_names_and_fills(materials, channels):
+    """A named channel is kept; masks whose materials name none take the lowest channels nobody names, in
+    order (all unnamed: 1..K as listed)."""
+    assert mask_channels(manifest_of(*materials)) == channels
+
+
+def test_mask_channels_without_grading_is_the_list_order():
+    """A stack whose masks have no grading.materials (hand-made) is sent on 1..K in its layers' order."""
+    manifest = {"layers": [{"channels": [{"file": "x.tif"}, {"file": "y.tif"}]}, {"channels": []}]}
+    assert mask_channels(manifest) == (1, 2)
+
+
+@pytest.mark.parametrize("manifest, message", [
+    (manifest_of(("a", 2), ("b", 2)), "a, b all name printer channel 2"),
+    (manifest_of(("a", 0), ("b", 1)), "channel 0, not a whole number"),
+    ({"layers": [{"channels": [{"material": "b"}]}], "grading": {"materials": [{"name": "a", "channel": 1}]}},
+     "mask 1 is of 'b'"),
+])
+def test_mask_channels_refuses_what_cannot_be_sent(manifest, message):
+    """Two masks on one channel, a channel that is no channel, or a mask list that is not grading.materials'
+    order: a one-line VerifyError naming the stack, not a guess."""
+    with pytest.raises(VerifyError, match=message) as caught:
+        mask_channels(manifest, "some_stack")
+    assert str(caught.value).startswith("some_stack: ") and "\n" not in str(caught.value)
