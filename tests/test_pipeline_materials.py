@@ -156,6 +156,24 @@ def test_colours_of_some_of_a_larger_table_map_to_their_own_masks(vase_file):
     assert np.array_equal(job.vertex_mix.argmax(axis=1), np.where(upper, 2, 0))
     assert np.array_equal(job.vertex_mix.sum(axis=1), np.ones(len(plain.vertices)))
 
+def test_two_masks_on_one_printer_channel_are_refused_before_slicing(run_cli, vase_file, tmp_path):
+    """A graded slice whose two materials name the same printer channel is refused in one line naming both
+    (exit 2), with no stack written: print could not send both masks; with channels apart it slices."""
+    table = tmp_path / "materials.toml"
+    table.write_text('[materials.gel]\ncolor = "240,240,240"\nchannel = 1\n'
+                     '[materials.cells]\ncolor = "0,255,0"\nchannel = 1\n')
+    out = tmp_path / "stack"
+    code, _, err = run_cli("slice", vase_file, "--layer", "5", "--dpi", "100", "--materials", table,
+                           "--grade", "linear", "-o", out)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "'gel' and 'cells' both print on channel 1" in err and "Traceback" not in err
+    assert not (out / "manifest.json").exists()
+    table.write_text(table.read_text().replace("channel = 1\n[materials.cells]", "channel = 2\n[materials.cells]"))
+    code, _, err = run_cli("slice", vase_file, "--layer", "5", "--dpi", "100", "--materials", table,
+                           "--grade", "linear", "-o", out)
+    assert code == 0, err
+
+
 def test_interior_takes_the_material_of_the_nearest_outer_ring_point(tmp_path):
     """Where a ring's materials differ (an L-shaped prism whose vertices are red where x > 4 mm, blue elsewhere),
     every solid pixel jets the material of the outer ring's point nearest its centre, computed independently

@@ -320,6 +320,19 @@ def blend(m1, m2, f: np.ndarray) -> np.ndarray:
     return c1 + weight * (c2 - c1)
 
 
+def check_one_per_channel(materials: tuple[Material, ...] | list[Material], needing: str) -> None:
+    """Refuse two of ``materials`` (distinct materials of one stack) that name the same printer channel:
+    each channel jets one material. ``needing`` says who needs it ("the parts", "the droplet masks")."""
+    on_channel: dict[int, Material] = {}
+    for material in materials:
+        if material.channel is None:
+            continue
+        other = on_channel.setdefault(material.channel, material)
+        if other is not material:
+            raise InputError(f"materials: {other.name!r} and {material.name!r} both print on channel "
+                             f"{material.channel}, but {needing} need one channel per material")
+
+
 def nearest_materials(colors: np.ndarray, materials: tuple[Material, ...] | list[Material]) -> np.ndarray:
     """The material each colour stands for: (n,) int index into ``materials`` of the display colour nearest
     to it in RGB (ties to the first listed), so a colour that is a material's display colour is that

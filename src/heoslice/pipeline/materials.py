@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from heoslice.material import DEFAULT_MATERIALS, Material, material_roles, nearest_materials
+from heoslice.material import DEFAULT_MATERIALS, Material, check_one_per_channel, material_roles, nearest_materials
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec
 
@@ -81,4 +81,6 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
     if not several and grade.function is None and spec.channels is None:
         return MaterialJob(replace(spec, grade=None, channels=False), None)
     channels = several if spec.channels is None else spec.channels
+    if channels:
+        check_one_per_channel(grade.channel_materials(), "the droplet masks")
     return MaterialJob(replace(spec, grade=grade, channels=channels), mix)

@@ -24,7 +24,7 @@ import numpy as np
 
 from heoslice.errors import InputError
 from heoslice.layers.rasterising import Grid, count_solid, packed_mask
-from heoslice.material import Material, PartSetting, nearest_materials, table_material
+from heoslice.material import Material, PartSetting, check_one_per_channel, nearest_materials, table_material
 from heoslice.pipeline.spec import channel_name
 from heoslice.stack import encode_bilevel_tiff, layer_file_name, write_file
 from heoslice.stack.tiff import MULTI_MATERIAL_DEFLATE_LEVEL
@@ -109,12 +109,7 @@ def plan_parts(parts: Sequence[Part], table: dict[str, Material], settings: Mapp
     if len(used) > MAX_PART_MATERIALS:
         raise InputError(f"parts: {len(used)} materials, more than the {MAX_PART_MATERIALS} droplet masks a layer "
                          "can carry")
-    on_channel: dict[int, Material] = {}
-    for material in used:
-        other = on_channel.setdefault(material.channel, material) if material.channel is not None else material
-        if other is not material:
-            raise InputError(f"materials: {other.name!r} and {material.name!r} both print on channel "
-                             f"{material.channel}, but the parts need one channel per material")
+    check_one_per_channel(used, "the parts")
     files = [channel_name(material) for material in used]
     if len(set(files)) != len(files):
         raise InputError(f"materials: material names give the same droplet-mask file names ({files}); rename them")
@@ -161,6 +156,8 @@ def render_parts_run(contours: Contours, context: RunContext, first_layer: int) 
     spec, grid, plan = context.spec, context.grid, context.spec.parts
     loop_part = context.mesh.part[contours.face] if len(contours.face) else np.zeros(0, np.int64)
     shape = (grid.height, -(-grid.width // 8))
+    # a stack with droplet masks is a multi-material stack; one part material gives a one-material stack
+    level = MULTI_MATERIAL_DEFLATE_LEVEL if plan.channel_materials() else 1
     done = []
     for local in range(len(contours.layer_offsets) - 1):
         index = first_layer + local
@@ -171,11 +168,10 @@ def render_parts_run(contours: Contours, context: RunContext, first_layer: int) 
                                  contours.offsets[first:last + 1] - start, loop_part[first:last], grid)
         solid, planes = compose_part_masks(masks, plan, shape)
         rendered = time.perf_counter()
-        data = encode_bilevel_tiff(solid, grid.width, spec.dpi, spec.compression, spec.layer_height_mm,
-                                   level=MULTI_MATERIAL_DEFLATE_LEVEL)
+        data = encode_bilevel_tiff(solid, grid.width, spec.dpi, spec.compression, spec.layer_height_mm, level=level)
         pieces = [(layer_file_name(index, channel_name(material)),
                    encode_bilevel_tiff(plane, grid.width, spec.dpi, spec.compression, spec.layer_height_mm,
-                                       level=MULTI_MATERIAL_DEFLATE_LEVEL),
+                                       level=level),
                    count_solid(plane))
                   for material, plane in zip(plan.channel_materials(), planes)]
         encoded = time.perf_counter()
