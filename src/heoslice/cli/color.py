@@ -178,13 +178,12 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
     write_ply(target, colored, ascii=ascii_ply, force=force)
     f = colored.material
     if as_json:
-        material = lambda m: {"name": m.name, "color": list(m.color), "channel": m.channel}  # noqa: E731
         click.echo(json.dumps({
-            "model": str(model), "ok": True, "output": str(target), "vertices": len(colored.vertices), "triangles": len(colored.faces),
-            "function": function.describe(), "reference": colored.reference.describe(),
+            "model": str(model), "ok": True, "output": str(target), "vertices": len(colored.vertices),
+            "triangles": len(colored.faces), "function": function.describe(), "reference": colored.reference.describe(),
             "r": [float(colored.r.min()), float(colored.r.max())], "f": [float(f.min()), float(f.max())],
-            "from": material(roles.m1), "to": material(roles.m2),
-            "shells": {str(n): material(m) for n, m in spec.shell_materials}, "warnings": list(mesh.warnings),
+            "from": roles.m1.record(), "to": roles.m2.record(),
+            "shells": {str(n): m.record() for n, m in spec.shell_materials}, "warnings": list(mesh.warnings),
         }))
         return
     click.echo(f"{target}: {len(colored.vertices)} vertices, {len(colored.faces)} triangles; "

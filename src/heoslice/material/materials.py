@@ -60,6 +60,10 @@ class Material:
     color: tuple[int, int, int]
     channel: int | None = None
 
+    def record(self) -> dict:
+        """The material as JSON records it (the manifest, ``--json``): name, [r, g, b], channel (or null)."""
+        return {"name": self.name, "color": list(self.color), "channel": self.channel}
+
 
 DEFAULT_MATERIALS = {
     "M1": Material("M1", (240, 240, 240), 1),

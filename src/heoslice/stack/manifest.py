@@ -171,9 +171,7 @@ def droplet_summary(materials) -> dict:
 
 def _material_record(material) -> dict | None:
     """A material as the manifest records it: name, [r, g, b] display colour, printer channel (or null)."""
-    if material is None:
-        return None
-    return {"name": material.name, "color": list(material.color), "channel": material.channel}
+    return None if material is None else material.record()
 
 
 def _refuse_constant(name: str):
