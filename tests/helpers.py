@@ -236,3 +236,17 @@ def write_3mf(path, resources: str, build: str, unit: str = "millimeter", rels: 
         if rels:
             archive.writestr("_rels/.rels", RELS)
         archive.writestr("3D/3dmodel.model", model)
+
+
+def executed_on_simulator(job, get_layer) -> list:
+    """Print ``job`` to a fresh simulated controller (fast link, no layer time) and return what it
+    executed of it (its ExecutedLayer records, in order)."""
+    from heoslice.printing import print_job
+    from heoslice.printing.simulator import SimConfig, SimConnector, SimController
+
+    controller = SimController(SimConfig(baud=100_000_000, layer_time_s=0.0, status_interval_s=0.2))
+    try:
+        print_job("sim://", job, get_layer, connector=SimConnector(controller))
+        return [e for e in controller.executed if e.job_id == job.job_id]
+    finally:
+        controller.stop()

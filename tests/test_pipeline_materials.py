@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
+from helpers import executed_on_simulator
 
 from heoslice import procedural
 from heoslice.material import Material
 from heoslice.mesh import load_mesh, without_materials
 from heoslice.pipeline import SliceSpec, material_job, slice_to_stack
-from heoslice.printing import print_job, stack_job
+from heoslice.printing import stack_job
 from heoslice.printing import protocol as P
-from heoslice.printing.simulator import SimConfig, SimConnector, SimController
 
 #: The distribution functions as the paper writes them, with ``heoslice color``'s default coefficients.
 LITERAL = {
@@ -84,12 +84,7 @@ def test_design_card_flow_prints_both_materials(run_cli, vase_file, tmp_path, fu
         packed_layers.append(b"".join(np.packbits(mask, axis=1).tobytes() for mask in (solid, m1, m2)))
     job, get_layer = stack_job(stack)
     assert job.channels == 3 and job.names == ("solid", "M1", "M2")
-    controller = SimController(SimConfig(baud=100_000_000, layer_time_s=0.0, status_interval_s=0.2))
-    try:
-        print_job("sim://", job, get_layer, connector=SimConnector(controller))
-        executed = [e for e in controller.executed if e.job_id == job.job_id]
-    finally:
-        controller.stop()
+    executed = executed_on_simulator(job, get_layer)
     assert [e.layer for e in executed] == list(range(len(manifest["layers"])))
     assert [e.crc for e in executed] == [P.crc32(data) for data in packed_layers]
 

@@ -9,13 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
-from helpers import in_process
+from helpers import executed_on_simulator, in_process
 
 from heoslice import procedural
 from heoslice.errors import VerifyError
-from heoslice.printing import mask_channels, print_job, stack_job
+from heoslice.printing import mask_channels, stack_job
 from heoslice.printing import protocol as P
-from heoslice.printing.simulator import SimConfig, SimConnector, SimController
 
 #: gel is the table's first material (M1, the contour's) on printer channel 3, cells (M2, --to) on channel 1.
 MATERIALS = '[materials.gel]\ncolor = "#f0f0f0"\nchannel = 3\n\n[materials.cells]\ncolor = "0,255,0"\nchannel = 1\n'
@@ -49,12 +48,7 @@ def test_each_mask_goes_on_the_channel_its_material_names(graded_stack):
         layout = [read["solid"], read["cells"], np.zeros_like(read["solid"]), read["gel"]]
         expected.append(b"".join(np.packbits(mask, axis=1).tobytes() for mask in layout))
         assert b"".join(get_layer(entry["index"])) == expected[-1]
-    controller = SimController(SimConfig(baud=100_000_000, layer_time_s=0.0, status_interval_s=0.2))
-    try:
-        print_job("sim://", job, get_layer, connector=SimConnector(controller))
-        executed = [e for e in controller.executed if e.job_id == job.job_id]
-    finally:
-        controller.stop()
+    executed = executed_on_simulator(job, get_layer)
     assert [e.crc for e in executed] == [P.crc32(data) for data in expected]
 
 
