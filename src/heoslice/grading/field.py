@@ -184,11 +184,14 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
         return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
                            lattice=lattice, start_edges=lambda: start.edges, nearest=nearest)
     precision = coordinate_precision(outer.edges.x, outer.edges.y)
-    layout = family_layout(family, spec, *_grading_length(family, spec, outer, rings, grid, memo), precision)
+    # one sub-region asked for (masks without a gradient): k = 1 throughout, so no grading length (eq. 8)
+    lengths = (None, None) if spec.count == 1 else _grading_length(family, spec, outer, rings, grid, memo)
+    layout = family_layout(family, spec, *lengths, precision)
     ends = [rings(loops, outward) for loops in layout.end]
     shape = (row1 - row0, col1 - col0)
     if direct:
-        index = _exact_index(lattice, grid, layout, [start] + ends, shape, mask, label_base)
+        index = (_single_region_index(shape, mask, (lattice.row0, lattice.col0), label_base) if layout.count == 1
+                 else _exact_index(lattice, grid, layout, [start] + ends, shape, mask, label_base))
         return FamilyField(box=box, index=index, layout=layout, lattice=lattice, start_edges=lambda: start.edges,
                            nearest=nearest)
     index, foot, edge = _lattice_index(lattice, grid, layout, [start] + ends, shape, mask, label_base, memo)
