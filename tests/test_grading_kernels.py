@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 import shapely
@@ -34,7 +35,7 @@ from heoslice.grading.refine_kernels import (
     refine_flags,
     ring_models,
 )
-from heoslice.grading.search_kernels import _candidates, edge_tree, nearest_in_groups
+from heoslice.grading.search_kernels import _ascending, _candidates, edge_tree, nearest_in_groups
 
 
 def halftone_bits(label, origin, packed, family_of_label, fraction, layout, mixes, target, tile, base_channel, planes,
@@ -122,6 +123,26 @@ def test_nearest_in_groups_matches_brute_force(seed):
     distance, fx, fy = feet(qx, qy, edge.ravel(), edges)
     np.testing.assert_allclose(distance.reshape(groups, points), exact, atol=2e-5)
     np.testing.assert_allclose(np.hypot(qx - fx, qy - fy), distance, atol=1e-9)
+
+
+@numba.njit
+def _numba_argsort(values):
+    """numba's own np.argsort, the order :func:`_ascending` must give."""
+    return np.argsort(values)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(0, 40), st.sampled_from([2, 5, 1000]), st.booleans())
+def test_ascending_is_numbas_argsort_ties_and_nans_included(seed, count, distinct, nans):
+    """The chunk order of the nearest-edge search, sorted without allocating, is numba's np.argsort's
+    index for index (equal bounds keep their order up to 15 values, NaN last), so the first of equally
+    near edges stays the one found."""
+    rng = np.random.default_rng(seed)
+    values = rng.integers(0, distinct, count).astype(np.float64)
+    if nans and count:
+        values[rng.random(count) < 0.2] = np.nan
+    order = _ascending(values, np.full(count, -1, dtype=np.int64))
+    assert np.array_equal(order, _numba_argsort(values))
 
 
 def test_nearest_in_groups_reports_no_edge_beyond_the_radius():

@@ -147,6 +147,7 @@ def refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, n
                 squared = nearest_edges(cx[measure], cy[measure], bound[first:first + step][measure] + reach, ox, oy,
                                         rings.edges, rings.tree, track=False)
                 slot[j, measure] = sum(len(part) for part in measured) + np.arange(len(squared))
-                measured.append(np.sqrt(squared))
-        measured = np.concatenate(measured) if measured else np.zeros((0, f * f), dtype=np.float32)
+                measured.append(np.sqrt(squared, out=squared))
+        measured = (measured[0] if len(measured) == 1 else np.concatenate(measured) if measured
+                    else np.zeros((0, f * f), dtype=np.float32))
         band_cells(target, ci, cj, pixels, models, measured, slot, layout.count, layout.length_mm)

@@ -75,6 +75,28 @@ def _squared(rx, ry, vx, vy, inv):  # pragma: no cover - compiled
     return rx * rx + ry * ry
 
 
+#: Up to this many values :func:`_ascending` sorts by insertion, as numba's argsort does (stable there).
+_INSERTION_SORT = 15
+
+
+@numba.njit(inline="always", **JIT)
+def _ascending(values, order):  # pragma: no cover - compiled
+    """The indices of ``values`` in ascending order (NaN last), into ``order`` (len(values),) without an
+    allocation, in the order numba's np.argsort gives: as it does, by insertion up to _INSERTION_SORT
+    values (equal values keep their order), else by np.argsort itself."""
+    count = len(values)
+    if count > _INSERTION_SORT:
+        return np.argsort(values)
+    for i in range(count):
+        j = i
+        while j > 0 and (values[i] < values[order[j - 1]]
+                         or (np.isnan(values[order[j - 1]]) and not np.isnan(values[i]))):
+            order[j] = order[j - 1]
+            j -= 1
+        order[j] = i
+    return order
+
+
 @numba.njit(**JIT)
 def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  # pragma: no cover - compiled
     """The nearest edge of group g's candidate chunks to each point (cx[g] + ox[k], cy[g] + oy[k]):
@@ -97,29 +119,36 @@ def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  
     best = np.full((groups, points), np.inf, dtype=np.float32)
     which = np.full((groups, points) if track else (0, 0), -1, dtype=np.int32)
     near = np.empty(points, dtype=np.float32)
+    widest = 0
+    for g in range(groups):
+        widest = max(widest, start[g + 1] - start[g])
+    bounds = np.empty(widest)
+    ranks = np.empty(widest, dtype=np.int64)
     for g in range(groups):
         first, count = start[g], start[g + 1] - start[g]
-        bound = np.empty(count)
+        bound = bounds[:count]
         for n in range(count):
             c = chunk[first + n]
             bound[n] = point_to_edge(cx[g], cy[g], capsules[c, 0], capsules[c, 1], capsules[c, 2], capsules[c, 3],
                                       capsules[c, 4]) - capsules[c, 5]
+        order = _ascending(bound, ranks[:count])
         row_best = best[g]
         near[:] = np.inf
         farthest = np.inf
-        for n in np.argsort(bound):
+        for n in order:
             if bound[n] - reach > farthest:
                 break
             c = chunk[first + n]
             bx, by = np.float32(cx[g] - capsules[c, 0]), np.float32(cy[g] - capsules[c, 1])
             vx, vy = np.float32(capsules[c, 2]), np.float32(capsules[c, 3])
             inv, radius = np.float32(capsules[c, 4]), np.float32(capsules[c, 5])
-            needed = 0
-            for k in range(points):
-                gap = np.sqrt(_squared(bx + ox[k], by + oy[k], vx, vy, inv)) - radius
-                needed += gap < near[k]
-            if not needed:
-                continue
+            if farthest < np.inf:  # every point needs the first chunk visited
+                needed = 0
+                for k in range(points):
+                    gap = np.sqrt(_squared(bx + ox[k], by + oy[k], vx, vy, inv)) - radius
+                    needed += gap < near[k]
+                if not needed:
+                    continue
             for e in range(c * FAN, min(c * FAN + FAN, edges)):
                 bx, by = np.float32(cx[g] - ex[e]), np.float32(cy[g] - ey[e])
                 vx, vy, inv = np.float32(evx[e]), np.float32(evy[e]), np.float32(einv[e])
