@@ -7,6 +7,7 @@ import functools
 import io
 import logging
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -83,25 +84,36 @@ def _strip_codec(compression: str, level: int = 1):
     return codec
 
 
+class BilevelForm(NamedTuple):
+    """What a 1-bit layer's TIFF layout depends on: size (px), dpi, Z spacing (mm or None), codec, strip rows."""
+
+    height: int
+    width: int
+    dpi: tuple[float, float]
+    compression: str
+    spacing_mm: float | None
+    rows_per_strip: int
+
+
 @dataclass(frozen=True, slots=True)
 class BilevelLayout:
-    """Where tifffile puts a 1-bit layer's strips, for one form (size, dpi, spacing, codec, strip rows):
-    its header and tags (``head``, bytes up to the first strip), the file offsets of the StripOffsets and
-    StripByteCounts values (uint32 each, little-endian) and of the first strip. Strips follow one
-    another to the end of the file, so a layer of this form is ``head`` with the two tables patched,
-    then its strips: the bytes tifffile writes, without its per-file cost."""
+    """Where tifffile puts a 1-bit layer's strips, for one :class:`BilevelForm`: its header and tags
+    (``head``, the bytes up to the first strip) and the file offsets of the StripOffsets and
+    StripByteCounts values (uint32 each, little-endian). Strips follow one another to the end of the
+    file, so a layer of this form is ``head`` with the two tables patched, then its strips: the bytes
+    tifffile writes, without its per-file cost."""
 
     head: bytes
     offsets_at: int
     counts_at: int
-    strips: int
 
 
 def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float], compression: str,
                         spacing_mm: float | None = None, rows_per_strip: int = 256, level: int = 1) -> bytes:
     """TIFF bytes of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, MSB first).
 
-    ``level`` is deflate's (multi-material stacks use :data:`MULTI_MATERIAL_DEFLATE_LEVEL`; other codecs ignore it).
+    ``level`` is deflate's (multi-material stacks use :data:`MULTI_MATERIAL_DEFLATE_LEVEL`; other codecs
+    ignore it).
 
     The strips are compressed here, straight from the packed bits (the mask is never expanded to
     one byte per pixel), and laid out as tifffile lays them out for this form
@@ -110,7 +122,7 @@ def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float]
     benchmarks/README.md).
     """
     height = packed.shape[0]
-    form = (height, width, tuple(float(d) for d in dpi), compression, spacing_mm, rows_per_strip)
+    form = BilevelForm(height, width, (float(dpi[0]), float(dpi[1])), compression, spacing_mm, rows_per_strip)
     if COMPRESSIONS[compression] is None:
         return _tifffile_bilevel(packed, form, None)
     codec = _strip_codec(compression, level)
@@ -129,14 +141,13 @@ def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float]
 
 
 @functools.lru_cache(maxsize=16)
-def bilevel_layout(form: tuple) -> BilevelLayout | None:
+def bilevel_layout(form: BilevelForm) -> BilevelLayout | None:
     """The :class:`BilevelLayout` tifffile gives a 1-bit layer of ``form`` (as
     :func:`encode_bilevel_tiff` builds it), read from a file it writes with placeholder strips of
     distinct lengths; None when its layout is not the one described there (tifffile changed)."""
     import tifffile
 
-    height, width = form[0], form[1]
-    strips = -(-height // form[5])
+    strips = -(-form.height // form.rows_per_strip)
     sample = [bytes([number % 251]) * (3 + 2 * number) for number in range(strips)]
     data = _tifffile_bilevel(None, form, sample)
     with tifffile.TiffFile(io.BytesIO(data)) as tiff:
@@ -155,10 +166,10 @@ def bilevel_layout(form: tuple) -> BilevelLayout | None:
         return None
     if b"".join(sample) != data[first:]:
         return None
-    return BilevelLayout(data[:first], positions[0], positions[1], strips)
+    return BilevelLayout(data[:first], positions[0], positions[1])
 
 
-def _tifffile_bilevel(packed: np.ndarray | None, form: tuple, strips: list[bytes] | None) -> bytes:
+def _tifffile_bilevel(packed: np.ndarray | None, form: BilevelForm, strips: list[bytes] | None) -> bytes:
     """tifffile's own file of a 1-bit layer of ``form``: from encoded ``strips``, or (no compression)
     from the ``packed`` bits expanded."""
     import tifffile
