@@ -70,3 +70,16 @@ def test_several_meshes_for_a_one_mesh_stack_are_refused(tmp_path, run_cli):
     assert run_cli("slice", tmp_path / "a.ply", "--layer", "1", "--dpi", "100", "-o", tmp_path / "stack")[0] == 0
     code, _, err = run_cli("verify", tmp_path / "stack", "--mesh", tmp_path / "a.ply", "--mesh", tmp_path / "a.ply")
     assert code == EXIT_INPUT and err.count("\n") == 1 and "one mesh file: give one --mesh (got 2)" in err
+
+
+def test_two_materials_on_one_printer_channel_fail_verify(two_part_stack, run_cli):
+    """A stack whose grading.materials put two masks on one printer channel (a manifest edited by hand, or
+    written by another tool) fails verify with one line naming both materials, as print refuses it."""
+    path = two_part_stack / "stack" / "manifest.json"
+    manifest = json.loads(path.read_text())
+    for material in manifest["grading"]["materials"]:
+        material["channel"] = 3
+    path.write_text(json.dumps(manifest))
+    code, out, err = run_cli("verify", two_part_stack / "stack")
+    assert code == EXIT_VERIFY, (out, err)
+    assert "manifest.json: materials M1, M2 all name printer channel 3" in out + err

@@ -12,8 +12,7 @@ import tifffile
 from helpers import executed_on_simulator, in_process
 
 from heoslice import procedural
-from heoslice.errors import VerifyError
-from heoslice.printing import mask_channels, stack_job
+from heoslice.printing import stack_job
 from heoslice.printing import protocol as P
 
 #: gel is the table's first material (M1, the contour's) on printer channel 3, cells (M2, --to) on channel 1.
@@ -52,39 +51,3 @@ def test_each_mask_goes_on_the_channel_its_material_names(graded_stack):
     assert [e.crc for e in executed] == [P.crc32(data) for data in expected]
 
 
-def manifest_of(*materials: tuple[str, int | None]) -> dict:
-    """A manifest with one layer whose droplet masks are of ``materials`` ((name, channel) pairs)."""
-    return {"layers": [{"channels": [{"material": name, "file": f"{name}.tif"} for name, _ in materials]}],
-            "grading": {"materials": [{"name": name, "channel": channel} for name, channel in materials]}}
-
-
-@pytest.mark.parametrize("materials, channels", [
-    ((("a", 2), ("b", 1)), (2, 1)),
-    ((("a", None), ("b", None), ("c", None)), (1, 2, 3)),
-    ((("a", None), ("b", 1), ("c", None)), (2, 1, 3)),
-    ((("a", 4), ("b", None)), (4, 1)),
-])
-def test_mask_channels_names_and_fills(materials, channels):
-    """A named channel is kept; masks whose materials name none take the lowest channels nobody names, in
-    order (all unnamed: 1..K as listed)."""
-    assert mask_channels(manifest_of(*materials)) == channels
-
-
-def test_mask_channels_without_grading_is_the_list_order():
-    """A stack whose masks have no grading.materials (hand-made) is sent on 1..K in its layers' order."""
-    manifest = {"layers": [{"channels": [{"file": "x.tif"}, {"file": "y.tif"}]}, {"channels": []}]}
-    assert mask_channels(manifest) == (1, 2)
-
-
-@pytest.mark.parametrize("manifest, message", [
-    (manifest_of(("a", 2), ("b", 2)), "a, b all name printer channel 2"),
-    (manifest_of(("a", 0), ("b", 1)), "channel 0, not a whole number"),
-    ({"layers": [{"channels": [{"material": "b"}]}], "grading": {"materials": [{"name": "a", "channel": 1}]}},
-     "mask 1 is of 'b'"),
-])
-def test_mask_channels_refuses_what_cannot_be_sent(manifest, message):
-    """Two masks on one channel, a channel that is no channel, or a mask list that is not grading.materials'
-    order: a one-line VerifyError naming the stack, not a guess."""
-    with pytest.raises(VerifyError, match=message) as caught:
-        mask_channels(manifest, "some_stack")
-    assert str(caught.value).startswith("some_stack: ") and "\n" not in str(caught.value)

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from heoslice import procedural
-from heoslice.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_VERIFY
+from heoslice.errors import EXIT_INPUT, EXIT_OUTPUT, EXIT_VERIFY, VerifyError
 from heoslice.stack import (
     MAX_LAYERS,
     MAX_MANIFEST_BYTES,
@@ -21,6 +21,7 @@ from heoslice.stack import (
     LayerRecord,
     build_manifest,
     layer_file_name,
+    mask_channels,
     max_layer_count,
     read_manifest,
     write_manifest,
@@ -143,3 +144,41 @@ def test_full_disk_at_the_manifest_leaves_no_temporary_file(tmp_path):
     assert len(list((tmp_path / "s").glob("layer_*.tif"))) == 40
     assert not (tmp_path / "s" / "manifest.json").exists()
     assert not (tmp_path / "s" / "manifest.json.tmp").exists()
+
+
+def manifest_of(*materials: tuple[str, int | None]) -> dict:
+    """A manifest with one layer whose droplet masks are of ``materials`` ((name, channel) pairs)."""
+    return {"layers": [{"channels": [{"material": name, "file": f"{name}.tif"} for name, _ in materials]}],
+            "grading": {"materials": [{"name": name, "channel": channel} for name, channel in materials]}}
+
+
+@pytest.mark.parametrize("materials, channels", [
+    ((("a", 2), ("b", 1)), (2, 1)),
+    ((("a", None), ("b", None), ("c", None)), (1, 2, 3)),
+    ((("a", None), ("b", 1), ("c", None)), (2, 1, 3)),
+    ((("a", 4), ("b", None)), (4, 1)),
+])
+def test_mask_channels_names_and_fills(materials, channels):
+    """A named channel is kept; masks whose materials name none take the lowest channels nobody names, in
+    order (all unnamed: 1..K as listed)."""
+    assert mask_channels(manifest_of(*materials)) == channels
+
+
+def test_mask_channels_without_grading_is_the_list_order():
+    """A stack whose masks have no grading.materials (hand-made) is sent on 1..K in its layers' order."""
+    manifest = {"layers": [{"channels": [{"file": "x.tif"}, {"file": "y.tif"}]}, {"channels": []}]}
+    assert mask_channels(manifest) == (1, 2)
+
+
+@pytest.mark.parametrize("manifest, message", [
+    (manifest_of(("a", 2), ("b", 2)), "a, b all name printer channel 2"),
+    (manifest_of(("a", 0), ("b", 1)), "channel 0, not a whole number"),
+    ({"layers": [{"channels": [{"material": "b"}]}], "grading": {"materials": [{"name": "a", "channel": 1}]}},
+     "mask 1 is of 'b'"),
+])
+def test_mask_channels_refuses_what_cannot_be_sent(manifest, message):
+    """Two masks on one channel, a channel that is no channel, or a mask list that is not grading.materials'
+    order: a one-line VerifyError naming the stack, not a guess."""
+    with pytest.raises(VerifyError, match=message) as caught:
+        mask_channels(manifest, "some_stack")
+    assert str(caught.value).startswith("some_stack: ") and "\n" not in str(caught.value)

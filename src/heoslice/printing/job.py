@@ -2,7 +2,7 @@
 
 Channel 0 of a layer is its solid mask, channels 1.. its droplet masks, each bit-packed by rows
 (docs/protocol.md section 3), each mask on the printer channel its material names in the manifest
-(:func:`mask_channels`). The job id is the CRC-32 of the stack's manifest.
+(:func:`heoslice.stack.mask_channels`). The job id is the CRC-32 of the stack's manifest.
 """
 
 from __future__ import annotations
@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from heoslice.errors import HeosliceError, InputError, StackChangedError, VerifyError
+from heoslice.errors import HeosliceError, InputError, StackChangedError
 from heoslice.printing import protocol as P
+from heoslice.stack import mask_channels
 
 LayerSource = Callable[[int], Sequence[bytes]]
 
@@ -41,36 +42,6 @@ class JobSpec:
 def pack_mask(mask: np.ndarray) -> bytes:
     """Channel payload of a (height, width) bool mask: ``np.packbits`` along rows (MSB first, rows padded)."""
     return np.packbits(np.asarray(mask, dtype=bool), axis=1).tobytes()
-
-
-def mask_channels(manifest: dict, label: object = "stack") -> tuple[int, ...]:
-    """The printer channel (1-based) of each droplet mask, in the order of a layer's ``channels`` list: the
-    ``channel`` of its ``grading.materials`` entry (the same order, docs/stack-format.md). A mask whose
-    material names no channel (null, or a stack without ``grading.materials``) takes the lowest channel no
-    other mask names, in mask order, so a stack whose materials name none is sent on 1..K as listed.
-    The one place a stack's material -> channel map is read. Raises VerifyError (naming ``label``) when a
-    mask's material is not its entry's, a channel is not a whole number >= 1, or two masks name one channel."""
-    widest = max((entry.get("channels") or [] for entry in manifest["layers"]), key=len)
-    recorded = (manifest.get("grading") or {}).get("materials") or []
-    wanted: list[int | None] = []
-    for number, channel in enumerate(widest):
-        material = recorded[number] if number < len(recorded) and isinstance(recorded[number], dict) else {}
-        if "material" in channel and "name" in material and channel["material"] != material["name"]:
-            raise VerifyError(f"{label}: droplet mask {number + 1} is of {channel['material']!r}, but "
-                              f"grading.materials lists {material['name']!r} there; do not print this stack")
-        value = material.get("channel")
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise VerifyError(f"{label}: material {material.get('name')!r} has printer channel {value!r}, "
-                              "not a whole number >= 1; do not print this stack")
-        wanted.append(value)
-    named = [value for value in wanted if value is not None]
-    twice = sorted({value for value in named if named.count(value) > 1})
-    if twice:
-        sharing = [str(widest[n].get("material", f"mask {n + 1}")) for n, v in enumerate(wanted) if v == twice[0]]
-        raise VerifyError(f"{label}: materials {', '.join(sharing)} all name printer channel {twice[0]}; give each "
-                          "material its own channel in the materials file and slice again")
-    free = (number for number in range(1, len(wanted) + len(named) + 1) if number not in named)
-    return tuple(value if value is not None else next(free) for value in wanted)
 
 
 def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:

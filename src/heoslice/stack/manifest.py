@@ -313,6 +313,36 @@ def _layer_problem(entry, position: int, pixels: int) -> str | None:
     return None
 
 
+def mask_channels(manifest: dict, label: object = "stack") -> tuple[int, ...]:
+    """The printer channel (1-based) of each droplet mask, in the order of a layer's ``channels`` list: the
+    ``channel`` of its ``grading.materials`` entry (the same order, docs/stack-format.md). A mask whose
+    material names no channel (null, or a stack without ``grading.materials``) takes the lowest channel no
+    other mask names, in mask order, so a stack whose materials name none is sent on 1..K as listed.
+    The one place a stack's material -> channel map is read (by verify and print). Raises VerifyError (naming ``label``) when a
+    mask's material is not its entry's, a channel is not a whole number >= 1, or two masks name one channel."""
+    widest = max((entry.get("channels") or [] for entry in manifest["layers"]), key=len)
+    recorded = (manifest.get("grading") or {}).get("materials") or []
+    wanted: list[int | None] = []
+    for number, channel in enumerate(widest):
+        material = recorded[number] if number < len(recorded) and isinstance(recorded[number], dict) else {}
+        if "material" in channel and "name" in material and channel["material"] != material["name"]:
+            raise VerifyError(f"{label}: droplet mask {number + 1} is of {channel['material']!r}, but "
+                              f"grading.materials lists {material['name']!r} there; do not print this stack")
+        value = material.get("channel")
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise VerifyError(f"{label}: material {material.get('name')!r} has printer channel {value!r}, "
+                              "not a whole number >= 1; do not print this stack")
+        wanted.append(value)
+    named = [value for value in wanted if value is not None]
+    twice = sorted({value for value in named if named.count(value) > 1})
+    if twice:
+        sharing = [str(widest[n].get("material", f"mask {n + 1}")) for n, v in enumerate(wanted) if v == twice[0]]
+        raise VerifyError(f"{label}: materials {', '.join(sharing)} all name printer channel {twice[0]}; give each "
+                          "material its own channel in the materials file and slice again")
+    free = (number for number in range(1, len(wanted) + len(named) + 1) if number not in named)
+    return tuple(value if value is not None else next(free) for value in wanted)
+
+
 def expected_layer_count(z_min: float, z_max: float, layer_height: float) -> int:
     """Layers a stack of this z-range needs: :func:`heoslice.layers.planes.layer_count`, as slicing cuts them."""
     return layer_count(z_min, z_max, layer_height)

@@ -1,5 +1,6 @@
 """Verifying a stack: the manifest, every listed file (inside, present, sha256, layout, solid pixels),
-droplet masks against their layer, layer heights, and no unlisted layer files."""
+droplet masks against their layer and their printer channels, layer heights, and no unlisted layer
+files."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import VerifyError
-from heoslice.stack.manifest import LAYER_PATTERN, layer_height_problems
+from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST, layer_height_problems, mask_channels
 from heoslice.stack.read import (decode_checked, decode_mask, read_checked, read_layer_mask, read_manifest,
                                  resolve_inside)
 
@@ -96,6 +97,10 @@ def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:
                 problems.append(f"layer {index}: {problem}")
         if entry.get("channels") and check_pixels and not any(p.startswith(f"layer {index}:") for p in problems):
             problems += _channel_problems(directory, manifest, index)
+    try:
+        mask_channels(manifest, MANIFEST)
+    except VerifyError as err:
+        problems.append(str(err))
     z_min, z_max = manifest["z_range_mm"]
     problems += layer_height_problems(manifest, z_min, z_max, "the manifest's")
     names = {path.name for path in listed if path.parent == directory.resolve()}
