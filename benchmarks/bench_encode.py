@@ -5,14 +5,15 @@ Reads every ``--every``-th layer of STACK (its solid layers and, per material, i
 re-encodes each at zlib levels 1-5 with :func:`heoslice.stack.encode_bilevel_tiff` (best of
 ``--repeats``) and prints the mean size and time per file; then times one solid layer through
 tifffile.imwrite from the same strips against the recalled layout, alternating. ``--codecs`` adds, per
-droplet mask of the first material, whole-mask sizes under other lossless codecs (imagecodecs'), to see
-how small any codec gets a dithered mask.
+kind of file (solid, each material's masks), whole-file sizes under other lossless codecs (imagecodecs'),
+to see how small any codec gets a dithered mask, and the smallest a layer gets with each file in its best
+codec (also with the last mask implied by the others), against a PrusaSlicer .sl1 of the job (``--sl1``).
 
 Examples:
   heoslice slice liver.ply --grade linear --to 0,255,0 --channels -o liver_stack
   python benchmarks/bench_encode.py liver_stack
   python benchmarks/bench_encode.py liver_stack --every 10 --levels 1,2,6
-  python benchmarks/bench_encode.py liver_stack --every 50 --codecs
+  python benchmarks/bench_encode.py liver_stack --every 50 --codecs --sl1 liver.sl1
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from __future__ import annotations
 import argparse
 import io
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -50,9 +52,13 @@ def by_tifffile(packed: np.ndarray, width: int, dpi, spacing) -> bytes:
     return buffer.getvalue()
 
 
-def codec_survey(packed: list[np.ndarray], width: int) -> None:
-    """Mean size and time a mask of each codec over whole packed masks (no strips, no TIFF)."""
+def codec_survey(kinds: dict[str, list[np.ndarray]], width: int) -> dict[str, dict[str, float]]:
+    """Mean size (bytes) and time (s) a file of each codec, per kind of file (solid, each material's masks),
+    over whole packed masks (no strips, no TIFF), printed as it goes; returns {kind: {codec: bytes}}."""
     import imagecodecs
+
+    def grey(p: np.ndarray) -> np.ndarray:
+        return np.unpackbits(p, axis=1, count=width) * np.uint8(255)
 
     codecs = {
         "zlib-ng 2 (the stack's)": lambda p: imagecodecs.zlibng_encode(p.tobytes(), level=2),
@@ -61,14 +67,38 @@ def codec_survey(packed: list[np.ndarray], width: int) -> None:
         "zstd 19": lambda p: imagecodecs.zstd_encode(p.tobytes(), level=19),
         "lzma 6": lambda p: imagecodecs.lzma_encode(p.tobytes()),
         "brotli 5": lambda p: imagecodecs.brotli_encode(p.tobytes(), level=5),
-        "webp lossless": lambda p: imagecodecs.webp_encode(
-            np.repeat(np.unpackbits(p, axis=1, count=width)[..., None] * np.uint8(255), 3, axis=2),
-            lossless=True, level=3),
+        "webp lossless 6": lambda p: imagecodecs.webp_encode(np.repeat(grey(p)[..., None], 3, axis=2),
+                                                             lossless=True, level=6),
+        "jpeg-xl lossless e7": lambda p: imagecodecs.jpegxl_encode(grey(p), lossless=True, effort=7),
     }
-    for name, encode in codecs.items():
-        started = time.perf_counter()
-        size = np.mean([len(encode(p)) for p in packed])
-        print(f"  {name:24s} {size / 1024:7.1f} KB  {(time.perf_counter() - started) / len(packed) * 1e3:7.1f} ms")
+    sizes: dict[str, dict[str, float]] = {}
+    for kind, packed in kinds.items():
+        print(f"  whole {kind} files under other codecs:")
+        for name, encode in codecs.items():
+            started = time.perf_counter()
+            size = float(np.mean([len(encode(p)) for p in packed]))
+            sizes.setdefault(kind, {})[name] = size
+            print(f"    {name:24s} {size / 1024:7.1f} KB  {(time.perf_counter() - started) / len(packed) * 1e3:7.1f} ms")
+    return sizes
+
+
+def best_layer(sizes: dict[str, dict[str, float]], sl1: Path | None) -> None:
+    """The smallest a layer gets with each file in its best codec: all files, and with the last material's mask
+    left out (it is the solid pixels no other mask has); against an .sl1's mean compressed layer PNG."""
+    best = {kind: min(by_codec.values()) for kind, by_codec in sizes.items()}
+    masks = [kind for kind in best if kind != "solid"]
+    rows = {"every file": sum(best.values()),
+            "the last mask implied": sum(best.values()) - (best[masks[-1]] if masks else 0.0)}
+    reference = None
+    if sl1 is not None:
+        with zipfile.ZipFile(sl1) as archive:
+            pngs = [info.compress_size for info in archive.infolist() if info.filename.endswith(".png")
+                    and not info.filename.startswith("thumbnail")]
+        reference = float(np.mean(pngs))
+        print(f"  {sl1.name}: {reference / 1024:.1f} KB a layer PNG ({len(pngs)} layers)")
+    for name, size in rows.items():
+        ratio = f", {size / reference:.2f}x the .sl1's" if reference else ""
+        print(f"  a layer, each file in its best codec, {name}: {size / 1024:.1f} KB{ratio}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -79,7 +109,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--every", type=int, default=25, help="take every N-th layer [25]")
     parser.add_argument("--levels", default="1,2,3,4,5", help="zlib levels [1,2,3,4,5]")
     parser.add_argument("--repeats", type=int, default=3, help="runs per figure, best taken [3]")
-    parser.add_argument("--codecs", action="store_true", help="also whole-mask sizes under other codecs")
+    parser.add_argument("--codecs", action="store_true", help="also whole-file sizes under other codecs")
+    parser.add_argument("--sl1", type=Path, default=None,
+                        help="with --codecs: a PrusaSlicer .sl1 of the same job, to compare a layer's best size with")
     args = parser.parse_args(argv)
     manifest = read_manifest(args.stack)
     width, dpi, spacing = manifest["image"]["width"], tuple(manifest["dpi"]), manifest["layer_height_mm"]
@@ -107,10 +139,8 @@ def main(argv: list[str] | None = None) -> int:
             times[name].append(best_of(40, work))
     for name, values in times.items():
         print(f"  one solid layer, level 1, {name}: {np.median(values) * 1e3:.3f} ms (median of 5, best of 40 each)")
-    masks = [kind for kind in kinds if kind != "solid"]
-    if args.codecs and masks:
-        print(f"  whole {masks[0]} masks under other codecs:")
-        codec_survey(kinds[masks[0]], width)
+    if args.codecs:
+        best_layer(codec_survey(kinds, width), args.sl1)
     return 0
 
 
