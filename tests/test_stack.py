@@ -296,6 +296,12 @@ def test_file_listed_twice(stack):
     assert "layer_00001.tif: layer file not listed in the manifest" in found
 
 
+def masks_of(manifest: dict, index: int, *materials: str) -> None:
+    """Give layer ``index`` of ``manifest`` one droplet mask entry per material (its own file, for structure)."""
+    entry = manifest["layers"][index]
+    entry["channels"] = [{"material": name, "file": entry["file"], "sha256": entry["sha256"]} for name in materials]
+
+
 @pytest.mark.parametrize("change, expected", [
     (lambda m: m.update(complete=False), "not complete"),
     (lambda m: m.pop("complete"), "not complete"),
@@ -312,12 +318,29 @@ def test_file_listed_twice(stack):
     (lambda m: m["layers"][2].update(solid_pixels=-5), "solid_pixels"),
     (lambda m: m["layers"][2].update(channels=[{"file": 3}]), "channel 0"),
     (lambda m: m.update(layers={}), "'layers' must be a list"),
+    (lambda m: m.update(grading="x"), "'grading' must be an object"),
+    (lambda m: m.update(grading={"materials": "x"}), "'grading.materials' must be a list"),
+    (lambda m: m.update(grading={"materials": [{"channel": 1}]}), "objects with a 'name'"),
+    (lambda m: m.update(grading={"materials": [{"name": "a", "channel": 0}]}), "'a' has printer channel 0"),
+    (lambda m: m.update(grading={"materials": [{"name": "a", "channel": True}]}), "'a' has printer channel True"),
+    (lambda m: (m.update(grading={"materials": [{"name": "a", "channel": 1}]}), masks_of(m, 2, "b")),
+     "layer 2: its droplet masks (b) are not one per material of grading.materials (a)"),
+    (lambda m: (m.update(grading={"materials": [{"name": "a", "channel": 1}, {"name": "b", "channel": 2}]}),
+                masks_of(m, 2, "a")), "layer 2: its droplet masks (a) are not one per material"),
 ])
 def test_malformed_manifest(stack, change, expected):
     """Each structural manifest flaw is one problem line naming it."""
     edit_manifest(stack, change)
     found = problems(stack)
     assert len(found) == 1 and expected in found[0], found
+
+
+def test_a_manifest_without_layers_is_problems_not_a_crash(stack):
+    """A manifest whose layer list is empty is verify's problem lines (the layer count its z-range needs, the
+    files it does not list), not an internal error."""
+    edit_manifest(stack, lambda m: m.update(layers=[]))
+    found = problems(stack)
+    assert any("not listed in the manifest" in line for line in found), found
 
 
 @pytest.mark.parametrize("text, expected", [

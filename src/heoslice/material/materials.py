@@ -110,9 +110,14 @@ def _material_from_table(name: str, entry, path: Path) -> Material:
     except InputError as err:
         raise InputError(f"{path}: materials.{name}: {err}") from None
     channel = entry.get("channel")
-    if channel is not None and (isinstance(channel, bool) or not isinstance(channel, int) or channel < 1):
+    if channel is not None and not is_channel(channel):
         raise InputError(f"{path}: materials.{name}: channel must be a whole number >= 1, got {channel!r}")
     return Material(name, color, channel)
+
+
+def is_channel(value) -> bool:
+    """A printer channel: a whole number >= 1 (JSON's true is not one); the rule of materials files and manifests."""
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
 
 
 #: A materials file is a few named colours; anything larger than this is not one (and is not read).

@@ -18,6 +18,7 @@ import numpy as np
 from heoslice import __version__
 from heoslice.errors import InputError, VerifyError
 from heoslice.layers.planes import layer_count
+from heoslice.material import is_channel
 
 FORMAT_NAME = "heoslice-stack"
 FORMAT_VERSION = 1
@@ -250,6 +251,34 @@ def manifest_problem(manifest) -> str | None:
         problem = _layer_problem(entry, position, pixels)
         if problem:
             return problem
+    return _grading_problem(manifest)
+
+
+def _grading_problem(manifest: dict) -> str | None:
+    """The first problem of ``grading`` (an object, its ``materials`` a list of {name, channel}) and of the
+    layers' droplet masks against those materials (each layer's masks, when it has any, are one per material
+    in the same order), or None. A stack without ``grading.materials`` may list any masks."""
+    grading = manifest.get("grading")
+    if grading is None:
+        return None
+    if not isinstance(grading, dict):
+        return "'grading' must be an object"
+    materials = grading.get("materials")
+    if materials is None:
+        return None
+    if not (isinstance(materials, list) and all(isinstance(m, dict) and isinstance(m.get("name"), str)
+                                                for m in materials)):
+        return "'grading.materials' must be a list of objects with a 'name'"
+    for material in materials:
+        if material.get("channel") is not None and not is_channel(material["channel"]):
+            return (f"grading.materials: {material['name']!r} has printer channel {_show(material['channel'])}, "
+                    "not a whole number >= 1")
+    names = [material["name"] for material in materials]
+    for entry in manifest["layers"]:
+        masks = [channel.get("material") for channel in entry.get("channels", [])]
+        if masks and (len(masks) != len(names) or any(m is not None and m != n for m, n in zip(masks, names))):
+            return (f"layer {entry['index']}: its droplet masks ({', '.join(map(str, masks))}) are not one per "
+                    f"material of grading.materials ({', '.join(names)}), in its order")
     return None
 
 
@@ -314,25 +343,15 @@ def _layer_problem(entry, position: int, pixels: int) -> str | None:
 
 
 def mask_channels(manifest: dict, label: object = "stack") -> tuple[int, ...]:
-    """The printer channel (1-based) of each droplet mask, in the order of a layer's ``channels`` list: the
-    ``channel`` of its ``grading.materials`` entry (the same order, docs/stack-format.md). A mask whose
-    material names no channel (null, or a stack without ``grading.materials``) takes the lowest channel no
-    other mask names, in mask order, so a stack whose materials name none is sent on 1..K as listed.
-    The one place a stack's material -> channel map is read (by verify and print). Raises VerifyError (naming ``label``) when a
-    mask's material is not its entry's, a channel is not a whole number >= 1, or two masks name one channel."""
-    widest = max((entry.get("channels") or [] for entry in manifest["layers"]), key=len)
+    """The printer channel (1-based) of each droplet mask of a checked manifest (:func:`manifest_problem`), in
+    the order of a layer's ``channels`` list: the ``channel`` of its ``grading.materials`` entry (the same
+    order). A mask whose material names no channel (null, or a stack without ``grading.materials``) takes the
+    lowest channel no other mask names, in mask order, so a stack whose materials name none is sent on 1..K
+    as listed. The one place a stack's material -> channel map is read (by verify and print). Raises
+    VerifyError (naming ``label``) when two masks name one channel."""
+    widest = max((entry.get("channels", []) for entry in manifest["layers"]), key=len, default=[])
     recorded = (manifest.get("grading") or {}).get("materials") or []
-    wanted: list[int | None] = []
-    for number, channel in enumerate(widest):
-        material = recorded[number] if number < len(recorded) and isinstance(recorded[number], dict) else {}
-        if "material" in channel and "name" in material and channel["material"] != material["name"]:
-            raise VerifyError(f"{label}: droplet mask {number + 1} is of {channel['material']!r}, but "
-                              f"grading.materials lists {material['name']!r} there; do not print this stack")
-        value = material.get("channel")
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise VerifyError(f"{label}: material {material.get('name')!r} has printer channel {value!r}, "
-                              "not a whole number >= 1; do not print this stack")
-        wanted.append(value)
+    wanted = [recorded[number].get("channel") if number < len(recorded) else None for number in range(len(widest))]
     named = [value for value in wanted if value is not None]
     twice = sorted({value for value in named if named.count(value) > 1})
     if twice:
