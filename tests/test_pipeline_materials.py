@@ -110,8 +110,9 @@ def test_rgba_preview_stack_is_coloured_by_the_materials(run_cli, vase_file, tmp
 
 def test_material_job_rule(vase_file, tmp_path):
     """The rule: an uncoloured mesh is one material (no grading, a solid mask); a material fraction gives
-    M1 and M2 masks; colours that all map to one material are one material; an RGBA request keeps the grade
-    without masks; without_materials drops what a mesh carries."""
+    M1 and M2 masks; colours that all map to one material are one material, colours of two a mask each (and
+    the table's unused second material none); an RGBA request keeps the grade without masks;
+    without_materials drops what a mesh carries."""
     plain = load_mesh(vase_file)
     spec = SliceSpec(layer_height_mm=1.0)
     assert material_job(plain, spec).spec.grade is None and not material_job(plain, spec).spec.channels
@@ -131,24 +132,24 @@ def test_material_job_rule(vase_file, tmp_path):
     two[plain.vertices[:, 2] > 30] = (250, 10, 10)
     job = material_job(type(plain)(**{**plain.__dict__, "colors": two}), SliceSpec(layer_height_mm=1.0,
                                                                                     materials=table))
-    assert [m.name for m in job.spec.grade.channel_materials()] == ["a", "b", "c"]
-    assert set(np.unique(job.vertex_mix.argmax(axis=1))) == {0, 2}
+    assert [m.name for m in job.spec.grade.channel_materials()] == ["a", "c"]
+    assert set(np.unique(job.vertex_mix.argmax(axis=1))) == {0, 1}
     assert without_materials(fraction).material is None and without_materials(one_colour).colors is None
 
 
 
 def test_colours_of_some_of_a_larger_table_map_to_their_own_masks(vase_file):
     """A four-material table whose colours the mesh uses only two of (the first and the fourth): the masks are
-    the first two (M1, M2 by the default roles) and the used fourth, each vertex's mix is one at its own
-    material's column (a table material the mesh does not use has no column to look up)."""
+    the first (M1 by the default roles: the base) and the used fourth, each vertex's mix is one at its own
+    material's column (a table material the mesh does not use has no column to look up, nor a mask)."""
     plain = load_mesh(vase_file)
     table = (Material("a", (255, 0, 0), 1), Material("b", (0, 255, 0), 2), Material("c", (0, 0, 255), 3),
              Material("d", (255, 255, 0), 4))
     upper = plain.vertices[:, 2] > 30
     colors = np.where(upper[:, None], [250, 250, 5], [250, 5, 5]).astype(np.uint8)
     job = material_job(type(plain)(**{**plain.__dict__, "colors": colors}), SliceSpec(materials=table))
-    assert [m.name for m in job.spec.grade.channel_materials()] == ["a", "b", "d"]
-    assert np.array_equal(job.vertex_mix.argmax(axis=1), np.where(upper, 2, 0))
+    assert [m.name for m in job.spec.grade.channel_materials()] == ["a", "d"]
+    assert np.array_equal(job.vertex_mix.argmax(axis=1), np.where(upper, 1, 0))
     assert np.array_equal(job.vertex_mix.sum(axis=1), np.ones(len(plain.vertices)))
 
 def test_two_masks_on_one_printer_channel_are_refused_before_slicing(run_cli, vase_file, tmp_path):
@@ -167,6 +168,30 @@ def test_two_masks_on_one_printer_channel_are_refused_before_slicing(run_cli, va
     code, _, err = run_cli("slice", vase_file, "--layer", "5", "--dpi", "100", "--materials", table,
                            "--grade", "linear", "-o", out)
     assert code == 0, err
+
+
+def test_a_table_material_the_colours_do_not_use_shares_a_channel_freely(run_cli, vase_file, tmp_path):
+    """A lab table with two alternatives on one cartridge (gel and gel_b on channel 1, cells on 2): a mesh
+    coloured with gel and cells only slices (no mask, so no channel, for gel_b) and its stack verifies."""
+    mesh = load_mesh(vase_file)
+    upper = mesh.vertices[:, 2] > 30
+    colors = np.where(upper[:, None], [0, 255, 0], [240, 240, 240]).astype(np.uint8)
+    coloured = tmp_path / "coloured.ply"
+    trimesh_mesh = procedural.vase()
+    assert len(trimesh_mesh.vertices) == len(mesh.vertices)
+    trimesh_mesh.visual.vertex_colors = np.column_stack([colors, np.full(len(colors), 255, np.uint8)])
+    coloured.write_bytes(trimesh_mesh.export(file_type="ply", encoding="binary"))
+    table = tmp_path / "materials.toml"
+    table.write_text('[materials.gel]\ncolor = "240,240,240"\nchannel = 1\n'
+                     '[materials.gel_b]\ncolor = "200,200,255"\nchannel = 1\n'
+                     '[materials.cells]\ncolor = "0,255,0"\nchannel = 2\n')
+    out = tmp_path / "stack"
+    code, _, err = run_cli("slice", coloured, "--layer", "5", "--dpi", "100", "--materials", table, "-o", out)
+    assert code == 0, err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert [m["name"] for m in manifest["grading"]["materials"]] == ["gel", "cells"]
+    code, out_text, err = run_cli("verify", out)
+    assert code == 0, out_text + err
 
 
 def test_interior_takes_the_material_of_the_nearest_outer_ring_point(tmp_path):

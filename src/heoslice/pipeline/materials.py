@@ -37,14 +37,16 @@ class MaterialJob:
     vertex_mix: np.ndarray | None
 
 
-def _plain_grade(table: tuple[Material, ...]):
+def _plain_grade(table: tuple[Material, ...], fractions: bool):
     """The grading specification of a mesh that carries materials but asks for no gradient: every
-    family keeps its contour's material, the table's first two playing M1 and M2."""
+    family keeps its contour's material, the table's first material the base (M1); the second plays M2
+    only for a material fraction (``fractions``): a mesh's colours name their own materials, so a table
+    material they do not use gets no mask (nor a printer channel to share)."""
     from heoslice.grading import GradeSpec, RegionSpec  # the grading package loads numba's kernels
 
     roles = material_roles({m.name: m for m in table})
     return GradeSpec(regions=RegionSpec(), function=None, target=None, start=None,
-                     base=roles.first, second=roles.second)
+                     base=roles.first, second=roles.second if fractions else None)
 
 
 def _fraction_mix(fraction: np.ndarray, grade) -> np.ndarray:
@@ -63,14 +65,14 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
     table = spec.materials or tuple(DEFAULT_MATERIALS.values())
     grade, mix = spec.grade, None
     if mesh.material is not None:
-        grade = grade if grade is not None else _plain_grade(table)
+        grade = grade if grade is not None else _plain_grade(table, fractions=True)
         if grade.second is not None:
             mix = _fraction_mix(mesh.material, grade)
     elif mesh.colors is not None:
         chosen = nearest_materials(mesh.colors, table)
         used = np.unique(chosen)
         if len(used) > 1 or grade is not None:
-            grade = grade if grade is not None else _plain_grade(table)
+            grade = grade if grade is not None else _plain_grade(table, fractions=False)
             grade = replace(grade, mapped=tuple(table[i] for i in used))
             columns = np.array([grade.channel_index(table[i]) for i in used])
             mix = np.zeros((len(chosen), len(grade.channel_materials())))
