@@ -83,3 +83,11 @@ def test_two_materials_on_one_printer_channel_fail_verify(two_part_stack, run_cl
     code, out, err = run_cli("verify", two_part_stack / "stack")
     assert code == EXIT_VERIFY, (out, err)
     assert "manifest.json: materials M1, M2 all name printer channel 3" in out + err
+
+
+def test_a_wrong_mesh_count_is_refused_before_any_mesh_is_read(two_part_stack, run_cli):
+    """The --mesh count is checked from the manifest before a mesh is loaded or a layer hashed: one mesh for a
+    two-part stack, even a file that does not exist, is the count's one line (exit 2)."""
+    code, out, err = run_cli("verify", two_part_stack / "stack", "--mesh", two_part_stack / "missing.ply")
+    assert code == EXIT_INPUT, (out, err)
+    assert "was sliced from the 2 part files a.ply, b.ply" in err and "missing.ply" not in err

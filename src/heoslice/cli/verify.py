@@ -14,6 +14,7 @@ from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, volume_check
 from heoslice.stack import (
     check_input_path,
     layer_height_problems,
+    read_manifest,
     stack_volume_mm3,
     verify_stack,
 )
@@ -77,6 +78,16 @@ def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float,
     return problems, warnings, summary
 
 
+def _check_count_first(stack: Path, models: tuple[Path, ...]) -> None:
+    """:func:`check_mesh_count` before any mesh is loaded or layer hashed (a wrong count is known from the
+    manifest alone); a manifest that cannot be read is left to verify_stack's problem lines."""
+    try:
+        manifest = read_manifest(stack)
+    except VerifyError:
+        return
+    check_mesh_count(stack, manifest, models)
+
+
 @click.command("verify", epilog="""\b
 Examples:
   heoslice verify vase_stack/
@@ -105,12 +116,12 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float, tolerance: float
     check_input_path(stack)
     mesh = None
     if models:
+        _check_count_first(stack, models)
         mesh = load_mesh(models[0]) if len(models) == 1 else load_assembly(models)
         mesh = scaled(mesh, scale) if scale != 1.0 else mesh
     report = verify_stack(stack)
     problems, warnings, mesh_summary = list(report.problems), [], None
     if mesh is not None and report.manifest:
-        check_mesh_count(stack, report.manifest, models)
         mesh_problems, warnings, mesh_summary = mesh_checks(report.manifest, mesh, scale, tolerance, models)
         problems += mesh_problems
     layers = report.manifest.get("layers", []) if report.manifest else []
