@@ -20,26 +20,26 @@ def test_a_layer_takes_the_last_layers_tiff_only_for_the_same_solid_bits():
     mask[5:15, 8:20] = True
     moved = np.roll(mask, 7, axis=1)
     cache = PipelineCache()
-    first = _solid_tiff(np.packbits(mask, axis=1), int(mask.sum()), job, cache)
-    assert _solid_tiff(np.packbits(mask, axis=1), int(mask.sum()), job, cache) is first
-    other = _solid_tiff(np.packbits(moved, axis=1), int(moved.sum()), job, cache)
+    first = _solid_tiff(np.packbits(mask, axis=1), int(mask.sum()), job, cache, 1)
+    assert _solid_tiff(np.packbits(mask, axis=1), int(mask.sum()), job, cache, 1) is first
+    other = _solid_tiff(np.packbits(moved, axis=1), int(moved.sum()), job, cache, 1)
     assert np.array_equal(tifffile.imread(io.BytesIO(other)).astype(bool), moved)
     assert np.array_equal(tifffile.imread(io.BytesIO(first)).astype(bool), mask)
 
 
 def test_multi_material_layers_are_deflated_harder_than_one_material_ones(tmp_path):
     """Every 1-bit file of a droplet-mask stack (solid layers and masks) holds its pixels deflated at
-    MULTI_MATERIAL_DEFLATE_LEVEL; a one-material stack's layers at level 1 (its fastest)."""
+    deflate_level(True); a one-material stack's layers at deflate_level(False), level 1 (its fastest)."""
     from helpers import in_process
 
     from heoslice import procedural
     from heoslice.stack import encode_bilevel_tiff
-    from heoslice.stack.tiff import MULTI_MATERIAL_DEFLATE_LEVEL
+    from heoslice.stack.tiff import deflate_level
 
     procedural.sphere(6.0, subdivisions=3).export(tmp_path / "ball.ply")
-    for name, extra, level in (("plain", (), 1),
-                               ("graded", ("--grade", "linear", "--to", "0,255,0", "--channels"),
-                                MULTI_MATERIAL_DEFLATE_LEVEL)):
+    assert deflate_level(False) == 1 < deflate_level(True)
+    for name, extra, level in (("plain", (), deflate_level(False)),
+                               ("graded", ("--grade", "linear", "--to", "0,255,0", "--channels"), deflate_level(True))):
         assert in_process("slice", tmp_path / "ball.ply", "--layer", "2", "--dpi", "300", "-o", tmp_path / name,
                           *extra) == 0
         files = sorted((tmp_path / name).glob("layer_*.tif"))

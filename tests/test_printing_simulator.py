@@ -16,6 +16,7 @@ from heoslice.printing.simulator import (
     pipe_pair,
     sim_from_url,
 )
+from heoslice.printing.simulator.faults import FaultInjector
 
 FAST = dict(baud=10_000_000, layer_time_s=0.001, status_interval_s=0.05)
 
@@ -360,13 +361,13 @@ def test_persistent_hardware_fault(host):
 def test_faults_are_seeded():
     """The same seed corrupts the same bytes; another seed other bytes; rates match the spec within 4 sigma."""
     data = bytes(100_000)
-    one = SimController(SimConfig(seed=3))._corrupt(data, 0.01, 0.0)
-    two = SimController(SimConfig(seed=3))._corrupt(data, 0.01, 0.0)
-    other = SimController(SimConfig(seed=4))._corrupt(data, 0.01, 0.0)
+    one = FaultInjector(FaultSpec(), 3).corrupt(data, 0.01, 0.0)
+    two = FaultInjector(FaultSpec(), 3).corrupt(data, 0.01, 0.0)
+    other = FaultInjector(FaultSpec(), 4).corrupt(data, 0.01, 0.0)
     assert one == two and one != other
     hits = np.count_nonzero(np.frombuffer(one, np.uint8))
     assert abs(hits - 1000) < 4 * np.sqrt(1000)
-    dropped = SimController(SimConfig(seed=3))._corrupt(data, 0.0, 0.01)
+    dropped = FaultInjector(FaultSpec(), 3).corrupt(data, 0.0, 0.01)
     assert abs((len(data) - len(dropped)) - 1000) < 4 * np.sqrt(1000)
 
 

@@ -76,6 +76,14 @@ def test_bilevel_layers_are_the_bytes_tifffile_writes(height, width, rows, compr
     assert np.array_equal(tifffile.imread(io.BytesIO(data)), bits)
 
 
+def test_a_typical_layer_is_laid_out_from_its_recalled_layout():
+    """The fast path is taken: tifffile's layout of a 600 dpi deflate layer is recalled (not None), so a
+    tifffile that lays files out otherwise shows here, not only as a slower slice."""
+    from heoslice.stack.tiff import BilevelForm, bilevel_layout
+
+    assert bilevel_layout(BilevelForm(2952, 3827, (600.0, 600.0), "deflate", 0.1, 256)) is not None
+
+
 def test_a_layout_tifffile_no_longer_writes_falls_back_to_tifffile(monkeypatch):
     """When the recalled layout is unusable (a tifffile that lays files out otherwise), the layer is still
     tifffile's own file."""

@@ -105,8 +105,8 @@ class FamilyField:
     on the starting rings (foot (2, cells_r, cells_c) mm) and its edge ((cells_r, cells_c)
     into ``start_edges()``, the starting rings' edges in this layer's points), to take the
     contour's material there (measured on first call for a nested shell, whose own material
-    usually makes it unneeded, and for a small family labelled from exact distances,
-    :func:`_exact_index`; ``start_edges()`` made on first call for a field another layer measured).
+    usually makes it unneeded, and for a small family labelled per pixel, :func:`_exact_index` or
+    one sub-region; ``start_edges()`` made on first call for a field another layer measured).
     """
 
     box: tuple[int, int, int, int]
@@ -164,7 +164,8 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     box = family_box(outer.edges, grid)
     row0, row1, col0, col1 = box
     outward = spec.direction == "out" and bool(family.holes)
-    # a small family takes every pixel's exact distance to each ring set (family_layout's ends and its start)
+    # a small family is labelled per pixel: from its exact distance to each ring set (family_layout's ends
+    # and its start), or k = 1 throughout when it has one sub-region
     end_sets = 0 if spec.depth_mm is not None or not family.holes else 1 if outward else len(family.holes)
     direct = pixels and (row1 - row0) * (col1 - col0) * (1 + end_sets) <= DIRECT_PIXELS
     smooth = (not direct and len(family.holes) <= 1 and convex_rings(outer.edges)
@@ -184,7 +185,8 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
         return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
                            lattice=lattice, start_edges=lambda: start.edges, nearest=nearest)
     precision = coordinate_precision(outer.edges.x, outer.edges.y)
-    # one sub-region asked for (masks without a gradient): k = 1 throughout, so no grading length (eq. 8)
+    # one sub-region asked for (masks without a gradient, or --offsets 1): k = 1 throughout, so no grading
+    # length (eq. 8)
     lengths = (None, None) if spec.count == 1 else _grading_length(family, spec, outer, rings, grid, memo)
     layout = family_layout(family, spec, *lengths, precision)
     ends = [rings(loops, outward) for loops in layout.end]
@@ -228,7 +230,8 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
     measures = [memo.earlier((rings.key, padded_lattice)) or ring_measures(rings, padded_lattice)
                 for rings in ring_sets]
     wanted = ~np.logical_or.reduce([m.far for m in measures])
-    # one sub-region (a layout without a gradient): only the starting rings' feet are read, and k = 1 throughout
+    # one sub-region (one asked for, or a family too thin for two): only the starting rings' feet are read,
+    # and k = 1 throughout
     measured = ring_sets if layout.count > 1 else ring_sets[:1]
     centres = [measured_centres(rings, m, padded_lattice, wanted) for rings, m in zip(measured, measures)]
     for rings, (_, m) in zip(measured, centres):

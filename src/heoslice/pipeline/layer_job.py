@@ -16,7 +16,7 @@ from heoslice.layers.slicing import interpolate_at
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec, channel_name
 from heoslice.stack import encode_bilevel_tiff, encode_tiff, layer_file_name, write_file
-from heoslice.stack.tiff import MULTI_MATERIAL_DEFLATE_LEVEL
+from heoslice.stack.tiff import deflate_level
 
 if TYPE_CHECKING:  # the grading package loads numba's kernels: a one-material slice never imports it
     from heoslice.grading import GradeSpec, GradingCache
@@ -91,14 +91,14 @@ def render_and_write(job: LayerJob, cache: PipelineCache | None = None, packed: 
     started = time.perf_counter()
     packed, solid = render_layer(job.points, job.offsets, job.grid)
     rendered = time.perf_counter()
-    data = _solid_tiff(packed, solid, job, cache)
+    data = _solid_tiff(packed, solid, job, cache, deflate_level(False))
     encoded = time.perf_counter()
     digest = write_file(job.path, data)
     return job.index, digest, solid, rendered - started, encoded - rendered, ()
 
 
 def _solid_tiff(packed: np.ndarray, solid: int, job: LayerJob, cache: PipelineCache | None,
-                level: int = 1) -> bytes:
+                level: int) -> bytes:
     """The 1-bit TIFF of a layer's solid bits ((h, ceil(w / 8)) uint8, ``solid`` of them set) at deflate
     ``level``: the last layer's (kept in ``cache``) when the bits are the same, as an extruded part's layers
     are (the bits are compared only when their counts are equal)."""
@@ -134,9 +134,10 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed:
         rendered = time.perf_counter()
         width = job.grid.width
         solid = count_solid(packed)
-        data = _solid_tiff(packed, solid, job, cache, MULTI_MATERIAL_DEFLATE_LEVEL)
+        level = deflate_level(True)
+        data = _solid_tiff(packed, solid, job, cache, level)
         pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm,
-                                             level=MULTI_MATERIAL_DEFLATE_LEVEL), count_solid(plane))
+                                             level=level), count_solid(plane))
                   for path, plane in zip(graded.channel_paths, planes)]
         encoded = time.perf_counter()
         digest = write_file(job.path, data)

@@ -27,7 +27,7 @@ from heoslice.layers.rasterising import Grid, count_solid, packed_mask
 from heoslice.material import Material, PartSetting, check_one_per_channel, nearest_materials, table_material
 from heoslice.pipeline.spec import channel_name
 from heoslice.stack import encode_bilevel_tiff, layer_file_name, write_file
-from heoslice.stack.tiff import MULTI_MATERIAL_DEFLATE_LEVEL
+from heoslice.stack.tiff import deflate_level
 
 if TYPE_CHECKING:
     from heoslice.layers.contours import Contours
@@ -42,7 +42,7 @@ MAX_PART_MATERIALS = 254
 @dataclass(frozen=True)
 class PartsPlan:
     """How a multi-part job's parts become masks: per part (in part-label order) its name, material (index
-    into ``materials``, the droplet-mask materials in channel order) and given priority (None: default);
+    into ``materials``, the droplet-mask materials in mask order) and given priority (None: default);
     ``order``, the part labels ranked (the first wins where parts overlap); ``channels``, whether droplet
     masks are written (more than one material, or asked for)."""
 
@@ -54,7 +54,8 @@ class PartsPlan:
     channels: bool
 
     def channel_materials(self) -> tuple[Material, ...]:
-        """The droplet masks' materials in channel order (none without droplet masks)."""
+        """The droplet masks' materials in mask order, by printer channel and unassigned last (none without
+        droplet masks)."""
         return self.materials if self.channels else ()
 
 
@@ -157,7 +158,7 @@ def render_parts_run(contours: Contours, context: RunContext, first_layer: int) 
     loop_part = context.mesh.part[contours.face] if len(contours.face) else np.zeros(0, np.int64)
     shape = (grid.height, -(-grid.width // 8))
     # a stack with droplet masks is a multi-material stack; one part material gives a one-material stack
-    level = MULTI_MATERIAL_DEFLATE_LEVEL if plan.channel_materials() else 1
+    level = deflate_level(bool(plan.channel_materials()))
     done = []
     for local in range(len(contours.layer_offsets) - 1):
         index = first_layer + local

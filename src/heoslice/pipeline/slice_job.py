@@ -51,7 +51,8 @@ def layer_limit(spec: SliceSpec) -> int:
 
 
 def _droplet_materials(spec: SliceSpec) -> tuple | None:
-    """The droplet masks' materials in channel order, or None for a stack without droplet masks."""
+    """The droplet masks' materials in the order of the layers' masks (grading.materials'), or None for a
+    stack without droplet masks."""
     if spec.parts is not None:
         return spec.parts.channel_materials() or None
     return spec.grade.channel_materials() if spec.channels else None

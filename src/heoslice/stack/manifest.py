@@ -147,7 +147,7 @@ def _layer_entry(index: int, layer: LayerRecord) -> dict:
 
 def grading_summary(grade) -> dict:
     """The manifest's ``grading`` object of a grading specification (``GradeSpec``): what the interiors
-    were graded with, and the materials of the droplet masks in channel order."""
+    were graded with, and the materials of the droplet masks in the order of the layers' masks."""
     regions = grade.regions
     material = _material_record
     return {
@@ -165,7 +165,7 @@ def grading_summary(grade) -> dict:
 def droplet_summary(materials) -> dict:
     """The manifest's ``grading`` object of an ungraded stack with droplet masks (a multi-part job): the fields
     of :func:`grading_summary`, without a function or sub-region layout (null), and the droplet masks'
-    materials in channel order."""
+    materials in the order of the layers' masks."""
     return {"function": None, "target": None, "from": None, "nozzle_mm": None, "depth_mm": None, "direction": None,
             "offsets": None, "materials": [_material_record(m) for m in materials]}
 

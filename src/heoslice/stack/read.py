@@ -150,7 +150,7 @@ def read_layer_pixels(directory: Path, manifest: dict, index: int) -> np.ndarray
 
 
 def read_layer_channels(directory: Path, manifest: dict, index: int) -> np.ndarray:
-    """Droplet masks of layer ``index``: (channels, height, width) bool, in the manifest's channel order.
+    """Droplet masks of layer ``index``: (channels, height, width) bool, in the order of its ``channels`` list.
 
     Each file must stay inside the stack, match its sha256 and pass the layout checks
     of :func:`decode_mask` before it is decoded (for previews).
@@ -198,7 +198,7 @@ def layer_strips(directory: Path, manifest: dict, index: int, channels: bool = F
     """Yield (first row, layer pixels, droplet-mask pixels) strip by strip for layer ``index`` of a stack.
 
     Layer pixels are (rows, width, samples) as stored; droplet-mask pixels a list of
-    (rows, width, 1) arrays in channel order (empty unless ``channels``). Every file must
+    (rows, width, 1) arrays in the order of the layer's masks (empty unless ``channels``). Every file must
     stay inside the stack, match its sha256 and pass the layout checks; the masks must
     be cut into the same strips as their layer. Memory: one strip of each file.
     """

@@ -23,9 +23,16 @@ MM_PER_INCH = 25.4
 TIFF_COMPRESSIONS = (1, 5, 8, 32946, 32773)
 #: zlib level of every 1-bit layer of a multi-material stack (solid layers and droplet masks): a
 #: halftone's dither patterns repeat at a short distance, which level 1's matcher misses and level 2's
-#: finds, and the solid layers shrink by 40 % for a small part of a graded layer's cost (sizes and times
-#: in benchmarks/README.md). A one-material stack keeps level 1, its fastest.
+#: finds, and the solid layers shrink too, for a small part of a graded layer's cost (sizes and times in
+#: benchmarks/README.md).
 MULTI_MATERIAL_DEFLATE_LEVEL = 2
+#: zlib level of a one-material stack's layers: its fastest.
+ONE_MATERIAL_DEFLATE_LEVEL = 1
+
+
+def deflate_level(multi_material: bool) -> int:
+    """The zlib level of every 1-bit file of a stack, with droplet masks (``multi_material``) or without."""
+    return MULTI_MATERIAL_DEFLATE_LEVEL if multi_material else ONE_MATERIAL_DEFLATE_LEVEL
 
 
 def calibration(dpi: tuple[float, float], spacing_mm: float | None) -> dict:
@@ -109,10 +116,11 @@ class BilevelLayout:
 
 
 def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float], compression: str,
-                        spacing_mm: float | None = None, rows_per_strip: int = 256, level: int = 1) -> bytes:
+                        spacing_mm: float | None = None, rows_per_strip: int = 256,
+                        level: int = ONE_MATERIAL_DEFLATE_LEVEL) -> bytes:
     """TIFF bytes of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, MSB first).
 
-    ``level`` is deflate's (multi-material stacks use :data:`MULTI_MATERIAL_DEFLATE_LEVEL`; other codecs
+    ``level`` is deflate's (:func:`deflate_level` says which a stack uses; other codecs
     ignore it).
 
     The strips are compressed here, straight from the packed bits (the mask is never expanded to

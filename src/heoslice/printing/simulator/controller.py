@@ -201,10 +201,6 @@ class SimController:
             self._arrivals.append((self._wire_free, piece))
             start = end
 
-    def _corrupt(self, data: bytes, error_rate: float, drop_rate: float) -> bytes:
-        """``data`` with bytes replaced and removed at these rates (:meth:`.faults.FaultInjector.corrupt`)."""
-        return self._inject.corrupt(data, error_rate, drop_rate)
-
     def _deliver(self, now: float) -> None:
         """Hand pieces whose modelled arrival time has passed to the frame splitter."""
         while self._arrivals and self._arrivals[0][0] <= now and now >= self._stall_until:

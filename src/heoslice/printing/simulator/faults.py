@@ -3,9 +3,9 @@
 Byte faults (corrupted, dropped bytes), frame faults (dropped, delayed, duplicated frames), lost acks and
 the one-way link fault are drawn from one generator seeded by the controller's seed, in the order the
 controller meets bytes and frames, so a seed replays the same faults. Layer faults (reset, disconnect,
-dead link, stop reading) strike once, at the first chunk of their layer; the hardware fault and the lying
-progress claim are persistent. The controller asks and acts (:mod:`.controller`); nothing here touches
-its state.
+dead link, stop reading) strike once each, as a chunk of their layer is taken, one a chunk (several set at
+one layer strike at its chunks in turn); the hardware fault and the lying progress claim are persistent.
+The controller asks and acts (:mod:`.controller`); nothing here touches its state.
 """
 
 from __future__ import annotations
