@@ -18,6 +18,8 @@ from heoslice.material import (
     DEFAULT_MATERIALS,
     Material,
     blend,
+    is_channel,
+    shared_channel,
     load_materials,
     load_shell_materials,
     parse_color,
@@ -187,3 +189,20 @@ def test_nearest_materials_maps_display_colours_to_themselves_and_others_to_the_
     assert list(got) == expected
     twins = [Material("a", (10, 10, 10)), Material("b", (10, 10, 10))]
     assert list(nearest_materials([[10, 10, 10]], twins)) == [0]
+
+
+@pytest.mark.parametrize("named, shared", [
+    ([], None),
+    ([("a", 1), ("b", 2), ("c", None), ("d", None)], None),
+    ([("a", 2), ("b", None), ("c", 2), ("d", 1), ("e", 1)], (1, ["d", "e"])),
+    ([("a", 3), ("b", 3), ("c", 3)], (3, ["a", "b", "c"])),
+])
+def test_shared_channel_is_the_lowest_channel_named_twice(named, shared):
+    """The one-material-per-channel rule of slice, verify and print: the lowest channel two or more materials
+    name, with all their names in order; unassigned materials (None) share nothing."""
+    assert shared_channel(named) == shared
+
+
+def test_a_printer_channel_is_a_whole_number_from_one():
+    """JSON's true, 0, negative numbers and 1.0 are no printer channel; 1 and 7 are."""
+    assert [is_channel(value) for value in (1, 7, 0, -1, 1.0, True, None, "1")] == [True, True] + [False] * 6

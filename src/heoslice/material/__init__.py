@@ -50,6 +50,7 @@ from heoslice.material.materials import (
                                         parse_color,
                                         read_materials_file,
                                         resolve_material,
+                                        shared_channel,
                                         table_material,
                                         to_rgb8,
 )
@@ -80,7 +81,7 @@ __all__ = [
     "EXPRESSION_CONSTANTS", "EXPRESSION_FUNCTIONS", "compile_expression", "evaluate_expression",
     "FUNCTION_KINDS", "FUNCTIONS", "DistributionFunction", "FunctionKind", "evaluate", "make_function",
     "DEFAULT_MATERIALS", "Material", "MaterialRoles", "blend", "load_materials", "load_shell_materials",
-    "material_roles", "nearest_materials", "parse_color", "resolve_material", "to_rgb8",
+    "material_roles", "nearest_materials", "parse_color", "resolve_material", "shared_channel", "to_rgb8",
     "PartSetting", "load_part_materials", "table_material", "MaterialsFile", "read_materials_file",
     "check_one_per_channel",
     "is_channel",

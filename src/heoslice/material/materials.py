@@ -329,17 +329,24 @@ def blend(m1, m2, f: np.ndarray) -> np.ndarray:
     return c1 + weight * (c2 - c1)
 
 
+def shared_channel(named: list[tuple[str, int | None]]) -> tuple[int, list[str]] | None:
+    """The lowest printer channel that two or more of ``named`` ((name, channel or None) pairs, the
+    materials of one stack) name, with their names in order; None when each channel jets one material."""
+    channels = [channel for _, channel in named if channel is not None]
+    twice = sorted({channel for channel in channels if channels.count(channel) > 1})
+    if not twice:
+        return None
+    return twice[0], [name for name, channel in named if channel == twice[0]]
+
+
 def check_one_per_channel(materials: tuple[Material, ...] | list[Material], needing: str) -> None:
-    """Refuse two of ``materials`` (distinct materials of one stack) that name the same printer channel:
-    each channel jets one material. ``needing`` says who needs it ("the parts", "the droplet masks")."""
-    on_channel: dict[int, Material] = {}
-    for material in materials:
-        if material.channel is None:
-            continue
-        other = on_channel.setdefault(material.channel, material)
-        if other is not material:
-            raise InputError(f"materials: {other.name!r} and {material.name!r} both print on channel "
-                             f"{material.channel}, but {needing} need one channel per material")
+    """Refuse two of ``materials`` (distinct materials of one stack) that name the same printer channel
+    (:func:`shared_channel`). ``needing`` says who needs it ("the parts", "the droplet masks")."""
+    shared = shared_channel([(material.name, material.channel) for material in materials])
+    if shared is not None:
+        channel, names = shared
+        raise InputError(f"materials: {' and '.join(map(repr, names))} both print on channel {channel}, but "
+                         f"{needing} need one channel per material")
 
 
 def nearest_materials(colors: np.ndarray, materials: tuple[Material, ...] | list[Material]) -> np.ndarray:

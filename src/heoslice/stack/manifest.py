@@ -18,7 +18,7 @@ import numpy as np
 from heoslice import __version__
 from heoslice.errors import InputError, VerifyError
 from heoslice.layers.planes import layer_count
-from heoslice.material import is_channel
+from heoslice.material import is_channel, shared_channel
 
 FORMAT_NAME = "heoslice-stack"
 FORMAT_VERSION = 1
@@ -352,12 +352,12 @@ def mask_channels(manifest: dict, label: object = "stack") -> tuple[int, ...]:
     widest = max((entry.get("channels", []) for entry in manifest["layers"]), key=len, default=[])
     recorded = (manifest.get("grading") or {}).get("materials") or []
     wanted = [recorded[number].get("channel") if number < len(recorded) else None for number in range(len(widest))]
+    shared = shared_channel([(str(mask.get("material", f"mask {n + 1}")), channel)
+                             for n, (mask, channel) in enumerate(zip(widest, wanted))])
+    if shared is not None:
+        raise VerifyError(f"{label}: materials {', '.join(shared[1])} all name printer channel {shared[0]}; give "
+                          "each material its own channel in the materials file and slice again")
     named = [value for value in wanted if value is not None]
-    twice = sorted({value for value in named if named.count(value) > 1})
-    if twice:
-        sharing = [str(widest[n].get("material", f"mask {n + 1}")) for n, v in enumerate(wanted) if v == twice[0]]
-        raise VerifyError(f"{label}: materials {', '.join(sharing)} all name printer channel {twice[0]}; give each "
-                          "material its own channel in the materials file and slice again")
     free = (number for number in range(1, len(wanted) + len(named) + 1) if number not in named)
     return tuple(value if value is not None else next(free) for value in wanted)
 
