@@ -21,7 +21,7 @@ from heoslice.material import (
     is_channel,
     shared_channel,
     load_materials,
-    load_shell_materials,
+    read_materials_file,
     parse_color,
     resolve_material,
     to_rgb8,
@@ -87,7 +87,7 @@ def test_default_materials():
     assert table["M1"] == Material("M1", (240, 240, 240), 1)
     assert table["M2"] == Material("M2", (0, 255, 0), 2)
     assert table is not DEFAULT_MATERIALS  # callers may change their copy
-    assert load_shell_materials(None) == {}
+    assert read_materials_file(None).shells() == {}
 
 
 def test_materials_file(tmp_path):
@@ -102,7 +102,7 @@ def test_materials_file(tmp_path):
     table = load_materials(path)
     assert table == {"gel": Material("gel", (240, 240, 240), 1), "cells": Material("cells", (0, 200, 0), 2),
                      "tumour": Material("tumour", (255, 0, 0), None)}
-    shells = load_shell_materials(path, table)
+    shells = read_materials_file(path).shells()
     assert shells == {1: table["tumour"], 2: Material("0,0,255", (0, 0, 255), None)}
 
 
@@ -123,7 +123,7 @@ def test_materials_file_refusals(tmp_path, text, fragment):
     path = tmp_path / "bad.toml"
     path.write_text(text)
     with pytest.raises(InputError, match=fragment) as caught:
-        load_shell_materials(path)
+        read_materials_file(path).shells()
     assert str(path) in str(caught.value)
 
 

@@ -227,24 +227,6 @@ def load_materials(path: Path | None) -> dict[str, Material]:
     return read_materials_file(path).materials
 
 
-def load_shell_materials(path: Path | None, table: dict[str, Material] | None = None) -> dict[int, Material]:
-    """{shell number: Material} from the optional [shells] table of a materials file ({} without one);
-    names resolve in ``table`` (default: the file's own materials)."""
-    if path is None:
-        return {}
-    data = _read_toml(Path(path))
-    return _shells_of(data, Path(path), _materials_of(data, Path(path)) if table is None else table)
-
-
-def load_part_materials(path: Path | None, table: dict[str, Material] | None = None) -> dict[str, PartSetting]:
-    """{part name: PartSetting} from the optional [parts] table of a materials file ({} without one); each
-    material must be one of ``table`` (default: the file's own materials)."""
-    if path is None:
-        return {}
-    data = _read_toml(Path(path))
-    return _parts_of(data, Path(path), _materials_of(data, Path(path)) if table is None else table)
-
-
 def table_material(name: str, table: dict[str, Material]) -> Material | None:
     """The material of ``table`` named ``name`` (exactly, else ignoring case), or None."""
     if name in table:
