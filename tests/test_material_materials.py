@@ -18,13 +18,15 @@ from heoslice.material import (
     DEFAULT_MATERIALS,
     Material,
     blend,
+    check_one_per_channel,
     is_channel,
-    shared_channel,
     load_materials,
-    read_materials_file,
     parse_color,
+    read_materials_file,
     resolve_material,
+    shared_channel,
     to_rgb8,
+    with_table_channels,
 )
 
 channel = st.integers(0, 255)
@@ -91,7 +93,8 @@ def test_default_materials():
 
 
 def test_materials_file(tmp_path):
-    """A TOML file names materials (colour in any spelling, channel) and assigns shells by number."""
+    """A TOML file names materials (colour in any spelling, channel) and assigns shells by number; a material
+    without a channel takes the lowest one no material of the file names (tumour: 3)."""
     path = tmp_path / "mats.toml"
     path.write_text(
         '[materials.gel]\ncolor = "#f0f0f0"\nchannel = 1\n'
@@ -101,7 +104,7 @@ def test_materials_file(tmp_path):
     )
     table = load_materials(path)
     assert table == {"gel": Material("gel", (240, 240, 240), 1), "cells": Material("cells", (0, 200, 0), 2),
-                     "tumour": Material("tumour", (255, 0, 0), None)}
+                     "tumour": Material("tumour", (255, 0, 0), 3)}
     shells = read_materials_file(path).shells()
     assert shells == {1: table["tumour"], 2: Material("0,0,255", (0, 0, 255), None)}
 
@@ -109,7 +112,8 @@ def test_materials_file(tmp_path):
 @pytest.mark.parametrize("text, fragment", [
     ("[materials.a]\nchannel = 1\n", "has no 'color'"),
     ("[materials.a]\ncolor = 'blurple'\n", "does not parse"),
-    ("[materials.a]\ncolor = 'red'\nchannel = 0\n", "channel must be a whole number >= 1"),
+    ("[materials.a]\ncolor = 'red'\nchannel = 0\n", "channel must be a whole number from 1 to 254"),
+    ("[materials.a]\ncolor = 'red'\nchannel = 255\n", "channel must be a whole number from 1 to 254"),
     ("[materials.a]\ncolor = 'red'\nchannel = 'one'\n", "channel must be"),
     ("[materials.a]\ncolor = 'red'\nink = 3\n", "unknown key"),
     ("[materials]\n", "no \\[materials.NAME\\]"),
@@ -204,5 +208,26 @@ def test_shared_channel_is_the_lowest_channel_named_twice(named, shared):
 
 
 def test_a_printer_channel_is_a_whole_number_from_one():
-    """JSON's true, 0, negative numbers and 1.0 are no printer channel; 1 and 7 are."""
-    assert [is_channel(value) for value in (1, 7, 0, -1, 1.0, True, None, "1")] == [True, True] + [False] * 6
+    """JSON's true, 0, 255 (past the one byte of a job's channel count), negative numbers and 1.0 are no
+    printer channel; 1 and 254 are."""
+    assert [is_channel(value) for value in (1, 254, 0, 255, -1, 1.0, True, None, "1")] == [True, True] + [False] * 7
+
+
+@pytest.mark.parametrize("channels, resolved", [
+    ((1, 2, None), (1, 2, 3)),
+    ((None, None, None), (1, 2, 3)),
+    ((None, 1, None, 4), (2, 1, 3, 4)),
+    ((3, None, 3), (3, 1, 3)),
+])
+def test_a_tables_unassigned_materials_take_the_lowest_channels_it_leaves(channels, resolved):
+    """Each material of a table without a channel gets the lowest channel no material of the table names, in
+    table order (named ones, even shared, are kept: sharing is refused where masks meet, not here)."""
+    table = {f"m{k}": Material(f"m{k}", (k, k, k), channel) for k, channel in enumerate(channels)}
+    assert tuple(m.channel for m in with_table_channels(table).values()) == resolved
+
+
+def test_three_materials_on_one_channel_are_named_in_one_sentence():
+    """The refusal names every material on the shared channel: "'a', 'b' and 'c' all print on channel 2"."""
+    materials = [Material(name, (k, 0, 0), 2) for k, name in enumerate("abc")]
+    with pytest.raises(InputError, match="'a', 'b' and 'c' all print on channel 2, but the masks need"):
+        check_one_per_channel(materials, "the masks")

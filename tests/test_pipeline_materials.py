@@ -170,28 +170,77 @@ def test_two_masks_on_one_printer_channel_are_refused_before_slicing(run_cli, va
     assert code == 0, err
 
 
-def test_a_table_material_the_colours_do_not_use_shares_a_channel_freely(run_cli, vase_file, tmp_path):
+def coloured_vase(vase_file: Path, folder: Path, lower: tuple, upper: tuple) -> Path:
+    """The vase with ``lower`` / ``upper`` (r, g, b) vertex colours below / above z = 30 mm, as a PLY file."""
+    mesh = procedural.vase()
+    colors = np.where((mesh.vertices[:, 2] > 30)[:, None], upper, lower).astype(np.uint8)
+    mesh.visual.vertex_colors = np.column_stack([colors, np.full(len(colors), 255, np.uint8)])
+    path = folder / "coloured.ply"
+    path.write_bytes(mesh.export(file_type="ply", encoding="binary"))
+    return path
+
+
+@pytest.mark.parametrize("mode", ["default", "--channels", "[shells]"])
+def test_a_table_material_the_colours_do_not_use_shares_a_channel_freely(run_cli, vase_file, tmp_path, mode):
     """A lab table with two alternatives on one cartridge (gel and gel_b on channel 1, cells on 2): a mesh
-    coloured with gel and cells only slices (no mask, so no channel, for gel_b) and its stack verifies."""
-    mesh = load_mesh(vase_file)
-    upper = mesh.vertices[:, 2] > 30
-    colors = np.where(upper[:, None], [0, 255, 0], [240, 240, 240]).astype(np.uint8)
-    coloured = tmp_path / "coloured.ply"
-    trimesh_mesh = procedural.vase()
-    assert len(trimesh_mesh.vertices) == len(mesh.vertices)
-    trimesh_mesh.visual.vertex_colors = np.column_stack([colors, np.full(len(colors), 255, np.uint8)])
-    coloured.write_bytes(trimesh_mesh.export(file_type="ply", encoding="binary"))
+    coloured with gel and cells only slices (no mask, so no channel, for gel_b), asked for masks or not and
+    with a [shells] table, and its stack verifies."""
+    coloured = coloured_vase(vase_file, tmp_path, (240, 240, 240), (0, 255, 0))
     table = tmp_path / "materials.toml"
+    shells = '[shells]\n0 = "gel"\n' if mode == "[shells]" else ""
     table.write_text('[materials.gel]\ncolor = "240,240,240"\nchannel = 1\n'
                      '[materials.gel_b]\ncolor = "200,200,255"\nchannel = 1\n'
-                     '[materials.cells]\ncolor = "0,255,0"\nchannel = 2\n')
+                     '[materials.cells]\ncolor = "0,255,0"\nchannel = 2\n' + shells)
     out = tmp_path / "stack"
-    code, _, err = run_cli("slice", coloured, "--layer", "5", "--dpi", "100", "--materials", table, "-o", out)
+    options = ["--channels"] if mode == "--channels" else []
+    code, _, err = run_cli("slice", coloured, "--layer", "5", "--dpi", "100", "--materials", table, "-o", out,
+                           *options)
     assert code == 0, err
     manifest = json.loads((out / "manifest.json").read_text())
     assert [m["name"] for m in manifest["grading"]["materials"]] == ["gel", "cells"]
     code, out_text, err = run_cli("verify", out)
     assert code == 0, out_text + err
+
+
+@pytest.mark.parametrize("channels, blue", [(("1", "2", None), 3), ((None, None, None), 3)])
+def test_a_material_without_a_channel_keeps_its_tables_channel_whatever_the_mesh_uses(run_cli, vase_file, tmp_path,
+                                                                                     channels, blue):
+    """gel, red and blue, blue without a channel (and all three without one): a mesh coloured gel and blue
+    sends blue to the channel the table leaves it (3), never to red's cartridge (2) because red is unused;
+    the manifest records it, and the print job puts the mask there."""
+    coloured = coloured_vase(vase_file, tmp_path, (240, 240, 240), (0, 0, 255))
+    table = tmp_path / "materials.toml"
+    lines = []
+    for name, color, channel in zip(("gel", "red", "blue"), ("240,240,240", "255,0,0", "0,0,255"), channels):
+        lines.append(f'[materials.{name}]\ncolor = "{color}"\n' + (f"channel = {channel}\n" if channel else ""))
+    table.write_text("".join(lines))
+    out = tmp_path / "stack"
+    code, _, err = run_cli("slice", coloured, "--layer", "5", "--dpi", "100", "--materials", table, "-o", out)
+    assert code == 0, err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert [(m["name"], m["channel"]) for m in manifest["grading"]["materials"]] == [("gel", 1), ("blue", blue)]
+    job, _ = stack_job(out)
+    assert job.names == ("solid", "gel", "unused", "blue")
+
+
+def test_a_colour_outside_the_table_gets_a_channel_no_table_material_names(run_cli, tmp_path):
+    """A [shells] colour that is no table material (0,0,255) gets the lowest channel that neither the table
+    (gel 1, red 2, cells 4) nor another mask names (3), written in the manifest: a print sends it to no table
+    material's cartridge."""
+    two = procedural.box((10.0, 10.0, 6.0))
+    other = procedural.box((4.0, 4.0, 6.0), origin=(20.0, 0.0, 0.0))
+    mesh_path = tmp_path / "two.ply"
+    (two + other).export(mesh_path)
+    table = tmp_path / "materials.toml"
+    table.write_text('[materials.gel]\ncolor = "240,240,240"\nchannel = 1\n'
+                     '[materials.red]\ncolor = "255,0,0"\nchannel = 2\n'
+                     '[materials.cells]\ncolor = "0,255,0"\nchannel = 4\n'
+                     '[shells]\n1 = "0,0,255"\n')
+    out = tmp_path / "stack"
+    code, _, err = run_cli("slice", mesh_path, "--layer", "2", "--dpi", "100", "--materials", table, "-o", out)
+    assert code == 0, err
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert [(m["name"], m["channel"]) for m in manifest["grading"]["materials"]] == [("gel", 1), ("0,0,255", 3)]
 
 
 def test_interior_takes_the_material_of_the_nearest_outer_ring_point(tmp_path):

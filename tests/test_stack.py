@@ -297,9 +297,11 @@ def test_file_listed_twice(stack):
 
 
 def masks_of(manifest: dict, index: int, *materials: str) -> None:
-    """Give layer ``index`` of ``manifest`` one droplet mask entry per material (its own file, for structure)."""
+    """Give layer ``index`` of ``manifest`` one droplet mask entry per material (its own file, for structure;
+    None: an entry without a material)."""
     entry = manifest["layers"][index]
-    entry["channels"] = [{"material": name, "file": entry["file"], "sha256": entry["sha256"]} for name in materials]
+    entry["channels"] = [{"file": entry["file"], "sha256": entry["sha256"]} | ({} if name is None else {"material": name})
+                         for name in materials]
 
 
 @pytest.mark.parametrize("change, expected", [
@@ -323,6 +325,9 @@ def masks_of(manifest: dict, index: int, *materials: str) -> None:
     (lambda m: m.update(grading={"materials": [{"channel": 1}]}), "objects with a 'name'"),
     (lambda m: m.update(grading={"materials": [{"name": "a", "channel": 0}]}), "'a' has printer channel 0"),
     (lambda m: m.update(grading={"materials": [{"name": "a", "channel": True}]}), "'a' has printer channel True"),
+    (lambda m: m.update(grading={"materials": [{"name": "a", "channel": 255}]}), "channel 255, not a whole number from 1"),
+    (lambda m: (m.update(grading={"materials": [{"name": "a", "channel": 1}]}), masks_of(m, 2, None)),
+     "layer 2: its droplet masks (None) are not one per material"),
     (lambda m: (m.update(grading={"materials": [{"name": "a", "channel": 1}]}), masks_of(m, 2, "b")),
      "layer 2: its droplet masks (b) are not one per material of grading.materials (a)"),
     (lambda m: (m.update(grading={"materials": [{"name": "a", "channel": 1}, {"name": "b", "channel": 2}]}),

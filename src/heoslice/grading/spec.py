@@ -7,7 +7,8 @@ starting and ending rings (or a target depth) and D_N the nozzle diameter; sub-r
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import itertools
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -108,6 +109,25 @@ class GradeSpec:
             if material is not None and all(_identity(material) != _identity(m) for m in found):
                 found.append(material)
         return tuple(found)
+
+    def with_printer_channels(self, table_channels: set[int]) -> GradeSpec:
+        """This specification with each droplet-mask material that names no printer channel (a colour outside
+        the materials table) given the lowest channel that no table material (``table_channels``) and no other
+        mask names, in mask order: the manifest says where every mask goes, so a print never sends one to the
+        cartridge of a table material this stack happens not to use."""
+        materials = self.channel_materials()
+        taken = set(table_channels) | {m.channel for m in materials if m.channel is not None}
+        free = (channel for channel in itertools.count(1) if channel not in taken)
+        given = {_identity(m): replace(m, channel=next(free)) for m in materials if m.channel is None}
+        if not given:
+            return self
+
+        def assigned(material):
+            return None if material is None else given.get(_identity(material), material)
+
+        return replace(self, base=assigned(self.base), second=assigned(self.second), start=assigned(self.start),
+                       target=assigned(self.target), shells=tuple((n, assigned(m)) for n, m in self.shells),
+                       mapped=tuple(assigned(m) for m in self.mapped))
 
     def channel_index(self, material) -> int:
         """The index of ``material`` (by name and colour) among :meth:`channel_materials`: its column of a

@@ -35,6 +35,7 @@ from heoslice.material.functions import (
 )
 from heoslice.material.materials import (
                                         DEFAULT_MATERIALS,
+                                        MAX_CHANNEL,
                                         Material,
                                         MaterialRoles,
                                         MaterialsFile,
@@ -51,6 +52,7 @@ from heoslice.material.materials import (
                                         shared_channel,
                                         table_material,
                                         to_rgb8,
+                                        with_table_channels,
 )
 from heoslice.material.references import (
                                         REFERENCE_KINDS,
@@ -78,8 +80,9 @@ __all__ = [
     "ply_bytes", "subdivide", "write_ply",
     "EXPRESSION_CONSTANTS", "EXPRESSION_FUNCTIONS", "compile_expression", "evaluate_expression",
     "FUNCTION_KINDS", "FUNCTIONS", "DistributionFunction", "FunctionKind", "evaluate", "make_function",
-    "DEFAULT_MATERIALS", "Material", "MaterialRoles", "blend", "load_materials",
+    "DEFAULT_MATERIALS", "MAX_CHANNEL", "Material", "MaterialRoles", "blend", "load_materials",
     "material_roles", "nearest_materials", "parse_color", "resolve_material", "shared_channel", "to_rgb8",
+    "with_table_channels",
     "PartSetting", "table_material", "MaterialsFile", "read_materials_file",
     "check_one_per_channel",
     "is_channel",

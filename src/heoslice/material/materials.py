@@ -36,6 +36,7 @@ with f clipped to [0, 1], so M = M1 where f <= 0 and M = M2 where f >= 1.
 
 from __future__ import annotations
 
+import itertools
 import re
 import sys
 from dataclasses import dataclass, field
@@ -111,13 +112,20 @@ def _material_from_table(name: str, entry, path: Path) -> Material:
         raise InputError(f"{path}: materials.{name}: {err}") from None
     channel = entry.get("channel")
     if channel is not None and not is_channel(channel):
-        raise InputError(f"{path}: materials.{name}: channel must be a whole number >= 1, got {channel!r}")
+        raise InputError(f"{path}: materials.{name}: channel must be a whole number from 1 to {MAX_CHANNEL}, "
+                         f"got {channel!r}")
     return Material(name, color, channel)
 
 
+#: Highest printer channel: a print job's channel count (the solid mask's channel 0 and one per printer
+#: channel up to the highest a mask names) is one byte of JOB_BEGIN (docs/protocol.md).
+MAX_CHANNEL = 254
+
+
 def is_channel(value) -> bool:
-    """A printer channel: a whole number >= 1 (JSON's true is not one); the rule of materials files and manifests."""
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
+    """A printer channel: a whole number from 1 to MAX_CHANNEL (JSON's true is not one); the rule of materials
+    files and manifests."""
+    return isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= MAX_CHANNEL
 
 
 #: A materials file is a few named colours; anything larger than this is not one (and is not read).
@@ -143,7 +151,20 @@ def _materials_of(data: dict, path: Path) -> dict[str, Material]:
     table = data.get("materials")
     if not isinstance(table, dict) or not table:
         raise InputError(f"{path}: no [materials.NAME] tables (see heoslice color --help)")
-    return {str(name): _material_from_table(str(name), entry, path) for name, entry in table.items()}
+    if len(table) > MAX_CHANNEL:
+        raise InputError(f"{path}: {len(table)} materials, more than the printer's {MAX_CHANNEL} channels")
+    return with_table_channels({str(name): _material_from_table(str(name), entry, path)
+                                for name, entry in table.items()})
+
+
+def with_table_channels(table: dict[str, Material]) -> dict[str, Material]:
+    """The table with every material that names no printer channel given the lowest channel no material of
+    the table names, in table order: a material's channel is the table's to say, never which of the table's
+    materials a mesh happens to use (a stack holding some of them sends each to its own cartridge)."""
+    taken = {material.channel for material in table.values() if material.channel is not None}
+    free = (channel for channel in itertools.count(1) if channel not in taken)
+    return {name: material if material.channel is not None else Material(material.name, material.color, next(free))
+            for name, material in table.items()}
 
 
 def _shells_of(data: dict, path: Path, table: dict[str, Material]) -> dict[int, Material]:
@@ -327,8 +348,9 @@ def check_one_per_channel(materials: tuple[Material, ...] | list[Material], need
     shared = shared_channel([(material.name, material.channel) for material in materials])
     if shared is not None:
         channel, names = shared
-        raise InputError(f"materials: {' and '.join(map(repr, names))} both print on channel {channel}, but "
-                         f"{needing} need one channel per material")
+        both = "both" if len(names) == 2 else "all"
+        raise InputError(f"materials: {', '.join(map(repr, names[:-1]))} and {names[-1]!r} {both} print on channel "
+                         f"{channel}, but {needing} need one channel per material")
 
 
 def nearest_materials(colors: np.ndarray, materials: tuple[Material, ...] | list[Material]) -> np.ndarray:

@@ -37,16 +37,23 @@ class MaterialJob:
     vertex_mix: np.ndarray | None
 
 
-def _plain_grade(table: tuple[Material, ...], fractions: bool):
+def _plain_grade(table: tuple[Material, ...]):
     """The grading specification of a mesh that carries materials but asks for no gradient: every
-    family keeps its contour's material, the table's first material the base (M1); the second plays M2
-    only for a material fraction (``fractions``): a mesh's colours name their own materials, so a table
-    material they do not use gets no mask (nor a printer channel to share)."""
+    family keeps its contour's material, the table's first two playing M1 and M2."""
     from heoslice.grading import GradeSpec, RegionSpec  # the grading package loads numba's kernels
 
     roles = material_roles({m.name: m for m in table})
     return GradeSpec(regions=RegionSpec(), function=None, target=None, start=None,
-                     base=roles.first, second=roles.second if fractions else None)
+                     base=roles.first, second=roles.second)
+
+
+def _masks_used(grade, mesh: Mesh):
+    """``grade`` without its second material when nothing mixes towards it (no gradient, no material
+    fraction): colours and shells name their own materials, so a table material the mesh does not use
+    gets no mask, nor a printer channel to share."""
+    if grade is None or grade.function is not None or mesh.material is not None:
+        return grade
+    return replace(grade, second=None)
 
 
 def _fraction_mix(fraction: np.ndarray, grade) -> np.ndarray:
@@ -63,16 +70,16 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
     if spec.parts is not None:  # a multi-part job: each part is one material (heoslice.pipeline.parts)
         return MaterialJob(spec, None)
     table = spec.materials or tuple(DEFAULT_MATERIALS.values())
-    grade, mix = spec.grade, None
+    grade, mix = _masks_used(spec.grade, mesh), None
     if mesh.material is not None:
-        grade = grade if grade is not None else _plain_grade(table, fractions=True)
+        grade = grade if grade is not None else _plain_grade(table)
         if grade.second is not None:
             mix = _fraction_mix(mesh.material, grade)
     elif mesh.colors is not None:
         chosen = nearest_materials(mesh.colors, table)
         used = np.unique(chosen)
         if len(used) > 1 or grade is not None:
-            grade = grade if grade is not None else _plain_grade(table, fractions=False)
+            grade = grade if grade is not None else _masks_used(_plain_grade(table), mesh)
             grade = replace(grade, mapped=tuple(table[i] for i in used))
             columns = np.array([grade.channel_index(table[i]) for i in used])
             mix = np.zeros((len(chosen), len(grade.channel_materials())))
@@ -84,5 +91,6 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
         return MaterialJob(replace(spec, grade=None, channels=False), None)
     channels = several if spec.channels is None else spec.channels
     if channels:
+        grade = grade.with_printer_channels({m.channel for m in table if m.channel is not None})
         check_one_per_channel(grade.channel_materials(), "the droplet masks")
     return MaterialJob(replace(spec, grade=grade, channels=channels), mix)

@@ -18,7 +18,7 @@ import numpy as np
 from heoslice import __version__
 from heoslice.errors import InputError, VerifyError
 from heoslice.layers.planes import layer_count
-from heoslice.material import is_channel, shared_channel
+from heoslice.material import MAX_CHANNEL, is_channel, shared_channel
 
 FORMAT_NAME = "heoslice-stack"
 FORMAT_VERSION = 1
@@ -272,11 +272,11 @@ def _grading_problem(manifest: dict) -> str | None:
     for material in materials:
         if material.get("channel") is not None and not is_channel(material["channel"]):
             return (f"grading.materials: {material['name']!r} has printer channel {_show(material['channel'])}, "
-                    "not a whole number >= 1")
+                    f"not a whole number from 1 to {MAX_CHANNEL}")
     names = [material["name"] for material in materials]
     for entry in manifest["layers"]:
         masks = [channel.get("material") for channel in entry.get("channels", [])]
-        if masks and (len(masks) != len(names) or any(m is not None and m != n for m, n in zip(masks, names))):
+        if masks and masks != names:
             return (f"layer {entry['index']}: its droplet masks ({', '.join(map(str, masks))}) are not one per "
                     f"material of grading.materials ({', '.join(names)}), in its order")
     return None
