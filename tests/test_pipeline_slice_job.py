@@ -17,7 +17,7 @@ from PIL import Image
 
 from heoslice import procedural
 from heoslice.layers.contours import build_contours
-from heoslice.layers.rasterising import Grid, contour_pixels, solid_mask
+from heoslice.layers.rasterising import Grid, solid_mask
 from heoslice.layers.slicing import slice_mesh
 from heoslice.material import Material
 from heoslice.mesh import load_mesh
