@@ -20,7 +20,6 @@ from heoslice.material import (
     blend,
     check_one_per_channel,
     is_channel,
-    load_materials,
     parse_color,
     read_materials_file,
     resolve_material,
@@ -84,7 +83,7 @@ def test_blend_is_linear_between(f, c1, c2):
 
 def test_default_materials():
     """Without a file: M1 light grey on channel 1, M2 green (0, 255, 0) on channel 2."""
-    table = load_materials(None)
+    table = read_materials_file(None).materials
     assert list(table) == ["M1", "M2"]
     assert table["M1"] == Material("M1", (240, 240, 240), 1)
     assert table["M2"] == Material("M2", (0, 255, 0), 2)
@@ -102,7 +101,7 @@ def test_materials_file(tmp_path):
         '[materials.tumour]\ncolor = "red"\n'
         '[shells]\n1 = "tumour"\n2 = "0,0,255"\n'
     )
-    table = load_materials(path)
+    table = read_materials_file(path).materials
     assert table == {"gel": Material("gel", (240, 240, 240), 1), "cells": Material("cells", (0, 200, 0), 2),
                      "tumour": Material("tumour", (255, 0, 0), 3)}
     shells = read_materials_file(path).shells()
@@ -134,9 +133,9 @@ def test_materials_file_refusals(tmp_path, text, fragment):
 def test_missing_materials_file(tmp_path):
     """A missing file or a directory is an InputError naming it."""
     with pytest.raises(InputError, match="no such file"):
-        load_materials(tmp_path / "absent.toml")
+        read_materials_file(tmp_path / "absent.toml").materials
     with pytest.raises(InputError, match="is a directory"):
-        load_materials(tmp_path)
+        read_materials_file(tmp_path).materials
 
 
 def test_resolve_material():
@@ -170,12 +169,12 @@ def test_a_materials_file_that_is_not_a_regular_file_is_refused_at_once(tmp_path
 
 def test_a_materials_file_larger_than_the_limit_is_refused_before_reading(tmp_path):
     """A materials file over MAX_MATERIALS_FILE_BYTES is refused by its size, naming the limit."""
-    from heoslice.material.materials import MAX_MATERIALS_FILE_BYTES, load_materials
+    from heoslice.material.materials import MAX_MATERIALS_FILE_BYTES, read_materials_file
 
     big = tmp_path / "big.toml"
     big.write_bytes(b"#" * (MAX_MATERIALS_FILE_BYTES + 1))
     with pytest.raises(InputError, match="limit"):
-        load_materials(big)
+        read_materials_file(big).materials
 
 
 def test_nearest_materials_maps_display_colours_to_themselves_and_others_to_the_closest():

@@ -82,7 +82,7 @@ def test_3mf_gives_the_same_masks_as_two_coloured_plys(tmp_path, run_cli):
 
 def test_3mf_object_maps_by_name_then_base_material(tmp_path):
     """A 3MF object's base material named as a table material is that material, unless [parts] names another."""
-    from heoslice.material import PartSetting, load_materials
+    from heoslice.material import PartSetting, read_materials_file
     from heoslice.pipeline import plan_parts
 
     objects = two_objects()
@@ -90,7 +90,7 @@ def test_3mf_object_maps_by_name_then_base_material(tmp_path):
     (tmp_path / "mats.toml").write_text(MATERIALS_TOML + '[materials.liver]\ncolor = "blue"\nchannel = 3\n')
     mesh = load_mesh(tmp_path / "organ.3mf")
     assert [part.material_name for part in mesh.parts] == ["liver", "colorgroup 2 #0"]
-    table = load_materials(tmp_path / "mats.toml")
+    table = read_materials_file(tmp_path / "mats.toml").materials
     assert [m.name for m in plan_parts(mesh.parts, table, {}).materials] == ["tumour", "liver"]
     named = plan_parts(mesh.parts, table, {"organ": PartSetting("tissue")})
     assert [named.materials[i].name for i in named.part_material] == ["tissue", "tumour"]

@@ -243,11 +243,6 @@ def read_materials_file(path: Path | None) -> MaterialsFile:
     return MaterialsFile(Path(path), _materials_of(data, Path(path)), data)
 
 
-def load_materials(path: Path | None) -> dict[str, Material]:
-    """{name: Material} from a materials TOML file, or the built-in two when ``path`` is None."""
-    return read_materials_file(path).materials
-
-
 def table_material(name: str, table: dict[str, Material]) -> Material | None:
     """The material of ``table`` named ``name`` (exactly, else ignoring case), or None."""
     if name in table:
