@@ -16,7 +16,7 @@ import numpy as np
 
 from heoslice.errors import HeosliceError, InputError, StackChangedError
 from heoslice.printing import protocol as P
-from heoslice.stack import mask_channels
+from heoslice.stack import mask_channels, widest_masks
 
 LayerSource = Callable[[int], Sequence[bytes]]
 
@@ -60,7 +60,7 @@ def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
     if not layers:
         raise InputError(f"{directory}: the stack has no layers")
     width, height = manifest["image"]["width"], manifest["image"]["height"]
-    widest = max((entry.get("channels") or [] for entry in layers), key=len)
+    widest = widest_masks(manifest)
     targets = mask_channels(manifest, directory)
     channels = 1 + max(targets, default=0)
     names = ["solid", *(["unused"] * (channels - 1))]

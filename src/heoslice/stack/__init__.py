@@ -30,6 +30,7 @@ from heoslice.stack.manifest import (
     max_layer_count,
     parse_manifest,
     stack_volume_mm3,
+    widest_masks,
 )
 from heoslice.stack.read import (
     check_input_path,
@@ -53,5 +54,5 @@ __all__ = [
     "layer_file_name", "layer_height_problems", "layer_strips", "load_verified", "manifest_problem", "mask_channels",
     "max_layer_count", "parse_manifest",
     "prepare_directory", "read_layer_channels", "read_layer_mask", "read_layer_pixels", "read_manifest",
-    "resolve_inside", "stack_volume_mm3", "verify_stack", "write_file", "write_manifest",
+    "resolve_inside", "stack_volume_mm3", "verify_stack", "widest_masks", "write_file", "write_manifest",
 ]

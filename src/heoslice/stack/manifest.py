@@ -342,6 +342,12 @@ def _layer_problem(entry, position: int, pixels: int) -> str | None:
     return None
 
 
+def widest_masks(manifest: dict) -> list[dict]:
+    """The droplet mask entries of the layer that has the most ([] without masks): what the stack's masks are,
+    in the order every layer lists them."""
+    return max((entry.get("channels", []) for entry in manifest["layers"]), key=len, default=[])
+
+
 def mask_channels(manifest: dict, label: object = "stack") -> tuple[int, ...]:
     """The printer channel (1-based) of each droplet mask of a checked manifest (:func:`manifest_problem`), in
     the order of a layer's ``channels`` list: the ``channel`` of its ``grading.materials`` entry (the same
@@ -349,7 +355,7 @@ def mask_channels(manifest: dict, label: object = "stack") -> tuple[int, ...]:
     lowest channel no other mask names, in mask order, so a stack whose materials name none is sent on 1..K
     as listed. The one place a stack's material -> channel map is read (by verify and print). Raises
     VerifyError (naming ``label``) when two masks name one channel."""
-    widest = max((entry.get("channels", []) for entry in manifest["layers"]), key=len, default=[])
+    widest = widest_masks(manifest)
     recorded = (manifest.get("grading") or {}).get("materials") or []
     wanted = [recorded[number].get("channel") if number < len(recorded) else None for number in range(len(widest))]
     shared = shared_channel([(str(mask.get("material", f"mask {n + 1}")), channel)
