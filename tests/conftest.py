@@ -1,4 +1,6 @@
-"""Shared fixtures: the third-party mesh folder (skipped when absent) and a CLI runner."""
+"""Shared fixtures: the third-party mesh folder (skipped when absent) and a CLI runner. Every compiled
+kernel checks its arguments in the tests (and in the commands they run): the compiled code would misread
+an array of another type or layout rather than refuse it."""
 
 from __future__ import annotations
 
@@ -6,6 +8,8 @@ import os
 from pathlib import Path
 
 import pytest
+
+os.environ.setdefault("HEOSLICE_CHECK_KERNELS", "1")  # before any heoslice kernel module is imported
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -110,7 +110,7 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
         shells = materials.shells()
     if kind is None and not (channels or shells):
         return None
-    # imported here, past the plain path's return: the grading package loads numba's kernels
+    # imported here, past the plain path's return: the grading package loads its kernels and shapely
     from heoslice.grading import GradeSpec, RegionSpec
 
     table = materials.materials

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
-from heoslice.grading.jit import EXACT, f32, i64
+from heoslice.grading.jit import EXACT, f32, helper, i64, kernel
 
 
 class LabelledLayer(NamedTuple):
@@ -43,7 +42,7 @@ class Dither(NamedTuple):
     base_channel: int
 
 
-@numba.njit(inline="always", **EXACT)
+@helper(EXACT)
 def _chunk_word(words, line, k, spread):  # pragma: no cover - compiled
     """The pattern word of chunk k (16 pixels of ``line``): each pixel's label word (``words`` by label)
     masked to its own column in every 16-bit field (``spread``: a 1 in the low bit of each field used)."""
@@ -53,7 +52,7 @@ def _chunk_word(words, line, k, spread):  # pragma: no cover - compiled
     return value
 
 
-@numba.njit(inline="always", **EXACT)
+@helper(EXACT)
 def _chunk_solid(solid, k):  # pragma: no cover - compiled
     """(high byte, low byte, 16-bit mask) of chunk k's solid pixels, from the packed solid row ``solid``."""
     high = np.int64(solid[2 * k])
@@ -61,7 +60,7 @@ def _chunk_solid(solid, k):  # pragma: no cover - compiled
     return high, low, (high << 8) | low
 
 
-@numba.njit(**EXACT)
+@helper(EXACT, inline=False)
 def _droplet_run(line, solid, pattern, first, planes, count, channels):  # pragma: no cover - compiled
     """The common case of :func:`_droplet_bits`: ``count`` chunks of 16 pixels of a row, from chunk
     ``first``, all inside the labels, K <= 4 channels (one pattern word: ``pattern`` (blocks,
@@ -106,7 +105,7 @@ def _droplet_run(line, solid, pattern, first, planes, count, channels):  # pragm
     return count
 
 
-@numba.njit(**EXACT)
+@helper(EXACT, inline=False)
 def _pattern_words(table, level, channels, size, words, blocks):  # pragma: no cover - compiled
     """The choice table as bit patterns ((size, words, blocks, labels) int64, see :func:`_droplet_bits`): per
     tile row, block of 16 columns and label, one 16-bit field per channel but the last and one for the
@@ -127,7 +126,7 @@ def _pattern_words(table, level, channels, size, words, blocks):  # pragma: no c
     return pattern
 
 
-@numba.njit(inline="always", **EXACT)
+@helper(EXACT)
 def _solid_span(solid, width):  # pragma: no cover - compiled
     """(first, last) bytes of a packed row that hold solid pixels (first > last: none), skipping empty
     stretches 16 bytes at a time."""
@@ -155,7 +154,7 @@ def _solid_span(solid, width):  # pragma: no cover - compiled
     return first, last
 
 
-@numba.njit(**EXACT)
+@kernel(EXACT, label_arg=0)
 def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
     """Set one bit per solid pixel in the plane of the material it jets (see :func:`droplet_bits`).
 

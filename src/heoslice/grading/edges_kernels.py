@@ -5,10 +5,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
-from heoslice.grading.jit import JIT, f64, i64
+from heoslice.grading.jit import JIT, f64, helper, i64, kernel
 
 
 class EdgeArrays(NamedTuple):
@@ -27,7 +26,7 @@ def edge_arrays(edges) -> EdgeArrays:
     return EdgeArrays(f64(edges.x), f64(edges.y), f64(edges.vx), f64(edges.vy), f64(edges.inv_len2))
 
 
-@numba.njit(inline="always", **JIT)
+@helper(JIT)
 def point_to_edge(px, py, ex, ey, vx, vy, inv):  # pragma: no cover - compiled
     """Distance (float64) from a point to the edge from (ex, ey) by (vx, vy), 1/|v|^2 = inv."""
     rx, ry = px - ex, py - ey
@@ -35,7 +34,7 @@ def point_to_edge(px, py, ex, ey, vx, vy, inv):  # pragma: no cover - compiled
     return np.sqrt((rx - t * vx) ** 2 + (ry - t * vy) ** 2)
 
 
-@numba.njit(inline="always", **JIT)
+@helper(JIT)
 def _off_segment(x, y, j, a, c):  # pragma: no cover - compiled
     """Distance (mm) from point j to the segment from point a to point c."""
     vx, vy = x[c] - x[a], y[c] - y[a]
@@ -43,7 +42,7 @@ def _off_segment(x, y, j, a, c):  # pragma: no cover - compiled
     return point_to_edge(x[j], y[j], x[a], y[a], vx, vy, 1.0 / length2 if length2 > 0.0 else 0.0)
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _straight_runs(x, y, size, tolerance, longest):  # pragma: no cover - compiled
     """(keep (n,) bool, order (n,), knots (n + rings,), knot_at (n + rings,)) of :func:`straight_runs`."""
     n, rings = len(x), len(size)

@@ -5,10 +5,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
-from heoslice.grading.jit import JIT, f64, i64
+from heoslice.grading.jit import JIT, f64, helper, i64, kernel
 
 
 class CellPixels(NamedTuple):
@@ -38,7 +37,7 @@ def label_target(out: np.ndarray, mask: np.ndarray | None = None, origin: tuple[
     return LabelTarget(out, mask, int(origin[0]), int(origin[1]), float(base))
 
 
-@numba.njit(inline="always", **JIT)
+@helper(JIT)
 def nearest_end(d, sets):  # pragma: no cover - compiled
     """Index m (1..sets-1) of the ending ring set nearest in |d| (the first of equals), d (sets,) mm."""
     m = 1
@@ -48,13 +47,13 @@ def nearest_end(d, sets):  # pragma: no cover - compiled
     return m
 
 
-@numba.njit(inline="always", **JIT)
+@helper(JIT)
 def inverse_distance(value):  # pragma: no cover - compiled
     """1 / d, with |d| below 1e-12 taken as 1e-12 (a pixel on a ring)."""
     return 1.0 / (value if abs(value) >= 1e-12 else 1e-12)
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _band_field(d, g, count):  # pragma: no cover - compiled
     """s of eq. 10 (pole-free form, field._band_coordinate) and its gradient at every lattice
     centre, from the signed distances d (sets, rows, cols) and their gradients g (sets, rows,
@@ -99,7 +98,7 @@ def band_field(d: np.ndarray, g: np.ndarray, count: int) -> tuple[np.ndarray, np
                        float(count))
 
 
-@numba.njit(**JIT)
+@kernel(JIT, label_arg=6)
 def _expand_planes(s, gx, gy, empty, pixels, count, target):  # pragma: no cover - compiled
     """out[i*cell + v, j*cell + u] = clip(floor(s_ij + gx_ij x_u - gy_ij y_v) + 1, 1, count) over the
     part of the lattice that ``out`` covers; x_u, y_v are pixel offsets from the cell centre (mm),
@@ -149,7 +148,7 @@ def _expand_planes(s, gx, gy, empty, pixels, count, target):  # pragma: no cover
     return out
 
 
-@numba.njit(inline="always", **JIT)
+@helper(JIT)
 def _expand_run(line, column, slope, keep, down, low, high, offset, masked):  # pragma: no cover - compiled
     """One run of a pixel row in :func:`_expand_planes`: a branch-free loop that vectorises."""
     if masked:
@@ -180,7 +179,7 @@ def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, pixels: CellPix
     return _expand_planes(f64(s), f64(gx), f64(gy), empty, pixels, float(count), target)
 
 
-@numba.njit(**JIT)
+@kernel(JIT, label_arg=0)
 def _curve_cells(target, ci, cj, pixels, quadratics, count):  # pragma: no cover - compiled
     """Rewrite whole cells (ci, cj) from their quadratics (see :func:`curve_cells`): along each pixel
     row of a cell the quadratic is A + (B + C x) x, one branch-free loop."""

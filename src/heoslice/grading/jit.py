@@ -1,6 +1,25 @@
-"""numba settings shared by the grading kernels, and the one conversion of their array arguments."""
+"""How the grading kernels are compiled, and the one conversion of their array arguments.
+
+The kernels are written once, as numba functions in the ``*_kernels`` modules. Installing heoslice compiles
+them ahead of time into the extension module ``heoslice.grading._compiled`` (:mod:`heoslice.grading.exports`,
+run by ``setup.py``), so that a graded slice loads neither numba nor LLVM: they cost every process of a
+slice its largest fixed share of memory and start-up time (benchmarks/README.md). :func:`kernel` hands each
+module the compiled function when that extension was built from these very sources (its digest matches),
+else numba's just-in-time compilation of the same function, as it does whenever ``HEOSLICE_JIT=1`` (the
+ahead-of-time build itself, and tests that compare the two). :func:`helper` marks a function that only
+kernels call: compiled into them, plain Python otherwise.
+"""
 
 from __future__ import annotations
+
+import functools
+import hashlib
+import importlib
+import json
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -9,6 +28,149 @@ import numpy as np
 JIT = {"cache": True, "nogil": True, "error_model": "numpy", "fastmath": {"nsz", "arcp", "contract", "reassoc"}}
 #: The halftone reproduces the float32 arithmetic of the dither exactly: no contraction or reassociation.
 EXACT = {"cache": True, "nogil": True, "error_model": "numpy"}
+
+#: The environment variable that makes the kernels compile just in time with numba, whatever is installed.
+JIT_VARIABLE = "HEOSLICE_JIT"
+#: The environment variable that makes every compiled kernel check its arguments' types and layout first.
+CHECK_VARIABLE = "HEOSLICE_CHECK_KERNELS"
+#: The extension module the ahead-of-time build writes, and its exports of its sources' digest and of its
+#: kernels' argument layouts (JSON: export name -> one layout per argument).
+COMPILED_MODULE = "heoslice.grading._compiled"
+DIGEST_EXPORT, LAYOUTS_EXPORT = "source_digest", "argument_layouts"
+#: Label widths (bits) a kernel taking a label array is exported for: int16 labels, int32 past 32000.
+LABEL_BITS = (16, 32)
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A kernel that Python calls, as numba compiles it just in time: what the export table exports."""
+
+    dispatcher: Callable
+    label_arg: int | None
+
+
+#: Every kernel decorated while kernels compile just in time, in import order.
+ENTRIES: list[Entry] = []
+
+
+def source_digest() -> int:
+    """A 60-bit digest of every module the compiled kernels are made from (this one, the ``*_kernels``
+    modules and the export table), so that an extension built from other sources is never used."""
+    here = Path(__file__).parent
+    digest = hashlib.sha256()
+    for path in sorted([Path(__file__), here / "exports.py", *here.glob("*_kernels.py")]):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
+    return int(digest.hexdigest()[:15], 16)
+
+
+@functools.cache
+def compiled_module():
+    """The ahead-of-time compiled kernels, or None: not built, built from other sources, or HEOSLICE_JIT=1."""
+    if _enabled(JIT_VARIABLE):
+        return None
+    try:
+        module = importlib.import_module(COMPILED_MODULE)
+    except ImportError:
+        return None
+    return module if getattr(module, DIGEST_EXPORT)() == source_digest() else None
+
+
+def _enabled(variable: str) -> bool:
+    return os.environ.get(variable, "") not in ("", "0")
+
+
+def _compiled_export(name: str) -> Callable:
+    """The compiled kernel ``name``; with HEOSLICE_CHECK_KERNELS=1, wrapped to refuse (TypeError) arguments
+    that differ from its signature, which the compiled code would misread rather than refuse."""
+    compiled = compiled_module()
+    export = getattr(compiled, name)
+    if not _enabled(CHECK_VARIABLE):
+        return export
+    wanted = json.loads(getattr(compiled, LAYOUTS_EXPORT)())[name]
+
+    @functools.wraps(export)
+    def checked(*args):
+        if len(args) != len(wanted):
+            raise TypeError(f"{name}: {len(args)} arguments, not {len(wanted)}")
+        for position, (value, layout) in enumerate(zip(args, wanted)):
+            problem = layout_problem(value, layout)
+            if problem:
+                raise TypeError(f"{name}: argument {position}: {problem}")
+        return export(*args)
+
+    return checked
+
+
+def layout_problem(value, layout) -> str | None:
+    """How ``value`` differs from an export's argument layout (:func:`heoslice.grading.exports.layout_of`:
+    "DTYPE NDIMd" an array, "int", "float" or "bool" a scalar, a list a tuple), or None."""
+    if isinstance(layout, list):
+        if not isinstance(value, tuple) or len(value) != len(layout):
+            return f"{type(value).__name__}, not a tuple of {len(layout)}"
+        for index, (item, item_layout) in enumerate(zip(value, layout)):
+            problem = layout_problem(item, item_layout)
+            if problem:
+                return f"item {index}: {problem}"
+        return None
+    if " " in layout:
+        if not isinstance(value, np.ndarray):
+            return f"{type(value).__name__}, not an array"
+        found = f"{value.dtype} {value.ndim}d"
+        if found != layout or not value.flags.c_contiguous:
+            return f"{found} {'C' if value.flags.c_contiguous else 'strided'}, not {layout} C"
+        return None
+    kinds = {"int": (int, np.integer), "float": (float, int, np.floating, np.integer), "bool": (bool, np.bool_)}
+    fits = isinstance(value, kinds[layout]) and (layout == "bool" or not isinstance(value, (bool, np.bool_)))
+    return None if fits else f"{type(value).__name__}, not {layout}"
+
+
+def export_name(function: Callable, label_bits: int | None = None) -> str:
+    """The name a kernel is exported under: module and function, and the label width when it has one."""
+    module = function.__module__.rsplit(".", 1)[-1].removesuffix("_kernels")
+    return f"{module}__{function.__name__.lstrip('_')}" + ("" if label_bits is None else f"__{label_bits}")
+
+
+def kernel(options: dict, label_arg: int | None = None) -> Callable[[Callable], Callable]:
+    """Decorate a kernel that Python calls: the compiled export, or numba.njit(**options) of it.
+
+    ``label_arg``: the position of the argument whose first field is the label array (a LabelTarget, a
+    labelled layer); the kernel is then exported once per label width and each call takes the one its
+    labels have. Compiled just in time, the kernel is listed in ENTRIES for the export table.
+    """
+
+    def decorate(function: Callable) -> Callable:
+        compiled = compiled_module()
+        if compiled is None:
+            import numba
+
+            dispatcher = numba.njit(**options)(function)
+            ENTRIES.append(Entry(dispatcher, label_arg))
+            return dispatcher
+        if label_arg is None:
+            return _compiled_export(export_name(function))
+        by_width = {bits // 8: _compiled_export(export_name(function, bits)) for bits in LABEL_BITS}
+
+        @functools.wraps(function)
+        def by_label_width(*args):
+            return by_width[args[label_arg][0].itemsize](*args)
+
+        return by_label_width
+
+    return decorate
+
+
+def helper(options: dict, inline: bool = True) -> Callable[[Callable], Callable]:
+    """Decorate a function that only kernels call: numba.njit of it (inlined into its callers unless
+    ``inline`` is False) when the kernels compile just in time, the plain function otherwise."""
+
+    def decorate(function: Callable) -> Callable:
+        if compiled_module() is not None:
+            return function
+        import numba
+
+        return numba.njit(**({"inline": "always"} if inline else {}), **options)(function)
+
+    return decorate
 
 
 def f64(array) -> np.ndarray:
@@ -24,5 +186,3 @@ def f32(array) -> np.ndarray:
 def i64(array) -> np.ndarray:
     """The array as C-ordered int64 (no copy when it is one already)."""
     return np.ascontiguousarray(array, dtype=np.int64)
-
-

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from heoslice.grading.edges_kernels import point_to_edge
-from heoslice.grading.jit import EXACT, f64, i64
+from heoslice.grading.jit import EXACT, f64, i64, kernel
 
 
-@numba.njit(**EXACT)
+@kernel(EXACT)
 def _disc_winding(points, offsets, loops, cx, cy, reach):  # pragma: no cover - compiled
     """The winding number of the loops around the point (cx, cy), or None when an edge comes within
     ``reach`` of it."""

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
 from heoslice.grading.edges import RingEdges, following_edges
 from heoslice.grading.edges_kernels import EdgeArrays, edge_arrays
-from heoslice.grading.jit import JIT, f64, i64
+from heoslice.grading.jit import JIT, f64, i64, kernel
 
 
 class LatticeFrame(NamedTuple):
@@ -27,7 +26,7 @@ def frame_of(lattice) -> LatticeFrame:
     return LatticeFrame(float(lattice.x0), float(lattice.y0), float(lattice.dx), float(lattice.dy))
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _signed_feet(edge, frame, edges, inside, encloses):  # pragma: no cover - compiled
     """At every lattice centre (x0 + (j + 1/2) dx, y0 - (i + 1/2) dy): signed distance to its edge
     (> 0 where ``inside`` equals ``encloses``), its unit gradient (0 on the edge) and the foot."""
@@ -62,7 +61,7 @@ def signed_feet(edge: np.ndarray, frame: LatticeFrame, edges: EdgeArrays, inside
     return _signed_feet(i64(edge), frame_of(frame), edge_arrays(edges), np.ascontiguousarray(inside), bool(encloses))
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _inside_centres(edges, end_y, frame, rows, cols):  # pragma: no cover - compiled
     """(rows, cols) bool: lattice centres (x0 + (j + 1/2) dx, y0 - (i + 1/2) dy) inside the closed rings
     whose edges run from (ex, ey) by (evx, evy) to a point at height end_y (the next edge's ey), by the
@@ -102,7 +101,7 @@ def inside_centres(edges: RingEdges, frame: LatticeFrame, rows: int, cols: int) 
     return _inside_centres(edge_arrays(edges), end_y, frame_of(frame), int(rows), int(cols))
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _feet(qx, qy, edge, edges):  # pragma: no cover - compiled
     """Distance from each point to its given edge, and the nearest point on it (the foot)."""
     ex, ey, evx, evy, einv = edges

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
 from heoslice.grading.field_kernels import (
@@ -14,7 +13,7 @@ from heoslice.grading.field_kernels import (
     inverse_distance,
     nearest_end,
 )
-from heoslice.grading.jit import JIT, f32, f64, i64
+from heoslice.grading.jit import JIT, f32, f64, helper, i64, kernel
 
 
 class CellField(NamedTuple):
@@ -52,7 +51,7 @@ class RingVertices(NamedTuple):
     y0: float
 
 
-@numba.njit(inline="always", **JIT)
+@helper(JIT)
 def _boundary_within(s, spread, miss, count):  # pragma: no cover - compiled
     """Whether a sub-region boundary (k = clip(floor(s) + 1, 1, count) changing) can lie within ``spread``
     plus ``miss`` of the value ``s``."""
@@ -61,7 +60,7 @@ def _boundary_within(s, spread, miss, count):  # pragma: no cover - compiled
     return low != high
 
 
-@numba.njit(inline="always", **JIT)
+@helper(JIT)
 def _turns(grad, gx, gy, hx, hm, hy, i, j, dx, dy, limit):  # pragma: no cover - compiled
     """Whether the model's gradient (g + H e, e the offset to a neighbour's centre) points away from some
     neighbour's own direction (grad there, normalised) by more than ``limit`` (a cosine); H = 0 for a plane."""
@@ -78,7 +77,7 @@ def _turns(grad, gx, gy, hx, hm, hy, i, j, dx, dy, limit):  # pragma: no cover -
     return False
 
 
-@numba.njit(inline="always", **JIT)
+@helper(JIT)
 def _vertices_fit(vstart, vx, vy, vs, i, j, rows, cols, x0, y0, dx, dy, centre, gx, gy, hx, hm, hy,
                   allowed):  # pragma: no cover - compiled
     """Whether the quadratic of cell (i, j) gives, at every ring vertex in the cells around it (CSR
@@ -97,7 +96,7 @@ def _vertices_fit(vstart, vx, vy, vs, i, j, rows, cols, x0, y0, dx, dy, centre, 
     return True
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _refine_flags(field, hessian, test, vertices):  # pragma: no cover - compiled
     """Cells to evaluate per pixel: candidates whose plane (s, gradient) misses s at a neighbour's
     centre (where s is ``known``) by more than ``tolerance`` x the slope, and so does their
@@ -187,13 +186,13 @@ def refine_flags(field: CellField, test: FitTest, hessian: np.ndarray | None = N
     return out
 
 
-@numba.njit(inline="always", **JIT)
+@helper(JIT)
 def _difference(lower, upper, steps, step):  # pragma: no cover - compiled
     """(upper - lower) / (steps * step), as numpy.gradient takes it (central inside, one-sided at a border)."""
     return (upper - lower) / (steps * step)
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _hessian_of(grad, dx, dy):  # pragma: no cover - compiled
     """(3, rows, cols) s_xx, s_xy, s_yy from the gradients (rows, cols, 2) at centres dx, dy apart (rows
     downwards, y up): numpy.gradient's differences, zero along an axis one cell wide, all zero where
@@ -223,7 +222,7 @@ def hessian_of(grad: np.ndarray, dx: float, dy: float) -> np.ndarray:
     return _hessian_of(f64(grad), float(dx), float(dy))
 
 
-@numba.njit(inline="always", **JIT)
+@helper(JIT)
 def _band_sensitivities(here, sets, count, out):  # pragma: no cover - compiled
     """ds/dd_j of eq. 10's band coordinate (field._band_coordinate) at one point into ``out`` (sets,), from
     the signed distances ``here`` (sets,) mm of the starting ring set (0) and each ending one: with m the
@@ -247,7 +246,7 @@ def _band_sensitivities(here, sets, count, out):  # pragma: no cover - compiled
         out[k] = -d0 * scale if k == m else -d0 * dm * dm * inverse * inverse * scale
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _ring_models(d, g, grad, ci, cj, dx, dy, count, half_diagonal, tolerance):  # pragma: no cover - compiled
     """Per ring set and cell, the quadratic of its signed distance or NaN (refine.fit_ring_models has the
     argument); d (sets, rows, cols) mm, g (sets, rows, cols, 2) and grad (rows, cols, 2) at the
@@ -343,7 +342,7 @@ def ring_models(d: np.ndarray, g: np.ndarray, grad: np.ndarray, ci: np.ndarray, 
                         float(half_diagonal), float(tolerance))
 
 
-@numba.njit(**JIT)
+@kernel(JIT, label_arg=0)
 def _band_cells(target, ci, cj, cell_pixels, models, measured, slot, count, length):  # pragma: no cover - compiled
     """Sub-region k of every pixel of whole cells (ci, cj) from each ring set's distance there: the
     ring's quadratic models[j, n] (d, d_x, d_y, d_xx, d_xy, d_yy at the cell centre) or, where

@@ -4,11 +4,10 @@ between two edge sets."""
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from heoslice.grading.edges_kernels import EdgeArrays, edge_arrays, point_to_edge
-from heoslice.grading.jit import JIT, f32, f64
+from heoslice.grading.jit import JIT, f32, f64, helper, kernel
 
 #: Children per node of the edge hierarchy (:func:`edge_tree`).
 FAN = 8
@@ -18,7 +17,7 @@ FAN = 8
 _PAIRS = 1 << 23
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _candidates(cx, cy, radius, boxes, level_start):  # pragma: no cover - compiled
     """CSR (start (g+1,), chunk (m,)) of the chunks (runs of FAN consecutive edges, the hierarchy's
     level 1) whose bounding box comes within radius[g] of each point (cx[g], cy[g]).
@@ -63,7 +62,7 @@ def _candidates(cx, cy, radius, boxes, level_start):  # pragma: no cover - compi
     return start, found[:n]
 
 
-@numba.njit(inline="always", **JIT)
+@helper(JIT)
 def _squared(rx, ry, vx, vy, inv):  # pragma: no cover - compiled
     """Squared distance from the offset (rx, ry) (from an edge's first end) to the edge (vx, vy), 1/|v|^2 = inv;
     float32 in, float32 out, written with selects so that the loops calling it vectorise."""
@@ -79,7 +78,7 @@ def _squared(rx, ry, vx, vy, inv):  # pragma: no cover - compiled
 _INSERTION_SORT = 15
 
 
-@numba.njit(inline="always", **JIT)
+@helper(JIT)
 def _ascending(values, order):  # pragma: no cover - compiled
     """The indices of ``values`` in ascending order (NaN last), into ``order`` (len(values),) without an
     allocation, in the order numba's np.argsort gives: as it does, by insertion up to _INSERTION_SORT
@@ -97,7 +96,7 @@ def _ascending(values, order):  # pragma: no cover - compiled
     return order
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  # pragma: no cover - compiled
     """The nearest edge of group g's candidate chunks to each point (cx[g] + ox[k], cy[g] + oy[k]):
     (squared distance (g, k) float32, inf where none; edge (g, k) int32, -1 where none, or
@@ -171,7 +170,7 @@ def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  
     return best, which
 
 
-@numba.njit(**JIT)
+@helper(JIT, inline=False)
 def _chords_apart(a, b):  # pragma: no cover - compiled
     """Distance between two capsules' chords (rows of :func:`_chunk_capsules`): 0 where they cross,
     else the least of each end's distance to the other chord."""
@@ -188,7 +187,7 @@ def _chords_apart(a, b):  # pragma: no cover - compiled
                point_to_edge(bx1, by1, a[0], a[1], a[2], a[3], a[4]))
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _chunks_apart(start, candidate, cap_a, cap_b, a, b, best):  # pragma: no cover - compiled
     """Least vertex-to-edge distance, both ways, between each chunk of edge set ``a`` and its candidate
     chunks of ``b`` (CSR start, candidate), where their capsules can come closer than ``best``
@@ -223,7 +222,7 @@ def edge_tree(x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray):
     return _tree_boxes(x0, y0, x1, y1, level_start), level_start, _chunk_capsules(x0, y0, x1, y1)
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _tree_boxes(x0, y0, x1, y1, level_start):  # pragma: no cover - compiled
     """(level_start[-1], 4) boxes of :func:`edge_tree`: the edges', then each level's over FAN below."""
     boxes = np.empty((level_start[-1], 4))
@@ -242,7 +241,7 @@ def _tree_boxes(x0, y0, x1, y1, level_start):  # pragma: no cover - compiled
     return boxes
 
 
-@numba.njit(**JIT)
+@kernel(JIT)
 def _chunk_capsules(x0, y0, x1, y1):  # pragma: no cover - compiled
     """(chunks, 6) per run of FAN consecutive edges: its chord (start x, y, vector, 1/|v|^2, 0 if
     zero-length) and the largest distance of its edges' ends from the chord, widened by 1e-4 mm

@@ -18,7 +18,7 @@ from heoslice.pipeline.spec import SliceSpec, channel_name
 from heoslice.stack import encode_bilevel_tiff, encode_tiff, layer_file_name, write_file
 from heoslice.stack.tiff import deflate_level
 
-if TYPE_CHECKING:  # the grading package loads numba's kernels: a one-material slice never imports it
+if TYPE_CHECKING:  # the grading package loads its kernels and shapely: a one-material slice never imports it
     from heoslice.grading import GradeSpec, GradingCache
 
 

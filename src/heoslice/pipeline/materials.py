@@ -40,7 +40,7 @@ class MaterialJob:
 def _plain_grade(table: tuple[Material, ...]):
     """The grading specification of a mesh that carries materials but asks for no gradient: every
     family keeps its contour's material, the table's first two playing M1 and M2."""
-    from heoslice.grading import GradeSpec, RegionSpec  # the grading package loads numba's kernels
+    from heoslice.grading import GradeSpec, RegionSpec  # the grading package loads its kernels and shapely
 
     roles = material_roles({m.name: m for m in table})
     return GradeSpec(regions=RegionSpec(), function=None, target=None, start=None,

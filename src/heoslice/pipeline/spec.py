@@ -15,7 +15,7 @@ import numpy as np
 from heoslice.errors import InputError, shown
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION
 
-if TYPE_CHECKING:  # the grading package loads numba's kernels: a one-material slice never imports it
+if TYPE_CHECKING:  # the grading package loads its kernels and shapely: a one-material slice never imports it
     from heoslice.grading import GradeSpec
     from heoslice.pipeline.parts import PartsPlan
 

@@ -1,0 +1,33 @@
+"""Builds the one compiled part of heoslice: the grading kernels, compiled ahead of time from their numba
+sources (heoslice.grading.exports) into the extension module heoslice.grading._compiled, for this machine's
+processor. Everything else is in pyproject.toml."""
+
+import os
+import sys
+import types
+from pathlib import Path
+
+from setuptools import Extension, setup
+from setuptools.command.build_ext import build_ext
+
+
+class BuildKernels(build_ext):
+    """build_ext for the kernels' extension: numba.pycc compiles it (there is no C source to build)."""
+
+    def build_extension(self, ext):
+        os.environ["HEOSLICE_JIT"] = "1"  # the build compiles the numba functions, never an earlier extension
+        # the kernels' modules need numpy and numba only: their packages are entered without running their
+        # __init__, which would load every stage (and every dependency) of heoslice
+        source = Path(__file__).resolve().parent / "src" / "heoslice"
+        for name, path in (("heoslice", source), ("heoslice.grading", source / "grading")):
+            package = types.ModuleType(name)
+            package.__path__ = [str(path)]
+            sys.modules[name] = package
+        from heoslice.grading.exports import compile_kernels
+
+        target = Path(self.get_ext_fullpath(ext.name)).resolve()
+        target.parent.mkdir(parents=True, exist_ok=True)
+        compile_kernels(target.parent, target.name)
+
+
+setup(ext_modules=[Extension("heoslice.grading._compiled", sources=[])], cmdclass={"build_ext": BuildKernels})

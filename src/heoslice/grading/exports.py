@@ -1,0 +1,141 @@
+"""The ahead-of-time build of the grading kernels: what each kernel Python calls takes, and the compile.
+
+Run by ``setup.py`` when heoslice is installed (never at run time: it needs numba, and kernels compiled
+just in time, ``HEOSLICE_JIT=1``). Each kernel listed in :data:`heoslice.grading.jit.ENTRIES` is exported
+with the argument types of :data:`ARGUMENTS` (C-ordered arrays; the Python wrappers make them so) and the
+return type numba infers for them, once per label width where it takes labels; a kernel and a table that
+disagree stop the build. The extension also exports the digest of the sources it was made from and every
+export's argument layout (JSON), which ``HEOSLICE_CHECK_KERNELS=1`` checks at each call (the test suite
+does: a compiled kernel does not check what it is given).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+from numba import types
+from numba.pycc import CC
+
+from heoslice.grading import (
+    droplets_kernels,
+    edges_kernels,
+    field_kernels,
+    labels_kernels,
+    lattice_kernels,
+    refine_kernels,
+    search_kernels,
+)
+from heoslice.grading.jit import (
+    COMPILED_MODULE,
+    DIGEST_EXPORT,
+    ENTRIES,
+    LABEL_BITS,
+    LAYOUTS_EXPORT,
+    export_name,
+    source_digest,
+)
+
+f8, i8, b1 = types.float64, types.int64, types.boolean
+f8_1, f8_2, f8_3, f8_4 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1], types.float64[:, :, :, ::1]
+f4_1, f4_2 = types.float32[::1], types.float32[:, ::1]
+i8_1, i8_2, i1_2 = types.int64[::1], types.int64[:, ::1], types.int8[:, ::1]
+b_2, u1_2, u1_3 = types.boolean[:, ::1], types.uint8[:, ::1], types.uint8[:, :, ::1]
+
+EDGES = types.NamedUniTuple(f8_1, 5, edges_kernels.EdgeArrays)
+PIXELS = types.NamedTuple((i8, f8, f8), field_kernels.CellPixels)
+FRAME = types.NamedUniTuple(f8, 4, lattice_kernels.LatticeFrame)
+CELL_FIELD = types.NamedTuple((f8_2, f8_3, b_2, b_2, b_2), refine_kernels.CellField)
+FIT_TEST = types.NamedUniTuple(f8, 5, refine_kernels.FitTest)
+VERTICES = types.NamedTuple((i8_1, f8_1, f8_1, f8_1, f8, f8), refine_kernels.RingVertices)
+
+
+def _target(bits: int) -> types.Type:
+    """A LabelTarget of signed labels ``bits`` wide."""
+    return types.NamedTuple((types.Array(getattr(types, f"int{bits}"), 2, "C"), b_2, i8, i8, f8),
+                            field_kernels.LabelTarget)
+
+
+def _layer(bits: int) -> types.Type:
+    """droplet_bits' labelled layer: unsigned labels ``bits`` wide, their origin, the packed solid mask."""
+    return types.Tuple((types.Array(getattr(types, f"uint{bits}"), 2, "C"), i8, i8, u1_2))
+
+
+#: Argument types of every kernel that Python calls, by kernel (numba's dispatcher); a function of the label width (bits) for
+#: the kernels that take labels.
+ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
+    droplets_kernels._droplet_bits: lambda bits: (
+        _layer(bits), types.Tuple((i8_1, f4_1, i8_2, f4_1, f4_1)), types.Tuple((f4_2, i8_2, i1_2, i8)), u1_3),
+    edges_kernels._straight_runs: (f8_1, f8_1, i8_1, f8, i8),
+    field_kernels._band_field: (f8_3, f8_4, f8),
+    field_kernels._expand_planes: lambda bits: (f8_2, f8_2, f8_2, b_2, PIXELS, f8, _target(bits)),
+    field_kernels._curve_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, types.UniTuple(f8_2, 6), f8),
+    labels_kernels._disc_winding: (f8_2, i8_1, i8_1, f8, f8, f8),
+    lattice_kernels._signed_feet: (i8_2, FRAME, EDGES, b_2, b1),
+    lattice_kernels._inside_centres: (EDGES, f8_1, FRAME, i8, i8),
+    lattice_kernels._feet: (f8_1, f8_1, i8_1, EDGES),
+    refine_kernels._refine_flags: (CELL_FIELD, types.UniTuple(f8_2, 3), FIT_TEST, VERTICES),
+    refine_kernels._hessian_of: (f8_3, f8, f8),
+    refine_kernels._ring_models: (f8_3, f8_4, f8_3, i8_1, i8_1, f8, f8, f8, f8, f8),
+    refine_kernels._band_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, f8_3, f4_2, i8_2, f8, f8),
+    search_kernels._candidates: (f8_1, f8_1, f8_1, f8_2, i8_1),
+    search_kernels._nearest_in_chunks: (f8_1, f8_1, f4_1, f4_1, types.UniTuple(i8_1, 2), f8_2, EDGES, b1),
+    search_kernels._chunks_apart: (i8_1, i8_1, f8_2, f8_2, f8_2, f8_2, f8),
+    search_kernels._tree_boxes: (f8_1, f8_1, f8_1, f8_1, i8_1),
+    search_kernels._chunk_capsules: (f8_1, f8_1, f8_1, f8_1),
+}
+
+
+def layout_of(numba_type: types.Type):
+    """What HEOSLICE_CHECK_KERNELS compares an argument with: "DTYPE NDIMd" for a (C-ordered) array, "int",
+    "float" or "bool" for a scalar, a list of those for a tuple."""
+    if isinstance(numba_type, types.Array):
+        return f"{numba_type.dtype} {numba_type.ndim}d"
+    if isinstance(numba_type, types.BaseTuple):
+        return [layout_of(item) for item in numba_type.types]
+    return {types.int64: "int", types.float64: "float", types.boolean: "bool"}[numba_type]
+
+
+def _forwarding(dispatcher: Callable) -> Callable:
+    """A function of the kernel's arguments that calls it: the export, compiled with the kernel's own options
+    (fast-math or exact) because it calls the kernel's dispatcher rather than being it."""
+    names = dispatcher.py_func.__code__.co_varnames[:dispatcher.py_func.__code__.co_argcount]
+    namespace = {"kernel": dispatcher}
+    exec(f"def forward({', '.join(names)}):\n    return kernel({', '.join(names)})\n", namespace)  # noqa: S102
+    return namespace["forward"]
+
+
+def compile_kernels(directory: Path, filename: str) -> Path:
+    """Compile every kernel of ENTRIES into ``directory/filename`` (the extension module COMPILED_MODULE),
+    for this machine's processor as numba's just-in-time compilation would; returns its path."""
+    listed = {entry.dispatcher for entry in ENTRIES}
+    if listed != set(ARGUMENTS):
+        names = sorted(kernel.__name__ for kernel in listed ^ set(ARGUMENTS))
+        raise RuntimeError(f"the kernels and the export table disagree on {', '.join(names)}")
+    cc = CC(COMPILED_MODULE.rsplit(".", 1)[1])
+    cc.output_dir, cc.output_file, cc.target_cpu = str(directory), filename, "host"
+    layouts = {}
+    for entry in ENTRIES:
+        function = entry.dispatcher.py_func
+        arguments = ARGUMENTS[entry.dispatcher]
+        variants = ([(None, arguments)] if entry.label_arg is None
+                    else [(bits, arguments(bits)) for bits in LABEL_BITS])
+        for bits, argument_types in variants:
+            entry.dispatcher.compile(argument_types)
+            returns = entry.dispatcher.overloads[argument_types].signature.return_type
+            name = export_name(function, bits)
+            cc.export(name, returns(*argument_types))(_forwarding(entry.dispatcher))
+            layouts[name] = [layout_of(t) for t in argument_types]
+    digest, layouts_json = source_digest(), json.dumps(layouts)
+
+    def digest_of_sources():
+        return digest
+
+    def argument_layouts():
+        return layouts_json
+
+    cc.export(DIGEST_EXPORT, types.int64())(digest_of_sources)
+    cc.export(LAYOUTS_EXPORT, types.unicode_type())(argument_layouts)
+    cc.compile()
+    return directory / filename
