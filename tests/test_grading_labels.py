@@ -1308,3 +1308,34 @@ def test_absurd_sub_region_options_are_refused_before_any_allocation(options, me
 
     with pytest.raises(InputError, match=message):
         RegionSpec(**options)
+
+
+def test_painting_a_family_after_the_first_takes_no_copy_wider_than_the_labels(monkeypatch):
+    """Two equal plates side by side (the second painted over the label array from its own index plus its label
+    base): painting allocates at most the labels, the box's solid bits and one copy of the box's index in the
+    labels' width, not one widened to int64 by the base (4x the index, the largest allocation of a scan layer)."""
+    import tracemalloc
+
+    square = np.array([[0.0, 0.0], [8.0, 0.0], [8.0, 8.0], [0.0, 8.0]])
+    points, offsets, area, parent = layer(square - [9.0, 4.0], square + [1.0, -4.0])
+    grid = grid_around(9.5)
+    packed = np.packbits(solid_mask(points, offsets, grid), axis=1)
+    peaks = []
+    original = labels._paint_labels
+
+    def measured(*args, **kwargs):
+        tracemalloc.start()
+        try:
+            label = original(*args, **kwargs)
+            peaks.append((tracemalloc.get_traced_memory()[1], label))
+        finally:
+            tracemalloc.stop()
+        return label
+
+    monkeypatch.setattr(labels, "_paint_labels", measured)
+    regions = layer_regions(points, offsets, area, parent, None, grid, RegionSpec(nozzle_mm=0.3), packed)
+    (peak, label), = peaks
+    second = regions.fields[1]
+    box_pixels = (second.box[1] - second.box[0]) * (second.box[3] - second.box[2])
+    assert len(regions.fields) == 2 and label.dtype == np.int16 and box_pixels > 20_000
+    assert peak <= label.nbytes + box_pixels * (1 + 2) + 64_000

@@ -149,7 +149,8 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
         solid = _solid_in(mask, packed, field.box)
         if not alone[number]:
             solid = solid & _family_mask(points, offsets, family, grid, field.box)
-        value = base[number] if family.nested else field.index + base[number]
+        # in the labels' own width: an int16 index plus base's int64 would make a 4x wider copy of the box
+        value = base[number] if family.nested else np.add(field.index, base[number], dtype=label.dtype)
         np.copyto(target, value, where=solid, casting="unsafe")
     return label
 
