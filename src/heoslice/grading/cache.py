@@ -67,12 +67,14 @@ class ChoiceTable:
 
 @dataclass(slots=True)
 class GradingCache:
-    """The last graded layer's fields (by family key), ring measurements, painted labels and choice table."""
+    """The last graded layer's fields (by family key), ring measurements, painted labels, choice table and
+    family keys."""
 
     fields: dict = field(default_factory=dict)
     rings: dict = field(default_factory=dict)
     painted: PaintedLabels | None = None
     choices: ChoiceTable | None = None
+    keys: list = field(default_factory=list)
 
     def fields_for(self, keys: list) -> dict:
         """The last layer's fields, those whose keys this layer has not dropped (before its fields are made)."""
@@ -90,7 +92,15 @@ class GradingCache:
         """A memo of ring measurements reading the last layer's."""
         return RingMemo(before=self.rings)
 
-    def keep_layer(self, keys: list, fields: tuple, memo: RingMemo) -> None:
-        """Keep this layer's fields (those with a key) and ring measurements for the next layer."""
-        self.fields = {key: value for key, value in zip(keys, fields) if key is not None}
+    def repeats(self, key) -> bool:
+        """Whether the last layer had a family of this key (its field kept or not): the sign of an extruded
+        stretch, whose next layer will likely have it too."""
+        return key is not None and key in self.keys
+
+    def keep_layer(self, keys: list, fields: tuple, memo: RingMemo, keep_first: bool = True) -> None:
+        """Keep this layer's family keys, its fields (those with a key; the first only when ``keep_first``:
+        the layer's labels were painted over its index) and ring measurements for the next layer."""
+        self.keys = list(keys)
+        self.fields = {key: value for number, (key, value) in enumerate(zip(keys, fields))
+                       if key is not None and (number or keep_first)}
         self.rings = memo.now

@@ -87,8 +87,11 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     fields = tuple(_layer_field(points, offsets, family, grid, spec, family_mask, 0 if number else 1,
                                 None if key is None else before.get(key), memo)
                    for number, (family, family_mask, key) in enumerate(zip(families, masks, keys)))
+    # the outermost family's index becomes the labels (no copy of ~15 MP) unless its field may serve the next
+    # layer: when the last layer had it too (an extruded stretch; the stretch's first layer measures it again)
+    copy_first = len(fields) > 1 and cache is not None and cache.repeats(keys[0])
     if cache is not None:
-        cache.keep_layer(keys, fields, memo)
+        cache.keep_layer(keys, fields, memo, keep_first=copy_first or len(fields) == 1)
     boxes = np.array([field.box for field in fields])
     box = (int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
     sizes = np.array([1 if family.nested else field.layout.count + 1 for family, field in zip(families, fields)])
@@ -103,8 +106,7 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
         cache.painted = painted
         return LayerRegions(box, painted.label, families, fields, base)
     painted = None  # freed before this layer's labels are painted
-    label = _paint_labels(points, offsets, families, fields, base, box, alone, mask, packed, grid,
-                          copy_first=keys[0] is not None and len(fields) > 1)
+    label = _paint_labels(points, offsets, families, fields, base, box, alone, mask, packed, grid, copy_first)
     if paintable:
         cache.painted = PaintedLabels(keys, packed.copy(), label)
     return LayerRegions(box, label, families, fields, base)
@@ -127,7 +129,7 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
     """The layer's labels over ``box``: the outermost family's index, then every other family's labels (base
     + k, a nested shell base) painted over its own solid pixels (all the box's solid pixels where it is
     ``alone``). The outermost family's index is the label array itself when it spans the box, unless
-    ``copy_first`` (other families paint over it and the field may serve the next layer)."""
+    ``copy_first`` (other families paint over it and the field serves the next layer)."""
     dtype = label_dtype(int(base[-1]))
     first = fields[0]
     if first.box == box and first.index.dtype == dtype and not copy_first:
