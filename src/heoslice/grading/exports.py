@@ -62,8 +62,8 @@ def _layer(bits: int) -> types.Type:
     return types.Tuple((types.Array(getattr(types, f"uint{bits}"), 2, "C"), i8, i8, u1_2))
 
 
-#: Argument types of every kernel that Python calls, by kernel (numba's dispatcher); a function of the label width (bits) for
-#: the kernels that take labels.
+#: Argument types of every kernel that Python calls, by kernel (numba's dispatcher); a function of the label
+#: width (bits) for the kernels that take labels.
 ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     droplets_kernels._droplet_bits: lambda bits: (
         _layer(bits), types.Tuple((i8_1, f4_1, i8_2, f4_1, f4_1)), types.Tuple((f4_2, i8_2, i1_2, i8)), u1_3),

@@ -63,6 +63,11 @@ def source_digest() -> int:
     return int(digest.hexdigest()[:15], 16)
 
 
+def _enabled(variable: str) -> bool:
+    """Whether an environment variable is set to anything but empty or 0."""
+    return os.environ.get(variable, "") not in ("", "0")
+
+
 @functools.cache
 def compiled_module():
     """The ahead-of-time compiled kernels, or None: not built, built from other sources, or HEOSLICE_JIT=1."""
@@ -75,8 +80,10 @@ def compiled_module():
     return module if getattr(module, DIGEST_EXPORT)() == source_digest() else None
 
 
-def _enabled(variable: str) -> bool:
-    return os.environ.get(variable, "") not in ("", "0")
+@functools.cache
+def _argument_layouts() -> dict:
+    """Every export's argument layouts, read once from the extension (HEOSLICE_CHECK_KERNELS only)."""
+    return json.loads(getattr(compiled_module(), LAYOUTS_EXPORT)())
 
 
 def _compiled_export(name: str) -> Callable:
@@ -86,7 +93,7 @@ def _compiled_export(name: str) -> Callable:
     export = getattr(compiled, name)
     if not _enabled(CHECK_VARIABLE):
         return export
-    wanted = json.loads(getattr(compiled, LAYOUTS_EXPORT)())[name]
+    wanted = _argument_layouts()[name]
 
     @functools.wraps(export)
     def checked(*args):
