@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 from contextlib import contextmanager
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -1003,6 +1004,48 @@ def test_contour_values_interpolate_between_the_layers_points_where_edges_span_s
     for column in range(2):
         expected = np.interp(along, knots, np.append(values[:, column], values[0, column]))
         np.testing.assert_allclose(got[..., column].ravel(), expected, atol=1e-9)
+
+
+def test_a_contour_of_one_value_gives_it_to_every_cell_without_measuring_nearest_points():
+    """Every point of the ring holding one value (a gradient along z, through a layer): every cell takes
+    exactly that value, and the cells' nearest ring points are never measured (they would be the costliest
+    part of a coloured layer that is not graded)."""
+    ring = circle(4.0, 97)
+    points, offsets, area, parent = layer(ring)
+    field = family_field(points, offsets, layer_families(area, parent)[0], grid_around(4.5), RegionSpec())
+
+    def not_measured():
+        raise AssertionError("nearest points measured")
+
+    value = np.array([0.3125, 0.6875])
+    got = contour_values(replace(field, nearest=not_measured), np.tile(value, (len(ring), 1)))
+    assert got.shape == (field.lattice.rows, field.lattice.cols, 2)
+    assert (got == value).all()
+    varied = np.tile(value, (len(ring), 1))
+    varied[5, 0] = 0.5
+    with pytest.raises(AssertionError, match="nearest points measured"):
+        contour_values(replace(field, nearest=not_measured), varied)
+
+
+def test_a_one_subregion_family_measures_its_lattice_only_when_its_nearest_points_are_asked_for():
+    """With one sub-region (k = 1 throughout) a lattice family's field measures nothing of its rings until
+    ``nearest()`` is called; then what it gives is the eagerly measured field's of a two-sub-region spec on
+    the same lattice (the same starting rings' feet and edges), and the measures are kept for the next layer."""
+    ring = circle(4.0, 211)
+    points, offsets, area, parent = layer(ring)
+    family, grid = layer_families(area, parent)[0], grid_around(4.5)
+    memo = RingMemo()
+    lazy = family_field(points, offsets, family, grid, RegionSpec(count=1), memo=memo)
+    assert lazy.layout.count == 1 and (lazy.index == 1).all()
+    measured_before = [key for key in memo.now if len(key) == 2 and isinstance(key[1], lattice_module.Lattice)]
+    assert measured_before == []
+    foot, edge = lazy.nearest()
+    assert any(len(key) == 2 and isinstance(key[1], lattice_module.Lattice) for key in memo.now)
+    eager = family_field(points, offsets, family, grid, RegionSpec(count=2))
+    assert eager.lattice == lazy.lattice
+    eager_foot, eager_edge = eager.nearest()
+    np.testing.assert_array_equal(foot, eager_foot)
+    np.testing.assert_array_equal(edge, eager_edge)
 
 
 def with_points_on_its_edges(ring: np.ndarray, rng, start: int) -> np.ndarray:

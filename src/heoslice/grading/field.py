@@ -105,8 +105,9 @@ class FamilyField:
     on the starting rings (foot (2, cells_r, cells_c) mm) and its edge ((cells_r, cells_c)
     into ``start_edges()``, the starting rings' edges in this layer's points), to take the
     contour's material there (measured on first call for a nested shell, whose own material
-    usually makes it unneeded, and for a small family labelled per pixel, :func:`_exact_index` or
-    one sub-region; ``start_edges()`` made on first call for a field another layer measured).
+    usually makes it unneeded, for a small family labelled per pixel, :func:`_exact_index`, and for a
+    family of one sub-region, whose contour's material is often one throughout; ``start_edges()`` made on
+    first call for a field another layer measured).
     """
 
     box: tuple[int, int, int, int]
@@ -196,9 +197,9 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
                  else _exact_index(lattice, grid, layout, [start] + ends, shape, mask, label_base))
         return FamilyField(box=box, index=index, layout=layout, lattice=lattice, start_edges=lambda: start.edges,
                            nearest=nearest)
-    index, foot, edge = _lattice_index(lattice, grid, layout, [start] + ends, shape, mask, label_base, memo)
+    index, nearest = _lattice_index(lattice, grid, layout, [start] + ends, shape, mask, label_base, memo)
     return FamilyField(box=box, index=index, layout=layout, lattice=lattice,
-                       start_edges=lambda: start.edges, nearest=lambda: (foot, edge))
+                       start_edges=lambda: start.edges, nearest=nearest)
 
 
 def _grading_length(family: Family, spec: RegionSpec, outer: RingSet, rings: _FamilyRings, grid: Grid,
@@ -219,27 +220,36 @@ def _grading_length(family: Family, spec: RegionSpec, outer: RingSet, rings: _Fa
 
 def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: list[RingSet],
                    shape: tuple[int, int], mask: np.ndarray | None, label_base: int,
-                   memo: RingMemo) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   memo: RingMemo) -> tuple[np.ndarray, Callable[[], tuple[np.ndarray, np.ndarray]]]:
     """k at every pixel of a family's box ((rows, cols), labelled like :func:`_expand_planes`) from the
-    lattice fit: one plane or quadratic per cell, per-pixel eq. 10 where neither fits; with the
-    starting rings' nearest foot ((2, rows, cols) mm) and edge ((rows, cols)) at every cell centre.
-    ``ring_sets``: the starting rings, then each ending ring set."""
-    start, ends = ring_sets[0], ring_sets[1:]
+    lattice fit: one plane or quadratic per cell, per-pixel eq. 10 where neither fits; with a function
+    giving the starting rings' nearest foot ((2, rows, cols) mm) and edge ((rows, cols)) at every cell
+    centre. ``ring_sets``: the starting rings, then each ending ring set."""
     # measured on the lattice padded by a cell, so that every cell of the family has its eight neighbours
     padded_lattice = padded(lattice)
-    measures = [memo.earlier((rings.key, padded_lattice)) or ring_measures(rings, padded_lattice)
-                for rings in ring_sets]
-    wanted = ~np.logical_or.reduce([m.far for m in measures])
-    # one sub-region (one asked for, or a family too thin for two): only the starting rings' feet are read,
-    # and k = 1 throughout
-    measured = ring_sets if layout.count > 1 else ring_sets[:1]
-    centres = [measured_centres(rings, m, padded_lattice, wanted) for rings, m in zip(measured, measures)]
-    for rings, (_, m) in zip(measured, centres):
-        memo.keep((rings.key, padded_lattice), m)
-    start_at, ends_at = centres[0][0], [at for at, _ in centres[1:]]
+
+    def measure(measured: list[RingSet]) -> list[tuple]:
+        """The ``measured`` ring sets' centres (signed, gradient, foot, edge) over the padded lattice, in the
+        blocks on the family's side of every ring set; each set's measures kept for the next layer."""
+        measures = [memo.earlier((rings.key, padded_lattice)) or ring_measures(rings, padded_lattice)
+                    for rings in ring_sets]
+        wanted = ~np.logical_or.reduce([m.far for m in measures])
+        centres = [measured_centres(rings, m, padded_lattice, wanted) for rings, m in zip(measured, measures)]
+        for rings, (_, m) in zip(measured, centres):
+            memo.keep((rings.key, padded_lattice), m)
+        return [at for at, _ in centres]
+
     if layout.count == 1:
-        return (_single_region_index(shape, mask, (lattice.row0, lattice.col0), label_base),
-                start_at[2][:, 1:-1, 1:-1], start_at[3][1:-1, 1:-1])
+        # one sub-region (one asked for, or a family too thin for two): k = 1 throughout, and the starting
+        # rings' feet are measured only if asked for (a contour whose material varies along it)
+        @functools.cache
+        def nearest() -> tuple[np.ndarray, np.ndarray]:
+            start_at = measure(ring_sets[:1])[0]
+            return start_at[2][:, 1:-1, 1:-1], start_at[3][1:-1, 1:-1]
+
+        return _single_region_index(shape, mask, (lattice.row0, lattice.col0), label_base), nearest
+    start, ends = ring_sets[0], ring_sets[1:]
+    start_at, *ends_at = measure(ring_sets)
     d = np.stack([start_at[0]] + [at[0] for at in ends_at])
     g = np.stack([start_at[1]] + [at[1] for at in ends_at])
     s, grad = _band_coordinate(layout, d, g)
@@ -280,7 +290,8 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
         refine_cells(index, lattice, cells, grid, layout,
                      [(rings, np.abs(at[0][inner][cells]), model)
                       for rings, at, model in zip(ring_sets, [start_at] + ends_at, models)], mask, label_base)
-    return index, start_at[2][:, 1:-1, 1:-1], start_at[3][inner]
+    foot, edge = start_at[2][:, 1:-1, 1:-1], start_at[3][inner]
+    return index, lambda: (foot, edge)
 
 
 def _single_region_index(shape: tuple[int, int], mask: np.ndarray | None, origin: tuple[int, int],

@@ -82,12 +82,16 @@ def target_fractions(regions: LayerRegions, spec: GradeSpec) -> np.ndarray:
 def contour_values(field: FamilyField, values: np.ndarray) -> np.ndarray:
     """Per-point values ((p,) or (p, c)) of the layer's loops taken at each cell's nearest
     starting-ring point, interpolated between the layer's points on either side of it
-    (an edge may span several, :class:`RingEdges`): (cells_r, cells_c[, c]) float."""
+    (an edge may span several, :class:`RingEdges`): (cells_r, cells_c[, c]) float. Where every point of the
+    starting rings has the same value (a gradient along z, through a layer) that value is every cell's,
+    and the cells' nearest points are not measured."""
     edges = field.start_edges()
+    values = np.asarray(values, dtype=np.float64)[edges.knot_point]
+    if (values == values[:1]).all():
+        return np.broadcast_to(values[0], (field.lattice.rows, field.lattice.cols) + values.shape[1:])
     foot, edge = field.nearest()
     t = ((foot[0] - edges.x[edge]) * edges.vx[edge] + (foot[1] - edges.y[edge]) * edges.vy[edge]) * edges.inv_len2[edge]
     at = edge + edges.ring[edge] + np.clip(t, 0.0, 1.0)
-    values = np.asarray(values, dtype=np.float64)[edges.knot_point]
     if values.ndim == 1:
         return np.interp(at, edges.knots, values)
     return np.stack([np.interp(at, edges.knots, column) for column in values.T], axis=-1)
