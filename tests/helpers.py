@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import subprocess
 import sys
 import zipfile
@@ -195,6 +196,18 @@ def heoslice(*args) -> subprocess.CompletedProcess:
     """Run the heoslice command line in a new process (stdin closed, 120 s at most); its outcome."""
     return subprocess.run([sys.executable, "-m", "heoslice", *map(str, args)], capture_output=True, text=True,
                           timeout=120, stdin=subprocess.DEVNULL)
+
+
+def modules_loaded_by_command(args: list[str], modules: tuple[str, ...]) -> list[str]:
+    """Which of ``modules`` a fresh process running ``heoslice --no-config *args`` has imported by its end
+    (the command must succeed)."""
+    script = ("import sys\nfrom heoslice.cli import main\n"
+              f"sys.argv = ['heoslice', '--no-config', *{list(args)!r}]\n"
+              "try:\n    main()\nfinally:\n"
+              f"    print(sorted(m for m in {tuple(modules)!r} if m in sys.modules))\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    return ast.literal_eval(done.stdout.strip().splitlines()[-1])
 
 
 def brute_force_distance(points: np.ndarray, mesh) -> np.ndarray:

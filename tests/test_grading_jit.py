@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import modules_loaded_by_command
 
 from heoslice import procedural
 from heoslice.grading import jit
@@ -40,14 +41,8 @@ def test_a_graded_slice_with_droplet_masks_loads_no_numba(tmp_path):
     """A graded `heoslice slice --channels` (a fresh process) never imports numba or LLVM: with the compiled
     kernels the graded path's fixed cost is the one-material path's plus the kernels (benchmarks/README.md)."""
     model = write_mesh(procedural.holes_and_islands((20.0, 12.0, 4.0), 16), tmp_path / "holes.ply")
-    script = ("import sys\nfrom heoslice.cli import main\n"
-              f"sys.argv = ['heoslice', '--no-config', 'slice', {str(model)!r}, '-o', {str(tmp_path / 'out')!r},"
-              f" *{GRADED!r}]\n"
-              "try:\n    main()\nfinally:\n"
-              "    print(sorted(m for m in ('numba', 'llvmlite') if m in sys.modules))\n")
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.strip().splitlines()[-1] == "[]"
+    args = ["slice", str(model), "-o", str(tmp_path / "out"), *GRADED]
+    assert modules_loaded_by_command(args, ("numba", "llvmlite")) == []
 
 
 def _slice(model: Path, out: Path, environment: dict) -> dict[str, bytes]:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import tifffile
 import trimesh
-from helpers import layer_loops
+from helpers import layer_loops, modules_loaded_by_command
 from PIL import Image
 
 from heoslice import procedural
@@ -270,10 +270,5 @@ def test_one_material_slice_loads_no_heavy_library(tmp_path):
     """A one-material `heoslice slice` (a fresh process) loads neither numba nor scipy's sparse graphs or
     spatial trees: importing them costs every such slice more than slicing a small part (benchmarks/README.md)."""
     model = write_mesh(procedural.sphere(5.0, 3), tmp_path / "ball.ply")
-    script = ("import sys\nfrom heoslice.cli import main\n"
-              f"sys.argv = ['heoslice', '--no-config', 'slice', {str(model)!r}, '-o', {str(tmp_path / 'out')!r}]\n"
-              "try:\n    main()\nfinally:\n"
-              "    print(sorted(m for m in ('numba', 'scipy.sparse', 'scipy.spatial') if m in sys.modules))\n")
-    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.strip().splitlines()[-1] == "[]"
+    args = ["slice", str(model), "-o", str(tmp_path / "out")]
+    assert modules_loaded_by_command(args, ("numba", "scipy.sparse", "scipy.spatial")) == []
