@@ -185,7 +185,7 @@ def test_extruded_layers_reuse_their_sub_regions_and_write_the_same_stack(tmp_pa
     from heoslice.pipeline import runs
 
     render_and_write = runs.render_and_write
-    monkeypatch.setattr(runs, "render_and_write", lambda job, cache=None, packed=None: render_and_write(job))
+    monkeypatch.setattr(runs, "render_and_write", lambda job, cache=None: render_and_write(job))
     fresh, _ = pipeline.slice_to_stack(mesh, tmp_path / "fresh", spec)
     assert with_reuse < 0.4 * (len(measured) - with_reuse)
     assert [(e["sha256"], e["channels"]) for e in reused["layers"]] == [(e["sha256"], e["channels"])

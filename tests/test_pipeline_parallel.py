@@ -1,4 +1,4 @@
-"""Tests of pipeline/parallel.py: workers, the slice-ahead helper and its shared memory, process settings."""
+"""Tests of pipeline/parallel.py: workers and their output, signals and dying with the parent, process settings."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 from test_pipeline_slice_job import write_mesh
 
@@ -17,7 +16,7 @@ from heoslice import errors, procedural
 from heoslice.grading import GradeSpec, RegionSpec
 from heoslice.material import DEFAULT_MATERIALS, Material, make_function
 from heoslice.mesh import load_mesh
-from heoslice.pipeline import SliceSpec, plane_runs, slice_to_stack
+from heoslice.pipeline import SliceSpec, slice_to_stack
 
 _REUSE_PROBE = """
 import os, resource, sys
@@ -56,89 +55,8 @@ def _graded_spec(**changes) -> SliceSpec:
     return SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), grade=grade, channels=True, **changes)
 
 
-def _broken_helper(*args):
-    raise RuntimeError("helper broke")
-
-
-class _Asked:
-    """A helper's end of the pipe, as a parent that asks only once the helper has gone through every run."""
-
-    def __init__(self):
-        self.sent = []
-
-    def poll(self):
-        return False
-
-    def recv(self):
-        return None
-
-    def send(self, value):
-        self.sent.append(value)
-
-
-def _run_context(tmp_path, mesh, spec):
-    from heoslice.layers import face_z_range, plane_heights
-    from heoslice.layers.rasterising import grid_for
-    from heoslice.pipeline import RunContext
-
-    loaded = load_mesh(write_mesh(mesh, tmp_path / "part.ply"))
-    return RunContext(mesh=loaded, z=plane_heights(loaded.bounds[0, 2], loaded.bounds[1, 2], spec.layer_height_mm),
-                      face_range=face_z_range(loaded.vertices, loaded.faces),
-                      grid=grid_for(loaded.bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm), spec=spec,
-                      directory=tmp_path)
-
-
-@pytest.mark.parametrize("graded", [False, True])
-def test_runs_sliced_ahead_into_shared_memory_are_the_runs_sliced_in_place(tmp_path, graded):
-    """What the helper copies into the shared buffer reads back (read-only) as the very contours and
-    hierarchy that run_contours makes in place, run by run, and as the layers' solid bits that packed_mask
-    makes of them; a buffer too small for the next run stops it after the runs that fit, none cut short;
-    run_contours takes a run the context holds instead of slicing it."""
-    import mmap
-
-    from heoslice.layers.rasterising import packed_mask
-    from heoslice.pipeline import layer_jobs, run_contours
-    from heoslice.pipeline.parallel import Ahead, _shared_array, _slice_ahead
-
-    spec = _graded_spec(max_segments=400) if graded else SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0),
-                                                                   max_segments=400)
-    context = _run_context(tmp_path, procedural.shell_with_island(8.0, 5.0, 2.0, 3), spec)
-    runs = plane_runs(context)
-    assert len(runs) > 3
-    buffer = mmap.mmap(-1, 16 << 20)
-    asked = _Asked()
-    _slice_ahead(context, runs, buffer, asked)
-    ((placed, masks),) = asked.sent
-    assert [run for run, _, _ in placed] == [run for run, _ in masks] == runs
-    for (run, layout, _), (_, where_bits) in zip(placed, masks):
-        expected, _, _ = run_contours(context, *run)
-        for name, where in layout:
-            got = _shared_array(buffer, where)
-            if getattr(expected, name) is None:
-                assert got is None and not graded
-            else:
-                assert not got.flags.writeable and np.array_equal(got, getattr(expected, name))
-        jobs = layer_jobs(expected, context.mesh, context.grid, spec, tmp_path, first_layer=run[0])
-        bits = _shared_array(buffer, where_bits)
-        assert not bits.flags.writeable
-        assert np.array_equal(bits, [packed_mask(job.points, job.offsets, context.grid) for job in jobs])
-    # room for the first two runs and 64 bytes more: the third does not fit
-    two_runs = max(offset + np.dtype(dtype).itemsize * int(np.prod(shape))
-                   for _, where in placed[1][1] if where for dtype, shape, offset in [where])
-    small = mmap.mmap(-1, two_runs + 64)
-    asked = _Asked()
-    _slice_ahead(context, runs, small, asked)
-    assert [run for run, _, _ in asked.sent[0][0]] == runs[:2] and asked.sent[0][1] == []
-    held = run_contours(context, *runs[0])
-    ahead = Ahead(contours={runs[0]: (held[0], 0.0, 0.0)})
-    assert ahead.run_contours(context, *runs[0])[0] is held[0]
-
-
-def test_graded_stacks_are_the_same_with_runs_sliced_ahead_or_not(tmp_path, monkeypatch):
-    """Graded droplet-mask stacks with workers (and a helper slicing ahead) are byte for byte the serial
-    stack, also when every run is sliced ahead (many runs) and when the helper fails."""
-    from heoslice.pipeline import parallel
-
+def test_graded_stacks_made_with_workers_are_the_serial_stack(tmp_path):
+    """Graded droplet-mask stacks made with workers are byte for byte the serial stack, also with many runs."""
     mesh = load_mesh(write_mesh(procedural.shell_with_island(8.0, 5.0, 2.0, 3), tmp_path / "m.ply"))
 
     def layers(name, **changes):
@@ -148,26 +66,6 @@ def test_graded_stacks_are_the_same_with_runs_sliced_ahead_or_not(tmp_path, monk
     serial = layers("serial", jobs=1)
     assert layers("workers", jobs=2) == serial
     assert layers("many-runs", jobs=2, max_segments=400) == serial
-
-    monkeypatch.setattr(parallel, "_slice_ahead", _broken_helper)
-    assert layers("broken-helper", jobs=2) == serial
-
-
-def test_a_helper_that_fails_or_is_left_makes_nothing_and_leaves_quietly(tmp_path, monkeypatch, capfd):
-    """A helper that raises leaves the context as it was; a parent interrupted before it asks ends its helper,
-    which leaves without a traceback."""
-    from heoslice.pipeline import parallel
-
-    spec = SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), max_segments=400)
-    context = _run_context(tmp_path, procedural.shell_with_island(8.0, 5.0, 2.0, 3), spec)
-    with pytest.raises(KeyboardInterrupt):
-        with parallel._sliced_ahead(context, plane_runs(context)):
-            raise KeyboardInterrupt
-    assert "Traceback" not in capfd.readouterr().err
-
-    monkeypatch.setattr(parallel, "_slice_ahead", _broken_helper)
-    with parallel._sliced_ahead(context, plane_runs(context)) as collect:
-        assert collect() == parallel.Ahead()
 
 
 def test_parallel_slicing_leaves_the_garbage_collector_as_it_found_it(tmp_path):
@@ -187,52 +85,6 @@ def test_parallel_slicing_leaves_the_garbage_collector_as_it_found_it(tmp_path):
         assert gc.get_freeze_count() == frozen
     finally:
         gc.unfreeze()
-
-
-def test_a_helper_makes_masks_only_up_to_their_share_of_the_buffer(tmp_path, monkeypatch):
-    """Past AHEAD_MASK_BYTES of solid masks the helper stops making them: every run's contours, the masks of
-    the runs that fit in that share."""
-    import mmap
-
-    from heoslice.pipeline import parallel
-
-    context = _run_context(tmp_path, procedural.shell_with_island(8.0, 5.0, 2.0, 3), _graded_spec(max_segments=400))
-    runs = plane_runs(context)
-    layers = [stop - start for start, stop in runs[:2]]
-    row_bytes = context.grid.height * -(-context.grid.width // 8)
-    monkeypatch.setattr(parallel, "AHEAD_MASK_BYTES", sum(layers) * row_bytes)
-    asked = _Asked()
-    parallel._slice_ahead(context, runs, mmap.mmap(-1, 16 << 20), asked)
-    placed, masks = asked.sent[0]
-    assert [run for run, _, _ in placed] == runs and [run for run, _ in masks] == runs[:2]
-
-
-def _silent_helper(*args):
-    import signal
-    import time
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    time.sleep(120)
-
-
-def test_a_helper_that_does_not_answer_is_left_aside_and_ended(tmp_path, monkeypatch):
-    """A helper that neither answers nor ends is waited for at most _AHEAD_WAIT_S (0.3 s here; well within
-    30 s, where the helper would still be asleep), its work left to the workers, and it is killed: no
-    process is left behind."""
-    import multiprocessing
-    import time
-
-    from heoslice.pipeline import parallel
-
-    monkeypatch.setattr(parallel, "_slice_ahead", _silent_helper)
-    monkeypatch.setattr(parallel, "_AHEAD_WAIT_S", 0.3)
-    spec = SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), max_segments=400)
-    context = _run_context(tmp_path, procedural.shell_with_island(8.0, 5.0, 2.0, 3), spec)
-    started = time.monotonic()
-    with parallel._sliced_ahead(context, plane_runs(context)) as collect:
-        assert collect() == parallel.Ahead()
-    assert time.monotonic() - started < 30
-    assert multiprocessing.active_children() == []
 
 
 def _living(group: int) -> list[int]:
@@ -281,8 +133,8 @@ def _started(slow_slice, directory: Path, until_files: int, at_least_s: float = 
 
 @pytest.mark.parametrize("moment", ["loading", "first layer", "workers"])
 def test_a_killed_slice_leaves_no_process_and_no_writer_behind(tmp_path, slow_slice, moment):
-    """SIGKILL of `heoslice slice` while it loads, renders its first layer (the helper slicing ahead) or has
-    its workers writing: 1 s later no process of it is alive, and the stack directory does not change after."""
+    """SIGKILL of `heoslice slice` while it loads, renders its first layer or has its workers writing: 1 s
+    later no process of it is alive, and the stack directory does not change after."""
     directory = tmp_path / "stack"
     until_files, at_least_s = {"loading": (0, 0.3), "first layer": (1, 0.0), "workers": (100, 0.0)}[moment]
     process = _started(slow_slice, directory, until_files, at_least_s)
@@ -320,22 +172,25 @@ def test_a_workers_error_reaches_the_parent_and_a_dead_worker_is_reported(tmp_pa
     import os
 
     from heoslice.errors import OutputError
-    from heoslice.pipeline import parallel
+    from heoslice.pipeline import runs
 
     mesh = load_mesh(write_mesh(procedural.shell_with_island(8.0, 5.0, 2.0, 3), tmp_path / "m.ply"))
     spec = SliceSpec(layer_height_mm=0.5, dpi=(150.0, 150.0), jobs=2, max_segments=400)
-    parent = os.getpid()
+    parent, slice_run = os.getpid(), runs.slice_run
 
-    def failing(self, context, start, stop, cache):
-        if os.getpid() != parent:
-            raise OutputError("stack: cannot write (no space left on device)")
+    def in_workers(fail):
+        """slice_run as it is in the parent (its first layer), and ``fail()`` in the workers."""
+        return lambda *args: slice_run(*args) if os.getpid() == parent else fail()
 
-    monkeypatch.setattr(parallel.Ahead, "slice_run", failing)
+    def no_space():
+        raise OutputError("stack: cannot write (no space left on device)")
+
+    monkeypatch.setattr(runs, "slice_run", in_workers(no_space))
     with pytest.raises(OutputError, match="^stack: cannot write"):
         slice_to_stack(mesh, tmp_path / "a", spec)
     assert multiprocessing.active_children() == []
 
-    monkeypatch.setattr(parallel.Ahead, "slice_run", lambda *args: os._exit(3))
+    monkeypatch.setattr(runs, "slice_run", in_workers(lambda: os._exit(3)))
     with pytest.raises(RuntimeError, match="slice worker ended unexpectedly"):
         slice_to_stack(mesh, tmp_path / "b", spec)
     assert multiprocessing.active_children() == []

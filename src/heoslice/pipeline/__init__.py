@@ -4,8 +4,8 @@ spec (what is asked, checked) -> materials (the material model: what a mesh's ma
 slice) -> slice_job (sizes checked, directory prepared, manifest last) -> runs (consecutive planes sliced,
 chained, then rendered and written layer by layer) -> layer_job (one layer: render, encode, write; what it
 leaves to the next), or parts (a multi-part job's layers: each part's loops rasterised on their own,
-composed by priority); parallel holds every process matter (forks, the
-slice-ahead helper, shared memory, allocator, collector, BLAS threads, dying with the parent).
+composed by priority); parallel holds every process matter (forks, workers, allocator, collector,
+BLAS threads, dying with the parent).
 
 The names below are loaded on first use (PEP 562), not when the package is imported: the ``heoslice``
 command imports :mod:`heoslice.pipeline.parallel` to set its process up before numpy loads.

@@ -75,19 +75,17 @@ class LayerJob:
     graded: GradedJob | None = None
 
 
-def render_and_write(job: LayerJob, cache: PipelineCache | None = None, packed: np.ndarray | None = None
-                     ) -> tuple:
+def render_and_write(job: LayerJob, cache: PipelineCache | None = None) -> tuple:
     """Render, encode and write one layer.
 
     Returns (index, sha256, solid pixels, raster s, encode s, channel entries); the
     channel entries (graded layers with droplet masks) are (file name, sha256, solid pixels).
-    ``packed`` is the layer's solid bits when they were made ahead (:func:`packed_mask`'s).
     With a ``cache``, a graded layer takes the sub-regions of families it shares with the layer
     rendered before it (:func:`heoslice.grading.layer_regions`), and a 1-bit layer with the same
     solid bits as that one takes its encoded TIFF.
     """
     if job.graded is not None:
-        return _render_graded_and_write(job, cache, packed)
+        return _render_graded_and_write(job, cache)
     started = time.perf_counter()
     packed, solid = render_layer(job.points, job.offsets, job.grid)
     rendered = time.perf_counter()
@@ -112,7 +110,7 @@ def _solid_tiff(packed: np.ndarray, solid: int, job: LayerJob, cache: PipelineCa
     return data
 
 
-def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed: np.ndarray | None) -> tuple:
+def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tuple:
     """The graded branch of :func:`render_and_write`: the RGBA layer, or with droplet masks the
     1-bit solid layer plus one 1-bit TIFF per material."""
     graded = job.graded
@@ -126,7 +124,7 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None, packed:
         cache.grading = GradingCache()
     grading_cache = None if cache is None else cache.grading
     started = time.perf_counter()
-    packed = packed if packed is not None else packed_mask(job.points, job.offsets, job.grid)
+    packed = packed_mask(job.points, job.offsets, job.grid)
     if graded.channel_paths is not None:
         planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, None,
                                 job.grid, graded.spec, job.index, point_material=graded.point_material,

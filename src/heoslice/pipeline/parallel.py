@@ -1,13 +1,12 @@
-"""The slice pipeline's process machinery, all in one place: worker processes, the slice-ahead helper and the
-memory it shares, the allocator and collector settings, BLAS threads, and dying with the parent.
+"""The slice pipeline's process machinery, all in one place: worker processes, the allocator and collector
+settings, BLAS threads, and dying with the parent.
 
 How a slice runs on several cores (:func:`run_all`): the first layer is rendered in this process, so that
-what it loads (compiled kernels, codecs) is loaded once and inherited by every fork; meanwhile a forked helper
-slices and chains the next runs of planes into an anonymous shared mapping (graded slices only, whose first
-layer takes long). Then ``workers`` processes are forked, each handed runs of planes over its own pipe, at
-most two at a time; they write their layers and send back what they wrote. Every child ignores the signals
-that end a run (Ctrl-C, SIGTERM, SIGHUP: the parent reports them) and is killed by the kernel when the parent
-ends however it ends (``PR_SET_PDEATHSIG``), so nothing writes into the stack after the parent has gone.
+what it loads (compiled kernels, codecs) is loaded once and inherited by every fork. Then ``workers``
+processes are forked, each handed runs of planes over its own pipe, at most two at a time; they slice, chain,
+render and write them and send back what they wrote. Every child ignores the signals that end a run (Ctrl-C,
+SIGTERM, SIGHUP: the parent reports them) and is killed by the kernel when the parent ends however it ends
+(``PR_SET_PDEATHSIG``), so nothing writes into the stack after the parent has gone.
 
 Importing this module loads nothing but the standard library, so that the ``heoslice`` command can set its
 process's BLAS threads (:func:`single_blas_thread`) before numpy loads; numpy and the pipeline's stages are
@@ -18,32 +17,21 @@ from __future__ import annotations
 
 import ctypes
 import gc
-import mmap
 import os
 import signal
 import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from multiprocessing import get_context
 from multiprocessing.connection import wait as wait_for
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    import numpy as np
-
-    from heoslice.layers.contours import Contours
     from heoslice.pipeline.layer_job import PipelineCache
-    from heoslice.pipeline.runs import RunContext, RunResult, SlicedRun
+    from heoslice.pipeline.runs import RunContext, RunResult
 
 #: Signals that end a slice: the parent turns them into one line; its children ignore them.
 ENDING_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-#: Most bytes a helper makes ahead (shared memory, touched only as written), and of them at most
-#: AHEAD_MASK_BYTES of solid masks (a 15 MP organ's run of masks is 32 MB: each worker maps what it reads).
-AHEAD_BYTES = 256 << 20
-AHEAD_MASK_BYTES = 64 << 20
-#: Longest wait (s) for a helper to answer, and then to end, before it is left aside (and killed).
-_AHEAD_WAIT_S = 10.0
 #: Runs handed to one worker at a time: the next is waiting when it finishes one.
 _RUNS_IN_FLIGHT = 2
 #: prctl(2) option: the signal this process gets when its parent ends (linux/prctl.h).
@@ -150,161 +138,12 @@ def _frozen_for_forks() -> Iterator[Callable[[], None]]:
             gc.unfreeze()
 
 
-@dataclass(frozen=True)
-class Ahead:
-    """What a helper made ahead: the runs' contours ((start, stop) -> (contours, slice s, chain s)) and some
-    runs' solid bits ((start, stop) -> (layers, h, ceil(w / 8)) uint8), read-only views of shared memory."""
-
-    contours: dict = field(default_factory=dict)
-    masks: dict = field(default_factory=dict)
-
-    def run_contours(self, context: RunContext, start: int, stop: int) -> SlicedRun:
-        """The run's contours as made ahead, or made now."""
-        from heoslice.pipeline.runs import run_contours
-
-        made = self.contours.get((start, stop))
-        return made if made is not None else run_contours(context, start, stop)
-
-    def slice_run(self, context: RunContext, start: int, stop: int, cache: PipelineCache) -> RunResult:
-        """:func:`heoslice.pipeline.runs.slice_run` of a run, with what was made of it ahead."""
-        from heoslice.pipeline.runs import slice_run
-
-        return slice_run(context, start, stop, cache, self.contours.get((start, stop)),
-                         self.masks.get((start, stop)))
-
-
-@contextmanager
-def _sliced_ahead(context: RunContext, runs: list[tuple[int, int]]) -> Iterator[Callable[[], Ahead]]:
-    """Fork a helper that slices and chains ``runs`` in order, then makes their layers' solid bits
-    (:func:`_slice_ahead`), while the body runs; yields ``collect()``, which stops it and returns what it
-    finished (:class:`Ahead`): views of the memory it shares with this process (and with the workers forked
-    after). What a helper that fails or does not answer in _AHEAD_WAIT_S did not finish, the workers make."""
-    if not runs:
-        yield Ahead
-        return
-    buffer = mmap.mmap(-1, AHEAD_BYTES)
-    ours, theirs = get_context("fork").Pipe()
-    helper = _start(_enter_child, _slice_ahead, context, runs, buffer, theirs, ours)
-    theirs.close()
-
-    def collect() -> Ahead:
-        try:
-            ours.send(None)
-            if not ours.poll(_AHEAD_WAIT_S):
-                return Ahead()
-            placed, masks = ours.recv()
-        except (OSError, EOFError):
-            return Ahead()
-        return Ahead(contours={run: (_shared_contours(buffer, layout), *seconds) for run, layout, seconds in placed},
-                     masks={run: _shared_array(buffer, where) for run, where in masks})
-
-    try:
-        yield collect
-    except BaseException:
-        ours.close()
-        _end(helper)  # an error or an interruption: nothing more is wanted of it
-        raise
-    ours.close()
-    helper.join(timeout=_AHEAD_WAIT_S)
-    _end(helper)
-
-
-def _slice_ahead(context: RunContext, runs: list[tuple[int, int]], buffer: mmap.mmap, conn,
-                 parent_end=None) -> None:
-    """Helper process: :func:`run_contours` of ``runs`` in order, then the solid bits of their layers run by
-    run, each copied into ``buffer``, until the parent asks (anything on ``conn``, or its end closed) or the
-    buffer is full; then send where each run's contours and masks lie. ``parent_end``, the parent's end of the
-    pipe as forked into this process, is closed first, so that the parent closing its own is seen here."""
-    import numpy as np
-
-    from heoslice.layers.contours import Contours
-    from heoslice.layers.rasterising import packed_mask
-    from heoslice.pipeline.layer_job import layer_jobs
-    from heoslice.pipeline.runs import run_contours
-
-    if parent_end is not None:
-        parent_end.close()
-    placed, masks, used, mask_bytes = [], [], 0, 0
-    try:
-        for run in runs:
-            if conn.poll():
-                break
-            contours, *seconds = run_contours(context, *run)
-            layout = []
-            for name in Contours.__dataclass_fields__:
-                where, used = _copy_array(getattr(contours, name), buffer, used)
-                layout.append((name, where))
-            if used > len(buffer):
-                break
-            placed.append((run, layout, seconds))
-        for run, layout, _ in placed:
-            if conn.poll():
-                break
-            jobs = list(layer_jobs(_shared_contours(buffer, layout), context.mesh, context.grid, context.spec,
-                                   context.directory, first_layer=run[0]))
-            grid = context.grid
-            shape = (len(jobs), grid.height, -(-grid.width // 8))
-            mask_bytes += int(np.prod(shape))
-            where, used = _place(shape, np.uint8, used)
-            if used > len(buffer) or mask_bytes > AHEAD_MASK_BYTES:
-                break
-            bits = _shared_array(buffer, where, writeable=True)
-            for layer, job in enumerate(jobs):
-                bits[layer] = packed_mask(job.points, job.offsets, grid)
-            masks.append((run, where))
-    except Exception:  # noqa: BLE001 - what is not made here the workers make, and they report its errors
-        pass
-    try:
-        conn.recv()
-        conn.send((placed, masks))
-    except (EOFError, OSError):
-        pass  # the parent stopped before it asked (an error, Ctrl-C): nothing is wanted
-
-
-def _place(shape: tuple, dtype, used: int) -> tuple[tuple, int]:
-    """Where an array of ``shape`` and ``dtype`` goes in a shared buffer whose first ``used`` bytes are taken,
-    64-byte aligned: ((dtype, shape, offset), bytes taken after)."""
-    import numpy as np
-
-    dtype = np.dtype(dtype)
-    start = -(-used // 64) * 64
-    return (dtype.str, tuple(shape), start), start + dtype.itemsize * int(np.prod(shape))
-
-
-def _copy_array(array: np.ndarray | None, buffer: mmap.mmap, used: int) -> tuple[tuple | None, int]:
-    """Copy ``array`` into ``buffer`` after its first ``used`` bytes (:func:`_place`): (where, bytes taken after;
-    None and ``used`` for no array). Nothing is copied past the end (the bytes taken then exceed the length)."""
-    if array is None:
-        return None, used
-    where, used = _place(array.shape, array.dtype, used)
-    if used <= len(buffer):
-        _shared_array(buffer, where, writeable=True)[...] = array
-    return where, used
-
-
-def _shared_array(buffer: mmap.mmap, where: tuple | None, writeable: bool = False) -> np.ndarray | None:
-    """A view (read-only unless ``writeable``) of an array placed in ``buffer`` (:func:`_place`)."""
-    import numpy as np
-
-    if where is None:
-        return None
-    dtype, shape, offset = where
-    array = np.ndarray(shape, np.dtype(dtype), buffer=buffer, offset=offset)
-    array.flags.writeable = writeable
-    return array
-
-
-def _shared_contours(buffer: mmap.mmap, layout: list) -> Contours:
-    """The Contours whose arrays :func:`_slice_ahead` placed in ``buffer`` (layout: (field, where) per field)."""
-    from heoslice.layers.contours import Contours
-
-    return Contours(**{name: _shared_array(buffer, where) for name, where in layout})
-
-
-def _serve(conn, context: RunContext, cache: PipelineCache, ahead: Ahead) -> None:
+def _serve(conn, context: RunContext, cache: PipelineCache) -> None:
     """A worker: slice the runs (start, stop) that arrive on ``conn`` until None (or the pipe's end), answering
     each with ("done", RunResult) or ("failed", the exception, with the worker's traceback as a note).
     ``cache`` is this worker's copy, by fork, of what the parent's first layer left to the next."""
+    from heoslice.pipeline.runs import slice_run
+
     while True:
         try:
             run = conn.recv()
@@ -313,7 +152,7 @@ def _serve(conn, context: RunContext, cache: PipelineCache, ahead: Ahead) -> Non
         if run is None:
             return
         try:
-            answer = ("done", ahead.slice_run(context, *run, cache))
+            answer = ("done", slice_run(context, *run, cache))
         except Exception as err:  # noqa: BLE001 - the parent raises it
             err.add_note(f"in a slice worker:\n{traceback.format_exc()}")
             answer = ("failed", err)
@@ -324,7 +163,7 @@ def _serve(conn, context: RunContext, cache: PipelineCache, ahead: Ahead) -> Non
 
 
 def _run_on_workers(context: RunContext, runs: list[tuple[int, int]], workers: int, cache: PipelineCache,
-                    ahead: Ahead, on_done: Callable[[RunResult], None]) -> None:
+                    on_done: Callable[[RunResult], None]) -> None:
     """Every run through ``workers`` forked :func:`_serve` processes, each given at most _RUNS_IN_FLIGHT runs
     at once (results arrive in any order; memory stays bounded); the workers are ended on the way out,
     whatever happens, before any error goes on."""
@@ -333,7 +172,7 @@ def _run_on_workers(context: RunContext, runs: list[tuple[int, int]], workers: i
     try:
         for _ in range(min(workers, len(runs))):
             ours, theirs = get_context("fork").Pipe()
-            process = _start(_enter_worker, _serve, theirs, context, cache, ahead)
+            process = _start(_enter_worker, _serve, theirs, context, cache)
             theirs.close()
             pool[ours] = (process, [])
         for conn, (_, given) in pool.items():
@@ -387,11 +226,8 @@ def run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], No
     start, stop = runs[0]
     runs = ([(start + 1, stop)] if stop > start + 1 else []) + runs[1:]
     first = PipelineCache()
-    with _frozen_for_forks() as freeze:
-        freeze()
-        with _sliced_ahead(context, runs if context.spec.grade is not None else []) as collect:
-            on_done(slice_run(context, start, start + 1, first))
-            ahead = collect()
-        if runs:
+    on_done(slice_run(context, start, start + 1, first))
+    if runs:
+        with _frozen_for_forks() as freeze:
             freeze()
-            _run_on_workers(context, runs, workers, first, ahead, on_done)
+            _run_on_workers(context, runs, workers, first, on_done)

@@ -60,15 +60,13 @@ def run_contours(context: RunContext, start: int, stop: int) -> SlicedRun:
     return contours, sliced - began, time.perf_counter() - sliced
 
 
-def slice_run(context: RunContext, start: int, stop: int, cache: PipelineCache | None = None,
-              sliced: SlicedRun | None = None, masks: np.ndarray | None = None) -> RunResult:
+def slice_run(context: RunContext, start: int, stop: int, cache: PipelineCache | None = None) -> RunResult:
     """Slice, chain, render and write planes z[start:stop]: the whole pipeline for one run of layers.
 
     ``cache`` keeps what the last layer rendered leaves to the next (:class:`PipelineCache`); kept from run
-    to run, it carries that over to the next run's first layer too. ``sliced`` is the run's contours when
-    they were made already, ``masks`` ((stop - start, h, ceil(w / 8)) uint8) its layers' solid bits.
+    to run, it carries that over to the next run's first layer too.
     """
-    contours, slice_s, contours_s = sliced if sliced is not None else run_contours(context, start, stop)
+    contours, slice_s, contours_s = run_contours(context, start, stop)
     if context.spec.parts is not None:  # a multi-part job: each part's loops on their own, composed by priority
         from heoslice.pipeline.parts import render_parts_run
 
@@ -77,8 +75,7 @@ def slice_run(context: RunContext, start: int, stop: int, cache: PipelineCache |
         jobs = layer_jobs(contours, context.mesh, context.grid, context.spec, context.directory,
                           first_layer=start, vertex_mix=context.vertex_mix)
         cache = PipelineCache() if cache is None else cache
-        layers = [render_and_write(job, cache, None if masks is None else masks[local])
-                  for local, job in enumerate(jobs)]
+        layers = [render_and_write(job, cache) for job in jobs]
     return RunResult(layers=layers, open_layers=start + contours.layer[contours.closed_by_join],
                      slice_s=slice_s, contours_s=contours_s)
 
