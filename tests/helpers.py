@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import json
 import subprocess
 import sys
 import zipfile
@@ -208,6 +209,18 @@ def modules_loaded_by_command(args: list[str], modules: tuple[str, ...]) -> list
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     return ast.literal_eval(done.stdout.strip().splitlines()[-1])
+
+
+def stack_without_material_colours(source, target):
+    """A copy of a droplet-mask stack directory whose manifest lists no materials (so none has a colour), as a
+    hand-made or edited stack may."""
+    target.mkdir()
+    for item in source.iterdir():
+        (target / item.name).write_bytes(item.read_bytes())
+    manifest = json.loads((target / "manifest.json").read_text())
+    manifest["grading"].pop("materials", None)
+    (target / "manifest.json").write_text(json.dumps(manifest))
+    return target
 
 
 def brute_force_distance(points: np.ndarray, mesh) -> np.ndarray:

@@ -8,7 +8,7 @@ import zipfile
 
 import numpy as np
 import pytest
-from helpers import heoslice, in_process
+from helpers import heoslice, in_process, stack_without_material_colours
 from PIL import Image
 
 from heoslice import procedural
@@ -75,6 +75,16 @@ def test_voxel_print_refuses_what_it_cannot_honour(stacks, tmp_path):
     done = heoslice("export", stacks / "masks", "--format", "voxel-print", "-o", tmp_path / "c", "--pitch", "0")
     assert done.returncode == 2 and "--pitch" in done.stderr
     assert not any(tmp_path.iterdir())
+
+
+def test_voxel_print_of_masks_without_colours_names_the_manifest(stacks, tmp_path):
+    """A droplet-mask stack whose manifest lists no material colours (edited by hand): one line naming its
+    manifest file, exit 2, nothing written."""
+    copy = stack_without_material_colours(stacks / "masks", tmp_path / "copy")
+    done = heoslice("export", copy, "--format", "voxel-print", "-o", tmp_path / "out")
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert str(copy / "manifest.json") in done.stderr and "no [r, g, b] colour" in done.stderr
+    assert not (tmp_path / "out").exists()
 
 
 def test_png_zip_holds_every_layer_and_the_manifest(stacks, tmp_path):

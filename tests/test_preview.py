@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 import tifffile
+from helpers import stack_without_material_colours
 from PIL import Image
 
 from heoslice import procedural
@@ -124,6 +125,17 @@ def test_preview_refuses_altered_and_missing(run_cli, stacks, tmp_path):
     assert run_cli("preview", plain, "--layer", "999", "-o", tmp_path / "y.png")[0] == 2
     assert run_cli("preview", tmp_path, "--layer", "0", "-o", tmp_path / "z.png")[0] == 4
     assert run_cli("preview", plain, "--layer", "1", "-o", tmp_path / "z.jpg")[0] == 2
+
+
+def test_preview_of_masks_without_colours_names_the_manifest(run_cli, channels_stack, tmp_path):
+    """Droplet masks whose materials have no colour in the manifest: one line naming the manifest file and
+    the layer, exit 4, no image written (a layer, a sheet and a section alike)."""
+    copy = stack_without_material_colours(channels_stack, tmp_path / "copy")
+    for extra in (["--layer", "1"], ["--sheet"], ["--section", "y=0"]):
+        code, _, stderr = run_cli("preview", copy, *extra, "-o", tmp_path / "x.png")
+        assert code == 4 and len(stderr.strip().splitlines()) == 1, stderr
+        assert str(copy / "manifest.json") in stderr and "no [r, g, b] colour" in stderr
+        assert not (tmp_path / "x.png").exists()
 
 
 def test_channels_rgb_paints_each_mask_in_its_colour():

@@ -20,7 +20,7 @@ import numpy as np
 
 from heoslice.errors import InputError
 from heoslice.export.base import ExportFormat, ExportOptions, Sink
-from heoslice.stack import MAX_IMAGE_PIXELS, MAX_LAYERS, read_layer_channels, read_layer_mask
+from heoslice.stack import MANIFEST, MAX_IMAGE_PIXELS, MAX_LAYERS, read_layer_channels, read_layer_mask
 
 #: The J750's Voxel Print resolution (dpi x, y) and layer pitch (mm).
 DEFAULT_DPI = (600.0, 300.0)
@@ -31,9 +31,11 @@ SINGLE_MATERIAL = ("model", (255, 255, 255))
 SUMMARY_FILE = "voxelprint.json"
 
 
-def palette(manifest: dict, background: tuple[int, int, int]) -> list[tuple[str, tuple[int, int, int]]]:
+def palette(manifest: dict, background: tuple[int, int, int],
+            source: str | Path = MANIFEST) -> list[tuple[str, tuple[int, int, int]]]:
     """(name, colour) of every material in label order (label m + 1 is material m); InputError when the
-    stack cannot be printed with one exact colour per material."""
+    stack cannot be printed with one exact colour per material (naming the manifest file ``source`` when a
+    material has no colour there)."""
     if manifest["image"].get("mode", "1") != "1":
         raise InputError("format: voxel-print needs one material per pixel, but this stack's layers carry blended "
                          "colours (RGBA, a --rgba preview stack); slice it without --rgba")
@@ -47,7 +49,8 @@ def palette(manifest: dict, background: tuple[int, int, int]) -> list[tuple[str,
         for channel in channels:
             colour = colours.get(channel.get("material"))
             if not (isinstance(colour, list) and len(colour) == 3 and all(isinstance(v, int) for v in colour)):
-                raise InputError(f"format: material {channel.get('material')!r} has no colour in the manifest")
+                raise InputError(f"{source}: material {channel.get('material')!r} has no [r, g, b] colour in "
+                                 "grading.materials (voxel-print tells materials apart by colour)")
             materials.append((channel["material"], tuple(colour)))
     seen = {tuple(background): "the background"}
     for name, colour in materials:
@@ -83,7 +86,7 @@ def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -
     dpi = options.dpi or DEFAULT_DPI
     pitch = options.pitch_mm or DEFAULT_PITCH_MM
     background = tuple(options.background or DEFAULT_BACKGROUND)
-    materials = palette(manifest, background)
+    materials = palette(manifest, background, Path(directory) / MANIFEST)
     image, (px, py), h = manifest["image"], manifest["pixel_size_mm"], manifest["layer_height_mm"]
     new_px, new_py = 25.4 / dpi[0], 25.4 / dpi[1]
     width, height = max(1, round(image["width"] * px / new_px)), max(1, round(image["height"] * py / new_py))

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import InputError, VerifyError, shown
-from heoslice.stack import layer_strips, read_manifest
+from heoslice.stack import MANIFEST, layer_strips, read_manifest
 
 #: Longest side of a drawn preview, px: larger requests are refused, larger layers reduced to it
 #: (memory: at most about 4 x MAX_PREVIEW_SIDE^2 x 3 bytes for the image being reduced).
@@ -52,9 +52,10 @@ def channels_rgb(masks: np.ndarray, colors: np.ndarray) -> np.ndarray:
     return out
 
 
-def channel_colors(manifest: dict, index: int) -> np.ndarray:
+def channel_colors(manifest: dict, index: int, source: str | Path = MANIFEST) -> np.ndarray:
     """(k, 3) uint8 display colours of layer ``index``'s droplet masks, looked up by material name in
-    ``grading.materials``; VerifyError when a material has no valid colour there."""
+    ``grading.materials``; VerifyError, naming the manifest file ``source``, when a material has no valid
+    colour there."""
     grading = manifest.get("grading")
     materials = grading.get("materials") if isinstance(grading, dict) else None
     known = {}
@@ -66,8 +67,8 @@ def channel_colors(manifest: dict, index: int) -> np.ndarray:
         color = known.get(channel.get("material"))
         if not (isinstance(color, list) and len(color) == 3
                 and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 255 for v in color)):
-            raise VerifyError(f"layer {index}: droplet mask material {channel.get('material')!r} has no "
-                              "[r, g, b] colour in the manifest's grading.materials")
+            raise VerifyError(f"{source}: layer {index}: droplet mask material {channel.get('material')!r} has "
+                              "no [r, g, b] colour in grading.materials")
         colors.append(color)
     return np.array(colors, dtype=np.uint8).reshape(-1, 3)
 
@@ -161,7 +162,7 @@ def layer_display(directory: Path, manifest: dict, index: int, factor: int = 1) 
     decoded (box filter): from its droplet masks when it has them, else from its stored pixels.
     Memory: the reduced image and one strip of each file."""
     with_channels = bool(manifest["layers"][index].get("channels"))
-    colors = channel_colors(manifest, index) if with_channels else None
+    colors = channel_colors(manifest, index, Path(directory) / MANIFEST) if with_channels else None
     image = manifest["image"]
     samples = {"1": "bilevel", "L": "bilevel", "RGB": "rgb", "RGBA": "rgba"}[image.get("mode", "1")]
     kind = "channels" if with_channels else samples

@@ -10,7 +10,7 @@ import numpy as np
 
 from heoslice.errors import InputError
 from heoslice.preview.layer import MAX_PREVIEW_SIDE, _display, _planes, channel_colors, check_size
-from heoslice.stack import layer_strips, read_manifest
+from heoslice.stack import MANIFEST, layer_strips, read_manifest
 
 SECTION_PATTERN = re.compile(r"^\s*([xyXY])\s*=\s*([-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)\s*$")
 
@@ -44,7 +44,7 @@ def _layer_line(directory: Path, manifest: dict, index: int, axis: str, line: in
     """(ceil(n / factor), 3) uint8: the display colours along the section line of one layer, box-reduced."""
     entry = manifest["layers"][index]
     with_channels = bool(entry.get("channels"))
-    colors = channel_colors(manifest, index) if with_channels else None
+    colors = channel_colors(manifest, index, Path(directory) / MANIFEST) if with_channels else None
     samples = {"1": "bilevel", "L": "bilevel", "RGB": "rgb", "RGBA": "rgba"}[manifest["image"].get("mode", "1")]
     kind = "channels" if with_channels else samples
     alpha = manifest["mask"] == "alpha"
