@@ -366,10 +366,11 @@ def compile_bytecode() -> None:
 
 
 def warm_kernel_cache(model: Path, height: float, output: Path) -> None:
-    """One untimed graded slice of three layers of ``model`` (``height`` mm tall), so that numba's on-disk
-    cache holds the grading kernels before the timed runs (the first graded run after installing or
-    changing heoslice compiles them, a one-off ~10 s per process, not the steady state compared)."""
-    log("warming numba's kernel cache with a 3-layer graded slice")
+    """One untimed graded slice of three layers of ``model`` (``height`` mm tall) before the timed runs: with
+    the kernels compiled at install it only warms the file cache; where they run just in time (no compiled
+    build, or HEOSLICE_JIT=1) it fills numba's on-disk cache, whose first filling after installing or
+    changing heoslice is a one-off per process, not the steady state compared."""
+    log("an untimed 3-layer graded slice first (warms the caches)")
     args = heoslice_args(model, output, max(height / 3, 0.1), 50.0, 1) + GRADED_ARGS
     run_measured(heoslice_base() + args, output.with_suffix(".log"))
     clear(output)
