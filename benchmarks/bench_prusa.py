@@ -12,8 +12,9 @@ one-material time, and checks that its layers' solid pixels equal the one-materi
 stack's; ``--coloured`` likewise times a coloured mesh sliced without grading, with
 droplet masks (the mesh coloured once, untimed, by ``heoslice color --func linear``, then
 sliced with ``COLOURED_ARGS``). The meshes are the procedural ones and, where
-../shared/data is present, real scans scaled to organ size (prusa_meshes.SCANS); one untimed 3-layer graded slice first fills numba's kernel cache. heoslice's modules
-are compiled to bytecode first, as an installed package has them. Every run
+../shared/data is present, real scans scaled to organ size (prusa_meshes.SCANS); one untimed
+3-layer graded slice runs first (:func:`warm_kernel_cache`). heoslice's modules are compiled to
+bytecode first, as an installed package has them. Every run
 writes to a new path, and everything written so far is flushed to disk (os.sync) before
 it: no run pays for another's writeback, and outputs are deleted only when the benchmark
 ends (kept with --workdir). ext4 skips inodes deleted in the last half minute when it
