@@ -87,7 +87,7 @@ def contour_values(field: FamilyField, values: np.ndarray) -> np.ndarray:
     and the cells' nearest points are not measured."""
     edges = field.start_edges()
     values = np.asarray(values, dtype=np.float64)[edges.knot_point]
-    if (values == values[:1]).all():
+    if len(values) and (values == values[:1]).all():
         return np.broadcast_to(values[0], (field.lattice.rows, field.lattice.cols) + values.shape[1:])
     foot, edge = field.nearest()
     t = ((foot[0] - edges.x[edge]) * edges.vx[edge] + (foot[1] - edges.y[edge]) * edges.vy[edge]) * edges.inv_len2[edge]
