@@ -78,3 +78,17 @@ def test_slice_refuses_materials_it_would_ignore(run_cli, tmp_path, args, named)
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"heoslice: error: {named}: only used with --grade"), err
     assert not (tmp_path / "stack").exists()
+
+
+def test_a_parts_job_refuses_grading_options_it_would_ignore(run_cli, tmp_path):
+    """A multi-part job (--parts) has no --grade: --to and --alpha given to one are refused with one line
+    naming them, exit 2, no stack."""
+    from pathlib import Path
+
+    vase = Path(__file__).resolve().parents[1] / "examples" / "vase.ply"
+    code, out, err = run_cli("slice", vase, vase, "--parts", "--to", "0,255,0", "--alpha", "2",
+                             "-o", tmp_path / "stack")
+    assert code == 2, (out, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("heoslice: error: --alpha, --to: only used with --grade"), err
+    assert not (tmp_path / "stack").exists()

@@ -88,6 +88,16 @@ def parse_canvas(text: str | None) -> tuple[float, float] | None:
     return (width, height)
 
 
+def refuse_options_without_grade(alpha, beta, lam, periods, expression, depth, offset_count, target, start) -> None:
+    """InputError naming the grading options given without --grade (they would be ignored)."""
+    given = {"--alpha": alpha, "--beta": beta, "--lambda": lam, "--periods": periods,
+             "--expr": expression, "--depth": depth, "--offsets": offset_count}
+    stray = [name for name, value in given.items() if value is not None]
+    stray += [name for name, value in {"--to": target, "--from": start}.items() if value]
+    if stray:
+        raise InputError(f"{', '.join(stray)}: only used with --grade FUNC (ignored without it)")
+
+
 def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth, offset_count,
                direction, materials: MaterialsFile, channels):
     """The GradeSpec the grading options ask for, or None when none is given: the mesh's own materials then
@@ -99,13 +109,7 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
     file, read once by the caller) play the parts :func:`heoslice.material.material_roles` gives them.
     """
     if kind is None:
-        given = {"--alpha": alpha, "--beta": beta, "--lambda": lam, "--periods": periods,
-                 "--expr": expression, "--depth": depth, "--offsets": offset_count}
-        stray = [name for name, value in given.items() if value is not None]
-        ignored = {"--to": target, "--from": start}
-        stray += [name for name, value in ignored.items() if value]
-        if stray:
-            raise InputError(f"{', '.join(stray)}: only used with --grade FUNC (ignored without it)")
+        refuse_options_without_grade(alpha, beta, lam, periods, expression, depth, offset_count, target, start)
     with option("--materials"):
         shells = materials.shells()
     if kind is None and not (channels or shells):
@@ -232,9 +236,7 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     if is_parts_job(models, parts_flag, part_options, materials):
         if grade_kind is not None:
             raise InputError(GRADE_REFUSAL)
-        no_file = read_materials_file(None)  # grade_spec refuses the grading options that would be ignored
-        grade_spec(None, alpha, beta, lam, periods, expression, target, start, nozzle, depth, offset_count,
-                   direction, no_file, False)
+        refuse_options_without_grade(alpha, beta, lam, periods, expression, depth, offset_count, target, start)
         if into is not None:
             raise click.UsageError("--into: a multi-part job makes one stack; name it with -o/--output")
         slice_parts(models, output, dict(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
