@@ -152,6 +152,28 @@ def test_colours_of_some_of_a_larger_table_map_to_their_own_masks(vase_file):
     assert np.array_equal(job.vertex_mix.argmax(axis=1), np.where(upper, 1, 0))
     assert np.array_equal(job.vertex_mix.sum(axis=1), np.ones(len(plain.vertices)))
 
+def test_a_library_table_without_channels_gets_them_as_a_materials_file_does(vase_file, tmp_path):
+    """A SliceSpec table whose materials name no printer channel (a library caller's, not a file's): each
+    gets its place in the table as its channel, as a materials file's would, so a mesh coloured with only
+    the first and the third material sends the third's mask to channel 3, never to the unused second's
+    cartridge (channel 2), in the job and in the manifest; a graded spec's own materials follow the table."""
+    plain = load_mesh(vase_file)
+    table = (Material("gel", (240, 240, 240)), Material("red", (255, 0, 0)), Material("blue", (0, 0, 255)))
+    upper = plain.vertices[:, 2] > 30
+    colors = np.where(upper[:, None], [0, 0, 250], [240, 240, 240]).astype(np.uint8)
+    coloured = type(plain)(**{**plain.__dict__, "colors": colors})
+    job = material_job(coloured, SliceSpec(materials=table))
+    assert [(m.name, m.channel) for m in job.spec.grade.channel_materials()] == [("gel", 1), ("blue", 3)]
+    manifest, _ = slice_to_stack(coloured, tmp_path / "stack", SliceSpec(layer_height_mm=5.0, dpi=(50.0, 50.0),
+                                                                         materials=table))
+    assert [(m["name"], m["channel"]) for m in manifest["grading"]["materials"]] == [("gel", 1), ("blue", 3)]
+    from heoslice.grading import GradeSpec, RegionSpec
+
+    graded = GradeSpec(regions=RegionSpec(), function=None, target=None, start=None, base=table[0], second=table[2])
+    job = material_job(coloured, SliceSpec(materials=table, grade=graded, channels=True))
+    assert {(m.name, m.channel) for m in job.spec.grade.channel_materials()} == {("gel", 1), ("blue", 3)}
+
+
 def test_two_masks_on_one_printer_channel_are_refused_before_slicing(run_cli, vase_file, tmp_path):
     """A graded slice whose two materials name the same printer channel is refused in one line naming both
     (exit 2), with no stack written: print could not send both masks; with channels apart it slices."""

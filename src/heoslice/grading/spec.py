@@ -110,15 +110,21 @@ class GradeSpec:
                 found.append(material)
         return tuple(found)
 
-    def with_printer_channels(self, table_channels: set[int]) -> GradeSpec:
-        """This specification with each droplet-mask material that names no printer channel (a colour outside
-        the materials table) given the lowest channel that no table material (``table_channels``) and no other
-        mask names, in mask order: the manifest says where every mask goes, so a print never sends one to the
-        cartridge of a table material this stack happens not to use."""
+    def with_printer_channels(self, table) -> GradeSpec:
+        """This specification with each droplet-mask material that names no printer channel given its table
+        material's (``table``: the materials table, channels resolved: the same name and colour), else (a colour
+        outside the table) the lowest channel that no table material and no other mask names, in mask order:
+        the manifest says where every mask goes, so a print never sends one to the cartridge of a table
+        material this stack happens not to use."""
         materials = self.channel_materials()
-        taken = set(table_channels) | {m.channel for m in materials if m.channel is not None}
+        listed = {_identity(m): m.channel for m in table if m.channel is not None}
+        taken = set(listed.values()) | {m.channel for m in materials if m.channel is not None}
         free = (channel for channel in itertools.count(1) if channel not in taken)
-        given = {_identity(m): replace(m, channel=next(free)) for m in materials if m.channel is None}
+        given = {}
+        for material in materials:
+            if material.channel is None and _identity(material) not in given:
+                channel = listed.get(_identity(material))
+                given[_identity(material)] = replace(material, channel=next(free) if channel is None else channel)
         if not given:
             return self
 

@@ -23,7 +23,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from heoslice.material import DEFAULT_MATERIALS, Material, check_one_per_channel, material_roles, nearest_materials
+from heoslice.material import (
+    DEFAULT_MATERIALS,
+    Material,
+    check_one_per_channel,
+    material_roles,
+    nearest_materials,
+    with_table_channels,
+)
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec
 
@@ -69,7 +76,8 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
     table colours map to (the built-in M1, M2 when empty)."""
     if spec.parts is not None:  # a multi-part job: each part is one material (heoslice.pipeline.parts)
         return MaterialJob(spec, None)
-    table = spec.materials or tuple(DEFAULT_MATERIALS.values())
+    # a library caller's table gets its channels as a materials file's does (keyed by position: names may repeat)
+    table = tuple(with_table_channels(dict(enumerate(spec.materials or DEFAULT_MATERIALS.values()))).values())
     grade, mix = _masks_used(spec.grade, mesh), None
     if mesh.material is not None:
         grade = grade if grade is not None else _plain_grade(table)
@@ -91,6 +99,6 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
         return MaterialJob(replace(spec, grade=None, channels=False), None)
     channels = several if spec.channels is None else spec.channels
     if channels:
-        grade = grade.with_printer_channels({m.channel for m in table if m.channel is not None})
+        grade = grade.with_printer_channels(table)
         check_one_per_channel(grade.channel_materials(), "the droplet masks")
     return MaterialJob(replace(spec, grade=grade, channels=channels), mix)
