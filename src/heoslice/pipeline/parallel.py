@@ -126,13 +126,15 @@ def _end(child) -> None:
 
 
 @contextmanager
-def _frozen_for_forks() -> Iterator[Callable[[], None]]:
-    """Yields ``freeze()``, to call before each fork: the objects made so far move out of the collector's
-    generations, as Python's gc documentation advises, so that its passes do not write to (and copy) the
-    pages this process shares with its children. Unfrozen after; a caller's own freezing is left alone."""
+def _frozen_for_forks() -> Iterator[None]:
+    """Around forking the workers: the objects made so far move out of the collector's generations, as
+    Python's gc documentation advises, so that its passes do not write to (and copy) the pages this process
+    shares with its children. Unfrozen after; a caller's own freezing is left alone."""
     ours = gc.get_freeze_count() == 0
+    if ours:
+        gc.freeze()
     try:
-        yield gc.freeze if ours else (lambda: None)
+        yield
     finally:
         if ours:
             gc.unfreeze()
@@ -228,6 +230,5 @@ def run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], No
     first = PipelineCache()
     on_done(slice_run(context, start, start + 1, first))
     if runs:
-        with _frozen_for_forks() as freeze:
-            freeze()
+        with _frozen_for_forks():
             _run_on_workers(context, runs, workers, first, on_done)
