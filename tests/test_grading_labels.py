@@ -1387,3 +1387,45 @@ def test_painting_a_family_after_the_first_takes_no_copy_wider_than_the_labels(m
     box_pixels = (second.box[1] - second.box[0]) * (second.box[3] - second.box[2])
     assert len(regions.fields) == 2 and label.dtype == np.int16 and box_pixels > 20_000
     assert peak <= label.nbytes + box_pixels * (1 + 2) + 64_000
+
+
+def test_one_subregion_families_paint_their_label_from_one_value_without_an_index_array(monkeypatch):
+    """Two plates side by side with one sub-region each (a coloured slice without grading), from the packed
+    mask: each family's index is one read-only value holding no memory of its box, painting allocates at most
+    the labels and the second box's solid bits (no index-sized copy), and on every solid pixel the labels are
+    those of the same layer labelled from the bool mask (whose indices are whole arrays)."""
+    import tracemalloc
+
+    square = np.array([[0.0, 0.0], [8.0, 0.0], [8.0, 8.0], [0.0, 8.0]])
+    points, offsets, area, parent = layer(square - [9.0, 4.0], square + [1.0, -4.0])
+    grid = grid_around(9.5)
+    mask = solid_mask(points, offsets, grid)
+    packed = np.packbits(mask, axis=1)
+    spec = RegionSpec(count=1)
+    peaks = []
+    original = labels._paint_labels
+
+    def measured(*args, **kwargs):
+        tracemalloc.start()
+        try:
+            label = original(*args, **kwargs)
+            peaks.append((tracemalloc.get_traced_memory()[1], label))
+        finally:
+            tracemalloc.stop()
+        return label
+
+    monkeypatch.setattr(labels, "_paint_labels", measured)
+    regions = layer_regions(points, offsets, area, parent, None, grid, spec, packed)
+    (peak, label), = peaks
+    second = regions.fields[1]
+    box_pixels = (second.box[1] - second.box[0]) * (second.box[3] - second.box[2])
+    assert len(regions.fields) == 2 and box_pixels > 20_000
+    for field in regions.fields:
+        assert field.layout.count == 1 and not field.index.flags.writeable and not any(field.index.strides)
+    assert peak <= label.nbytes + box_pixels + 64_000
+    masked = layer_regions(points, offsets, area, parent, mask, grid, spec)
+    assert masked.box == regions.box and np.array_equal(masked.base, regions.base)
+    r0, r1, c0, c1 = regions.box
+    solid = mask[r0:r1, c0:c1]
+    assert np.array_equal(regions.label[solid], masked.label[solid])
+    assert set(np.unique(regions.label[solid])) == {regions.base[0] + 1, regions.base[1] + 1}

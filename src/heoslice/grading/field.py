@@ -298,11 +298,15 @@ def _single_region_index(shape: tuple[int, int], mask: np.ndarray | None, origin
                          label_base: int) -> np.ndarray:
     """k = 1 at every pixel of a one-sub-region family's box ((rows, cols), labelled like
     :func:`_expand_planes`: 1 + label_base, with the layer's ``mask`` on its solid pixels only). Pixels of
-    the box off the family hold the label too; they are solid only where another family paints its own."""
-    index = np.full(shape, 1 + label_base, dtype=label_dtype(1 + label_base))
-    if mask is not None:
-        row, col = origin
-        index[~mask[row:row + shape[0], col:col + shape[1]]] = 0
+    the box off the family hold the label too; they are solid only where another family paints its own.
+    Without a mask the index is one read-only value seen at every pixel (no memory: the labels take it
+    as a value, :func:`heoslice.grading.labels.layer_regions`)."""
+    dtype = label_dtype(1 + label_base)
+    if mask is None:
+        return np.broadcast_to(np.array(1 + label_base, dtype=dtype), shape)
+    index = np.full(shape, 1 + label_base, dtype=dtype)
+    row, col = origin
+    index[~mask[row:row + shape[0], col:col + shape[1]]] = 0
     return index
 
 

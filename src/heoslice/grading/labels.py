@@ -132,7 +132,7 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
     ``copy_first`` (other families paint over it and the field serves the next layer)."""
     dtype = label_dtype(int(base[-1]))
     first = fields[0]
-    if first.box == box and first.index.dtype == dtype and not copy_first:
+    if first.box == box and first.index.dtype == dtype and first.index.flags.writeable and not copy_first:
         label = first.index  # the outermost family spans the layer's box: no copy of ~15 MP
     elif first.box == box:
         label = np.empty((box[1] - box[0], box[3] - box[2]), dtype=dtype)  # the copy of its labels fills it
@@ -152,9 +152,21 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
         if not alone[number]:
             solid = solid & _family_mask(points, offsets, family, grid, field.box)
         # in the labels' own width: an int16 index plus base's int64 would make a 4x wider copy of the box
-        value = base[number] if family.nested else np.add(field.index, base[number], dtype=label.dtype)
+        constant = _constant(field.index)
+        if family.nested:
+            value = base[number]
+        elif constant is not None:  # one sub-region: one label, no array of the box
+            value = base[number] + constant
+        else:
+            value = np.add(field.index, base[number], dtype=label.dtype)
         np.copyto(target, value, where=solid, casting="unsafe")
     return label
+
+
+def _constant(index: np.ndarray) -> int | None:
+    """The one value of an index that holds one value seen at every pixel (a one-sub-region family's,
+    :func:`heoslice.grading.field.family_field`), else None (also for an empty index: a nested shell's)."""
+    return int(index.flat[0]) if index.size and not any(index.strides) else None
 
 
 def _layer_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid, spec: RegionSpec,
