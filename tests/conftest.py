@@ -59,6 +59,20 @@ def run_cli():
     return run
 
 
+@pytest.fixture(scope="module")
+def lattice_fit_for_every_family():
+    """Every family is fitted on the lattice however small (most test shapes are below
+    field.DIRECT_PIXELS), for the modules of grading tests that ask for it with
+    ``pytestmark = pytest.mark.usefixtures("lattice_fit_for_every_family")``; their tests of the exact
+    per-pixel path ask for that path themselves."""
+    from heoslice.grading import field as field_module
+
+    saved = field_module.DIRECT_PIXELS
+    field_module.DIRECT_PIXELS = 0
+    yield
+    field_module.DIRECT_PIXELS = saved
+
+
 @pytest.fixture(autouse=True)
 def _no_user_defaults_file(monkeypatch, tmp_path_factory):
     """No test reads the developer's own ~/.config/heoslice/heoslice.toml (defaults files, cli/defaults.py)."""

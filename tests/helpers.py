@@ -19,6 +19,7 @@ from heoslice.grading.search import RingSet, ring_tree
 from heoslice.grading.search_kernels import edge_tree
 from heoslice.layers import plane_heights, slice_mesh
 from heoslice.layers.contours import Contours, build_contours
+from heoslice.layers.rasterising import Grid
 
 
 def contours_of(mesh, layer_height: float) -> tuple[np.ndarray, Contours]:
@@ -95,6 +96,58 @@ def brute_squared(qx, qy, edges):
 def tree_of(edges):
     """The edge tree of RingEdges (:func:`heoslice.grading.search_kernels.edge_tree`)."""
     return edge_tree(edges.x, edges.y, edges.x + edges.vx, edges.y + edges.vy)
+
+
+# --- Layers of rings on a 600 dpi grid, as the grading tests draw them -----------------------------------
+
+PX = 25.4 / 600
+
+
+def circle(radius: float, count: int = 720, center=(0.0, 0.0), clockwise: bool = False) -> np.ndarray:
+    """(count, 2) polygon approximating a circle (sag below 1e-4 mm for the radii used)."""
+    angle = np.linspace(0.0, 2 * np.pi, count, endpoint=False)
+    ring = np.column_stack([center[0] + radius * np.cos(angle), center[1] + radius * np.sin(angle)])
+    return ring[::-1] if clockwise else ring
+
+
+def layer(*rings):
+    """(points, offsets, signed areas, parents) of loops given outermost first; a ring's parent is the
+    smallest earlier ring containing its first point."""
+    points = np.concatenate(rings)
+    offsets = np.concatenate([[0], np.cumsum([len(r) for r in rings])])
+    area = np.array([shapely.Polygon(r).area * (1 if shapely.LinearRing(r).is_ccw else -1) for r in rings])
+    parent = np.full(len(rings), -1)
+    for i, ring in enumerate(rings):
+        containing = [j for j in range(i) if shapely.Polygon(rings[j]).contains(shapely.Point(ring[0]))]
+        if containing:
+            parent[i] = min(containing, key=lambda j: abs(area[j]))
+    return points, offsets, area, parent
+
+
+def grid_around(half_mm: float) -> Grid:
+    """A square grid of PX pixels centred on the origin, at least ``half_mm`` mm from it to every side."""
+    cells = int(np.ceil(2 * half_mm / PX))
+    return Grid(width=cells, height=cells, x_left=-cells * PX / 2, y_top=cells * PX / 2, px=PX, py=PX)
+
+
+def pixel_centres(grid: Grid, box):
+    """(x, y) mm of the centres of the pixels of ``box`` (rows r0:r1, columns c0:c1 of ``grid``), each (rows, cols)."""
+    r0, r1, c0, c1 = box
+    x = grid.x_left + (np.arange(c0, c1) + 0.5) * grid.px
+    y = grid.y_top - (np.arange(r0, r1) + 0.5) * grid.py
+    return np.meshgrid(x, y)
+
+
+def rough_outline(seed: int, count: int = 900, radius: float = 6.0, amplitude: float = 0.6,
+                  modes: int = 40) -> np.ndarray:
+    """(count, 2) a star-shaped outline whose radius is a random sum of ``modes`` harmonics (mm): many
+    shallow bumps, each a local minimum of the distance along the ring seen from inside."""
+    rng = np.random.default_rng(seed)
+    draws = np.array([(rng.normal(), rng.uniform(0.0, 2 * np.pi)) for _ in range(modes)])
+    angle = np.linspace(0.0, 2 * np.pi, count, endpoint=False)
+    mode = np.arange(2, modes + 2)[:, None]
+    radius = radius + np.sum(amplitude * draws[:, :1] / (1 + mode / 4) * np.cos(mode * angle + draws[:, 1:]), axis=0)
+    return np.column_stack([radius * np.cos(angle), radius * np.sin(angle)])
 
 
 # Test-only references: straightforward forms of what the grading stage computes another way
