@@ -72,7 +72,7 @@ def test_layer_labels_from_the_packed_mask_alone_agree_on_solid_pixels():
     grid = grid_around(9.7)
     mask = solid_mask(points, offsets, grid)
     spec = RegionSpec(nozzle_mm=0.3)
-    masked = layer_regions(points, offsets, area, parent, mask, grid, spec)
+    masked = layer_regions(*loops, mask, grid, spec)
     packed = layer_regions(points, offsets, area, parent, None, grid, spec, np.packbits(mask, axis=1))
     assert packed.box == masked.box and np.array_equal(packed.base, masked.base)
     r0, r1, c0, c1 = masked.box
@@ -252,16 +252,16 @@ def test_layer_families_end_on_a_cycle_of_parents():
     assert [family.outer for family in families] == [0, 2]
 
 
-def test_painting_a_family_after_the_first_takes_no_copy_wider_than_the_labels(monkeypatch):
-    """Two equal plates side by side (the second painted over the label array from its own index plus its label
-    base): painting allocates at most the labels, the box's solid bits and one copy of the box's index in the
-    labels' width, not one widened to int64 by the base (4x the index, the largest allocation of a scan layer)."""
+def _two_plates_painted(monkeypatch, spec: RegionSpec):
+    """Two equal plates side by side labelled from the packed mask alone, with the peak of what painting their
+    labels allocated: (the layer (points, offsets, area, parent), grid, bool mask, regions, peak bytes, pixels of
+    the second family's box)."""
     import tracemalloc
 
     square = np.array([[0.0, 0.0], [8.0, 0.0], [8.0, 8.0], [0.0, 8.0]])
-    points, offsets, area, parent = layer(square - [9.0, 4.0], square + [1.0, -4.0])
+    loops = layer(square - [9.0, 4.0], square + [1.0, -4.0])
     grid = grid_around(9.5)
-    packed = np.packbits(solid_mask(points, offsets, grid), axis=1)
+    mask = solid_mask(loops[0], loops[1], grid)
     peaks = []
     original = labels._paint_labels
 
@@ -269,18 +269,27 @@ def test_painting_a_family_after_the_first_takes_no_copy_wider_than_the_labels(m
         tracemalloc.start()
         try:
             label = original(*args, **kwargs)
-            peaks.append((tracemalloc.get_traced_memory()[1], label))
+            peaks.append(tracemalloc.get_traced_memory()[1])
         finally:
             tracemalloc.stop()
         return label
 
     monkeypatch.setattr(labels, "_paint_labels", measured)
-    regions = layer_regions(points, offsets, area, parent, None, grid, RegionSpec(nozzle_mm=0.3), packed)
-    (peak, label), = peaks
+    regions = layer_regions(*loops, None, grid, spec, np.packbits(mask, axis=1))
+    (peak,) = peaks
     second = regions.fields[1]
     box_pixels = (second.box[1] - second.box[0]) * (second.box[3] - second.box[2])
-    assert len(regions.fields) == 2 and label.dtype == np.int16 and box_pixels > 20_000
-    assert peak <= label.nbytes + box_pixels * (1 + 2) + 64_000
+    assert len(regions.fields) == 2 and box_pixels > 20_000
+    return loops, grid, mask, regions, peak, box_pixels
+
+
+def test_painting_a_family_after_the_first_takes_no_copy_wider_than_the_labels(monkeypatch):
+    """Two equal plates side by side (the second painted over the label array from its own index plus its label
+    base): painting allocates at most the labels, the box's solid bits and one copy of the box's index in the
+    labels' width, not one widened to int64 by the base (4x the index, the largest allocation of a scan layer)."""
+    _, _, _, regions, peak, box_pixels = _two_plates_painted(monkeypatch, RegionSpec(nozzle_mm=0.3))
+    assert regions.label.dtype == np.int16
+    assert peak <= regions.label.nbytes + box_pixels * (1 + 2) + 64_000
 
 
 def test_one_subregion_families_paint_their_label_from_one_value_without_an_index_array(monkeypatch):
@@ -288,36 +297,12 @@ def test_one_subregion_families_paint_their_label_from_one_value_without_an_inde
     mask: each family's index is one read-only value holding no memory of its box, painting allocates at most
     the labels and the second box's solid bits (no index-sized copy), and on every solid pixel the labels are
     those of the same layer labelled from the bool mask (whose indices are whole arrays)."""
-    import tracemalloc
-
-    square = np.array([[0.0, 0.0], [8.0, 0.0], [8.0, 8.0], [0.0, 8.0]])
-    points, offsets, area, parent = layer(square - [9.0, 4.0], square + [1.0, -4.0])
-    grid = grid_around(9.5)
-    mask = solid_mask(points, offsets, grid)
-    packed = np.packbits(mask, axis=1)
     spec = RegionSpec(count=1)
-    peaks = []
-    original = labels._paint_labels
-
-    def measured(*args, **kwargs):
-        tracemalloc.start()
-        try:
-            label = original(*args, **kwargs)
-            peaks.append((tracemalloc.get_traced_memory()[1], label))
-        finally:
-            tracemalloc.stop()
-        return label
-
-    monkeypatch.setattr(labels, "_paint_labels", measured)
-    regions = layer_regions(points, offsets, area, parent, None, grid, spec, packed)
-    (peak, label), = peaks
-    second = regions.fields[1]
-    box_pixels = (second.box[1] - second.box[0]) * (second.box[3] - second.box[2])
-    assert len(regions.fields) == 2 and box_pixels > 20_000
+    loops, grid, mask, regions, peak, box_pixels = _two_plates_painted(monkeypatch, spec)
     for field in regions.fields:
         assert field.layout.count == 1 and not field.index.flags.writeable and not any(field.index.strides)
-    assert peak <= label.nbytes + box_pixels + 64_000
-    masked = layer_regions(points, offsets, area, parent, mask, grid, spec)
+    assert peak <= regions.label.nbytes + box_pixels + 64_000
+    masked = layer_regions(*loops, mask, grid, spec)
     assert masked.box == regions.box and np.array_equal(masked.base, regions.base)
     r0, r1, c0, c1 = regions.box
     solid = mask[r0:r1, c0:c1]
