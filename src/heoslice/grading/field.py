@@ -99,7 +99,8 @@ class FamilyField:
     """The sub-region index of one family over its pixel box.
 
     ``index``: (rows, cols) int16/int32, k in 1..N_R (valid on the family's solid
-    pixels; the caller masks; in :class:`LayerRegions` the outermost family's index,
+    pixels; the caller masks; one read-only value broadcast over the box for a family of one
+    sub-region without a mask; in :class:`LayerRegions` the outermost family's index,
     when its box is the layer's, is the label array itself); ``box`` = (row0, row1, col0, col1) of the grid;
     ``layout`` its rings and N_R; ``lattice``; ``nearest()`` gives per cell the nearest point
     on the starting rings (foot (2, cells_r, cells_c) mm) and its edge ((cells_r, cells_c)
