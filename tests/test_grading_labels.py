@@ -72,7 +72,7 @@ def test_layer_labels_from_the_packed_mask_alone_agree_on_solid_pixels():
     grid = grid_around(9.7)
     mask = solid_mask(points, offsets, grid)
     spec = RegionSpec(nozzle_mm=0.3)
-    masked = layer_regions(*loops, mask, grid, spec)
+    masked = layer_regions(points, offsets, area, parent, mask, grid, spec)
     packed = layer_regions(points, offsets, area, parent, None, grid, spec, np.packbits(mask, axis=1))
     assert packed.box == masked.box and np.array_equal(packed.base, masked.base)
     r0, r1, c0, c1 = masked.box
