@@ -194,3 +194,21 @@ def test_a_workers_error_reaches_the_parent_and_a_dead_worker_is_reported(tmp_pa
     with pytest.raises(RuntimeError, match="slice worker ended unexpectedly"):
         slice_to_stack(mesh, tmp_path / "b", spec)
     assert multiprocessing.active_children() == []
+
+
+def test_a_run_sent_to_a_worker_that_has_ended_is_the_dead_worker_error():
+    """Sending a run to a worker that already ended (its end of the pipe closed: killed between two runs) is the
+    one-line RuntimeError of a dead worker, with its exit status, not a BrokenPipeError from the pipe."""
+    import os
+    from multiprocessing import get_context
+
+    from heoslice.pipeline import parallel
+
+    ours, theirs = get_context("fork").Pipe()
+    process = get_context("fork").Process(target=os._exit, args=(5,))
+    process.start()
+    process.join()
+    theirs.close()
+    with pytest.raises(RuntimeError, match=r"^a slice worker ended unexpectedly \(exit status 5\)$"):
+        parallel._give(ours, process, (0, 1))
+    ours.close()

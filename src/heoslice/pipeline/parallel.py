@@ -180,7 +180,7 @@ def _run_on_workers(context: RunContext, runs: list[tuple[int, int]], workers: i
         for conn, (_, given) in pool.items():
             while waiting and len(given) < _RUNS_IN_FLIGHT:
                 given.append(waiting.pop())
-                conn.send(given[-1])
+                _give(conn, pool[conn][0], given[-1])
         while any(given for _, given in pool.values()):
             busy = {process.sentinel: conn for conn, (process, given) in pool.items() if given}
             for ready in wait_for([*busy.values(), *busy]):
@@ -193,12 +193,20 @@ def _run_on_workers(context: RunContext, runs: list[tuple[int, int]], workers: i
                 on_done(outcome)
                 if waiting:
                     given.append(waiting.pop())
-                    conn.send(given[-1])
+                    _give(conn, process, given[-1])
                 break
     finally:
         for conn, (process, _) in pool.items():
             conn.close()
             _end(process)
+
+
+def _give(conn, process, run: tuple[int, int]) -> None:
+    """Send a worker its next run; RuntimeError when it has ended (its end of the pipe is closed)."""
+    try:
+        conn.send(run)
+    except OSError:
+        raise _ended(process) from None
 
 
 def _answer(conn, process) -> tuple:
@@ -208,8 +216,13 @@ def _answer(conn, process) -> tuple:
             return conn.recv()
     except (EOFError, OSError):
         pass
+    raise _ended(process)
+
+
+def _ended(process) -> RuntimeError:
+    """The error of a worker that ended without answering (killed, out of memory), once it is reaped."""
     process.join(timeout=1.0)
-    raise RuntimeError(f"a slice worker ended unexpectedly (exit status {process.exitcode})")
+    return RuntimeError(f"a slice worker ended unexpectedly (exit status {process.exitcode})")
 
 
 def run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], None]) -> None:
