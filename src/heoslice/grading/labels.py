@@ -152,10 +152,9 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
         if not alone[number]:
             solid = solid & _family_mask(points, offsets, family, grid, field.box)
         # in the labels' own width: an int16 index plus base's int64 would make a 4x wider copy of the box
-        constant = _constant(field.index)
         if family.nested:
             value = base[number]
-        elif constant is not None:  # one sub-region: one label, no array of the box
+        elif (constant := _constant(field.index)) is not None:  # one sub-region: one label, no array of the box
             value = base[number] + constant
         else:
             value = np.add(field.index, base[number], dtype=label.dtype)

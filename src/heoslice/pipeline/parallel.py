@@ -177,10 +177,10 @@ def _run_on_workers(context: RunContext, runs: list[tuple[int, int]], workers: i
             process = _start(_enter_worker, _serve, theirs, context, cache)
             theirs.close()
             pool[ours] = (process, [])
-        for conn, (_, given) in pool.items():
+        for conn, (process, given) in pool.items():
             while waiting and len(given) < _RUNS_IN_FLIGHT:
                 given.append(waiting.pop())
-                _give(conn, pool[conn][0], given[-1])
+                _give(conn, process, given[-1])
         while any(given for _, given in pool.values()):
             busy = {process.sentinel: conn for conn, (process, given) in pool.items() if given}
             for ready in wait_for([*busy.values(), *busy]):
