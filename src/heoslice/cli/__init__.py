@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: run the group, map errors to one line and an exit status."""
     args = sys.argv[1:] if argv is None else argv
     if argv is None:
-        parallel.single_blas_thread()
+        parallel.command_environment()
     debug = "--debug" in args
     state: dict = {}
     interrupt_on_terminating_signals()

@@ -9,8 +9,8 @@ SIGTERM, SIGHUP: the parent reports them) and is killed by the kernel when the p
 (``PR_SET_PDEATHSIG``), so nothing writes into the stack after the parent has gone.
 
 Importing this module loads nothing but the standard library, so that the ``heoslice`` command can set its
-process's BLAS threads (:func:`single_blas_thread`) before numpy loads; numpy and the pipeline's stages are
-imported by the functions that use them.
+process's environment for numpy (:func:`command_environment`) before numpy loads; numpy and the pipeline's
+stages are imported by the functions that use them.
 """
 
 from __future__ import annotations
@@ -42,11 +42,19 @@ _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 _KEPT_BYTES, _HEAP_BLOCK_BYTES = 2**31 - 1, 32 << 20  # mallopt takes a C int
 
 
-def single_blas_thread() -> None:
-    """For the ``heoslice`` command's own process, before numpy loads: one OpenBLAS thread. heoslice makes no
-    BLAS call worth threads (its workers are processes), and OpenBLAS's pools, started when numpy and scipy
-    load it, only spin. A value the user set is kept."""
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+#: What the ``heoslice`` command sets in its own environment before numpy loads, unless the user set it, and why:
+#: heoslice makes no BLAS call worth threads (its workers are processes), and OpenBLAS's pools, started when
+#: numpy and scipy load it, only spin; numpy's transparent huge pages for large arrays make each fresh
+#: array's first touch zero (and, where the kernel defragments for them, compact) 2 MB at a time, which
+#: costs a large mesh's load more system time than the faults it saves (benchmarks/README.md).
+COMMAND_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "NUMPY_MADVISE_HUGEPAGE": "0"}
+
+
+def command_environment() -> None:
+    """For the ``heoslice`` command's own process, before numpy loads: :data:`COMMAND_ENVIRONMENT`'s values,
+    each where the user has not set the variable (the workers it forks inherit what numpy made of them)."""
+    for variable, value in COMMAND_ENVIRONMENT.items():
+        os.environ.setdefault(variable, value)
 
 
 def skip_exit_collection() -> None:
