@@ -1,6 +1,6 @@
-"""Builds the one compiled part of heoslice: the grading kernels, compiled ahead of time from their numba
-sources (heoslice.grading.exports) into the extension module heoslice.grading._compiled, for this machine's
-processor. Everything else is in pyproject.toml."""
+"""Builds the one compiled part of heoslice: the rasteriser's and the grading's kernels, compiled ahead of
+time from their numba sources (heoslice.kernel_exports) into the extension module heoslice._compiled, for
+this machine's processor. Everything else is in pyproject.toml."""
 
 import os
 import sys
@@ -19,15 +19,16 @@ class BuildKernels(build_ext):
         # the kernels' modules need numpy and numba only: their packages are entered without running their
         # __init__, which would load every stage (and every dependency) of heoslice
         source = Path(__file__).resolve().parent / "src" / "heoslice"
-        for name, path in (("heoslice", source), ("heoslice.grading", source / "grading")):
+        for name, path in (("heoslice", source), ("heoslice.layers", source / "layers"),
+                           ("heoslice.grading", source / "grading")):
             package = types.ModuleType(name)
             package.__path__ = [str(path)]
             sys.modules[name] = package
-        from heoslice.grading.exports import compile_kernels
+        from heoslice.kernel_exports import compile_kernels
 
         target = Path(self.get_ext_fullpath(ext.name)).resolve()
         target.parent.mkdir(parents=True, exist_ok=True)
         compile_kernels(target.parent, target.name)
 
 
-setup(ext_modules=[Extension("heoslice.grading._compiled", sources=[])], cmdclass={"build_ext": BuildKernels})
+setup(ext_modules=[Extension("heoslice._compiled", sources=[])], cmdclass={"build_ext": BuildKernels})

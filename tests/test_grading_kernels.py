@@ -786,7 +786,7 @@ def test_droplet_bits_takes_every_layers_tile_through_one_compiled_signature():
     compiled just in time, numba makes one version, not one per layout."""
     from heoslice.grading.droplets_kernels import _droplet_bits
     from heoslice.grading.halftone import layer_tile
-    from heoslice.grading.jit import CHECK_VARIABLE, compiled_module
+    from heoslice.jit import CHECK_VARIABLE, compiled_module
 
     label = np.ones((4, 16), np.int16)
     table = np.ones((2, 256), np.int8)

@@ -7,7 +7,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from heoslice.grading.jit import JIT, f64, helper, i64, kernel
+from heoslice.jit import JIT, f64, helper, i64, kernel
 
 
 class EdgeArrays(NamedTuple):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from heoslice.grading.edges_kernels import point_to_edge
-from heoslice.grading.jit import EXACT, f64, i64, kernel
+from heoslice.jit import EXACT, f64, i64, kernel
 
 
 @kernel(EXACT)

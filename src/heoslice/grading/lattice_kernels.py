@@ -9,7 +9,7 @@ import numpy as np
 
 from heoslice.grading.edges import RingEdges, following_edges
 from heoslice.grading.edges_kernels import EdgeArrays, edge_arrays
-from heoslice.grading.jit import JIT, f64, i64, kernel
+from heoslice.jit import JIT, f64, i64, kernel
 
 
 class LatticeFrame(NamedTuple):

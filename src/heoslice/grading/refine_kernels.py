@@ -13,7 +13,7 @@ from heoslice.grading.field_kernels import (
     inverse_distance,
     nearest_end,
 )
-from heoslice.grading.jit import JIT, f32, f64, helper, i64, kernel
+from heoslice.jit import JIT, f32, f64, helper, i64, kernel
 
 
 class CellField(NamedTuple):

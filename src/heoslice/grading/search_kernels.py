@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from heoslice.grading.edges_kernels import EdgeArrays, edge_arrays, point_to_edge
-from heoslice.grading.jit import JIT, f32, f64, helper, kernel
+from heoslice.jit import JIT, f32, f64, helper, kernel
 
 #: Children per node of the edge hierarchy (:func:`edge_tree`).
 FAN = 8

@@ -13,6 +13,7 @@ from heoslice.layers.rasterising import (
     count_solid,
     grid_for,
     packed_mask,
+    packed_mask_and_count,
     paint_contour,
     render_layer,
     solid_mask,
@@ -29,7 +30,7 @@ from heoslice.layers.slicing import (
 
 __all__ = [
     "LAYER_COUNT_TOLERANCE", "MM_PER_INCH", "Contours", "Grid", "Sections", "build_contours", "contour_pixels",
-    "count_solid", "face_z_range", "grid_for", "interpolate_at", "layer_count", "packed_mask", "paint_contour",
-    "plane_chunks", "plane_heights", "render_layer", "segments_per_plane", "slice_mesh", "slice_planes",
-    "solid_mask",
+    "count_solid", "face_z_range", "grid_for", "interpolate_at", "layer_count", "packed_mask", "packed_mask_and_count",
+    "paint_contour", "plane_chunks", "plane_heights", "render_layer", "segments_per_plane", "slice_mesh",
+    "slice_planes", "solid_mask",
 ]

@@ -2,11 +2,10 @@
 
 A pixel is solid when its centre lies inside the layer's region: the loops wind
 more than 0 times around it, so a cavity (clockwise loop) stays empty and a nested
-shell (a second counter-clockwise loop) stays solid. The mask is built scanline-style without a
-Python loop: loop edges are crossed with the pixel-row centres, the winding number
+shell (a second counter-clockwise loop) stays solid. The mask is built scanline-style by a
+compiled kernel: loop edges are crossed with the pixel-row centres, the winding number
 is accumulated over each row's sorted crossings, and the solid spans are filled
-straight into a packed 1-bit image (the TIFF layout) by a running XOR over bytes.
-Work is confined to the rows and byte columns the layer covers.
+straight into a packed 1-bit image (the TIFF layout).
 """
 
 from __future__ import annotations
@@ -16,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from heoslice.errors import InputError
+from heoslice.jit import f64, i64
+from heoslice.layers.rasterising_kernels import _packed_mask
 
 MM_PER_INCH = 25.4
 
@@ -72,104 +73,27 @@ def grid_for(bounds_xy: np.ndarray, dpi: tuple[float, float], margin_mm: float =
                 y_top=float(centre[1] + height * py / 2.0), px=px, py=py)
 
 
-def _loop_edges(points: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Start and end points ((e, 2) each) of every edge of every closed loop."""
-    following = np.arange(1, len(points) + 1)
-    following[offsets[1:] - 1] = offsets[:-1]
-    return points, np.take(points, following, axis=0)
+def packed_mask_and_count(points: np.ndarray, offsets: np.ndarray, grid: Grid) -> tuple[np.ndarray, int]:
+    """The solid mask as packed bits, (height, ceil(width / 8)) uint8 most significant bit first (the
+    layout of a 1-bit TIFF row and of ``np.packbits(mask, axis=1)``), and its number of solid pixels.
 
-
-def row_crossings(points: np.ndarray, offsets: np.ndarray, grid: Grid):
-    """Where loop edges cross pixel-row centres.
-
-    Returns (row (k,) int, column (k,) int, sign (k,) int8): every pixel of that row
-    whose column is >= ``column`` gets ``sign`` added to its winding number (+1 for
-    an edge going down the image, i.e. the left side of a counter-clockwise loop).
-    A row centre exactly at an edge end counts once (rows r with v_low < r <= v_high,
-    v the row coordinate); a pixel centre exactly on an edge counts as right of it.
+    points: (p, 2) float, mm, loop after loop; offsets: (loops + 1,) int. A row centre exactly at an edge
+    end counts once (rows r with v_low < r <= v_high, v the row coordinate); a pixel centre exactly on an
+    edge counts as right of it. One compiled pass (:mod:`heoslice.layers.rasterising_kernels`) crosses the
+    edges with the row centres, sorts each row's crossings and fills the solid spans byte by byte; the
+    zeroed image is allocated lazily, so rows the loops do not reach cost nothing.
     """
-    start, end = _loop_edges(points, offsets)
-    u0 = (start[:, 0] - grid.x_left) / grid.px - 0.5
-    u1 = (end[:, 0] - grid.x_left) / grid.px - 0.5
-    v0 = (grid.y_top - start[:, 1]) / grid.py - 0.5
-    v1 = (grid.y_top - end[:, 1]) / grid.py - 0.5
-    first = np.clip(np.floor(np.minimum(v0, v1)) + 1, 0, grid.height).astype(np.int64)
-    last = np.clip(np.floor(np.maximum(v0, v1)) + 1, 0, grid.height).astype(np.int64)
-    counts = last - first
-    edge = np.repeat(np.arange(len(u0)), counts)
-    row = np.repeat(first, counts) + (np.arange(len(edge)) - np.repeat(np.cumsum(counts) - counts, counts))
-    dv = v1[edge] - v0[edge]
-    u = u0[edge] + (row - v0[edge]) / dv * (u1[edge] - u0[edge])
-    column = np.clip(np.ceil(u), 0, grid.width).astype(np.int64)
-    return row, column, np.where(dv > 0, 1, -1).astype(np.int8)
-
-
-def span_boundaries(row: np.ndarray, column: np.ndarray, sign: np.ndarray, width: int):
-    """Columns where the fill (winding number > 0) switches between empty and solid, per row.
-
-    Crossings are summed per (row, column), accumulated along each row (every row's
-    crossings sum to zero for closed loops, so one running sum serves all rows), and
-    a boundary is kept where "winding > 0" changes. Returns (row (b,), column (b,)),
-    an even number per row: solid spans are [column[2i], column[2i+1]).
-    """
-    key = row * (width + 1) + column
-    order = np.argsort(key, kind="stable")
-    key = key[order]
-    starts = np.concatenate([[0], np.nonzero(np.diff(key))[0] + 1]) if len(key) else np.zeros(0, np.int64)
-    winding = np.cumsum(np.add.reduceat(sign[order].astype(np.int64), starts)) if len(key) else np.zeros(0)
-    inside = winding > 0
-    changed = inside != np.concatenate([[False], inside[:-1]])
-    kept = key[starts][changed]
-    return kept // (width + 1), kept % (width + 1)
-
-
-def prefix_xor_bytes(steps: np.ndarray) -> np.ndarray:
-    """Running XOR along each row of a (rows, bytes) uint8 array, 64 bits at a time.
-
-    Bytes are viewed as little-endian 64-bit words: a word's bytes are prefix-XORed
-    with three shifts, then each word is XORed with the running XOR of the words
-    before it, so the sequential part works on 1/8 of the bytes.
-    """
-    rows, count = steps.shape
-    words = -(-count // 8)
-    padded = np.zeros((rows, words * 8), dtype=np.uint8)
-    padded[:, :count] = steps
-    word = padded.view("<u8")
-    word ^= word << np.uint64(8)
-    word ^= word << np.uint64(16)
-    word ^= word << np.uint64(32)
-    carry = (word >> np.uint64(56)) * np.uint64(0x0101010101010101)
-    carry = np.bitwise_xor.accumulate(carry, axis=1)
-    word[:, 1:] ^= carry[:, :-1]
-    return padded[:, :count]
+    packed = np.zeros((grid.height, -(-grid.width // 8)), dtype=np.uint8)
+    if len(points) == 0:
+        return packed, 0
+    solid = _packed_mask(f64(points), i64(offsets), int(grid.width), int(grid.height), float(grid.x_left),
+                         float(grid.y_top), float(grid.px), float(grid.py), packed)
+    return packed, int(solid)
 
 
 def packed_mask(points: np.ndarray, offsets: np.ndarray, grid: Grid) -> np.ndarray:
-    """The solid mask as packed bits: (height, ceil(width / 8)) uint8, most significant bit first.
-
-    This is the layout of a 1-bit TIFF row (and of ``np.packbits(mask, axis=1)``).
-    Each span [a, b) is written as two toggles of "all bits from here on"; a running
-    XOR along the row then fills the spans, touching bytes instead of pixels and only
-    the rows and byte columns the loops cover.
-    """
-    row_bytes = -(-grid.width // 8)
-    packed = np.zeros((grid.height, row_bytes), dtype=np.uint8)
-    if len(points) == 0:
-        return packed
-    row, column = span_boundaries(*row_crossings(points, offsets, grid), grid.width)
-    if len(row) == 0:
-        return packed
-    row0, row1 = int(row.min()), int(row.max()) + 1
-    byte = column >> 3
-    byte0, byte1 = int(byte.min()), int(byte.max()) + 2
-    partial = (0xFF >> (column & 7)).astype(np.uint8)
-    steps = np.zeros((row1 - row0, byte1 - byte0), dtype=np.uint8)
-    np.bitwise_xor.at(steps, (row - row0, byte - byte0), partial)
-    np.bitwise_xor.at(steps, (row - row0, byte - byte0 + 1), partial ^ np.uint8(0xFF))
-    filled = prefix_xor_bytes(steps)
-    stop = min(byte1, row_bytes)
-    packed[row0:row1, byte0:stop] = filled[:, : stop - byte0]
-    return packed
+    """The solid mask as packed bits (:func:`packed_mask_and_count` without the count)."""
+    return packed_mask_and_count(points, offsets, grid)[0]
 
 
 def count_solid(packed: np.ndarray) -> int:
@@ -221,8 +145,7 @@ def render_layer(points: np.ndarray, offsets: np.ndarray, grid: Grid, *,
     alpha 255 solid, interior ``base_color``, contour pixels coloured from the
     nearest intersection point.
     """
-    packed = packed_mask(points, offsets, grid)
-    solid = count_solid(packed)
+    packed, solid = packed_mask_and_count(points, offsets, grid)
     if point_colors is None:
         return packed, solid
     mask = np.unpackbits(packed, axis=1, count=grid.width).astype(bool)

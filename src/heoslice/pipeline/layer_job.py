@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from heoslice.layers.contours import Contours
-from heoslice.layers.rasterising import Grid, count_solid, packed_mask, render_layer
+from heoslice.layers.rasterising import Grid, count_solid, packed_mask_and_count, render_layer
 from heoslice.layers.slicing import interpolate_at
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec, channel_name
@@ -124,14 +124,13 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
         cache.grading = GradingCache()
     grading_cache = None if cache is None else cache.grading
     started = time.perf_counter()
-    packed = packed_mask(job.points, job.offsets, job.grid)
+    packed, solid = packed_mask_and_count(job.points, job.offsets, job.grid)
     if graded.channel_paths is not None:
         planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, None,
                                 job.grid, graded.spec, job.index, point_material=graded.point_material,
                                 packed=packed, cache=grading_cache)
         rendered = time.perf_counter()
         width = job.grid.width
-        solid = count_solid(packed)
         level = deflate_level(True)
         data = _solid_tiff(packed, solid, job, cache, level)
         pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm,

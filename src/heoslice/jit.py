@@ -1,9 +1,10 @@
-"""How the grading kernels are compiled, and the one conversion of their array arguments.
+"""How the compiled kernels are chosen, and the one conversion of their array arguments.
 
-The kernels are written once, as numba functions in the ``*_kernels`` modules. Installing heoslice compiles
-them ahead of time into the extension module ``heoslice.grading._compiled`` (:mod:`heoslice.grading.exports`,
-run by ``setup.py``), so that a graded slice loads neither numba nor LLVM: they cost every process of a
-slice its largest fixed share of memory and start-up time (benchmarks/README.md). :func:`kernel` hands each
+The kernels are written once, as numba functions in the ``*_kernels`` modules beside the code they speed
+up (the rasteriser's in ``layers``, the grading's in ``grading``). Installing heoslice compiles them ahead
+of time into the extension module ``heoslice._compiled`` (:mod:`heoslice.kernel_exports`, run by
+``setup.py``), so that a slice loads neither numba nor LLVM: they cost every process of a slice its
+largest fixed share of memory and start-up time (benchmarks/README.md). :func:`kernel` hands each
 module the compiled function when that extension was built from these very sources (its digest matches),
 else numba's just-in-time compilation of the same function, as it does whenever ``HEOSLICE_JIT=1`` (the
 ahead-of-time build itself, and tests that compare the two). :func:`helper` marks a function that only
@@ -35,7 +36,7 @@ JIT_VARIABLE = "HEOSLICE_JIT"
 CHECK_VARIABLE = "HEOSLICE_CHECK_KERNELS"
 #: The extension module the ahead-of-time build writes, and its exports of its sources' digest and of its
 #: kernels' argument layouts (JSON: export name -> one layout per argument).
-COMPILED_MODULE = "heoslice.grading._compiled"
+COMPILED_MODULE = "heoslice._compiled"
 DIGEST_EXPORT, LAYOUTS_EXPORT = "source_digest", "argument_layouts"
 #: Label widths (bits) a kernel taking a label array is exported for: int16 labels, int32 past 32000.
 LABEL_BITS = (16, 32)
@@ -53,13 +54,20 @@ class Entry:
 ENTRIES: list[Entry] = []
 
 
+def kernel_sources() -> list[Path]:
+    """Every module the compiled kernels are made from: this one, the export table and each stage's
+    ``*_kernels`` modules, in a fixed order."""
+    package = Path(__file__).parent
+    return [Path(__file__), package / "kernel_exports.py", *sorted(package.glob("*/*_kernels.py"))]
+
+
 def source_digest() -> int:
-    """A 60-bit digest of every module the compiled kernels are made from (this one, the ``*_kernels``
-    modules and the export table), so that an extension built from other sources is never used."""
-    here = Path(__file__).parent
+    """A 60-bit digest of :func:`kernel_sources`, so that an extension built from other sources is never
+    used."""
+    package = Path(__file__).parent
     digest = hashlib.sha256()
-    for path in sorted([Path(__file__), here / "exports.py", *here.glob("*_kernels.py")]):
-        digest.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
+    for path in kernel_sources():
+        digest.update(path.relative_to(package).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
     return int(digest.hexdigest()[:15], 16)
 
 
@@ -109,7 +117,7 @@ def _compiled_export(name: str) -> Callable:
 
 
 def layout_problem(value, layout) -> str | None:
-    """How ``value`` differs from an export's argument layout (:func:`heoslice.grading.exports.layout_of`:
+    """How ``value`` differs from an export's argument layout (:func:`heoslice.kernel_exports.layout_of`:
     "DTYPE NDIMd" an array, "int", "float" or "bool" a scalar, a list a tuple), or None."""
     if isinstance(layout, list):
         if not isinstance(value, tuple) or len(value) != len(layout):

@@ -1,4 +1,4 @@
-"""heoslice.grading.jit: the kernels compiled ahead of time are the ones an installed heoslice runs, they make
+"""heoslice.jit: the kernels compiled ahead of time are the ones an installed heoslice runs, they make
 the same stacks as numba's just-in-time compilation of the same sources, and they refuse (under the tests'
 HEOSLICE_CHECK_KERNELS) arguments their compiled code would misread."""
 
@@ -13,9 +13,8 @@ import numpy as np
 import pytest
 from helpers import modules_loaded_by_command
 
-from heoslice import procedural
-from heoslice.grading import jit
-from heoslice.grading.jit import CHECK_VARIABLE, JIT_VARIABLE, compiled_module, layout_problem, source_digest
+from heoslice import jit, procedural
+from heoslice.jit import CHECK_VARIABLE, JIT_VARIABLE, compiled_module, layout_problem, source_digest
 
 def write_mesh(mesh, path: Path) -> Path:
     path.write_bytes(mesh.export(file_type="ply", encoding="binary"))
@@ -31,7 +30,7 @@ def test_installed_heoslice_runs_the_kernels_compiled_from_these_sources():
     from heoslice.grading import field_kernels, search_kernels
 
     module = compiled_module()
-    assert module is not None, "heoslice.grading._compiled missing or built from other sources: reinstall"
+    assert module is not None, "heoslice._compiled missing or built from other sources: reinstall"
     assert module.source_digest() == source_digest()
     assert "numba" not in type(search_kernels._candidates).__module__
     assert field_kernels._expand_planes.__wrapped__.__name__ == "_expand_planes"  # chosen by label width
@@ -120,12 +119,16 @@ def test_the_compiled_kernels_are_set_aside_when_stale_or_asked_to_be(monkeypatc
 
 
 def test_the_digest_covers_every_kernel_source(tmp_path, monkeypatch):
-    """source_digest reads jit.py, exports.py and every *_kernels.py: a change to any of them changes it."""
-    here = Path(jit.__file__).parent
-    names = ["jit.py", "exports.py", *sorted(p.name for p in here.glob("*_kernels.py"))]
-    assert len(names) >= 9
+    """source_digest reads jit.py, kernel_exports.py and every stage's *_kernels.py: a change to any of them
+    changes it."""
+    package = Path(jit.__file__).parent
+    names = ["jit.py", "kernel_exports.py", *sorted(p.relative_to(package).as_posix()
+                                                    for p in package.glob("*/*_kernels.py"))]
+    assert "layers/rasterising_kernels.py" in names and "grading/lattice_kernels.py" in names
+    assert [path.relative_to(package).as_posix() for path in jit.kernel_sources()] == names
     for name in names:
-        (tmp_path / name).write_bytes((here / name).read_bytes())
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_bytes((package / name).read_bytes())
     monkeypatch.setattr(jit, "__file__", str(tmp_path / "jit.py"))
     original = source_digest()
     assert original == compiled_module().source_digest()

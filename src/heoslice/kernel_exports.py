@@ -1,7 +1,8 @@
-"""The ahead-of-time build of the grading kernels: what each kernel Python calls takes, and the compile.
+"""The ahead-of-time build of every compiled kernel (the rasteriser's and the grading's): what each kernel
+Python calls takes, and the compile.
 
 Run by ``setup.py`` when heoslice is installed (never at run time: it needs numba, and kernels compiled
-just in time, ``HEOSLICE_JIT=1``). Each kernel listed in :data:`heoslice.grading.jit.ENTRIES` is exported
+just in time, ``HEOSLICE_JIT=1``). Each kernel listed in :data:`heoslice.jit.ENTRIES` is exported
 with the argument types of :data:`ARGUMENTS` (C-ordered arrays; the Python wrappers make them so) and the
 return type numba infers for them, once per label width where it takes labels; a kernel and a table that
 disagree stop the build. The extension also exports the digest of the sources it was made from and every
@@ -27,7 +28,7 @@ from heoslice.grading import (
     refine_kernels,
     search_kernels,
 )
-from heoslice.grading.jit import (
+from heoslice.jit import (
     COMPILED_MODULE,
     DIGEST_EXPORT,
     ENTRIES,
@@ -36,6 +37,7 @@ from heoslice.grading.jit import (
     export_name,
     source_digest,
 )
+from heoslice.layers import rasterising_kernels
 
 f8, i8, b1 = types.float64, types.int64, types.boolean
 f8_1, f8_2, f8_3, f8_4 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1], types.float64[:, :, :, ::1]
@@ -72,6 +74,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     field_kernels._expand_planes: lambda bits: (f8_2, f8_2, f8_2, b_2, PIXELS, f8, _target(bits)),
     field_kernels._curve_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, types.UniTuple(f8_2, 6), f8),
     labels_kernels._disc_winding: (f8_2, i8_1, i8_1, f8, f8, f8),
+    rasterising_kernels._packed_mask: (f8_2, i8_1, i8, i8, f8, f8, f8, f8, u1_2),
     lattice_kernels._signed_feet: (i8_2, FRAME, EDGES, b_2, b1),
     lattice_kernels._inside_centres: (EDGES, f8_1, FRAME, i8, i8),
     lattice_kernels._feet: (f8_1, f8_1, i8_1, EDGES),
