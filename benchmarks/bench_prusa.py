@@ -5,7 +5,7 @@ For each mesh, runs ``heoslice slice MESH --layer 0.1 --dpi 600 -o DIR --force``
 times each, and prints the median and min-max wall time, peak memory (largest process,
 as /usr/bin/time -v reports it, and the whole process tree), output size and the ratio
 heoslice / PrusaSlicer. It then checks that both stacks agree: per-layer solid pixel
-counts within 1 %. ``--profile`` adds a cProfile of heoslice on the organ, split by stage.
+counts within 1 % (or 2 pixels, on slivers). ``--profile`` adds a cProfile of heoslice on the organ, split by stage.
 ``--graded`` also times a graded stack with droplet masks (``GRADED_ARGS`` added to the
 same heoslice command) in the same alternation, reports its ratio to PrusaSlicer's
 one-material time, and checks that its layers' solid pixels equal the one-material
@@ -349,7 +349,7 @@ def table(results: list[dict]) -> str:
             bad_spots = [s for s in a["spot_checks"] if s["manifest"] != s["decoded"]]
             extra.append("heoslice manifest counts match decoded TIFFs"
                          if not bad_spots else f"heoslice manifest vs decoded TIFF MISMATCH: {bad_spots}")
-            extra.append("AGREE (every compared layer within 1 %)" if a["ok"] else "DISAGREE (see worst layers)")
+            extra.append("AGREE (every compared layer within 1 % or 2 px)" if a["ok"] else "DISAGREE (see worst layers)")
             lines.append(" " * w + "; ".join(extra))
     for r in results:
         for tool, message in r["failed"].items():
