@@ -163,7 +163,8 @@ def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
     and one more for the columns without a table entry, four fields to an int64 word. A row
     is then halftoned 16 pixels at a time, OR-ing each pixel's word masked to its own column
     (no branch, no compare per channel); the last channel's byte is the solid byte less the
-    others', and the pixels without a table entry take the general per-pixel mix. With one
+    others', and the pixels without a table entry take the general per-pixel mix (its running sums made
+    once per label and lattice cell along a row, each pixel then compares its threshold). With one
     word (K <= 4), the chunks inside the labels go to :func:`_droplet_run` until one has such
     a pixel; after it, the run resumes past the next chunk without any (no call per chunk
     along a family of per-pixel mixes)."""
@@ -185,6 +186,8 @@ def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
     acc = np.zeros(words, dtype=np.int64)
     extra = np.zeros(channels, dtype=np.int64)
     mix = np.empty(channels, dtype=np.float32)
+    sums = np.empty(channels, dtype=np.float32)
+    scale = np.float32(1.0)
     zero, one = np.float32(0.0), np.float32(1.0)
     empty = label.ravel()[:0]
     for row in range(packed.shape[0]):
@@ -198,6 +201,7 @@ def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
         left, right = (c0, c0 + cols) if inside else (0, 0)
         phase = row & wrap
         thresholds = tile[phase]
+        mixed_label, mixed_until = -1, 0  # the label and the column bound of the cell whose mix ``sums`` holds
         chunk, end = first >> 1, (last >> 1) + 1
         run_from, run_to = end, end
         if words == 1 and inside:
@@ -240,21 +244,28 @@ def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
                         continue
                     c = col + bit
                     number = line[c - c0]
-                    family = family_of_label[number]
-                    cell = layout[family, 2]
-                    j = (c - layout[family, 1]) // cell
-                    start = layout[family, 4] + (((row - layout[family, 0]) // cell) * layout[family, 3] + j) * channels
-                    f = fraction[number]
-                    total = zero
-                    for m in range(channels):
-                        mix[m] = mixes[start + m] + f * (target[m] - mixes[start + m])
-                        total += mix[m]
-                    t = thresholds[c & wrap] * (total if total > zero else one)
+                    if number != mixed_label or c >= mixed_until:
+                        # a new label or lattice cell: its eq. 1 mix, kept as running sums for the cell's pixels
+                        family = family_of_label[number]
+                        cell = layout[family, 2]
+                        j = (c - layout[family, 1]) // cell
+                        start = (layout[family, 4]
+                                 + (((row - layout[family, 0]) // cell) * layout[family, 3] + j) * channels)
+                        f = fraction[number]
+                        total = zero
+                        for m in range(channels):
+                            mix[m] = mixes[start + m] + f * (target[m] - mixes[start + m])
+                            total += mix[m]
+                        scale = total if total > zero else one
+                        running = zero
+                        for m in range(channels - 1):
+                            running += mix[m]
+                            sums[m] = running
+                        mixed_label, mixed_until = number, layout[family, 1] + (j + 1) * cell
+                    t = thresholds[c & wrap] * scale
                     pick = channels - 1
-                    running = zero
                     for m in range(channels - 1):
-                        running += mix[m]
-                        if t < running:
+                        if t < sums[m]:
                             pick = m
                             break
                     extra[pick] |= 32768 >> bit
