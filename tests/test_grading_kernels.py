@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import shapely
 from helpers import brute_squared, random_rings, ring_weights, tree_of
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from heoslice.grading.edges import ring_edges
@@ -752,6 +752,28 @@ def test_droplet_bits_is_the_per_pixel_choice_packed(seed, channels, height, wid
     tile = layer_tile(layer)
     level = np.rint(tile * 256 - 0.5).astype(np.int64)
     assert_droplet_bits_are_the_per_pixel_choice(rng, case, channels, tile, level, layer)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.sampled_from([1, 2, 3, 5]), st.integers(2, 30), st.integers(1, 70))
+def test_droplet_bits_reads_labels_broadcast_down_their_box_as_their_copy(seed, channels, height, width):
+    """Labels that are one value, or one row, seen at every row of the box (a layer of one family of one
+    sub-region: no array of the box) make the same masks as the same labels written out row by row."""
+    from heoslice.grading.halftone import layer_tile
+
+    rng = np.random.default_rng(seed)
+    case = random_halftone_case(rng, channels, height, width, np.int16)
+    rows, cols = case["label"].shape
+    assume(rows > 1 and cols > 0)
+    tile = layer_tile(int(rng.integers(0, 1000)))
+    args = (np.packbits(case["solid"], axis=1), case["family_of_label"], case["fraction"], case["layout"],
+            case["mixes"], case["target"], tile, case["base"])
+    value = np.int16(rng.integers(0, len(case["table"])))
+    for label in (np.broadcast_to(value, (rows, cols)), np.broadcast_to(case["label"][:1], (rows, cols))):
+        assert label.strides[0] == 0
+        planes = np.zeros((channels, height, -(-width // 8)), np.uint8)
+        expected = halftone_bits(label.copy(), case["origin"], *args, planes.copy(), case["table"])
+        assert np.array_equal(halftone_bits(label, case["origin"], *args, planes, case["table"]), expected)
 
 
 @pytest.mark.parametrize("size", [1, 2, 4, 8, 16, 32, 64])

@@ -60,8 +60,9 @@ def _target(bits: int) -> types.Type:
 
 
 def _layer(bits: int) -> types.Type:
-    """droplet_bits' labelled layer: unsigned labels ``bits`` wide, their origin, the packed solid mask."""
-    return types.Tuple((types.Array(getattr(types, f"uint{bits}"), 2, "C"), i8, i8, u1_2))
+    """droplet_bits' labelled layer: unsigned labels ``bits`` wide, their origin, the packed solid mask and
+    the labels' rows (the array holds them, or one row for all)."""
+    return types.Tuple((types.Array(getattr(types, f"uint{bits}"), 2, "C"), i8, i8, u1_2, i8))
 
 
 #: Argument types of every kernel that Python calls, by kernel (numba's dispatcher); a function of the label

@@ -10,8 +10,9 @@ from heoslice.jit import EXACT, f32, helper, i64, kernel
 
 
 class LabelledLayer(NamedTuple):
-    """A layer's labels ((rows, cols) int, 0 empty) from pixel (row0, col0), and its packed solid mask
-    ((h, ceil(w/8)) uint8, rows MSB first, padding bits clear)."""
+    """A layer's labels ((rows, cols) int, 0 empty; any strides, one value broadcast over the box too) from
+    pixel (row0, col0), and its packed solid mask ((h, ceil(w/8)) uint8, rows MSB first, padding bits
+    clear)."""
 
     label: np.ndarray
     row0: int
@@ -168,7 +169,7 @@ def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
     word (K <= 4), the chunks inside the labels go to :func:`_droplet_run` until one has such
     a pixel; after it, the run resumes past the next chunk without any (no call per chunk
     along a family of per-pixel mixes)."""
-    label, r0, c0, packed = layer
+    label, r0, c0, packed, rows = layer
     family_of_label, fraction, layout, mixes, target = mixing
     tile, level, table, base_channel = dither
     channels = planes.shape[0]
@@ -176,7 +177,8 @@ def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
     wrap = size - 1
     blocks = max(size, 16) // 16
     words = (channels + 3) // 4
-    rows, cols = label.shape
+    cols = label.shape[1]
+    repeated = label.shape[0] == 1  # one row of labels for every row of the box
     width = packed.shape[1]
     spread = np.int64(0x0001000100010001)
     pattern = _pattern_words(table, level, channels, size, words, blocks)
@@ -197,7 +199,7 @@ def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
             continue
         r = row - r0
         inside = 0 <= r < rows
-        line = label[r] if inside else empty
+        line = label[0 if repeated else r] if inside else empty
         left, right = (c0, c0 + cols) if inside else (0, 0)
         phase = row & wrap
         thresholds = tile[phase]
@@ -307,10 +309,14 @@ def droplet_bits(layer: LabelledLayer, mixing: LayerMixes, dither: Dither, plane
     size = tile.shape[0]
     # C order whichever symmetry the layer's tile has (a transposed one is Fortran-ordered): one compiled signature
     level = np.ascontiguousarray(np.rint(np.asarray(tile, dtype=np.float64) * size * size - 0.5).astype(np.int64))
-    label = np.ascontiguousarray(layer.label)
+    label = layer.label
+    rows = label.shape[0]
+    if rows > 1 and label.strides[0] == 0:
+        label = label[:1]  # labels that do not change down the box: their one row serves every row
+    label = np.ascontiguousarray(label)
     if label.dtype.kind == "i":
         label = label.view(f"u{label.itemsize}")
-    layer = (label, int(layer.row0), int(layer.col0), np.ascontiguousarray(layer.packed))
+    layer = (label, int(layer.row0), int(layer.col0), np.ascontiguousarray(layer.packed), rows)
     mixing = (i64(mixing.family_of_label), f32(mixing.fraction), i64(mixing.layout), f32(mixing.mixes),
               f32(mixing.target))
     return _droplet_bits(layer, mixing, (f32(tile), level, np.ascontiguousarray(table, dtype=np.int8),

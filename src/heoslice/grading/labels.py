@@ -37,7 +37,8 @@ class LayerRegions:
     ``label`` ((rows, cols) int16/int32 over pixel ``box`` = (row0, row1, col0, col1))
     numbers every solid pixel's sub-region across the layer: family f's sub-region k
     is ``base[f] + k`` (k = 1..N_R; a nested shell keeps its own material: k = 0),
-    0 is empty. ``families``/``fields`` are aligned, outermost first (the first field's
+    0 is empty; a layer of one family of one sub-region labelled from the packed mask has one
+    value seen at every pixel (read-only, no memory). ``families``/``fields`` are aligned, outermost first (the first field's
     ``index`` may share the label's memory: it is labelled in place, not copied).
     """
 
@@ -132,6 +133,9 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
     ``copy_first`` (other families paint over it and the field serves the next layer)."""
     dtype = label_dtype(int(base[-1]))
     first = fields[0]
+    if len(fields) == 1 and first.box == box and (value := _constant(first.index)) is not None:
+        # one family of one sub-region: its one label seen at every pixel of the box, no array of ~15 MP
+        return np.broadcast_to(np.array(value, dtype=dtype), first.index.shape)
     if first.box == box and first.index.dtype == dtype and first.index.flags.writeable and not copy_first:
         label = first.index  # the outermost family spans the layer's box: no copy of ~15 MP
     elif first.box == box:
