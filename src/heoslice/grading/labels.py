@@ -38,8 +38,9 @@ class LayerRegions:
     numbers every solid pixel's sub-region across the layer: family f's sub-region k
     is ``base[f] + k`` (k = 1..N_R; a nested shell keeps its own material: k = 0),
     0 is empty; a layer of one family of one sub-region labelled from the packed mask has one
-    value seen at every pixel (read-only, no memory). ``families``/``fields`` are aligned, outermost first (the first field's
-    ``index`` may share the label's memory: it is labelled in place, not copied).
+    value seen at every pixel (read-only, no memory). ``families``/``fields`` are aligned,
+    outermost first (the first field's ``index`` may share the label's memory: it is labelled in
+    place, not copied).
     """
 
     box: tuple[int, int, int, int]
