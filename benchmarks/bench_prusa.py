@@ -349,7 +349,8 @@ def table(results: list[dict]) -> str:
             bad_spots = [s for s in a["spot_checks"] if s["manifest"] != s["decoded"]]
             extra.append("heoslice manifest counts match decoded TIFFs"
                          if not bad_spots else f"heoslice manifest vs decoded TIFF MISMATCH: {bad_spots}")
-            extra.append("AGREE (every compared layer within 1 % or 2 px)" if a["ok"] else "DISAGREE (see worst layers)")
+            extra.append("AGREE (every compared layer within 1 % or 2 px)" if a["ok"]
+                         else "DISAGREE (see worst layers)")
             lines.append(" " * w + "; ".join(extra))
     for r in results:
         for tool, message in r["failed"].items():
