@@ -1,6 +1,6 @@
-"""Builds the one compiled part of heoslice: the rasteriser's and the grading's kernels, compiled ahead of
-time from their numba sources (heoslice.kernel_exports) into the extension module heoslice._compiled, for
-this machine's processor. Everything else is in pyproject.toml."""
+"""Builds the one compiled part of heoslice: the weld's, the rasteriser's and the grading's kernels,
+compiled ahead of time from their numba sources (heoslice.kernel_exports) into the extension module
+heoslice._compiled, for this machine's processor. Everything else is in pyproject.toml."""
 
 import os
 import sys
@@ -19,8 +19,8 @@ class BuildKernels(build_ext):
         # the kernels' modules need numpy and numba only: their packages are entered without running their
         # __init__, which would load every stage (and every dependency) of heoslice
         source = Path(__file__).resolve().parent / "src" / "heoslice"
-        for name, path in (("heoslice", source), ("heoslice.layers", source / "layers"),
-                           ("heoslice.grading", source / "grading")):
+        for name, path in (("heoslice", source), ("heoslice.mesh", source / "mesh"),
+                           ("heoslice.layers", source / "layers"), ("heoslice.grading", source / "grading")):
             package = types.ModuleType(name)
             package.__path__ = [str(path)]
             sys.modules[name] = package

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 
 @pytest.mark.parametrize("collide", ["none", "some", "all"])
@@ -29,6 +31,30 @@ def test_weld_merges_equal_coordinates_in_first_occurrence_order(monkeypatch, co
     again, again_faces, _ = weld.weld_vertices(unique, welded_faces)
     np.testing.assert_array_equal(again, unique)
     np.testing.assert_array_equal(again_faces, welded_faces)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(0, 400), st.sampled_from([np.float32, np.float64]))
+def test_weld_is_a_first_occurrence_dictionary_of_the_coordinate_bits(seed, count, dtype):
+    """weld_vertices' first occurrences and vertex map equal those of a dictionary of each row's bits
+    (-0.0 taken as 0.0), for float32 and float64 rows with many repeats, none, or no rows at all."""
+    from heoslice.mesh.weld import weld_vertices
+
+    rng = np.random.default_rng(seed)
+    vertices = (rng.integers(-3, 4, (count, 3)) * rng.choice([0.5, 1e-7, 3.0])).astype(dtype)
+    vertices[rng.random((count, 3)) < 0.1] = -0.0
+    faces = rng.integers(0, max(count, 1), (2 * count, 3)) if count else np.zeros((0, 3), np.int64)
+    seen: dict[bytes, int] = {}
+    first, new = [], []
+    for i, row in enumerate(vertices + dtype(0.0)):
+        if row.tobytes() not in seen:
+            seen[row.tobytes()] = len(first)
+            first.append(i)
+        new.append(seen[row.tobytes()])
+    unique, welded_faces, got_first = weld_vertices(vertices, faces)
+    np.testing.assert_array_equal(got_first, first)
+    np.testing.assert_array_equal(welded_faces, np.asarray(new, dtype=np.int64)[faces] if count else faces)
+    np.testing.assert_array_equal(unique, (vertices[first] + dtype(0.0)).astype(np.float64))
 
 
 @pytest.mark.parametrize("collide", ["none", "all"])

@@ -1,5 +1,5 @@
-"""The ahead-of-time build of every compiled kernel (the rasteriser's and the grading's): what each kernel
-Python calls takes, and the compile.
+"""The ahead-of-time build of every compiled kernel (the weld's, the rasteriser's and the grading's): what
+each kernel Python calls takes, and the compile.
 
 Run by ``setup.py`` when heoslice is installed (never at run time: it needs numba, and kernels compiled
 just in time, ``HEOSLICE_JIT=1``). Each kernel listed in :data:`heoslice.jit.ENTRIES` is exported
@@ -38,12 +38,14 @@ from heoslice.jit import (
     source_digest,
 )
 from heoslice.layers import rasterising_kernels
+from heoslice.mesh import weld_kernels
 
 f8, i8, b1 = types.float64, types.int64, types.boolean
 f8_1, f8_2, f8_3, f8_4 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1], types.float64[:, :, :, ::1]
 f4_1, f4_2 = types.float32[::1], types.float32[:, ::1]
 i8_1, i8_2, i1_2 = types.int64[::1], types.int64[:, ::1], types.int8[:, ::1]
 b_2, u1_2, u1_3 = types.boolean[:, ::1], types.uint8[:, ::1], types.uint8[:, :, ::1]
+u4_2, u8_1 = types.uint32[:, ::1], types.uint64[::1]
 
 EDGES = types.NamedUniTuple(f8_1, 5, edges_kernels.EdgeArrays)
 PIXELS = types.NamedTuple((i8, f8, f8), field_kernels.CellPixels)
@@ -88,6 +90,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     search_kernels._chunks_apart: (i8_1, i8_1, f8_2, f8_2, f8_2, f8_2, f8),
     search_kernels._tree_boxes: (f8_1, f8_1, f8_1, f8_1, i8_1),
     search_kernels._chunk_capsules: (f8_1, f8_1, f8_1, f8_1),
+    weld_kernels._first_rows: (u8_1, u4_2),
 }
 
 

@@ -194,16 +194,21 @@ def prepared_mesh(path: Path, raw: RawMesh, sha256) -> Mesh:
     extent = high - low
     if extent[2] <= 0:
         raise InputError(f"{path}: the mesh has zero height (flat in z); nothing to slice")
-    groups = edge_groups(faces)
-    duplicate = 0
-    if not groups.winding_consistent:  # a repeated face walks its edges as the original: never in consistent meshes
-        repeats = duplicate_faces(faces)
-        duplicate = int(repeats.sum())
-        if duplicate:  # repeated geometry would be sliced once per copy
-            notes.append(f"{duplicate} duplicate face(s) repeating an earlier face were dropped")
-            faces = faces[~repeats]
-            groups = edge_groups(faces)
-    area, face_volume = face_volumes(vertices, faces)
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=1) as beside:  # the volumes overlap the edge grouping (numpy releases the GIL)
+        volumes = beside.submit(face_volumes, vertices, faces)
+        groups = edge_groups(faces)
+        duplicate = 0
+        if not groups.winding_consistent:  # a repeated face walks its edges as the original: never in consistent meshes
+            repeats = duplicate_faces(faces)
+            duplicate = int(repeats.sum())
+            if duplicate:  # repeated geometry would be sliced once per copy
+                notes.append(f"{duplicate} duplicate face(s) repeating an earlier face were dropped")
+                faces = faces[~repeats]
+                volumes = beside.submit(face_volumes, vertices, faces)
+                groups = edge_groups(faces)
+        area, face_volume = volumes.result()
     zero_area = int((2.0 * area <= 1e-12 * max(float(extent.max()), 1.0) ** 2).sum())
     if zero_area:
         notes.append(f"{zero_area} zero-area face(s)")

@@ -9,21 +9,33 @@ from __future__ import annotations
 
 import numpy as np
 
+#: Faces whose cross products are computed at once by :func:`face_volumes`: temporaries of a few MB, not
+#: of the whole mesh.
+_FACES_AT_ONCE = 1 << 16
+
+
 def face_volumes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per face: area (m,) and signed volume of the tetrahedron with the origin (m,), from one cross product.
 
     The cross product and its length are written out column by column (the same
-    arithmetic as ``np.cross`` and ``np.linalg.norm``, without their short-axis overhead).
+    arithmetic as ``np.cross`` and ``np.linalg.norm``, without their short-axis overhead),
+    a block of faces at a time.
     """
-    v0 = vertices[faces[:, 0]]
-    e1 = vertices[faces[:, 1]] - v0
-    e2 = vertices[faces[:, 2]] - v0
-    normal = np.empty_like(v0)
-    for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
-        np.multiply(e1[:, i], e2[:, j], out=normal[:, k])
-        normal[:, k] -= e1[:, j] * e2[:, i]
-    x, y, z = normal[:, 0], normal[:, 1], normal[:, 2]
-    return 0.5 * np.sqrt(x * x + y * y + z * z), np.einsum("ij,ij->i", v0, normal) / 6.0
+    area = np.empty(len(faces))
+    volume = np.empty(len(faces))
+    for first in range(0, len(faces), _FACES_AT_ONCE):
+        block = faces[first:first + _FACES_AT_ONCE]
+        v0 = vertices[block[:, 0]]
+        e1 = vertices[block[:, 1]] - v0
+        e2 = vertices[block[:, 2]] - v0
+        normal = np.empty_like(v0)
+        for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
+            np.multiply(e1[:, i], e2[:, j], out=normal[:, k])
+            normal[:, k] -= e1[:, j] * e2[:, i]
+        x, y, z = normal[:, 0], normal[:, 1], normal[:, 2]
+        area[first:first + len(block)] = 0.5 * np.sqrt(x * x + y * y + z * z)
+        volume[first:first + len(block)] = np.einsum("ij,ij->i", v0, normal) / 6.0
+    return area, volume
 
 
 def winding_number(point: np.ndarray, triangles: np.ndarray) -> float:

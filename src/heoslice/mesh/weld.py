@@ -1,12 +1,14 @@
 """Welding: vertices merged by exact coordinate, and faces that repeat an earlier face dropped.
 
-Both group rows by a hash of their bits with one integer sort, and compare the rows
-themselves only where hashes collide.
+Both group rows by a hash of their bits (vertices in a compiled hash table, faces with one integer
+sort) and compare the rows themselves, so a collision of hashes only costs time.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from heoslice.mesh.weld_kernels import _first_rows
 
 #: Odd 64-bit multipliers of the row hash (golden-ratio and xxHash primes).
 _HASH_MULTIPLIERS = (0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0xBF58476D1CE4E5B9)
@@ -56,44 +58,17 @@ def weld_vertices(vertices: np.ndarray, faces: np.ndarray):
     """Merge vertices with identical coordinates, keeping first occurrences in order.
 
     Returns (unique_vertices, faces, first_index): unique vertex j is input vertex
-    first_index[j]. Rows are grouped by a hash of their coordinate bits (one integer
-    sort instead of a row-wise one) and every row is compared with its group's first
-    (lowest-index) row; only rows of groups where the hash collided are then grouped
-    exactly, by a row sort of those rows alone. An already welded mesh comes back unchanged.
+    first_index[j]. Rows go into a hash table by a hash of their coordinate bits and are
+    compared bit for bit there, in one compiled pass (:mod:`heoslice.mesh.weld_kernels`);
+    -0.0 and 0.0 weld. An already welded mesh comes back unchanged.
     """
     rows = np.ascontiguousarray(vertices)
     if rows.dtype not in (np.float32, np.float64):
         rows = rows.astype(np.float64)
     rows = rows + rows.dtype.type(0.0)  # -0.0 and 0.0 weld
     bits = rows.view(np.uint32 if rows.dtype == np.float32 else np.uint64)
-    count = len(rows)
-    order, high = index_sort(_row_hash(bits))
-    is_start = np.empty(count, dtype=bool)
-    is_start[:1] = True
-    np.not_equal(high[1:], high[:-1], out=is_start[1:])
-    del high
-    start_position = np.flatnonzero(is_start)
-    group_first = order[start_position]  # ties are in index order: the lowest index of each group
-    is_first = np.zeros(count, dtype=bool)
-    is_first[group_first] = True
-    new_index = np.cumsum(is_first) - 1
-    row_index = np.empty(count, dtype=np.int64)  # the new vertex of every input row
-    row_index[order] = np.repeat(new_index[group_first], np.diff(np.append(start_position, count)))
-    first = np.flatnonzero(is_first)
-    same = np.take(bits[first], row_index, axis=0)
-    if not np.array_equal(same, bits):  # a hash collision: group the collided groups' rows exactly
-        representative = first[row_index]
-        wrong = np.flatnonzero(np.any(same != bits, axis=1))
-        members = np.flatnonzero(np.isin(representative, representative[wrong]))
-        columns = np.column_stack([representative[members].astype(np.uint64), bits[members].astype(np.uint64)])
-        _, lowest, inverse = np.unique(columns, axis=0, return_index=True, return_inverse=True)
-        representative[members] = members[lowest][inverse.reshape(-1)]
-        first = np.flatnonzero(representative == np.arange(count))
-        new_index = np.empty(count, dtype=np.int64)
-        new_index[first] = np.arange(len(first))
-        row_index = new_index[representative]
+    row_index, first = _first_rows(_row_hash(bits), np.ascontiguousarray(rows.view(np.uint32)))
     return rows[first].astype(np.float64), row_index[faces], first
-
 
 
 def duplicate_faces(faces: np.ndarray) -> np.ndarray:
