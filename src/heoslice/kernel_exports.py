@@ -38,7 +38,7 @@ from heoslice.jit import (
     source_digest,
 )
 from heoslice.layers import rasterising_kernels
-from heoslice.mesh import weld_kernels
+from heoslice.mesh import topology_kernels, weld_kernels
 
 f8, i8, b1 = types.float64, types.int64, types.boolean
 f8_1, f8_2, f8_3, f8_4 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1], types.float64[:, :, :, ::1]
@@ -90,6 +90,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     search_kernels._chunks_apart: (i8_1, i8_1, f8_2, f8_2, f8_2, f8_2, f8),
     search_kernels._tree_boxes: (f8_1, f8_1, f8_1, f8_1, i8_1),
     search_kernels._chunk_capsules: (f8_1, f8_1, f8_1, f8_1),
+    topology_kernels._lowest_connected: (i8_1, i8_1, i8),
     weld_kernels._first_rows: (u8_1, u4_2),
 }
 

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from heoslice.jit import i64
+from heoslice.mesh.topology_kernels import _lowest_connected
 from heoslice.mesh.volume import face_volumes, winding_number
 from heoslice.mesh.weld import index_bits, index_sort
 
@@ -54,27 +56,17 @@ def shell_labels(faces: np.ndarray, groups: EdgeGroups | None = None) -> np.ndar
     """(m,) int: connected shell of each face, faces being connected through shared edges.
 
     Shells are numbered in the order of their first face (as scipy's connected
-    components). Found by hooking and pointer jumping in numpy: every round, each root
-    label that meets smaller labels across shared edges is pointed at the smallest of
-    them, then every face follows its labels to the root; labels only ever decrease, so
-    each shell ends labelled by its first face. numpy rather than scipy.sparse.csgraph,
-    whose import costs every slice more than the labelling (benchmarks/README.md).
+    components): each face is joined to the faces it shares an edge with by a compiled
+    union-find whose roots are the shells' first faces (:mod:`heoslice.mesh.topology_kernels`),
+    not scipy.sparse.csgraph, whose import costs every slice more than the labelling
+    (benchmarks/README.md).
     """
     groups = groups if groups is not None else edge_groups(faces)
     same = np.ones(len(groups.order), dtype=bool)
     same[groups.starts] = False  # entry i shares its edge with entry i - 1 in sorted order
     owner = groups.order // 3
     a, b = owner[:-1][same[1:]], owner[1:][same[1:]]
-    label = np.arange(len(faces), dtype=np.int64)
-    while True:
-        label_a, label_b = label[a], label[b]
-        crossing = label_a != label_b
-        if not crossing.any():
-            break
-        a, b, label_a, label_b = a[crossing], b[crossing], label_a[crossing], label_b[crossing]
-        np.minimum.at(label, np.maximum(label_a, label_b), np.minimum(label_a, label_b))
-        while not np.array_equal(deeper := label[label], label):
-            label = deeper
+    label = _lowest_connected(i64(a), i64(b), len(faces))
     return (np.cumsum(label == np.arange(len(faces))) - 1)[label]
 
 
