@@ -1,5 +1,5 @@
-"""Builds the one compiled part of heoslice: the weld's, the rasteriser's and the grading's kernels,
-compiled ahead of time from their numba sources (heoslice.kernel_exports) into the extension module
+"""Builds the one compiled part of heoslice: the mesh's, the layers' and the grading's kernels, compiled
+ahead of time from their numba sources (heoslice.kernel_exports) into the extension module
 heoslice._compiled, for this machine's processor. Everything else is in pyproject.toml."""
 
 import os

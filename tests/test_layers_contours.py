@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 from heoslice import procedural
 from heoslice.layers import plane_heights, slice_mesh
-from heoslice.layers.contours import _rank_paths, build_contours, successors
+from heoslice.layers.contours import build_contours
+from heoslice.layers.contours_kernels import loops_by_keys
 
 REFERENCE_MESHES = {
     "sphere": lambda: procedural.sphere(25.0, 5),
@@ -123,61 +124,75 @@ def test_vertices_on_planes_give_no_duplicate_points():
     np.testing.assert_allclose(contours.area, 12.0)
 
 
-def test_successors_link_matching_keys_and_leave_dangling_ends():
-    """Each segment links to the one starting on its end edge; unmatched ends get -1."""
-    start = np.array([10, 20, 30, 40])
-    end = np.array([20, 30, 10, 99])
-    np.testing.assert_array_equal(successors(start, end), [1, 2, 0, -1])
+def walked_loops(start_key: np.ndarray, end_key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Test reference for the chaining: each end, in index order, takes the next unused start of its key (a
+    brute-force pass over the keys); then every chain is walked node by node, a cycle from its smallest
+    segment and an open chain from its head, and the loops are sorted by their smallest segment."""
+    following = np.full(len(start_key), -1)
+    for key in set(end_key.tolist()):
+        enders, starters = np.flatnonzero(end_key == key), np.flatnonzero(start_key == key)
+        for k in range(min(len(enders), len(starters))):
+            following[enders[k]] = starters[k]
+    heads = set(range(len(start_key))) - set(following.tolist())
+    loops, seen = [], set()
+    for head in sorted(heads):
+        loop = [head]
+        while following[loop[-1]] >= 0:
+            loop.append(int(following[loop[-1]]))
+        loops.append((min(loop), loop, True))
+        seen.update(loop)
+    for root in range(len(start_key)):
+        if root not in seen:
+            loop = [root]
+            while following[loop[-1]] != root:
+                loop.append(int(following[loop[-1]]))
+            loops.append((root, loop, False))
+            seen.update(loop)
+    loops.sort()
+    order = np.array([node for _, loop, _ in loops for node in loop], dtype=np.int64)
+    offsets = np.cumsum([0] + [len(loop) for _, loop, _ in loops])
+    return order, offsets, np.array([is_open for _, _, is_open in loops], dtype=bool)
 
 
-def test_rank_paths_counts_steps_to_the_tail():
-    """Pointer jumping gives each node's distance to the end of its path."""
-    nxt = np.array([1, 2, 3, -1, 5, -1, -1])
-    np.testing.assert_array_equal(_rank_paths(nxt), [3, 2, 1, 0, 1, 0, 0])
+def test_chaining_links_matching_keys_and_keeps_dangling_ends_open():
+    """Each segment is followed by the one starting on its end edge; a chain with an unmatched end is open."""
+    start = np.array([10, 20, 30, 40, 50])
+    end = np.array([20, 30, 10, 99, 40])
+    order, offsets, open_chain = loops_by_keys(start, end)
+    np.testing.assert_array_equal(order, [0, 1, 2, 4, 3])
+    np.testing.assert_array_equal(offsets, [0, 3, 5])
+    np.testing.assert_array_equal(open_chain, [False, True])
 
 
-@settings(max_examples=50, deadline=None)
-@given(seed=st.integers(0, 100_000), size=st.integers(0, 40), distinct=st.integers(1, 12))
-def test_successors_link_the_kth_end_to_the_kth_start_of_a_key(seed, size, distinct):
-    """With repeated keys (non-manifold edges), the k-th segment (in index order) ending on a key links
-    to the k-th segment starting on it, as a brute-force pass over the keys does; small and huge keys alike."""
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 100_000), size=st.integers(0, 60), distinct=st.integers(1, 15))
+def test_chaining_matches_walking_the_kth_end_to_the_kth_start(seed, size, distinct):
+    """With repeated keys (non-manifold edges) the k-th segment (in index order) ending on a key is followed
+    by the k-th starting on it, and the loops, their order and their open flags are those of the brute-force
+    walk; small and huge keys alike (keys of different layers are ~2^62 apart)."""
     rng = np.random.default_rng(seed)
-    scale = int(rng.choice([1, 10**17]))  # huge keys leave no room to pack the index: the argsort path
+    scale = int(rng.choice([1, 10**17]))
     start = rng.integers(0, distinct, size) * scale
     end = rng.integers(0, distinct, size) * scale
-    expected = np.full(size, -1)
-    for key in set(end.tolist()):
-        enders, starters = np.flatnonzero(end == key), np.flatnonzero(start == key)
-        for k in range(min(len(enders), len(starters))):
-            expected[enders[k]] = starters[k]
-    np.testing.assert_array_equal(successors(start, end), expected)
+    for got, expected in zip(loops_by_keys(start, end), walked_loops(start, end)):
+        np.testing.assert_array_equal(got, expected)
 
 
 @settings(max_examples=50, deadline=None)
 @given(seed=st.integers(0, 100_000), size=st.integers(1, 200))
-def test_label_chains_name_each_cycle_by_its_smallest_node_and_each_path_by_its_tail(seed, size):
-    """Random disjoint cycles and paths: every node gets its cycle's smallest index, or -1 - the tail of its
-    path, as walking the successor map node by node does."""
-    from heoslice.layers.contours import _label_chains
-
+def test_chaining_walks_disjoint_cycles_and_paths_from_their_smallest_node_and_head(seed, size):
+    """Random disjoint cycles and paths (each segment's end key the next one's start key, a cycle's last
+    back to its first) chain into exactly those loops, as the brute-force walk finds them."""
     rng = np.random.default_rng(seed)
     nodes = rng.permutation(size)
-    nxt = np.full(size, -1)
+    start, end = np.arange(size) * 7, np.arange(size) * 7 + 3  # unmatched unless linked below
     cuts = np.sort(rng.choice(np.arange(1, size), size=min(size - 1, int(rng.integers(0, 8))), replace=False))
     for chain in np.split(nodes, cuts):
-        nxt[chain[:-1]] = chain[1:]
+        end[chain[:-1]] = start[chain[1:]]
         if rng.random() < 0.5:
-            nxt[chain[-1]] = chain[0]  # a cycle (a single node may be its own successor)
-    expected = np.empty(size, dtype=np.int64)
-    for node in range(size):
-        seen, current = [node], nxt[node]
-        while current >= 0 and current != node:
-            seen.append(current)
-            current = nxt[current]
-        expected[node] = min(seen) if current == node else -1 - seen[-1]
-    key, on_path = _label_chains(nxt)
-    np.testing.assert_array_equal(key, expected)
-    np.testing.assert_array_equal(on_path, expected < 0)
+            end[chain[-1]] = start[chain[0]]  # a cycle (a single node may be its own successor)
+    for got, expected in zip(loops_by_keys(start, end), walked_loops(start, end)):
+        np.testing.assert_array_equal(got, expected)
 
 
 def test_contours_without_hierarchy_are_the_same_loops():

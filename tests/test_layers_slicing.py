@@ -72,6 +72,58 @@ def test_segments_lie_on_their_edges_and_follow_the_right_hand_rule(seed):
     assert np.all(along[length > 1e-9] > 0)
 
 
+def segments_written_out(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray) -> dict:
+    """Test reference for the slicing rule, pair by pair in Python floats: every (face, plane) with
+    z_min < plane <= z_max, grouped by plane in face order; the lone vertex is the corner alone on its side
+    (below: z < plane); the segment runs from the edge (before, lone) to (lone, after) when it is below, the
+    reverse when above; each edge is named lower vertex first, and its point is
+    (v_high - v_low) t + v_low with t = (plane - z_low) / (z_high - z_low)."""
+    n = len(vertices)
+    rows = []
+    for layer, plane in enumerate(z.tolist()):
+        for face, corners in enumerate(faces.tolist()):
+            heights = [vertices[c][2] for c in corners]
+            if not min(heights) < plane <= max(heights):
+                continue
+            below = [h < plane for h in heights]
+            lone = next(i for i in range(3) if below.count(below[i]) == 1)
+            after, before = (lone + 1) % 3, (lone + 2) % 3
+            ends = (before, after) if below[lone] else (after, before)
+            row = {"layer": layer, "face": face}
+            for name, other in zip(("start", "end"), ends):
+                low, high = sorted((corners[lone], corners[other]))
+                t = (plane - vertices[low][2]) / (vertices[high][2] - vertices[low][2])
+                row[f"{name}_edge"], row[f"{name}_t"] = [low, high], t
+                row[f"{name}_key"] = layer * n * n + low * n + high
+                if name == "start":
+                    row["start"] = [(vertices[high][axis] - vertices[low][axis]) * t + vertices[low][axis]
+                                    for axis in range(2)]
+            rows.append(row)
+    return {name: np.array([row[name] for row in rows]) for name in rows[0]} if rows else {}
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), layer=st.floats(0.05, 2.0), on_vertices=st.booleans())
+def test_segments_are_the_rule_written_out_bit_for_bit(seed, layer, on_vertices):
+    """Every array of the sections (layers, faces, edges, keys, positions and points) equals the slicing rule
+    written out pair by pair, bit for bit, also with planes exactly through vertices."""
+    vertices, faces = random_hull(seed).vertices, random_hull(seed).faces
+    if on_vertices:
+        z = np.unique(np.round(vertices[:, 2], 1))
+        vertices = vertices.copy()
+        vertices[::3, 2] = np.round(vertices[::3, 2], 1)  # some corners exactly on the planes
+    else:
+        z = plane_heights(vertices[:, 2].min(), vertices[:, 2].max(), layer)
+    sections = slice_mesh(vertices, faces, z)
+    expected = segments_written_out(vertices, faces, z)
+    assert len(sections.layer) == len(expected.get("layer", []))
+    for name, values in expected.items():
+        got = getattr(sections, name)
+        np.testing.assert_array_equal(got, values.astype(got.dtype), err_msg=name)
+        assert got.tobytes() == values.astype(got.dtype).tobytes(), name
+    np.testing.assert_array_equal(sections.offsets, np.searchsorted(sections.layer, np.arange(len(z) + 1)))
+
+
 def test_shared_edge_points_are_bit_identical():
     """The point where a plane cuts an edge is the same float in both triangles sharing the edge."""
     mesh = procedural.sphere(7.3, 3)

@@ -1,5 +1,5 @@
-"""The ahead-of-time build of every compiled kernel (the weld's, the rasteriser's and the grading's): what
-each kernel Python calls takes, and the compile.
+"""The ahead-of-time build of every compiled kernel (the weld's, the slicing's, the chaining's, the rasteriser's
+and the grading's): what each kernel Python calls takes, and the compile.
 
 Run by ``setup.py`` when heoslice is installed (never at run time: it needs numba, and kernels compiled
 just in time, ``HEOSLICE_JIT=1``). Each kernel listed in :data:`heoslice.jit.ENTRIES` is exported
@@ -37,7 +37,7 @@ from heoslice.jit import (
     export_name,
     source_digest,
 )
-from heoslice.layers import rasterising_kernels
+from heoslice.layers import contours_kernels, rasterising_kernels, slicing_kernels
 from heoslice.mesh import topology_kernels, weld_kernels
 
 f8, i8, b1 = types.float64, types.int64, types.boolean
@@ -70,6 +70,7 @@ def _layer(bits: int) -> types.Type:
 #: Argument types of every kernel that Python calls, by kernel (numba's dispatcher); a function of the label
 #: width (bits) for the kernels that take labels.
 ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
+    contours_kernels._chain_loops: (i8_1, i8_1),
     droplets_kernels._droplet_bits: lambda bits: (
         _layer(bits), types.Tuple((i8_1, f4_1, i8_2, f4_1, f4_1)), types.Tuple((f4_2, i8_2, i1_2, i8)), u1_3),
     edges_kernels._straight_runs: (f8_1, f8_1, i8_1, f8, i8),
@@ -90,6 +91,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     search_kernels._chunks_apart: (i8_1, i8_1, f8_2, f8_2, f8_2, f8_2, f8),
     search_kernels._tree_boxes: (f8_1, f8_1, f8_1, f8_1, i8_1),
     search_kernels._chunk_capsules: (f8_1, f8_1, f8_1, f8_1),
+    slicing_kernels._layer_segments: (f8_2, i8_2, f8_1, i8_1, i8_1),
     topology_kernels._lowest_connected: (i8_1, i8_1, i8),
     weld_kernels._first_rows: (u8_1, u4_2),
 }

@@ -7,10 +7,10 @@ clockwise). Open meshes give open chains, which are closed by joining their ends
 and reported. Loops are then grouped into profile families, the paper's
 O_L = {L_i}, L_i = {C_i,j}: an outer ring with the holes directly inside it.
 
-Everything is vectorised over all layers: every segment has at most one successor,
-so the loops are the cycles (and open chains) of the successor map; they are
-labelled and ordered by pointer jumping, so there is no Python loop per segment
-(and no graph library to import).
+Every segment has at most one successor, so the loops are the cycles (and open
+chains) of the successor map: one compiled pass over all layers' segments links
+them through a hash table of their edge keys and walks each loop
+(:mod:`heoslice.layers.contours_kernels`); everything after it is vectorised.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from heoslice.layers.contours_kernels import loops_by_keys
 from heoslice.layers.slicing import Sections
 
 
@@ -67,95 +68,8 @@ class Contours:
         return np.bincount(self.layer, weights=self.area, minlength=count)
 
 
-def successors(start_key: np.ndarray, end_key: np.ndarray) -> np.ndarray:
-    """For each segment, the index of the segment starting where it ends, or -1 (open chain).
-
-    Keys are compared exactly; where a non-manifold edge carries several segments,
-    the k-th segment ending on it is linked to the k-th segment starting on it.
-    Both key lists are sorted together, once: in each run of equal keys the starts
-    come first, then the ends, each in index order, and the k-th end of a run takes
-    the k-th start of the run.
-    """
-    count = len(start_key)
-    keys = np.concatenate([start_key, end_key])
-    order, sorted_keys = _stable_key_sort(keys)
-    position = np.arange(len(keys))
-    is_end = order >= count
-    new_run = np.empty(len(keys), dtype=bool)
-    new_run[:1] = True
-    np.not_equal(sorted_keys[1:], sorted_keys[:-1], out=new_run[1:])
-    run_start = np.maximum.accumulate(np.where(new_run, position, 0))
-    first_end = new_run.copy()
-    first_end[1:] |= ~is_end[:-1]
-    first_end &= is_end
-    first_end = np.maximum.accumulate(np.where(first_end, position, 0))  # of the run, at its ends
-    partner = run_start + position - first_end  # the k-th start of the run, for its k-th end
-    match = is_end & (partner < first_end)
-    nxt = np.full(count, -1, dtype=np.int64)
-    nxt[np.compress(match, order) - count] = order[np.compress(match, partner)]  # compress: faster than a boolean index
-    return nxt
-
-
-def _stable_key_sort(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(order, keys[order]) of non-negative int64 keys, equal keys in index order.
-
-    When the keys leave room, each index is packed below its key and the packed values
-    are sorted with ``np.sort`` (several times faster than a stable ``np.argsort``).
-    """
-    shift = max(int(len(keys) - 1).bit_length(), 1)
-    if len(keys) and int(keys.max()).bit_length() + shift <= 63 and keys.min() >= 0:
-        packed = keys << shift
-        packed |= np.arange(len(keys))
-        packed.sort()
-        sorted_keys = packed >> shift
-        packed &= (1 << shift) - 1
-        return packed, sorted_keys
-    order = np.argsort(keys, kind="stable")
-    return order, keys[order]
-
-
-def _rank_paths(nxt: np.ndarray) -> np.ndarray:
-    """Steps from each node to the tail of its path (nxt == -1 at tails), by pointer jumping.
-
-    A sentinel node after the last one absorbs the tails, so every round is two
-    whole-array gathers and an add, and there are ceil(log2(longest path)) rounds.
-    """
-    count = len(nxt)
-    jump = np.append(np.where(nxt >= 0, nxt, count), count)
-    hops = np.append((nxt >= 0).astype(np.int64), 0)
-    while not np.all(jump[:count] == count):
-        hops += hops[jump]
-        jump = jump[jump]
-    return hops[:count]
-
-
-def _label_chains(nxt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The chain (cycle or open path) of each node of a successor map, by pointer jumping.
-
-    nxt: (n,) int, each node's successor or -1 (a tail); no node has two predecessors, so
-    the chains are disjoint cycles and paths. Returns (key (n,) int, has_tail (n,) bool):
-    nodes of one chain share a key, which is ``-1 - tail`` on a path and the smallest
-    index of the cycle on a cycle. Each round takes the minimum of a node's key and
-    the key 2**k steps on (a tail's negative key spreads back along its path); the
-    rounds stop when a round changes nothing, which on a cycle happens only once the
-    minimum has gone all the way round: ceil(log2(longest chain)) + 1 rounds.
-    """
-    count = len(nxt)
-    linked = nxt >= 0
-    key = np.arange(count + 1, dtype=np.int64)  # the sentinel ``count`` never lowers a key
-    key[:count][~linked] = -1 - key[:count][~linked]
-    jump = np.append(np.where(linked, nxt, count), count)
-    while True:
-        lower = np.minimum(key, key[jump])
-        if np.array_equal(lower, key):
-            break
-        key = lower
-        jump = jump[jump]
-    return key[:count], key[:count] < 0
-
-
 def chain_loops(sections: Sections) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Order segments into loops.
+    """Order segments into loops (compiled: :func:`heoslice.layers.contours_kernels.loops_by_keys`).
 
     Returns (segment order (s,) int, loop offsets (loops+1,) int, closed_by_join
     (loops,) bool). Loops are sorted by layer, then by their smallest segment
@@ -163,34 +77,7 @@ def chain_loops(sections: Sections) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     from its smallest segment index. Chains that do not close are kept as loops
     flagged in closed_by_join.
     """
-    count = len(sections.layer)
-    if count == 0:
-        return np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, bool)
-    nxt = successors(sections.start_key, sections.end_key)
-    key, on_path = _label_chains(nxt)
-    # Number the chains by their key node (the tail of a path, the smallest index of a cycle).
-    named = np.where(on_path, -1 - key, key)
-    label = np.cumsum(named == np.arange(count)) - 1
-    label = label[named]
-    components = int(label.max()) + 1
-    root = np.full(components, count, dtype=np.int64)
-    np.minimum.at(root, label, np.arange(count))
-    has_tail = np.zeros(components, dtype=bool)
-    has_tail[label[on_path]] = True
-    # A cycle is cut before its smallest index; a path already has a tail.
-    cut = nxt.copy()
-    cut[~on_path & (nxt == root[label])] = -1
-    to_tail = _rank_paths(cut)
-    # Place each segment directly: loops sorted by layer, then along the loop from its head.
-    size = np.bincount(label, minlength=components)
-    loop_order = np.lexsort((root, sections.layer[root]))
-    offsets = np.zeros(components + 1, dtype=np.int64)
-    offsets[1:] = np.cumsum(size[loop_order])
-    loop_start = np.empty(components, dtype=np.int64)
-    loop_start[loop_order] = offsets[:-1]
-    order = np.empty(count, dtype=np.int64)
-    order[loop_start[label] + size[label] - 1 - to_tail] = np.arange(count)
-    return order, offsets, has_tail[loop_order]
+    return loops_by_keys(sections.start_key, sections.end_key)
 
 
 def signed_areas(points: np.ndarray, offsets: np.ndarray) -> np.ndarray:

@@ -1,10 +1,12 @@
 """Slicing: intersect every triangle with the layer planes it crosses, for all layers at once.
 
-The paper's section IV.A-B, vectorised with numpy:
+The paper's section IV.A-B:
 
 * global intersection filter (Table 2): each triangle's z-range is located among
   the sorted plane heights with ``searchsorted``, so a triangle is touched only for
-  the planes it crosses, and the (triangle, plane) pairs are grouped by layer;
+  the planes it crosses, and the (triangle, plane) pairs are grouped by layer (a
+  counting sort, in the one compiled pass of :mod:`heoslice.layers.slicing_kernels`
+  that also makes the segments);
 * local topology: each intersection point is named by the mesh edge it lies on,
   and each segment is directed by the right-hand rule, from the edge that goes down
   through the plane to the edge that goes up, so that outer contours run
@@ -36,6 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from heoslice.errors import InputError
+from heoslice.layers.slicing_kernels import layer_segments
 
 
 @dataclass(frozen=True)
@@ -80,23 +83,6 @@ class Sections:
         return interpolate_at(self.vertices[:, :2], edge, self.end_t[segments])
 
 
-def _pick(rows: np.ndarray, column: np.ndarray) -> np.ndarray:
-    """rows[i, column[i]] for a (k, c) array (one entry per row), by one flat gather."""
-    rows = np.ascontiguousarray(rows)
-    return rows.reshape(-1)[np.arange(len(rows)) * rows.shape[1] + column]
-
-
-def _edge_crossing(v_a: np.ndarray, z_a: np.ndarray, v_b: np.ndarray, z_b: np.ndarray, plane: np.ndarray):
-    """Edges (a, b) as (k, 2) vertex pairs lower index first, and where they cross ``plane`` (t from the lower index)."""
-    swap = v_b < v_a
-    edge = np.empty((len(v_a), 2), dtype=np.int64)
-    edge[:, 0] = np.minimum(v_a, v_b)
-    edge[:, 1] = np.maximum(v_a, v_b)
-    z_lo = np.where(swap, z_b, z_a)
-    z_hi = np.where(swap, z_a, z_b)
-    return edge, (plane - z_lo) / (z_hi - z_lo)
-
-
 def slice_mesh(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
                face_range: tuple[np.ndarray, np.ndarray] | None = None) -> Sections:
     """Intersect a triangle mesh with horizontal planes at heights z, for all planes at once.
@@ -109,82 +95,19 @@ def slice_mesh(vertices: np.ndarray, faces: np.ndarray, z: np.ndarray,
     faces = np.asarray(faces, dtype=np.int64)
     z = np.asarray(z, dtype=np.float64)
     n_vertices = len(vertices)
-    face_z = vertices[:, 2][faces]  # (m, 3)
-    low, high = face_range if face_range is not None else _face_min_max(face_z)
-
-    # Global intersection filter: planes p with z_min < p <= z_max cross the triangle.
-    first = np.searchsorted(z, low, side="right")
-    counts = np.searchsorted(z, high, side="right") - first
-    crossed = np.nonzero(counts)[0]
-    counts = counts[crossed]
-    pair_face = np.repeat(crossed, counts)
-    run_start = np.repeat(np.cumsum(counts) - counts, counts)
-    pair_layer = np.repeat(first[crossed], counts) + (np.arange(len(pair_face)) - run_start)
-    # A stable sort of small integers is a radix sort in numpy: layers as int16 when they fit.
-    order = np.argsort(pair_layer.astype(np.int16) if len(z) <= np.iinfo(np.int16).max else pair_layer,
-                       kind="stable")
-    pair_face = pair_face[order]
-    pair_layer = pair_layer[order]
-
-    # Local topology: the lone vertex (alone on its side of the plane) and its two edges.
-    plane = z[pair_layer]
-    # np.take: row gathers are faster than fancy indexing (benchmarks/README.md)
-    tri = np.take(faces, pair_face, axis=0)  # (s, 3)
-    tri_z = np.take(face_z, pair_face, axis=0)
-    below = tri_z < plane[:, None]
-    # One or two corners are below; the lone vertex is the corner unlike the other two.
-    b0, b1, b2 = below[:, 0], below[:, 1], below[:, 2]
-    lone_below = b0 ^ b1 ^ b2
-    lone = np.where(b0 == b1, 2, np.where(b0 == b2, 1, 0))
-    after = lone + 1
-    after[after == 3] = 0
-    before = lone + 2
-    before[before >= 3] -= 3
-    # The segment runs from the point on the edge going down through the plane to the
-    # point on the edge going up (right-hand rule): with the lone vertex below, the
-    # start edge is (before, lone) and the end edge (lone, after); above, the reverse.
-    start_other = np.where(lone_below, before, after)
-    end_other = np.where(lone_below, after, before)
-    v_lone = _pick(tri, lone)
-    v_start = _pick(tri, start_other)
-    v_end = _pick(tri, end_other)
-    z_lone = _pick(tri_z, lone)
-    z_start = _pick(tri_z, start_other)
-    z_end = _pick(tri_z, end_other)
-
-    # Each intersection is computed from the edge's lower-numbered vertex so that both
-    # triangles sharing the edge agree bit for bit.
-    start_edge, start_t = _edge_crossing(v_lone, z_lone, v_start, z_start, plane)
-    end_edge, end_t = _edge_crossing(v_lone, z_lone, v_end, z_end, plane)
-    # whole (s, 3) rows, then x and y: the same arithmetic, several times faster than on strided columns
-    xyz_a = np.take(vertices, start_edge[:, 0], axis=0)
-    start = np.take(vertices, start_edge[:, 1], axis=0)
-    start -= xyz_a
-    start *= start_t[:, None]
-    start += xyz_a
-    start = np.ascontiguousarray(start[:, :2])
-
     span = np.int64(n_vertices) * np.int64(n_vertices)
     if len(z) * float(span) >= 2.0**62:
         raise InputError(f"mesh too large to slice: {n_vertices} vertices x {len(z)} layers")
-    layer_base = pair_layer * span
-    start_key = layer_base + start_edge[:, 0] * n_vertices + start_edge[:, 1]
-    end_key = layer_base + end_edge[:, 0] * n_vertices + end_edge[:, 1]
-    offsets = np.searchsorted(pair_layer, np.arange(len(z) + 1), side="left")
-    return Sections(
-        z=z,
-        offsets=offsets,
-        layer=pair_layer,
-        face=pair_face,
-        start=start,
-        start_key=start_key,
-        end_key=end_key,
-        start_edge=start_edge,
-        end_edge=end_edge,
-        start_t=start_t,
-        end_t=end_t,
-        vertices=vertices,
-    )
+    low, high = face_range if face_range is not None else face_z_range(vertices, faces)
+    # Global intersection filter: planes p with z_min < p <= z_max cross the triangle.
+    first = np.searchsorted(z, low, side="right")
+    stop = np.searchsorted(z, high, side="right")
+    # local topology, per (triangle, plane) pair, grouped by layer in one compiled pass
+    (offsets, layer, face, start, start_key, end_key, start_edge, end_edge, start_t,
+     end_t) = layer_segments(vertices, faces, z, first, stop)
+    return Sections(z=z, offsets=offsets, layer=layer, face=face, start=start, start_key=start_key,
+                    end_key=end_key, start_edge=start_edge, end_edge=end_edge, start_t=start_t, end_t=end_t,
+                    vertices=vertices)
 
 
 def interpolate_at(values: np.ndarray, edge: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -50,8 +50,7 @@ class RunResult:
 
 
 def run_contours(context: RunContext, start: int, stop: int) -> SlicedRun:
-    """The contours of planes z[start:stop] (numpy only, no compiled kernel), with the seconds spent slicing
-    and chaining them."""
+    """The contours of planes z[start:stop], with the seconds spent slicing and chaining them."""
     mesh = context.mesh
     began = time.perf_counter()
     sections = slice_planes(mesh.vertices, mesh.faces, context.z, start, stop, context.face_range)
