@@ -42,8 +42,9 @@ def test_shell_labels_match_scipy_connected_components(seed, shells, shuffle):
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 100_000), offset=st.sampled_from([0, 2**31 - 64]))
 def test_edge_groups_group_every_undirected_edge_in_index_order(seed, offset):
-    """Each group is one undirected edge, every face edge is in exactly one group, and within a group the
-    entries are in index order (a packed sort for small vertex indices, an argsort for huge ones)."""
+    """Each group is one undirected edge, every face edge is in exactly one group, groups are in order of
+    (lower, higher) vertex and within a group the entries are in index order (vertex indices far beyond the
+    faces' count, renumbered first, alike)."""
     from heoslice.mesh import edge_groups
 
     rng = np.random.default_rng(seed)
@@ -55,4 +56,6 @@ def test_edge_groups_group_every_undirected_edge_in_index_order(seed, offset):
     assert all((edges[run == g] == edges[groups.starts[g]]).all() for g in range(len(groups.starts)))
     assert len({tuple(e) for e in edges[groups.starts]}) == len(groups.starts)
     assert np.all(np.diff(groups.order)[np.diff(run) == 0] > 0)
+    first = edges[groups.starts]
+    np.testing.assert_array_equal(np.lexsort((first[:, 1], first[:, 0])), np.arange(len(first)))  # by (low, high)
 

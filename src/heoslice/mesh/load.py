@@ -165,9 +165,10 @@ def prepared_mesh(path: Path, raw: RawMesh, sha256) -> Mesh:
         raise InputError(f"{path}: the mesh has no faces")
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise InputError(f"{path}: face indices outside the vertex list (0..{len(vertices) - 1})")
-    if not np.isfinite(vertices).all():
+    reach = max(float(vertices.max(initial=0.0)), -float(vertices.min(initial=0.0)))  # NaN if any is NaN
+    if not np.isfinite(reach):
         raise InputError(f"{path}: vertex coordinates contain NaN or infinite values")
-    if np.abs(vertices).max(initial=0.0) > MAX_COORDINATE:
+    if reach > MAX_COORDINATE:
         raise InputError(f"{path}: vertex coordinates beyond +-{MAX_COORDINATE:g} (corrupt file, or wrong units)")
     colors = _vertex_colors(raw)
     material = raw.vertex_properties.get(MATERIAL_PROPERTY)
@@ -176,9 +177,13 @@ def prepared_mesh(path: Path, raw: RawMesh, sha256) -> Mesh:
     else:
         material = None
 
-    used = np.nonzero(np.bincount(faces.ravel(), minlength=len(vertices)))[0]
-    if len(used) < len(vertices):
+    referenced = np.zeros(len(vertices), dtype=bool)
+    referenced[faces.ravel()] = True
+    if not referenced.all():
+        used = np.flatnonzero(referenced)
         vertices, faces = vertices[used], np.searchsorted(used, faces)
+    else:
+        used = slice(None)
     vertices, faces, first = weld_vertices(vertices, faces)
     if colors is not None:
         colors = colors[used][first]

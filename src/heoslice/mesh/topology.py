@@ -1,15 +1,16 @@
-"""Mesh topology from one integer sort of the edges: shells, edge use counts, winding consistency, orientation."""
+"""Mesh topology from one counting sort of the edges: shells, edge use counts, winding consistency, orientation."""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from heoslice.jit import i64
-from heoslice.mesh.topology_kernels import _lowest_connected
+from heoslice.mesh.topology_kernels import _edge_runs, _lowest_connected
 from heoslice.mesh.volume import face_volumes, winding_number
-from heoslice.mesh.weld import index_bits, index_sort
+
 
 @dataclass(frozen=True)
 class EdgeGroups:
@@ -18,19 +19,19 @@ class EdgeGroups:
     ``order`` ((3m,) int) sorts them; ``starts`` ((e,) int) is where each distinct
     edge's run begins in that order; ``forward`` ((3m,) bool, sorted) is True where the
     face walks the edge from its lower to its higher vertex index. Shells, edge use
-    counts and winding consistency all come from this one integer sort.
+    counts and winding consistency all come from this one sort.
     """
 
     order: np.ndarray
     starts: np.ndarray
     forward: np.ndarray
 
-    @property
+    @functools.cached_property
     def uses(self) -> np.ndarray:
         """(e,) int: faces using each distinct edge (1 on a hole's rim, more than 2 if non-manifold)."""
         return np.diff(np.append(self.starts, len(self.order)))
 
-    @property
+    @functools.cached_property
     def winding_consistent(self) -> bool:
         """No edge is walked twice in the same direction (neighbouring faces agree on orientation)."""
         forward = np.add.reduceat(self.forward.astype(np.int64), self.starts) if len(self.starts) else 0
@@ -38,18 +39,16 @@ class EdgeGroups:
 
 
 def edge_groups(faces: np.ndarray) -> EdgeGroups:
-    """Group the faces' edges by undirected edge with one integer sort (edges of one group in index order)."""
-    edges = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    vertices = int(faces.max(initial=0)) + 1
-    key = np.minimum(edges[:, 0], edges[:, 1]) * np.int64(vertices) + np.maximum(edges[:, 0], edges[:, 1])
-    shift = index_bits(len(key))
-    if (vertices * vertices - 1).bit_length() + shift <= 64:
-        order, sorted_key = index_sort(key.view(np.uint64) << np.uint64(shift))
-    else:  # too many vertices to pack the edge index beside the key
-        order = np.argsort(key, kind="stable")
-        sorted_key = key[order]
-    starts = np.flatnonzero(np.concatenate([[True], sorted_key[1:] != sorted_key[:-1]]))
-    return EdgeGroups(order=order, starts=starts, forward=(edges[:, 0] < edges[:, 1])[order])
+    """Group the faces' edges by undirected edge, in order of (lower, higher) vertex, each group's edges in
+    index order (compiled: a counting sort by lower vertex). Indices far beyond the faces' own count are
+    renumbered first, in the same order, so the sort's buckets stay as few as the vertices used."""
+    faces = i64(faces)
+    vertices = int(faces.max(initial=-1)) + 1
+    if vertices > 3 * len(faces) + 1:
+        used, inverse = np.unique(faces, return_inverse=True)
+        faces, vertices = i64(inverse.reshape(faces.shape)), len(used)
+    order, starts, forward = _edge_runs(faces, vertices)
+    return EdgeGroups(order=order, starts=starts, forward=forward)
 
 
 def shell_labels(faces: np.ndarray, groups: EdgeGroups | None = None) -> np.ndarray:

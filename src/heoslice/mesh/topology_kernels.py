@@ -1,5 +1,5 @@
-"""The topology's compiled kernel: connected shells by union-find over the faces that share an edge (numba
-source, compiled at install: :mod:`heoslice.jit`)."""
+"""The topology's compiled kernels: the faces' edges grouped by undirected edge, and connected shells by
+union-find over the faces that share one (numba source, compiled at install: :mod:`heoslice.jit`)."""
 
 from __future__ import annotations
 
@@ -28,3 +28,46 @@ def _lowest_connected(a, b, count):  # pragma: no cover - compiled
     for face in range(count):
         parent[face] = parent[parent[face]]  # roots precede their members: one step reaches the root
     return parent
+
+
+@kernel(EXACT)
+def _edge_runs(faces, vertices):  # pragma: no cover - compiled
+    """(order (3m,), starts (e,), forward (3m,) bool) of the edges of faces ((m, 3) int, indices below
+    ``vertices``; edge k of face f, entry 3f + k, runs from corner k to corner k + 1): the entries sorted by
+    undirected edge (lower vertex, then higher), each edge's in index order. A counting sort by the lower
+    vertex, then each vertex's few entries sorted by their higher vertex (insertion, so ties stay in order)."""
+    count = 3 * faces.shape[0]
+    bucket = np.zeros(vertices + 1, dtype=np.int64)
+    for f in range(faces.shape[0]):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            bucket[min(a, b) + 1] += 1
+    for v in range(vertices):
+        bucket[v + 1] += bucket[v]
+    cursor = bucket[:-1].copy()
+    order = np.empty(count, dtype=np.int64)
+    higher = np.empty(count, dtype=np.int64)
+    forward = np.empty(count, dtype=np.bool_)
+    for f in range(faces.shape[0]):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            low = min(a, b)
+            at = cursor[low]
+            cursor[low] += 1
+            order[at], higher[at], forward[at] = 3 * f + k, max(a, b), a < b
+    starts = np.empty(count, dtype=np.int64)
+    runs = 0
+    for v in range(vertices):
+        first, stop = bucket[v], bucket[v + 1]
+        for i in range(first + 1, stop):
+            entry, high, ahead = order[i], higher[i], forward[i]
+            j = i - 1
+            while j >= first and higher[j] > high:
+                order[j + 1], higher[j + 1], forward[j + 1] = order[j], higher[j], forward[j]
+                j -= 1
+            order[j + 1], higher[j + 1], forward[j + 1] = entry, high, ahead
+        for i in range(first, stop):
+            if i == first or higher[i] != higher[i - 1]:
+                starts[runs] = i
+                runs += 1
+    return order, starts[:runs].copy(), forward
