@@ -15,7 +15,7 @@ STAGES = ("base", "mesh", "material", "layers", "grading", "build", "stack", "pi
           "printing", "cli")
 #: The stage of each first name under heoslice (a package, or a base module that every stage may use).
 STAGE_OF = {
-    "__init__": "base", "errors": "base", "files": "base", "jit": "base", "locks": "base", "signals": "base",
+    "__init__": "base", "errors": "base", "files": "base", "jit": "base", "lazy": "base", "locks": "base", "signals": "base",
     "mesh": "mesh", "procedural": "mesh",
     "material": "material", "layers": "layers", "grading": "grading", "kernel_exports": "build", "stack": "stack",
     "pipeline": "pipeline",

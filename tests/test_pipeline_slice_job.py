@@ -268,7 +268,10 @@ def test_two_slices_into_one_directory_cannot_both_succeed(tmp_path):
 
 def test_one_material_slice_loads_no_heavy_library(tmp_path):
     """A one-material `heoslice slice` (a fresh process) loads neither numba nor scipy's sparse graphs or
-    spatial trees: importing them costs every such slice more than slicing a small part (benchmarks/README.md)."""
+    spatial trees, nor the colouring's modules or tqdm (no terminal): importing them costs every such slice
+    more than slicing a small part (benchmarks/README.md)."""
     model = write_mesh(procedural.sphere(5.0, 3), tmp_path / "ball.ply")
     args = ["slice", str(model), "-o", str(tmp_path / "out")]
-    assert modules_loaded_by_command(args, ("numba", "scipy.sparse", "scipy.spatial")) == []
+    heavy = ("numba", "scipy.sparse", "scipy.spatial", "heoslice.material.coloring", "heoslice.material.surface",
+             "tqdm")
+    assert modules_loaded_by_command(args, heavy) == []

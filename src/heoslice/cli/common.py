@@ -41,12 +41,13 @@ def echo_warnings(source: Path, warnings: tuple[str, ...] | list[str]) -> None:
 
 @contextmanager
 def progress_bar(description: str, unit: str = "it") -> Iterator[Callable[[int, int], None]]:
-    """A ``progress(done, total)`` callback drawing a tqdm bar on a terminal, silent otherwise."""
-    from tqdm import tqdm
-
+    """A ``progress(done, total)`` callback drawing a tqdm bar on a terminal, silent otherwise (tqdm is
+    imported only to draw one: a pipeline's run, logged to a file, does not load it)."""
     if not sys.stderr.isatty():
         yield lambda done, total: None
         return
+    from tqdm import tqdm
+
     bar = tqdm(desc=description, unit=unit, leave=False, dynamic_ncols=True, file=sys.stderr)
 
     def update(done: int, total: int) -> None:
