@@ -156,8 +156,8 @@ def test_nearest_in_groups_reports_no_edge_beyond_the_radius():
 
 
 @settings(max_examples=30, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 16), st.booleans())
-def test_expand_planes_is_the_plane_formula(seed, cell, masked):
+@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 16), st.booleans(), st.sampled_from([np.int8, np.int16, np.int32]))
+def test_expand_planes_is_the_plane_formula(seed, cell, masked, label_dtype):
     """Each pixel gets clip(floor(s + gx x - gy y) + 1, 1, count) of its cell's plane (x, y its offset
     from the cell centre), except where s sits within float32 rounding of an integer; with a
     mask, 0 off its pixels; + base on the others; every pixel of an empty cell 0."""
@@ -170,7 +170,7 @@ def test_expand_planes_is_the_plane_formula(seed, cell, masked):
     shape = (rows * cell - int(rng.integers(0, cell)), cols * cell - int(rng.integers(0, cell)))
     mask = rng.random((shape[0] + 5, shape[1] + 4)) < 0.7 if masked else None
     out = expand_planes(s, gx, gy, CellPixels(cell, px, py), count,
-                        label_target(np.full(shape, -5, np.int16), mask, (3, 2), base), empty)
+                        label_target(np.full(shape, -5, label_dtype), mask, (3, 2), base), empty)
     r, c = np.indices(shape)
     i, j = r // cell, c // cell
     x = (c - j * cell + 0.5 - cell / 2) * px
@@ -186,8 +186,8 @@ def test_expand_planes_is_the_plane_formula(seed, cell, masked):
 
 
 @settings(max_examples=30, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 5), st.booleans())
-def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked):
+@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 5), st.booleans(), st.sampled_from([np.int8, np.int16, np.int32]))
+def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked, label_dtype):
     """band_cells writes, at every pixel of the given cells, clip(floor(s) + 1, 1, count) of s by eq. 10
     (s = (1 - w_start) count from helpers.ring_weights for two or more ring sets, d count / length for
     one) of each ring set's distance there: its quadratic where the cell's model is given, the measured
@@ -197,7 +197,7 @@ def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked
     rng = np.random.default_rng(seed)
     cell, rows, cols, count, length, base = 5, 4, 5, int(rng.integers(1, 40)), 3.0, 3
     px = py = 0.05
-    index = np.full((rows * cell - 2, cols * cell - 1), -7, dtype=np.int32)
+    index = np.full((rows * cell - 2, cols * cell - 1), -7, dtype=label_dtype)
     mask = rng.random(index.shape) < 0.6 if masked else None
     ci, cj = np.array([0, 3, 2, 3]), np.array([1, 4, 0, 0])
     models = np.column_stack([rng.uniform(0.2, 6.0, (sets, 4)).ravel()] + [rng.uniform(-1, 1, sets * 4)
@@ -624,8 +624,8 @@ def test_disc_winding_is_the_turns_around_a_disc_no_edge_enters(seed, x, y, reac
     assert disc_winding(points, offsets, np.array([1]), np.array([x, y]), reach) == inside[1]
 
 @settings(max_examples=20, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.booleans())
-def test_curve_cells_is_the_quadratic_formula(seed, masked):
+@given(st.integers(0, 2 ** 32 - 1), st.booleans(), st.sampled_from([np.int8, np.int16, np.int32]))
+def test_curve_cells_is_the_quadratic_formula(seed, masked, label_dtype):
     """curve_cells writes clip(floor(s + g.d + d.H.d / 2) + 1, 1, count) at every pixel of the given cells
     (d the pixel's offset from the cell centre, y up), + base, and 0 off the mask's pixels, and
     leaves every other pixel alone."""
@@ -635,7 +635,7 @@ def test_curve_cells_is_the_quadratic_formula(seed, masked):
     grad = rng.uniform(-4, 4, (rows, cols, 2))
     hessian = rng.uniform(-9, 9, (3, rows, cols))
     px = py = 0.05
-    index = np.full((rows * cell - 2, cols * cell - 1), -7, dtype=np.int32)
+    index = np.full((rows * cell - 2, cols * cell - 1), -7, dtype=label_dtype)
     mask = rng.random(index.shape) < 0.6 if masked else None
     ci, cj = np.array([0, 3, 2]), np.array([1, 4, 0])
     curve_cells(label_target(index, mask, (0, 0), base), ci, cj, CellPixels(cell, px, py), s, grad, hessian, count)
@@ -737,7 +737,7 @@ def assert_droplet_bits_are_the_per_pixel_choice(rng, case: dict, channels: int,
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2 ** 32 - 1), st.sampled_from([1, 2, 3, 4, 5, 9]), st.integers(1, 40), st.integers(1, 70),
-       st.sampled_from([np.int16, np.int32]))
+       st.sampled_from([np.int8, np.int16, np.int32]))
 def test_droplet_bits_is_the_per_pixel_choice_packed(seed, channels, height, width, label_dtype):
     """droplet_bits equals np.packbits of the brute-force per-pixel choice: outside the label box and on
     label 0 the base channel, else the table entry at the pixel's dither level, else (entry -1)

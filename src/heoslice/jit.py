@@ -38,8 +38,10 @@ CHECK_VARIABLE = "HEOSLICE_CHECK_KERNELS"
 #: kernels' argument layouts (JSON: export name -> one layout per argument).
 COMPILED_MODULE = "heoslice._compiled"
 DIGEST_EXPORT, LAYOUTS_EXPORT = "source_digest", "argument_layouts"
-#: Label widths (bits) a kernel taking a label array is exported for: int16 labels, int32 past 32000.
-LABEL_BITS = (16, 32)
+#: Label widths (bits) a kernel taking a label array is exported for: int8 labels (a layer of few
+#: sub-regions: half the memory traffic of its per-pixel passes), int16, and int32 past 32000
+#: (:func:`heoslice.grading.field.label_dtype`).
+LABEL_BITS = (8, 16, 32)
 
 
 @dataclass(frozen=True)

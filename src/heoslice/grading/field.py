@@ -98,7 +98,7 @@ def _band_coordinate(layout: FamilyLayout, d: np.ndarray, g: np.ndarray) -> tupl
 class FamilyField:
     """The sub-region index of one family over its pixel box.
 
-    ``index``: (rows, cols) int16/int32, k in 1..N_R (valid on the family's solid
+    ``index``: (rows, cols) int8/int16/int32 (:func:`label_dtype`), k in 1..N_R (valid on the family's solid
     pixels; the caller masks; one read-only value broadcast over the box for a family of one
     sub-region without a mask; in :class:`LayerRegions` the outermost family's index,
     when its box is the layer's, is the label array itself); ``box`` = (row0, row1, col0, col1) of the grid;
@@ -329,15 +329,16 @@ def _exact_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: 
 
 
 def label_dtype(largest: int) -> type:
-    """int16 for labels up to 32000, else int32."""
-    return np.int16 if largest < 32000 else np.int32
+    """The narrowest label type for labels up to ``largest``: int8 below 120, int16 below 32000, else int32
+    (the per-pixel passes over a layer's labels are bound by their memory traffic)."""
+    return np.int8 if largest < 120 else np.int16 if largest < 32000 else np.int32
 
 
 def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid, flat: np.ndarray, count: int,
                    shape: tuple[int, int], mask: np.ndarray | None = None, label_base: int = 0,
                    empty: np.ndarray | None = None) -> np.ndarray:
-    """k = clip(floor(s) + 1, 1, N_R) at every pixel of the family's box ((rows, cols) int16, int32
-    past 32000 labels) from one plane per cell (compiled); a ``flat`` cell takes its centre's
+    """k = clip(floor(s) + 1, 1, N_R) at every pixel of the family's box ((rows, cols) int, of
+    :func:`label_dtype`) from one plane per cell (compiled); a ``flat`` cell takes its centre's
     value throughout, an ``empty`` one (none of the family's pixels) 0. With the layer's
     ``mask``: k + label_base on solid pixels, else 0."""
     s = np.where(flat, np.clip(s, -1.0, count - 0.5), s)

@@ -34,7 +34,7 @@ _NEAR_TESTS = 1 << 22
 class LayerRegions:
     """The sub-regions of one layer.
 
-    ``label`` ((rows, cols) int16/int32 over pixel ``box`` = (row0, row1, col0, col1))
+    ``label`` ((rows, cols) int8/16/32 over pixel ``box`` = (row0, row1, col0, col1))
     numbers every solid pixel's sub-region across the layer: family f's sub-region k
     is ``base[f] + k`` (k = 1..N_R; a nested shell keeps its own material: k = 0),
     0 is empty; a layer of one family of one sub-region labelled from the packed mask has one
