@@ -754,6 +754,27 @@ def test_droplet_bits_is_the_per_pixel_choice_packed(seed, channels, height, wid
     assert_droplet_bits_are_the_per_pixel_choice(rng, case, channels, tile, level, layer)
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.sampled_from([1, 2, 3, 4]), st.integers(1, 30), st.integers(40, 200))
+def test_droplet_bits_of_one_label_everywhere_is_the_per_pixel_choice(seed, channels, height, width):
+    """One label at every pixel of the box (a coloured layer of one family), its table entries nearly all
+    set: the chunks taken as that label's whole pattern word give the brute-force per-pixel choice."""
+    from heoslice.grading.halftone import layer_tile
+
+    rng = np.random.default_rng(seed)
+    case = random_halftone_case(rng, channels, height, width, np.int16)
+    rows, cols = case["label"].shape
+    assume(rows > 0 and cols >= 32)
+    value = int(rng.integers(1, len(case["table"])))
+    case["table"][value] = rng.integers(0, channels, 256)
+    case["table"][value, rng.random(256) < 0.02] = -1
+    case["label"] = np.broadcast_to(np.int16(value), (rows, cols))
+    layer = int(rng.integers(0, 1000))
+    tile = layer_tile(layer)
+    assert_droplet_bits_are_the_per_pixel_choice(rng, case, channels, tile, np.rint(tile * 256 - 0.5).astype(np.int64),
+                                                 layer)
+
+
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2 ** 32 - 1), st.sampled_from([1, 2, 3, 5]), st.integers(2, 30), st.integers(1, 70))
 def test_droplet_bits_reads_labels_broadcast_down_their_box_as_their_copy(seed, channels, height, width):

@@ -62,21 +62,23 @@ def _chunk_solid(solid, k):  # pragma: no cover - compiled
 
 
 @helper(EXACT, inline=False)
-def _droplet_run(line, solid, pattern, first, planes, count, channels):  # pragma: no cover - compiled
+def _droplet_run(line, solid, pattern, first, planes, count, channels, uniform):  # pragma: no cover - compiled
     """The common case of :func:`_droplet_bits`: ``count`` chunks of 16 pixels of a row, from chunk
     ``first``, all inside the labels, K <= 4 channels (one pattern word: ``pattern`` (blocks,
     labels) int64 at the row's tile phase); ``line`` (labels), ``solid`` and ``planes`` ((K,
-    bytes)) start at chunk ``first``. Returns how many chunks it wrote: it stops before the first
-    one with a solid pixel whose label has no table entry (left to the per-pixel mix). A small
-    kernel of its own, so the 16-pixel loop keeps its registers; K = 2 writes the second plane
-    as the solid byte less the first."""
+    bytes)) start at chunk ``first``; ``uniform`` the one label of every pixel, or -1 (a chunk's
+    word is then its label's, whole, not gathered pixel by pixel). Returns how many chunks it wrote:
+    it stops before the first one with a solid pixel whose label has no table entry (left to the
+    per-pixel mix). A small kernel of its own, so the 16-pixel loop keeps its registers; K = 2
+    writes the second plane as the solid byte less the first."""
     wrap = pattern.shape[0] - 1
     if channels == 2:
         for k in range(count):
             high, low, mask = _chunk_solid(solid, k)
             if mask == 0:
                 continue
-            value = _chunk_word(pattern[np.uint64((first + k) & wrap)], line, k, np.int64(0x10001))
+            words = pattern[np.uint64((first + k) & wrap)]
+            value = words[uniform] if uniform >= 0 else _chunk_word(words, line, k, np.int64(0x10001))
             if (value >> 16) & mask:
                 return k
             value &= mask
@@ -92,7 +94,8 @@ def _droplet_run(line, solid, pattern, first, planes, count, channels):  # pragm
         high, low, mask = _chunk_solid(solid, k)
         if mask == 0:
             continue
-        value = _chunk_word(pattern[np.uint64((first + k) & wrap)], line, k, spread)
+        words = pattern[np.uint64((first + k) & wrap)]
+        value = words[uniform] if uniform >= 0 else _chunk_word(words, line, k, spread)
         if (value >> (16 * (channels - 1))) & mask:
             return k
         union = np.int64(0)
@@ -179,6 +182,11 @@ def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
     words = (channels + 3) // 4
     cols = label.shape[1]
     repeated = label.shape[0] == 1  # one row of labels for every row of the box
+    uniform = np.int64(label[0, 0]) if repeated and cols else np.int64(-1)  # one label at every pixel, or -1
+    for c in range(cols if repeated else 0):
+        if label[0, c] != uniform:
+            uniform = np.int64(-1)
+            break
     width = packed.shape[1]
     spread = np.int64(0x0001000100010001)
     pattern = _pattern_words(table, level, channels, size, words, blocks)
@@ -212,7 +220,7 @@ def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
         while chunk < end:
             if chunk == run_from < run_to:
                 chunk += _droplet_run(line[16 * chunk - c0:], solid[2 * chunk:], pattern[phase, 0], chunk,
-                                      planes[:, row, 2 * chunk:], run_to - chunk, channels)
+                                      planes[:, row, 2 * chunk:], run_to - chunk, channels, uniform)
                 run_from = chunk + 1
                 continue
             high = np.int64(solid[2 * chunk])
