@@ -22,6 +22,7 @@ from heoslice.grading.field_kernels import (
     label_target,
 )
 from heoslice.grading.labels_kernels import disc_winding
+from heoslice.grading.materials_kernels import values_at_points
 from heoslice.grading.lattice_kernels import (
     LatticeFrame,
     feet,
@@ -1019,3 +1020,25 @@ def test_inside_centres_counts_a_vertex_once_where_an_edges_end_rounds_off_it():
     assert expected[0].sum() > 50
     assert np.array_equal(inside, expected)
 
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 3))
+def test_values_at_points_are_numpys_interpolation_bit_for_bit(seed, columns):
+    """values_at_points equals numpy's own: t of each point's projection on its edge, clipped, its position
+    edge + ring + t along the knots, and np.interp there, bit for bit; for points beyond their edge's ends,
+    points exactly on knots (ring corners and the points an edge spans), and one to three columns."""
+    rng = np.random.default_rng(seed)
+    edges = random_rings(rng, int(rng.integers(1, 4)))
+    values = rng.uniform(-1.0, 2.0, (len(edges.knots), columns))
+    count = 300
+    edge = rng.integers(0, len(edges.x), count)
+    t = np.where(rng.random(count) < 0.2, rng.choice([0.0, 1.0, -0.5, 1.5], count), rng.uniform(0.0, 1.0, count))
+    near = np.stack([edges.x[edge] + t * edges.vx[edge] + rng.normal(0, 0.01, count) * edges.vy[edge],
+                     edges.y[edge] + t * edges.vy[edge] - rng.normal(0, 0.01, count) * edges.vx[edge]])
+    along = ((near[0] - edges.x[edge]) * edges.vx[edge] + (near[1] - edges.y[edge]) * edges.vy[edge]) * edges.inv_len2[edge]
+    at = edge + edges.ring[edge] + np.clip(along, 0.0, 1.0)
+    expected = np.stack([np.interp(at, edges.knots, values[:, c]) for c in range(columns)], axis=-1)
+    got = values_at_points(near.reshape(2, 15, 20), edge.reshape(15, 20), edges, values)
+    assert got.shape == (15, 20, columns)
+    assert got.reshape(count, columns).tobytes() == expected.tobytes()

@@ -25,6 +25,7 @@ from heoslice.grading import (
     field_kernels,
     labels_kernels,
     lattice_kernels,
+    materials_kernels,
     refine_kernels,
     search_kernels,
 )
@@ -81,6 +82,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     lattice_kernels._signed_feet: (i8_2, FRAME, EDGES, b_2, b1),
     lattice_kernels._inside_centres: (EDGES, f8_1, FRAME, i8, i8),
     lattice_kernels._feet: (f8_1, f8_1, i8_1, EDGES),
+    materials_kernels._values_at_points: (f8_1, f8_1, i8_1, EDGES, i8_1, i8_1, f8_1, f8_2),
     rasterising_kernels._packed_mask: (f8_2, i8_1, i8, i8, f8, f8, f8, f8, u1_2),
     refine_kernels._refine_flags: (CELL_FIELD, types.UniTuple(f8_2, 3), FIT_TEST, VERTICES),
     refine_kernels._hessian_of: (f8_3, f8, f8),

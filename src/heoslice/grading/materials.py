@@ -8,6 +8,7 @@ import numpy as np
 from heoslice.grading.families import Family
 from heoslice.grading.field import FamilyField
 from heoslice.grading.labels import LayerRegions, family_of, label_fractions
+from heoslice.grading.materials_kernels import values_at_points
 from heoslice.grading.search import nearest_edges, ring_tree
 from heoslice.grading.spec import GradeSpec
 from heoslice.layers.rasterising import Grid
@@ -90,11 +91,8 @@ def contour_values(field: FamilyField, values: np.ndarray) -> np.ndarray:
     if len(values) and (values == values[:1]).all():
         return np.broadcast_to(values[0], (field.lattice.rows, field.lattice.cols) + values.shape[1:])
     foot, edge = field.nearest()
-    t = ((foot[0] - edges.x[edge]) * edges.vx[edge] + (foot[1] - edges.y[edge]) * edges.vy[edge]) * edges.inv_len2[edge]
-    at = edge + edges.ring[edge] + np.clip(t, 0.0, 1.0)
-    if values.ndim == 1:
-        return np.interp(at, edges.knots, values)
-    return np.stack([np.interp(at, edges.knots, column) for column in values.T], axis=-1)
+    at_feet = values_at_points(foot, edge, edges, values.reshape(len(values), -1))
+    return at_feet[..., 0] if values.ndim == 1 else at_feet
 
 
 def pixel_start_colors(regions: LayerRegions, spec: GradeSpec, loop_shell, point_colors, point_material,
@@ -154,12 +152,9 @@ def pixel_contour_values(field: FamilyField, values: np.ndarray, own: np.ndarray
         cx, cy = lattice.x0 + (j + 0.5) * lattice.dx, lattice.y0 - (i + 0.5) * lattice.dy
         radius = np.hypot(cx - foot[0][i, j], cy - foot[1][i, j]) + reach
         edge = np.maximum(nearest_edges(cx, cy, radius, ox, oy, edges, tree), 0).astype(np.int64)
-        x, y = cx[:, None] + ox[None, :], cy[:, None] + oy[None, :]
-        t = ((x - edges.x[edge]) * edges.vx[edge] + (y - edges.y[edge]) * edges.vy[edge]) * edges.inv_len2[edge]
-        at = edge + edges.ring[edge] + np.clip(t, 0.0, 1.0)
+        centres = np.stack([cx[:, None] + ox[None, :], cy[:, None] + oy[None, :]])
         rows_at = (i[:, None] * f + v[None, :]).ravel()
         cols_at = (j[:, None] * f + u[None, :]).ravel()
-        for column in range(columns.shape[1]):
-            out[rows_at, cols_at, column] = np.interp(at.ravel(), edges.knots, columns[:, column])
+        out[rows_at, cols_at] = values_at_points(centres, edge, edges, columns).reshape(len(rows_at), -1)
     out = np.where(own[..., None], out[:rows, :cols], 0.0)
     return out[..., 0] if values.ndim == 1 else out
