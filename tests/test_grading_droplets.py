@@ -86,20 +86,3 @@ def test_masks_without_a_gradient_are_those_of_the_full_sub_region_layout():
                              packed=packed)
         assert np.array_equal(got, expected)
         assert got.any()
-
-
-@settings(max_examples=80, deadline=None)
-@given(channels=st.integers(1, 4), rows=st.integers(1, 3000), distinct=st.integers(1, 40), seed=st.integers(0, 2**16))
-def test_distinct_rows_are_the_distinct_mixes_bit_for_bit(channels, rows, distinct, seed):
-    """_distinct_rows gives each distinct (n, K) float32 row once, by its bits (0.0 and -0.0 apart), for one to
-    four materials (one word per row up to two, a lexsort beyond): the set np.unique(axis=0) gives."""
-    from heoslice.grading.droplets import _distinct_rows
-
-    rng = np.random.default_rng(seed)
-    values = rng.choice(np.float32([0.0, -0.0, 1.0, 0.25, 1e-7]), (distinct, channels))
-    values[: distinct // 2] = rng.random((distinct // 2, channels))
-    flat = values.astype(np.float32)[rng.integers(0, distinct, rows)]
-    found = np.ascontiguousarray(_distinct_rows(flat)).view(np.uint32)
-    expected = np.unique(np.ascontiguousarray(flat).view(np.uint32), axis=0)
-    assert len(found) == len(expected)
-    assert np.array_equal(np.unique(found, axis=0), expected)

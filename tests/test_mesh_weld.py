@@ -15,9 +15,9 @@ def test_weld_merges_equal_coordinates_in_first_occurrence_order(monkeypatch, co
     from heoslice.mesh import weld
 
     if collide == "all":
-        monkeypatch.setattr(weld, "_row_hash", lambda bits: np.zeros(len(bits), dtype=np.uint64))
+        monkeypatch.setattr(weld, "row_hash", lambda bits: np.zeros(len(bits), dtype=np.uint64))
     elif collide == "some":  # rows with the same x collide whatever their y and z
-        monkeypatch.setattr(weld, "_row_hash", lambda bits: bits[:, 0].astype(np.uint64) << np.uint64(40))
+        monkeypatch.setattr(weld, "row_hash", lambda bits: bits[:, 0].astype(np.uint64) << np.uint64(40))
     rng = np.random.default_rng(5)
     vertices = rng.integers(-2, 3, (300, 3)).astype(np.float32)
     vertices[vertices == 0] = -0.0
@@ -64,7 +64,7 @@ def test_duplicate_faces_are_the_repeats_of_an_earlier_face(monkeypatch, collide
     from heoslice.mesh import weld
 
     if collide == "all":
-        monkeypatch.setattr(weld, "_row_hash", lambda bits: np.zeros(len(bits), dtype=np.uint64))
+        monkeypatch.setattr(weld, "row_hash", lambda bits: np.zeros(len(bits), dtype=np.uint64))
     rng = np.random.default_rng(8)
     faces = np.array([rng.choice(6, 3, replace=False) for _ in range(400)])
     seen, expected = set(), []
@@ -75,3 +75,27 @@ def test_duplicate_faces_are_the_repeats_of_an_earlier_face(monkeypatch, collide
     np.testing.assert_array_equal(weld.duplicate_faces(faces), expected)
     assert not weld.duplicate_faces(np.array([[0, 1, 2], [0, 2, 1]])).any()
 
+
+
+@settings(max_examples=80, deadline=None)
+@given(channels=st.integers(1, 6), rows=st.integers(0, 3000), distinct=st.integers(1, 40), seed=st.integers(0, 2**16),
+       wide=st.booleans())
+def test_distinct_rows_are_first_occurrences_of_each_row_by_its_bits(channels, rows, distinct, seed, wide):
+    """distinct_rows gives each distinct row of float32 or float64 values once, by its bits (0.0 and -0.0 apart),
+    at its first occurrence, in order, and every row's index among them: np.unique(axis=0) of the bits, and
+    a walk over the rows keeping the first of each."""
+    from heoslice.mesh.weld import distinct_rows
+
+    rng = np.random.default_rng(seed)
+    dtype = np.float64 if wide else np.float32
+    values = rng.choice(np.array([0.0, -0.0, 1.0, 0.25, 1e-7], dtype=dtype), (distinct, channels))
+    values[: distinct // 2] = rng.random((distinct // 2, channels))
+    flat = values.astype(dtype)[rng.integers(0, distinct, rows)]
+    row_index, first = distinct_rows(flat)
+    bits = flat.view(np.uint64 if wide else np.uint32)
+    seen = {}
+    for i, row in enumerate(map(bytes, bits)):
+        seen.setdefault(row, i)
+    np.testing.assert_array_equal(first, sorted(seen.values()))
+    assert len(first) == len(np.unique(bits, axis=0))
+    np.testing.assert_array_equal(bits[first][row_index], bits)

@@ -18,6 +18,7 @@ from heoslice.grading.labels import LayerRegions, layer_regions
 from heoslice.grading.materials import family_starts, target_fractions
 from heoslice.grading.spec import GradeSpec, RegionSpec
 from heoslice.layers.rasterising import Grid
+from heoslice.mesh.weld import distinct_rows
 
 #: Most (distinct fraction, distinct cell mix) pairs whose choices :func:`_choice_table` tabulates for one
 #: family (a family beyond it is halftoned per pixel), and how many of them at once (~10 bytes per pair and
@@ -114,8 +115,10 @@ def _choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.
         flat = mix.reshape(-1, mix.shape[-1]).astype(np.float32)
         labels = np.arange(regions.base[number], regions.base[number + 1])
         moved, of_label = np.unique(fractions.astype(np.float32)[labels], return_inverse=True)
-        cells = _distinct_rows(flat)
-        if not len(flat) or len(cells) * len(moved) > _TABLE_SHARES:
+        if not len(flat):
+            continue
+        cells = flat[distinct_rows(flat)[1]]  # by their bits
+        if len(cells) * len(moved) > _TABLE_SHARES:
             continue
         first, agreed = None, np.ones((len(moved), count), dtype=bool)
         step = max(1, _SHARES_AT_ONCE // len(moved))
@@ -127,21 +130,6 @@ def _choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.
             agreed &= (chosen == first[:, None]).all(axis=1)
         table[labels] = np.where(agreed, first, np.int8(-1))[of_label]
     return table
-
-
-def _distinct_rows(flat: np.ndarray) -> np.ndarray:
-    """The distinct rows of (n, K) float32 mixes, by their bits: np.unique of one word per row when a row
-    fits one (K <= 2: two materials, the common case), else a lexsort of the bit columns (np.unique's
-    axis=0 sort of row records is slow)."""
-    if len(flat) < 2 or (flat == flat[0]).all():
-        return flat[:1]
-    bits = np.ascontiguousarray(flat).view(np.uint32)
-    word = {1: np.uint32, 2: np.uint64}.get(bits.shape[1])
-    if word is not None:
-        return np.unique(bits.view(word).ravel()).view(np.float32).reshape(-1, bits.shape[1])
-    ordered = bits[np.lexsort(bits.T[::-1])]
-    keep = np.r_[True, (ordered[1:] != ordered[:-1]).any(axis=1)]
-    return ordered[keep].view(np.float32)
 
 
 def _running_choice(share: np.ndarray, levels: np.ndarray) -> np.ndarray:

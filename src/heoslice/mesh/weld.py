@@ -14,21 +14,30 @@ from heoslice.mesh.weld_kernels import _first_rows
 _HASH_MULTIPLIERS = (0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0xBF58476D1CE4E5B9)
 
 
-def _row_hash(bits: np.ndarray) -> np.ndarray:
-    """(n,) uint64 hash of the rows of (n, 3) uint32 or uint64 coordinate bits; its high bits are the well-mixed ones.
+def row_hash(bits: np.ndarray) -> np.ndarray:
+    """(n,) uint64 hash of the rows of (n, c) uint32 or uint64 bits; its high bits are the well-mixed ones.
 
-    Multiplicative hashing per coordinate, xor-ed, then one xor-shift-multiply round
-    so that every input bit reaches the high bits. Collisions only cost time: the
-    weld compares the rows themselves.
+    Multiplicative hashing per column (the first column by the first multiplier, the others by the
+    second and third in turn), xor-ed, then one xor-shift-multiply round so that every input bit
+    reaches the high bits. Collisions only cost time: the callers compare the rows themselves.
     """
     k0, k1, k2, k3 = (np.uint64(k) for k in _HASH_MULTIPLIERS)
     with np.errstate(over="ignore"):
         key = bits[:, 0] * k0
-        key ^= bits[:, 1] * k1
-        key ^= bits[:, 2] * k2
+        for column in range(1, bits.shape[1]):
+            key ^= bits[:, column] * (k1 if column % 2 else k2)
         key ^= key >> np.uint64(32)
         key *= k3
     return key
+
+
+def distinct_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(row_index (n,) int, first (m,) int) of the distinct rows of a 2-D array of 4- or 8-byte items, told
+    apart by their bits: first[j] is the row where the j-th distinct row first occurs (increasing),
+    row_index[i] the j of row i's. One compiled pass over a hash table (:mod:`heoslice.mesh.weld_kernels`)."""
+    rows = np.ascontiguousarray(rows)
+    words = rows.view(np.uint32 if rows.itemsize == 4 else np.uint64)
+    return _first_rows(row_hash(words), words.view(np.uint32).reshape(len(rows), rows.shape[1] * rows.itemsize // 4))
 
 
 def index_bits(count: int) -> int:
@@ -66,8 +75,7 @@ def weld_vertices(vertices: np.ndarray, faces: np.ndarray):
     if rows.dtype not in (np.float32, np.float64):
         rows = rows.astype(np.float64)
     rows = rows + rows.dtype.type(0.0)  # -0.0 and 0.0 weld
-    bits = rows.view(np.uint32 if rows.dtype == np.float32 else np.uint64)
-    row_index, first = _first_rows(_row_hash(bits), np.ascontiguousarray(rows.view(np.uint32)))
+    row_index, first = distinct_rows(rows)
     return rows[first].astype(np.float64), row_index[faces], first
 
 
@@ -80,7 +88,7 @@ def duplicate_faces(faces: np.ndarray) -> np.ndarray:
     """
     rolled = np.take_along_axis(faces, (np.argmin(faces, axis=1)[:, None] + np.arange(3)) % 3, axis=1)
     rows = np.ascontiguousarray(rolled, dtype=np.int64)
-    order, high = index_sort(_row_hash(rows.view(np.uint64)))
+    order, high = index_sort(row_hash(rows.view(np.uint64)))
     repeated = np.zeros(len(faces), dtype=bool)
     starts = np.flatnonzero(np.concatenate([[True], high[1:] != high[:-1]]))
     if len(starts) == len(faces):

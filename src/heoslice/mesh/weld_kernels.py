@@ -12,7 +12,7 @@ from heoslice.jit import EXACT, kernel
 def _first_rows(key, bits):  # pragma: no cover - compiled
     """(row_index (n,) int, first (m,) int) for rows of ``bits`` ((n, c) uint32, a row's coordinate bits):
     first[j] is the input row where the j-th distinct row first occurs (increasing), row_index[i] the j of
-    row i's. ``key`` ((n,) uint64, :func:`heoslice.mesh.weld._row_hash`) places rows in a table of at least
+    row i's. ``key`` ((n,) uint64, :func:`heoslice.mesh.weld.row_hash`) places rows in a table of at least
     2n slots by its high bits; rows are compared bit for bit, so colliding keys only cost probes."""
     count, columns = bits.shape
     shift = 1
