@@ -71,17 +71,22 @@ def _shoelace(ring: np.ndarray) -> float:
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
-def random_rings(rng, rings: int):
-    """Edges of ``rings`` random star-shaped rings (3 to 300 points each) in a 100 mm square."""
-    points, sizes = [], []
+def random_ring_points(rng, rings: int) -> list[np.ndarray]:
+    """The points ((k, 2) mm) of ``rings`` random star-shaped rings (3 to 300 points each) in a 100 mm square."""
+    points = []
     for _ in range(rings):
         count = int(rng.integers(3, 300))
         angle = np.sort(rng.uniform(0, 2 * np.pi, count))
         radius = rng.uniform(0.5, 30.0) * rng.uniform(0.6, 1.0, count)
         centre = rng.uniform(-50, 50, 2)
         points.append(centre + np.column_stack([radius * np.cos(angle), radius * np.sin(angle)]))
-        sizes.append(count)
-    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    return points
+
+
+def random_rings(rng, rings: int):
+    """Edges of ``rings`` random star-shaped rings (:func:`random_ring_points`)."""
+    points = random_ring_points(rng, rings)
+    offsets = np.concatenate([[0], np.cumsum([len(ring) for ring in points])])
     return ring_edges(np.concatenate(points), offsets, list(range(rings)))
 
 

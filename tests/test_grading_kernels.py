@@ -8,7 +8,7 @@ import numba
 import numpy as np
 import pytest
 import shapely
-from helpers import brute_squared, random_rings, ring_weights, tree_of
+from helpers import brute_squared, random_ring_points, random_rings, ring_weights, tree_of
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
@@ -22,13 +22,13 @@ from heoslice.grading.field_kernels import (
     label_target,
 )
 from heoslice.grading.labels_kernels import disc_winding
-from heoslice.grading.materials_kernels import values_at_points
 from heoslice.grading.lattice_kernels import (
     LatticeFrame,
     feet,
     inside_centres,
     signed_feet,
 )
+from heoslice.grading.materials_kernels import values_at_points
 from heoslice.grading.refine_kernels import (
     CellField,
     FitTest,
@@ -1026,10 +1026,20 @@ def test_inside_centres_counts_a_vertex_once_where_an_edges_end_rounds_off_it():
 @given(st.integers(0, 2 ** 32 - 1), st.integers(1, 3))
 def test_values_at_points_are_numpys_interpolation_bit_for_bit(seed, columns):
     """values_at_points equals numpy's own: t of each point's projection on its edge, clipped, its position
-    edge + ring + t along the knots, and np.interp there, bit for bit; for points beyond their edge's ends,
-    points exactly on knots (ring corners and the points an edge spans), and one to three columns."""
+    edge + ring + t along the knots, and np.interp there, bit for bit; for edges spanning several knots
+    (points on the straight line between their neighbours), points beyond their edge's ends, points
+    exactly on an edge's first knot, and one to three columns."""
     rng = np.random.default_rng(seed)
-    edges = random_rings(rng, int(rng.integers(1, 4)))
+    rings = []
+    for corners in random_ring_points(rng, int(rng.integers(1, 4))):
+        ring = []
+        for i, corner in enumerate(corners):  # points put on the edges: left out of them, kept as knots
+            following = corners[(i + 1) % len(corners)]
+            spanned = rng.uniform(0.01, 0.99, int(rng.integers(1 if i == 0 else 0, 3)))
+            ring += [corner] + [corner + t * (following - corner) for t in np.sort(spanned)]
+        rings.append(np.array(ring))
+    edges = ring_edges(np.concatenate(rings), np.cumsum([0] + [len(ring) for ring in rings]), range(len(rings)))
+    assert len(edges.knots) > len(edges.x) + len(rings)  # some edge spans several knots
     values = rng.uniform(-1.0, 2.0, (len(edges.knots), columns))
     count = 300
     edge = rng.integers(0, len(edges.x), count)

@@ -283,12 +283,27 @@ def _two_plates_painted(monkeypatch, spec: RegionSpec):
     return loops, grid, mask, regions, peak, box_pixels
 
 
+def test_an_outermost_family_spanning_a_layer_of_several_lends_its_index_as_the_labels():
+    """A thin hollow disc (few sub-regions: int8 would do) with a wide island in its cavity (many: int16),
+    labelled from the packed mask (the droplet masks' path): the disc's index, kept int16 wide for the
+    island's labels, is the layer's label array, painted over, not copied into a wider one."""
+    rings = (circle(9.0), circle(8.5, clockwise=True), circle(8.0))
+    points, offsets, area, parent = layer(*rings)
+    grid = grid_around(9.5)
+    mask = solid_mask(points, offsets, grid)
+    regions = layer_regions(points, offsets, area, parent, None, grid, RegionSpec(nozzle_mm=0.05),
+                            np.packbits(mask, axis=1))
+    assert len(regions.families) == 2 and regions.fields[0].box == regions.box
+    assert regions.base[1] < 120 <= regions.label_count and regions.label.dtype == np.int16
+    assert regions.label is regions.fields[0].index
+
+
 def test_painting_a_family_after_the_first_takes_no_copy_wider_than_the_labels(monkeypatch):
     """Two equal plates side by side (the second painted over the label array from its own index plus its label
     base): painting allocates at most the labels, the box's solid bits and one copy of the box's index in the
     labels' width, not one widened to int64 by the base (4x the index, the largest allocation of a scan layer)."""
     _, _, _, regions, peak, box_pixels = _two_plates_painted(monkeypatch, RegionSpec(nozzle_mm=0.3))
-    assert regions.label.dtype == np.int8  # few labels: the narrowest width
+    assert regions.label.dtype == np.int8  # few labels, in an array of their own (the first box is not the layer's)
     assert peak <= regions.label.nbytes + box_pixels * (1 + regions.label.itemsize) + 64_000
 
 

@@ -43,8 +43,8 @@ def test_shell_labels_match_scipy_connected_components(seed, shells, shuffle):
 @given(seed=st.integers(0, 100_000), offset=st.sampled_from([0, 2**31 - 64]))
 def test_edge_groups_group_every_undirected_edge_in_index_order(seed, offset):
     """Each group is one undirected edge, every face edge is in exactly one group, groups are in order of
-    (lower, higher) vertex and within a group the entries are in index order (vertex indices far beyond the
-    faces' count, renumbered first, alike)."""
+    (lower, higher) vertex, within a group the entries are in index order, and ``forward`` says which walk
+    their edge from lower to higher (vertex indices far beyond the faces' count, renumbered first, alike)."""
     from heoslice.mesh import edge_groups
 
     rng = np.random.default_rng(seed)
@@ -58,4 +58,20 @@ def test_edge_groups_group_every_undirected_edge_in_index_order(seed, offset):
     assert np.all(np.diff(groups.order)[np.diff(run) == 0] > 0)
     first = edges[groups.starts]
     np.testing.assert_array_equal(np.lexsort((first[:, 1], first[:, 0])), np.arange(len(first)))  # by (low, high)
+    walked = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)[groups.order]
+    np.testing.assert_array_equal(groups.forward, walked[:, 0] < walked[:, 1])
 
+
+
+def test_edge_groups_of_a_fan_around_one_vertex_are_the_reference_sort():
+    """200,000 triangles fanned round one vertex whose edges arrive in no order (a fan-triangulated CAD face;
+    a sort within each vertex's edges would be quadratic in the 400,000 at its hub): grouped exactly as a
+    lexsort of (lower, higher, index) groups them."""
+    from heoslice.mesh import edge_groups
+
+    rim = np.random.default_rng(3).permutation(np.arange(1, 200_001))
+    faces = np.column_stack([np.zeros(len(rim), dtype=np.int64), rim, np.roll(rim, -1)])
+    groups = edge_groups(faces)
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    expected = np.lexsort((np.arange(len(edges)), edges[:, 1], edges[:, 0]))
+    np.testing.assert_array_equal(groups.order, expected)

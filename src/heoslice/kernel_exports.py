@@ -1,5 +1,5 @@
-"""The ahead-of-time build of every compiled kernel (the weld's, the slicing's, the chaining's, the rasteriser's
-and the grading's): what each kernel Python calls takes, and the compile.
+"""The ahead-of-time build of every compiled kernel (the mesh's, the slicing's, the chaining's, the
+rasteriser's and the grading's): what each kernel Python calls takes, and the compile.
 
 Run by ``setup.py`` when heoslice is installed (never at run time: it needs numba, and kernels compiled
 just in time, ``HEOSLICE_JIT=1``). Each kernel listed in :data:`heoslice.jit.ENTRIES` is exported

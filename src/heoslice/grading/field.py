@@ -147,7 +147,7 @@ class _FamilyRings:
 
 def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid,
                  spec: RegionSpec, pixels: bool = True, mask: np.ndarray | None = None,
-                 label_base: int = 0, memo: RingMemo | None = None) -> FamilyField:
+                 label_base: int = 0, memo: RingMemo | None = None, shared: bool = False) -> FamilyField:
     """Sub-region index k (1..N_R) at every pixel of a family's box (see the module docstring).
 
     With ``pixels`` False only the lattice is measured (a nested shell, which keeps its
@@ -157,7 +157,9 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
 
     ``memo``: what the previous layer measured of ring sets with these very edges (their
     edge trees by RingSet.key, distances between sets, lattice passes by key and lattice);
-    this family's measurements are kept in it.
+    this family's measurements are kept in it. ``shared``: the index may become the labels of a layer
+    of several families (the outermost family's): at least int16 wide, so that the others' labels fit
+    without a copy of it.
     """
     memo = RingMemo() if memo is None else memo
     rings = _FamilyRings(points, offsets, memo)
@@ -193,12 +195,14 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     layout = family_layout(family, spec, *lengths, precision)
     ends = [rings(loops, outward) for loops in layout.end]
     shape = (row1 - row0, col1 - col0)
+    dtype = label_dtype(max(layout.count + label_base, _INT8_LABELS if shared else 0))
     if direct:
-        index = (_single_region_index(shape, mask, (lattice.row0, lattice.col0), label_base) if layout.count == 1
-                 else _exact_index(lattice, grid, layout, [start] + ends, shape, mask, label_base))
+        index = (_single_region_index(shape, mask, (lattice.row0, lattice.col0), label_base, dtype)
+                 if layout.count == 1 else _exact_index(lattice, grid, layout, [start] + ends, shape, mask,
+                                                        label_base, dtype))
         return FamilyField(box=box, index=index, layout=layout, lattice=lattice, start_edges=lambda: start.edges,
                            nearest=nearest)
-    index, nearest = _lattice_index(lattice, grid, layout, [start] + ends, shape, mask, label_base, memo)
+    index, nearest = _lattice_index(lattice, grid, layout, [start] + ends, shape, mask, label_base, dtype, memo)
     return FamilyField(box=box, index=index, layout=layout, lattice=lattice,
                        start_edges=lambda: start.edges, nearest=nearest)
 
@@ -220,7 +224,7 @@ def _grading_length(family: Family, spec: RegionSpec, outer: RingSet, rings: _Fa
 
 
 def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: list[RingSet],
-                   shape: tuple[int, int], mask: np.ndarray | None, label_base: int,
+                   shape: tuple[int, int], mask: np.ndarray | None, label_base: int, dtype: type,
                    memo: RingMemo) -> tuple[np.ndarray, Callable[[], tuple[np.ndarray, np.ndarray]]]:
     """k at every pixel of a family's box ((rows, cols), labelled like :func:`_expand_planes`) from the
     lattice fit: one plane or quadratic per cell, per-pixel eq. 10 where neither fits; with a function
@@ -248,7 +252,7 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
             start_at = measure(ring_sets[:1])[0]
             return start_at[2][:, 1:-1, 1:-1], start_at[3][1:-1, 1:-1]
 
-        return _single_region_index(shape, mask, (lattice.row0, lattice.col0), label_base), nearest
+        return _single_region_index(shape, mask, (lattice.row0, lattice.col0), label_base, dtype), nearest
     start, ends = ring_sets[0], ring_sets[1:]
     start_at, *ends_at = measure(ring_sets)
     d = np.stack([start_at[0]] + [at[0] for at in ends_at])
@@ -281,7 +285,7 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
     if not known.all():
         # cells without s are refined or hold no solid pixel: expanded from 0
         s, grad = np.where(known, s, 0.0), np.where(known[..., None], grad, 0.0)
-    index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, shape, mask, label_base, ~touched)
+    index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, shape, mask, label_base, ~touched, dtype)
     curved = np.nonzero((hessian != 0).any(axis=0) & candidate & ~refine)
     if len(curved[0]):
         curve_cells(label_target(index, mask, (lattice.row0, lattice.col0), label_base), curved[0], curved[1],
@@ -296,13 +300,12 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
 
 
 def _single_region_index(shape: tuple[int, int], mask: np.ndarray | None, origin: tuple[int, int],
-                         label_base: int) -> np.ndarray:
+                         label_base: int, dtype: type) -> np.ndarray:
     """k = 1 at every pixel of a one-sub-region family's box ((rows, cols), labelled like
     :func:`_expand_planes`: 1 + label_base, with the layer's ``mask`` on its solid pixels only). Pixels of
     the box off the family hold the label too; they are solid only where another family paints its own.
     Without a mask the index is one read-only value seen at every pixel (no memory: the labels take it
     as a value, :func:`heoslice.grading.labels.layer_regions`)."""
-    dtype = label_dtype(1 + label_base)
     if mask is None:
         return np.broadcast_to(np.array(1 + label_base, dtype=dtype), shape)
     index = np.full(shape, 1 + label_base, dtype=dtype)
@@ -312,14 +315,14 @@ def _single_region_index(shape: tuple[int, int], mask: np.ndarray | None, origin
 
 
 def _exact_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: list[RingSet],
-                 shape: tuple[int, int], mask: np.ndarray | None = None, label_base: int = 0) -> np.ndarray:
+                 shape: tuple[int, int], mask: np.ndarray | None, label_base: int, dtype: type) -> np.ndarray:
     """k at every pixel of a small family's box ((rows, cols), labelled like :func:`_expand_planes`),
     each from its exact distance to every ring set (:func:`refine_cells` over every cell).
 
     Below DIRECT_PIXELS (box pixels x ring sets) this beats fitting the lattice, whose fixed
     cost per family dominates a small island's (benchmarks/README.md); each cell's bound is its
     distance to a ring set's first point."""
-    index = np.empty(shape, dtype=label_dtype(layout.count + label_base))
+    index = np.empty(shape, dtype=dtype)
     ci, cj = (a.ravel() for a in np.indices((lattice.rows, lattice.cols)))
     x, y = lattice.centres()
     bounds = [np.hypot(x[cj] - rings.edges.x[0], y[ci] - rings.edges.y[0]) for rings in ring_sets]
@@ -328,22 +331,26 @@ def _exact_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: 
     return index
 
 
+#: Labels below this fit int8 (:func:`label_dtype`), with room to spare below its 127.
+_INT8_LABELS = 120
+
+
 def label_dtype(largest: int) -> type:
-    """The narrowest label type for labels up to ``largest``: int8 below 120, int16 below 32000, else int32
-    (the per-pixel passes over a layer's labels are bound by their memory traffic)."""
-    return np.int8 if largest < 120 else np.int16 if largest < 32000 else np.int32
+    """The narrowest label type for labels up to ``largest``: int8 below _INT8_LABELS, int16 below 32000,
+    else int32 (the per-pixel passes over a layer's labels are bound by their memory traffic)."""
+    return np.int8 if largest < _INT8_LABELS else np.int16 if largest < 32000 else np.int32
 
 
 def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid, flat: np.ndarray, count: int,
-                   shape: tuple[int, int], mask: np.ndarray | None = None, label_base: int = 0,
-                   empty: np.ndarray | None = None) -> np.ndarray:
-    """k = clip(floor(s) + 1, 1, N_R) at every pixel of the family's box ((rows, cols) int, of
-    :func:`label_dtype`) from one plane per cell (compiled); a ``flat`` cell takes its centre's
+                   shape: tuple[int, int], mask: np.ndarray | None, label_base: int, empty: np.ndarray | None,
+                   dtype: type) -> np.ndarray:
+    """k = clip(floor(s) + 1, 1, N_R) at every pixel of the family's box ((rows, cols) ``dtype``, as
+    :func:`family_field` chose it) from one plane per cell (compiled); a ``flat`` cell takes its centre's
     value throughout, an ``empty`` one (none of the family's pixels) 0. With the layer's
     ``mask``: k + label_base on solid pixels, else 0."""
     s = np.where(flat, np.clip(s, -1.0, count - 0.5), s)
     gx = np.where(flat, 0.0, grad[..., 0])
     gy = np.where(flat, 0.0, grad[..., 1])
-    out = np.empty(shape, dtype=label_dtype(count + label_base))
+    out = np.empty(shape, dtype=dtype)
     return expand_planes(s, gx, gy, CellPixels(lattice.cell, grid.px, grid.py), count,
                          label_target(out, mask, (lattice.row0, lattice.col0), label_base), empty)

@@ -86,8 +86,9 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     before = {} if cache is None else cache.fields_for(keys)
     painted = None if cache is None else cache.take_painted(keys)
     memo = RingMemo() if cache is None else cache.ring_memo()
+    several = len(families) > 1  # the outermost family's index becomes the labels of them all
     fields = tuple(_layer_field(points, offsets, family, grid, spec, family_mask, 0 if number else 1,
-                                None if key is None else before.get(key), memo)
+                                None if key is None else before.get(key), memo, shared=several and not number)
                    for number, (family, family_mask, key) in enumerate(zip(families, masks, keys)))
     # the outermost family's index becomes the labels (no copy of ~15 MP) unless its field may serve the next
     # layer: when the last layer had it too (an extruded stretch; the stretch's first layer measures it again)
@@ -132,8 +133,10 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
     + k, a nested shell base) painted over its own solid pixels (all the box's solid pixels where it is
     ``alone``). The outermost family's index is the label array itself when it spans the box, unless
     ``copy_first`` (other families paint over it and the field serves the next layer)."""
-    dtype = label_dtype(int(base[-1]))
     first = fields[0]
+    dtype = label_dtype(int(base[-1]))
+    if first.box == box:  # as wide as the outermost family's index too (shared: int16 at least), which may be the labels
+        dtype = np.result_type(dtype, first.index.dtype)
     if len(fields) == 1 and first.box == box and (value := _constant(first.index)) is not None:
         # one family of one sub-region: its one label seen at every pixel of the box, no array of ~15 MP
         return np.broadcast_to(np.array(value, dtype=dtype), first.index.shape)
@@ -156,7 +159,7 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
         solid = _solid_in(mask, packed, field.box)
         if not alone[number]:
             solid = solid & _family_mask(points, offsets, family, grid, field.box)
-        # in the labels' own width: an int16 index plus base's int64 would make a 4x wider copy of the box
+        # in the labels' own width: an index plus base's int64 would make a copy of the box up to 8x wider
         if family.nested:
             value = base[number]
         elif (constant := _constant(field.index)) is not None:  # one sub-region: one label, no array of the box
@@ -175,13 +178,13 @@ def _constant(index: np.ndarray) -> int | None:
 
 def _layer_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid, spec: RegionSpec,
                  mask: np.ndarray | None, label_base: int, same: FamilyField | None,
-                 memo: RingMemo) -> FamilyField:
-    """One family's field for :func:`layer_regions`: measured (``memo`` as :func:`family_field`), or
-    ``same``, the previous layer's field of a family with the same rings' edges, with this layer's start
+                 memo: RingMemo, shared: bool) -> FamilyField:
+    """One family's field for :func:`layer_regions`: measured (``memo`` and ``shared`` as :func:`family_field`),
+    or ``same``, the previous layer's field of a family with the same rings' edges, with this layer's start
     edges and loop numbers."""
     if same is None:
         return family_field(points, offsets, family, grid, spec, pixels=not family.nested, mask=mask,
-                            label_base=label_base, memo=memo)
+                            label_base=label_base, memo=memo, shared=shared)
     loops = family_layout(family, spec)
     # only contours with colours or material fractions read them (contour_values)
     start_edges = functools.cache(lambda: ring_edges(points, offsets, loops.start))

@@ -10,9 +10,11 @@ from __future__ import annotations
 import numpy as np
 
 from heoslice.jit import EXACT, helper, kernel
+from heoslice.mesh.weld_kernels import HASH_MULTIPLIERS
 
-#: Odd 64-bit multiplier of the key hash (the golden ratio's); the table's slot is the product's high bits.
-_KEY_MULTIPLIER = 0x9E3779B97F4A7C15
+#: Odd 64-bit multiplier of the key hash (the golden ratio's, the row hash's first); a key's slot in the
+#: table is the product's high bits.
+_KEY_MULTIPLIER = HASH_MULTIPLIERS[0]
 
 
 @helper(EXACT)
@@ -88,7 +90,7 @@ def _chain_loops(start_key, end_key):  # pragma: no cover - compiled
     begins[loops] = filled
     order = np.empty(count, dtype=np.int64)
     offsets = np.zeros(loops + 1, dtype=np.int64)
-    closed = np.empty(loops, dtype=np.bool_)
+    joined = np.empty(loops, dtype=np.bool_)  # an open chain, closed by joining its ends
     placed, emitted = 0, 0
     for lowest in range(count):
         loop = loop_at[lowest]
@@ -97,10 +99,10 @@ def _chain_loops(start_key, end_key):  # pragma: no cover - compiled
         for k in range(begins[loop], begins[loop + 1]):
             order[placed] = walked[k]
             placed += 1
-        closed[emitted] = loop < paths
+        joined[emitted] = loop < paths
         emitted += 1
         offsets[emitted] = placed
-    return order, offsets, closed
+    return order, offsets, joined
 
 
 def loops_by_keys(start_key: np.ndarray, end_key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

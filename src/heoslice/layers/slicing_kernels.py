@@ -1,8 +1,9 @@
 """The slicing's compiled kernel: every (triangle, plane) crossing turned into a directed segment, grouped by
 layer, in one pass (numba source, compiled at install: :mod:`heoslice.jit`).
 
-Exact arithmetic (no fast-math): the crossing points and positions along the edges are those of the rule
-written out in :func:`heoslice.layers.slicing.slice_mesh`, bit for bit.
+Exact arithmetic (no fast-math): each crossing point is (v_high - v_low) t + v_low with
+t = (plane - z_low) / (z_high - z_low) from the edge's lower-numbered vertex, so both triangles sharing an
+edge get the same bits (the rule :mod:`heoslice.layers.slicing` describes).
 """
 
 from __future__ import annotations

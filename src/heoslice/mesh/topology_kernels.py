@@ -30,12 +30,17 @@ def _lowest_connected(a, b, count):  # pragma: no cover - compiled
     return parent
 
 
+#: Edges at one vertex past which they are sorted by a merge sort rather than by insertion (a fan's hub).
+_INSERTION_AT_MOST = 32
+
+
 @kernel(EXACT)
 def _edge_runs(faces, vertices):  # pragma: no cover - compiled
     """(order (3m,), starts (e,), forward (3m,) bool) of the edges of faces ((m, 3) int, indices below
     ``vertices``; edge k of face f, entry 3f + k, runs from corner k to corner k + 1): the entries sorted by
     undirected edge (lower vertex, then higher), each edge's in index order. A counting sort by the lower
-    vertex, then each vertex's few entries sorted by their higher vertex (insertion, so ties stay in order)."""
+    vertex, then each vertex's entries sorted stably by their higher vertex: by insertion when they are few
+    (a mesh's usual handful), else by a merge sort (the hub of a fan of many triangles)."""
     count = 3 * faces.shape[0]
     bucket = np.zeros(vertices + 1, dtype=np.int64)
     for f in range(faces.shape[0]):
@@ -59,13 +64,17 @@ def _edge_runs(faces, vertices):  # pragma: no cover - compiled
     runs = 0
     for v in range(vertices):
         first, stop = bucket[v], bucket[v + 1]
-        for i in range(first + 1, stop):
-            entry, high, ahead = order[i], higher[i], forward[i]
-            j = i - 1
-            while j >= first and higher[j] > high:
-                order[j + 1], higher[j + 1], forward[j + 1] = order[j], higher[j], forward[j]
-                j -= 1
-            order[j + 1], higher[j + 1], forward[j + 1] = entry, high, ahead
+        if stop - first > _INSERTION_AT_MOST:
+            ranked = first + np.argsort(higher[first:stop], kind="mergesort")
+            order[first:stop], higher[first:stop], forward[first:stop] = order[ranked], higher[ranked], forward[ranked]
+        else:
+            for i in range(first + 1, stop):
+                entry, high, ahead = order[i], higher[i], forward[i]
+                j = i - 1
+                while j >= first and higher[j] > high:
+                    order[j + 1], higher[j + 1], forward[j + 1] = order[j], higher[j], forward[j]
+                    j -= 1
+                order[j + 1], higher[j + 1], forward[j + 1] = entry, high, ahead
         for i in range(first, stop):
             if i == first or higher[i] != higher[i - 1]:
                 starts[runs] = i

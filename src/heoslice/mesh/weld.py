@@ -8,10 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from heoslice.mesh.weld_kernels import _first_rows
-
-#: Odd 64-bit multipliers of the row hash (golden-ratio and xxHash primes).
-_HASH_MULTIPLIERS = (0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9, 0xBF58476D1CE4E5B9)
+from heoslice.mesh.weld_kernels import HASH_MULTIPLIERS, _first_rows
 
 
 def row_hash(bits: np.ndarray) -> np.ndarray:
@@ -21,13 +18,14 @@ def row_hash(bits: np.ndarray) -> np.ndarray:
     second and third in turn), xor-ed, then one xor-shift-multiply round so that every input bit
     reaches the high bits. Collisions only cost time: the callers compare the rows themselves.
     """
-    k0, k1, k2, k3 = (np.uint64(k) for k in _HASH_MULTIPLIERS)
-    with np.errstate(over="ignore"):
-        key = bits[:, 0] * k0
-        for column in range(1, bits.shape[1]):
-            key ^= bits[:, column] * (k1 if column % 2 else k2)
-        key ^= key >> np.uint64(32)
-        key *= k3
+    k0, k1, k2, k3 = (np.uint64(k) for k in HASH_MULTIPLIERS)
+    # array arithmetic wraps without a warning: no np.errstate, whose context swaps freed objects the
+    # parallel slice had frozen for its forks (tests/test_pipeline_parallel.py)
+    key = bits[:, 0] * k0
+    for column in range(1, bits.shape[1]):
+        key ^= bits[:, column] * (k1 if column % 2 else k2)
+    key ^= key >> np.uint64(32)
+    key *= k3
     return key
 
 
