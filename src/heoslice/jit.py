@@ -1,14 +1,15 @@
 """How the compiled kernels are chosen, and the one conversion of their array arguments.
 
 The kernels are written once, as numba functions in the ``*_kernels`` modules beside the code they speed up
-(the weld's, the edge grouping's and the shells' in ``mesh``, the slicing's, the chaining's and the rasteriser's in ``layers``,
-the grading's in ``grading``). Installing heoslice compiles them ahead of time into the extension module
-``heoslice._compiled`` (:mod:`heoslice.kernel_exports`, run by ``setup.py``), so that a slice loads neither
-numba nor LLVM: they cost every process of a slice its largest fixed share of memory and start-up time
-(benchmarks/README.md). :func:`kernel` hands each module the compiled function when that extension was built
-from these very sources (its digest matches), else numba's just-in-time compilation of the same function,
-as it does whenever ``HEOSLICE_JIT=1`` (the ahead-of-time build itself, and tests that compare the two).
-:func:`helper` marks a function that only kernels call: compiled into them, plain Python otherwise.
+(the weld's, the edge grouping's and the shells' in ``mesh``; the slicing's, the chaining's and the
+rasteriser's in ``layers``; the grading's in ``grading``). Installing heoslice compiles them ahead of time
+into the extension module ``heoslice._compiled`` (:mod:`heoslice.kernel_exports`, run by ``setup.py``), so
+that a slice loads neither numba nor LLVM: they cost every process of a slice its largest fixed share of
+memory and start-up time (benchmarks/README.md). :func:`kernel` hands each module the compiled function
+when that extension was built from these very sources (its digest matches), else numba's just-in-time
+compilation of the same function, as it does whenever ``HEOSLICE_JIT=1`` (the ahead-of-time build itself,
+and tests that compare the two). :func:`helper` marks a function that only kernels call: compiled into
+them, plain Python otherwise.
 """
 
 from __future__ import annotations
