@@ -444,7 +444,6 @@ def test_band_field_is_eq10_and_its_gradient(seed, sets):
     assert np.isnan(band_field(far, np.zeros((sets, 1, 1, 2)), count)[0]).all()
 
 
-
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2 ** 32 - 1), st.integers(2, 6))
 def test_band_sensitivities_are_the_partial_derivatives_of_eq10(seed, sets):
@@ -520,7 +519,6 @@ def numpy_ring_models(d, g, grad, ci, cj, dx, dy, count, h, tolerance):
     modelled = np.zeros(cost.shape, dtype=bool)
     np.put_along_axis(modelled, order, running <= budget, axis=0)
     return np.stack([np.where(use[:, None], model, np.nan) for model, use in zip(models, modelled)])
-
 
 
 @settings(max_examples=40, deadline=None)
@@ -1019,7 +1017,6 @@ def test_inside_centres_counts_a_vertex_once_where_an_edges_end_rounds_off_it():
     expected = solid_mask(loop[::-1] if not shapely.LinearRing(loop).is_ccw else loop, np.array([0, len(loop)]), grid)
     assert expected[0].sum() > 50
     assert np.array_equal(inside, expected)
-
 
 
 @settings(max_examples=40, deadline=None)

@@ -76,7 +76,6 @@ def test_duplicate_faces_are_the_repeats_of_an_earlier_face(monkeypatch, collide
     assert not weld.duplicate_faces(np.array([[0, 1, 2], [0, 2, 1]])).any()
 
 
-
 @settings(max_examples=80, deadline=None)
 @given(channels=st.integers(1, 6), rows=st.integers(0, 3000), distinct=st.integers(1, 40), seed=st.integers(0, 2**16),
        wide=st.booleans())

@@ -1,7 +1,7 @@
 """Welding: vertices merged by exact coordinate, and faces that repeat an earlier face dropped.
 
-Both group rows by a hash of their bits (vertices in a compiled hash table, faces with one integer
-sort) and compare the rows themselves, so a collision of hashes only costs time.
+Both find rows' first occurrences by a hash of their bits in one compiled hash table
+(:func:`distinct_rows`), which compares the rows themselves, so a collision of hashes only costs time.
 """
 
 from __future__ import annotations
@@ -38,29 +38,6 @@ def distinct_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return _first_rows(row_hash(words), words.view(np.uint32).reshape(len(rows), rows.shape[1] * rows.itemsize // 4))
 
 
-def index_bits(count: int) -> int:
-    """Bits that hold every index below ``count`` (at least 1)."""
-    return max(int(count - 1).bit_length(), 1)
-
-
-def index_sort(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Sort (n,) uint64 ``key`` by its high bits, ties by index: (order (n,) int64, sorted high bits (n,) uint64).
-
-    The index is packed into the low :func:`index_bits` bits of the key and the packed
-    values are sorted with ``np.sort``, cheaper than ``np.argsort`` on
-    millions of keys. Those low bits of the key are dropped, so keys equal in their
-    high bits (not only equal keys) end up together.
-    """
-    shift = index_bits(len(key))
-    mask = np.uint64((1 << shift) - 1)
-    packed = key & ~mask
-    packed |= np.arange(len(key), dtype=np.uint64)
-    packed.sort()
-    high = packed >> np.uint64(shift)
-    packed &= mask
-    return packed.view(np.int64), high
-
-
 def weld_vertices(vertices: np.ndarray, faces: np.ndarray):
     """Merge vertices with identical coordinates, keeping first occurrences in order.
 
@@ -85,18 +62,5 @@ def duplicate_faces(faces: np.ndarray) -> np.ndarray:
     occurrence is kept, so dropping the flagged faces keeps the order of the rest.
     """
     rolled = np.take_along_axis(faces, (np.argmin(faces, axis=1)[:, None] + np.arange(3)) % 3, axis=1)
-    rows = np.ascontiguousarray(rolled, dtype=np.int64)
-    order, high = index_sort(row_hash(rows.view(np.uint64)))
-    repeated = np.zeros(len(faces), dtype=bool)
-    starts = np.flatnonzero(np.concatenate([[True], high[1:] != high[:-1]]))
-    if len(starts) == len(faces):
-        return repeated
-    first = np.repeat(order[starts], np.diff(np.append(starts, len(order))))  # group's lowest index, per entry
-    exact = (rows[order] == rows[first]).all(axis=1)
-    repeated[order] = exact & (order != first)
-    if not exact.all():  # a hash collision: group the collided groups' rows exactly
-        members = np.sort(order[np.isin(first, first[~exact])])
-        _, lowest = np.unique(rows[members], axis=0, return_index=True)
-        repeated[members] = True
-        repeated[members[lowest]] = False
-    return repeated
+    row_index, first = distinct_rows(np.ascontiguousarray(rolled, dtype=np.int64))
+    return first[row_index] != np.arange(len(faces))
