@@ -53,7 +53,7 @@ def layer_inputs(contours, index: int):
 
 
 #: (module, name) of each stage timed: the module whose functions call it by that name.
-STAGES = (("lattice", "lattice_edges"), ("lattice", "_inside_loops"), ("field", "cells_to_refine"),
+STAGES = (("field", "ring_measures"), ("lattice", "lattice_edges"), ("field", "cells_to_refine"),
           ("field", "_expand_planes"), ("field", "refine_cells"), ("labels", "_family_mask"))
 
 

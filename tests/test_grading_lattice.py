@@ -33,26 +33,46 @@ from heoslice.material import DEFAULT_MATERIALS, Material, make_function
 pytestmark = pytest.mark.usefixtures("lattice_fit_for_every_family")  # conftest.py: small families on the lattice too
 
 
+def _labels_culled_and_full(points, offsets, area, parent, grid, spec):
+    """A layer's labels with the blocks off the family's side skipped and with every block measured, and
+    whether any block was skipped."""
+    from unittest import mock
+
+    mask = solid_mask(points, offsets, grid)
+    culled = layer_regions(points, offsets, area, parent, mask, grid, spec)
+    passes, skipped = lattice_module.block_passes, []
+
+    def never_far(*args):
+        edge, upper, inside, far = passes(*args)
+        skipped.append(bool(far.any()))
+        return edge, upper, inside, np.zeros_like(far)
+
+    with mock.patch.object(lattice_module, "block_passes", never_far):
+        full = layer_regions(points, offsets, area, parent, mask, grid, spec)
+    return culled.label, full.label, any(skipped)
+
+
 @settings(max_examples=15, deadline=None)
 @given(st.integers(0, 2 ** 32 - 1), st.sampled_from(["in", "out"]))
 def test_skipping_blocks_off_the_family_changes_no_label(seed, direction):
     """Lattice blocks judged wholly off the family's side are not measured; labelling with every block
     measured gives the same labels at every pixel (random bumpy outlines with one or two holes)."""
-    from unittest import mock
-
     rng = np.random.default_rng(seed)
     outer = rough_outline(int(rng.integers(0, 2 ** 31)), count=400, radius=9.0)
     holes = [circle(float(rng.uniform(0.5, 2.0)), 120, (float(x), float(y)), clockwise=True)
              for x, y in ((-3.5, rng.uniform(-2, 2)), (3.5, rng.uniform(-2, 2)))[: int(rng.integers(1, 3))]]
-    points, offsets, area, parent = layer(outer, *holes)
-    grid = grid_around(11.0)
-    mask = solid_mask(points, offsets, grid)
-    spec = RegionSpec(nozzle_mm=0.25, direction=direction)
-    culled = layer_regions(points, offsets, area, parent, mask, grid, spec)
-    never_far = lattice_module._far_side
-    with mock.patch.object(lattice_module, "_far_side", lambda *args: np.zeros_like(never_far(*args))):
-        full = layer_regions(points, offsets, area, parent, mask, grid, spec)
-    assert np.array_equal(culled.label, full.label)
+    culled, full, _ = _labels_culled_and_full(*layer(outer, *holes), grid_around(11.0),
+                                              RegionSpec(nozzle_mm=0.25, direction=direction))
+    assert np.array_equal(culled, full)
+
+
+@pytest.mark.parametrize("direction", ["in", "out"])
+def test_blocks_inside_a_wide_hole_and_outside_the_outline_are_skipped_without_changing_a_label(direction):
+    """A ring with a wide hole, on a grid with room around it: blocks deep in the hole and outside the
+    outline are skipped, and the labels are those measured with every block."""
+    culled, full, skipped = _labels_culled_and_full(*layer(circle(12.0, 300), circle(7.0, 200, clockwise=True)),
+                                                    grid_around(24.0), RegionSpec(nozzle_mm=0.25, direction=direction))
+    assert skipped and np.array_equal(culled, full)
 
 
 def test_a_one_subregion_family_measures_its_lattice_only_when_its_nearest_points_are_asked_for():

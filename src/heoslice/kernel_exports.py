@@ -51,6 +51,7 @@ u4_2, u8_1 = types.uint32[:, ::1], types.uint64[::1]
 EDGES = types.NamedUniTuple(f8_1, 5, edges_kernels.EdgeArrays)
 PIXELS = types.NamedTuple((i8, f8, f8), field_kernels.CellPixels)
 FRAME = types.NamedUniTuple(f8, 4, lattice_kernels.LatticeFrame)
+TREE = types.NamedTuple((f8_2, i8_1, f8_2), lattice_kernels.EdgeTree)
 CELL_FIELD = types.NamedTuple((f8_2, f8_3, b_2, b_2, b_2), refine_kernels.CellField)
 FIT_TEST = types.NamedUniTuple(f8, 5, refine_kernels.FitTest)
 VERTICES = types.NamedTuple((i8_1, f8_1, f8_1, f8_1, f8, f8), refine_kernels.RingVertices)
@@ -82,6 +83,9 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     lattice_kernels._signed_feet: (i8_2, FRAME, EDGES, b_2, b1),
     lattice_kernels._inside_centres: (EDGES, f8_1, FRAME, i8, i8),
     lattice_kernels._feet: (f8_1, f8_1, i8_1, EDGES),
+    lattice_kernels._block_bounds: (EDGES, TREE, FRAME, i8, i8),
+    lattice_kernels._block_passes: (EDGES, f8_1, TREE, FRAME, i8, i8, b1),
+    lattice_kernels._block_edges: (i8_2, f8_2, b_2, FRAME, i8, i8, EDGES, TREE),
     materials_kernels._values_at_points: (f8_1, f8_1, i8_1, EDGES, i8_1, i8_1, f8_1, f8_2),
     rasterising_kernels._packed_mask: (f8_2, i8_1, i8, i8, f8, f8, f8, f8, u1_2),
     refine_kernels._refine_flags: (CELL_FIELD, types.UniTuple(f8_2, 3), FIT_TEST, VERTICES),

@@ -193,7 +193,8 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     # length (eq. 8)
     lengths = (None, None) if spec.count == 1 else _grading_length(family, spec, outer, rings, grid, memo)
     layout = family_layout(family, spec, *lengths, precision)
-    ends = [rings(loops, outward) for loops in layout.end]
+    # a family of one sub-region needs no distances to its ending rings: its starting rings' feet alone
+    ends = [] if layout.count == 1 else [rings(loops, outward) for loops in layout.end]
     shape = (row1 - row0, col1 - col0)
     dtype = label_dtype(max(layout.count + label_base, _INT8_LABELS if shared else 0))
     if direct:
@@ -235,9 +236,9 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
 
     def measure(measured: list[RingSet]) -> list[tuple]:
         """The ``measured`` ring sets' centres (signed, gradient, foot, edge) over the padded lattice, in the
-        blocks on the family's side of every ring set; each set's measures kept for the next layer."""
+        blocks on the family's side of each of them; each set's measures kept for the next layer."""
         measures = [memo.earlier((rings.key, padded_lattice)) or ring_measures(rings, padded_lattice)
-                    for rings in ring_sets]
+                    for rings in measured]
         wanted = ~np.logical_or.reduce([m.far for m in measures])
         centres = [measured_centres(rings, m, padded_lattice, wanted) for rings, m in zip(measured, measures)]
         for rings, (_, m) in zip(measured, centres):

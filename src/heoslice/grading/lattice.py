@@ -12,8 +12,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from heoslice.grading.edges import RingEdges
-from heoslice.grading.lattice_kernels import feet, inside_centres, signed_feet
-from heoslice.grading.search import RingSet, nearest_edges, ring_tree
+from heoslice.grading.lattice_kernels import BLOCK, block_bounds_of, block_edges, block_passes, signed_feet
+from heoslice.grading.search import RingSet, ring_tree
 from heoslice.layers.rasterising import Grid
 
 #: Target lattice cell size, mm (cells are a whole number of pixels, 4 to 16).
@@ -62,13 +62,9 @@ def lattice_for(box: tuple[int, int, int, int], grid: Grid, cell_mm: float = CEL
                    dx=cell * grid.px, dy=cell * grid.py)
 
 
-#: Lattice cells per side of the blocks whose centres share candidate edges in :func:`lattice_edges`.
-_BLOCK = 8
-
-
 @dataclass(frozen=True)
 class BlockBounds:
-    """An upper bound of the distance to a ring set at the centres of blocks of _BLOCK x _BLOCK cells.
+    """An upper bound of the distance to a ring set at the centres of blocks of BLOCK x BLOCK cells.
 
     ``blocks`` is the block lattice; per block ((rows, cols)): ``edge`` the edge found nearest
     its centre and ``upper`` the exact distance to it (mm).
@@ -79,55 +75,40 @@ class BlockBounds:
     upper: np.ndarray
 
 
+def block_lattice(lattice: Lattice) -> Lattice:
+    """The lattice of a lattice's blocks of BLOCK x BLOCK cells (the last row and column may be cut short)."""
+    b = BLOCK
+    return Lattice(row0=lattice.row0, col0=lattice.col0, cell=lattice.cell * b, rows=-(-lattice.rows // b),
+                   cols=-(-lattice.cols // b), x0=lattice.x0, y0=lattice.y0, dx=lattice.dx * b, dy=lattice.dy * b)
+
+
 def block_bounds(edges: RingEdges, lattice: Lattice, tree: tuple) -> BlockBounds:
     """Upper bounds of the distance at block centres: the exact distance to the edge found nearest each
-    centre (:func:`nearest_edges`, in float32, among the edges within the centre's distance to the rings'
-    first point, which holds the nearest)."""
-    b = _BLOCK
-    blocks = Lattice(row0=lattice.row0, col0=lattice.col0, cell=lattice.cell * b, rows=-(-lattice.rows // b),
-                     cols=-(-lattice.cols // b), x0=lattice.x0, y0=lattice.y0, dx=lattice.dx * b, dy=lattice.dy * b)
-    x, y = blocks.centres()
-    cx = np.broadcast_to(x, (blocks.rows, blocks.cols)).ravel()
-    cy = np.broadcast_to(y[:, None], (blocks.rows, blocks.cols)).ravel()
-    reach = np.hypot(cx - edges.x[0], cy - edges.y[0]) * (1 + 1e-6) + 1e-6
-    edge = nearest_edges(cx, cy, reach, np.zeros(1), np.zeros(1), edges, tree)[:, 0].astype(np.int64)
-    upper = feet(cx, cy, edge, edges)[0]
-    shape = (blocks.rows, blocks.cols)
-    return BlockBounds(blocks, edge.reshape(shape), upper.reshape(shape))
+    centre (:func:`heoslice.grading.search.nearest_edges`' search, in float32, among the edges within the
+    centre's distance to the nearest chunk's first point, which holds the nearest; compiled,
+    :func:`heoslice.grading.lattice_kernels.block_bounds_of`)."""
+    edge, upper = block_bounds_of(edges, tree, lattice, lattice.rows, lattice.cols)
+    return BlockBounds(block_lattice(lattice), edge, upper)
 
 
 def lattice_edges(edges: RingEdges, lattice: Lattice, tree: tuple | None = None,
                   bounds: BlockBounds | None = None, wanted: np.ndarray | None = None) -> np.ndarray:
     """The nearest edge of the rings to every cell centre ((rows, cols) int).
 
-    Centres are taken in blocks of _BLOCK x _BLOCK cells. A block's centre C has an
+    Centres are taken in blocks of BLOCK x BLOCK cells. A block's centre C has an
     upper bound U of its distance (:func:`block_bounds`). A centre p at a = |p - C| from
     C has d(p) <= U + a (the distance is 1-Lipschitz), so its nearest edge is within
     U + 2 a of C: every edge within U + 2 max a of C is a candidate, and the nearest is
     exact. Blocks not ``wanted`` ((rows, cols) bool over the blocks; default all) are not
     measured: their centres get the edge found nearest their block's centre (its distance an upper bound).
+    Compiled (:func:`heoslice.grading.lattice_kernels.block_edges`).
     """
     if tree is None:
         tree = ring_tree(edges)
     if bounds is None:
         bounds = block_bounds(edges, lattice, tree)
-    blocks, b = bounds.blocks, _BLOCK
-    edge = np.repeat(bounds.edge[:, :, None], b * b, axis=2)
-    chosen = np.nonzero(np.ones(bounds.edge.shape, bool) if wanted is None else wanted)
-    if len(chosen[0]):
-        x, y = blocks.centres()
-        v, u = (a.ravel() for a in np.meshgrid(np.arange(b), np.arange(b), indexing="ij"))
-        ox, oy = (u + 0.5 - 0.5 * b) * lattice.dx, -(v + 0.5 - 0.5 * b) * lattice.dy
-        edge[chosen] = nearest_edges(x[chosen[1]], y[chosen[0]], bounds.upper[chosen] + 2.0 * np.hypot(ox, oy).max(),
-                                     ox, oy, edges, tree)
-    edge = edge.reshape(blocks.rows, blocks.cols, b, b).transpose(0, 2, 1, 3).reshape(blocks.rows * b, blocks.cols * b)
-    return edge[:lattice.rows, :lattice.cols]
-
-
-def _inside_loops(rings: RingSet, lattice: Lattice) -> np.ndarray:
-    """(rows, cols) bool: cell centres inside any of the ring set's loops (a family's holes, or its outer
-    ring: they neither cross nor nest, so the parity of crossings decides)."""
-    return inside_centres(rings.edges, lattice, lattice.rows, lattice.cols)
+    wanted = np.ones(bounds.edge.shape, bool) if wanted is None else wanted
+    return block_edges(bounds.edge, bounds.upper, wanted, lattice, lattice.rows, lattice.cols, edges, tree)
 
 
 @dataclass(frozen=True)
@@ -148,12 +129,19 @@ class RingMeasures:
 
 
 def ring_measures(rings: RingSet, lattice: Lattice) -> RingMeasures:
-    """A ring set's RingMeasures on a lattice, no block's edges measured yet."""
-    bounds = block_bounds(rings.edges, lattice, rings.tree)
-    inside = _inside_loops(rings, lattice)
-    far = _far_side(rings, inside, bounds, lattice)
-    return RingMeasures(bounds, inside, far, np.zeros((lattice.rows, lattice.cols), dtype=np.int64),
-                        np.zeros(far.shape, dtype=bool))
+    """A ring set's RingMeasures on a lattice, no block's edges measured yet.
+
+    A block is off the family's side (``far``) when its cells and their neighbours all are: judged at
+    one of its cells, off the family's side of the rings by more than the way to the block's farthest
+    cell centre plus a cell's diagonal and a half, measured exactly where the block's upper bound allows
+    it. The centres inside the rings are those inside any of its loops (a family's holes, or its outer
+    ring: they neither cross nor nest, so the parity of crossings decides). One compiled call
+    (:func:`heoslice.grading.lattice_kernels.block_passes`).
+    """
+    edge, upper, inside, far = block_passes(rings.edges, rings.tree, lattice, lattice.rows, lattice.cols,
+                                            rings.encloses)
+    return RingMeasures(BlockBounds(block_lattice(lattice), edge, upper), inside, far,
+                        np.zeros((lattice.rows, lattice.cols), dtype=np.int64), np.zeros(far.shape, dtype=bool))
 
 
 def measured_centres(rings: RingSet, measures: RingMeasures, lattice: Lattice, wanted: np.ndarray
@@ -184,32 +172,4 @@ def measured_centres(rings: RingSet, measures: RingMeasures, lattice: Lattice, w
 
 def _block_cells(blocks: np.ndarray, lattice: Lattice) -> np.ndarray:
     """(rows, cols) bool over the lattice's cells from (block rows, block cols) bool over its blocks."""
-    return np.repeat(np.repeat(blocks, _BLOCK, axis=0), _BLOCK, axis=1)[:lattice.rows, :lattice.cols]
-
-
-def _far_side(rings: RingSet, inside: np.ndarray, bounds: BlockBounds, lattice: Lattice) -> np.ndarray:
-    """(rows, cols) bool over the blocks: the block's cells and their neighbours are all off the family's
-    side of the rings, so nothing there is needed for the family's pixels.
-
-    Each block is judged at one of its cells (``inside``: (rows, cols) bool over the
-    lattice, cell centres inside the rings): off the family's side by more than the way
-    to the block's farthest cell centre plus a cell's diagonal and a half, measured
-    exactly where the block's upper bound allows it.
-    """
-    b = _BLOCK
-    first_r, first_c = np.arange(bounds.blocks.rows) * b, np.arange(bounds.blocks.cols) * b
-    rep_r = np.minimum(first_r + b // 2, lattice.rows - 1)
-    rep_c = np.minimum(first_c + b // 2, lattice.cols - 1)
-    span_r = np.maximum(rep_r - first_r, np.minimum(first_r + b - 1, lattice.rows - 1) - rep_r) * lattice.dy
-    span_c = np.maximum(rep_c - first_c, np.minimum(first_c + b - 1, lattice.cols - 1) - rep_c) * lattice.dx
-    margin = np.hypot(span_r[:, None], span_c[None, :]) + 1.5 * np.hypot(lattice.dx, lattice.dy)
-    x, y = lattice.centres()
-    bx, by = bounds.blocks.centres()
-    reach = bounds.upper + np.hypot((x[rep_c] - bx)[None, :], (y[rep_r] - by)[:, None])
-    far = (inside[np.ix_(rep_r, rep_c)] != rings.encloses) & (reach > margin)
-    if far.any():
-        rows, cols = np.nonzero(far)
-        squared = nearest_edges(x[rep_c[cols]], y[rep_r[rows]], reach[far] * (1 + 1e-9) + 1e-9, np.zeros(1),
-                                np.zeros(1), rings.edges, rings.tree, track=False)
-        far[rows, cols] = squared.ravel() > margin[far] ** 2
-    return far
+    return np.repeat(np.repeat(blocks, BLOCK, axis=0), BLOCK, axis=1)[:lattice.rows, :lattice.cols]

@@ -1,5 +1,6 @@
 """Compiled loops of :mod:`heoslice.grading.lattice`: signed distances, gradients and feet at lattice centres,
-which centres are inside a ring set, and points' distances to given edges."""
+which centres are inside a ring set, points' distances to given edges, and the passes over a lattice's blocks
+(their bounds, which are off the family's side, and the nearest edge of their cells)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,12 @@ import numpy as np
 
 from heoslice.grading.edges import RingEdges, following_edges
 from heoslice.grading.edges_kernels import EdgeArrays, edge_arrays
-from heoslice.jit import JIT, f64, i64, kernel
+from heoslice.grading.search_kernels import _candidates, _nearest_in_chunks, _nearest_starts
+from heoslice.jit import EXACT, JIT, f64, i64, kernel
+
+#: Lattice cells per side of the blocks whose centres share candidate edges
+#: (:func:`heoslice.grading.lattice.lattice_edges`).
+BLOCK = 8
 
 
 class LatticeFrame(NamedTuple):
@@ -121,3 +127,136 @@ def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, edges: EdgeArrays) ->
     """Distance (n,) mm from points (qx, qy) to the given edges ((n,) int into ``edges``, EdgeArrays or
     RingEdges) and the nearest point on each (foot x, foot y (n,) mm)."""
     return _feet(f64(qx), f64(qy), i64(edge), edge_arrays(edges))
+
+
+class EdgeTree(NamedTuple):
+    """A ring set's edge hierarchy (:func:`heoslice.grading.search_kernels.edge_tree`), as the kernels take it."""
+
+    boxes: np.ndarray
+    level_start: np.ndarray
+    capsules: np.ndarray
+
+
+@kernel(EXACT)
+def _block_bounds(edges, tree, frame, rows, cols):  # pragma: no cover - compiled
+    """Per block of BLOCK x BLOCK cells of a lattice (``frame``, rows x cols cells): the edge nearest its
+    centre, among those within the centre's distance to the nearest chunk's first point, and the exact
+    distance to it ((block rows, block cols) int, float). Without fast-math: numpy's arithmetic, bit for bit."""
+    x0, y0, dx, dy = frame
+    brows, bcols = -(-rows // BLOCK), -(-cols // BLOCK)
+    cx, cy = np.empty(brows * bcols), np.empty(brows * bcols)
+    for i in range(brows):
+        for j in range(bcols):
+            cx[i * bcols + j] = x0 + (j + 0.5) * (dx * BLOCK)
+            cy[i * bcols + j] = y0 - (i + 0.5) * (dy * BLOCK)
+    reach = _nearest_starts(cx, cy, tree.capsules) * (1 + 1e-6) + 1e-6
+    zero = np.zeros(1, dtype=np.float32)
+    _, which = _nearest_in_chunks(cx, cy, zero, zero, _candidates(cx, cy, reach, tree.boxes, tree.level_start),
+                                  tree.capsules, edges, True)
+    edge = which[:, 0].astype(np.int64)
+    upper = _feet(cx, cy, edge, edges)[0]
+    return edge.reshape(brows, bcols), upper.reshape(brows, bcols)
+
+
+@kernel(EXACT)
+def _block_passes(edges, end_y, tree, frame, rows, cols, encloses):  # pragma: no cover - compiled
+    """A ring set's passes over a lattice in one: :func:`_block_bounds`, the cell centres inside the rings
+    (:func:`_inside_centres`) and the blocks off the family's side of them (see
+    :func:`heoslice.grading.lattice.ring_measures`): (edge, upper, inside (rows, cols) bool, far)."""
+    x0, y0, dx, dy = frame
+    edge, upper = _block_bounds(edges, tree, frame, rows, cols)
+    inside = _inside_centres(edges, end_y, frame, rows, cols)
+    brows, bcols = edge.shape
+    far = np.zeros((brows, bcols), dtype=np.bool_)
+    # each block judged at one of its cells, by the way to its farthest cell centre and a cell's diagonal and a half
+    qx, qy, radius, margin = np.empty(brows * bcols), np.empty(brows * bcols), np.empty(brows * bcols), np.empty(
+        brows * bcols)
+    where = np.empty(brows * bcols, dtype=np.int64)
+    count = 0
+    diagonal = 1.5 * np.hypot(dx, dy)
+    for i in range(brows):
+        first_r = i * BLOCK
+        rep_r = min(first_r + BLOCK // 2, rows - 1)
+        span_r = max(rep_r - first_r, min(first_r + BLOCK - 1, rows - 1) - rep_r) * dy
+        y = y0 - (rep_r + 0.5) * dy
+        for j in range(bcols):
+            first_c = j * BLOCK
+            rep_c = min(first_c + BLOCK // 2, cols - 1)
+            span_c = max(rep_c - first_c, min(first_c + BLOCK - 1, cols - 1) - rep_c) * dx
+            x = x0 + (rep_c + 0.5) * dx
+            gap = np.hypot(span_r, span_c) + diagonal
+            reach = upper[i, j] + np.hypot(x - (x0 + (j + 0.5) * (dx * BLOCK)), y - (y0 - (i + 0.5) * (dy * BLOCK)))
+            if inside[rep_r, rep_c] != encloses and reach > gap:
+                qx[count], qy[count], margin[count], where[count] = x, y, gap, i * bcols + j
+                radius[count] = reach * (1 + 1e-9) + 1e-9
+                count += 1
+    if count:
+        zero = np.zeros(1, dtype=np.float32)
+        qx, qy, radius = qx[:count], qy[:count], radius[:count]
+        squared, _ = _nearest_in_chunks(qx, qy, zero, zero, _candidates(qx, qy, radius, tree.boxes, tree.level_start),
+                                        tree.capsules, edges, False)
+        for n in range(count):
+            far[where[n] // bcols, where[n] % bcols] = squared[n, 0] > margin[n] ** 2
+    return edge, upper, inside, far
+
+
+@kernel(EXACT)
+def _block_edges(block_edge, upper, wanted, frame, rows, cols, edges, tree):  # pragma: no cover - compiled
+    """(rows, cols) int: the nearest edge of every cell centre of the ``wanted`` blocks ((block rows, block
+    cols) bool), among the edges within upper + 2 max a of the block's centre (see
+    :func:`heoslice.grading.lattice.lattice_edges`); elsewhere the block's ``block_edge``."""
+    x0, y0, dx, dy = frame
+    brows, bcols = block_edge.shape
+    points = BLOCK * BLOCK
+    ox, oy = np.empty(points), np.empty(points)
+    extra = 0.0
+    for v in range(BLOCK):
+        for u in range(BLOCK):
+            ox[v * BLOCK + u] = (u + 0.5 - 0.5 * BLOCK) * dx
+            oy[v * BLOCK + u] = -(v + 0.5 - 0.5 * BLOCK) * dy
+            extra = max(extra, np.hypot(ox[v * BLOCK + u], oy[v * BLOCK + u]))
+    count = 0
+    for i in range(brows):
+        for j in range(bcols):
+            count += wanted[i, j]
+    cx, cy, radius = np.empty(count), np.empty(count), np.empty(count)
+    slot = np.full((brows, bcols), -1, dtype=np.int64)
+    n = 0
+    for i in range(brows):
+        for j in range(bcols):
+            if wanted[i, j]:
+                cx[n], cy[n] = x0 + (j + 0.5) * (dx * BLOCK), y0 - (i + 0.5) * (dy * BLOCK)
+                radius[n] = upper[i, j] + 2.0 * extra
+                slot[i, j] = n
+                n += 1
+    which = np.zeros((0, points), dtype=np.int32)
+    if count:
+        _, which = _nearest_in_chunks(cx, cy, ox.astype(np.float32), oy.astype(np.float32),
+                                      _candidates(cx, cy, radius, tree.boxes, tree.level_start), tree.capsules,
+                                      edges, True)
+    edge = np.empty((rows, cols), dtype=np.int64)
+    for r in range(rows):
+        for c in range(cols):
+            g = slot[r // BLOCK, c // BLOCK]
+            edge[r, c] = block_edge[r // BLOCK, c // BLOCK] if g < 0 else which[g, (r % BLOCK) * BLOCK + c % BLOCK]
+    return edge
+
+
+def block_bounds_of(edges: EdgeArrays, tree, frame: LatticeFrame, rows: int, cols: int) -> tuple[np.ndarray,
+                                                                                               np.ndarray]:
+    """(edge, upper) per block of a lattice's cells (compiled :func:`_block_bounds`)."""
+    return _block_bounds(edge_arrays(edges), EdgeTree(*tree), frame_of(frame), int(rows), int(cols))
+
+
+def block_passes(edges: RingEdges, tree, frame: LatticeFrame, rows: int, cols: int, encloses: bool) -> tuple:
+    """(edge, upper, inside, far) of a ring set over a lattice (compiled :func:`_block_passes`)."""
+    end_y = f64(edges.y)[following_edges(edges)]
+    return _block_passes(edge_arrays(edges), end_y, EdgeTree(*tree), frame_of(frame), int(rows), int(cols),
+                         bool(encloses))
+
+
+def block_edges(block_edge: np.ndarray, upper: np.ndarray, wanted: np.ndarray, frame: LatticeFrame, rows: int,
+                cols: int, edges: EdgeArrays, tree) -> np.ndarray:
+    """(rows, cols) int: every cell centre's nearest edge in the wanted blocks (compiled :func:`_block_edges`)."""
+    return _block_edges(i64(block_edge), f64(upper), np.ascontiguousarray(wanted, dtype=np.bool_), frame_of(frame),
+                        int(rows), int(cols), edge_arrays(edges), EdgeTree(*tree))

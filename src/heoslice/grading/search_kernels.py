@@ -205,6 +205,20 @@ def _chunks_apart(start, candidate, cap_a, cap_b, a, b, best):  # pragma: no cov
     return best
 
 
+@helper(JIT, inline=False)
+def _nearest_starts(cx, cy, capsules):  # pragma: no cover - compiled
+    """Distance from each point (cx[g], cy[g]) to the nearest first point of a chunk (its capsule's chord
+    start, a vertex of the rings), mm: an upper bound of its distance to the edges."""
+    distance = np.empty(len(cx))
+    for g in range(len(cx)):
+        best = np.inf
+        for c in range(len(capsules)):
+            rx, ry = cx[g] - capsules[c, 0], cy[g] - capsules[c, 1]
+            best = min(best, rx * rx + ry * ry)
+        distance[g] = np.sqrt(best)
+    return distance
+
+
 def edge_tree(x0: np.ndarray, y0: np.ndarray, x1: np.ndarray, y1: np.ndarray):
     """Bounding-box hierarchy of edges from (x0, y0) to (x1, y1) ((n,) float, mm), given in ring order
     so that consecutive edges are near each other: (boxes (total, 4) [xmin, ymin, xmax, ymax],
