@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from heoslice.grading.edges_kernels import straight_runs
+from heoslice.grading.edges_kernels import convex_turns, straight_runs
 
 #: Largest distance (mm) of a ring point from the edge that replaces it for it to be left out of the ring's edges.
 _STRAIGHT_MM = 1e-5
@@ -52,13 +52,9 @@ def following_edges(edges: RingEdges) -> np.ndarray:
 
 
 def convex_rings(edges: RingEdges) -> bool:
-    """Whether every ring of the edges turns one way only (no reflex vertex; turns under 1e-9 rad ignored)."""
-    first = np.r_[0, np.flatnonzero(np.diff(edges.ring)) + 1]
-    following = following_edges(edges)
-    cross = edges.vx * edges.vy[following] - edges.vy * edges.vx[following]
-    scale = np.sqrt(edges.inv_len2 * edges.inv_len2[following])
-    turn = np.sign(np.where(np.abs(cross * scale) > 1e-9, cross, 0.0))
-    return bool(np.all(np.minimum.reduceat(turn, first) * np.maximum.reduceat(turn, first) >= 0))
+    """Whether every ring of the edges turns one way only (no reflex vertex; turns under 1e-9 rad ignored;
+    compiled, :func:`heoslice.grading.edges_kernels.convex_turns`)."""
+    return convex_turns(edges.vx, edges.vy, edges.inv_len2, edges.ring, 1e-9)
 
 
 def _loop_points(offsets: np.ndarray, loops: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,5 +1,5 @@
-"""Compiled loops of :mod:`heoslice.grading.edges`: a point's distance to an edge, and the walk that leaves a
-ring's straight points out of its edges."""
+"""Compiled loops of :mod:`heoslice.grading.edges`: a point's distance to an edge, the walk that leaves a
+ring's straight points out of its edges, and whether rings turn one way only."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from heoslice.jit import JIT, f64, helper, i64, kernel
+from heoslice.jit import EXACT, JIT, f64, helper, i64, kernel
 
 
 class EdgeArrays(NamedTuple):
@@ -132,3 +132,32 @@ def straight_runs(x: np.ndarray, y: np.ndarray, size: np.ndarray, tolerance: flo
     (knot_at (n + rings,): which point)."""
     x, y = f64(x), f64(y)
     return _straight_runs(x, y, i64(size), float(tolerance), int(longest))
+
+
+@kernel(EXACT)
+def _convex_rings(vx, vy, inv_len2, ring, turn_limit):  # pragma: no cover - compiled
+    """Whether every ring (runs of equal ``ring``, each edge followed by the next, the last by the first)
+    turns one way only: the cross product of each edge with the next, where its sine exceeds ``turn_limit``,
+    has one sign round the ring. Without fast-math: numpy's arithmetic, bit for bit."""
+    n = len(ring)
+    start = 0
+    while start < n:
+        end = start
+        while end + 1 < n and ring[end + 1] == ring[start]:
+            end += 1
+        left = right = False
+        for e in range(start, end + 1):
+            f = e + 1 if e < end else start
+            cross = vx[e] * vy[f] - vy[e] * vx[f]
+            if abs(cross * np.sqrt(inv_len2[e] * inv_len2[f])) > turn_limit:
+                left |= cross > 0.0
+                right |= cross < 0.0
+        if left and right:
+            return False
+        start = end + 1
+    return True
+
+
+def convex_turns(vx: np.ndarray, vy: np.ndarray, inv_len2: np.ndarray, ring: np.ndarray, turn_limit: float) -> bool:
+    """:func:`_convex_rings` of edges ((n,) float64 vectors, mm, and 1 / |v|^2; ``ring`` (n,) int)."""
+    return bool(_convex_rings(f64(vx), f64(vy), f64(inv_len2), i64(ring), float(turn_limit)))
