@@ -52,9 +52,9 @@ def brute_choice(mix: np.ndarray, fraction: float, target: np.ndarray) -> np.nda
 
 @pytest.mark.parametrize("spread", [1e-7, 0.3])
 def test_choice_table_entries_are_every_cells_choice_where_the_cells_agree(spread):
-    """Each entry of the choice table that is not -1 is the per-pixel choice of every cell of the label's
-    family; a family whose cells differ only in rounding (spread 1e-7) has no -1 entry at all, one whose
-    cells differ widely (0.3) has some."""
+    """Each entry of the choice table is the per-pixel choice of every cell of the label's family where
+    they all agree on it, and -1 exactly where they do not; a family whose cells differ only in rounding
+    (spread 1e-7) has no -1 entry at all, one whose cells differ widely (0.3) has some."""
     rng = np.random.default_rng(5)
     m = 0.4 + spread * rng.uniform(-1, 1, (6, 7))
     mixes = [np.stack([1 - m, m], axis=-1), np.tile([0.25, 0.75], (2, 3, 1))]
@@ -64,11 +64,31 @@ def test_choice_table_entries_are_every_cells_choice_where_the_cells_agree(sprea
     table = _choice_table(SimpleNamespace(base=base, label_count=int(base[-1])), mixes, fractions, target)
     for number, mix in enumerate(mixes):
         for label in range(base[number], base[number + 1]):
-            for cell in mix.reshape(-1, 2):
-                known = table[label] >= 0
-                assert np.array_equal(table[label][known], brute_choice(cell, fractions[label], target)[known])
+            choices = np.array([brute_choice(cell, fractions[label], target) for cell in mix.reshape(-1, 2)])
+            agreed = (choices == choices[0]).all(axis=0)
+            assert np.array_equal(table[label], np.where(agreed, choices[0], -1))
     assert (table[1:5] < 0).any() == (spread > 1e-3)
     assert (table[5:] >= 0).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 4), st.sampled_from([0.0, 1e-7, 0.02, 0.5]))
+def test_choice_table_is_the_brute_force_agreement_for_any_number_of_channels(seed, channels, spread):
+    """For mixes of 2 to 4 channels near one mix (or equal, or far apart), fractions of one family, and a
+    target of one channel, each table entry is the cells' common per-pixel choice where they agree, else -1."""
+    rng = np.random.default_rng(seed)
+    centre = rng.dirichlet(np.ones(channels))
+    cells = np.clip(centre + spread * rng.uniform(-1, 1, (int(rng.integers(1, 40)), channels)), 0.0, None)
+    cells /= cells.sum(axis=1, keepdims=True)
+    target = np.eye(channels)[int(rng.integers(channels))]
+    fractions = np.r_[0.0, rng.uniform(0, 1, 3)]
+    base = np.array([1, 4])
+    table = _choice_table(SimpleNamespace(base=base, label_count=4), [cells.reshape(1, -1, channels)], fractions,
+                          target)
+    for label in range(1, 4):
+        choices = np.array([brute_choice(cell, fractions[label], target) for cell in cells])
+        agreed = (choices == choices[0]).all(axis=0)
+        assert np.array_equal(table[label], np.where(agreed, choices[0], -1))
 
 
 def test_masks_without_a_gradient_are_those_of_the_full_sub_region_layout():

@@ -73,6 +73,7 @@ def _layer(bits: int) -> types.Type:
 #: width (bits) for the kernels that take labels.
 ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     contours_kernels._chain_loops: (i8_1, i8_1),
+    droplets_kernels._agreed_choices: (f4_2, f4_1, f4_1, f4_1),
     droplets_kernels._droplet_bits: lambda bits: (
         _layer(bits), types.Tuple((i8_1, f4_1, i8_2, f4_1, f4_1)), types.Tuple((f4_2, i8_2, i1_2, i8)), u1_3),
     edges_kernels._straight_runs: (f8_1, f8_1, i8_1, f8, i8),

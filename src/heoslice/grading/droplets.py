@@ -11,6 +11,7 @@ from heoslice.grading.droplets_kernels import (
     Dither,
     LabelledLayer,
     LayerMixes,
+    agreed_choices,
     droplet_bits,
 )
 from heoslice.grading.halftone import TILE, layer_tile
@@ -18,14 +19,6 @@ from heoslice.grading.labels import LayerRegions, layer_regions
 from heoslice.grading.materials import family_starts, target_fractions
 from heoslice.grading.spec import GradeSpec, RegionSpec
 from heoslice.layers.rasterising import Grid
-from heoslice.mesh.weld import distinct_rows
-
-#: Most (distinct fraction, distinct cell mix) pairs whose choices :func:`_choice_table` tabulates for one
-#: family (a family beyond it is halftoned per pixel), and how many of them at once (~10 bytes per pair and
-#: threshold level).
-_TABLE_SHARES = 1 << 16
-_SHARES_AT_ONCE = 1 << 12
-
 
 def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, parent: np.ndarray,
                    loop_shell: np.ndarray | None, mask: np.ndarray | None, grid: Grid, spec: GradeSpec, layer: int, *,
@@ -104,47 +97,15 @@ def _choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.
                   target_mix: np.ndarray) -> np.ndarray:
     """The channel each label jets at each of the 256 dither thresholds ((labels, 256) int8), where every
     lattice cell of the label's family agrees on it (-1 where they do not: those pixels are halftoned
-    per pixel). Computed in the kernel's float32 arithmetic over the family's distinct cell mixes, so a
-    pixel's channel is the same either way; it turns the per-pixel mix into one table look-up, also for
-    a family whose start mix varies only in rounding (a contour material that is level over a layer)."""
+    per pixel). Computed in the kernel's float32 arithmetic (compiled,
+    :func:`heoslice.grading.droplets_kernels.agreed_choices`), so a pixel's channel is the same either way;
+    it turns the per-pixel mix into one table look-up, also for a family whose start mix varies only in
+    rounding (a contour material that is level over a layer)."""
     count = TILE * TILE
     table = np.full((regions.label_count, count), -1, dtype=np.int8)
     levels = ((np.arange(count) + 0.5) / count).astype(np.float32)
-    target = target_mix.astype(np.float32)
     for number, mix in enumerate(mixes):
-        flat = mix.reshape(-1, mix.shape[-1]).astype(np.float32)
         labels = np.arange(regions.base[number], regions.base[number + 1])
         moved, of_label = np.unique(fractions.astype(np.float32)[labels], return_inverse=True)
-        if not len(flat):
-            continue
-        cells = flat[distinct_rows(flat)[1]]  # by their bits
-        if len(cells) * len(moved) > _TABLE_SHARES:
-            continue
-        first, agreed = None, np.ones((len(moved), count), dtype=bool)
-        step = max(1, _SHARES_AT_ONCE // len(moved))
-        for low in range(0, len(cells), step):
-            part = cells[low:low + step]
-            share = part[None, :, :] + moved[:, None, None] * (target - part)[None, :, :]
-            chosen = _running_choice(share.reshape(-1, share.shape[-1]), levels).reshape(len(moved), len(part), count)
-            first = chosen[:, 0] if first is None else first
-            agreed &= (chosen == first[:, None]).all(axis=1)
-        table[labels] = np.where(agreed, first, np.int8(-1))[of_label]
+        table[labels] = agreed_choices(mix.reshape(-1, mix.shape[-1]), moved, target_mix, levels)[of_label]
     return table
-
-
-def _running_choice(share: np.ndarray, levels: np.ndarray) -> np.ndarray:
-    """Per mix ((n, K) float32) and threshold level ((256,) float32), the first channel whose running sum
-    of the mix exceeds the level times the mix's total ((n, 256) int8), summed as the kernel sums."""
-    total = np.zeros(len(share), dtype=np.float32)
-    for column in share.T:
-        total += column
-    threshold = levels[None, :] * np.where(total > 0, total, np.float32(1.0))[:, None]
-    chosen = np.full(threshold.shape, share.shape[1] - 1, dtype=np.int8)
-    running = np.zeros(len(share), dtype=np.float32)
-    undecided = np.ones(threshold.shape, dtype=bool)
-    for channel in range(share.shape[1] - 1):
-        running += share[:, channel]
-        here = undecided & (threshold < running[:, None])
-        chosen[here] = channel
-        undecided &= ~here
-    return chosen

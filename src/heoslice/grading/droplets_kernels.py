@@ -1,4 +1,5 @@
-"""Compiled halftoning of a labelled layer into bit-packed droplet masks (:mod:`heoslice.grading.droplets`)."""
+"""Compiled halftoning of a labelled layer into bit-packed droplet masks (:mod:`heoslice.grading.droplets`), and
+the table of the choices a family's cells agree on."""
 
 from __future__ import annotations
 
@@ -329,3 +330,65 @@ def droplet_bits(layer: LabelledLayer, mixing: LayerMixes, dither: Dither, plane
               f32(mixing.target))
     return _droplet_bits(layer, mixing, (f32(tile), level, np.ascontiguousarray(table, dtype=np.int8),
                                          int(base_channel)), planes)
+
+
+@kernel(EXACT)
+def _agreed_choices(cells, moved, target, levels):  # pragma: no cover - compiled
+    """(len(moved), len(levels)) int8: for each fraction f of ``moved`` ((l,) float32), the channel every
+    cell's mix ((n, K) float32) moved by f towards ``target`` ((K,) float32) jets at each threshold level
+    ((t,) float32, ascending), -1 where the cells do not agree.
+
+    A mix jets the first channel m whose running sum exceeds the level times its total (in the float32
+    arithmetic of :func:`_droplet_bits`); the running sums ascend, so channel m's own condition holds below
+    a level index b_m (ascending in m too), found by bisection, and the choice at level i is the first m
+    with i < b_m: the cells agree at i exactly when, for every m, i is below every cell's b_m or at or
+    above all of them.
+    """
+    channels, count = cells.shape[1], len(levels)
+    out = np.full((len(moved), count), -1, dtype=np.int8)
+    share = np.empty(channels, dtype=np.float32)
+    low = np.empty(max(channels - 1, 1), dtype=np.int64)
+    high = np.empty(max(channels - 1, 1), dtype=np.int64)
+    first = np.empty(max(channels - 1, 1), dtype=np.int64)
+    for label in range(len(moved)):
+        f = moved[label]
+        low[:] = count
+        high[:] = 0
+        for c in range(len(cells)):
+            total = np.float32(0.0)
+            for m in range(channels):
+                share[m] = cells[c, m] + f * (target[m] - cells[c, m])
+                total += share[m]
+            scale = total if total > np.float32(0.0) else np.float32(1.0)
+            running = np.float32(0.0)
+            for m in range(channels - 1):
+                running += share[m]
+                below, above = 0, count
+                while below < above:
+                    middle = (below + above) // 2
+                    if levels[middle] * scale < running:
+                        below = middle + 1
+                    else:
+                        above = middle
+                low[m] = min(low[m], below)
+                high[m] = max(high[m], below)
+                if c == 0:
+                    first[m] = below
+        if len(cells) == 0:
+            continue
+        for i in range(count):
+            pick = channels - 1
+            agreed = True
+            for m in range(channels - 1):
+                agreed &= i < low[m] or i >= high[m]
+                if pick == channels - 1 and i < first[m]:
+                    pick = m
+            if agreed:
+                out[label, i] = pick
+    return out
+
+
+def agreed_choices(cells: np.ndarray, moved: np.ndarray, target: np.ndarray, levels: np.ndarray) -> np.ndarray:
+    """:func:`_agreed_choices` of cell mixes ((n, K)), fractions ((l,)), a target mix ((K,)) and threshold
+    levels ((t,)), all taken as float32."""
+    return _agreed_choices(f32(cells), f32(moved), f32(target), f32(levels))
