@@ -61,3 +61,30 @@ def test_the_distance_from_the_outer_ring_to_its_holes_is_the_least_hole_by_hole
         measured.append(len(counted) - start)
         before = memo.now
     assert measured == [len(holes) + 1, 1, 0]
+
+
+def test_the_nearest_edges_of_many_groups_are_found_batch_by_batch_as_each_group_alone():
+    """Groups whose candidate pairs exceed one batch (a zigzag ring of 200,000 edges: fewer than 400 groups a
+    batch) get, searched together, the nearest edges and distances each gets searched alone."""
+    from heoslice.grading.search_kernels import _PAIRS, FAN
+
+    angle = np.linspace(0.0, 2 * np.pi, 200_000, endpoint=False)
+    radius = 40.0 + 0.01 * (np.arange(len(angle)) % 2)  # no point on the line between its neighbours
+    points, offsets, _, _ = layer(np.column_stack([radius * np.cos(angle), radius * np.sin(angle)]))
+    rings = ring_set(points, offsets, [0], True)
+    groups = 1000
+    assert groups > _PAIRS // -(-len(rings.edges.x) // FAN)  # more groups than one batch holds
+    rng = np.random.default_rng(3)
+    angle, radius = rng.uniform(0, 2 * np.pi, groups), rng.uniform(0.0, 39.0, groups)
+    cx, cy = radius * np.cos(angle), radius * np.sin(angle)
+    reach = 40.0 - radius + 0.5
+    ox, oy = np.array([0.0, 0.1]), np.array([0.0, -0.1])
+    together = search.nearest_edges(cx, cy, reach, ox, oy, rings.edges, rings.tree)
+    squared = search.nearest_edges(cx, cy, reach, ox, oy, rings.edges, rings.tree, track=False)
+    for g in range(0, groups, 97):
+        alone = slice(g, g + 1)
+        assert np.array_equal(together[alone], search.nearest_edges(cx[alone], cy[alone], reach[alone], ox, oy,
+                                                                    rings.edges, rings.tree))
+        assert np.array_equal(squared[alone], search.nearest_edges(cx[alone], cy[alone], reach[alone], ox, oy,
+                                                                   rings.edges, rings.tree, track=False))
+    assert (together >= 0).all()

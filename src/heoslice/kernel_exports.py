@@ -49,9 +49,9 @@ b_2, u1_2, u1_3 = types.boolean[:, ::1], types.uint8[:, ::1], types.uint8[:, :, 
 u4_2, u8_1 = types.uint32[:, ::1], types.uint64[::1]
 
 EDGES = types.NamedUniTuple(f8_1, 5, edges_kernels.EdgeArrays)
+TREE = types.NamedTuple((f8_2, i8_1, f8_2), search_kernels.EdgeTree)
 PIXELS = types.NamedTuple((i8, f8, f8), field_kernels.CellPixels)
 FRAME = types.NamedUniTuple(f8, 4, lattice_kernels.LatticeFrame)
-TREE = types.NamedTuple((f8_2, i8_1, f8_2), lattice_kernels.EdgeTree)
 CELL_FIELD = types.NamedTuple((f8_2, f8_3, b_2, b_2, b_2), refine_kernels.CellField)
 FIT_TEST = types.NamedUniTuple(f8, 5, refine_kernels.FitTest)
 VERTICES = types.NamedTuple((i8_1, f8_1, f8_1, f8_1, f8, f8), refine_kernels.RingVertices)
@@ -95,7 +95,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     refine_kernels._ring_models: (f8_3, f8_4, f8_3, i8_1, i8_1, f8, f8, f8, f8, f8),
     refine_kernels._band_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, f8_3, f4_2, i8_2, f8, f8),
     search_kernels._candidates: (f8_1, f8_1, f8_1, f8_2, i8_1),
-    search_kernels._nearest_in_chunks: (f8_1, f8_1, f4_1, f4_1, types.UniTuple(i8_1, 2), f8_2, EDGES, b1),
+    search_kernels._nearest_in_batches: (f8_1, f8_1, f8_1, f4_1, f4_1, TREE, EDGES, b1),
     search_kernels._chunks_apart: (i8_1, i8_1, f8_2, f8_2, f8_2, f8_2, f8),
     search_kernels._tree_boxes: (f8_1, f8_1, f8_1, f8_1, i8_1),
     search_kernels._chunk_capsules: (f8_1, f8_1, f8_1, f8_1),

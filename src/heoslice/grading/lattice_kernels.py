@@ -10,7 +10,7 @@ import numpy as np
 
 from heoslice.grading.edges import RingEdges, following_edges
 from heoslice.grading.edges_kernels import EdgeArrays, edge_arrays
-from heoslice.grading.search_kernels import _candidates, _nearest_in_chunks, _nearest_starts
+from heoslice.grading.search_kernels import EdgeTree, _nearest_in_batches, _nearest_starts
 from heoslice.jit import EXACT, JIT, f64, i64, kernel
 
 #: Lattice cells per side of the blocks whose centres share candidate edges
@@ -129,14 +129,6 @@ def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, edges: EdgeArrays) ->
     return _feet(f64(qx), f64(qy), i64(edge), edge_arrays(edges))
 
 
-class EdgeTree(NamedTuple):
-    """A ring set's edge hierarchy (:func:`heoslice.grading.search_kernels.edge_tree`), as the kernels take it."""
-
-    boxes: np.ndarray
-    level_start: np.ndarray
-    capsules: np.ndarray
-
-
 @kernel(EXACT)
 def _block_bounds(edges, tree, frame, rows, cols):  # pragma: no cover - compiled
     """Per block of BLOCK x BLOCK cells of a lattice (``frame``, rows x cols cells): the edge nearest its
@@ -151,8 +143,7 @@ def _block_bounds(edges, tree, frame, rows, cols):  # pragma: no cover - compile
             cy[i * bcols + j] = y0 - (i + 0.5) * (dy * BLOCK)
     reach = _nearest_starts(cx, cy, tree.capsules) * (1 + 1e-6) + 1e-6
     zero = np.zeros(1, dtype=np.float32)
-    _, which = _nearest_in_chunks(cx, cy, zero, zero, _candidates(cx, cy, reach, tree.boxes, tree.level_start),
-                                  tree.capsules, edges, True)
+    _, which = _nearest_in_batches(cx, cy, reach, zero, zero, tree, edges, True)
     edge = which[:, 0].astype(np.int64)
     upper = _feet(cx, cy, edge, edges)[0]
     return edge.reshape(brows, bcols), upper.reshape(brows, bcols)
@@ -193,8 +184,7 @@ def _block_passes(edges, end_y, tree, frame, rows, cols, encloses):  # pragma: n
     if count:
         zero = np.zeros(1, dtype=np.float32)
         qx, qy, radius = qx[:count], qy[:count], radius[:count]
-        squared, _ = _nearest_in_chunks(qx, qy, zero, zero, _candidates(qx, qy, radius, tree.boxes, tree.level_start),
-                                        tree.capsules, edges, False)
+        squared, _ = _nearest_in_batches(qx, qy, radius, zero, zero, tree, edges, False)
         for n in range(count):
             far[where[n] // bcols, where[n] % bcols] = squared[n, 0] > margin[n] ** 2
     return edge, upper, inside, far
@@ -231,9 +221,8 @@ def _block_edges(block_edge, upper, wanted, frame, rows, cols, edges, tree):  # 
                 n += 1
     which = np.zeros((0, points), dtype=np.int32)
     if count:
-        _, which = _nearest_in_chunks(cx, cy, ox.astype(np.float32), oy.astype(np.float32),
-                                      _candidates(cx, cy, radius, tree.boxes, tree.level_start), tree.capsules,
-                                      edges, True)
+        _, which = _nearest_in_batches(cx, cy, radius, ox.astype(np.float32), oy.astype(np.float32), tree, edges,
+                                       True)
     edge = np.empty((rows, cols), dtype=np.int64)
     for r in range(rows):
         for c in range(cols):

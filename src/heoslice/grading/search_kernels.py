@@ -4,6 +4,8 @@ between two edge sets."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from heoslice.grading.edges_kernels import EdgeArrays, edge_arrays, point_to_edge
@@ -15,6 +17,14 @@ FAN = 8
 
 #: Candidate (group, chunk) pairs gathered at most at once by :func:`nearest_in_groups` (8 bytes each).
 _PAIRS = 1 << 23
+
+
+class EdgeTree(NamedTuple):
+    """A ring set's edge hierarchy (:func:`edge_tree`), as the kernels take it."""
+
+    boxes: np.ndarray
+    level_start: np.ndarray
+    capsules: np.ndarray
 
 
 @kernel(JIT)
@@ -96,7 +106,7 @@ def _ascending(values, order):  # pragma: no cover - compiled
     return order
 
 
-@kernel(JIT)
+@helper(JIT, inline=False)
 def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  # pragma: no cover - compiled
     """The nearest edge of group g's candidate chunks to each point (cx[g] + ox[k], cy[g] + oy[k]):
     (squared distance (g, k) float32, inf where none; edge (g, k) int32, -1 where none, or
@@ -278,6 +288,25 @@ def _chunk_capsules(x0, y0, x1, y1):  # pragma: no cover - compiled
     return out
 
 
+@kernel(JIT)
+def _nearest_in_batches(cx, cy, radius, ox, oy, tree, edges, track):  # pragma: no cover - compiled
+    """:func:`_nearest_in_chunks` of groups' candidate chunks (:func:`_candidates`), a bounded number of
+    groups at a time (groups deep inside a round part gather most of its chunks): at most _PAIRS pairs."""
+    groups, points = len(cx), len(ox)
+    best = np.full((groups, points), np.inf, dtype=np.float32)
+    which = np.full((groups, points) if track else (0, 0), -1, dtype=np.int32)
+    step = max(1, _PAIRS // max(1, len(tree.capsules)))
+    for first in range(0, groups, step):
+        last = min(first + step, groups)
+        part_x, part_y = cx[first:last], cy[first:last]
+        candidates = _candidates(part_x, part_y, radius[first:last], tree.boxes, tree.level_start)
+        part_best, part_which = _nearest_in_chunks(part_x, part_y, ox, oy, candidates, tree.capsules, edges, track)
+        best[first:last] = part_best
+        if track:
+            which[first:last] = part_which
+    return best, which
+
+
 def nearest_in_groups(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np.ndarray, oy: np.ndarray,
                       edges: EdgeArrays, tree, track: bool = True) -> np.ndarray:
     """The points (cx[g] + ox[k], cy[g] + oy[k]) against the edges of the chunks within radius[g] of
@@ -288,18 +317,9 @@ def nearest_in_groups(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np
 
     ``edges``: EdgeArrays (or RingEdges); ``tree`` is :func:`edge_tree` of the same edges.
     """
-    cx, cy, radius, edges = f64(cx), f64(cy), f64(radius), edge_arrays(edges)
-    ox, oy = f32(ox), f32(oy)
-    boxes, level_start, capsules = tree
-    parts = []
-    # groups deep inside a round part gather most of its chunks: a bounded number at a time
-    step = max(1, _PAIRS // max(1, len(capsules)))
-    for first in range(0, max(len(cx), 1), step):
-        group = slice(first, first + step)
-        candidates = _candidates(cx[group], cy[group], radius[group], boxes, level_start)
-        best, which = _nearest_in_chunks(cx[group], cy[group], ox, oy, candidates, capsules, edges, track)
-        parts.append(which if track else best)
-    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+    best, which = _nearest_in_batches(f64(cx), f64(cy), f64(radius), f32(ox), f32(oy), EdgeTree(*tree),
+                                      edge_arrays(edges), bool(track))
+    return which if track else best
 
 
 def edge_sets_apart(a: np.ndarray, tree_a, b: np.ndarray, tree_b, bound: float) -> float:
