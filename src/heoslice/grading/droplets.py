@@ -19,6 +19,12 @@ from heoslice.grading.labels import LayerRegions, layer_regions
 from heoslice.grading.materials import family_starts, target_fractions
 from heoslice.grading.spec import GradeSpec, RegionSpec
 from heoslice.layers.rasterising import Grid
+from heoslice.mesh.weld import distinct_rows
+
+#: Most (distinct fraction, distinct cell mix) pairs whose choices :func:`_choice_table` tabulates for one
+#: family: past it, a family of many sub-regions and varied cells rarely agrees, and is halftoned per pixel.
+_TABLE_SHARES = 1 << 16
+
 
 def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, parent: np.ndarray,
                    loop_shell: np.ndarray | None, mask: np.ndarray | None, grid: Grid, spec: GradeSpec, layer: int, *,
@@ -105,7 +111,10 @@ def _choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.
     table = np.full((regions.label_count, count), -1, dtype=np.int8)
     levels = ((np.arange(count) + 0.5) / count).astype(np.float32)
     for number, mix in enumerate(mixes):
+        flat = mix.reshape(-1, mix.shape[-1]).astype(np.float32)
         labels = np.arange(regions.base[number], regions.base[number + 1])
         moved, of_label = np.unique(fractions.astype(np.float32)[labels], return_inverse=True)
-        table[labels] = agreed_choices(mix.reshape(-1, mix.shape[-1]), moved, target_mix, levels)[of_label]
+        cells = flat[distinct_rows(flat)[1]] if len(flat) else flat  # by their bits
+        if len(cells) * len(moved) <= _TABLE_SHARES:
+            table[labels] = agreed_choices(cells, moved, target_mix, levels)[of_label]
     return table
