@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from heoslice.grading.edges_kernels import convex_turns, straight_runs
+from heoslice.grading.edges_kernels import convex_turns, kept_edges, straight_runs
 
 #: Largest distance (mm) of a ring point from the edge that replaces it for it to be left out of the ring's edges.
 _STRAIGHT_MM = 1e-5
@@ -64,14 +64,13 @@ def _loop_points(offsets: np.ndarray, loops: np.ndarray) -> tuple[np.ndarray, np
     return np.repeat(begin - (np.cumsum(sizes) - sizes), sizes) + np.arange(int(sizes.sum())), sizes
 
 
-def _kept_points(points: np.ndarray, offsets: np.ndarray, loops) -> tuple:
-    """The given loops' points left as edge starts (:func:`heoslice.grading.edges_kernels.straight_runs`):
-    (their indices in the layer in edge order, kept per loop, the loops' points in order, knots, knot_at)."""
-    loops = np.asarray(loops, dtype=np.int64)
-    every, sizes = _loop_points(offsets, loops)
+def _kept(points: np.ndarray, offsets: np.ndarray, loops) -> tuple:
+    """The given loops' edges between the points :func:`heoslice.grading.edges_kernels.straight_runs` keeps:
+    (the loops' points in the layer, loop after loop, their knots and knot_at, and
+    :func:`heoslice.grading.edges_kernels.kept_edges` of them)."""
+    every, sizes = _loop_points(offsets, np.asarray(loops, dtype=np.int64))
     keep, order, knots, knot_at = straight_runs(points[every, 0], points[every, 1], sizes, _STRAIGHT_MM)
-    counts = np.bincount(np.repeat(np.arange(len(loops)), sizes)[keep], minlength=len(loops))
-    return every[order[keep[order]]], counts, every, knots, knot_at
+    return every, knots, knot_at, kept_edges(points, every, sizes, keep, order)
 
 
 def ring_geometry(points: np.ndarray, offsets: np.ndarray, loop_sets) -> list[tuple[bytes, bytes, bytes]]:
@@ -80,13 +79,13 @@ def ring_geometry(points: np.ndarray, offsets: np.ndarray, loop_sets) -> list[tu
     One pass for all the sets (the straight runs of each loop are its own)."""
     if not loop_sets:
         return []
-    index, counts, _, _, _ = _kept_points(points, offsets, [loop for loops in loop_sets for loop in loops])
+    _, _, _, (_, _, x, y, _, _, _, _, counts) = _kept(points, offsets, [loop for loops in loop_sets for loop in loops])
     start = np.concatenate([[0], np.cumsum(counts)])
     keys, first = [], 0
     for loops in loop_sets:
-        kept = index[start[first]:start[first + len(loops)]]
+        edges = slice(start[first], start[first + len(loops)])
         ring = np.repeat(np.arange(len(loops)), counts[first:first + len(loops)])
-        keys.append((points[kept, 0].tobytes(), points[kept, 1].tobytes(), ring.tobytes()))
+        keys.append((x[edges].tobytes(), y[edges].tobytes(), ring.tobytes()))
         first += len(loops)
     return keys
 
@@ -99,13 +98,7 @@ def edges_key(edges: RingEdges) -> tuple[bytes, bytes, bytes]:
 def ring_edges(points: np.ndarray, offsets: np.ndarray, loops) -> RingEdges:
     """Edges of the given loops (indices into offsets) of a layer's points ((p, 2) float, mm), without
     points within _STRAIGHT_MM of the straight line between their neighbours, each ring's from its
-    lowest point in x then y round (:func:`heoslice.grading.edges_kernels.straight_runs`)."""
-    index, counts, every, knots, knot_at = _kept_points(points, offsets, loops)
-    first_kept = np.repeat(np.cumsum(counts) - counts, counts)
-    following = index[first_kept + (np.arange(len(index)) - first_kept + 1) % np.repeat(counts, counts)]
-    vec = points[following] - points[index]
-    length2 = vec[:, 0] ** 2 + vec[:, 1] ** 2
-    inv = np.divide(1.0, length2, out=np.zeros_like(length2), where=length2 > 0)
-    return RingEdges(x=points[index, 0].copy(), y=points[index, 1].copy(), vx=vec[:, 0].copy(),
-                     vy=vec[:, 1].copy(), inv_len2=inv, ring=np.repeat(np.arange(len(counts)), counts), first=index,
-                     second=following, knots=knots, knot_point=every[knot_at])
+    lowest point in x then y round (:func:`_kept`)."""
+    every, knots, knot_at, (first, second, x, y, vx, vy, inv, ring, _) = _kept(points, offsets, loops)
+    return RingEdges(x=x, y=y, vx=vx, vy=vy, inv_len2=inv, ring=ring, first=first, second=second, knots=knots,
+                     knot_point=every[knot_at])

@@ -1,5 +1,6 @@
 """Compiled loops of :mod:`heoslice.grading.edges`: a point's distance to an edge, the walk that leaves a
-ring's straight points out of its edges, and whether rings turn one way only."""
+ring's straight points out of its edges, the edges between the points kept, and whether rings turn one way
+only."""
 
 from __future__ import annotations
 
@@ -161,3 +162,43 @@ def _convex_rings(vx, vy, inv_len2, ring, turn_limit):  # pragma: no cover - com
 def convex_turns(vx: np.ndarray, vy: np.ndarray, inv_len2: np.ndarray, ring: np.ndarray, turn_limit: float) -> bool:
     """:func:`_convex_rings` of edges ((n,) float64 vectors, mm, and 1 / |v|^2; ``ring`` (n,) int)."""
     return bool(_convex_rings(f64(vx), f64(vy), f64(inv_len2), i64(ring), float(turn_limit)))
+
+
+@kernel(EXACT)
+def _kept_edges(points, every, sizes, keep, order):  # pragma: no cover - compiled
+    """The edges between the kept points of rings (:func:`straight_runs`' ``keep`` and ``order`` of the
+    rings' points ``every``, indices into ``points`` (p, 2) mm, ring k the next sizes[k]): per ring its
+    kept points in walk order, each edge from one to the next round the ring. Returns (first, second: the
+    edges' end points in ``points``; x, y, vx, vy, inv_len2 as :class:`heoslice.grading.edges.RingEdges`;
+    ring; counts: kept points per ring). Without fast-math: numpy's arithmetic, bit for bit."""
+    kept = 0
+    for n in range(len(order)):
+        kept += keep[order[n]]
+    first, second, ring = np.empty(kept, dtype=np.int64), np.empty(kept, dtype=np.int64), np.empty(kept, np.int64)
+    counts = np.zeros(len(sizes), dtype=np.int64)
+    n = edge = 0
+    for k in range(len(sizes)):
+        start = edge
+        for _ in range(sizes[k]):
+            if keep[order[n]]:
+                first[edge], ring[edge] = every[order[n]], k
+                edge += 1
+            n += 1
+        counts[k] = edge - start
+        for e in range(start, edge):
+            second[e] = first[e + 1] if e + 1 < edge else first[start]
+    x, y = np.empty(kept), np.empty(kept)
+    vx, vy, inv = np.empty(kept), np.empty(kept), np.empty(kept)
+    for e in range(kept):
+        x[e], y[e] = points[first[e], 0], points[first[e], 1]
+        vx[e], vy[e] = points[second[e], 0] - x[e], points[second[e], 1] - y[e]
+        length2 = vx[e] * vx[e] + vy[e] * vy[e]
+        inv[e] = 1.0 / length2 if length2 > 0 else 0.0
+    return first, second, x, y, vx, vy, inv, ring, counts
+
+
+def kept_edges(points: np.ndarray, every: np.ndarray, sizes: np.ndarray, keep: np.ndarray, order: np.ndarray
+               ) -> tuple:
+    """:func:`_kept_edges` of a layer's points ((p, 2) float64, mm) and the rings' points, sizes and
+    :func:`straight_runs` walk."""
+    return _kept_edges(f64(points), i64(every), i64(sizes), np.ascontiguousarray(keep, dtype=np.bool_), i64(order))

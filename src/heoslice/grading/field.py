@@ -29,6 +29,7 @@ solid, so the outline is exact.
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -121,11 +122,11 @@ class FamilyField:
 
 def family_box(edges: RingEdges, grid: Grid) -> tuple[int, int, int, int]:
     """Pixel box (row0, row1, col0, col1) of the pixel centres inside the bounding box of a ring's edges."""
-    low, high = (edges.x.min(), edges.y.min()), (edges.x.max(), edges.y.max())
-    col0 = int(np.clip(np.floor((low[0] - grid.x_left) / grid.px - 0.5), 0, grid.width))
-    col1 = int(np.clip(np.ceil((high[0] - grid.x_left) / grid.px + 0.5), 0, grid.width))
-    row0 = int(np.clip(np.floor((grid.y_top - high[1]) / grid.py - 0.5), 0, grid.height))
-    row1 = int(np.clip(np.ceil((grid.y_top - low[1]) / grid.py + 0.5), 0, grid.height))
+    low, high = (float(edges.x.min()), float(edges.y.min())), (float(edges.x.max()), float(edges.y.max()))
+    col0 = min(max(math.floor((low[0] - grid.x_left) / grid.px - 0.5), 0), grid.width)
+    col1 = min(max(math.ceil((high[0] - grid.x_left) / grid.px + 0.5), 0), grid.width)
+    row0 = min(max(math.floor((grid.y_top - high[1]) / grid.py - 0.5), 0), grid.height)
+    row1 = min(max(math.ceil((grid.y_top - low[1]) / grid.py + 0.5), 0), grid.height)
     return row0, row1, col0, col1
 
 

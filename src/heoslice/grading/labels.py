@@ -154,7 +154,10 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
         if number == 0:
             # the outermost family's labels cover its box's solid pixels; everything after paints its own region
             if label is not first.index:
-                np.copyto(target, first.index, casting="unsafe")
+                if (constant := _constant(first.index)) is not None:
+                    target.fill(constant)  # one label seen at every pixel: a fill, not a cast of a broadcast
+                else:
+                    np.copyto(target, first.index, casting="unsafe")
             continue
         solid = _solid_in(mask, packed, field.box)
         if not alone[number]:

@@ -53,7 +53,7 @@ def padded(lattice: Lattice) -> Lattice:
 
 def lattice_for(box: tuple[int, int, int, int], grid: Grid, cell_mm: float = CELL_MM) -> Lattice:
     """A lattice covering pixel rows box[0]:box[1] and columns box[2]:box[3] of ``grid``."""
-    cell = int(np.clip(round(cell_mm / max(grid.px, grid.py)), 4, 16))
+    cell = min(max(round(cell_mm / max(grid.px, grid.py)), 4), 16)
     row0, row1, col0, col1 = box
     rows = max(1, -(-(row1 - row0) // cell))
     cols = max(1, -(-(col1 - col0) // cell))
