@@ -298,6 +298,24 @@ def test_an_outermost_family_spanning_a_layer_of_several_lends_its_index_as_the_
     assert regions.label is regions.fields[0].index
 
 
+def test_one_subregion_families_spanning_a_layer_of_several_are_labelled_in_int8():
+    """The same hollow disc and island with one sub-region each (a coloured part without grading): the disc's
+    index is one value, so the labels of the two families are int8 (the narrowest), the disc's label on its
+    own solid pixels and the island's on its own."""
+    rings = (circle(9.0), circle(8.5, clockwise=True), circle(8.0))
+    points, offsets, area, parent = layer(*rings)
+    grid = grid_around(9.5)
+    mask = solid_mask(points, offsets, grid)
+    regions = layer_regions(points, offsets, area, parent, None, grid, RegionSpec(count=1), np.packbits(mask, axis=1))
+    assert len(regions.families) == 2 and regions.fields[0].box == regions.box
+    assert regions.label.dtype == np.int8
+    rows, cols = slice(*regions.box[:2]), slice(*regions.box[2:])
+    disc = solid_mask(points[:offsets[2]], offsets[:3], grid)[rows, cols]
+    solid = mask[rows, cols]
+    assert set(np.unique(regions.label[disc]).tolist()) == {regions.base[0] + 1}
+    assert set(np.unique(regions.label[solid & ~disc]).tolist()) == {regions.base[1] + 1}
+
+
 def test_painting_a_family_after_the_first_takes_no_copy_wider_than_the_labels(monkeypatch):
     """Two equal plates side by side (the second painted over the label array from its own index plus its label
     base): painting allocates at most the labels, the box's solid bits and one copy of the box's index in the

@@ -135,7 +135,9 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
     ``copy_first`` (other families paint over it and the field serves the next layer)."""
     first = fields[0]
     dtype = label_dtype(int(base[-1]))
-    if first.box == box:  # as wide as the outermost family's index (shared: int16 at least): it may be the labels
+    if first.box == box and _constant(first.index) is None:
+        # as wide as the outermost family's index (shared: int16 at least): it may be the labels (one value seen
+        # at every pixel is filled in, in the narrowest width)
         dtype = np.result_type(dtype, first.index.dtype)
     if len(fields) == 1 and first.box == box and (value := _constant(first.index)) is not None:
         # one family of one sub-region: its one label seen at every pixel of the box, no array of ~15 MP
