@@ -11,10 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from heoslice.grading import GradeSpec, RegionSpec, layer_regions
-from heoslice.grading.droplets import _choice_table, droplet_planes, labelled_droplet_planes
+from heoslice.grading.droplets import _choice_table, droplet_counts, droplet_planes, labelled_droplet_planes
 from heoslice.grading.halftone import TILE
-from heoslice.layers.rasterising import Grid, packed_mask
-from heoslice.material import DEFAULT_MATERIALS
+from heoslice.layers.rasterising import Grid, count_solid, packed_mask
+from heoslice.material import DEFAULT_MATERIALS, Material, make_function
 
 PX = 25.4 / 600
 LEVELS = ((np.arange(TILE * TILE) + 0.5) / (TILE * TILE)).astype(np.float32)
@@ -106,3 +106,20 @@ def test_masks_without_a_gradient_are_those_of_the_full_sub_region_layout():
                              packed=packed)
         assert np.array_equal(got, expected)
         assert got.any()
+
+
+@pytest.mark.parametrize("target, channels", [("M2", 2), ("green", 3)])
+def test_every_solid_pixel_is_in_one_droplet_mask_so_the_counts_are_the_masks_bits(target, channels):
+    """The droplet masks of a graded square tube (towards M2: two materials; towards a third) partition its
+    solid pixels: no pixel in two masks, none in none; so droplet_counts, which takes the last mask's count as
+    the solid count less the others', gives each mask's own number of bits."""
+    points, offsets, area, parent, grid = square_tube(6.0, 2.0)
+    packed = packed_mask(points, offsets, grid)
+    material = DEFAULT_MATERIALS["M2"] if target == "M2" else Material("green", (0, 255, 0))
+    spec = GradeSpec(RegionSpec(nozzle_mm=0.2), make_function("linear"), material, None, DEFAULT_MATERIALS["M1"],
+                     DEFAULT_MATERIALS["M2"])
+    planes = droplet_planes(points, offsets, area, parent, None, None, grid, spec, 3, packed=packed)
+    assert len(planes) == channels
+    counts = [count_solid(plane) for plane in planes]
+    assert np.array_equal(np.bitwise_or.reduce(planes, axis=0), packed) and sum(counts) == count_solid(packed)
+    assert droplet_counts(planes, count_solid(packed)) == counts and sum(count > 0 for count in counts) >= 2

@@ -11,7 +11,7 @@ compiled loops of the module it is named after.
 """
 
 from heoslice.grading.cache import GradingCache
-from heoslice.grading.droplets import droplet_planes
+from heoslice.grading.droplets import droplet_counts, droplet_planes
 from heoslice.grading.families import (
     Family,
     FamilyLayout,
@@ -32,7 +32,7 @@ from heoslice.grading.spec import DIRECTIONS, GradeSpec, RegionSpec, band_count
 
 __all__ = [
     "DIRECTIONS", "TILE", "Family", "FamilyField", "FamilyLayout", "GradeSpec", "GradedLayer", "GradingCache",
-    "LayerRegions", "RegionSpec", "band_count", "bayer_matrix", "contour_values", "droplet_planes", "family_field",
-    "family_layout", "family_of", "label_fractions", "layer_families", "layer_regions", "layer_tile",
+    "LayerRegions", "RegionSpec", "band_count", "bayer_matrix", "contour_values", "droplet_counts", "droplet_planes",
+    "family_field", "family_layout", "family_of", "label_fractions", "layer_families", "layer_regions", "layer_tile",
     "render_graded", "thresholds",
 ]

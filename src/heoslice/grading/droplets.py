@@ -18,7 +18,7 @@ from heoslice.grading.halftone import TILE, layer_tile
 from heoslice.grading.labels import LayerRegions, layer_regions
 from heoslice.grading.materials import family_starts, target_fractions
 from heoslice.grading.spec import GradeSpec, RegionSpec
-from heoslice.layers.rasterising import Grid
+from heoslice.layers.rasterising import Grid, count_solid
 from heoslice.mesh.weld import distinct_rows
 
 #: Most (distinct fraction, distinct cell mix) pairs whose choices :func:`_choice_table` tabulates for one
@@ -44,6 +44,14 @@ def droplet_planes(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, pa
     packed = np.packbits(mask, axis=1) if packed is None else packed
     regions = layer_regions(points, offsets, area, parent, mask, grid, _layout_spec(spec), packed, cache)
     return labelled_droplet_planes(regions, spec, loop_shell, point_material, packed, grid, layer, cache)
+
+
+def droplet_counts(planes: np.ndarray, solid: int) -> list[int]:
+    """Solid pixels in each droplet mask of a layer ((K, h, ceil(w / 8)) packed, :func:`droplet_planes`) of
+    ``solid`` solid pixels: every solid pixel jets one material, so the last mask holds those the others do
+    not (one pass over the masks fewer)."""
+    counts = [count_solid(plane) for plane in planes[:-1]]
+    return counts + [solid - sum(counts)]
 
 
 def _layout_spec(spec: GradeSpec) -> RegionSpec:

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from heoslice.layers.contours import Contours
-from heoslice.layers.rasterising import Grid, count_solid, packed_mask_and_count, render_layer
+from heoslice.layers.rasterising import Grid, packed_mask_and_count, render_layer
 from heoslice.layers.slicing import interpolate_at
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec, channel_name
@@ -116,6 +116,7 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
     graded = job.graded
     from heoslice.grading import (  # loaded by graded slices only
         GradingCache,
+        droplet_counts,
         droplet_planes,
         render_graded,
     )
@@ -134,8 +135,8 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
         level = deflate_level(True)
         data = _solid_tiff(packed, solid, job, cache, level)
         pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm,
-                                             level=level), count_solid(plane))
-                  for path, plane in zip(graded.channel_paths, planes)]
+                                             level=level), count)
+                  for path, plane, count in zip(graded.channel_paths, planes, droplet_counts(planes, solid))]
         encoded = time.perf_counter()
         digest = write_file(job.path, data)
         channels = tuple((path.name, write_file(path, blob), count) for path, blob, count in pieces)
