@@ -167,3 +167,69 @@ def test_block_bounds_are_the_distances_to_the_edges_nearest_the_block_centres(s
     of_edge = np.sqrt(squared[np.arange(len(exact)), bounds.edge.ravel()])
     np.testing.assert_allclose(bounds.upper.ravel(), of_edge, rtol=0, atol=1e-9)
     assert np.all(bounds.upper.ravel() >= exact - 1e-9) and np.all(bounds.upper.ravel() <= exact + 1e-4)
+
+
+# --- The lattice passes written out in numpy (as they were before they were compiled) -------------------
+
+def _far_reference(rings, inside, bounds, lattice):
+    """The blocks off the family's side, judged at one cell each: off the family's side by more than the way
+    to the block's farthest cell centre plus a cell's diagonal and a half, measured exactly."""
+    from heoslice.grading.search import nearest_edges
+
+    b = lattice_module.BLOCK
+    first_r, first_c = np.arange(bounds.blocks.rows) * b, np.arange(bounds.blocks.cols) * b
+    rep_r = np.minimum(first_r + b // 2, lattice.rows - 1)
+    rep_c = np.minimum(first_c + b // 2, lattice.cols - 1)
+    span_r = np.maximum(rep_r - first_r, np.minimum(first_r + b - 1, lattice.rows - 1) - rep_r) * lattice.dy
+    span_c = np.maximum(rep_c - first_c, np.minimum(first_c + b - 1, lattice.cols - 1) - rep_c) * lattice.dx
+    margin = np.hypot(span_r[:, None], span_c[None, :]) + 1.5 * np.hypot(lattice.dx, lattice.dy)
+    x, y = lattice.centres()
+    bx, by = bounds.blocks.centres()
+    reach = bounds.upper + np.hypot((x[rep_c] - bx)[None, :], (y[rep_r] - by)[:, None])
+    far = (inside[np.ix_(rep_r, rep_c)] != rings.encloses) & (reach > margin)
+    if far.any():
+        rows, cols = np.nonzero(far)
+        squared = nearest_edges(x[rep_c[cols]], y[rep_r[rows]], reach[far] * (1 + 1e-9) + 1e-9, np.zeros(1),
+                                np.zeros(1), rings.edges, rings.tree, track=False)
+        far[rows, cols] = squared.ravel() > margin[far] ** 2
+    return far
+
+
+def _edges_reference(rings, lattice, bounds, wanted):
+    """Every cell centre's nearest edge in the wanted blocks (candidates within U + 2 max a of the block's
+    centre), the block's edge elsewhere."""
+    from heoslice.grading.search import nearest_edges
+
+    blocks, b = bounds.blocks, lattice_module.BLOCK
+    edge = np.repeat(bounds.edge[:, :, None], b * b, axis=2)
+    chosen = np.nonzero(wanted)
+    if len(chosen[0]):
+        x, y = blocks.centres()
+        v, u = (a.ravel() for a in np.meshgrid(np.arange(b), np.arange(b), indexing="ij"))
+        ox, oy = (u + 0.5 - 0.5 * b) * lattice.dx, -(v + 0.5 - 0.5 * b) * lattice.dy
+        edge[chosen] = nearest_edges(x[chosen[1]], y[chosen[0]], bounds.upper[chosen] + 2.0 * np.hypot(ox, oy).max(),
+                                     ox, oy, rings.edges, rings.tree)
+    edge = edge.reshape(blocks.rows, blocks.cols, b, b).transpose(0, 2, 1, 3).reshape(blocks.rows * b, blocks.cols * b)
+    return edge[:lattice.rows, :lattice.cols]
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 3), st.booleans())
+def test_the_compiled_lattice_passes_are_the_numpy_passes_bit_for_bit(seed, rings, encloses):
+    """On random rings and lattices of 1 to 40 cells a side (blocks cut short at the edges), the compiled
+    passes give the blocks off the family's side, and the wanted blocks' nearest edges, of the numpy passes
+    written out above from the same block bounds and centres inside, value for value."""
+    from heoslice.grading.search import RingSet, ring_tree
+
+    rng = np.random.default_rng(seed)
+    edges = random_rings(rng, rings)
+    ring_set = RingSet(tuple(range(rings)), edges, encloses, ring_tree(edges))
+    lattice = lattice_module.Lattice(row0=0, col0=0, cell=8, rows=int(rng.integers(1, 41)),
+                                     cols=int(rng.integers(1, 41)), x0=float(rng.uniform(-80, -40)),
+                                     y0=float(rng.uniform(40, 80)), dx=float(rng.uniform(0.5, 3.0)),
+                                     dy=float(rng.uniform(0.5, 3.0)))
+    measures = lattice_module.ring_measures(ring_set, lattice)
+    assert np.array_equal(measures.far, _far_reference(ring_set, measures.inside, measures.bounds, lattice))
+    wanted = rng.random(measures.far.shape) < 0.7
+    assert np.array_equal(lattice_module.lattice_edges(edges, lattice, ring_set.tree, measures.bounds, wanted),
+                          _edges_reference(ring_set, lattice, measures.bounds, wanted))

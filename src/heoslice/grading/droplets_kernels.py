@@ -45,6 +45,23 @@ class Dither(NamedTuple):
 
 
 @helper(EXACT)
+def _moved_sums(start, f, target, sums):  # pragma: no cover - compiled
+    """The running sums of a start mix ((K,) float32) moved by the fraction f towards ``target`` (eq. 1),
+    over all channels but the last, into ``sums``; returns the scale of the thresholds (the moved mix's
+    total, or 1 where it is not positive). A pixel jets the first channel whose sum exceeds its threshold
+    times the scale: the halftone's float32 arithmetic, in the one order both kernels use."""
+    total = np.float32(0.0)
+    running = np.float32(0.0)
+    for m in range(len(start)):
+        share = start[m] + f * (target[m] - start[m])
+        total += share
+        if m < len(start) - 1:
+            running += share
+            sums[m] = running
+    return total if total > np.float32(0.0) else np.float32(1.0)
+
+
+@helper(EXACT)
 def _chunk_word(words, line, k, spread):  # pragma: no cover - compiled
     """The pattern word of chunk k (16 pixels of ``line``): each pixel's label word (``words`` by label)
     masked to its own column in every 16-bit field (``spread``: a 1 in the low bit of each field used)."""
@@ -196,10 +213,8 @@ def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
         outside[base_channel >> 2] = np.int64(0xFFFF) << (16 * (base_channel & 3))
     acc = np.zeros(words, dtype=np.int64)
     extra = np.zeros(channels, dtype=np.int64)
-    mix = np.empty(channels, dtype=np.float32)
     sums = np.empty(channels, dtype=np.float32)
     scale = np.float32(1.0)
-    zero, one = np.float32(0.0), np.float32(1.0)
     empty = label.ravel()[:0]
     for row in range(packed.shape[0]):
         solid = packed[row]
@@ -262,16 +277,7 @@ def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
                         j = (c - layout[family, 1]) // cell
                         start = (layout[family, 4]
                                  + (((row - layout[family, 0]) // cell) * layout[family, 3] + j) * channels)
-                        f = fraction[number]
-                        total = zero
-                        for m in range(channels):
-                            mix[m] = mixes[start + m] + f * (target[m] - mixes[start + m])
-                            total += mix[m]
-                        scale = total if total > zero else one
-                        running = zero
-                        for m in range(channels - 1):
-                            running += mix[m]
-                            sums[m] = running
+                        scale = _moved_sums(mixes[start:start + channels], fraction[number], target, sums)
                         mixed_label, mixed_until = number, layout[family, 1] + (j + 1) * cell
                     t = thresholds[c & wrap] * scale
                     pick = channels - 1
@@ -346,7 +352,7 @@ def _agreed_choices(cells, moved, target, levels):  # pragma: no cover - compile
     """
     channels, count = cells.shape[1], len(levels)
     out = np.full((len(moved), count), -1, dtype=np.int8)
-    share = np.empty(channels, dtype=np.float32)
+    sums = np.empty(channels, dtype=np.float32)
     low = np.empty(max(channels - 1, 1), dtype=np.int64)
     high = np.empty(max(channels - 1, 1), dtype=np.int64)
     first = np.empty(max(channels - 1, 1), dtype=np.int64)
@@ -355,14 +361,9 @@ def _agreed_choices(cells, moved, target, levels):  # pragma: no cover - compile
         low[:] = count
         high[:] = 0
         for c in range(len(cells)):
-            total = np.float32(0.0)
-            for m in range(channels):
-                share[m] = cells[c, m] + f * (target[m] - cells[c, m])
-                total += share[m]
-            scale = total if total > np.float32(0.0) else np.float32(1.0)
-            running = np.float32(0.0)
+            scale = _moved_sums(cells[c], f, target, sums)
             for m in range(channels - 1):
-                running += share[m]
+                running = sums[m]
                 below, above = 0, count
                 while below < above:
                     middle = (below + above) // 2

@@ -96,7 +96,7 @@ def edges_key(edges: RingEdges) -> tuple[bytes, bytes, bytes]:
 
 
 def ring_edges(points: np.ndarray, offsets: np.ndarray, loops) -> RingEdges:
-    """Edges of the given loops (indices into offsets) of a layer's points ((p, 2) float, mm), without
+    """Edges (float64) of the given loops (indices into offsets) of a layer's points ((p, 2) float, mm), without
     points within _STRAIGHT_MM of the straight line between their neighbours, each ring's from its
     lowest point in x then y round (:func:`_kept`)."""
     every, knots, knot_at, (first, second, x, y, vx, vy, inv, ring, _) = _kept(points, offsets, loops)

@@ -11,7 +11,7 @@ import numpy as np
 from heoslice.grading.edges import RingEdges, following_edges
 from heoslice.grading.edges_kernels import EdgeArrays, edge_arrays
 from heoslice.grading.search_kernels import EdgeTree, _nearest_in_batches, _nearest_starts
-from heoslice.jit import EXACT, JIT, f64, i64, kernel
+from heoslice.jit import EXACT, JIT, f64, helper, i64, kernel
 
 #: Lattice cells per side of the blocks whose centres share candidate edges
 #: (:func:`heoslice.grading.lattice.lattice_edges`).
@@ -98,13 +98,17 @@ def _inside_centres(edges, end_y, frame, rows, cols):  # pragma: no cover - comp
     return inside
 
 
+def _end_heights(edges: RingEdges) -> np.ndarray:
+    """(n,) float64: the height each edge ends at, its ring's next edge's start (not y + vy, which rounds)."""
+    return f64(edges.y)[following_edges(edges)]
+
+
 def inside_centres(edges: RingEdges, frame: LatticeFrame, rows: int, cols: int) -> np.ndarray:
     """(rows, cols) bool: the centres of a lattice (``frame``, or a Lattice) inside the closed rings of
     ``edges``, even-odd: inside any of them when they neither cross nor nest (compiled
     :func:`_inside_centres`; each edge ends at the height its ring's next edge starts at, not at
     y + vy, which rounds)."""
-    end_y = f64(edges.y)[following_edges(edges)]
-    return _inside_centres(edge_arrays(edges), end_y, frame_of(frame), int(rows), int(cols))
+    return _inside_centres(edge_arrays(edges), _end_heights(edges), frame_of(frame), int(rows), int(cols))
 
 
 @kernel(JIT)
@@ -129,18 +133,26 @@ def feet(qx: np.ndarray, qy: np.ndarray, edge: np.ndarray, edges: EdgeArrays) ->
     return _feet(f64(qx), f64(qy), i64(edge), edge_arrays(edges))
 
 
+@helper(EXACT)
+def _block_centre(frame, i, j):  # pragma: no cover - compiled
+    """(x, y) mm of the centre of block (i, j) of BLOCK x BLOCK cells: as the block lattice's
+    :meth:`heoslice.grading.lattice.Lattice.centres` computes it, bit for bit."""
+    x0, y0, dx, dy = frame
+    return x0 + (j + 0.5) * (dx * BLOCK), y0 - (i + 0.5) * (dy * BLOCK)
+
+
 @kernel(EXACT)
 def _block_bounds(edges, tree, frame, rows, cols):  # pragma: no cover - compiled
     """Per block of BLOCK x BLOCK cells of a lattice (``frame``, rows x cols cells): the edge nearest its
-    centre, among those within the centre's distance to the nearest chunk's first point, and the exact
-    distance to it ((block rows, block cols) int, float). Without fast-math: numpy's arithmetic, bit for bit."""
-    x0, y0, dx, dy = frame
+    centre, among those within the centre's distance to the nearest chunk's first point (of edges at the
+    same least distance, the one the search meets first), and the exact distance to it ((block rows, block
+    cols) int, float). The centres and distances are numpy's arithmetic, bit for bit (no fast-math here;
+    the search keeps its own)."""
     brows, bcols = -(-rows // BLOCK), -(-cols // BLOCK)
     cx, cy = np.empty(brows * bcols), np.empty(brows * bcols)
     for i in range(brows):
         for j in range(bcols):
-            cx[i * bcols + j] = x0 + (j + 0.5) * (dx * BLOCK)
-            cy[i * bcols + j] = y0 - (i + 0.5) * (dy * BLOCK)
+            cx[i * bcols + j], cy[i * bcols + j] = _block_centre(frame, i, j)
     reach = _nearest_starts(cx, cy, tree.capsules) * (1 + 1e-6) + 1e-6
     zero = np.zeros(1, dtype=np.float32)
     _, which = _nearest_in_batches(cx, cy, reach, zero, zero, tree, edges, True)
@@ -176,7 +188,8 @@ def _block_passes(edges, end_y, tree, frame, rows, cols, encloses):  # pragma: n
             span_c = max(rep_c - first_c, min(first_c + BLOCK - 1, cols - 1) - rep_c) * dx
             x = x0 + (rep_c + 0.5) * dx
             gap = np.hypot(span_r, span_c) + diagonal
-            reach = upper[i, j] + np.hypot(x - (x0 + (j + 0.5) * (dx * BLOCK)), y - (y0 - (i + 0.5) * (dy * BLOCK)))
+            bx, by = _block_centre(frame, i, j)
+            reach = upper[i, j] + np.hypot(x - bx, y - by)
             if inside[rep_r, rep_c] != encloses and reach > gap:
                 qx[count], qy[count], margin[count], where[count] = x, y, gap, i * bcols + j
                 radius[count] = reach * (1 + 1e-9) + 1e-9
@@ -215,7 +228,7 @@ def _block_edges(block_edge, upper, wanted, frame, rows, cols, edges, tree):  # 
     for i in range(brows):
         for j in range(bcols):
             if wanted[i, j]:
-                cx[n], cy[n] = x0 + (j + 0.5) * (dx * BLOCK), y0 - (i + 0.5) * (dy * BLOCK)
+                cx[n], cy[n] = _block_centre(frame, i, j)
                 radius[n] = upper[i, j] + 2.0 * extra
                 slot[i, j] = n
                 n += 1
@@ -231,17 +244,24 @@ def _block_edges(block_edge, upper, wanted, frame, rows, cols, edges, tree):  # 
     return edge
 
 
+def _some_edges(edges) -> None:
+    """Refuse a ring set without edges (its nearest edge would be none): ValueError."""
+    if not len(edges.x):
+        raise ValueError("a ring set without edges has no nearest edge")
+
+
 def block_bounds_of(edges: EdgeArrays, tree, frame: LatticeFrame, rows: int, cols: int) -> tuple[np.ndarray,
                                                                                                np.ndarray]:
     """(edge, upper) per block of a lattice's cells (compiled :func:`_block_bounds`)."""
+    _some_edges(edges)
     return _block_bounds(edge_arrays(edges), EdgeTree(*tree), frame_of(frame), int(rows), int(cols))
 
 
 def block_passes(edges: RingEdges, tree, frame: LatticeFrame, rows: int, cols: int, encloses: bool) -> tuple:
     """(edge, upper, inside, far) of a ring set over a lattice (compiled :func:`_block_passes`)."""
-    end_y = f64(edges.y)[following_edges(edges)]
-    return _block_passes(edge_arrays(edges), end_y, EdgeTree(*tree), frame_of(frame), int(rows), int(cols),
-                         bool(encloses))
+    _some_edges(edges)
+    return _block_passes(edge_arrays(edges), _end_heights(edges), EdgeTree(*tree), frame_of(frame), int(rows),
+                         int(cols), bool(encloses))
 
 
 def block_edges(block_edge: np.ndarray, upper: np.ndarray, wanted: np.ndarray, frame: LatticeFrame, rows: int,

@@ -15,7 +15,8 @@ from heoslice.jit import JIT, f32, f64, helper, kernel
 FAN = 8
 
 
-#: Candidate (group, chunk) pairs gathered at most at once by :func:`nearest_in_groups` (8 bytes each).
+#: Candidate (group, chunk) pairs gathered at most at once by :func:`_nearest_in_batches` (8 bytes each; the
+#: candidate list holds at least 16 a group).
 _PAIRS = 1 << 23
 
 
@@ -291,19 +292,21 @@ def _chunk_capsules(x0, y0, x1, y1):  # pragma: no cover - compiled
 @kernel(JIT)
 def _nearest_in_batches(cx, cy, radius, ox, oy, tree, edges, track):  # pragma: no cover - compiled
     """:func:`_nearest_in_chunks` of groups' candidate chunks (:func:`_candidates`), a bounded number of
-    groups at a time (groups deep inside a round part gather most of its chunks): at most _PAIRS pairs."""
+    groups at a time (groups deep inside a round part gather most of its chunks): at most _PAIRS pairs.
+    (best (g, k) float32, or (0, 0) with ``track``; which (g, k) int32, or (0, 0) without.)"""
     groups, points = len(cx), len(ox)
-    best = np.full((groups, points), np.inf, dtype=np.float32)
+    best = np.full((0, 0) if track else (groups, points), np.inf, dtype=np.float32)
     which = np.full((groups, points) if track else (0, 0), -1, dtype=np.int32)
-    step = max(1, _PAIRS // max(1, len(tree.capsules)))
+    step = max(1, _PAIRS // max(16, len(tree.capsules)))  # _candidates sets aside 16 pairs a group at least
     for first in range(0, groups, step):
         last = min(first + step, groups)
         part_x, part_y = cx[first:last], cy[first:last]
         candidates = _candidates(part_x, part_y, radius[first:last], tree.boxes, tree.level_start)
         part_best, part_which = _nearest_in_chunks(part_x, part_y, ox, oy, candidates, tree.capsules, edges, track)
-        best[first:last] = part_best
         if track:
             which[first:last] = part_which
+        else:
+            best[first:last] = part_best
     return best, which
 
 
