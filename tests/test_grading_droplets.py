@@ -79,6 +79,7 @@ def test_choice_table_is_the_brute_force_agreement_for_any_number_of_channels(se
     rng = np.random.default_rng(seed)
     centre = rng.dirichlet(np.ones(channels))
     cells = np.clip(centre + spread * rng.uniform(-1, 1, (int(rng.integers(1, 40)), channels)), 0.0, None)
+    cells[cells.sum(axis=1) == 0] = centre  # a mix of no material is no mix
     cells /= cells.sum(axis=1, keepdims=True)
     target = np.eye(channels)[int(rng.integers(channels))]
     fractions = np.r_[0.0, rng.uniform(0, 1, 3)]
