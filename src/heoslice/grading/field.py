@@ -189,7 +189,8 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     if not pixels:
         return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
                            lattice=lattice, start_edges=lambda: start.edges, nearest=nearest)
-    precision = coordinate_precision(outer.edges.x, outer.edges.y)
+    # the rounding a band count allows for (eq. 8); N_R asked for (--offsets, masks without a gradient) has none
+    precision = 0.0 if spec.count is not None else coordinate_precision(outer.edges.x, outer.edges.y)
     # one sub-region asked for (masks without a gradient, or --offsets 1): k = 1 throughout, so no grading
     # length (eq. 8)
     lengths = (None, None) if spec.count == 1 else _grading_length(family, spec, outer, rings, grid, memo)
