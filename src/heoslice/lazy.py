@@ -1,4 +1,4 @@
-"""Packages whose public names are loaded on first use (PEP 562), from a table of name -> submodule."""
+"""Packages whose public names are loaded on first use (PEP 562), from a table of submodule -> its names."""
 
 from __future__ import annotations
 
@@ -7,10 +7,12 @@ import sys
 from collections.abc import Callable
 
 
-def lazy_exports(package: str, exports: dict[str, str]) -> tuple[Callable[[str], object], Callable[[], list[str]]]:
-    """The module ``__getattr__`` and ``__dir__`` of ``package`` (its ``__name__``) whose public names are
-    ``exports`` (name -> the submodule defining it): a name's submodule is imported when the name is first
-    asked for, not when the package is."""
+def lazy_exports(package: str, modules: dict[str, tuple[str, ...]]
+                 ) -> tuple[list[str], Callable[[str], object], Callable[[], list[str]]]:
+    """``__all__``, the module ``__getattr__`` and ``__dir__`` of ``package`` (its ``__name__``) whose public
+    names are those of ``modules`` (submodule -> the names it defines): a name's submodule is imported when
+    the name is first asked for, not when the package is."""
+    exports = {name: module for module, names in modules.items() for name in names}
 
     def __getattr__(name: str):
         module = exports.get(name)
@@ -21,4 +23,4 @@ def lazy_exports(package: str, exports: dict[str, str]) -> tuple[Callable[[str],
     def __dir__() -> list[str]:
         return sorted([*vars(sys.modules[package]), *exports])
 
-    return __getattr__, __dir__
+    return sorted(exports), __getattr__, __dir__

@@ -172,9 +172,9 @@ def _block_passes(edges, end_y, tree, frame, rows, cols, encloses):  # pragma: n
     brows, bcols = edge.shape
     far = np.zeros((brows, bcols), dtype=np.bool_)
     # each block judged at one of its cells, by the way to its farthest cell centre and a cell's diagonal and a half
-    qx, qy, radius, margin = np.empty(brows * bcols), np.empty(brows * bcols), np.empty(brows * bcols), np.empty(
-        brows * bcols)
-    where = np.empty(brows * bcols, dtype=np.int64)
+    blocks = brows * bcols
+    qx, qy, radius, margin = np.empty(blocks), np.empty(blocks), np.empty(blocks), np.empty(blocks)
+    where = np.empty(blocks, dtype=np.int64)
     count = 0
     diagonal = 1.5 * np.hypot(dx, dy)
     for i in range(brows):
@@ -208,7 +208,7 @@ def _block_edges(block_edge, upper, wanted, frame, rows, cols, edges, tree):  # 
     """(rows, cols) int: the nearest edge of every cell centre of the ``wanted`` blocks ((block rows, block
     cols) bool), among the edges within upper + 2 max a of the block's centre (see
     :func:`heoslice.grading.lattice.lattice_edges`); elsewhere the block's ``block_edge``."""
-    x0, y0, dx, dy = frame
+    _, _, dx, dy = frame
     brows, bcols = block_edge.shape
     points = BLOCK * BLOCK
     ox, oy = np.empty(points), np.empty(points)

@@ -15,29 +15,20 @@ from __future__ import annotations
 
 from heoslice.lazy import lazy_exports
 
-#: Public name -> the module of this package that defines it.
-_EXPORTS = {
-    "MAX_SUBDIVIDED_TRIANGLES": "coloring", "ColoredMesh": "coloring", "ColorSpec": "coloring",
-    "color_mesh": "coloring", "default_output": "coloring", "material_comment": "coloring",
-    "ply_bytes": "coloring", "subdivide": "coloring", "write_ply": "coloring",
-    "EXPRESSION_CONSTANTS": "expressions", "EXPRESSION_FUNCTIONS": "expressions",
-    "compile_expression": "expressions", "evaluate_expression": "expressions",
-    "FUNCTION_KINDS": "functions", "FUNCTIONS": "functions", "DistributionFunction": "functions",
-    "FunctionKind": "functions", "evaluate": "functions", "make_function": "functions",
-    "DEFAULT_MATERIALS": "materials", "MAX_CHANNEL": "materials", "Material": "materials",
-    "MaterialRoles": "materials", "MaterialsFile": "materials", "PartSetting": "materials",
-    "blend": "materials", "check_one_per_channel": "materials", "is_channel": "materials",
-    "material_roles": "materials", "nearest_materials": "materials", "parse_color": "materials",
-    "read_materials_file": "materials", "resolve_material": "materials", "shared_channel": "materials",
-    "table_material": "materials", "to_rgb8": "materials", "with_table_channels": "materials",
-    "REFERENCE_KINDS": "references", "REFERENCES": "references", "Reference": "references",
-    "ReferenceKind": "references", "make_reference": "references", "material_fraction": "references",
-    "normalise": "references", "reference_distance": "references", "reference_kinds_taking": "references",
-    "SurfaceIndex": "surface", "build_surface_index": "surface", "surface_distance": "surface",
-    "closest_points_on_triangles": "triangles", "point_triangle_distance": "triangles",
+#: Each module of this package -> the public names it defines.
+_MODULES = {
+    "coloring": ("MAX_SUBDIVIDED_TRIANGLES", "ColoredMesh", "ColorSpec", "color_mesh", "default_output",
+                 "material_comment", "ply_bytes", "subdivide", "write_ply"),
+    "expressions": ("EXPRESSION_CONSTANTS", "EXPRESSION_FUNCTIONS", "compile_expression", "evaluate_expression"),
+    "functions": ("FUNCTION_KINDS", "FUNCTIONS", "DistributionFunction", "FunctionKind", "evaluate", "make_function"),
+    "materials": ("DEFAULT_MATERIALS", "MAX_CHANNEL", "Material", "MaterialRoles", "MaterialsFile", "PartSetting",
+                  "blend", "check_one_per_channel", "is_channel", "material_roles", "nearest_materials",
+                  "parse_color", "read_materials_file", "resolve_material", "shared_channel", "table_material",
+                  "to_rgb8", "with_table_channels"),
+    "references": ("REFERENCE_KINDS", "REFERENCES", "Reference", "ReferenceKind", "make_reference",
+                   "material_fraction", "normalise", "reference_distance", "reference_kinds_taking"),
+    "surface": ("SurfaceIndex", "build_surface_index", "surface_distance"),
+    "triangles": ("closest_points_on_triangles", "point_triangle_distance"),
 }
 
-__all__ = sorted(_EXPORTS)
-
-
-__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _MODULES)

@@ -15,23 +15,16 @@ from __future__ import annotations
 
 from heoslice.lazy import lazy_exports
 
-#: Public name -> the module of this package that defines it.
-_EXPORTS = {
-    "SliceSpec": "spec", "StageTimes": "spec", "channel_name": "spec", "MIN_LAYER_MM": "spec",
-    "MIN_DPI": "spec", "MAX_DPI": "spec",
-    "LayerJob": "layer_job", "GradedJob": "layer_job", "PipelineCache": "layer_job", "layer_jobs": "layer_job",
-    "render_and_write": "layer_job",
-    "RunContext": "runs", "RunResult": "runs", "run_contours": "runs", "slice_run": "runs", "plane_runs": "runs",
-    "MAX_LAYER_MM": "spec", "MAX_MARGIN_MM": "spec", "MAX_CANVAS_MM": "spec", "MAX_JOBS": "spec",
-    "MAX_COORDINATE_MM": "spec", "check_range": "spec", "check_scale": "spec",
-    "slice_to_stack": "slice_job", "grading_summary": "slice_job",
-    "layer_limit": "slice_job", "slice_warnings": "slice_job",
-    "MaterialJob": "materials", "material_job": "materials",
-    "run_all": "parallel", "keep_freed_memory": "parallel",
-    "PartsPlan": "parts", "plan_parts": "parts", "part_order": "parts", "compose_part_masks": "parts",
+#: Each module of this package -> the public names it defines.
+_MODULES = {
+    "spec": ("SliceSpec", "StageTimes", "channel_name", "MIN_LAYER_MM", "MIN_DPI", "MAX_DPI", "MAX_LAYER_MM",
+             "MAX_MARGIN_MM", "MAX_CANVAS_MM", "MAX_JOBS", "MAX_COORDINATE_MM", "check_range", "check_scale"),
+    "layer_job": ("LayerJob", "GradedJob", "PipelineCache", "layer_jobs", "render_and_write"),
+    "runs": ("RunContext", "RunResult", "run_contours", "slice_run", "plane_runs"),
+    "slice_job": ("slice_to_stack", "grading_summary", "layer_limit", "slice_warnings"),
+    "materials": ("MaterialJob", "material_job"),
+    "parallel": ("run_all", "keep_freed_memory"),
+    "parts": ("PartsPlan", "plan_parts", "part_order", "compose_part_masks"),
 }
 
-__all__ = sorted(_EXPORTS)
-
-
-__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _MODULES)
