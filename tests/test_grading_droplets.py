@@ -11,7 +11,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from heoslice.grading import GradeSpec, RegionSpec, layer_regions
-from heoslice.grading.droplets import _choice_table, droplet_counts, droplet_planes, labelled_droplet_planes
+from heoslice.grading.droplets import (
+    _choice_table,
+    droplet_counts,
+    droplet_planes,
+    jets_as_one,
+    labelled_droplet_planes,
+)
 from heoslice.grading.halftone import TILE
 from heoslice.layers.rasterising import Grid, count_solid, packed_mask
 from heoslice.material import DEFAULT_MATERIALS, Material, make_function
@@ -90,6 +96,67 @@ def test_choice_table_is_the_brute_force_agreement_for_any_number_of_channels(se
         choices = np.array([brute_choice(cell, fractions[label], target) for cell in cells])
         agreed = (choices == choices[0]).all(axis=0)
         assert np.array_equal(table[label], np.where(agreed, choices[0], -1))
+
+
+def box_near_a_level(rng: np.random.Generator, channels: int, spread: float) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) of a box of start mixes ((K,) each, in [0, 1]) about a random mix, ``spread`` wide per
+    channel; half the time the mix's first running sum sits within a few float32 roundings of a dither level,
+    where rounding decides."""
+    centre = rng.dirichlet(np.ones(channels))
+    if rng.random() < 0.5:
+        level = float(LEVELS[rng.integers(len(LEVELS))])
+        moved = level + rng.choice([-1.0, 1.0]) * rng.choice([0.0, 1e-9, 3e-8, 1e-7, 1e-6])
+        centre[0], centre[1] = moved, centre[0] + centre[1] - moved
+        centre = np.clip(centre, 0.0, 1.0)
+    offsets = spread * rng.uniform(0.0, 1.0, (2, channels))
+    return np.clip(centre - offsets[0], 0.0, 1.0), np.clip(centre + offsets[1], 0.0, 1.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 4), st.sampled_from([0.0, 1e-9, 6e-8, 1e-6, 1e-3, 0.05]),
+       st.booleans())
+def test_a_box_of_mixes_taken_as_one_jets_alike_at_every_mix_in_it(seed, channels, spread, graded):
+    """Where jets_as_one takes a box of start mixes as one, every mix in it (each corner, and random mixes
+    inside, as float64 before the kernel's float32) jets the same channel at every dither level for every
+    fraction asked about, as the kernel's per-pixel loop (brute_choice) makes them: so one of them may stand
+    for a family's cells without changing a pixel."""
+    rng = np.random.default_rng(seed)
+    low, high = box_near_a_level(rng, channels, spread)
+    target = np.zeros(channels)
+    moved = np.zeros(1, dtype=np.float32)
+    if graded:
+        target[rng.integers(channels)] = 1.0
+        moved = np.unique(rng.uniform(0.0, 1.0, rng.integers(1, 4)).astype(np.float32))
+    if not jets_as_one(low, high, moved, target):
+        return
+    corners = np.array(np.meshgrid(*zip(low, high), indexing="ij")).reshape(channels, -1).T
+    inside = low + rng.uniform(0.0, 1.0, (20, channels)) * (high - low)
+    for fraction in moved:
+        expected = brute_choice(low, fraction, target)
+        for mix in np.concatenate([corners, inside]):
+            assert np.array_equal(brute_choice(mix, fraction, target), expected)
+
+
+def test_mixes_that_differ_in_rounding_are_taken_as_one_and_mixes_across_a_level_are_not():
+    """jets_as_one takes nearly every box that is float32 rounding wide (a gradient along z through a
+    layer, whose contour points differ in their last bits) as one, and never one whose mixes jet differently
+    at some level: two mixes either side of a level, a box across many levels, a mix of no material."""
+    rng = np.random.default_rng(11)
+    taken = []
+    for _ in range(400):
+        channels = int(rng.integers(2, 5))
+        centre = rng.dirichlet(np.ones(channels))
+        target = np.eye(channels)[rng.integers(channels)]
+        moved = np.unique(rng.uniform(0.0, 1.0, 3).astype(np.float32))
+        taken.append(jets_as_one(centre - 6e-8, centre + 6e-8, moved, target))
+    assert np.mean(taken) > 0.97
+    level = float(LEVELS[128])
+    low, high = np.array([level - 1e-7, 1 - level]), np.array([level + 1e-7, 1 - level])
+    zero = np.zeros(1, dtype=np.float32)
+    assert not np.array_equal(brute_choice(low, 0.0, np.zeros(2)), brute_choice(high, 0.0, np.zeros(2)))
+    assert not jets_as_one(low, high, zero, np.zeros(2))
+    assert not jets_as_one(np.array([0.2, 0.2]), np.array([0.7, 0.7]), zero, np.zeros(2))
+    assert not jets_as_one(np.zeros(2), np.zeros(2), zero, np.zeros(2))
 
 
 def test_masks_without_a_gradient_are_those_of_the_full_sub_region_layout():

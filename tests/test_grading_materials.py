@@ -201,3 +201,56 @@ def test_a_contour_of_one_value_gives_it_to_every_cell_without_measuring_nearest
     varied[5, 0] = 0.5
     with pytest.raises(AssertionError, match="nearest points measured"):
         contour_values(replace(field, nearest=not_measured), varied)
+
+
+def test_a_contour_whose_values_may_stand_as_one_gives_the_first_to_every_cell_without_measuring():
+    """contour_values asks ``as_one`` about the ring points' least and greatest values (per column); where it
+    says they may stand as one, every cell takes the first point's value and no nearest point is measured,
+    where it says no, the cells' own values are measured."""
+    ring = circle(4.0, 97)
+    points, offsets, area, parent = layer(ring)
+    field = family_field(points, offsets, layer_families(area, parent)[0], grid_around(4.5), RegionSpec())
+    values = np.column_stack([np.linspace(0.3, 0.3 + 1e-9, len(ring)), np.linspace(0.7, 0.7 - 1e-9, len(ring))])
+    asked = []
+
+    def as_one(low, high):
+        asked.append((low, high))
+        return True
+
+    def not_measured():
+        raise AssertionError("nearest points measured")
+
+    knots = values[field.start_edges().knot_point]
+    got = contour_values(replace(field, nearest=not_measured), values, as_one)
+    assert got.shape == (field.lattice.rows, field.lattice.cols, 2) and (got == knots[0]).all()
+    assert np.array_equal(asked[0][0], knots.min(axis=0)) and np.array_equal(asked[0][1], knots.max(axis=0))
+    measured = contour_values(field, values, lambda low, high: False)
+    assert np.array_equal(measured, contour_values(field, values)) and not (measured == knots[0]).all()
+
+
+@pytest.mark.parametrize("graded", [False, True])
+def test_contour_materials_that_differ_in_rounding_give_the_measured_masks_unmeasured(graded, monkeypatch):
+    """A coloured layer whose contour points' materials differ in their last bits (a z gradient, as
+    ``heoslice color`` makes one): droplet_planes takes them as one, measures no cell's nearest contour
+    point, and gives the masks the numpy composition makes from every cell's own measured mix."""
+    from heoslice.grading import droplet_planes, field as field_module
+
+    points, offsets, area, parent = layer(circle(6.0, 300), circle(2.0, 120, (1.0, 0.5), clockwise=True))
+    grid = grid_around(6.5)
+    mask = solid_mask(points, offsets, grid)
+    spec = GradeSpec(RegionSpec(nozzle_mm=0.3), make_function("linear") if graded else None,
+                     Material("green", (0, 255, 0)) if graded else None, None, DEFAULT_MATERIALS["M1"],
+                     DEFAULT_MATERIALS["M2"])
+    point_material = 0.63 + np.random.default_rng(2).uniform(-6e-8, 6e-8, len(points))  # of M2, the rest M1
+    measured = []
+    original = field_module.ring_measures
+    monkeypatch.setattr(field_module, "ring_measures", lambda *a: measured.append(1) or original(*a))
+    got = np.unpackbits(droplet_planes(points, offsets, area, parent, None, mask, grid, spec, 5,
+                                       point_material=point_material), axis=2, count=grid.width).astype(bool)
+    cells_measured = len(measured)
+    expected = composed_masks(points, offsets, area, parent, None, mask, grid, spec, 5, point_material)
+    assert len(measured) > cells_measured
+    if not graded:
+        assert cells_measured == 0
+    assert np.array_equal(got, expected)
+    assert got[0].any() and got[1].any()

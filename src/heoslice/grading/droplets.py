@@ -75,11 +75,16 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
                             LayerMixes(np.zeros(1, np.int64), np.zeros(1), np.zeros((0, 5), np.int64), np.zeros(0),
                                        np.zeros(len(materials))),
                             Dither(layer_tile(layer), np.full((1, 256), base_channel, np.int8), base_channel), planes)
-    mixes = family_starts(regions, spec, loop_shell, point_material)
     target_mix = np.zeros(len(materials))
     if spec.target is not None and spec.function is not None:
         target_mix[spec.channel_index(spec.target)] = 1.0
     fractions = target_fractions(regions, spec)
+
+    def as_one(number: int, low: np.ndarray, high: np.ndarray) -> bool:
+        labels = slice(regions.base[number], regions.base[number + 1])
+        return jets_as_one(low, high, np.unique(fractions.astype(np.float32)[labels]), target_mix)
+
+    mixes = family_starts(regions, spec, loop_shell, point_material, as_one)
     family_of_label = np.zeros(regions.label_count, dtype=np.int64)
     for number in range(len(regions.fields)):
         family_of_label[regions.base[number]:regions.base[number + 1]] = number
@@ -90,6 +95,33 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
     mixing = LayerMixes(family_of_label, fractions, layout, np.concatenate([mix.ravel() for mix in mixes]), target_mix)
     return droplet_bits(LabelledLayer(regions.label, *regions.box[::2], packed), mixing,
                         Dither(layer_tile(layer), table, base_channel), planes)
+
+
+def jets_as_one(low: np.ndarray, high: np.ndarray, moved: np.ndarray, target: np.ndarray) -> bool:
+    """Whether every start mix between ``low`` and ``high`` ((K,) float each, per channel, in [0, 1]), moved
+    by each fraction of ``moved`` ((l,) float32, in [0, 1]) towards ``target`` ((K,), eq. 1), jets the same
+    channel at every dither level: the halftone's comparisons
+    (:func:`heoslice.grading.droplets_kernels.droplet_bits`) are then decided alike for all of them, with a
+    margin for its float32 rounding.
+
+    A moved mix's running sums and total grow with each channel of the start mix, so over the box they lie
+    between those of its lowest and highest corners; a level t jets channel m's condition (running sum above
+    t times the total) alike throughout when it holds at the worst of them, or fails at the best.
+    """
+    f = np.asarray(moved, dtype=np.float64)[:, None]
+    share_low, share_high = (1.0 - f) * low + f * target, (1.0 - f) * high + f * target  # (l, K) each
+    channels = share_low.shape[1]
+    # a few roundings of float32 (2^-24 each) per channel on sums of up to K shares, with room to spare
+    margin = (6 * channels + 4) * channels * max(1.0, float(np.abs(share_high).max(initial=0.0))) * 2.0 ** -23
+    total_low, total_high = share_low.sum(axis=1), share_high.sum(axis=1)
+    if not (np.isfinite(share_low).all() and np.isfinite(share_high).all() and (total_low > margin).all()):
+        return False
+    running_low = np.cumsum(share_low, axis=1)[:, None, :-1]
+    running_high = np.cumsum(share_high, axis=1)[:, None, :-1]
+    levels = ((np.arange(TILE * TILE) + 0.5) / (TILE * TILE))[None, :, None]
+    holds = levels * total_high[:, None, None] < running_low - margin
+    fails = levels * total_low[:, None, None] > running_high + margin
+    return bool((holds | fails).all())
 
 
 def _layer_choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.ndarray,

@@ -3,6 +3,8 @@ shell's, or --from) and the fraction of the target per sub-region (eq. 1)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from heoslice.grading.families import Family
@@ -51,14 +53,21 @@ def _start_material(spec: GradeSpec, family: Family, own):
     return spec.start if spec.start is not None and not family.nested else None
 
 
-def family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_material) -> list[np.ndarray]:
+#: Whether every start mix between low and high ((K,) float each, per channel) gives family ``number``'s
+#: pixels the same choices (its cells may then start from one of them: :func:`contour_values`).
+JetsAsOne = Callable[[int, np.ndarray, np.ndarray], bool]
+
+
+def family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_material,
+                  as_one: JetsAsOne | None = None) -> list[np.ndarray]:
     """Per family, the mix of the K channel materials its interior starts from at each lattice cell (its
     contour's material, or its shell's, or --from): (cells_r, cells_c, K) float, summing to 1.
-    ``point_material``: the contour points' mixes or fractions (:func:`point_mixes`)."""
+    ``point_material``: the contour points' mixes or fractions (:func:`point_mixes`); ``as_one``: where the
+    contour's mixes (clipped to [0, 1]) are that close, one of them serves every cell."""
     materials = spec.channel_materials()
     point_mix = point_mixes(spec, point_material)
     mixes = []
-    for family, field in zip(regions.families, regions.fields):
+    for number, (family, field) in enumerate(zip(regions.families, regions.fields)):
         shell = None if loop_shell is None else loop_shell[family.outer]
         own, use_mix = _family_sources(spec, shell, point_mix)
         start = _start_material(spec, family, own)
@@ -66,7 +75,9 @@ def family_starts(regions: LayerRegions, spec: GradeSpec, loop_shell, point_mate
         if start is not None:
             mix[..., spec.channel_index(start)] = 1.0
         elif use_mix:
-            mix[...] = np.clip(contour_values(field, point_mix), 0.0, 1.0)
+            close = None if as_one is None else (
+                lambda low, high, number=number: as_one(number, np.clip(low, 0.0, 1.0), np.clip(high, 0.0, 1.0)))
+            mix[...] = np.clip(contour_values(field, point_mix, close), 0.0, 1.0)
         else:
             mix[..., spec.channel_index(spec.base)] = 1.0
         mixes.append(mix)
@@ -80,15 +91,21 @@ def target_fractions(regions: LayerRegions, spec: GradeSpec) -> np.ndarray:
     return label_fractions(regions, lambda r: evaluate(spec.function, r))
 
 
-def contour_values(field: FamilyField, values: np.ndarray) -> np.ndarray:
+def contour_values(field: FamilyField, values: np.ndarray,
+                   as_one: Callable[[np.ndarray, np.ndarray], bool] | None = None) -> np.ndarray:
     """Per-point values ((p,) or (p, c)) of the layer's loops taken at each cell's nearest
     starting-ring point, interpolated between the layer's points on either side of it
-    (an edge may span several, :class:`RingEdges`): (cells_r, cells_c[, c]) float. Where every point of the
-    starting rings has the same value (a gradient along z, through a layer) that value is every cell's,
-    and the cells' nearest points are not measured."""
+    (an edge may span several, :class:`RingEdges`): (cells_r, cells_c[, c]) float.
+
+    Where every point of the starting rings has the same value (a gradient along z, through a layer), or
+    ``as_one(low, high)`` says that any value between the points' least and greatest ((c,) each) will do
+    (the same gradient, whose points differ in rounding), the first point's value is every cell's, and the
+    cells' nearest points are not measured: an interpolated value lies between its two points'."""
     edges = field.start_edges()
     values = np.asarray(values, dtype=np.float64)[edges.knot_point]
-    if len(values) and (values == values[:1]).all():
+    if len(values) and ((values == values[:1]).all() or (
+            as_one is not None and as_one(values.min(axis=0).reshape(-1),
+                                          values.max(axis=0).reshape(-1)))):
         return np.broadcast_to(values[0], (field.lattice.rows, field.lattice.cols) + values.shape[1:])
     foot, edge = field.nearest()
     at_feet = values_at_points(foot, edge, edges, values.reshape(len(values), -1))
