@@ -79,10 +79,10 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
     if spec.target is not None and spec.function is not None:
         target_mix[spec.channel_index(spec.target)] = 1.0
     fractions = target_fractions(regions, spec)
+    moved = fractions.astype(np.float32)
 
     def as_one(number: int, low: np.ndarray, high: np.ndarray) -> bool:
-        labels = slice(regions.base[number], regions.base[number + 1])
-        return jets_as_one(low, high, np.unique(fractions.astype(np.float32)[labels]), target_mix)
+        return jets_as_one(low, high, moved[regions.base[number]:regions.base[number + 1]], target_mix)
 
     mixes = family_starts(regions, spec, loop_shell, point_material, as_one)
     family_of_label = np.zeros(regions.label_count, dtype=np.int64)
@@ -106,22 +106,23 @@ def jets_as_one(low: np.ndarray, high: np.ndarray, moved: np.ndarray, target: np
 
     A moved mix's running sums and total grow with each channel of the start mix, so over the box they lie
     between those of its lowest and highest corners; a level t jets channel m's condition (running sum above
-    t times the total) alike throughout when it holds at the worst of them, or fails at the best.
+    t times the total) alike throughout when it holds at the worst of them, or fails at the best: it is
+    undecided only for t from (lowest sum - margin) / highest total to (highest sum + margin) / lowest total,
+    and the levels are (i + 1/2) / 256.
     """
     f = np.asarray(moved, dtype=np.float64)[:, None]
-    share_low, share_high = (1.0 - f) * low + f * target, (1.0 - f) * high + f * target  # (l, K) each
-    channels = share_low.shape[1]
+    sums_low = np.cumsum(low + f * (target - low), axis=1)  # (l, K): the running sums, the total last
+    sums_high = np.cumsum(high + f * (target - high), axis=1)
+    channels, count = sums_low.shape[1], TILE * TILE
+    total_low, total_high = sums_low[:, -1:], sums_high[:, -1:]
     # a few roundings of float32 (2^-24 each) per channel on sums of up to K shares, with room to spare
-    margin = (6 * channels + 4) * channels * max(1.0, float(np.abs(share_high).max(initial=0.0))) * 2.0 ** -23
-    total_low, total_high = share_low.sum(axis=1), share_high.sum(axis=1)
-    if not (np.isfinite(share_low).all() and np.isfinite(share_high).all() and (total_low > margin).all()):
+    margin = (6 * channels + 4) * channels * max(1.0, float(total_high.max(initial=0.0))) * 2.0 ** -23
+    if not (np.isfinite(total_high).all() and (total_low > margin).all()):
         return False
-    running_low = np.cumsum(share_low, axis=1)[:, None, :-1]
-    running_high = np.cumsum(share_high, axis=1)[:, None, :-1]
-    levels = ((np.arange(TILE * TILE) + 0.5) / (TILE * TILE))[None, :, None]
-    holds = levels * total_high[:, None, None] < running_low - margin
-    fails = levels * total_low[:, None, None] > running_high + margin
-    return bool((holds | fails).all())
+    # the first and last undecided level, of 0 .. count - 1
+    first = np.maximum(np.ceil((sums_low[:, :-1] - margin) / total_high * count - 0.5), 0.0)
+    last = np.minimum(np.floor((sums_high[:, :-1] + margin) / total_low * count - 0.5), count - 1.0)
+    return bool((first > last).all())
 
 
 def _layer_choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.ndarray,
@@ -154,7 +155,10 @@ def _choice_table(regions: LayerRegions, mixes: list[np.ndarray], fractions: np.
         flat = mix.reshape(-1, mix.shape[-1]).astype(np.float32)
         labels = np.arange(regions.base[number], regions.base[number + 1])
         moved, of_label = np.unique(fractions.astype(np.float32)[labels], return_inverse=True)
-        cells = flat[distinct_rows(flat)[1]] if len(flat) else flat  # by their bits
+        if len(flat) and (flat == flat[0]).all():
+            cells = flat[:1]  # one start mix (a contour of one material, jets_as_one)
+        else:
+            cells = flat[distinct_rows(flat)[1]] if len(flat) else flat  # by their bits
         if len(cells) * len(moved) <= _TABLE_SHARES:
             table[labels] = agreed_choices(cells, moved, target_mix, levels)[of_label]
     return table
