@@ -186,7 +186,7 @@ def ring_weights(distances: np.ndarray) -> np.ndarray:
 def ring_set(points: np.ndarray, offsets: np.ndarray, loops, encloses: bool) -> RingSet:
     """The ring set of some loops of a layer, with its edges and their bounding-box hierarchy."""
     edges = ring_edges(points, offsets, loops)
-    return RingSet(tuple(loops), edges, encloses, ring_tree(edges))
+    return RingSet(tuple(loops), edges, encloses, lambda: ring_tree(edges))
 
 
 def choose_materials(fractions: np.ndarray, solid: np.ndarray, layer: int,

@@ -223,7 +223,7 @@ def test_the_compiled_lattice_passes_are_the_numpy_passes_bit_for_bit(seed, ring
 
     rng = np.random.default_rng(seed)
     edges = random_rings(rng, rings)
-    ring_set = RingSet(tuple(range(rings)), edges, encloses, ring_tree(edges))
+    ring_set = RingSet(tuple(range(rings)), edges, encloses, lambda: ring_tree(edges))
     lattice = lattice_module.Lattice(row0=0, col0=0, cell=8, rows=int(rng.integers(1, 41)),
                                      cols=int(rng.integers(1, 41)), x0=float(rng.uniform(-80, -40)),
                                      y0=float(rng.uniform(40, 80)), dx=float(rng.uniform(0.5, 3.0)),

@@ -141,7 +141,7 @@ class _FamilyRings:
         if (tuple(loops), encloses) not in self.made:
             edges = ring_edges(self.points, self.offsets, loops)
             key = (encloses, *edges_key(edges))
-            tree = self.memo.recall(key, lambda: ring_tree(edges))
+            tree = functools.partial(self.memo.recall, key, functools.partial(ring_tree, edges))
             self.made[tuple(loops), encloses] = RingSet(tuple(loops), edges, encloses, tree, key)
         return self.made[tuple(loops), encloses]
 

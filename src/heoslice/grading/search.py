@@ -3,7 +3,9 @@ between two ring sets (L_S of eq. 8)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -19,14 +21,21 @@ from heoslice.grading.search_kernels import (
 @dataclass(frozen=True)
 class RingSet:
     """Rings whose nearest one gives a distance: loops (within the layer), their edges, and whether
-    the family's region is inside them (an outer ring) or outside (holes); ``key`` (encloses and the
-    edges as bytes, made by :func:`family_field`) finds what another layer measured of the same rings."""
+    the family's region is inside them (an outer ring) or outside (holes); ``make_tree`` gives their
+    :func:`ring_tree`, made when first asked for (:attr:`tree`: a family that measures no distance needs
+    none); ``key`` (encloses and the edges as bytes, made by :func:`family_field`) finds what another layer
+    measured of the same rings."""
 
     loops: tuple[int, ...]
     edges: RingEdges
     encloses: bool
-    tree: tuple
+    make_tree: Callable[[], tuple] = field(repr=False, compare=False)
     key: tuple = ()
+
+    @functools.cached_property
+    def tree(self) -> tuple:
+        """The edges' bounding-box hierarchy (:func:`ring_tree`), made once."""
+        return self.make_tree()
 
 
 def ring_tree(edges: RingEdges) -> tuple:
