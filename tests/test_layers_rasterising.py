@@ -17,6 +17,7 @@ from heoslice.layers.rasterising import (
     grid_for,
     packed_mask,
     packed_mask_and_count,
+    part_rows,
     render_layer,
     solid_mask,
 )
@@ -150,11 +151,27 @@ def test_packed_mask_follows_the_crossing_rule_bit_for_bit(case):
     assert solid == int(expected.sum())
 
 
+@settings(max_examples=300, deadline=None)
+@given(loops_on_a_grid())
+def test_the_part_rows_hold_every_solid_pixel(case):
+    """part_rows bounds the rows that may hold solid pixels: none lies outside it, for loops on row centres,
+    clipped at the borders, nested and crossing; and it spans no more than the rows the loops' points span,
+    and a row either side."""
+    points, offsets, grid = case
+    packed = packed_mask(points, offsets, grid)
+    first, stop = part_rows(points, grid)
+    assert 0 <= first <= stop <= grid.height
+    assert not packed[:first].any() and not packed[stop:].any()
+    v = (grid.y_top - points[:, 1]) / grid.py - 0.5
+    assert stop - first <= v.max() - v.min() + 3
+
+
 def test_no_loops_make_an_empty_mask():
     """No points: an all-zero packed image of the grid's shape and a count of 0."""
     grid = Grid(width=13, height=5, x_left=0.0, y_top=0.0, px=0.1, py=0.1)
     packed, solid = packed_mask_and_count(np.zeros((0, 2)), np.array([0]), grid)
     assert packed.shape == (5, 2) and not packed.any() and solid == 0
+    assert part_rows(np.zeros((0, 2)), grid) == (0, 0)
 
 
 def test_grid_geometry_and_canvas():

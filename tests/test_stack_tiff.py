@@ -76,6 +76,27 @@ def test_bilevel_layers_are_the_bytes_tifffile_writes(height, width, rows, compr
     assert np.array_equal(tifffile.imread(io.BytesIO(data)), bits)
 
 
+@settings(max_examples=60, deadline=None)
+@given(height=st.integers(1, 900), width=st.integers(1, 60), rows=st.sampled_from([7, 64, 256]),
+       compression=st.sampled_from(["deflate", "lzw", "packbits"]), level=st.integers(1, 3),
+       band=st.tuples(st.integers(0, 900), st.integers(0, 900)), seed=st.integers(0, 2**16))
+def test_strips_off_the_part_rows_are_the_blank_strips_tifffile_writes(height, width, rows, compression, level,
+                                                                       band, seed):
+    """Told the rows that may hold set bits (``rows``: every set bit lies within them), a layer is byte for
+    byte the file tifffile writes from all its strips compressed: the strips wholly outside, taken as blank
+    (one compressed blank strip per size), are the strips of zeros they are."""
+    from heoslice.stack.tiff import encode_bilevel_tiff
+
+    first, stop = sorted(min(value, height) for value in band)
+    bits = np.zeros((height, width), dtype=bool)
+    bits[first:stop] = np.random.default_rng(seed).random((stop - first, width)) < 0.4
+    packed = np.packbits(bits, axis=1)
+    data = encode_bilevel_tiff(packed, width, (600.0, 600.0), compression, 0.1, rows_per_strip=rows, level=level,
+                               rows=(first, stop))
+    assert data == _tifffile_reference(packed, width, (600.0, 600.0), compression, 0.1, rows, level)
+    assert np.array_equal(tifffile.imread(io.BytesIO(data)), bits)
+
+
 def test_a_typical_layer_is_laid_out_from_its_recalled_layout():
     """The fast path is taken: tifffile's layout of a 600 dpi deflate layer is recalled (not None), so a
     tifffile that lays files out otherwise shows here, not only as a slower slice."""

@@ -10,6 +10,7 @@ straight into a packed 1-bit image (the TIFF layout).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,6 +90,16 @@ def packed_mask_and_count(points: np.ndarray, offsets: np.ndarray, grid: Grid) -
     solid = _packed_mask(f64(points), i64(offsets), int(grid.width), int(grid.height), float(grid.x_left),
                          float(grid.y_top), float(grid.px), float(grid.py), packed)
     return packed, int(solid)
+
+
+def part_rows(points: np.ndarray, grid: Grid) -> tuple[int, int]:
+    """(first, stop): the rows of ``grid`` whose centres the loops' points ((p, 2) float, mm) span, a row
+    more either side; no other row holds a solid pixel (:func:`packed_mask_and_count`)."""
+    if len(points) == 0:
+        return 0, 0
+    v = (grid.y_top - points[:, 1]) / grid.py - 0.5
+    first, stop = math.floor(float(v.min())), math.floor(float(v.max())) + 2
+    return min(max(first, 0), grid.height), min(max(stop, 0), grid.height)
 
 
 def packed_mask(points: np.ndarray, offsets: np.ndarray, grid: Grid) -> np.ndarray:

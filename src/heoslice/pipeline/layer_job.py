@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from heoslice.layers.contours import Contours
-from heoslice.layers.rasterising import Grid, packed_mask_and_count, render_layer
+from heoslice.layers.rasterising import Grid, packed_mask_and_count, part_rows, render_layer
 from heoslice.layers.slicing import interpolate_at
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec, channel_name
@@ -89,22 +89,24 @@ def render_and_write(job: LayerJob, cache: PipelineCache | None = None) -> tuple
     started = time.perf_counter()
     packed, solid = render_layer(job.points, job.offsets, job.grid)
     rendered = time.perf_counter()
-    data = _solid_tiff(packed, solid, job, cache, deflate_level(False))
+    data = _solid_tiff(packed, solid, job, cache, deflate_level(False), part_rows(job.points, job.grid))
     encoded = time.perf_counter()
     digest = write_file(job.path, data)
     return job.index, digest, solid, rendered - started, encoded - rendered, ()
 
 
 def _solid_tiff(packed: np.ndarray, solid: int, job: LayerJob, cache: PipelineCache | None,
-                level: int) -> bytes:
+                level: int, rows: tuple[int, int] | None = None) -> bytes:
     """The 1-bit TIFF of a layer's solid bits ((h, ceil(w / 8)) uint8, ``solid`` of them set) at deflate
-    ``level``: the last layer's (kept in ``cache``) when the bits are the same, as an extruded part's layers
-    are (the bits are compared only when their counts are equal)."""
+    ``level``, ``rows`` the part's (:func:`encode_bilevel_tiff`): the last layer's (kept in ``cache``) when
+    the bits are the same, as an extruded part's layers are (the bits are compared only when their counts
+    are equal)."""
     form = (job.grid.width, job.dpi, job.compression, level, solid)
     last = None if cache is None else cache.solid
     if last is not None and last.form == form and np.array_equal(last.packed, packed):
         return last.data
-    data = encode_bilevel_tiff(packed, job.grid.width, job.dpi, job.compression, job.layer_height_mm, level=level)
+    data = encode_bilevel_tiff(packed, job.grid.width, job.dpi, job.compression, job.layer_height_mm, level=level,
+                               rows=rows)
     if cache is not None:
         cache.solid = EncodedSolid(form, packed, data)
     return data
@@ -131,11 +133,11 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
                                 job.grid, graded.spec, job.index, point_material=graded.point_material,
                                 packed=packed, cache=grading_cache)
         rendered = time.perf_counter()
-        width = job.grid.width
+        width, rows = job.grid.width, part_rows(job.points, job.grid)
         level = deflate_level(True)
-        data = _solid_tiff(packed, solid, job, cache, level)
+        data = _solid_tiff(packed, solid, job, cache, level, rows)
         pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm,
-                                             level=level), count)
+                                             level=level, rows=rows), count)
                   for path, plane, count in zip(graded.channel_paths, planes, droplet_counts(planes, solid))]
         encoded = time.perf_counter()
         digest = write_file(job.path, data)

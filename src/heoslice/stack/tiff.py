@@ -91,6 +91,13 @@ def _strip_codec(compression: str, level: int = 1):
     return codec
 
 
+@functools.lru_cache(maxsize=32)
+def _blank_strip(compression: str, level: int, size: int) -> bytes:
+    """A strip of ``size`` zero bytes (rows off the part), compressed once: the same bytes every time, for
+    about a third of a layer's strips (a part's cross-section spans fewer rows than the image)."""
+    return _strip_codec(compression, level)(bytes(size))
+
+
 class BilevelForm(NamedTuple):
     """What a 1-bit layer's TIFF layout depends on: size (px), dpi, Z spacing (mm or None), codec, strip rows."""
 
@@ -117,24 +124,28 @@ class BilevelLayout:
 
 def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float], compression: str,
                         spacing_mm: float | None = None, rows_per_strip: int = 256,
-                        level: int = ONE_MATERIAL_DEFLATE_LEVEL) -> bytes:
+                        level: int = ONE_MATERIAL_DEFLATE_LEVEL, rows: tuple[int, int] | None = None) -> bytes:
     """TIFF bytes of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, MSB first).
 
     ``level`` is deflate's (:func:`deflate_level` says which a stack uses; other codecs
-    ignore it).
+    ignore it). ``rows`` (first, stop): the only rows that may hold set bits, when the caller knows
+    (:func:`heoslice.layers.rasterising.part_rows`); a strip wholly outside them is taken as blank.
 
     The strips are compressed here, straight from the packed bits (the mask is never expanded to
     one byte per pixel), and laid out as tifffile lays them out for this form
     (:func:`bilevel_layout`, asked once per form): the same bytes as tifffile's own file.
     Strips of 256 rows (~120 KB of bits at 3800 px) are cheaper to write than 64 (figures in
-    benchmarks/README.md).
+    benchmarks/README.md); a strip of zeros is compressed once per size (:func:`_blank_strip`).
     """
     height = packed.shape[0]
     form = BilevelForm(height, width, (float(dpi[0]), float(dpi[1])), compression, spacing_mm, rows_per_strip)
     if COMPRESSIONS[compression] is None:
         return _tifffile_bilevel(packed, form, None)
     codec = _strip_codec(compression, level)
-    strips = [codec(packed[row:row + rows_per_strip].tobytes()) for row in range(0, height, rows_per_strip)]
+    first, stop = (0, height) if rows is None else rows
+    strips = [codec(packed[row:row + rows_per_strip].tobytes()) if first < row + rows_per_strip and row < stop
+              else _blank_strip(compression, level, packed[row:row + rows_per_strip].nbytes)
+              for row in range(0, height, rows_per_strip)]
     layout = bilevel_layout(form)
     if layout is None:
         return _tifffile_bilevel(packed, form, strips)
