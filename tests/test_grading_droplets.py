@@ -157,6 +157,18 @@ def test_mixes_that_differ_in_rounding_are_taken_as_one_and_mixes_across_a_level
     assert not jets_as_one(low, high, zero, np.zeros(2))
     assert not jets_as_one(np.array([0.2, 0.2]), np.array([0.7, 0.7]), zero, np.zeros(2))
     assert not jets_as_one(np.zeros(2), np.zeros(2), zero, np.zeros(2))
+    assert not jets_as_one(np.array([0.4, 0.6]), np.array([0.4, 0.6]), np.array([1.5], np.float32), np.eye(2)[1])
+
+
+def test_mixes_on_one_side_of_a_level_that_float32_puts_on_both_are_not_taken_as_one():
+    """The margin for float32: two mixes whose first share lies above a level in exact arithmetic (by 1e-9
+    and 4e-8, totals 1 and just below) round to the level itself and to one step above it, and so jet
+    different materials there; jets_as_one does not take their box as one (without its margin it would)."""
+    level = float(LEVELS[128])
+    low, high = np.array([level + 1e-9, 1 - level - 4e-8]), np.array([level + 4e-8, 1 - level - 4e-8])
+    assert low[0] > level * low.sum() and high[0] > level * high.sum()
+    assert brute_choice(low, 0.0, np.zeros(2))[128] != brute_choice(high, 0.0, np.zeros(2))[128]
+    assert not jets_as_one(low, high, np.zeros(1, dtype=np.float32), np.zeros(2))
 
 
 def test_masks_without_a_gradient_are_those_of_the_full_sub_region_layout():

@@ -231,9 +231,11 @@ def test_a_contour_whose_values_may_stand_as_one_gives_the_first_to_every_cell_w
 @pytest.mark.parametrize("graded", [False, True])
 def test_contour_materials_that_differ_in_rounding_give_the_measured_masks_unmeasured(graded, monkeypatch):
     """A coloured layer whose contour points' materials differ in their last bits (a z gradient, as
-    ``heoslice color`` makes one): droplet_planes takes them as one, measures no cell's nearest contour
-    point, and gives the masks the numpy composition makes from every cell's own measured mix."""
-    from heoslice.grading import droplet_planes, field as field_module
+    ``heoslice color`` makes one): droplet_planes takes them as one (jets_as_one says so for every family)
+    and gives the masks the numpy composition makes from every cell's own measured mix; without a gradient
+    it measures no cell's nearest contour point and makes no ring's edge tree (no distance is measured)."""
+    from heoslice.grading import droplet_planes, droplets, search
+    from heoslice.grading import field as field_module
 
     points, offsets, area, parent = layer(circle(6.0, 300), circle(2.0, 120, (1.0, 0.5), clockwise=True))
     grid = grid_around(6.5)
@@ -242,12 +244,17 @@ def test_contour_materials_that_differ_in_rounding_give_the_measured_masks_unmea
                      Material("green", (0, 255, 0)) if graded else None, None, DEFAULT_MATERIALS["M1"],
                      DEFAULT_MATERIALS["M2"])
     point_material = 0.63 + np.random.default_rng(2).uniform(-6e-8, 6e-8, len(points))  # of M2, the rest M1
-    measured = []
-    original = field_module.ring_measures
+    measured, taken, trees = [], [], []
+    original, as_one, tree = field_module.ring_measures, droplets.jets_as_one, search.ring_tree
     monkeypatch.setattr(field_module, "ring_measures", lambda *a: measured.append(1) or original(*a))
+    monkeypatch.setattr(droplets, "jets_as_one", lambda *a: taken.append(as_one(*a)) or taken[-1])
+    monkeypatch.setattr(search, "ring_tree", lambda *a: trees.append(1) or tree(*a))
     got = np.unpackbits(droplet_planes(points, offsets, area, parent, None, mask, grid, spec, 5,
                                        point_material=point_material), axis=2, count=grid.width).astype(bool)
     cells_measured = len(measured)
+    assert taken and all(taken)
+    if not graded:
+        assert not trees
     expected = composed_masks(points, offsets, area, parent, None, mask, grid, spec, 5, point_material)
     assert len(measured) > cells_measured
     if not graded:

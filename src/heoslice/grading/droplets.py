@@ -117,7 +117,7 @@ def jets_as_one(low: np.ndarray, high: np.ndarray, moved: np.ndarray, target: np
     total_low, total_high = sums_low[:, -1:], sums_high[:, -1:]
     # a few roundings of float32 (2^-24 each) per channel on sums of up to K shares, with room to spare
     margin = (6 * channels + 4) * channels * max(1.0, float(total_high.max(initial=0.0))) * 2.0 ** -23
-    if not (np.isfinite(total_high).all() and (total_low > margin).all()):
+    if not (np.isfinite(total_high).all() and (total_low > margin).all() and ((f >= 0.0) & (f <= 1.0)).all()):
         return False
     # the first and last undecided level, of 0 .. count - 1
     first = np.maximum(np.ceil((sums_low[:, :-1] - margin) / total_high * count - 0.5), 0.0)

@@ -61,7 +61,7 @@ from heoslice.grading.refine import (
     refine_cells,
     ring_vertices,
 )
-from heoslice.grading.search import RingSet, ring_tree, rings_apart, rings_apart_kept
+from heoslice.grading.search import LazyTree, RingSet, rings_apart, rings_apart_kept
 from heoslice.grading.spec import RegionSpec, coordinate_precision
 from heoslice.layers.rasterising import Grid
 
@@ -131,7 +131,8 @@ def family_box(edges: RingEdges, grid: Grid) -> tuple[int, int, int, int]:
 
 
 class _FamilyRings:
-    """The ring sets of one layer's loops, each made once, its edge tree recalled from a :class:`RingMemo`."""
+    """The ring sets of one layer's loops, each made once, its edge tree (made when first asked for) recalled
+    from a :class:`RingMemo`."""
 
     def __init__(self, points: np.ndarray, offsets: np.ndarray, memo: RingMemo):
         self.points, self.offsets, self.memo, self.made = points, offsets, memo, {}
@@ -141,7 +142,7 @@ class _FamilyRings:
         if (tuple(loops), encloses) not in self.made:
             edges = ring_edges(self.points, self.offsets, loops)
             key = (encloses, *edges_key(edges))
-            tree = functools.partial(self.memo.recall, key, functools.partial(ring_tree, edges))
+            tree = self.memo.recall(key, functools.partial(LazyTree, edges))
             self.made[tuple(loops), encloses] = RingSet(tuple(loops), edges, encloses, tree, key)
         return self.made[tuple(loops), encloses]
 

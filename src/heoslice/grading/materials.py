@@ -100,7 +100,8 @@ def contour_values(field: FamilyField, values: np.ndarray,
     Where every point of the starting rings has the same value (a gradient along z, through a layer), or
     ``as_one(low, high)`` says that any value between the points' least and greatest ((c,) each) will do
     (the same gradient, whose points differ in rounding), the first point's value is every cell's, and the
-    cells' nearest points are not measured: an interpolated value lies between its two points'."""
+    cells' nearest points are not measured: an interpolated value lies between its two points' (to within
+    a rounding of float64, far inside the margin ``as_one`` leaves for float32)."""
     edges = field.start_edges()
     values = np.asarray(values, dtype=np.float64)[edges.knot_point]
     if len(values) and ((values == values[:1]).all() or (

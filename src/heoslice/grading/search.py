@@ -22,9 +22,9 @@ from heoslice.grading.search_kernels import (
 class RingSet:
     """Rings whose nearest one gives a distance: loops (within the layer), their edges, and whether
     the family's region is inside them (an outer ring) or outside (holes); ``make_tree`` gives their
-    :func:`ring_tree`, made when first asked for (:attr:`tree`: a family that measures no distance needs
-    none); ``key`` (encloses and the edges as bytes, made by :func:`family_field`) finds what another layer
-    measured of the same rings."""
+    :func:`ring_tree` (a :class:`LazyTree`, or any callable), asked for when first needed (:attr:`tree`: a
+    family that measures no distance needs none); ``key`` (encloses and the edges as bytes, made by
+    :func:`family_field`) finds what another layer measured of the same rings."""
 
     loops: tuple[int, ...]
     edges: RingEdges
@@ -36,6 +36,22 @@ class RingSet:
     def tree(self) -> tuple:
         """The edges' bounding-box hierarchy (:func:`ring_tree`), made once."""
         return self.make_tree()
+
+
+class LazyTree:
+    """The :func:`ring_tree` of some edges, made on the first call and kept: what a layer's ring memo holds for
+    a ring set's key, so that the next layer's ring set of the same edges takes the tree if one was made,
+    and no tree is made for rings no distance is measured to. It holds the edges only (not the memo)."""
+
+    __slots__ = ("edges", "made")
+
+    def __init__(self, edges: RingEdges):
+        self.edges, self.made = edges, None
+
+    def __call__(self) -> tuple:
+        if self.made is None:
+            self.made = ring_tree(self.edges)
+        return self.made
 
 
 def ring_tree(edges: RingEdges) -> tuple:

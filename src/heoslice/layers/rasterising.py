@@ -97,7 +97,7 @@ def part_rows(points: np.ndarray, grid: Grid) -> tuple[int, int]:
     more either side; no other row holds a solid pixel (:func:`packed_mask_and_count`)."""
     if len(points) == 0:
         return 0, 0
-    v = (grid.y_top - points[:, 1]) / grid.py - 0.5
+    v = (grid.y_top - f64(points)[:, 1]) / grid.py - 0.5
     first, stop = math.floor(float(v.min())), math.floor(float(v.max())) + 2
     return min(max(first, 0), grid.height), min(max(stop, 0), grid.height)
 
