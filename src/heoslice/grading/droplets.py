@@ -99,8 +99,8 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
 
 def jets_as_one(low: np.ndarray, high: np.ndarray, moved: np.ndarray, target: np.ndarray) -> bool:
     """Whether every start mix between ``low`` and ``high`` ((K,) float each, per channel, in [0, 1]), moved
-    by each fraction of ``moved`` ((l,) float32, in [0, 1]) towards ``target`` ((K,), eq. 1), jets the same
-    channel at every dither level: the halftone's comparisons
+    by each fraction of ``moved`` ((l,) float32, in [0, 1]; False for any other) towards ``target`` ((K,),
+    eq. 1), jets the same channel at every dither level: the halftone's comparisons
     (:func:`heoslice.grading.droplets_kernels.droplet_bits`) are then decided alike for all of them, with a
     margin for its float32 rounding.
 

@@ -93,8 +93,8 @@ def _strip_codec(compression: str, level: int = 1):
 
 @functools.lru_cache(maxsize=32)
 def _blank_strip(compression: str, level: int, size: int) -> bytes:
-    """A strip of ``size`` zero bytes (rows off the part), compressed once: the same bytes every time, for
-    about a third of a layer's strips (a part's cross-section spans fewer rows than the image)."""
+    """A strip of ``size`` zero bytes, compressed once: the same bytes every time, for the strips of rows off
+    the part (a cross-section spans fewer rows than the image)."""
     return _strip_codec(compression, level)(bytes(size))
 
 
@@ -135,7 +135,7 @@ def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float]
     one byte per pixel), and laid out as tifffile lays them out for this form
     (:func:`bilevel_layout`, asked once per form): the same bytes as tifffile's own file.
     Strips of 256 rows (~120 KB of bits at 3800 px) are cheaper to write than 64 (figures in
-    benchmarks/README.md); a strip of zeros is compressed once per size (:func:`_blank_strip`).
+    benchmarks/README.md); the blank strips off ``rows`` are compressed once per size (:func:`_blank_strip`).
     """
     height = packed.shape[0]
     form = BilevelForm(height, width, (float(dpi[0]), float(dpi[1])), compression, spacing_mm, rows_per_strip)
