@@ -116,7 +116,9 @@ def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  
     Chunks are visited nearest first by a lower bound of their distance from the group's
     centre (their capsule's: chord distance less radius); a chunk is skipped when no
     point's capsule distance beats its best so far, and the rest once even the farthest
-    point (``reach`` from the centre) cannot be nearer to them than its best. Compared in
+    point (``reach`` from the centre) cannot be nearer to them than its best; within a chunk
+    after the first, so is an edge farther from the centre than the points' worst best plus
+    ``reach`` (and 1e-4 mm for float32: the same distances either way). Compared in
     float32 from each group's centre (a near tie may pick an edge ~1e-5 mm farther);
     selects, not branches, so the loops over points vectorise.
     """
@@ -160,6 +162,9 @@ def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  
                 if not needed:
                     continue
             for e in range(c * FAN, min(c * FAN + FAN, edges)):
+                if farthest < np.inf and (point_to_edge(cx[g], cy[g], ex[e], ey[e], evx[e], evy[e], einv[e]) - reach
+                                          > farthest + 1e-4):
+                    continue  # no point comes nearer to this edge than to its best so far
                 bx, by = np.float32(cx[g] - ex[e]), np.float32(cy[g] - ey[e])
                 vx, vy, inv = np.float32(evx[e]), np.float32(evy[e]), np.float32(einv[e])
                 if track:
