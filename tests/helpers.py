@@ -15,7 +15,7 @@ import shapely
 from heoslice.grading.edges import ring_edges
 from heoslice.grading.halftone import thresholds
 from heoslice.grading.labels import family_of
-from heoslice.grading.search import RingSet, ring_tree
+from heoslice.grading.search import LazyTree, RingSet
 from heoslice.grading.search_kernels import edge_tree
 from heoslice.layers import plane_heights, slice_mesh
 from heoslice.layers.contours import Contours, build_contours
@@ -186,7 +186,7 @@ def ring_weights(distances: np.ndarray) -> np.ndarray:
 def ring_set(points: np.ndarray, offsets: np.ndarray, loops, encloses: bool) -> RingSet:
     """The ring set of some loops of a layer, with its edges and their bounding-box hierarchy."""
     edges = ring_edges(points, offsets, loops)
-    return RingSet(tuple(loops), edges, encloses, lambda: ring_tree(edges))
+    return RingSet(tuple(loops), edges, encloses, LazyTree(edges))
 
 
 def choose_materials(fractions: np.ndarray, solid: np.ndarray, layer: int,

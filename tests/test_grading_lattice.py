@@ -219,11 +219,11 @@ def test_the_compiled_lattice_passes_are_the_numpy_passes_bit_for_bit(seed, ring
     """On random rings and lattices of 1 to 40 cells a side (blocks cut short at the edges), the compiled
     passes give the blocks off the family's side, and the wanted blocks' nearest edges, of the numpy passes
     written out above from the same block bounds and centres inside, value for value."""
-    from heoslice.grading.search import RingSet, ring_tree
+    from heoslice.grading.search import LazyTree, RingSet
 
     rng = np.random.default_rng(seed)
     edges = random_rings(rng, rings)
-    ring_set = RingSet(tuple(range(rings)), edges, encloses, lambda: ring_tree(edges))
+    ring_set = RingSet(tuple(range(rings)), edges, encloses, LazyTree(edges))
     lattice = lattice_module.Lattice(row0=0, col0=0, cell=8, rows=int(rng.integers(1, 41)),
                                      cols=int(rng.integers(1, 41)), x0=float(rng.uniform(-80, -40)),
                                      y0=float(rng.uniform(40, 80)), dx=float(rng.uniform(0.5, 3.0)),

@@ -3,8 +3,6 @@ between two ring sets (L_S of eq. 8)."""
 
 from __future__ import annotations
 
-import functools
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,21 +19,21 @@ from heoslice.grading.search_kernels import (
 @dataclass(frozen=True)
 class RingSet:
     """Rings whose nearest one gives a distance: loops (within the layer), their edges, and whether
-    the family's region is inside them (an outer ring) or outside (holes); ``make_tree`` gives their
-    :func:`ring_tree` (a :class:`LazyTree`, or any callable), asked for when first needed (:attr:`tree`: a
-    family that measures no distance needs none); ``key`` (encloses and the edges as bytes, made by
-    :func:`family_field`) finds what another layer measured of the same rings."""
+    the family's region is inside them (an outer ring) or outside (holes); ``lazy_tree`` makes their
+    :func:`ring_tree` when first asked for (:attr:`tree`: a family that measures no distance needs none);
+    ``key`` (encloses and the edges as bytes, made by :func:`family_field`) finds what another layer measured
+    of the same rings."""
 
     loops: tuple[int, ...]
     edges: RingEdges
     encloses: bool
-    make_tree: Callable[[], tuple] = field(repr=False, compare=False)
+    lazy_tree: LazyTree = field(repr=False, compare=False)
     key: tuple = ()
 
-    @functools.cached_property
+    @property
     def tree(self) -> tuple:
-        """The edges' bounding-box hierarchy (:func:`ring_tree`), made once."""
-        return self.make_tree()
+        """The edges' bounding-box hierarchy (:func:`ring_tree`), made once (by :attr:`lazy_tree`)."""
+        return self.lazy_tree()
 
 
 class LazyTree:
