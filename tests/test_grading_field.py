@@ -82,6 +82,25 @@ def test_subregion_index_spans_one_to_count():
     assert subregion_index(np.array([0.0, 0.099, 0.1, 0.95, 1.0, 3.0]), 10).tolist() == [1, 1, 2, 10, 10, 10]
 
 
+def test_labels_take_the_narrowest_unsigned_type():
+    """label_dtype: uint8 up to 255 (past int8's 127: a family of ~200 sub-regions), uint16 up to 65535, uint32
+    beyond."""
+    sizes = (0, 127, 128, 255, 256, 65535, 65536)
+    assert [field_module.label_dtype(n) for n in sizes] == [np.uint8] * 4 + [np.uint16] * 2 + [np.uint32]
+
+
+def test_a_family_of_more_than_127_sub_regions_is_labelled_in_uint8_by_its_exact_distance():
+    """A disc of radius 9 mm at nozzle 0.05 mm: N_R = 179 sub-regions (eq. 8: its 720-gon's inradius is just
+    under 9 mm), labelled in uint8, every solid pixel's label that of its exact distance to the ring (labels
+    past 127 not wrapped)."""
+    ring = circle(9.0)
+    grid = grid_around(9.5)
+    points, offsets, area, parent = layer(ring)
+    k, mask, field = field_on_mask(points, offsets, area, parent, grid, RegionSpec(nozzle_mm=0.05))
+    assert field.index.dtype == np.uint8 and field.layout.count == 179 and k[mask].max() == 179
+    assert_bands_follow_the_exact_distance(ring, grid, 0.05)
+
+
 @settings(max_examples=200)
 @given(st.integers(1, 6).flatmap(lambda beta: st.lists(
     st.lists(st.floats(0.0, 1e3), min_size=beta, max_size=beta), min_size=1, max_size=20)))

@@ -19,13 +19,13 @@ from heoslice.grading.field_kernels import (
 
 
 @settings(max_examples=30, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 16), st.booleans(), st.sampled_from([np.int8, np.int16, np.int32]))
+@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 16), st.booleans(), st.sampled_from([np.uint8, np.uint16, np.uint32]))
 def test_expand_planes_is_the_plane_formula(seed, cell, masked, label_dtype):
     """Each pixel gets clip(floor(s + gx x - gy y) + 1, 1, count) of its cell's plane (x, y its offset
     from the cell centre), except where s sits within float32 rounding of an integer; with a
-    mask, 0 off its pixels; + base on the others; every pixel of an empty cell 0."""
+    mask, 0 off its pixels; + base on the others (labels past 127 too, in uint8); every pixel of an empty cell 0."""
     rng = np.random.default_rng(seed)
-    rows, cols, count, base = int(rng.integers(1, 6)), int(rng.integers(1, 6)), int(rng.integers(1, 50)), 7
+    rows, cols, count, base = int(rng.integers(1, 6)), int(rng.integers(1, 6)), int(rng.integers(1, 50)), int(rng.integers(0, 200))
     s = rng.uniform(-3, count + 3, (rows, cols))
     gx, gy = rng.uniform(-3, 3, (rows, cols)), rng.uniform(-3, 3, (rows, cols))
     empty = rng.random((rows, cols)) < 0.3
@@ -33,7 +33,7 @@ def test_expand_planes_is_the_plane_formula(seed, cell, masked, label_dtype):
     shape = (rows * cell - int(rng.integers(0, cell)), cols * cell - int(rng.integers(0, cell)))
     mask = rng.random((shape[0] + 5, shape[1] + 4)) < 0.7 if masked else None
     out = expand_planes(s, gx, gy, CellPixels(cell, px, py), count,
-                        label_target(np.full(shape, -5, label_dtype), mask, (3, 2), base), empty)
+                        label_target(np.full(shape, 255, label_dtype), mask, (3, 2), base), empty)
     r, c = np.indices(shape)
     i, j = r // cell, c // cell
     x = (c - j * cell + 0.5 - cell / 2) * px
@@ -87,18 +87,18 @@ def test_band_field_is_eq10_and_its_gradient(seed, sets):
 
 
 @settings(max_examples=20, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.booleans(), st.sampled_from([np.int8, np.int16, np.int32]))
+@given(st.integers(0, 2 ** 32 - 1), st.booleans(), st.sampled_from([np.uint8, np.uint16, np.uint32]))
 def test_curve_cells_is_the_quadratic_formula(seed, masked, label_dtype):
     """curve_cells writes clip(floor(s + g.d + d.H.d / 2) + 1, 1, count) at every pixel of the given cells
-    (d the pixel's offset from the cell centre, y up), + base, and 0 off the mask's pixels, and
-    leaves every other pixel alone."""
+    (d the pixel's offset from the cell centre, y up), + base (labels past 127 too, in uint8), and 0 off the
+    mask's pixels, and leaves every other pixel alone."""
     rng = np.random.default_rng(seed)
-    cell, rows, cols, count, base = 6, 4, 5, 30, 3
+    cell, rows, cols, count, base = 6, 4, 5, 30, int(rng.integers(0, 220))
     s = rng.uniform(-2, count + 2, (rows, cols))
     grad = rng.uniform(-4, 4, (rows, cols, 2))
     hessian = rng.uniform(-9, 9, (3, rows, cols))
     px = py = 0.05
-    index = np.full((rows * cell - 2, cols * cell - 1), -7, dtype=label_dtype)
+    index = np.full((rows * cell - 2, cols * cell - 1), 255, dtype=label_dtype)
     mask = rng.random(index.shape) < 0.6 if masked else None
     ci, cj = np.array([0, 3, 2]), np.array([1, 4, 0])
     curve_cells(label_target(index, mask, (0, 0), base), ci, cj, CellPixels(cell, px, py), s, grad, hessian, count)
@@ -116,4 +116,4 @@ def test_curve_cells_is_the_quadratic_formula(seed, masked, label_dtype):
     inside = chosen[i, j]
     clear = np.abs(value - np.rint(value)) > 1e-9
     assert np.array_equal(index[inside & clear], expected[inside & clear])
-    assert (index[~inside] == -7).all()
+    assert (index[~inside] == 255).all()

@@ -284,23 +284,23 @@ def _two_plates_painted(monkeypatch, spec: RegionSpec):
 
 
 def test_an_outermost_family_spanning_a_layer_of_several_lends_its_index_as_the_labels():
-    """A thin hollow disc (few sub-regions: int8 would do) with a wide island in its cavity (many: int16),
-    labelled from the packed mask (the droplet masks' path): the disc's index, kept int16 wide for the
+    """A thin hollow disc (few sub-regions: uint8 would do) with a wide island in its cavity (many: uint16),
+    labelled from the packed mask (the droplet masks' path): the disc's index, kept 16 bits wide for the
     island's labels, is the layer's label array, painted over, not copied into a wider one."""
     rings = (circle(9.0), circle(8.5, clockwise=True), circle(8.0))
     points, offsets, area, parent = layer(*rings)
     grid = grid_around(9.5)
     mask = solid_mask(points, offsets, grid)
-    regions = layer_regions(points, offsets, area, parent, None, grid, RegionSpec(nozzle_mm=0.05),
+    regions = layer_regions(points, offsets, area, parent, None, grid, RegionSpec(nozzle_mm=0.025),
                             np.packbits(mask, axis=1))
     assert len(regions.families) == 2 and regions.fields[0].box == regions.box
-    assert regions.base[1] < 120 <= regions.label_count and regions.label.dtype == np.int16
+    assert regions.base[1] < 256 <= regions.label_count and regions.label.dtype == np.uint16
     assert regions.label is regions.fields[0].index
 
 
-def test_one_subregion_families_spanning_a_layer_of_several_are_labelled_in_int8():
+def test_one_subregion_families_spanning_a_layer_of_several_are_labelled_in_uint8():
     """The same hollow disc and island with one sub-region each (a coloured part without grading): the disc's
-    index is one value, so the labels of the two families are int8 (the narrowest), the disc's label on its
+    index is one value, so the labels of the two families are uint8 (the narrowest), the disc's label on its
     own solid pixels and the island's on its own."""
     rings = (circle(9.0), circle(8.5, clockwise=True), circle(8.0))
     points, offsets, area, parent = layer(*rings)
@@ -308,7 +308,7 @@ def test_one_subregion_families_spanning_a_layer_of_several_are_labelled_in_int8
     mask = solid_mask(points, offsets, grid)
     regions = layer_regions(points, offsets, area, parent, None, grid, RegionSpec(count=1), np.packbits(mask, axis=1))
     assert len(regions.families) == 2 and regions.fields[0].box == regions.box
-    assert regions.label.dtype == np.int8
+    assert regions.label.dtype == np.uint8
     rows, cols = slice(*regions.box[:2]), slice(*regions.box[2:])
     disc = solid_mask(points[:offsets[2]], offsets[:3], grid)[rows, cols]
     solid = mask[rows, cols]
@@ -321,7 +321,7 @@ def test_painting_a_family_after_the_first_takes_no_copy_wider_than_the_labels(m
     base): painting allocates at most the labels, the box's solid bits and one copy of the box's index in the
     labels' width, not one widened to int64 by the base (4x the index, the largest allocation of a scan layer)."""
     _, _, _, regions, peak, box_pixels = _two_plates_painted(monkeypatch, RegionSpec(nozzle_mm=0.3))
-    assert regions.label.dtype == np.int8  # few labels, in an array of their own (the first box is not the layer's)
+    assert regions.label.dtype == np.uint8  # few labels, in an array of their own (the first box is not the layer's)
     assert peak <= regions.label.nbytes + box_pixels * (1 + regions.label.itemsize) + 64_000
 
 

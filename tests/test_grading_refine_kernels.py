@@ -23,18 +23,18 @@ from heoslice.grading.refine_kernels import (
 
 
 @settings(max_examples=30, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 5), st.booleans(), st.sampled_from([np.int8, np.int16, np.int32]))
+@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 5), st.booleans(), st.sampled_from([np.uint8, np.uint16, np.uint32]))
 def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked, label_dtype):
     """band_cells writes, at every pixel of the given cells, clip(floor(s) + 1, 1, count) of s by eq. 10
     (s = (1 - w_start) count from helpers.ring_weights for two or more ring sets, d count / length for
     one) of each ring set's distance there: its quadratic where the cell's model is given, the measured
-    value (from its slot in a packed array) where it is NaN; + base, and 0 off the mask's pixels;
-    pixels past the image and other cells untouched."""
+    value (from its slot in a packed array) where it is NaN; + base (labels past 127 too, in uint8), and 0
+    off the mask's pixels; pixels past the image and other cells untouched."""
 
     rng = np.random.default_rng(seed)
-    cell, rows, cols, count, length, base = 5, 4, 5, int(rng.integers(1, 40)), 3.0, 3
+    cell, rows, cols, count, length, base = 5, 4, 5, int(rng.integers(1, 40)), 3.0, int(rng.integers(0, 210))
     px = py = 0.05
-    index = np.full((rows * cell - 2, cols * cell - 1), -7, dtype=label_dtype)
+    index = np.full((rows * cell - 2, cols * cell - 1), 255, dtype=label_dtype)
     mask = rng.random(index.shape) < 0.6 if masked else None
     ci, cj = np.array([0, 3, 2, 3]), np.array([1, 4, 0, 0])
     models = np.column_stack([rng.uniform(0.2, 6.0, (sets, 4)).ravel()] + [rng.uniform(-1, 1, sets * 4)
@@ -68,7 +68,7 @@ def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked
             want = expected[n, k] + base if mask is None or mask[r, c] else 0
             if clear[n, k]:
                 assert index[r, c] == want, (n, k, s[n, k])
-    assert (index[~written] == -7).all()
+    assert (index[~written] == 255).all()
 
 
 def sampled_field(function, rows: int = 12, cols: int = 14, step: float = 0.5):

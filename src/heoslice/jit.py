@@ -39,8 +39,8 @@ CHECK_VARIABLE = "HEOSLICE_CHECK_KERNELS"
 #: kernels' argument layouts (JSON: export name -> one layout per argument).
 COMPILED_MODULE = "heoslice._compiled"
 DIGEST_EXPORT, LAYOUTS_EXPORT = "source_digest", "argument_layouts"
-#: Label widths (bits) a kernel taking a label array is exported for: int8 labels (a layer of few
-#: sub-regions: half the memory traffic of its per-pixel passes), int16, and int32 past 32000
+#: Label widths (bits) a kernel taking a label array is exported for, labels unsigned: uint8 (a layer of
+#: few sub-regions: half the memory traffic of its per-pixel passes), uint16, and uint32 past 65535
 #: (:func:`heoslice.grading.field.label_dtype`).
 LABEL_BITS = (8, 16, 32)
 

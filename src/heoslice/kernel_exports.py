@@ -58,8 +58,8 @@ VERTICES = types.NamedTuple((i8_1, f8_1, f8_1, f8_1, f8, f8), refine_kernels.Rin
 
 
 def _target(bits: int) -> types.Type:
-    """A LabelTarget of signed labels ``bits`` wide."""
-    return types.NamedTuple((types.Array(getattr(types, f"int{bits}"), 2, "C"), b_2, i8, i8, f8),
+    """A LabelTarget of unsigned labels ``bits`` wide."""
+    return types.NamedTuple((types.Array(getattr(types, f"uint{bits}"), 2, "C"), b_2, i8, i8, f8),
                             field_kernels.LabelTarget)
 
 

@@ -71,7 +71,7 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
     planes = np.zeros((len(materials), grid.height, -(-grid.width // 8)), dtype=np.uint8)
     base_channel = spec.channel_index(spec.base)
     if not regions.fields:
-        return droplet_bits(LabelledLayer(np.zeros((0, 0), np.int16), 0, 0, packed),
+        return droplet_bits(LabelledLayer(np.zeros((0, 0), np.uint8), 0, 0, packed),
                             LayerMixes(np.zeros(1, np.int64), np.zeros(1), np.zeros((0, 5), np.int64), np.zeros(0),
                                        np.zeros(len(materials))),
                             Dither(layer_tile(layer), np.full((1, 256), base_channel, np.int8), base_channel), planes)

@@ -11,7 +11,7 @@ from heoslice.jit import EXACT, f32, helper, i64, kernel
 
 
 class LabelledLayer(NamedTuple):
-    """A layer's labels ((rows, cols) int, 0 empty; any strides, one value broadcast over the box too) from
+    """A layer's labels ((rows, cols) uint8/16/32, 0 empty; any strides, one value broadcast over the box too) from
     pixel (row0, col0), and its packed solid mask ((h, ceil(w/8)) uint8, rows MSB first, padding bits
     clear)."""
 
@@ -329,8 +329,6 @@ def droplet_bits(layer: LabelledLayer, mixing: LayerMixes, dither: Dither, plane
     if rows > 1 and label.strides[0] == 0:
         label = label[:1]  # labels that do not change down the box: their one row serves every row
     label = np.ascontiguousarray(label)
-    if label.dtype.kind == "i":
-        label = label.view(f"u{label.itemsize}")
     layer = (label, int(layer.row0), int(layer.col0), np.ascontiguousarray(layer.packed), rows)
     mixing = (i64(mixing.family_of_label), f32(mixing.fraction), i64(mixing.layout), f32(mixing.mixes),
               f32(mixing.target))

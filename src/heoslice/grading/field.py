@@ -99,7 +99,7 @@ def _band_coordinate(layout: FamilyLayout, d: np.ndarray, g: np.ndarray) -> tupl
 class FamilyField:
     """The sub-region index of one family over its pixel box.
 
-    ``index``: (rows, cols) int8/int16/int32 (:func:`label_dtype`), k in 1..N_R (valid on the family's solid
+    ``index``: (rows, cols) uint8/16/32 (:func:`label_dtype`), k in 1..N_R (valid on the family's solid
     pixels; the caller masks; one read-only value broadcast over the box for a family of one
     sub-region without a mask; in :class:`LayerRegions` the outermost family's index,
     when its box is the layer's, is the label array itself); ``box`` = (row0, row1, col0, col1) of the grid;
@@ -160,7 +160,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     ``memo``: what the previous layer measured of ring sets with these very edges (their
     edge trees by RingSet.key, distances between sets, lattice passes by key and lattice);
     this family's measurements are kept in it. ``shared``: the index may become the labels of a layer
-    of several families (the outermost family's): at least int16 wide, so that the others' labels fit
+    of several families (the outermost family's): at least 16 bits wide, so that the others' labels fit
     without a copy of it.
     """
     memo = RingMemo() if memo is None else memo
@@ -188,7 +188,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
         return at[2], at[3]
 
     if not pixels:
-        return FamilyField(box=box, index=np.zeros((0, 0), np.int16), layout=FamilyLayout(start_loops, (), 1, 1.0),
+        return FamilyField(box=box, index=np.zeros((0, 0), LABEL_TYPES[0]), layout=FamilyLayout(start_loops, (), 1, 1.0),
                            lattice=lattice, start_edges=lambda: start.edges, nearest=nearest)
     # the rounding a band count allows for (eq. 8); N_R asked for (--offsets, masks without a gradient) has none
     precision = 0.0 if spec.count is not None else coordinate_precision(outer.edges.x, outer.edges.y)
@@ -199,7 +199,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     # a family of one sub-region needs no distances to its ending rings: its starting rings' feet alone
     ends = [] if layout.count == 1 else [rings(loops, outward) for loops in layout.end]
     shape = (row1 - row0, col1 - col0)
-    dtype = label_dtype(max(layout.count + label_base, _INT8_LABELS if shared else 0))
+    dtype = label_dtype(max(layout.count + label_base, np.iinfo(LABEL_TYPES[0]).max + 1 if shared else 0))
     if direct:
         index = (_single_region_index(shape, mask, (lattice.row0, lattice.col0), label_base, dtype)
                  if layout.count == 1 else _exact_index(lattice, grid, layout, [start] + ends, shape, mask,
@@ -335,14 +335,14 @@ def _exact_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: 
     return index
 
 
-#: Labels below this fit int8 (:func:`label_dtype`), with room to spare below its 127.
-_INT8_LABELS = 120
+#: The label types, narrowest first: labels are never negative (0 is no label).
+LABEL_TYPES = (np.uint8, np.uint16, np.uint32)
 
 
 def label_dtype(largest: int) -> type:
-    """The narrowest label type for labels up to ``largest``: int8 below _INT8_LABELS, int16 below 32000,
-    else int32 (the per-pixel passes over a layer's labels are bound by their memory traffic)."""
-    return np.int8 if largest < _INT8_LABELS else np.int16 if largest < 32000 else np.int32
+    """The narrowest of LABEL_TYPES holding labels up to ``largest`` (the per-pixel passes over a layer's
+    labels are bound by their memory traffic)."""
+    return next(kind for kind in LABEL_TYPES if largest <= np.iinfo(kind).max)
 
 
 def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid, flat: np.ndarray, count: int,

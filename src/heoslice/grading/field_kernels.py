@@ -19,7 +19,7 @@ class CellPixels(NamedTuple):
 
 
 class LabelTarget(NamedTuple):
-    """Where a kernel writes sub-region labels: ``out`` ((rows, cols) int8/16/32) covers the layer's pixels
+    """Where a kernel writes sub-region labels: ``out`` ((rows, cols) uint8/16/32) covers the layer's pixels
     from (row0, col0); with a ``mask`` ((h, w) bool over the layer; 0 x 0: none) pixels where it is False
     get 0; ``base`` is added to every k (a family's labels in the same pass)."""
 

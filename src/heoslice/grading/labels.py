@@ -16,7 +16,7 @@ import numpy as np
 from heoslice.grading.cache import GradingCache, PaintedLabels, RingMemo
 from heoslice.grading.edges import ring_edges, ring_geometry
 from heoslice.grading.families import Family, family_layout, layer_families
-from heoslice.grading.field import FamilyField, family_field, label_dtype
+from heoslice.grading.field import LABEL_TYPES, FamilyField, family_field, label_dtype
 from heoslice.grading.labels_kernels import disc_winding
 from heoslice.grading.spec import RegionSpec
 from heoslice.layers.rasterising import Grid, solid_mask
@@ -34,7 +34,7 @@ _NEAR_TESTS = 1 << 22
 class LayerRegions:
     """The sub-regions of one layer.
 
-    ``label`` ((rows, cols) int8/16/32 over pixel ``box`` = (row0, row1, col0, col1))
+    ``label`` ((rows, cols) uint8/16/32 over pixel ``box`` = (row0, row1, col0, col1))
     numbers every solid pixel's sub-region across the layer: family f's sub-region k
     is ``base[f] + k`` (k = 1..N_R; a nested shell keeps its own material: k = 0),
     0 is empty; a layer of one family of one sub-region labelled from the packed mask has one
@@ -79,7 +79,7 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     """
     families = tuple(layer_families(area, parent))
     if not families:
-        return LayerRegions((0, 0, 0, 0), np.zeros((0, 0), np.int16), (), (), np.ones(1, np.int64))
+        return LayerRegions((0, 0, 0, 0), np.zeros((0, 0), LABEL_TYPES[0]), (), (), np.ones(1, np.int64))
     # the outermost family (label base 1) is labelled by its own expansion, saving a pass over ~15 MP
     masks = [None if number or family.nested else mask for number, family in enumerate(families)]
     keys = _family_keys(points, offsets, families, masks) if cache is not None else [None] * len(families)
@@ -136,7 +136,7 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
     first = fields[0]
     dtype = label_dtype(int(base[-1]))
     if first.box == box and _constant(first.index) is None:
-        # as wide as the outermost family's index (shared: int16 at least): it may be the labels (one value seen
+        # as wide as the outermost family's index (shared: 16 bits at least): it may be the labels (one value seen
         # at every pixel is filled in, in the narrowest width)
         dtype = np.result_type(dtype, first.index.dtype)
     if len(fields) == 1 and first.box == box and (value := _constant(first.index)) is not None:
@@ -170,7 +170,7 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
         elif (constant := _constant(field.index)) is not None:  # one sub-region: one label, no array of the box
             value = base[number] + constant
         else:
-            value = np.add(field.index, base[number], dtype=label.dtype)
+            value = np.add(field.index, int(base[number]), dtype=label.dtype)  # a Python int takes that width
         np.copyto(target, value, where=solid, casting="unsafe")
     return label
 
