@@ -298,6 +298,23 @@ def test_an_outermost_family_spanning_a_layer_of_several_lends_its_index_as_the_
     assert regions.label is regions.fields[0].index
 
 
+def test_an_outermost_family_of_a_layer_of_few_labels_lends_its_index_in_uint8():
+    """A hollow disc of a few sub-regions and an island in its cavity at a coarse nozzle (under 256 labels in
+    all): the disc's index, made as wide as the whole layer's labels need (the island's measured first), is
+    the layer's uint8 label array, and every solid pixel of the island holds one of the island's labels."""
+    rings = (circle(9.0), circle(7.5, clockwise=True), circle(7.0))
+    points, offsets, area, parent = layer(*rings)
+    grid = grid_around(9.5)
+    mask = solid_mask(points, offsets, grid)
+    regions = layer_regions(points, offsets, area, parent, None, grid, RegionSpec(nozzle_mm=0.3),
+                            np.packbits(mask, axis=1))
+    assert len(regions.families) == 2 and regions.fields[0].box == regions.box
+    assert regions.label.dtype == np.uint8 and regions.label is regions.fields[0].index
+    x, y = pixel_centres(grid, regions.box)
+    island = np.hypot(x, y) < 7.0 - PX
+    assert np.all((regions.label[island] > regions.base[1]) & (regions.label[island] < regions.base[2]))
+
+
 def test_one_subregion_families_spanning_a_layer_of_several_are_labelled_in_uint8():
     """The same hollow disc and island with one sub-region each (a coloured part without grading): the disc's
     index is one value, so the labels of the two families are uint8 (the narrowest), the disc's label on its

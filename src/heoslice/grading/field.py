@@ -149,7 +149,7 @@ class _FamilyRings:
 
 def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid,
                  spec: RegionSpec, pixels: bool = True, mask: np.ndarray | None = None,
-                 label_base: int = 0, memo: RingMemo | None = None, shared: bool = False) -> FamilyField:
+                 label_base: int = 0, memo: RingMemo | None = None, headroom: int = 0) -> FamilyField:
     """Sub-region index k (1..N_R) at every pixel of a family's box (see the module docstring).
 
     With ``pixels`` False only the lattice is measured (a nested shell, which keeps its
@@ -159,9 +159,9 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
 
     ``memo``: what the previous layer measured of ring sets with these very edges (their
     edge trees by RingSet.key, distances between sets, lattice passes by key and lattice);
-    this family's measurements are kept in it. ``shared``: the index may become the labels of a layer
-    of several families (the outermost family's): at least 16 bits wide, so that the others' labels fit
-    without a copy of it.
+    this family's measurements are kept in it. ``headroom``: labels past its own that the index must hold
+    when it becomes the labels of a layer of several families (the outermost family's: the others'), so
+    that theirs fit without a copy of it.
     """
     memo = RingMemo() if memo is None else memo
     rings = _FamilyRings(points, offsets, memo)
@@ -199,7 +199,7 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
     # a family of one sub-region needs no distances to its ending rings: its starting rings' feet alone
     ends = [] if layout.count == 1 else [rings(loops, outward) for loops in layout.end]
     shape = (row1 - row0, col1 - col0)
-    dtype = label_dtype(max(layout.count + label_base, np.iinfo(LABEL_TYPES[0]).max + 1 if shared else 0))
+    dtype = label_dtype(layout.count + label_base + headroom)
     if direct:
         index = (_single_region_index(shape, mask, (lattice.row0, lattice.col0), label_base, dtype)
                  if layout.count == 1 else _exact_index(lattice, grid, layout, [start] + ends, shape, mask,

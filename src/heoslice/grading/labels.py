@@ -86,10 +86,13 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     before = {} if cache is None else cache.fields_for(keys)
     painted = None if cache is None else cache.take_painted(keys)
     memo = RingMemo() if cache is None else cache.ring_memo()
-    several = len(families) > 1  # the outermost family's index becomes the labels of them all
-    fields = tuple(_layer_field(points, offsets, family, grid, spec, family_mask, 0 if number else 1,
-                                None if key is None else before.get(key), memo, shared=several and not number)
-                   for number, (family, family_mask, key) in enumerate(zip(families, masks, keys)))
+    # the outermost family last: its index becomes the labels of them all, as wide as their labels need
+    others = [_layer_field(points, offsets, family, grid, spec, family_mask, 0, None if key is None else before.get(key),
+                           memo) for family, family_mask, key in zip(families[1:], masks[1:], keys[1:])]
+    outermost = _layer_field(points, offsets, families[0], grid, spec, masks[0], 1,
+                             None if keys[0] is None else before.get(keys[0]), memo,
+                             headroom=int(_label_sizes(families[1:], others).sum()))
+    fields = (outermost, *others)
     # the outermost family's index becomes the labels (no copy of ~15 MP) unless its field may serve the next
     # layer: when the last layer had it too (an extruded stretch; the stretch's first layer measures it again)
     copy_first = len(fields) > 1 and cache is not None and cache.repeats(keys[0])
@@ -97,8 +100,7 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
         cache.keep_layer(keys, fields, memo, keep_first=copy_first or len(fields) == 1)
     boxes = np.array([field.box for field in fields])
     box = (int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
-    sizes = np.array([1 if family.nested else field.layout.count + 1 for family, field in zip(families, fields)])
-    base = np.concatenate([[1], 1 + np.cumsum(sizes)]).astype(np.int64)
+    base = np.concatenate([[1], 1 + np.cumsum(_label_sizes(families, fields))]).astype(np.int64)
     # the outermost family labels its box by its own expansion: only the others may take the solid pixels of theirs
     alone = np.r_[False, _alone_in_boxes(points, offsets, families[1:], [field.box for field in fields[1:]], grid)]
     # painted from fields alone and the solid bits: the same fields, islands and bits paint the same labels
@@ -113,6 +115,12 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     if paintable:
         cache.painted = PaintedLabels(keys, packed.copy(), label)
     return LayerRegions(box, label, families, fields, base)
+
+
+def _label_sizes(families: tuple[Family, ...], fields) -> np.ndarray:
+    """(f,) int: the labels each family takes, its N_R and its label base's own (a nested shell's: one)."""
+    return np.array([1 if family.nested else field.layout.count + 1 for family, field in zip(families, fields)],
+                    dtype=np.int64)
 
 
 def _family_keys(points: np.ndarray, offsets: np.ndarray, families: tuple[Family, ...], masks: list) -> list:
@@ -134,9 +142,9 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
     ``alone``). The outermost family's index is the label array itself when it spans the box, unless
     ``copy_first`` (other families paint over it and the field serves the next layer)."""
     first = fields[0]
-    dtype = label_dtype(int(base[-1]))
+    dtype = label_dtype(int(base[-1]) - 1)
     if first.box == box and _constant(first.index) is None:
-        # as wide as the outermost family's index (shared: 16 bits at least): it may be the labels (one value seen
+        # as wide as the outermost family's index (made as wide as all the labels): it may be the labels (one value seen
         # at every pixel is filled in, in the narrowest width)
         dtype = np.result_type(dtype, first.index.dtype)
     if len(fields) == 1 and first.box == box and (value := _constant(first.index)) is not None:
@@ -183,13 +191,13 @@ def _constant(index: np.ndarray) -> int | None:
 
 def _layer_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: Grid, spec: RegionSpec,
                  mask: np.ndarray | None, label_base: int, same: FamilyField | None,
-                 memo: RingMemo, shared: bool) -> FamilyField:
-    """One family's field for :func:`layer_regions`: measured (``memo`` and ``shared`` as :func:`family_field`),
+                 memo: RingMemo, headroom: int = 0) -> FamilyField:
+    """One family's field for :func:`layer_regions`: measured (``memo`` and ``headroom`` as :func:`family_field`),
     or ``same``, the previous layer's field of a family with the same rings' edges, with this layer's start
     edges and loop numbers."""
     if same is None:
         return family_field(points, offsets, family, grid, spec, pixels=not family.nested, mask=mask,
-                            label_base=label_base, memo=memo, shared=shared)
+                            label_base=label_base, memo=memo, headroom=headroom)
     loops = family_layout(family, spec)
     # only contours with colours or material fractions read them (contour_values)
     start_edges = functools.cache(lambda: ring_edges(points, offsets, loops.start))
