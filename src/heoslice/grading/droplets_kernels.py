@@ -305,7 +305,7 @@ def _droplet_bits(layer, mixing, dither, planes):  # pragma: no cover - compiled
 def droplet_bits(layer: LabelledLayer, mixing: LayerMixes, dither: Dither, planes: np.ndarray) -> np.ndarray:
     """Halftone a labelled layer into bit-packed droplet masks, in place in ``planes`` ((K, h, ceil(w/8)) uint8).
 
-    label ((rows, cols) int, 0 empty) covers the layer from pixel (row0, col0); a labelled
+    label ((rows, cols) uint8/16/32, 0 empty) covers the layer from pixel (row0, col0); a labelled
     pixel's mix is its family's start mix at its lattice cell (``mixes`` flat, family f's
     cells from layout[f, 4], cells of layout[f, 2] pixels from row layout[f, 0], column
     layout[f, 1], layout[f, 3] cells per row) moved by fraction[label] towards ``target``
@@ -317,8 +317,8 @@ def droplet_bits(layer: LabelledLayer, mixing: LayerMixes, dither: Dither, plane
     ``base_channel``. ``table`` ((labels, n * n) int8) short-cuts all that for a label
     whose entry at the pixel's threshold level is not -1 (the level of threshold t is
     t n^2 - 1/2: the tile holds the ordered-dither values (k + 1/2) / n^2); its row 0 (no
-    label) must hold ``base_channel``. Labels are read as unsigned (none is negative); bytes
-    of ``planes`` without a solid pixel are left as they are.
+    label) must hold ``base_channel``. Bytes of ``planes`` without a solid pixel are left as
+    they are.
     """
     tile, table, base_channel = dither
     size = tile.shape[0]

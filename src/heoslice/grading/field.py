@@ -188,8 +188,9 @@ def family_field(points: np.ndarray, offsets: np.ndarray, family: Family, grid: 
         return at[2], at[3]
 
     if not pixels:
-        return FamilyField(box=box, index=np.zeros((0, 0), LABEL_TYPES[0]), layout=FamilyLayout(start_loops, (), 1, 1.0),
-                           lattice=lattice, start_edges=lambda: start.edges, nearest=nearest)
+        return FamilyField(box=box, index=np.zeros((0, 0), LABEL_TYPES[0]),
+                           layout=FamilyLayout(start_loops, (), 1, 1.0), lattice=lattice,
+                           start_edges=lambda: start.edges, nearest=nearest)
     # the rounding a band count allows for (eq. 8); N_R asked for (--offsets, masks without a gradient) has none
     precision = 0.0 if spec.count is not None else coordinate_precision(outer.edges.x, outer.edges.y)
     # one sub-region asked for (masks without a gradient, or --offsets 1): k = 1 throughout, so no grading

@@ -87,8 +87,9 @@ def layer_regions(points: np.ndarray, offsets: np.ndarray, area: np.ndarray, par
     painted = None if cache is None else cache.take_painted(keys)
     memo = RingMemo() if cache is None else cache.ring_memo()
     # the outermost family last: its index becomes the labels of them all, as wide as their labels need
-    others = [_layer_field(points, offsets, family, grid, spec, family_mask, 0, None if key is None else before.get(key),
-                           memo) for family, family_mask, key in zip(families[1:], masks[1:], keys[1:])]
+    others = [_layer_field(points, offsets, family, grid, spec, family_mask, 0,
+                           None if key is None else before.get(key), memo)
+              for family, family_mask, key in zip(families[1:], masks[1:], keys[1:])]
     outermost = _layer_field(points, offsets, families[0], grid, spec, masks[0], 1,
                              None if keys[0] is None else before.get(keys[0]), memo,
                              headroom=int(_label_sizes(families[1:], others).sum()))
@@ -144,8 +145,8 @@ def _paint_labels(points: np.ndarray, offsets: np.ndarray, families: tuple[Famil
     first = fields[0]
     dtype = label_dtype(int(base[-1]) - 1)
     if first.box == box and _constant(first.index) is None:
-        # as wide as the outermost family's index (made as wide as all the labels): it may be the labels (one value seen
-        # at every pixel is filled in, in the narrowest width)
+        # as wide as the outermost family's index (made as wide as all the labels): it may be the labels (one value
+        # seen at every pixel is filled in, in the narrowest width)
         dtype = np.result_type(dtype, first.index.dtype)
     if len(fields) == 1 and first.box == box and (value := _constant(first.index)) is not None:
         # one family of one sub-region: its one label seen at every pixel of the box, no array of ~15 MP
