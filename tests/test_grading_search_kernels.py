@@ -100,13 +100,15 @@ def _numba_argsort(values):
 def test_ascending_is_numbas_argsort_ties_and_nans_included(seed, count, distinct, nans):
     """The chunk order of the nearest-edge search, sorted without allocating up to _INSERTION_SORT values
     (above, it is np.argsort itself), is numba's np.argsort's index for index (equal bounds keep their
-    order, NaN last), so the first of equally near edges stays the one found."""
+    order, NaN last), so the first of equally near edges stays the one found; it reads the first ``count``
+    values of a longer array and writes the first ``count`` places of the order, no more."""
     rng = np.random.default_rng(seed)
     values = rng.integers(0, distinct, count).astype(np.float64)
     if nans and count:
         values[rng.random(count) < 0.2] = np.nan
-    order = _ascending(values, np.full(count, -1, dtype=np.int64))
-    assert np.array_equal(order, _numba_argsort(values))
+    order = np.full(count + 3, -1, dtype=np.int64)
+    _ascending(np.concatenate([values, [-1.0, np.nan, -2.0]]), count, order)
+    assert np.array_equal(order[:count], _numba_argsort(values)) and (order[count:] == -1).all()
 
 
 def test_nearest_in_groups_reports_no_edge_beyond_the_radius():

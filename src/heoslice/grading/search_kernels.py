@@ -90,13 +90,13 @@ _INSERTION_SORT = 15
 
 
 @helper(JIT)
-def _ascending(values, order):  # pragma: no cover - compiled
-    """The indices of ``values`` in ascending order (NaN last), into ``order`` (len(values),) without an
-    allocation, in the order numba's np.argsort gives: as it does, by insertion up to _INSERTION_SORT
-    values (equal values keep their order), else by np.argsort itself."""
-    count = len(values)
+def _ascending(values, count, order):  # pragma: no cover - compiled
+    """The indices of ``values[:count]`` in ascending order (NaN last), into ``order[:count]``, in the order
+    numba's np.argsort gives: as it does, by insertion up to _INSERTION_SORT values (equal values keep their
+    order), else by np.argsort itself. Whole arrays and a count, not views: no reference counts per call."""
     if count > _INSERTION_SORT:
-        return np.argsort(values)
+        order[:count] = np.argsort(values[:count])
+        return
     for i in range(count):
         j = i
         while j > 0 and (values[i] < values[order[j - 1]]
@@ -104,7 +104,6 @@ def _ascending(values, order):  # pragma: no cover - compiled
             order[j] = order[j - 1]
             j -= 1
         order[j] = i
-    return order
 
 
 @helper(JIT, inline=False)
@@ -131,6 +130,11 @@ def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  
     best = np.full((groups, points), np.inf, dtype=np.float32)
     which = np.full((groups, points) if track else (0, 0), -1, dtype=np.int32)
     near = np.empty(points, dtype=np.float32)
+    # the points' worst best so far is the greatest of ``near``: non-negative float32s order as their bits do as
+    # int32s, so an integer reduction finds it, and vectorises (a float max does not, NaN unexcluded)
+    near_bits = near.view(np.int32)
+    greatest = np.empty(1, dtype=np.float32)
+    greatest_bits = greatest.view(np.int32)
     widest = 0
     for g in range(groups):
         widest = max(widest, start[g + 1] - start[g])
@@ -138,17 +142,17 @@ def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  
     ranks = np.empty(widest, dtype=np.int64)
     for g in range(groups):
         first, count = start[g], start[g + 1] - start[g]
-        bound = bounds[:count]
         for n in range(count):
             c = chunk[first + n]
-            bound[n] = point_to_edge(cx[g], cy[g], capsules[c, 0], capsules[c, 1], capsules[c, 2], capsules[c, 3],
-                                      capsules[c, 4]) - capsules[c, 5]
-        order = _ascending(bound, ranks[:count])
-        row_best = best[g]
-        near[:] = np.inf
+            bounds[n] = point_to_edge(cx[g], cy[g], capsules[c, 0], capsules[c, 1], capsules[c, 2], capsules[c, 3],
+                                       capsules[c, 4]) - capsules[c, 5]
+        _ascending(bounds, count, ranks)
+        for k in range(points):
+            near[k] = np.inf
         farthest = np.inf
-        for n in order:
-            if bound[n] - reach > farthest:
+        for m in range(count):
+            n = ranks[m]
+            if bounds[n] - reach > farthest:
                 break
             c = chunk[first + n]
             bx, by = np.float32(cx[g] - capsules[c, 0]), np.float32(cy[g] - capsules[c, 1])
@@ -168,21 +172,23 @@ def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  
                 bx, by = np.float32(cx[g] - ex[e]), np.float32(cy[g] - ey[e])
                 vx, vy, inv = np.float32(evx[e]), np.float32(evy[e]), np.float32(einv[e])
                 if track:
-                    row_which = which[g]
                     edge = np.int32(e)
                     for k in range(points):
                         d2 = _squared(bx + ox[k], by + oy[k], vx, vy, inv)
-                        closer = d2 < row_best[k]
-                        row_which[k] = edge if closer else row_which[k]
-                        row_best[k] = d2 if closer else row_best[k]
+                        closer = d2 < best[g, k]
+                        which[g, k] = edge if closer else which[g, k]
+                        best[g, k] = d2 if closer else best[g, k]
                 else:
                     for k in range(points):
                         d2 = _squared(bx + ox[k], by + oy[k], vx, vy, inv)
-                        row_best[k] = d2 if d2 < row_best[k] else row_best[k]
-            farthest = 0.0
+                        best[g, k] = d2 if d2 < best[g, k] else best[g, k]
             for k in range(points):
-                near[k] = np.sqrt(row_best[k])
-                farthest = max(farthest, np.float64(near[k]))
+                near[k] = np.sqrt(best[g, k])
+            top = np.int32(0)
+            for k in range(points):
+                top = max(top, near_bits[k])
+            greatest_bits[0] = top
+            farthest = np.float64(greatest[0])
     return best, which
 
 
