@@ -35,12 +35,25 @@ def _candidates(cx, cy, radius, boxes, level_start):  # pragma: no cover - compi
 
     ``boxes`` are the bounding boxes of a hierarchy (:func:`edge_tree`): level 0 the edges,
     each level above groups FAN consecutive nodes of the one below; a node whose box is
-    farther than the radius is skipped with everything under it.
+    farther than the radius is skipped with everything under it. Collected into room for 16
+    a group, and again into as much room as they need where that was too little (an array
+    grown inside the walk would take a reference count at every step of it).
     """
+    found = np.empty(max(16 * len(cx), 16), dtype=np.int64)
+    start = _collect_candidates(cx, cy, radius, boxes, level_start, found)
+    if start[-1] > len(found):
+        found = np.empty(start[-1], dtype=np.int64)
+        start = _collect_candidates(cx, cy, radius, boxes, level_start, found)
+    return start, found[:start[-1]]
+
+
+@helper(JIT, inline=False)
+def _collect_candidates(cx, cy, radius, boxes, level_start, found):  # pragma: no cover - compiled
+    """The walk of :func:`_candidates`: start (g+1,) of every group's chunks, counted in full, and the chunks
+    themselves written into ``found`` as far as it holds them."""
     groups = len(cx)
     levels = len(level_start) - 1
     start = np.zeros(groups + 1, dtype=np.int64)
-    found = np.empty(max(16 * groups, 16), dtype=np.int64)
     stack = np.empty((64 * levels + FAN * levels + 64, 2), dtype=np.int64)
     n = 0
     for g in range(groups):
@@ -63,14 +76,11 @@ def _candidates(cx, cy, radius, boxes, level_start):  # pragma: no cover - compi
                     stack[top, 0], stack[top, 1] = level - 1, child
                     top += 1
                 continue
-            if n == len(found):
-                grown = np.empty(2 * n, dtype=np.int64)
-                grown[:n] = found
-                found = grown
-            found[n] = node
+            if n < len(found):
+                found[n] = node
             n += 1
         start[g + 1] = n
-    return start, found[:n]
+    return start
 
 
 @helper(JIT)
