@@ -368,13 +368,16 @@ def _band_cells(target, ci, cj, cell_pixels, models, measured, slot, count, leng
     s = np.empty(pixels)
     for n in range(len(ci)):
         for j in range(sets):
-            model = models[j, n]
-            if np.isnan(model[0]):
-                d[j] = measured[slot[j, n]]
-            else:
+            if np.isnan(models[j, n, 0]):
+                row = slot[j, n]
                 for p in range(pixels):
-                    d[j, p] = (model[0] + model[1] * x[p] + model[2] * y[p]
-                               + 0.5 * (model[3] * x[p] * x[p] + model[5] * y[p] * y[p]) + model[4] * x[p] * y[p])
+                    d[j, p] = measured[row, p]
+            else:
+                m0, m1, m2, m3, m4, m5 = (models[j, n, 0], models[j, n, 1], models[j, n, 2], models[j, n, 3],
+                                          models[j, n, 4], models[j, n, 5])
+                for p in range(pixels):
+                    d[j, p] = (m0 + m1 * x[p] + m2 * y[p] + 0.5 * (m3 * x[p] * x[p] + m5 * y[p] * y[p])
+                               + m4 * x[p] * y[p])
         if sets == 1:
             for p in range(pixels):
                 s[p] = d[0, p] * count / length
@@ -393,15 +396,14 @@ def _band_cells(target, ci, cj, cell_pixels, models, measured, slot, count, leng
         height, width = min(cell, rows - ci[n] * cell), min(cell, cols - cj[n] * cell)
         for v in range(height):
             r, c = ci[n] * cell + v, cj[n] * cell
-            line = index[r, c:c + width]
+            # whole arrays and indices, not views of a row (a view takes reference counts, per row of every cell)
             if masked:
-                keep = mask[r0 + r, c0 + c:c0 + c + width]
                 for u in range(width):
                     k = min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count)
-                    line[u] = int((k + base) * keep[u])
+                    index[r, c + u] = int((k + base) * mask[r0 + r, c0 + c + u])
             else:
                 for u in range(width):
-                    line[u] = int(min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count) + base)
+                    index[r, c + u] = int(min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count) + base)
     return index
 
 

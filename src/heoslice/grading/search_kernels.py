@@ -105,7 +105,7 @@ def _ascending(values, count, order):  # pragma: no cover - compiled
     numba's np.argsort gives: as it does, by insertion up to _INSERTION_SORT values (equal values keep their
     order), else by np.argsort itself. Whole arrays and a count, not views: no reference counts per call."""
     if count > _INSERTION_SORT:
-        order[:count] = np.argsort(values[:count])
+        _argsorted_into(values, count, order)
         return
     for i in range(count):
         j = i
@@ -114,6 +114,13 @@ def _ascending(values, count, order):  # pragma: no cover - compiled
             order[j] = order[j - 1]
             j -= 1
         order[j] = i
+
+
+@helper(JIT, inline=False)
+def _argsorted_into(values, count, order):  # pragma: no cover - compiled
+    """np.argsort of ``values[:count]`` into ``order[:count]``: a function of its own, so that its slices take
+    reference counts only where it is called, not for every group."""
+    order[:count] = np.argsort(values[:count])
 
 
 @helper(JIT, inline=False)
