@@ -283,17 +283,23 @@ def _two_plates_painted(monkeypatch, spec: RegionSpec):
     return loops, grid, mask, regions, peak, box_pixels
 
 
-def test_an_outermost_family_spanning_a_layer_of_several_lends_its_index_as_the_labels():
-    """A thin hollow disc (few sub-regions: uint8 would do) with a wide island in its cavity (many: uint16),
-    labelled from the packed mask (the droplet masks' path): the disc's index, kept 16 bits wide for the
-    island's labels, is the layer's label array, painted over, not copied into a wider one."""
-    rings = (circle(9.0), circle(8.5, clockwise=True), circle(8.0))
-    points, offsets, area, parent = layer(*rings)
+def _disc_and_island(hole: float, island: float, spec: RegionSpec):
+    """A disc of radius 9 mm with a hole of radius ``hole`` and an island of radius ``island`` in it, labelled
+    from the packed mask (the droplet masks' path), the disc's box the layer's: (points, offsets, grid, mask,
+    regions)."""
+    points, offsets, area, parent = layer(circle(9.0), circle(hole, clockwise=True), circle(island))
     grid = grid_around(9.5)
     mask = solid_mask(points, offsets, grid)
-    regions = layer_regions(points, offsets, area, parent, None, grid, RegionSpec(nozzle_mm=0.025),
-                            np.packbits(mask, axis=1))
+    regions = layer_regions(points, offsets, area, parent, None, grid, spec, np.packbits(mask, axis=1))
     assert len(regions.families) == 2 and regions.fields[0].box == regions.box
+    return points, offsets, grid, mask, regions
+
+
+def test_an_outermost_family_spanning_a_layer_of_several_lends_its_index_as_the_labels():
+    """A thin hollow disc (few sub-regions: uint8 would do) with a wide island in its cavity (many: uint16):
+    the disc's index, kept 16 bits wide for the island's labels, is the layer's label array, painted over,
+    not copied into a wider one."""
+    *_, regions = _disc_and_island(8.5, 8.0, RegionSpec(nozzle_mm=0.025))
     assert regions.base[1] < 256 <= regions.label_count and regions.label.dtype == np.uint16
     assert regions.label is regions.fields[0].index
 
@@ -302,13 +308,7 @@ def test_an_outermost_family_of_a_layer_of_few_labels_lends_its_index_in_uint8()
     """A hollow disc of a few sub-regions and an island in its cavity at a coarse nozzle (under 256 labels in
     all): the disc's index, made as wide as the whole layer's labels need (the island's measured first), is
     the layer's uint8 label array, and every solid pixel of the island holds one of the island's labels."""
-    rings = (circle(9.0), circle(7.5, clockwise=True), circle(7.0))
-    points, offsets, area, parent = layer(*rings)
-    grid = grid_around(9.5)
-    mask = solid_mask(points, offsets, grid)
-    regions = layer_regions(points, offsets, area, parent, None, grid, RegionSpec(nozzle_mm=0.3),
-                            np.packbits(mask, axis=1))
-    assert len(regions.families) == 2 and regions.fields[0].box == regions.box
+    _, _, grid, _, regions = _disc_and_island(7.5, 7.0, RegionSpec(nozzle_mm=0.3))
     assert regions.label.dtype == np.uint8 and regions.label is regions.fields[0].index
     x, y = pixel_centres(grid, regions.box)
     island = np.hypot(x, y) < 7.0 - PX
@@ -316,15 +316,10 @@ def test_an_outermost_family_of_a_layer_of_few_labels_lends_its_index_in_uint8()
 
 
 def test_one_subregion_families_spanning_a_layer_of_several_are_labelled_in_uint8():
-    """The same hollow disc and island with one sub-region each (a coloured part without grading): the disc's
-    index is one value, so the labels of the two families are uint8 (the narrowest), the disc's label on its
-    own solid pixels and the island's on its own."""
-    rings = (circle(9.0), circle(8.5, clockwise=True), circle(8.0))
-    points, offsets, area, parent = layer(*rings)
-    grid = grid_around(9.5)
-    mask = solid_mask(points, offsets, grid)
-    regions = layer_regions(points, offsets, area, parent, None, grid, RegionSpec(count=1), np.packbits(mask, axis=1))
-    assert len(regions.families) == 2 and regions.fields[0].box == regions.box
+    """The thin hollow disc and wide island with one sub-region each (a coloured part without grading): the
+    disc's index is one value, so the labels of the two families are uint8 (the narrowest), the disc's label on
+    its own solid pixels and the island's on its own."""
+    points, offsets, grid, mask, regions = _disc_and_island(8.5, 8.0, RegionSpec(count=1))
     assert regions.label.dtype == np.uint8
     rows, cols = slice(*regions.box[:2]), slice(*regions.box[2:])
     disc = solid_mask(points[:offsets[2]], offsets[:3], grid)[rows, cols]
