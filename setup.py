@@ -3,7 +3,9 @@ ahead of time from their numba sources (heoslice.kernel_exports) into the extens
 heoslice._compiled, for this machine's processor. Everything else is in pyproject.toml."""
 
 import os
+import shutil
 import sys
+import tempfile
 import types
 from pathlib import Path
 
@@ -16,6 +18,18 @@ class BuildKernels(build_ext):
 
     def build_extension(self, ext):
         os.environ["HEOSLICE_JIT"] = "1"  # the build compiles the numba functions, never an earlier extension
+        # nor anything numba cached before: a kernel's cache entry holds the code of the kernels it calls and is
+        # checked against its own module's file only, so one from before an edit to another module's kernel
+        # would put that kernel's old code into the extension
+        cache = tempfile.mkdtemp(prefix="heoslice-kernels-")
+        os.environ["NUMBA_CACHE_DIR"] = cache
+        try:
+            self._compile(ext)
+        finally:
+            shutil.rmtree(cache, ignore_errors=True)
+
+    def _compile(self, ext):
+        """Compile the kernels into the extension's file (numba imported here, after its settings above)."""
         # the kernels' modules need numpy and numba only: their packages are entered without running their
         # __init__, which would load every stage (and every dependency) of heoslice
         source = Path(__file__).resolve().parent / "src" / "heoslice"
