@@ -12,6 +12,8 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from heoslice.grading.field import LABEL_TYPES
+
 
 def halftone_bits(label, origin, packed, family_of_label, fraction, layout, mixes, target, tile, base_channel, planes,
                   table):
@@ -35,7 +37,8 @@ def random_halftone_case(rng, channels: int, height: int, width: int, label_dtyp
     r0, c0 = int(rng.integers(0, height)), int(rng.integers(0, width))
     rows, cols = int(rng.integers(0, height - r0 + 1)), int(rng.integers(0, width - c0 + 1))
     # a few labels, or up to 256 (labels past 127 in uint8)
-    families, per_family = int(rng.integers(1, 4)), int(rng.integers(1, 6) if rng.random() < 0.5 else rng.integers(40, 86))
+    families = int(rng.integers(1, 4))
+    per_family = int(rng.integers(1, 6) if rng.random() < 0.5 else rng.integers(40, 86))
     count = 1 + families * per_family
     label = np.repeat(rng.integers(0, count, (rows, -(-cols // 4))), 4, axis=1)[:, :cols].astype(label_dtype)
     family_of_label = np.concatenate([[0], np.repeat(np.arange(families), per_family)]).astype(np.int64)
@@ -95,7 +98,7 @@ def assert_droplet_bits_are_the_per_pixel_choice(rng, case: dict, channels: int,
 
 @settings(max_examples=40, deadline=None)
 @given(st.integers(0, 2 ** 32 - 1), st.sampled_from([1, 2, 3, 4, 5, 9]), st.integers(1, 40), st.integers(1, 70),
-       st.sampled_from([np.uint8, np.uint16, np.uint32]))
+       st.sampled_from(LABEL_TYPES))
 def test_droplet_bits_is_the_per_pixel_choice_packed(seed, channels, height, width, label_dtype):
     """droplet_bits equals np.packbits of the brute-force per-pixel choice: outside the label box and on
     label 0 the base channel, else the table entry at the pixel's dither level, else (entry -1)

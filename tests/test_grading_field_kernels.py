@@ -9,6 +9,7 @@ from helpers import ring_weights
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from heoslice.grading.field import LABEL_TYPES
 from heoslice.grading.field_kernels import (
     CellPixels,
     band_field,
@@ -19,13 +20,14 @@ from heoslice.grading.field_kernels import (
 
 
 @settings(max_examples=30, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 16), st.booleans(), st.sampled_from([np.uint8, np.uint16, np.uint32]))
+@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 16), st.booleans(), st.sampled_from(LABEL_TYPES))
 def test_expand_planes_is_the_plane_formula(seed, cell, masked, label_dtype):
     """Each pixel gets clip(floor(s + gx x - gy y) + 1, 1, count) of its cell's plane (x, y its offset
     from the cell centre), except where s sits within float32 rounding of an integer; with a
     mask, 0 off its pixels; + base on the others (labels past 127 too, in uint8); every pixel of an empty cell 0."""
     rng = np.random.default_rng(seed)
-    rows, cols, count, base = int(rng.integers(1, 6)), int(rng.integers(1, 6)), int(rng.integers(1, 50)), int(rng.integers(0, 200))
+    rows, cols, count = int(rng.integers(1, 6)), int(rng.integers(1, 6)), int(rng.integers(1, 50))
+    base = int(rng.integers(0, 200))
     s = rng.uniform(-3, count + 3, (rows, cols))
     gx, gy = rng.uniform(-3, 3, (rows, cols)), rng.uniform(-3, 3, (rows, cols))
     empty = rng.random((rows, cols)) < 0.3
@@ -87,7 +89,7 @@ def test_band_field_is_eq10_and_its_gradient(seed, sets):
 
 
 @settings(max_examples=20, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.booleans(), st.sampled_from([np.uint8, np.uint16, np.uint32]))
+@given(st.integers(0, 2 ** 32 - 1), st.booleans(), st.sampled_from(LABEL_TYPES))
 def test_curve_cells_is_the_quadratic_formula(seed, masked, label_dtype):
     """curve_cells writes clip(floor(s + g.d + d.H.d / 2) + 1, 1, count) at every pixel of the given cells
     (d the pixel's offset from the cell centre, y up), + base (labels past 127 too, in uint8), and 0 off the

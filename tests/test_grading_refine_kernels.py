@@ -11,6 +11,7 @@ from helpers import ring_weights
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from heoslice.grading.field import LABEL_TYPES
 from heoslice.grading.field_kernels import CellPixels, band_field, label_target
 from heoslice.grading.refine_kernels import (
     CellField,
@@ -23,7 +24,7 @@ from heoslice.grading.refine_kernels import (
 
 
 @settings(max_examples=30, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 5), st.booleans(), st.sampled_from([np.uint8, np.uint16, np.uint32]))
+@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 5), st.booleans(), st.sampled_from(LABEL_TYPES))
 def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked, label_dtype):
     """band_cells writes, at every pixel of the given cells, clip(floor(s) + 1, 1, count) of s by eq. 10
     (s = (1 - w_start) count from helpers.ring_weights for two or more ring sets, d count / length for
