@@ -1,6 +1,7 @@
 """Tests of heoslice.grading.field_kernels: the sub-region labels written from each cell's plane
-(expand_planes) or quadratic (curve_cells) against the plain formulas, and band_field's s against eq. 10
-(helpers.ring_weights) with its gradient against central differences."""
+(expand_planes) or quadratic (curve_cells) against the plain formulas, band_field's s against eq. 10
+(helpers.ring_weights) with its gradient against central differences, and cell_classes against the same
+classes in numpy."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from heoslice.grading.field import LABEL_TYPES
 from heoslice.grading.field_kernels import (
     CellPixels,
     band_field,
+    cell_classes,
     curve_cells,
     expand_planes,
     label_target,
@@ -48,6 +50,49 @@ def test_expand_planes_is_the_plane_formula(seed, cell, masked, label_dtype):
     expected = np.where(empty[i, j], 0, expected)
     clear = (np.abs(value - np.rint(value)) > 1e-3) | empty[i, j]
     assert np.array_equal(out[clear], expected[clear])
+
+
+def _numpy_cell_classes(s, grad, d, half_diagonal, count):
+    """The cell classes written out in numpy, np.hypot and all: the reference cell_classes must equal."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        deep = s - np.hypot(grad[..., 0], grad[..., 1]) * half_diagonal >= count
+    touched = np.logical_and.reduce(d >= -half_diagonal, axis=0)
+    touched[[0, -1], :] = touched[:, [0, -1]] = False
+    beyond = deep | ~touched
+    known = np.isfinite(s) & np.isfinite(grad[..., 0]) & np.isfinite(grad[..., 1])
+    side = np.logical_and.reduce(d >= 0, axis=0)
+    return touched, beyond, touched & ~beyond, known, side
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 4), st.sampled_from([1e-200, 1e-3, 1.0, 1e3, 1e160]))
+def test_cell_classes_equal_numpy_bit_for_bit(seed, sets, scale):
+    """Every class of every cell equals numpy's (the deep test with np.hypot), also where s - |grad| h lands
+    within a few units in the last place of N_R (the fast square root cannot decide there), for gradients
+    tiny or huge enough to underflow or overflow their squares, and for NaN and infinite values."""
+    rng = np.random.default_rng(seed)
+    rows, cols, count = int(rng.integers(1, 7)), int(rng.integers(1, 7)), int(rng.integers(1, 300))
+    half_diagonal = float(rng.uniform(0.05, 1.0))
+    grad = rng.normal(0.0, 1.0, (rows, cols, 2)) * scale
+    s = rng.uniform(-2.0, count + 2.0, (rows, cols))
+    # s put on the threshold, give or take an ulp or two, mostly where sqrt(gx^2 + gy^2) is not hypot(gx, gy)
+    edge = rng.random((rows, cols)) < 0.5
+    pool = rng.normal(0.0, 1.0, (4096, 2)) * scale
+    with np.errstate(over="ignore", under="ignore"):
+        unlike = pool[np.sqrt((pool ** 2).sum(axis=1)) != np.hypot(pool[:, 0], pool[:, 1])]
+    if len(unlike):
+        grad[edge] = unlike[rng.integers(0, len(unlike), int(edge.sum()))]
+    on = count + np.hypot(grad[..., 0], grad[..., 1]) * half_diagonal
+    s[edge] = (on + rng.integers(-2, 3, (rows, cols)) * np.spacing(on))[edge]
+    special = rng.random((rows, cols, 3)) < 0.08
+    values = np.array([np.nan, np.inf, -np.inf])
+    s = np.where(special[..., 0], values[rng.integers(0, 3, (rows, cols))], s)
+    grad = np.where(special[..., 1:], values[rng.integers(0, 3, (rows, cols, 2))], grad)
+    d = rng.uniform(-1.5 * half_diagonal, 1.0, (sets, rows, cols))
+    d[rng.random(d.shape) < 0.05] = np.nan
+    for got, expected in zip(cell_classes(s, grad, d, half_diagonal, count),
+                             _numpy_cell_classes(s, grad, d, half_diagonal, count)):
+        assert got.dtype == np.bool_ and np.array_equal(got, expected)
 
 
 @settings(max_examples=20, deadline=None)

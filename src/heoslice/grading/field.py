@@ -42,6 +42,7 @@ from heoslice.grading.families import Family, FamilyLayout, family_layout
 from heoslice.grading.field_kernels import (
     CellPixels,
     band_field,
+    cell_classes,
     curve_cells,
     expand_planes,
     label_target,
@@ -264,19 +265,13 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
     g = np.stack([start_at[1]] + [at[1] for at in ends_at])
     s, grad = _band_coordinate(layout, d, g)
 
-    # a cell may hold solid pixels when its centre is within half a diagonal of the family's side
-    reach = -0.5 * np.hypot(lattice.dx, lattice.dy)
-    touched = np.logical_and.reduce([start_at[0] >= reach] + [at[0] >= reach for at in ends_at])
-    touched[[0, -1], :] = touched[:, [0, -1]] = False
+    # a cell may hold solid pixels when its centre is within half a diagonal of the family's side; beyond, it is
     # deep enough that every pixel of the cell is in the last sub-region (s >= N_R - 1 throughout)
-    half_diagonal = 0.5 * np.hypot(lattice.dx, lattice.dy)
-    beyond = (s - np.hypot(grad[..., 0], grad[..., 1]) * half_diagonal >= layout.count) | ~touched
+    touched, beyond, candidate, known, side = cell_classes(s, grad, d, 0.5 * np.hypot(lattice.dx, lattice.dy),
+                                                           layout.count)
     # a cell gets a quadratic where it fits better than a plane: eq. 10's field bends everywhere, one ring's
     # distance field around its medial axis (the centre of a disc)
     hessian = cell_hessians(grad, padded_lattice)
-    candidate = touched & ~beyond
-    known = np.isfinite(s) & np.isfinite(grad[..., 0]) & np.isfinite(grad[..., 1])
-    side = np.logical_and.reduce([start_at[0] >= 0] + [at[0] >= 0 for at in ends_at])
     vertices = ring_vertices([(start, 0.0)] + [(rings, float(layout.count)) for rings in ends], padded_lattice)
     refine = cells_to_refine(s, grad, known, side, candidate, padded_lattice, grid, layout.count, hessian, vertices)
     refined = np.nonzero(refine)  # never on the padded lattice's border: its cells are no candidates

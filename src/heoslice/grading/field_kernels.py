@@ -7,7 +7,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from heoslice.jit import JIT, f64, helper, i64, kernel
+from heoslice.jit import EXACT, JIT, f64, helper, i64, kernel
 
 
 class CellPixels(NamedTuple):
@@ -96,6 +96,56 @@ def band_field(d: np.ndarray, g: np.ndarray, count: int) -> tuple[np.ndarray, np
     and each ending one (two or more sets; compiled :func:`_band_field`)."""
     return _band_field(f64(d), f64(g),
                        float(count))
+
+
+@helper(EXACT)
+def _deep(s, gx, gy, half_diagonal, count):  # pragma: no cover - compiled
+    """s - hypot(gx, gy) * half_diagonal >= count, bit for bit as numpy decides it: from sqrt(gx^2 + gy^2)
+    wherever its few units in the last place cannot change the answer, else (also for NaN, infinities and
+    squares that overflow: the margin test fails) from hypot itself (libm's, the one numpy calls, a few
+    times slower)."""
+    plane = np.sqrt(gx * gx + gy * gy) * half_diagonal
+    value = s - plane
+    if abs(value - count) > 1e-12 * (abs(s) + plane + count):
+        return value >= count
+    return s - np.hypot(gx, gy) * half_diagonal >= count
+
+
+@kernel(EXACT)
+def _cell_classes(s, grad, d, half_diagonal, count):  # pragma: no cover - compiled
+    """(touched, beyond, candidate, known, side) of :func:`cell_classes`, in one pass over the lattice."""
+    sets, rows, cols = d.shape
+    touched = np.empty((rows, cols), dtype=np.bool_)
+    beyond = np.empty((rows, cols), dtype=np.bool_)
+    candidate = np.empty((rows, cols), dtype=np.bool_)
+    known = np.empty((rows, cols), dtype=np.bool_)
+    side = np.empty((rows, cols), dtype=np.bool_)
+    for i in range(rows):
+        for j in range(cols):
+            near = 0 < i < rows - 1 and 0 < j < cols - 1
+            inside = True
+            for k in range(sets):
+                near = near and d[k, i, j] >= -half_diagonal
+                inside = inside and d[k, i, j] >= 0.0
+            value, gx, gy = s[i, j], grad[i, j, 0], grad[i, j, 1]
+            deep = _deep(value, gx, gy, half_diagonal, count)
+            touched[i, j] = near
+            beyond[i, j] = deep or not near
+            candidate[i, j] = near and not deep
+            known[i, j] = np.isfinite(value) and np.isfinite(gx) and np.isfinite(gy)
+            side[i, j] = inside
+    return touched, beyond, candidate, known, side
+
+
+def cell_classes(s: np.ndarray, grad: np.ndarray, d: np.ndarray, half_diagonal: float,
+                 count: int) -> tuple[np.ndarray, ...]:
+    """What each cell of a (padded) lattice is, (rows, cols) bool each, from s and its gradient there ((rows,
+    cols), (rows, cols, 2) per mm) and the signed distances d ((sets, rows, cols) mm) to the ring sets:
+    ``touched`` (it may hold solid pixels: its centre within ``half_diagonal`` mm of the family's side of
+    every set; never on the lattice's border), ``beyond`` (deep enough that every pixel is in the last
+    sub-region, s - |grad| half_diagonal >= count, or not touched), ``candidate`` (touched, not beyond),
+    ``known`` (s and its gradient finite) and ``side`` (on the family's side of every set)."""
+    return _cell_classes(f64(s), f64(grad), f64(d), float(half_diagonal), float(count))
 
 
 @kernel(JIT, label_arg=6)
