@@ -16,6 +16,7 @@ from heoslice.grading.field_kernels import (
     band_field,
     cell_classes,
     curve_cells,
+    curved_cells,
     expand_planes,
     label_target,
 )
@@ -25,24 +26,26 @@ from heoslice.grading.field_kernels import (
 @given(st.integers(0, 2 ** 32 - 1), st.integers(2, 16), st.booleans(), st.sampled_from(LABEL_TYPES))
 def test_expand_planes_is_the_plane_formula(seed, cell, masked, label_dtype):
     """Each pixel gets clip(floor(s + gx x - gy y) + 1, 1, count) of its cell's plane (x, y its offset
-    from the cell centre), except where s sits within float32 rounding of an integer; with a
-    mask, 0 off its pixels; + base on the others (labels past 127 too, in uint8); every pixel of an empty cell 0."""
+    from the cell centre), except where s sits within float32 rounding of an integer; a flat cell's pixels
+    clip(floor(clip(s, -1, count - 1/2)) + 1, 1, count) whatever its gradient; with a mask, 0 off its pixels;
+    + base on the others (labels past 127 too, in uint8); every pixel of an empty cell 0."""
     rng = np.random.default_rng(seed)
     rows, cols, count = int(rng.integers(1, 6)), int(rng.integers(1, 6)), int(rng.integers(1, 50))
     base = int(rng.integers(0, 200))
     s = rng.uniform(-3, count + 3, (rows, cols))
     gx, gy = rng.uniform(-3, 3, (rows, cols)), rng.uniform(-3, 3, (rows, cols))
     empty = rng.random((rows, cols)) < 0.3
+    flat = rng.random((rows, cols)) < 0.3
     px, py = 0.04, 0.05
     shape = (rows * cell - int(rng.integers(0, cell)), cols * cell - int(rng.integers(0, cell)))
     mask = rng.random((shape[0] + 5, shape[1] + 4)) < 0.7 if masked else None
     out = expand_planes(s, gx, gy, CellPixels(cell, px, py), count,
-                        label_target(np.full(shape, 255, label_dtype), mask, (3, 2), base), empty)
+                        label_target(np.full(shape, 255, label_dtype), mask, (3, 2), base), empty, flat)
     r, c = np.indices(shape)
     i, j = r // cell, c // cell
     x = (c - j * cell + 0.5 - cell / 2) * px
     y = (r - i * cell + 0.5 - cell / 2) * py
-    value = s[i, j] + gx[i, j] * x - gy[i, j] * y
+    value = np.where(flat[i, j], np.clip(s[i, j], -1, count - 0.5), s[i, j] + gx[i, j] * x - gy[i, j] * y)
     expected = np.clip(np.floor(value) + 1, 1, count)
     expected = expected + base
     if masked:
@@ -93,6 +96,22 @@ def test_cell_classes_equal_numpy_bit_for_bit(seed, sets, scale):
     for got, expected in zip(cell_classes(s, grad, d, half_diagonal, count),
                              _numpy_cell_classes(s, grad, d, half_diagonal, count)):
         assert got.dtype == np.bool_ and np.array_equal(got, expected)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1))
+def test_curved_cells_are_numpys_nonzero(seed):
+    """curved_cells gives np.nonzero of the inner part's candidates, not refined, whose Hessian is not all
+    zero (NaN is not zero), in the same order, as inner indices."""
+    rng = np.random.default_rng(seed)
+    rows, cols = int(rng.integers(1, 9)), int(rng.integers(1, 9))
+    hessian = np.where(rng.random((3, rows, cols)) < 0.4, rng.normal(size=(3, rows, cols)), 0.0)
+    hessian[rng.random(hessian.shape) < 0.05] = np.nan
+    candidate, refine = rng.random((rows, cols)) < 0.6, rng.random((rows, cols)) < 0.3
+    inner = (slice(1, -1), slice(1, -1))
+    expected = np.nonzero((hessian[:, 1:-1, 1:-1] != 0).any(axis=0) & candidate[inner] & ~refine[inner])
+    got = curved_cells(hessian, candidate, refine)
+    assert all(np.array_equal(a, b) for a, b in zip(got, expected))
 
 
 @settings(max_examples=20, deadline=None)

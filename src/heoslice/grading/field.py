@@ -44,6 +44,7 @@ from heoslice.grading.field_kernels import (
     band_field,
     cell_classes,
     curve_cells,
+    curved_cells,
     expand_planes,
     label_target,
 )
@@ -278,15 +279,14 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
     models = [None] * len(ring_sets)
     if layout.end and len(refined[0]):
         models = fit_ring_models(layout, d, g, grad, padded_lattice, grid, refined)
+    curved = curved_cells(hessian, candidate, refine)
     inner = (slice(1, -1), slice(1, -1))
-    s, grad, beyond, candidate, refine, known, touched = (a[inner] for a in (s, grad, beyond, candidate, refine, known,
-                                                                             touched))
+    s, grad, beyond, known, touched = (a[inner] for a in (s, grad, beyond, known, touched))
     hessian = hessian[:, 1:-1, 1:-1]
     if not known.all():
         # cells without s are refined or hold no solid pixel: expanded from 0
         s, grad = np.where(known, s, 0.0), np.where(known[..., None], grad, 0.0)
     index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, shape, mask, label_base, ~touched, dtype)
-    curved = np.nonzero((hessian != 0).any(axis=0) & candidate & ~refine)
     if len(curved[0]):
         curve_cells(label_target(index, mask, (lattice.row0, lattice.col0), label_base), curved[0], curved[1],
                     CellPixels(lattice.cell, grid.px, grid.py), s, grad, hessian, layout.count)
@@ -348,9 +348,6 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
     :func:`family_field` chose it) from one plane per cell (compiled); a ``flat`` cell takes its centre's
     value throughout, an ``empty`` one (none of the family's pixels) 0. With the layer's
     ``mask``: k + label_base on solid pixels, else 0."""
-    s = np.where(flat, np.clip(s, -1.0, count - 0.5), s)
-    gx = np.where(flat, 0.0, grad[..., 0])
-    gy = np.where(flat, 0.0, grad[..., 1])
     out = np.empty(shape, dtype=dtype)
-    return expand_planes(s, gx, gy, CellPixels(lattice.cell, grid.px, grid.py), count,
-                         label_target(out, mask, (lattice.row0, lattice.col0), label_base), empty)
+    return expand_planes(s, grad[..., 0], grad[..., 1], CellPixels(lattice.cell, grid.px, grid.py), count,
+                         label_target(out, mask, (lattice.row0, lattice.col0), label_base), empty, flat)

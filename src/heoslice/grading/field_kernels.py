@@ -148,12 +148,13 @@ def cell_classes(s: np.ndarray, grad: np.ndarray, d: np.ndarray, half_diagonal: 
     return _cell_classes(f64(s), f64(grad), f64(d), float(half_diagonal), float(count))
 
 
-@kernel(JIT, label_arg=6)
-def _expand_planes(s, gx, gy, empty, pixels, count, target):  # pragma: no cover - compiled
+@kernel(JIT, label_arg=7)
+def _expand_planes(s, gx, gy, empty, flat, pixels, count, target):  # pragma: no cover - compiled
     """out[i*cell + v, j*cell + u] = clip(floor(s_ij + gx_ij x_u - gy_ij y_v) + 1, 1, count) over the
     part of the lattice that ``out`` covers; x_u, y_v are pixel offsets from the cell centre (mm),
     plus ``base``; with a ``mask`` (not 0 x 0), pixels where mask[r0 + row, c0 + col] is False get
-    0. ``empty`` cells (no pixel of the family) get 0 without evaluating. Per row of
+    0. ``empty`` cells (no pixel of the family) get 0 without evaluating; a ``flat`` cell takes
+    clip(s_ij, -1, count - 1/2) throughout (s finite). Per row of
     cells the column terms are laid out once (float32: s to ~1e-4 of a band), so each pixel
     row is a few long branch-free loops, one per run of cells that are not empty."""
     cell, px, py = pixels
@@ -179,9 +180,12 @@ def _expand_planes(s, gx, gy, empty, pixels, count, target):  # pragma: no cover
             else:
                 span_from[spans], span_to[spans] = first, last
                 spans += 1
+            level, across, down_slope = s[i, j], gx[i, j], gy[i, j]
+            if flat[i, j]:
+                level, across, down_slope = min(max(level, -1.0), count - 0.5), 0.0, 0.0
             for c in range(first, last):
-                column[c] = s[i, j] + 1.0 + gx[i, j] * ((c - j * cell + 0.5 - half) * px)
-                slope[c] = gy[i, j] * py
+                column[c] = level + 1.0 + across * ((c - j * cell + 0.5 - half) * px)
+                slope[c] = down_slope * py
         for v in range(min(cell, rows - i * cell)):
             r = i * cell + v
             down = np.float32(v + 0.5 - half)
@@ -216,17 +220,47 @@ def _expand_run(line, column, slope, keep, down, low, high, offset, masked):  # 
 
 
 def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, pixels: CellPixels, count: int,
-                  target: LabelTarget, empty: np.ndarray | None = None) -> np.ndarray:
+                  target: LabelTarget, empty: np.ndarray | None = None, flat: np.ndarray | None = None) -> np.ndarray:
     """Sub-region k = clip(floor(s) + 1, 1, count) at every pixel of ``target.out`` ((rows, cols),
     rows <= cells_r * cell) from one plane per lattice cell: s (cells_r, cells_c) at the cell
     centre, gradient (gx, gy) per mm (y up, rows down), written as :class:`LabelTarget` says.
-    ``empty`` ((cells_r, cells_c) bool) cells are written 0 throughout. Returns ``target.out``."""
+    ``empty`` ((cells_r, cells_c) bool) cells are written 0 throughout; a ``flat`` one (same shape) takes
+    its centre's value clipped to [-1, count - 1/2] throughout (s finite there). Returns ``target.out``."""
     cell, out = int(pixels.cell), target.out
     if out.shape[0] > np.shape(s)[0] * cell or out.shape[1] > np.shape(s)[1] * cell:
         raise ValueError(f"expand_planes: {out.shape} pixels exceed {np.shape(s)} cells of {cell}")
-    empty = np.zeros(np.shape(s), dtype=np.bool_) if empty is None else np.ascontiguousarray(empty, dtype=np.bool_)
+    empty, flat = (np.zeros(np.shape(s), dtype=np.bool_) if cells is None else np.ascontiguousarray(cells, dtype=np.bool_)
+                   for cells in (empty, flat))
     pixels = CellPixels(cell, float(pixels.px), float(pixels.py))
-    return _expand_planes(f64(s), f64(gx), f64(gy), empty, pixels, float(count), target)
+    return _expand_planes(f64(s), f64(gx), f64(gy), empty, flat, pixels, float(count), target)
+
+
+@kernel(EXACT)
+def _curved_cells(hessian, candidate, refine):  # pragma: no cover - compiled
+    """(rows, cols) of :func:`curved_cells`, counted first, then written."""
+    _, rows, cols = hessian.shape
+    count = 0
+    for _pass in range(2):
+        ci = np.empty(count, dtype=np.int64)
+        cj = np.empty(count, dtype=np.int64)
+        n = 0
+        for i in range(1, rows - 1):
+            for j in range(1, cols - 1):
+                if (candidate[i, j] and not refine[i, j]
+                        and (hessian[0, i, j] != 0.0 or hessian[1, i, j] != 0.0 or hessian[2, i, j] != 0.0)):
+                    if _pass:
+                        ci[n], cj[n] = i - 1, j - 1
+                    n += 1
+        count = n
+    return ci, cj
+
+
+def curved_cells(hessian: np.ndarray, candidate: np.ndarray, refine: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cells of a padded lattice's inner part that take their quadratic (np.nonzero order, inner
+    indices, (n,) int each): candidates not refined whose Hessian ((3, rows, cols), as
+    :func:`heoslice.grading.refine.cells_to_refine` left it) is not all zero (NaN counts as not zero)."""
+    return _curved_cells(f64(hessian), np.ascontiguousarray(candidate, dtype=np.bool_),
+                         np.ascontiguousarray(refine, dtype=np.bool_))
 
 
 @kernel(JIT, label_arg=0)
