@@ -80,7 +80,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     edges_kernels._convex_rings: (f8_1, f8_1, f8_1, i8_1, f8),
     edges_kernels._kept_edges: (f8_2, i8_1, i8_1, types.boolean[::1], i8_1),
     field_kernels._band_field: (f8_3, f8_4, f8),
-    field_kernels._cell_classes: (f8_2, f8_3, f8_3, f8, f8),
+    field_kernels._cell_classes: (f8_2, f8_2, f8_2, f8_3, f8, f8),
     field_kernels._curved_cells: (f8_3, b_2, b_2),
     field_kernels._expand_planes: lambda bits: (f8_2, f8_2, f8_2, b_2, b_2, PIXELS, f8, _target(bits)),
     field_kernels._curve_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, types.UniTuple(f8_2, 6), f8),

@@ -98,42 +98,45 @@ def band_field(d: np.ndarray, g: np.ndarray, count: int) -> tuple[np.ndarray, np
                        float(count))
 
 
-@helper(EXACT)
-def _deep(s, gx, gy, half_diagonal, count):  # pragma: no cover - compiled
-    """s - hypot(gx, gy) * half_diagonal >= count, bit for bit as numpy decides it: from sqrt(gx^2 + gy^2)
-    wherever its few units in the last place cannot change the answer, else (also for NaN, infinities and
-    squares that overflow: the margin test fails) from hypot itself (libm's, the one numpy calls, a few
-    times slower)."""
-    plane = np.sqrt(gx * gx + gy * gy) * half_diagonal
-    value = s - plane
-    if abs(value - count) > 1e-12 * (abs(s) + plane + count):
-        return value >= count
-    return s - np.hypot(gx, gy) * half_diagonal >= count
-
-
 @kernel(EXACT)
-def _cell_classes(s, grad, d, half_diagonal, count):  # pragma: no cover - compiled
-    """(touched, beyond, candidate, known, side) of :func:`cell_classes`, in one pass over the lattice."""
+def _cell_classes(s, gx, gy, d, half_diagonal, count):  # pragma: no cover - compiled
+    """(touched, beyond, candidate, known, side) of :func:`cell_classes`, from the gradient's components
+    (gx, gy: contiguous each, so the passes vectorise). The deep test, s - hypot(gx, gy) half_diagonal >=
+    count, is numpy's bit for bit: from sqrt(gx^2 + gy^2) first, then, where its few units in the last
+    place could change the answer (also for NaN, infinities and squares that overflow: the margin test
+    fails there), again from hypot itself (libm's, the one numpy calls, a few times slower)."""
     sets, rows, cols = d.shape
-    touched = np.empty((rows, cols), dtype=np.bool_)
+    touched = np.zeros((rows, cols), dtype=np.bool_)
+    side = np.ones((rows, cols), dtype=np.bool_)
+    touched[1:-1, 1:-1] = True
+    for k in range(sets):
+        for i in range(rows):
+            for j in range(cols):
+                touched[i, j] &= d[k, i, j] >= -half_diagonal
+                side[i, j] &= d[k, i, j] >= 0.0
     beyond = np.empty((rows, cols), dtype=np.bool_)
     candidate = np.empty((rows, cols), dtype=np.bool_)
     known = np.empty((rows, cols), dtype=np.bool_)
-    side = np.empty((rows, cols), dtype=np.bool_)
+    settled = np.empty((rows, cols), dtype=np.bool_)
+    unsettled = 0
     for i in range(rows):
         for j in range(cols):
-            near = 0 < i < rows - 1 and 0 < j < cols - 1
-            inside = True
-            for k in range(sets):
-                near = near and d[k, i, j] >= -half_diagonal
-                inside = inside and d[k, i, j] >= 0.0
-            value, gx, gy = s[i, j], grad[i, j, 0], grad[i, j, 1]
-            deep = _deep(value, gx, gy, half_diagonal, count)
-            touched[i, j] = near
-            beyond[i, j] = deep or not near
-            candidate[i, j] = near and not deep
-            known[i, j] = np.isfinite(value) and np.isfinite(gx) and np.isfinite(gy)
-            side[i, j] = inside
+            value, x, y = s[i, j], gx[i, j], gy[i, j]
+            plane = np.sqrt(x * x + y * y) * half_diagonal
+            estimate = value - plane
+            deep = estimate >= count
+            sure = abs(estimate - count) > 1e-12 * (abs(value) + plane + count)
+            unsettled += ~sure
+            settled[i, j] = sure
+            beyond[i, j] = deep | ~touched[i, j]
+            candidate[i, j] = touched[i, j] & ~deep
+            known[i, j] = np.isfinite(value) & np.isfinite(x) & np.isfinite(y)
+    for i in range(rows if unsettled else 0):
+        for j in range(cols):
+            if not settled[i, j]:
+                deep = s[i, j] - np.hypot(gx[i, j], gy[i, j]) * half_diagonal >= count
+                beyond[i, j] = deep or not touched[i, j]
+                candidate[i, j] = touched[i, j] and not deep
     return touched, beyond, candidate, known, side
 
 
@@ -145,7 +148,7 @@ def cell_classes(s: np.ndarray, grad: np.ndarray, d: np.ndarray, half_diagonal: 
     every set; never on the lattice's border), ``beyond`` (deep enough that every pixel is in the last
     sub-region, s - |grad| half_diagonal >= count, or not touched), ``candidate`` (touched, not beyond),
     ``known`` (s and its gradient finite) and ``side`` (on the family's side of every set)."""
-    return _cell_classes(f64(s), f64(grad), f64(d), float(half_diagonal), float(count))
+    return _cell_classes(f64(s), f64(grad[..., 0]), f64(grad[..., 1]), f64(d), float(half_diagonal), float(count))
 
 
 @kernel(JIT, label_arg=7)
