@@ -104,7 +104,8 @@ def _cell_classes(s, gx, gy, d, half_diagonal, count):  # pragma: no cover - com
     (gx, gy: contiguous each, so the passes vectorise). The deep test, s - hypot(gx, gy) half_diagonal >=
     count, is numpy's bit for bit: from sqrt(gx^2 + gy^2) first, then, where its few units in the last
     place could change the answer (also for NaN, infinities and squares that overflow: the margin test
-    fails there), again from hypot itself (libm's, the one numpy calls, a few times slower)."""
+    fails there), again from hypot itself (libm's, the one numpy calls, a few times slower). ``~`` of a
+    bool is its negation here, as in numpy (not Python's -2)."""
     sets, rows, cols = d.shape
     touched = np.zeros((rows, cols), dtype=np.bool_)
     side = np.ones((rows, cols), dtype=np.bool_)
@@ -232,15 +233,15 @@ def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, pixels: CellPix
     cell, out = int(pixels.cell), target.out
     if out.shape[0] > np.shape(s)[0] * cell or out.shape[1] > np.shape(s)[1] * cell:
         raise ValueError(f"expand_planes: {out.shape} pixels exceed {np.shape(s)} cells of {cell}")
-    empty, flat = (np.zeros(np.shape(s), dtype=np.bool_) if cells is None else np.ascontiguousarray(cells, dtype=np.bool_)
-                   for cells in (empty, flat))
+    empty, flat = (np.zeros(np.shape(s), dtype=np.bool_) if cells is None
+                   else np.ascontiguousarray(cells, dtype=np.bool_) for cells in (empty, flat))
     pixels = CellPixels(cell, float(pixels.px), float(pixels.py))
     return _expand_planes(f64(s), f64(gx), f64(gy), empty, flat, pixels, float(count), target)
 
 
 @kernel(EXACT)
 def _curved_cells(hessian, candidate, refine):  # pragma: no cover - compiled
-    """(rows, cols) of :func:`curved_cells`, counted first, then written."""
+    """The (row, column) indices of :func:`curved_cells`, counted first, then written."""
     _, rows, cols = hessian.shape
     count = 0
     for _pass in range(2):
