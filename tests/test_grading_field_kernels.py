@@ -23,12 +23,13 @@ from heoslice.grading.field_kernels import (
 
 
 @settings(max_examples=30, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 16), st.booleans(), st.sampled_from(LABEL_TYPES))
-def test_expand_planes_is_the_plane_formula(seed, cell, masked, label_dtype):
+@given(st.integers(0, 2 ** 32 - 1), st.integers(2, 16), st.booleans(), st.sampled_from(LABEL_TYPES), st.booleans())
+def test_expand_planes_is_the_plane_formula(seed, cell, masked, label_dtype, padded):
     """Each pixel gets clip(floor(s + gx x - gy y) + 1, 1, count) of its cell's plane (x, y its offset
     from the cell centre), except where s sits within float32 rounding of an integer; a flat cell's pixels
     clip(floor(clip(s, -1, count - 1/2)) + 1, 1, count) whatever its gradient; with a mask, 0 off its pixels;
-    + base on the others (labels past 127 too, in uint8); every pixel of an empty cell 0."""
+    + base on the others (labels past 127 too, in uint8); every pixel of an empty cell 0. A lattice padded by
+    a cell of other values on every side (pad 1) gives what its inner part gives."""
     rng = np.random.default_rng(seed)
     rows, cols, count = int(rng.integers(1, 6)), int(rng.integers(1, 6)), int(rng.integers(1, 50))
     base = int(rng.integers(0, 200))
@@ -39,8 +40,14 @@ def test_expand_planes_is_the_plane_formula(seed, cell, masked, label_dtype):
     px, py = 0.04, 0.05
     shape = (rows * cell - int(rng.integers(0, cell)), cols * cell - int(rng.integers(0, cell)))
     mask = rng.random((shape[0] + 5, shape[1] + 4)) < 0.7 if masked else None
-    out = expand_planes(s, gx, gy, CellPixels(cell, px, py), count,
-                        label_target(np.full(shape, 255, label_dtype), mask, (3, 2), base), empty, flat)
+    arrays = (s, np.stack([gx, gy], axis=-1), empty, flat)
+    if padded:
+        # a border of values that would change every pixel, were it read
+        arrays = tuple(np.pad(a, [(1, 1), (1, 1)] + [(0, 0)] * (a.ndim - 2), constant_values=value)
+                       for a, value in zip(arrays, (count + 7.5, 2.5, False, True)))
+    out = expand_planes(arrays[0], arrays[1], CellPixels(cell, px, py), count,
+                        label_target(np.full(shape, 255, label_dtype), mask, (3, 2), base), arrays[2], arrays[3],
+                        pad=int(padded))
     r, c = np.indices(shape)
     i, j = r // cell, c // cell
     x = (c - j * cell + 0.5 - cell / 2) * px

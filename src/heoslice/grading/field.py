@@ -281,15 +281,15 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
         models = fit_ring_models(layout, d, g, grad, padded_lattice, grid, refined)
     curved = curved_cells(hessian, candidate, refine)
     inner = (slice(1, -1), slice(1, -1))
-    s, grad, beyond, known, touched = (a[inner] for a in (s, grad, beyond, known, touched))
-    hessian = hessian[:, 1:-1, 1:-1]
-    if not known.all():
+    if not known[inner].all():
         # cells without s are refined or hold no solid pixel: expanded from 0
         s, grad = np.where(known, s, 0.0), np.where(known[..., None], grad, 0.0)
+    # the padded lattice's inner part read in place
     index = _expand_planes(lattice, s, grad, grid, beyond, layout.count, shape, mask, label_base, ~touched, dtype)
     if len(curved[0]):
         curve_cells(label_target(index, mask, (lattice.row0, lattice.col0), label_base), curved[0], curved[1],
-                    CellPixels(lattice.cell, grid.px, grid.py), s, grad, hessian, layout.count)
+                    CellPixels(lattice.cell, grid.px, grid.py), s[inner], grad[inner], hessian[:, 1:-1, 1:-1],
+                    layout.count)
     if len(refined[0]):
         cells = (refined[0] - 1, refined[1] - 1)
         refine_cells(index, lattice, cells, grid, layout,
@@ -347,7 +347,8 @@ def _expand_planes(lattice: Lattice, s: np.ndarray, grad: np.ndarray, grid: Grid
     """k = clip(floor(s) + 1, 1, N_R) at every pixel of the family's box ((rows, cols) ``dtype``, as
     :func:`family_field` chose it) from one plane per cell (compiled); a ``flat`` cell takes its centre's
     value throughout, an ``empty`` one (none of the family's pixels) 0. With the layer's
-    ``mask``: k + label_base on solid pixels, else 0."""
+    ``mask``: k + label_base on solid pixels, else 0. s, grad, flat and empty are over the lattice padded
+    by a cell (:func:`heoslice.grading.lattice.padded`)."""
     out = np.empty(shape, dtype=dtype)
-    return expand_planes(s, grad[..., 0], grad[..., 1], CellPixels(lattice.cell, grid.px, grid.py), count,
-                         label_target(out, mask, (lattice.row0, lattice.col0), label_base), empty, flat)
+    return expand_planes(s, grad, CellPixels(lattice.cell, grid.px, grid.py), count,
+                         label_target(out, mask, (lattice.row0, lattice.col0), label_base), empty, flat, pad=1)

@@ -153,12 +153,13 @@ def cell_classes(s: np.ndarray, grad: np.ndarray, d: np.ndarray, half_diagonal: 
 
 
 @kernel(JIT, label_arg=7)
-def _expand_planes(s, gx, gy, empty, flat, pixels, count, target):  # pragma: no cover - compiled
+def _expand_planes(s, grad, empty, flat, pad, pixels, count, target):  # pragma: no cover - compiled
     """out[i*cell + v, j*cell + u] = clip(floor(s_ij + gx_ij x_u - gy_ij y_v) + 1, 1, count) over the
     part of the lattice that ``out`` covers; x_u, y_v are pixel offsets from the cell centre (mm),
     plus ``base``; with a ``mask`` (not 0 x 0), pixels where mask[r0 + row, c0 + col] is False get
     0. ``empty`` cells (no pixel of the family) get 0 without evaluating; a ``flat`` cell takes
-    clip(s_ij, -1, count - 1/2) throughout (s finite). Per row of
+    clip(s_ij, -1, count - 1/2) throughout (s finite). Cell (i, j) is entry (i + pad, j + pad) of s,
+    grad (its gx, gy), empty and flat (a padded lattice read in place). Per row of
     cells the column terms are laid out once (float32: s to ~1e-4 of a band), so each pixel
     row is a few long branch-free loops, one per run of cells that are not empty."""
     cell, px, py = pixels
@@ -168,15 +169,16 @@ def _expand_planes(s, gx, gy, empty, flat, pixels, count, target):  # pragma: no
     half = 0.5 * cell
     column = np.empty(cols, dtype=np.float32)
     slope = np.empty(cols, dtype=np.float32)
-    span_from = np.empty(s.shape[1] + 1, dtype=np.int64)
-    span_to = np.empty(s.shape[1] + 1, dtype=np.int64)
+    cells_r, cells_c = s.shape[0] - 2 * pad, s.shape[1] - 2 * pad
+    span_from = np.empty(cells_c + 1, dtype=np.int64)
+    span_to = np.empty(cells_c + 1, dtype=np.int64)
     low, high, offset = np.float32(1.0), np.float32(count), np.float32(base)
-    for i in range(s.shape[0]):
+    for i in range(cells_r):
         if i * cell >= rows:
             break
         spans = 0
-        for j in range(min(s.shape[1], -(-cols // cell))):
-            if empty[i, j]:
+        for j in range(min(cells_c, -(-cols // cell))):
+            if empty[i + pad, j + pad]:
                 continue
             first, last = j * cell, min(cols, (j + 1) * cell)
             if spans and span_to[spans - 1] == first:
@@ -184,8 +186,8 @@ def _expand_planes(s, gx, gy, empty, flat, pixels, count, target):  # pragma: no
             else:
                 span_from[spans], span_to[spans] = first, last
                 spans += 1
-            level, across, down_slope = s[i, j], gx[i, j], gy[i, j]
-            if flat[i, j]:
+            level, across, down_slope = s[i + pad, j + pad], grad[i + pad, j + pad, 0], grad[i + pad, j + pad, 1]
+            if flat[i + pad, j + pad]:
                 level, across, down_slope = min(max(level, -1.0), count - 0.5), 0.0, 0.0
             for c in range(first, last):
                 column[c] = level + 1.0 + across * ((c - j * cell + 0.5 - half) * px)
@@ -223,20 +225,23 @@ def _expand_run(line, column, slope, keep, down, low, high, offset, masked):  # 
             line[c] = np.int32(value + offset)
 
 
-def expand_planes(s: np.ndarray, gx: np.ndarray, gy: np.ndarray, pixels: CellPixels, count: int,
-                  target: LabelTarget, empty: np.ndarray | None = None, flat: np.ndarray | None = None) -> np.ndarray:
+def expand_planes(s: np.ndarray, grad: np.ndarray, pixels: CellPixels, count: int, target: LabelTarget,
+                  empty: np.ndarray | None = None, flat: np.ndarray | None = None, pad: int = 0) -> np.ndarray:
     """Sub-region k = clip(floor(s) + 1, 1, count) at every pixel of ``target.out`` ((rows, cols),
     rows <= cells_r * cell) from one plane per lattice cell: s (cells_r, cells_c) at the cell
-    centre, gradient (gx, gy) per mm (y up, rows down), written as :class:`LabelTarget` says.
-    ``empty`` ((cells_r, cells_c) bool) cells are written 0 throughout; a ``flat`` one (same shape) takes
-    its centre's value clipped to [-1, count - 1/2] throughout (s finite there). Returns ``target.out``."""
+    centre, gradient ``grad`` (cells_r, cells_c, 2) per mm (y up, rows down), written as :class:`LabelTarget`
+    says. ``empty`` ((cells_r, cells_c) bool) cells are written 0 throughout; a ``flat`` one (same shape)
+    takes its centre's value clipped to [-1, count - 1/2] throughout (s finite there). With ``pad`` 1 the
+    four arrays are a lattice padded by a cell on every side, of which the inner part is read (no copy of
+    it). Returns ``target.out``."""
     cell, out = int(pixels.cell), target.out
-    if out.shape[0] > np.shape(s)[0] * cell or out.shape[1] > np.shape(s)[1] * cell:
-        raise ValueError(f"expand_planes: {out.shape} pixels exceed {np.shape(s)} cells of {cell}")
+    cells_r, cells_c = np.shape(s)[0] - 2 * pad, np.shape(s)[1] - 2 * pad
+    if out.shape[0] > cells_r * cell or out.shape[1] > cells_c * cell:
+        raise ValueError(f"expand_planes: {out.shape} pixels exceed {(cells_r, cells_c)} cells of {cell}")
     empty, flat = (np.zeros(np.shape(s), dtype=np.bool_) if cells is None
                    else np.ascontiguousarray(cells, dtype=np.bool_) for cells in (empty, flat))
     pixels = CellPixels(cell, float(pixels.px), float(pixels.py))
-    return _expand_planes(f64(s), f64(gx), f64(gy), empty, flat, pixels, float(count), target)
+    return _expand_planes(f64(s), f64(grad), empty, flat, int(pad), pixels, float(count), target)
 
 
 @kernel(EXACT)
@@ -269,11 +274,11 @@ def curved_cells(hessian: np.ndarray, candidate: np.ndarray, refine: np.ndarray)
 
 @kernel(JIT, label_arg=0)
 def _curve_cells(target, ci, cj, pixels, quadratics, count):  # pragma: no cover - compiled
-    """Rewrite whole cells (ci, cj) from their quadratics (see :func:`curve_cells`): along each pixel
-    row of a cell the quadratic is A + (B + C x) x, one branch-free loop."""
+    """Rewrite whole cells (ci, cj) from their quadratics ((n, 6): s, gx, gy, hxx, hxy, hyy of each, see
+    :func:`curve_cells`): along each pixel row of a cell the quadratic is A + (B + C x) x, one branch-free
+    loop."""
     index, mask, r0, c0, base = target
     cell, px, py = pixels
-    s, gx, gy, hxx, hxy, hyy = quadratics
     rows, cols = index.shape
     masked = mask.shape[0] > 0
     half = 0.5 * cell
@@ -283,12 +288,14 @@ def _curve_cells(target, ci, cj, pixels, quadratics, count):  # pragma: no cover
         height, width = min(cell, rows - i * cell), min(cell, cols - j * cell)
         if height <= 0 or width <= 0:
             continue
-        c = 0.5 * hxx[i, j]
+        s, gx, gy = quadratics[n, 0], quadratics[n, 1], quadratics[n, 2]
+        hxy, hyy = quadratics[n, 4], quadratics[n, 5]
+        c = 0.5 * quadratics[n, 3]
         for v in range(height):
             r = i * cell + v
             y = -(v + 0.5 - half) * py
-            a = s[i, j] + 1.0 + gy[i, j] * y + 0.5 * hyy[i, j] * y * y
-            b = gx[i, j] + hxy[i, j] * y
+            a = s + 1.0 + gy * y + 0.5 * hyy * y * y
+            b = gx + hxy * y
             line = index[r, j * cell:j * cell + width]
             if masked:
                 keep = mask[r0 + r, c0 + j * cell:c0 + j * cell + width]
@@ -308,7 +315,9 @@ def curve_cells(target: LabelTarget, ci: np.ndarray, cj: np.ndarray, pixels: Cel
     """Sub-region k of every pixel of lattice cells (ci, cj) ((n,) int) from the cell's quadratic
     s + g.d + d.H.d / 2 (s (rows, cols), grad (rows, cols, 2) per mm, hessian (3, rows, cols)
     s_xx, s_xy, s_yy per mm^2; d the pixel's offset from the cell centre, y up), in place in
-    ``target`` (as :func:`expand_planes`)."""
-    quadratics = (f64(s), f64(grad[..., 0]), f64(grad[..., 1]), f64(hessian[0]), f64(hessian[1]), f64(hessian[2]))
+    ``target`` (as :func:`expand_planes`). Only the given cells' terms are gathered: the lattice-wide arrays
+    may be views of a padded lattice, never copied whole."""
+    ci, cj = i64(ci), i64(cj)
+    quadratics = np.column_stack([np.asarray(s)[ci, cj], np.asarray(grad)[ci, cj], np.asarray(hessian)[:, ci, cj].T])
     pixels = CellPixels(int(pixels.cell), float(pixels.px), float(pixels.py))
-    return _curve_cells(target, i64(ci), i64(cj), pixels, quadratics, float(count))
+    return _curve_cells(target, ci, cj, pixels, f64(quadratics), float(count))
