@@ -1,7 +1,7 @@
 """Tests of heoslice.grading.refine_kernels: which cells refine_flags refines (planes and quadratics that
 fit, kinks, turns beside the outline), hessian_of against numpy.gradient, band_cells against eq. 10 of modelled
 or measured distances, the sensitivities of eq. 10 against central differences, and the compiled ring_models
-against the numpy formulation it replaced."""
+against the numpy formulation it replaced, and measured_cells against the two steps it fuses."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from helpers import ring_weights
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from heoslice.grading.edges_kernels import EdgeArrays
 from heoslice.grading.field import LABEL_TYPES
 from heoslice.grading.field_kernels import CellPixels, band_field, label_target
 from heoslice.grading.refine_kernels import (
@@ -18,9 +19,11 @@ from heoslice.grading.refine_kernels import (
     FitTest,
     band_cells,
     hessian_of,
+    measured_cells,
     refine_flags,
     ring_models,
 )
+from heoslice.grading.search_kernels import edge_tree, nearest_in_groups
 
 
 @settings(max_examples=30, deadline=None)
@@ -70,6 +73,50 @@ def test_band_cells_is_eq10_of_modelled_or_measured_distances(seed, sets, masked
             if clear[n, k]:
                 assert index[r, c] == want, (n, k, s[n, k])
     assert (index[~written] == 255).all()
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2 ** 32 - 1), st.booleans(), st.sampled_from(LABEL_TYPES), st.integers(3, 12))
+def test_measured_cells_equal_the_search_then_band_cells(seed, masked, label_dtype, cell):
+    """measured_cells writes, bit for bit, what refine_cells' two steps write for one ring set without a
+    model: the squared distances of nearest_in_groups, their float32 roots, then band_cells; every pixel
+    of the given cells written (+ base, 0 off the mask), every other one untouched."""
+    rng = np.random.default_rng(seed)
+    # a star-shaped ring of 40 vertices, radius 2-5 mm round the origin
+    angle = np.sort(rng.uniform(0, 2 * np.pi, 40))
+    radius = rng.uniform(2.0, 5.0, 40)
+    x, y = radius * np.cos(angle), radius * np.sin(angle)
+    vx, vy = np.roll(x, -1) - x, np.roll(y, -1) - y
+    edges = EdgeArrays(x, y, vx, vy, 1.0 / (vx * vx + vy * vy))
+    tree = edge_tree(x, y, x + vx, y + vy)
+    px, py = 0.042, 0.05
+    rows, cols, count, base = 9, 11, int(rng.integers(2, 60)), int(rng.integers(0, 190))
+    length = float(rng.uniform(1.0, 5.0))
+    frame = (-5.5, 5.0, cell * px, cell * py)  # lattice x0, y0 (top left) and cell size, mm
+    shape = (rows * cell - int(rng.integers(0, cell)), cols * cell - int(rng.integers(0, cell)))
+    mask = rng.random(shape) < 0.7 if masked else None
+    n = int(rng.integers(1, 30))
+    ci, cj = rng.integers(0, rows, n), rng.integers(0, cols, n)
+    ci, cj = np.unique(np.column_stack([ci, cj]), axis=0).T
+    v, u = np.divmod(np.arange(cell * cell), cell)
+    ox = ((u + 0.5 - 0.5 * cell) * px).astype(np.float32)
+    oy = (-(v + 0.5 - 0.5 * cell) * py).astype(np.float32)
+    reach = rng.uniform(8.0, 12.0, len(ci))  # past every edge: all are candidates
+    pixels = CellPixels(cell, px, py)
+    cx, cy = frame[0] + (cj + 0.5) * frame[2], frame[1] - (ci + 0.5) * frame[3]
+    squared = nearest_in_groups(cx, cy, reach, ox, oy, edges, tree, False)
+    two_steps = np.full(shape, 255, dtype=label_dtype)
+    band_cells(label_target(two_steps, mask, (0, 0), base), ci, cj, pixels, np.full((1, len(ci), 6), np.nan),
+               np.sqrt(squared), np.arange(len(ci))[None], count, length)
+    fused = np.full(shape, 255, dtype=label_dtype)
+    measured_cells(label_target(fused, mask, (0, 0), base), ci, cj, pixels, frame, reach, ox, oy, edges, tree,
+                   count, length)
+    assert np.array_equal(fused, two_steps)
+    chosen = np.zeros((rows, cols), bool)
+    chosen[ci, cj] = True
+    r, c = np.indices(shape)
+    assert (fused[~chosen[r // cell, c // cell]] == 255).all()
+    assert (fused[chosen[r // cell, c // cell]] != 255).all()
 
 
 def sampled_field(function, rows: int = 12, cols: int = 14, step: float = 0.5):

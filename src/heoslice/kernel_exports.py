@@ -97,6 +97,8 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     refine_kernels._hessian_of: (f8_3, f8, f8),
     refine_kernels._ring_models: (f8_3, f8_4, f8_3, i8_1, i8_1, f8, f8, f8, f8, f8),
     refine_kernels._band_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, f8_3, f4_2, i8_2, f8, f8),
+    refine_kernels._measured_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, types.UniTuple(f8, 4), f8_1,
+                                                 f4_1, f4_1, TREE, EDGES, f8, f8),
     search_kernels._candidates: (f8_1, f8_1, f8_1, f8_2, i8_1),
     search_kernels._nearest_in_batches: (f8_1, f8_1, f8_1, f4_1, f4_1, TREE, EDGES, b1),
     search_kernels._chunks_apart: (i8_1, i8_1, f8_2, f8_2, f8_2, f8_2, f8),

@@ -3,17 +3,21 @@ those cells evaluated per pixel: eq. 10 from each ring's exact distance, or its 
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from heoslice.grading.families import FamilyLayout
 from heoslice.grading.field_kernels import CellPixels, label_target
 from heoslice.grading.lattice import Lattice
 from heoslice.grading.refine_kernels import (
+    MEASURED_VALUES,
     CellField,
     FitTest,
     RingVertices,
     band_cells,
     hessian_of,
+    measured_cells,
     refine_flags,
     ring_models,
 )
@@ -22,10 +26,6 @@ from heoslice.layers.rasterising import Grid
 
 #: Largest error of a sub-region boundary, in pixels, before a lattice cell is evaluated per pixel.
 TOLERANCE_PX = 0.5
-
-
-#: Most per-pixel distances measured and held at once when cells are evaluated per pixel (float32: 16 MB).
-_MEASURED_VALUES = 1 << 22
 
 
 def cell_hessians(grad: np.ndarray, lattice: Lattice) -> np.ndarray:
@@ -125,14 +125,18 @@ def refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, n
     ones signed: only the family's own pixels are kept, and there every distance is positive.
     """
     f = lattice.cell
-    v, u = (a.ravel() for a in np.meshgrid(np.arange(f), np.arange(f), indexing="ij"))
-    ox = (u + 0.5 - 0.5 * f) * grid.px
-    oy = -(v + 0.5 - 0.5 * f) * grid.py
+    ox, oy = _pixel_offsets(f, grid.px, grid.py)
     reach = np.hypot(lattice.dx, lattice.dy)
     target = label_target(index, mask, (lattice.row0, lattice.col0), label_base)
     pixels = CellPixels(f, grid.px, grid.py)
-    # cells in batches, so that the measured distances held at once stay within _MEASURED_VALUES
-    step = max(1, _MEASURED_VALUES // (len(ring_sets) * f * f))
+    if len(ring_sets) == 1 and ring_sets[0][2] is None:
+        # one ring set, measured at every pixel (a family without holes): measured and labelled in one call
+        rings, bound, _ = ring_sets[0]
+        measured_cells(target, cells[0], cells[1], pixels, (lattice.x0, lattice.y0, lattice.dx, lattice.dy),
+                       bound + reach, ox, oy, rings.edges, rings.tree, layout.count, layout.length_mm)
+        return
+    # cells in batches, so that the measured distances held at once stay within MEASURED_VALUES
+    step = max(1, MEASURED_VALUES // (len(ring_sets) * f * f))
     for first in range(0, len(cells[0]), step):
         ci, cj = (a[first:first + step] for a in cells)
         cx, cy = lattice.x0 + (cj + 0.5) * lattice.dx, lattice.y0 - (ci + 0.5) * lattice.dy
@@ -151,3 +155,14 @@ def refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, n
         measured = (measured[0] if len(measured) == 1 else np.concatenate(measured) if measured
                     else np.zeros((0, f * f), dtype=np.float32))
         band_cells(target, ci, cj, pixels, models, measured, slot, layout.count, layout.length_mm)
+
+
+@functools.lru_cache(maxsize=16)
+def _pixel_offsets(cell: int, px: float, py: float) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y) offsets (mm, y up; (cell * cell,) float32, row-major, read-only) of a cell's pixel centres from
+    the cell's centre."""
+    v, u = (a.ravel() for a in np.meshgrid(np.arange(cell), np.arange(cell), indexing="ij"))
+    ox = ((u + 0.5 - 0.5 * cell) * px).astype(np.float32)
+    oy = (-(v + 0.5 - 0.5 * cell) * py).astype(np.float32)
+    ox.flags.writeable = oy.flags.writeable = False
+    return ox, oy

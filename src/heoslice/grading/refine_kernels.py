@@ -13,7 +13,12 @@ from heoslice.grading.field_kernels import (
     inverse_distance,
     nearest_end,
 )
+from heoslice.grading.edges_kernels import edge_arrays
+from heoslice.grading.search_kernels import EdgeTree, _nearest_in_batches
 from heoslice.jit import JIT, f32, f64, helper, i64, kernel
+
+#: Most per-pixel distances measured and held at once when cells are evaluated per pixel (float32: 16 MB).
+MEASURED_VALUES = 1 << 22
 
 
 class CellField(NamedTuple):
@@ -342,6 +347,26 @@ def ring_models(d: np.ndarray, g: np.ndarray, grad: np.ndarray, ci: np.ndarray, 
                         float(half_diagonal), float(tolerance))
 
 
+@helper(JIT)
+def _cell_labels(target, i, j, cell, s, count):  # pragma: no cover - compiled
+    """k = clip(floor(s) + 1, 1, count) + base (0 off the mask) at the pixels of cell (i, j) inside
+    ``target``, from s at its cell * cell pixels (row-major)."""
+    index, mask, r0, c0, base = target
+    rows, cols = index.shape
+    masked = mask.shape[0] > 0
+    height, width = min(cell, rows - i * cell), min(cell, cols - j * cell)
+    for v in range(height):
+        r, c = i * cell + v, j * cell
+        # whole arrays and indices, not views of a row (a view takes reference counts, per row of every cell)
+        if masked:
+            for u in range(width):
+                k = min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count)
+                index[r, c + u] = int((k + base) * mask[r0 + r, c0 + c + u])
+        else:
+            for u in range(width):
+                index[r, c + u] = int(min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count) + base)
+
+
 @kernel(JIT, label_arg=0)
 def _band_cells(target, ci, cj, cell_pixels, models, measured, slot, count, length):  # pragma: no cover - compiled
     """Sub-region k of every pixel of whole cells (ci, cj) from each ring set's distance there: the
@@ -350,10 +375,8 @@ def _band_cells(target, ci, cj, cell_pixels, models, measured, slot, count, leng
     with ring set 0 starting, or s = d_0 count / length with one ring set. Per cell, each ring
     set's distances fill a row of pixels, and eq. 10 runs over the cell's pixels with the
     nearest ending ring kept as a running minimum (the first of equals), so the loops vectorise."""
-    index, mask, r0, c0, base = target
+    index = target.out
     cell, px, py = cell_pixels
-    rows, cols = index.shape
-    masked = mask.shape[0] > 0
     sets = models.shape[0]
     half = 0.5 * cell
     pixels = cell * cell
@@ -393,17 +416,7 @@ def _band_cells(target, ci, cj, cell_pixels, models, measured, slot, count, leng
                 numerator = d[0, p] * (1.0 + nearest[p] * rest[p])
                 denominator = nearest[p] + numerator
                 s[p] = count * numerator / denominator if denominator > 0 else count
-        height, width = min(cell, rows - ci[n] * cell), min(cell, cols - cj[n] * cell)
-        for v in range(height):
-            r, c = ci[n] * cell + v, cj[n] * cell
-            # whole arrays and indices, not views of a row (a view takes reference counts, per row of every cell)
-            if masked:
-                for u in range(width):
-                    k = min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count)
-                    index[r, c + u] = int((k + base) * mask[r0 + r, c0 + c + u])
-            else:
-                for u in range(width):
-                    index[r, c + u] = int(min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count) + base)
+        _cell_labels(target, ci[n], cj[n], cell, s, count)
     return index
 
 
@@ -419,3 +432,43 @@ def band_cells(target: LabelTarget, ci: np.ndarray, cj: np.ndarray, pixels: Cell
     pixels = CellPixels(int(pixels.cell), float(pixels.px), float(pixels.py))
     return _band_cells(target, i64(ci), i64(cj), pixels, f64(models), f32(measured), i64(slot), float(count),
                        float(length))
+
+
+@kernel(JIT, label_arg=0)
+def _measured_cells(target, ci, cj, cell_pixels, frame, radius, ox, oy, tree, edges, count,
+                    length):  # pragma: no cover - compiled
+    """:func:`_band_cells` of one ring set measured at every pixel (no model), measuring included: each
+    cell's pixels (centre x0 + (j + 1/2) dx, y0 - (i + 1/2) dy of ``frame``, offsets ox, oy) against the
+    edges within ``radius`` of its centre (:func:`heoslice.grading.search_kernels._nearest_in_batches`,
+    squared float32), then s = d count / length from the float32 root, as the two steps give it."""
+    cell = cell_pixels[0]
+    x0, y0, dx, dy = frame
+    pixels = cell * cell
+    s = np.empty(pixels)
+    step = max(1, MEASURED_VALUES // pixels)
+    for first in range(0, len(ci), step):
+        last = min(first + step, len(ci))
+        cx = np.empty(last - first)
+        cy = np.empty(last - first)
+        for n in range(first, last):
+            cx[n - first] = x0 + (cj[n] + 0.5) * dx
+            cy[n - first] = y0 - (ci[n] + 0.5) * dy
+        squared, _ = _nearest_in_batches(cx, cy, radius[first:last], ox, oy, tree, edges, False)
+        for n in range(first, last):
+            for p in range(pixels):
+                s[p] = np.float64(np.sqrt(squared[n - first, p])) * count / length
+            _cell_labels(target, ci[n], cj[n], cell, s, count)
+    return target.out
+
+
+def measured_cells(target: LabelTarget, ci: np.ndarray, cj: np.ndarray, pixels: CellPixels,
+                   frame: tuple[float, float, float, float], radius: np.ndarray, ox: np.ndarray, oy: np.ndarray,
+                   edges, tree, count: int, length: float) -> np.ndarray:
+    """k at every pixel of lattice cells (ci, cj) ((n,) int) of a family of one ring set, each pixel from
+    its exact distance to the rings' ``edges`` (and their ``tree``) among those within ``radius`` ((n,)
+    mm) of its cell's centre: what refine.refine_cells and :func:`band_cells` give for it, in one call.
+    ``frame`` (x0, y0, dx, dy) places the lattice (mm), ox, oy ((cell * cell,) mm) are the pixels' offsets
+    from their cell's centre; written in place in ``target`` (as :func:`band_cells`)."""
+    pixels = CellPixels(int(pixels.cell), float(pixels.px), float(pixels.py))
+    return _measured_cells(target, i64(ci), i64(cj), pixels, tuple(float(v) for v in frame), f64(radius), f32(ox),
+                           f32(oy), EdgeTree(*tree), edge_arrays(edges), float(count), float(length))
