@@ -124,17 +124,16 @@ def _argsorted_into(values, count, order):  # pragma: no cover - compiled
 
 
 @helper(JIT, inline=False)
-def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  # pragma: no cover - compiled
+def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set):  # pragma: no cover - compiled
     """The nearest edge of group g's candidate chunks to each point (cx[g] + ox[k], cy[g] + oy[k]):
-    (squared distance (g, k) float32, inf where none; edge (g, k) int32, -1 where none, or
-    (0, 0) without ``track``).
+    (g, k) int32, -1 where none; of equally near edges, the first visited.
 
     Chunks are visited nearest first by a lower bound of their distance from the group's
     centre (their capsule's: chord distance less radius); a chunk is skipped when no
     point's capsule distance beats its best so far, and the rest once even the farthest
     point (``reach`` from the centre) cannot be nearer to them than its best; within a chunk
     after the first, so is an edge farther from the centre than the points' worst best plus
-    ``reach`` (and 1e-4 mm for float32: the same distances either way). Compared in
+    ``reach`` (and 1e-4 mm for float32: the same edges either way). Compared in
     float32 from each group's centre (a near tie may pick an edge ~1e-5 mm farther);
     selects, not branches, so the loops over points vectorise.
     """
@@ -145,7 +144,7 @@ def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  
     for k in range(points):
         reach = max(reach, np.sqrt(np.float64(ox[k]) ** 2 + np.float64(oy[k]) ** 2))
     best = np.full((groups, points), np.inf, dtype=np.float32)
-    which = np.full((groups, points) if track else (0, 0), -1, dtype=np.int32)
+    which = np.full((groups, points), -1, dtype=np.int32)
     near = np.empty(points, dtype=np.float32)
     # the points' worst best so far is the greatest of ``near``: non-negative float32s order as their bits do as
     # int32s, so an integer reduction finds it, and vectorises (a float max does not, NaN unexcluded)
@@ -188,17 +187,12 @@ def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  
                     continue  # no point comes nearer to this edge than to its best so far
                 bx, by = np.float32(cx[g] - ex[e]), np.float32(cy[g] - ey[e])
                 vx, vy, inv = np.float32(evx[e]), np.float32(evy[e]), np.float32(einv[e])
-                if track:
-                    edge = np.int32(e)
-                    for k in range(points):
-                        d2 = _squared(bx + ox[k], by + oy[k], vx, vy, inv)
-                        closer = d2 < best[g, k]
-                        which[g, k] = edge if closer else which[g, k]
-                        best[g, k] = d2 if closer else best[g, k]
-                else:
-                    for k in range(points):
-                        d2 = _squared(bx + ox[k], by + oy[k], vx, vy, inv)
-                        best[g, k] = d2 if d2 < best[g, k] else best[g, k]
+                edge = np.int32(e)
+                for k in range(points):
+                    d2 = _squared(bx + ox[k], by + oy[k], vx, vy, inv)
+                    closer = d2 < best[g, k]
+                    which[g, k] = edge if closer else which[g, k]
+                    best[g, k] = d2 if closer else best[g, k]
             for k in range(points):
                 near[k] = np.sqrt(best[g, k])
             top = np.int32(0)
@@ -206,7 +200,53 @@ def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set, track):  
                 top = max(top, near_bits[k])
             greatest_bits[0] = top
             farthest = np.float64(greatest[0])
-    return best, which
+    return which
+
+
+@helper(JIT, inline=False)
+def _nearest_squared(cx, cy, ox, oy, candidates, edge_set):  # pragma: no cover - compiled
+    """The squared distance from each point (cx[g] + ox[k], cy[g] + oy[k]) to the nearest edge of group g's
+    candidate chunks ((g, k) float32, inf where none): the least of :func:`_squared` over those edges.
+
+    Only an edge that some point can be nearer to is measured at the points: no point is farther from its
+    nearest edge than from the edge nearest the centre, which is within ``reach`` of every point, so an
+    edge farther than that from the centre plus ``reach`` (and 1e-4 mm for float32) is nearer to none
+    (the same least either way). That leaves a few of a chunk's edges, measured at every point in one
+    pass each, which vectorises."""
+    start, chunk = candidates
+    ex, ey, evx, evy, einv = edge_set
+    groups, points, edges = len(cx), len(ox), len(ex)
+    reach = 0.0
+    for k in range(points):
+        reach = max(reach, np.sqrt(np.float64(ox[k]) ** 2 + np.float64(oy[k]) ** 2))
+    best = np.full((groups, points), np.inf, dtype=np.float32)
+    widest = 0
+    for g in range(groups):
+        widest = max(widest, start[g + 1] - start[g])
+    apart = np.empty(widest * FAN)
+    measured = np.empty(widest * FAN, dtype=np.int64)
+    for g in range(groups):
+        count = 0
+        nearest = np.inf
+        for m in range(start[g], start[g + 1]):
+            c = chunk[m]
+            for e in range(c * FAN, min(c * FAN + FAN, edges)):
+                apart[count] = point_to_edge(cx[g], cy[g], ex[e], ey[e], evx[e], evy[e], einv[e])
+                measured[count] = e
+                if apart[count] < nearest:  # a NaN is never the nearest
+                    nearest = apart[count]
+                count += 1
+        limit = nearest + 2.0 * reach + 1e-4
+        for n in range(count):
+            if not apart[n] <= limit:  # farther, or not a number (a NaN never wins either way)
+                continue
+            e = measured[n]
+            bx, by = np.float32(cx[g] - ex[e]), np.float32(cy[g] - ey[e])
+            vx, vy, inv = np.float32(evx[e]), np.float32(evy[e]), np.float32(einv[e])
+            for k in range(points):
+                d2 = _squared(bx + ox[k], by + oy[k], vx, vy, inv)
+                best[g, k] = d2 if d2 < best[g, k] else best[g, k]
+    return best
 
 
 @helper(JIT, inline=False)
@@ -319,9 +359,10 @@ def _chunk_capsules(x0, y0, x1, y1):  # pragma: no cover - compiled
 
 @kernel(JIT)
 def _nearest_in_batches(cx, cy, radius, ox, oy, tree, edges, track):  # pragma: no cover - compiled
-    """:func:`_nearest_in_chunks` of groups' candidate chunks (:func:`_candidates`), a bounded number of
-    groups at a time (groups deep inside a round part gather most of its chunks): at most _PAIRS pairs.
-    (best (g, k) float32, or (0, 0) with ``track``; which (g, k) int32, or (0, 0) without.)"""
+    """:func:`_nearest_in_chunks` (with ``track``) or :func:`_nearest_squared` of groups' candidate chunks
+    (:func:`_candidates`), a bounded number of groups at a time (groups deep inside a round part gather most
+    of its chunks): at most _PAIRS pairs. (best (g, k) float32, or (0, 0) with ``track``; which (g, k) int32,
+    or (0, 0) without.)"""
     groups, points = len(cx), len(ox)
     best = np.full((0, 0) if track else (groups, points), np.inf, dtype=np.float32)
     which = np.full((groups, points) if track else (0, 0), -1, dtype=np.int32)
@@ -330,11 +371,10 @@ def _nearest_in_batches(cx, cy, radius, ox, oy, tree, edges, track):  # pragma: 
         last = min(first + step, groups)
         part_x, part_y = cx[first:last], cy[first:last]
         candidates = _candidates(part_x, part_y, radius[first:last], tree.boxes, tree.level_start)
-        part_best, part_which = _nearest_in_chunks(part_x, part_y, ox, oy, candidates, tree.capsules, edges, track)
         if track:
-            which[first:last] = part_which
+            which[first:last] = _nearest_in_chunks(part_x, part_y, ox, oy, candidates, tree.capsules, edges)
         else:
-            best[first:last] = part_best
+            best[first:last] = _nearest_squared(part_x, part_y, ox, oy, candidates, edges)
     return best, which
 
 
@@ -344,7 +384,7 @@ def nearest_in_groups(cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, ox: np
     (cx[g], cy[g]) (every edge within the radius, and maybe a few beyond: exact wherever the
     radius holds each point's nearest edge): with ``track`` the nearest edge ((g, k) int32, -1
     where none), else the squared distance to it ((g, k) float32, mm^2; inf where none). Both in
-    float32 from the group's centre (see :func:`_nearest_in_chunks`).
+    float32 from the group's centre (see :func:`_nearest_in_chunks` and :func:`_nearest_squared`).
 
     ``edges``: EdgeArrays (or RingEdges); ``tree`` is :func:`edge_tree` of the same edges.
     """
