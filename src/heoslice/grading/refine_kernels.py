@@ -356,15 +356,17 @@ def _cell_labels(target, i, j, cell, s, count):  # pragma: no cover - compiled
     masked = mask.shape[0] > 0
     height, width = min(cell, rows - i * cell), min(cell, cols - j * cell)
     for v in range(height):
-        r, c = i * cell + v, j * cell
-        # whole arrays and indices, not views of a row (a view takes reference counts, per row of every cell)
+        # whole arrays and indices, not views of a row (a view takes reference counts, per row of every cell);
+        # unsigned, so that no index may wrap round from the end and the row's stores vectorise
+        r, c = np.uint64(i * cell + v), np.uint64(j * cell)
         if masked:
+            mask_row, mask_col = np.uint64(r0) + r, np.uint64(c0) + c
             for u in range(width):
                 k = min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count)
-                index[r, c + u] = int((k + base) * mask[r0 + r, c0 + c + u])
+                index[r, c + np.uint64(u)] = int((k + base) * mask[mask_row, mask_col + np.uint64(u)])
         else:
             for u in range(width):
-                index[r, c + u] = int(min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count) + base)
+                index[r, c + np.uint64(u)] = int(min(max(np.floor(s[v * cell + u]) + 1.0, 1.0), count) + base)
 
 
 @kernel(JIT, label_arg=0)
