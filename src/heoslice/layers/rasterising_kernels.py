@@ -23,8 +23,9 @@ def _fill_span(packed, row, first, stop):
         packed[row, head] |= (0xFF >> (first & 7)) & ~(0xFF >> (stop & 7))
         return
     packed[row, head] |= 0xFF >> (first & 7)
-    for byte in range(head + 1, tail):
-        packed[row, byte] = 0xFF
+    line = np.uint64(row)  # unsigned indices: none may wrap round from the end, so the loop is one fill
+    for byte in range(np.uint64(head + 1), np.uint64(tail)):
+        packed[line, byte] = 0xFF
     if stop & 7:
         packed[row, tail] |= (0xFF00 >> (stop & 7)) & 0xFF
 
