@@ -143,7 +143,9 @@ def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float]
         return _tifffile_bilevel(packed, form, None)
     codec = _strip_codec(compression, level)
     first, stop = (0, height) if rows is None else rows
-    strips = [codec(packed[row:row + rows_per_strip].tobytes()) if first < row + rows_per_strip and row < stop
+    packed = np.ascontiguousarray(packed)  # each strip's rows are then one run of bytes, compressed where they are
+    strips = [codec(memoryview(packed[row:row + rows_per_strip]).cast("B"))
+              if first < row + rows_per_strip and row < stop
               else _blank_strip(compression, level, packed[row:row + rows_per_strip].nbytes)
               for row in range(0, height, rows_per_strip)]
     layout = bilevel_layout(form)
