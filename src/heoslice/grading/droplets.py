@@ -92,7 +92,9 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
     layout = np.array([(field.box[0], field.box[2], field.lattice.cell, field.lattice.cols, start)
                        for field, start in zip(regions.fields, np.cumsum(sizes) - sizes)], dtype=np.int64)
     table = _layer_choice_table(regions, mixes, fractions, target_mix, base_channel, cache)
-    mixing = LayerMixes(family_of_label, fractions, layout, np.concatenate([mix.ravel() for mix in mixes]), target_mix)
+    # in the kernel's float32 at once: one copy of the cells' mixes, not a float64 one and then its cast
+    flat_mixes = np.concatenate([mix.ravel() for mix in mixes], dtype=np.float32)
+    mixing = LayerMixes(family_of_label, fractions, layout, flat_mixes, target_mix)
     return droplet_bits(LabelledLayer(regions.label, *regions.box[::2], packed), mixing,
                         Dither(layer_tile(layer), table, base_channel), planes)
 
