@@ -123,6 +123,24 @@ def _argsorted_into(values, count, order):  # pragma: no cover - compiled
     order[:count] = np.argsort(values[:count])
 
 
+@helper(JIT)
+def _reach(ox, oy):  # pragma: no cover - compiled
+    """The points' greatest distance (float64 mm) from their group's centre, offsets ox, oy ((k,) float32)."""
+    reach = 0.0
+    for k in range(len(ox)):
+        reach = max(reach, np.sqrt(np.float64(ox[k]) ** 2 + np.float64(oy[k]) ** 2))
+    return reach
+
+
+@helper(JIT)
+def _most_chunks(start):  # pragma: no cover - compiled
+    """The most candidate chunks any group has (CSR ``start``, (g + 1,) int, of :func:`_candidates`)."""
+    widest = 0
+    for g in range(len(start) - 1):
+        widest = max(widest, start[g + 1] - start[g])
+    return widest
+
+
 @helper(JIT, inline=False)
 def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set):  # pragma: no cover - compiled
     """The nearest edge of group g's candidate chunks to each point (cx[g] + ox[k], cy[g] + oy[k]):
@@ -140,9 +158,7 @@ def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set):  # pragm
     start, chunk = candidates
     ex, ey, evx, evy, einv = edge_set
     groups, points, edges = len(cx), len(ox), len(ex)
-    reach = 0.0
-    for k in range(points):
-        reach = max(reach, np.sqrt(np.float64(ox[k]) ** 2 + np.float64(oy[k]) ** 2))
+    reach = _reach(ox, oy)
     best = np.full((groups, points), np.inf, dtype=np.float32)
     which = np.full((groups, points), -1, dtype=np.int32)
     near = np.empty(points, dtype=np.float32)
@@ -151,9 +167,7 @@ def _nearest_in_chunks(cx, cy, ox, oy, candidates, capsules, edge_set):  # pragm
     near_bits = near.view(np.int32)
     greatest = np.empty(1, dtype=np.float32)
     greatest_bits = greatest.view(np.int32)
-    widest = 0
-    for g in range(groups):
-        widest = max(widest, start[g + 1] - start[g])
+    widest = _most_chunks(start)
     bounds = np.empty(widest)
     ranks = np.empty(widest, dtype=np.int64)
     for g in range(groups):
@@ -216,13 +230,9 @@ def _nearest_squared(cx, cy, ox, oy, candidates, edge_set):  # pragma: no cover 
     start, chunk = candidates
     ex, ey, evx, evy, einv = edge_set
     groups, points, edges = len(cx), len(ox), len(ex)
-    reach = 0.0
-    for k in range(points):
-        reach = max(reach, np.sqrt(np.float64(ox[k]) ** 2 + np.float64(oy[k]) ** 2))
+    reach = _reach(ox, oy)
     best = np.full((groups, points), np.inf, dtype=np.float32)
-    widest = 0
-    for g in range(groups):
-        widest = max(widest, start[g + 1] - start[g])
+    widest = _most_chunks(start)
     apart = np.empty(widest * FAN)
     measured = np.empty(widest * FAN, dtype=np.int64)
     for g in range(groups):
