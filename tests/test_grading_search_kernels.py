@@ -68,8 +68,8 @@ def test_nearest_in_groups_matches_brute_force(seed):
     """With a radius that holds every point's nearest edge, the group kernel finds the nearest edge
     (within float32 rounding, 2e-5 mm) and its distance, for points around each group centre (spread
     up to 0.1-8 mm from it, so that chunks are pruned per point and by the group's farthest point, and
-    the squared search's edges by their distance from the centre: a bound any tighter than the centre's
-    nearest edge plus twice the points' reach loses some point's nearest edge here)."""
+    the squared search's edges by their distance from the centre: with that bound at the centre's nearest
+    edge plus one reach, not two, some point's nearest edge is lost here)."""
     rng = np.random.default_rng(seed)
     edges = random_rings(rng, int(rng.integers(1, 4)))
     groups, points = 30, 64
