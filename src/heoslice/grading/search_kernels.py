@@ -222,11 +222,11 @@ def _nearest_squared(cx, cy, ox, oy, candidates, edge_set):  # pragma: no cover 
     """The squared distance from each point (cx[g] + ox[k], cy[g] + oy[k]) to the nearest edge of group g's
     candidate chunks ((g, k) float32, inf where none): the least of :func:`_squared` over those edges.
 
-    Only an edge that some point can be nearer to is measured at the points: no point is farther from its
-    nearest edge than from the edge nearest the centre, which is within ``reach`` of every point, so an
-    edge farther than that from the centre plus ``reach`` (and 1e-4 mm for float32) is nearer to none
-    (the same least either way). That leaves a few of a chunk's edges, measured at every point in one
-    pass each, which vectorises."""
+    Only an edge that can be some point's nearest is measured at the points. Every point is within D +
+    ``reach`` of the edge nearest the centre (D its distance from the centre), so its own nearest edge is
+    no farther; an edge more than D + 2 ``reach`` (and 1e-4 mm for float32) from the centre is farther
+    than that from every point, so it is nobody's nearest (the same least either way). That leaves a few
+    of a chunk's edges, each measured at every point in one pass, which vectorises."""
     start, chunk = candidates
     ex, ey, evx, evy, einv = edge_set
     groups, points, edges = len(cx), len(ox), len(ex)
