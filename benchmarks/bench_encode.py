@@ -8,12 +8,15 @@ tifffile.imwrite from the same strips against the recalled layout, alternating. 
 kind of file (solid, each material's masks), whole-file sizes under other lossless codecs (imagecodecs'),
 to see how small any codec gets a dithered mask, and the smallest a layer gets with each file in its best
 codec (also with the last mask implied by the others), against a PrusaSlicer .sl1 of the job (``--sl1``).
+``--labels MESH`` adds the same layers' per-pixel sub-region labels, recomputed from the job's mesh (0 off the
+solid), under the same codecs: what a stack holding labels instead of droplet masks would take.
 
 Examples:
   heoslice slice liver.ply --grade linear --to 0,255,0 --channels -o liver_stack
   python benchmarks/bench_encode.py liver_stack
   python benchmarks/bench_encode.py liver_stack --every 10 --levels 1,2,6
   python benchmarks/bench_encode.py liver_stack --every 50 --codecs --sl1 liver.sl1
+  python benchmarks/bench_encode.py liver_stack --every 50 --codecs --sl1 liver.sl1 --labels liver.ply
 """
 
 from __future__ import annotations
@@ -52,9 +55,43 @@ def by_tifffile(packed: np.ndarray, width: int, dpi, spacing) -> bytes:
     return buffer.getvalue()
 
 
-def codec_survey(kinds: dict[str, list[np.ndarray]], width: int) -> dict[str, dict[str, float]]:
+def job_labels(mesh_path: Path, manifest: dict, entries: list[dict]) -> list[np.ndarray]:
+    """The sub-region labels of the given layers of a graded stack's job ((height, width) uint, 0 off the solid),
+    recomputed from its mesh with :func:`heoslice.grading.layer_regions` on the stack's own grid."""
+    from bench_grading import layer_inputs
+
+    from heoslice.grading import layer_regions
+    from heoslice.grading.spec import RegionSpec
+    from heoslice.layers.contours import build_contours
+    from heoslice.layers.rasterising import Grid, packed_mask
+    from heoslice.layers.slicing import slice_mesh
+    from heoslice.mesh.load import load_mesh
+
+    grading, image = manifest["grading"], manifest["image"]
+    spec = RegionSpec(nozzle_mm=grading["nozzle_mm"], depth_mm=grading["depth_mm"], direction=grading["direction"],
+                      count=grading["offsets"])
+    (px, py), (x_left, y_top) = manifest["pixel_size_mm"], image["origin_mm"]
+    grid = Grid(width=image["width"], height=image["height"], x_left=x_left, y_top=y_top, px=px, py=py)
+    mesh = load_mesh(mesh_path)
+    contours = build_contours(slice_mesh(mesh.vertices, mesh.faces, np.array([e["z_mm"] for e in entries])))
+    labels = []
+    for index in range(len(entries)):
+        points, offsets, area, parent = layer_inputs(contours, index)
+        packed = packed_mask(points, offsets, grid)
+        regions = layer_regions(points, offsets, area, parent, None, grid, spec, packed)
+        r0, r1, c0, c1 = regions.box
+        label = np.zeros((grid.height, grid.width), dtype=regions.label.dtype)
+        label[r0:r1, c0:c1] = regions.label
+        label[~np.unpackbits(packed, axis=1, count=grid.width).view(bool)] = 0
+        labels.append(label)
+    return labels
+
+
+def codec_survey(kinds: dict[str, list[np.ndarray]], width: int,
+                 labels: list[np.ndarray] = ()) -> dict[str, dict[str, float]]:
     """Mean size (bytes) and time (s) a file of each codec, per kind of file (solid, each material's masks),
-    over whole packed masks (no strips, no TIFF), printed as it goes; returns {kind: {codec: bytes}}."""
+    over whole packed masks (no strips, no TIFF), printed as it goes, and of the ``labels`` (whole images of
+    sub-region labels) where given; returns {kind: {codec: bytes}}."""
     import imagecodecs
 
     def grey(p: np.ndarray) -> np.ndarray:
@@ -79,16 +116,26 @@ def codec_survey(kinds: dict[str, list[np.ndarray]], width: int) -> dict[str, di
             size = float(np.mean([len(encode(p)) for p in packed]))
             sizes.setdefault(kind, {})[name] = size
             print(f"    {name:24s} {size / 1024:7.1f} KB  {(time.perf_counter() - started) / len(packed) * 1e3:7.1f} ms")
+    if len(labels):
+        print(f"  the sub-region labels ({labels[0].dtype}, up to {max(int(a.max()) for a in labels)}), whole images:")
+        label_codecs = {name: codecs[name] for name in ("zlib-ng 9", "zstd 19", "lzma 6")}
+        label_codecs["png 9"] = lambda a: imagecodecs.png_encode(a, level=9)
+        for name, encode in label_codecs.items():
+            size = float(np.mean([len(encode(a)) for a in labels]))
+            sizes.setdefault("labels", {})[name] = size
+            print(f"    {name:24s} {size / 1024:7.1f} KB")
     return sizes
 
 
 def best_layer(sizes: dict[str, dict[str, float]], sl1: Path | None) -> None:
     """The smallest a layer gets with each file in its best codec: all files, and with the last material's mask
     left out (it is the solid pixels no other mask has); against an .sl1's mean compressed layer PNG."""
-    best = {kind: min(by_codec.values()) for kind, by_codec in sizes.items()}
+    best = {kind: min(by_codec.values()) for kind, by_codec in sizes.items() if kind != "labels"}
     masks = [kind for kind in best if kind != "solid"]
     rows = {"every file": sum(best.values()),
             "the last mask implied": sum(best.values()) - (best[masks[-1]] if masks else 0.0)}
+    if "labels" in sizes:
+        rows["the labels instead of the masks"] = best["solid"] + min(sizes["labels"].values())
     reference = None
     if sl1 is not None:
         with zipfile.ZipFile(sl1) as archive:
@@ -112,6 +159,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--codecs", action="store_true", help="also whole-file sizes under other codecs")
     parser.add_argument("--sl1", type=Path, default=None,
                         help="with --codecs: a PrusaSlicer .sl1 of the same job, to compare a layer's best size with")
+    parser.add_argument("--labels", type=Path, default=None, metavar="MESH",
+                        help="with --codecs: the job's mesh, to size its sub-region labels too")
     args = parser.parse_args(argv)
     manifest = read_manifest(args.stack)
     width, dpi, spacing = manifest["image"]["width"], tuple(manifest["dpi"]), manifest["layer_height_mm"]
@@ -140,7 +189,8 @@ def main(argv: list[str] | None = None) -> int:
     for name, values in times.items():
         print(f"  one solid layer, level 1, {name}: {np.median(values) * 1e3:.3f} ms (median of 5, best of 40 each)")
     if args.codecs:
-        best_layer(codec_survey(kinds, width), args.sl1)
+        labels = job_labels(args.labels, manifest, manifest["layers"][::args.every]) if args.labels else []
+        best_layer(codec_survey(kinds, width, labels), args.sl1)
     return 0
 
 
