@@ -229,7 +229,7 @@ def bench_mesh(name: str, model: Path, mesh: trimesh.Trimesh, folder: Path, args
             run = run_measured(command(tool, repeat), folder / f"{tool}-{repeat}.log")
             runs[tool].append(run)
             log(f"{name}: {tool} run {repeat + 1}/{args.repeats}: {run.wall_s:.1f} s, "
-                f"max RSS {run.max_rss_mb:.0f} MB, tree PSS {run.tree_pss_mb or 0:.0f} MB"
+                f"max RSS {run.max_rss_mb:.0f} MB, tree PSS {fmt(run.tree_pss_mb, '.0f')} MB"
                 + ("" if run.returncode == 0 else f"  FAILED (exit {run.returncode})"))
             if run.returncode != 0:
                 failed[tool] = f"exit {run.returncode}: {tail(run.log)}"

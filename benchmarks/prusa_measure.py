@@ -9,7 +9,8 @@ size. Because heoslice renders layers in worker processes, the memory of the who
 matters too: a background thread sums the proportional set size (PSS: shared pages split
 between sharers, so forked workers are not double counted) of every process in the tree
 from /proc every ``interval`` seconds and keeps the maximum. Sampling can miss spikes
-shorter than the interval; off Linux it reports None. The interval is half a second:
+shorter than the interval, and a run that ends before the first sample reports None (not 0), as
+off Linux. The interval is half a second:
 reading smaps_rollup of heoslice's three processes takes ~14 ms (graded vase), so
 sampling every 0.1 s took ~7 % of a 2-core machine from the tree being measured (a
 single-process tool paid about a third of that).
@@ -123,7 +124,7 @@ def tree_sampling_available() -> bool:
 def run_measured(command: list[str], log: Path, *, interval: float = 0.5, env: dict | None = None) -> Measured:
     """Run ``command`` with stdout and stderr to ``log``; return its wall time and memory peaks."""
     sample = tree_sampling_available()
-    peak_kb = 0
+    peak_kb, samples = 0, 0
     stop = threading.Event()
     report = log.with_suffix(".rusage")
     with open(log, "wb") as out:
@@ -132,9 +133,11 @@ def run_measured(command: list[str], log: Path, *, interval: float = 0.5, env: d
                                    stdin=subprocess.DEVNULL, env=env)
 
         def sampler() -> None:
-            nonlocal peak_kb
+            nonlocal peak_kb, samples
             while not stop.wait(interval):
-                peak_kb = max(peak_kb, sum(_pss_kb(pid) for pid in _descendants(process.pid)))
+                tree_kb = sum(_pss_kb(pid) for pid in _descendants(process.pid))
+                if tree_kb:  # 0: the tree had ended before this sample
+                    peak_kb, samples = max(peak_kb, tree_kb), samples + 1
 
         thread = threading.Thread(target=sampler, daemon=True)
         if sample:
@@ -145,7 +148,7 @@ def run_measured(command: list[str], log: Path, *, interval: float = 0.5, env: d
         if sample:
             thread.join()
     return Measured(wall_s=wall, cpu_s=cpu_seconds(report), returncode=process.returncode, max_rss_mb=max_rss_kb(report) / 1024.0,
-                    tree_pss_mb=peak_kb / 1024.0 if sample else None, log=log)
+                    tree_pss_mb=peak_kb / 1024.0 if sample and samples else None, log=log)
 
 
 def tail(path: Path, lines: int = 5) -> str:
