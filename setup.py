@@ -34,7 +34,8 @@ class BuildKernels(build_ext):
         # __init__, which would load every stage (and every dependency) of heoslice
         source = Path(__file__).resolve().parent / "src" / "heoslice"
         for name, path in (("heoslice", source), ("heoslice.mesh", source / "mesh"),
-                           ("heoslice.layers", source / "layers"), ("heoslice.grading", source / "grading")):
+                           ("heoslice.layers", source / "layers"), ("heoslice.material", source / "material"),
+                           ("heoslice.grading", source / "grading")):
             package = types.ModuleType(name)
             package.__path__ = [str(path)]
             sys.modules[name] = package

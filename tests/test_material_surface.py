@@ -6,12 +6,14 @@ every triangle of a mesh.
 
 from __future__ import annotations
 
+import sys
+import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
-from helpers import brute_force_distance
+from helpers import brute_force_distance, modules_loaded_by_command
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -83,6 +85,51 @@ def test_surface_distance_on_a_fine_sphere_in_chunks():
     ours = surface_distance(points, index, chunk=32, workers=2, progress=lambda done, total: calls.append((done, total)))
     assert np.allclose(ours, brute_force_distance(points, mesh), rtol=0, atol=1e-9)
     assert calls == [(32, 120), (64, 120), (96, 120), (120, 120)]
+
+
+def test_coloring_by_a_surface_loads_no_numba(tmp_path):
+    """`heoslice color --ref surface` (a fresh process) runs the surface distance's compiled kernels: it never
+    imports numba or LLVM, which would compile them just in time on a machine's first run."""
+    model, lesion = tmp_path / "vase.ply", tmp_path / "lesion.ply"
+    model.write_bytes(procedural.vase(sections=16, rings_outer=10, rings_inner=8).export(file_type="ply"))
+    lesion.write_bytes(procedural.sphere(radius=3.0, subdivisions=2, center=(0.0, 0.0, 30.0)).export(file_type="ply"))
+    args = ["color", str(model), "--ref", "surface", "--surface", str(lesion), "-o", str(tmp_path / "out.ply")]
+    assert modules_loaded_by_command(args, ("numba", "llvmlite")) == []
+
+
+def test_the_nearest_distance_kernel_lets_other_threads_run():
+    """While the compiled nearest-distance kernel works, another Python thread keeps running: the kernel
+    releases the GIL (as numba's nogil does just in time), so surface_distance's threads measure side by side.
+    With a switch interval longer than the call, a kernel that held the GIL would let the waiting counter
+    thread in only after the call, when nothing is counted any more."""
+    from heoslice.material.surface_kernels import nearest_distances
+
+    mesh = procedural.sphere(radius=10.0, subdivisions=4)
+    index = build_surface_index(mesh.vertices, mesh.faces)
+    points = np.random.default_rng(5).uniform(-30, 30, size=(20_000, 3))
+    out = np.empty(len(points))
+    nearest_distances(points[:10], index.tree, out[:10])
+    counted, working, stop = [0], threading.Event(), threading.Event()
+
+    def count() -> None:
+        while not stop.is_set():
+            if working.is_set():
+                counted[0] += 1
+
+    interval = sys.getswitchinterval()
+    counter = threading.Thread(target=count)
+    try:
+        sys.setswitchinterval(0.5)
+        counter.start()
+        working.set()
+        nearest_distances(points, index.tree, out)
+        working.clear()
+    finally:
+        stop.set()
+        sys.setswitchinterval(interval)
+        counter.join()
+    assert counted[0] > 0
+    assert np.allclose(out[:200], brute_force_distance(points[:200], mesh), rtol=0, atol=1e-9)
 
 
 def test_curve_order_is_a_permutation_that_keeps_neighbours_close():

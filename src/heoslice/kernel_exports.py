@@ -1,5 +1,5 @@
 """The ahead-of-time build of every compiled kernel (the mesh's, the slicing's, the chaining's, the
-rasteriser's and the grading's): what each kernel Python calls takes, and the compile.
+rasteriser's, the surface distance's and the grading's): what each kernel Python calls takes, and the compile.
 
 Run by ``setup.py`` when heoslice is installed (never at run time: it needs numba, and kernels compiled
 just in time, ``HEOSLICE_JIT=1``). Each kernel listed in :data:`heoslice.jit.ENTRIES` is exported
@@ -17,7 +17,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from numba import types
+from numba.core.compiler import Flags
+from numba.core.targetconfig import Option
 from numba.pycc import CC
+from numba.pycc import compiler as pycc_compiler
 
 from heoslice.grading import (
     droplets_kernels,
@@ -39,6 +42,7 @@ from heoslice.jit import (
     source_digest,
 )
 from heoslice.layers import contours_kernels, rasterising_kernels, slicing_kernels
+from heoslice.material import surface_kernels
 from heoslice.mesh import topology_kernels, weld_kernels
 
 f8, i8, b1 = types.float64, types.int64, types.boolean
@@ -55,6 +59,7 @@ FRAME = types.NamedUniTuple(f8, 4, lattice_kernels.LatticeFrame)
 CELL_FIELD = types.NamedTuple((f8_2, f8_3, b_2, b_2, b_2), refine_kernels.CellField)
 FIT_TEST = types.NamedUniTuple(f8, 5, refine_kernels.FitTest)
 VERTICES = types.NamedTuple((i8_1, f8_1, f8_1, f8_1, f8, f8), refine_kernels.RingVertices)
+HIERARCHY = types.NamedTuple((f8_2, f8_2, i8_1, i8_1, i8_1, i8_1, f8_3, f8_2, f8_1), surface_kernels.Hierarchy)
 
 
 def _target(bits: int) -> types.Type:
@@ -105,6 +110,8 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     search_kernels._tree_boxes: (f8_1, f8_1, f8_1, f8_1, i8_1),
     search_kernels._chunk_capsules: (f8_1, f8_1, f8_1, f8_1),
     slicing_kernels._layer_segments: (f8_2, i8_2, f8_1, i8_1, i8_1),
+    surface_kernels.build_nodes: (f8_2, f8_2, f8_2, i8),
+    surface_kernels.nearest_distances: (f8_2, HIERARCHY, f8_1),
     topology_kernels._edge_runs: (i8_2, i8),
     topology_kernels._lowest_connected: (i8_1, i8_1, i8),
     weld_kernels._first_rows: (u8_1, u4_2),
@@ -128,6 +135,14 @@ def _forwarding(dispatcher: Callable) -> Callable:
     namespace = {"kernel": dispatcher}
     exec(f"def forward({', '.join(names)}):\n    return kernel({', '.join(names)})\n", namespace)  # noqa: S102
     return namespace["forward"]
+
+
+class _GilReleasingFlags(Flags):
+    """numba's compile flags with the GIL released around each export's native code, as ``nogil`` releases it
+    around a kernel compiled just in time (numba.pycc's own flags hold it): threads may then run kernels side by
+    side (the surface distance measures its chunks in threads)."""
+
+    release_gil = Option(type=bool, default=True, doc="Release the GIL inside the native function")
 
 
 def compile_kernels(directory: Path, filename: str) -> Path:
@@ -161,5 +176,9 @@ def compile_kernels(directory: Path, filename: str) -> Path:
 
     cc.export(DIGEST_EXPORT, types.int64())(digest_of_sources)
     cc.export(LAYOUTS_EXPORT, types.unicode_type())(argument_layouts)
-    cc.compile()
+    holding, pycc_compiler.Flags = pycc_compiler.Flags, _GilReleasingFlags
+    try:
+        cc.compile()
+    finally:
+        pycc_compiler.Flags = holding
     return directory / filename

@@ -18,7 +18,7 @@ import numpy as np
 
 from heoslice.errors import InputError
 
-if TYPE_CHECKING:  # the kernels load numba; only a surface reference needs them, so they are imported when used
+if TYPE_CHECKING:  # only a surface reference needs the kernels, so they are imported when used
     from heoslice.material.surface_kernels import Hierarchy
 
 

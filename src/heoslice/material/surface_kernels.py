@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
-_JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
+from heoslice.jit import EXACT, helper, kernel
+
 #: Triangles per leaf at most.
 LEAF_SIZE = 8
 #: Depth of the traversal stack; a tree built by halving has depth about log2(m / LEAF_SIZE) + 1.
@@ -42,8 +42,8 @@ class Hierarchy(NamedTuple):
     radius: np.ndarray
 
 
-@numba.njit(**_JIT)
-def build_nodes(centroid: np.ndarray, tri_low: np.ndarray, tri_high: np.ndarray, leaf_size: int):
+@kernel(EXACT)
+def build_nodes(centroid: np.ndarray, tri_low: np.ndarray, tri_high: np.ndarray, leaf_size: int):  # pragma: no cover
     """Split triangles at the median centroid along their boxes' longest axis until leaves hold <= leaf_size.
 
     centroid, tri_low, tri_high (m, 3): each triangle's centroid and box. Returns (order (m,),
@@ -98,8 +98,8 @@ def build_nodes(centroid: np.ndarray, tri_low: np.ndarray, tri_high: np.ndarray,
     return order, low[:nodes], high[:nodes], left[:nodes], right[:nodes], first[:nodes], count[:nodes]
 
 
-@numba.njit(inline="always", **_JIT)
-def _box_distance2(px, py, pz, low, high, node):
+@helper(EXACT)
+def _box_distance2(px, py, pz, low, high, node):  # pragma: no cover - compiled
     """Squared distance from a point to a node's box (0 inside)."""
     gx = max(low[node, 0] - px, 0.0, px - high[node, 0])
     gy = max(low[node, 1] - py, 0.0, py - high[node, 1])
@@ -107,8 +107,8 @@ def _box_distance2(px, py, pz, low, high, node):
     return gx * gx + gy * gy + gz * gz
 
 
-@numba.njit(inline="always", **_JIT)
-def _segment_distance2(px, py, pz, ax, ay, az, bx, by, bz):
+@helper(EXACT)
+def _segment_distance2(px, py, pz, ax, ay, az, bx, by, bz):  # pragma: no cover - compiled
     """Squared distance from a point to the segment a-b (a point when a == b)."""
     ex, ey, ez = bx - ax, by - ay, bz - az
     length2 = ex * ex + ey * ey + ez * ez
@@ -120,8 +120,8 @@ def _segment_distance2(px, py, pz, ax, ay, az, bx, by, bz):
     return gx * gx + gy * gy + gz * gz
 
 
-@numba.njit(**_JIT)
-def triangle_distance2(px, py, pz, tri):
+@helper(EXACT, inline=False)
+def triangle_distance2(px, py, pz, tri):  # pragma: no cover - compiled
     """Squared distance from a point to a triangle (3, 3): Ericson's region test (Real-Time Collision
     Detection, 5.1.5); a degenerate triangle is measured as its three edges."""
     ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
@@ -166,9 +166,9 @@ def triangle_distance2(px, py, pz, tri):
     return gx * gx + gy * gy + gz * gz
 
 
-@numba.njit(**_JIT)
-def nearest_distances(points: np.ndarray, tree: Hierarchy, out: np.ndarray) -> None:
-    """Exact distance (n,) mm from each point (n, 3) to the nearest triangle of ``tree``, into ``out``.
+@kernel(EXACT)
+def nearest_distances(points: np.ndarray, tree: Hierarchy, out: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """Exact distance (n,) mm from each point (n, 3) to the nearest triangle of ``tree``, into ``out`` (returned).
 
     Depth first, the nearer child first; a node is skipped when its box is no nearer than
     the best triangle so far (the box bound), so every triangle not measured is no nearer.
@@ -216,3 +216,4 @@ def nearest_distances(points: np.ndarray, tree: Hierarchy, out: np.ndarray) -> N
                 stack[top], bound[top] = a, da
                 top += 1
         out[i] = np.sqrt(best)
+    return out
