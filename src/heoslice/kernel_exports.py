@@ -26,6 +26,7 @@ from heoslice.grading import (
     droplets_kernels,
     edges_kernels,
     field_kernels,
+    fit_kernels,
     labels_kernels,
     lattice_kernels,
     materials_kernels,
@@ -59,6 +60,7 @@ FRAME = types.NamedUniTuple(f8, 4, lattice_kernels.LatticeFrame)
 CELL_FIELD = types.NamedTuple((f8_2, f8_3, b_2, b_2, b_2), refine_kernels.CellField)
 FIT_TEST = types.NamedUniTuple(f8, 5, refine_kernels.FitTest)
 VERTICES = types.NamedTuple((i8_1, f8_1, f8_1, f8_1, f8, f8), refine_kernels.RingVertices)
+ONE_RING_FIT = types.NamedUniTuple(f8, 10, fit_kernels.OneRingFit)
 HIERARCHY = types.NamedTuple((f8_2, f8_2, i8_1, i8_1, i8_1, i8_1, f8_3, f8_2, f8_1), surface_kernels.Hierarchy)
 
 
@@ -89,6 +91,8 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     field_kernels._curved_cells: (f8_3, b_2, b_2),
     field_kernels._expand_planes: lambda bits: (f8_2, f8_3, b_2, b_2, i8, PIXELS, f8, _target(bits)),
     field_kernels._curve_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, f8_2, f8),
+    fit_kernels._one_ring_labels: lambda bits: (_target(bits), f8_2, f8_3, ONE_RING_FIT, PIXELS, types.UniTuple(f8, 4),
+                                                f4_1, f4_1, TREE, EDGES),
     labels_kernels._disc_winding: (f8_2, i8_1, i8_1, f8, f8, f8),
     lattice_kernels._signed_feet: (i8_2, FRAME, EDGES, b_2, b1),
     lattice_kernels._inside_centres: (EDGES, f8_1, FRAME, i8, i8),

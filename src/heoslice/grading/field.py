@@ -60,6 +60,7 @@ from heoslice.grading.refine import (
     cell_hessians,
     cells_to_refine,
     fit_ring_models,
+    one_ring_cells,
     refine_cells,
     ring_vertices,
 )
@@ -260,6 +261,13 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
             return start_at[2][:, 1:-1, 1:-1], start_at[3][1:-1, 1:-1]
 
         return _single_region_index(shape, mask, (lattice.row0, lattice.col0), label_base, dtype), nearest
+    if len(ring_sets) == 1:
+        # one ring set (no holes, or a target depth): the fit below in one compiled call
+        start_at = measure(ring_sets)[0]
+        index = one_ring_cells(np.empty(shape, dtype=dtype), lattice, grid, layout, ring_sets[0], start_at[0],
+                               start_at[1], mask, label_base)
+        foot, edge = start_at[2][:, 1:-1, 1:-1], start_at[3][1:-1, 1:-1]
+        return index, lambda: (foot, edge)
     start, ends = ring_sets[0], ring_sets[1:]
     start_at, *ends_at = measure(ring_sets)
     d = np.stack([start_at[0]] + [at[0] for at in ends_at])

@@ -7,9 +7,11 @@ import functools
 
 import numpy as np
 
+from heoslice.grading.edges_kernels import edge_arrays
 from heoslice.grading.families import FamilyLayout
 from heoslice.grading.field_kernels import CellPixels, label_target
-from heoslice.grading.lattice import Lattice
+from heoslice.grading.fit_kernels import OneRingFit, one_ring_labels
+from heoslice.grading.lattice import Lattice, padded
 from heoslice.grading.refine_kernels import (
     MEASURED_VALUES,
     CellField,
@@ -22,6 +24,7 @@ from heoslice.grading.refine_kernels import (
     ring_models,
 )
 from heoslice.grading.search import RingSet, nearest_edges
+from heoslice.grading.search_kernels import EdgeTree
 from heoslice.layers.rasterising import Grid
 
 #: Largest error of a sub-region boundary, in pixels, before a lattice cell is evaluated per pixel.
@@ -60,10 +63,16 @@ def cells_to_refine(s: np.ndarray, grad: np.ndarray, known: np.ndarray, side: np
     one) within TOLERANCE_PX at the ring ``vertices`` around the cell (:func:`ring_vertices`):
     a round outline's steady turn, not a hidden notch, whose tip is a vertex.
     """
+    return refine_flags(CellField(s, grad, known, side, candidate), FitTest(lattice.dx, lattice.dy,
+                                                                             *fit_test(lattice, grid), count),
+                        hessian, vertices)
+
+
+def fit_test(lattice: Lattice, grid: Grid) -> tuple[float, float]:
+    """The fit test's misfit allowed at a neighbour's centre (mm of s's slope: twice TOLERANCE_PX pixels) and
+    the cosine of the largest turn allowed next to the outline (:func:`cells_to_refine`)."""
     tolerance = 2.0 * TOLERANCE_PX * min(grid.px, grid.py)
-    limit = np.sqrt(max(0.0, 1.0 - (2.0 * TOLERANCE_PX / lattice.cell) ** 2))
-    return refine_flags(CellField(s, grad, known, side, candidate), FitTest(lattice.dx, lattice.dy, tolerance, limit,
-                                                                             count), hessian, vertices)
+    return tolerance, float(np.sqrt(max(0.0, 1.0 - (2.0 * TOLERANCE_PX / lattice.cell) ** 2)))
 
 
 def ring_vertices(ring_sets: list[tuple[RingSet, float]], lattice: Lattice) -> RingVertices:
@@ -155,6 +164,24 @@ def refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, n
         measured = (measured[0] if len(measured) == 1 else np.concatenate(measured) if measured
                     else np.zeros((0, f * f), dtype=np.float32))
         band_cells(target, ci, cj, pixels, models, measured, slot, layout.count, layout.length_mm)
+
+
+def one_ring_cells(index: np.ndarray, lattice: Lattice, grid: Grid, layout: FamilyLayout, rings: RingSet,
+                   signed: np.ndarray, gradient: np.ndarray, mask: np.ndarray | None = None,
+                   label_base: int = 0) -> np.ndarray:
+    """k at every pixel of a family graded from one ring set (``index`` (rows, cols), in place, labelled as
+    :func:`refine_cells` labels), from the signed distance to ``rings`` and its gradient at the centres of the
+    ``lattice`` padded by a cell ((rows + 2, cols + 2) mm and (rows + 2, cols + 2, 2)): the planes and
+    quadratics where they fit (:func:`cells_to_refine`), each pixel's exact distance where not, in one
+    compiled call (:func:`heoslice.grading.fit_kernels.one_ring_labels`)."""
+    outer = padded(lattice)
+    fit = OneRingFit(lattice.dx, lattice.dy, 0.5 * np.hypot(lattice.dx, lattice.dy), np.hypot(lattice.dx, lattice.dy),
+                     *fit_test(lattice, grid), layout.count, layout.length_mm, outer.x0, outer.y0)
+    ox, oy = _pixel_offsets(lattice.cell, grid.px, grid.py)
+    return one_ring_labels(label_target(index, mask, (lattice.row0, lattice.col0), label_base), signed, gradient,
+                           fit, CellPixels(lattice.cell, float(grid.px), float(grid.py)),
+                           (lattice.x0, lattice.y0, lattice.dx, lattice.dy), ox, oy, EdgeTree(*rings.tree),
+                           edge_arrays(rings.edges))
 
 
 @functools.lru_cache(maxsize=16)

@@ -1,0 +1,113 @@
+"""heoslice.grading.fit_kernels: a one-ring family's lattice fit in one compiled call labels every pixel as the
+general fit's steps label it (field._lattice_index's path for several ring sets, written out here for one),
+and it groups the ring's vertices by cell as refine.ring_vertices does."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import PX, circle, grid_around, layer, rough_outline
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from heoslice.grading import RegionSpec, family_field, layer_families
+from heoslice.grading import field as field_module
+from heoslice.grading.field_kernels import CellPixels, cell_classes, curve_cells, curved_cells, label_target
+from heoslice.grading.fit_kernels import _vertices_by_cell
+from heoslice.grading.lattice import Lattice, padded
+from heoslice.grading.refine import cell_hessians, cells_to_refine, refine_cells, ring_vertices
+from heoslice.grading.search import LazyTree, RingSet
+from heoslice.layers.rasterising import solid_mask
+
+pytestmark = pytest.mark.usefixtures("lattice_fit_for_every_family")  # conftest.py: small families on the lattice too
+
+
+def stepwise_one_ring(index_shape, dtype, lattice, grid, layout, rings, signed, gradient, mask, label_base):
+    """The reference: field._lattice_index's general path, step by step, for one ring set (s = d N_R / L_S).
+    Returns (the labels, how many cells were refined, how many took their quadratic)."""
+    padded_lattice = padded(lattice)
+    d, g = np.stack([signed]), np.stack([gradient])
+    scale = layout.count / layout.length_mm
+    s, grad = d[0] * scale, g[0] * scale
+    touched, beyond, candidate, known, side = cell_classes(s, grad, d, 0.5 * np.hypot(lattice.dx, lattice.dy),
+                                                           layout.count)
+    hessian = cell_hessians(grad, padded_lattice)
+    vertices = ring_vertices([(rings, 0.0)], padded_lattice)
+    refine = cells_to_refine(s, grad, known, side, candidate, padded_lattice, grid, layout.count, hessian, vertices)
+    refined = np.nonzero(refine)
+    curved = curved_cells(hessian, candidate, refine)
+    inner = (slice(1, -1), slice(1, -1))
+    if not known[inner].all():
+        s, grad = np.where(known, s, 0.0), np.where(known[..., None], grad, 0.0)
+    index = field_module._expand_planes(lattice, s, grad, grid, beyond, layout.count, index_shape, mask, label_base,
+                                        ~touched, dtype)
+    if len(curved[0]):
+        curve_cells(label_target(index, mask, (lattice.row0, lattice.col0), label_base), curved[0], curved[1],
+                    CellPixels(lattice.cell, grid.px, grid.py), s[inner], grad[inner], hessian[:, 1:-1, 1:-1],
+                    layout.count)
+    if len(refined[0]):
+        cells = (refined[0] - 1, refined[1] - 1)
+        refine_cells(index, lattice, cells, grid, layout, [(rings, np.abs(signed[inner][cells]), None)], mask,
+                     label_base)
+    return index, len(refined[0]), len(curved[0])
+
+
+def notched_square(half: float) -> np.ndarray:
+    """A square with a V notch cut into its top side (a reflex vertex and two sharp corners), counter-clockwise."""
+    return np.array([[-half, -half], [half, -half], [half, half], [0.4, half], [0.0, 0.2 * half], [-0.4, half],
+                     [-half, half]])
+
+
+SHAPES = {
+    "disc": lambda: circle(6.0),
+    "rough outline": lambda: rough_outline(3),
+    "notched square": lambda: notched_square(5.0),
+    "thin slot": lambda: np.array([[-12.0, -0.7], [12.0, -0.7], [12.0, 0.7], [-12.0, 0.7]]),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SHAPES))
+@pytest.mark.parametrize(("masked", "label_base"), [(False, 0), (True, 7)])
+def test_the_one_call_fit_labels_as_the_stepwise_fit(monkeypatch, name, masked, label_base):
+    """Through family_field, the compiled one-ring fit and the general fit's steps give the same labels, bit for
+    bit, with and without the layer's mask and a label base: discs (quadratic cells), rough and notched
+    outlines (refined cells measured per pixel) and a slot thinner than a few cells."""
+    points, offsets, area, parent = layer(SHAPES[name]())
+    grid = grid_around(14.0)
+    family = layer_families(area, parent)[0]
+    mask = solid_mask(points, offsets, grid) if masked else None
+    real, compared = field_module.one_ring_cells, []
+
+    def both(index, lattice, grid, layout, rings, signed, gradient, mask=None, label_base=0):
+        expected, refined, curved = stepwise_one_ring(index.shape, index.dtype, lattice, grid, layout, rings, signed,
+                                                      gradient, mask, label_base)
+        got = real(index, lattice, grid, layout, rings, signed, gradient, mask, label_base)
+        compared.append((got.dtype == expected.dtype and np.array_equal(got, expected), refined + curved))
+        return got
+
+    monkeypatch.setattr(field_module, "one_ring_cells", both)
+    field = family_field(points, offsets, family, grid, RegionSpec(nozzle_mm=0.25), mask=mask, label_base=label_base)
+    assert field.layout.count > 1
+    assert len(compared) == 1
+    same, modelled = compared[0]
+    assert same
+    assert modelled > 0  # some cells were refined or took their quadratic: the fit's every step ran
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10_000), rows=st.integers(1, 9), cols=st.integers(1, 9), cell=st.integers(4, 16))
+def test_vertices_grouped_by_cell_as_ring_vertices_groups_them(seed, rows, cols, cell):
+    """_vertices_by_cell gives refine.ring_vertices' CSR of one ring set's vertices (s = 0), in the same order,
+    for vertices inside, on the edges of and outside the lattice."""
+    rng = np.random.default_rng(seed)
+    lattice = Lattice(row0=0, col0=0, cell=cell, rows=rows, cols=cols, x0=-1.0, y0=2.0, dx=cell * PX, dy=cell * PX)
+    count = int(rng.integers(1, 60))
+    x = lattice.x0 + rng.uniform(-0.3, 1.3, count) * cols * lattice.dx
+    y = lattice.y0 - rng.uniform(-0.3, 1.3, count) * rows * lattice.dy
+    x[: count // 4] = lattice.x0 + rng.integers(0, cols + 1, count // 4) * lattice.dx  # on the cells' edges
+    edges = field_module.ring_edges(np.column_stack([x, y]), np.array([0, count]), [0])
+    rings = RingSet((0,), edges, True, LazyTree(edges))
+    expected = ring_vertices([(rings, 0.0)], lattice)
+    start, vx, vy, vs = _vertices_by_cell(edges.x, edges.y, lattice.x0, lattice.y0, lattice.dx, lattice.dy, rows, cols)
+    assert np.array_equal(start, expected.start)
+    assert np.array_equal(vx, expected.x) and np.array_equal(vy, expected.y) and np.array_equal(vs, expected.s)
