@@ -1,6 +1,6 @@
 """heoslice.grading.fit_kernels: a one-ring family's lattice fit in one compiled call labels every pixel as the
-general fit's steps label it (field._lattice_index's path for several ring sets, written out here for one),
-and it groups the ring's vertices by cell as refine.ring_vertices does."""
+general fit's steps label it (field._fitted_index, the path of families of several ring sets), and it groups
+the ring's vertices by cell as refine.ring_vertices does."""
 
 from __future__ import annotations
 
@@ -12,44 +12,13 @@ from hypothesis import strategies as st
 
 from heoslice.grading import RegionSpec, family_field, layer_families
 from heoslice.grading import field as field_module
-from heoslice.grading.field_kernels import CellPixels, cell_classes, curve_cells, curved_cells, label_target
 from heoslice.grading.fit_kernels import _vertices_by_cell
-from heoslice.grading.lattice import Lattice, padded
-from heoslice.grading.refine import cell_hessians, cells_to_refine, refine_cells, ring_vertices
+from heoslice.grading.lattice import Lattice
+from heoslice.grading.refine import ring_vertices
 from heoslice.grading.search import LazyTree, RingSet
 from heoslice.layers.rasterising import solid_mask
 
 pytestmark = pytest.mark.usefixtures("lattice_fit_for_every_family")  # conftest.py: small families on the lattice too
-
-
-def stepwise_one_ring(index_shape, dtype, lattice, grid, layout, rings, signed, gradient, mask, label_base):
-    """The reference: field._lattice_index's general path, step by step, for one ring set (s = d N_R / L_S).
-    Returns (the labels, how many cells were refined, how many took their quadratic)."""
-    padded_lattice = padded(lattice)
-    d, g = np.stack([signed]), np.stack([gradient])
-    scale = layout.count / layout.length_mm
-    s, grad = d[0] * scale, g[0] * scale
-    touched, beyond, candidate, known, side = cell_classes(s, grad, d, 0.5 * np.hypot(lattice.dx, lattice.dy),
-                                                           layout.count)
-    hessian = cell_hessians(grad, padded_lattice)
-    vertices = ring_vertices([(rings, 0.0)], padded_lattice)
-    refine = cells_to_refine(s, grad, known, side, candidate, padded_lattice, grid, layout.count, hessian, vertices)
-    refined = np.nonzero(refine)
-    curved = curved_cells(hessian, candidate, refine)
-    inner = (slice(1, -1), slice(1, -1))
-    if not known[inner].all():
-        s, grad = np.where(known, s, 0.0), np.where(known[..., None], grad, 0.0)
-    index = field_module._expand_planes(lattice, s, grad, grid, beyond, layout.count, index_shape, mask, label_base,
-                                        ~touched, dtype)
-    if len(curved[0]):
-        curve_cells(label_target(index, mask, (lattice.row0, lattice.col0), label_base), curved[0], curved[1],
-                    CellPixels(lattice.cell, grid.px, grid.py), s[inner], grad[inner], hessian[:, 1:-1, 1:-1],
-                    layout.count)
-    if len(refined[0]):
-        cells = (refined[0] - 1, refined[1] - 1)
-        refine_cells(index, lattice, cells, grid, layout, [(rings, np.abs(signed[inner][cells]), None)], mask,
-                     label_base)
-    return index, len(refined[0]), len(curved[0])
 
 
 def notched_square(half: float) -> np.ndarray:
@@ -76,22 +45,30 @@ def test_the_one_call_fit_labels_as_the_stepwise_fit(monkeypatch, name, masked, 
     grid = grid_around(14.0)
     family = layer_families(area, parent)[0]
     mask = solid_mask(points, offsets, grid) if masked else None
-    real, compared = field_module.one_ring_cells, []
+    real, compared, steps = field_module.one_ring_cells, [], []
+    for step in ("curve_cells", "refine_cells"):
+        monkeypatch.setattr(field_module, step, _counted(getattr(field_module, step), step, steps))
 
     def both(index, lattice, grid, layout, rings, signed, gradient, mask=None, label_base=0):
-        expected, refined, curved = stepwise_one_ring(index.shape, index.dtype, lattice, grid, layout, rings, signed,
-                                                      gradient, mask, label_base)
+        expected = field_module._fitted_index(lattice, grid, layout, [rings], [(signed, gradient)], index.shape,
+                                              mask, label_base, index.dtype)
         got = real(index, lattice, grid, layout, rings, signed, gradient, mask, label_base)
-        compared.append((got.dtype == expected.dtype and np.array_equal(got, expected), refined + curved))
+        compared.append(got.dtype == expected.dtype and np.array_equal(got, expected))
         return got
 
     monkeypatch.setattr(field_module, "one_ring_cells", both)
     field = family_field(points, offsets, family, grid, RegionSpec(nozzle_mm=0.25), mask=mask, label_base=label_base)
     assert field.layout.count > 1
-    assert len(compared) == 1
-    same, modelled = compared[0]
-    assert same
-    assert modelled > 0  # some cells were refined or took their quadratic: the fit's every step ran
+    assert compared == [True]
+    assert steps  # some cells took their quadratic or were measured per pixel: the fit's every step ran
+
+
+def _counted(function, name: str, calls: list):
+    """``function``, noting its ``name`` in ``calls`` at each call."""
+    def counting(*args, **kwargs):
+        calls.append(name)
+        return function(*args, **kwargs)
+    return counting
 
 
 @settings(max_examples=60, deadline=None)

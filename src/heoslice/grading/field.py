@@ -261,17 +261,25 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
             return start_at[2][:, 1:-1, 1:-1], start_at[3][1:-1, 1:-1]
 
         return _single_region_index(shape, mask, (lattice.row0, lattice.col0), label_base, dtype), nearest
+    measured = measure(ring_sets)
     if len(ring_sets) == 1:
-        # one ring set (no holes, or a target depth): the fit below in one compiled call
-        start_at = measure(ring_sets)[0]
-        index = one_ring_cells(np.empty(shape, dtype=dtype), lattice, grid, layout, ring_sets[0], start_at[0],
-                               start_at[1], mask, label_base)
-        foot, edge = start_at[2][:, 1:-1, 1:-1], start_at[3][1:-1, 1:-1]
-        return index, lambda: (foot, edge)
+        # one ring set (no holes, or a target depth): the steps of _fitted_index in one compiled call
+        index = one_ring_cells(np.empty(shape, dtype=dtype), lattice, grid, layout, ring_sets[0], measured[0][0],
+                               measured[0][1], mask, label_base)
+    else:
+        index = _fitted_index(lattice, grid, layout, ring_sets, measured, shape, mask, label_base, dtype)
+    foot, edge = measured[0][2][:, 1:-1, 1:-1], measured[0][3][1:-1, 1:-1]
+    return index, lambda: (foot, edge)
+
+
+def _fitted_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: list[RingSet], measured: list[tuple],
+                  shape: tuple[int, int], mask: np.ndarray | None, label_base: int, dtype: type) -> np.ndarray:
+    """The lattice fit of :func:`_lattice_index`, step by step (families of several ring sets), from each ring
+    set's (signed distance, gradient, ...) at the centres of the lattice padded by a cell (``measured``)."""
+    padded_lattice = padded(lattice)
     start, ends = ring_sets[0], ring_sets[1:]
-    start_at, *ends_at = measure(ring_sets)
-    d = np.stack([start_at[0]] + [at[0] for at in ends_at])
-    g = np.stack([start_at[1]] + [at[1] for at in ends_at])
+    d = np.stack([at[0] for at in measured])
+    g = np.stack([at[1] for at in measured])
     s, grad = _band_coordinate(layout, d, g)
 
     # a cell may hold solid pixels when its centre is within half a diagonal of the family's side; beyond, it is
@@ -302,9 +310,8 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
         cells = (refined[0] - 1, refined[1] - 1)
         refine_cells(index, lattice, cells, grid, layout,
                      [(rings, np.abs(at[0][inner][cells]), model)
-                      for rings, at, model in zip(ring_sets, [start_at] + ends_at, models)], mask, label_base)
-    foot, edge = start_at[2][:, 1:-1, 1:-1], start_at[3][inner]
-    return index, lambda: (foot, edge)
+                      for rings, at, model in zip(ring_sets, measured, models)], mask, label_base)
+    return index
 
 
 def _single_region_index(shape: tuple[int, int], mask: np.ndarray | None, origin: tuple[int, int],
