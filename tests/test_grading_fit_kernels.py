@@ -45,18 +45,18 @@ def test_the_one_call_fit_labels_as_the_stepwise_fit(monkeypatch, name, masked, 
     grid = grid_around(14.0)
     family = layer_families(area, parent)[0]
     mask = solid_mask(points, offsets, grid) if masked else None
-    real, compared, steps = field_module.one_ring_cells, [], []
+    real, compared, steps = field_module._one_ring_index, [], []
     for step in ("curve_cells", "refine_cells"):
         monkeypatch.setattr(field_module, step, _counted(getattr(field_module, step), step, steps))
 
-    def both(index, lattice, grid, layout, rings, signed, gradient, mask=None, label_base=0):
-        expected = field_module._fitted_index(lattice, grid, layout, [rings], [(signed, gradient)], index.shape,
-                                              mask, label_base, index.dtype)
-        got = real(index, lattice, grid, layout, rings, signed, gradient, mask, label_base)
+    def both(lattice, grid, layout, rings, measured, shape, mask, label_base, dtype):
+        expected = field_module._fitted_index(lattice, grid, layout, [rings], [measured], shape, mask, label_base,
+                                              dtype)
+        got = real(lattice, grid, layout, rings, measured, shape, mask, label_base, dtype)
         compared.append(got.dtype == expected.dtype and np.array_equal(got, expected))
         return got
 
-    monkeypatch.setattr(field_module, "one_ring_cells", both)
+    monkeypatch.setattr(field_module, "_one_ring_index", both)
     field = family_field(points, offsets, family, grid, RegionSpec(nozzle_mm=0.25), mask=mask, label_base=label_base)
     assert field.layout.count > 1
     assert compared == [True]

@@ -38,6 +38,7 @@ import shapely
 
 from heoslice.grading.cache import RingMemo
 from heoslice.grading.edges import RingEdges, convex_rings, edges_key, ring_edges
+from heoslice.grading.edges_kernels import edge_arrays
 from heoslice.grading.families import Family, FamilyLayout, family_layout
 from heoslice.grading.field_kernels import (
     CellPixels,
@@ -48,6 +49,7 @@ from heoslice.grading.field_kernels import (
     expand_planes,
     label_target,
 )
+from heoslice.grading.fit_kernels import OneRingFit, one_ring_labels
 from heoslice.grading.lattice import (
     CELL_MM,
     Lattice,
@@ -60,11 +62,13 @@ from heoslice.grading.refine import (
     cell_hessians,
     cells_to_refine,
     fit_ring_models,
-    one_ring_cells,
+    fit_test,
+    pixel_offsets,
     refine_cells,
     ring_vertices,
 )
 from heoslice.grading.search import LazyTree, RingSet, rings_apart, rings_apart_kept
+from heoslice.grading.search_kernels import EdgeTree
 from heoslice.grading.spec import RegionSpec, coordinate_precision
 from heoslice.layers.rasterising import Grid
 
@@ -264,12 +268,27 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
     measured = measure(ring_sets)
     if len(ring_sets) == 1:
         # one ring set (no holes, or a target depth): the steps of _fitted_index in one compiled call
-        index = one_ring_cells(np.empty(shape, dtype=dtype), lattice, grid, layout, ring_sets[0], measured[0][0],
-                               measured[0][1], mask, label_base)
+        index = _one_ring_index(lattice, grid, layout, ring_sets[0], measured[0], shape, mask, label_base, dtype)
     else:
         index = _fitted_index(lattice, grid, layout, ring_sets, measured, shape, mask, label_base, dtype)
     foot, edge = measured[0][2][:, 1:-1, 1:-1], measured[0][3][1:-1, 1:-1]
     return index, lambda: (foot, edge)
+
+
+def _one_ring_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, rings: RingSet, measured: tuple,
+                    shape: tuple[int, int], mask: np.ndarray | None, label_base: int, dtype: type) -> np.ndarray:
+    """:func:`_fitted_index` of a family graded from one ring set, in one compiled call
+    (:func:`heoslice.grading.fit_kernels.one_ring_labels`): the same labels, without Python between its steps."""
+    index = np.empty(shape, dtype=dtype)
+    outer = padded(lattice)
+    diagonal = float(np.hypot(lattice.dx, lattice.dy))
+    fit = OneRingFit(lattice.dx, lattice.dy, 0.5 * diagonal, diagonal, *fit_test(lattice, grid), layout.count,
+                     layout.length_mm, outer.x0, outer.y0)
+    ox, oy = pixel_offsets(lattice.cell, grid.px, grid.py)
+    return one_ring_labels(label_target(index, mask, (lattice.row0, lattice.col0), label_base), measured[0],
+                           measured[1], fit, CellPixels(lattice.cell, float(grid.px), float(grid.py)),
+                           (lattice.x0, lattice.y0, lattice.dx, lattice.dy), ox, oy, EdgeTree(*rings.tree),
+                           edge_arrays(rings.edges))
 
 
 def _fitted_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets: list[RingSet], measured: list[tuple],

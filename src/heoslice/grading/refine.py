@@ -7,11 +7,9 @@ import functools
 
 import numpy as np
 
-from heoslice.grading.edges_kernels import edge_arrays
 from heoslice.grading.families import FamilyLayout
 from heoslice.grading.field_kernels import CellPixels, label_target
-from heoslice.grading.fit_kernels import OneRingFit, one_ring_labels
-from heoslice.grading.lattice import Lattice, padded
+from heoslice.grading.lattice import Lattice
 from heoslice.grading.refine_kernels import (
     MEASURED_VALUES,
     CellField,
@@ -24,7 +22,6 @@ from heoslice.grading.refine_kernels import (
     ring_models,
 )
 from heoslice.grading.search import RingSet, nearest_edges
-from heoslice.grading.search_kernels import EdgeTree
 from heoslice.layers.rasterising import Grid
 
 #: Largest error of a sub-region boundary, in pixels, before a lattice cell is evaluated per pixel.
@@ -134,7 +131,7 @@ def refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, n
     ones signed: only the family's own pixels are kept, and there every distance is positive.
     """
     f = lattice.cell
-    ox, oy = _pixel_offsets(f, grid.px, grid.py)
+    ox, oy = pixel_offsets(f, grid.px, grid.py)
     reach = np.hypot(lattice.dx, lattice.dy)
     target = label_target(index, mask, (lattice.row0, lattice.col0), label_base)
     pixels = CellPixels(f, grid.px, grid.py)
@@ -166,26 +163,8 @@ def refine_cells(index: np.ndarray, lattice: Lattice, cells: tuple[np.ndarray, n
         band_cells(target, ci, cj, pixels, models, measured, slot, layout.count, layout.length_mm)
 
 
-def one_ring_cells(index: np.ndarray, lattice: Lattice, grid: Grid, layout: FamilyLayout, rings: RingSet,
-                   signed: np.ndarray, gradient: np.ndarray, mask: np.ndarray | None = None,
-                   label_base: int = 0) -> np.ndarray:
-    """k at every pixel of a family graded from one ring set (``index`` (rows, cols), in place, labelled as
-    :func:`refine_cells` labels), from the signed distance to ``rings`` and its gradient at the centres of the
-    ``lattice`` padded by a cell ((rows + 2, cols + 2) mm and (rows + 2, cols + 2, 2)): the planes and
-    quadratics where they fit (:func:`cells_to_refine`), each pixel's exact distance where not, in one
-    compiled call (:func:`heoslice.grading.fit_kernels.one_ring_labels`)."""
-    outer = padded(lattice)
-    fit = OneRingFit(lattice.dx, lattice.dy, 0.5 * np.hypot(lattice.dx, lattice.dy), np.hypot(lattice.dx, lattice.dy),
-                     *fit_test(lattice, grid), layout.count, layout.length_mm, outer.x0, outer.y0)
-    ox, oy = _pixel_offsets(lattice.cell, grid.px, grid.py)
-    return one_ring_labels(label_target(index, mask, (lattice.row0, lattice.col0), label_base), signed, gradient,
-                           fit, CellPixels(lattice.cell, float(grid.px), float(grid.py)),
-                           (lattice.x0, lattice.y0, lattice.dx, lattice.dy), ox, oy, EdgeTree(*rings.tree),
-                           edge_arrays(rings.edges))
-
-
 @functools.lru_cache(maxsize=16)
-def _pixel_offsets(cell: int, px: float, py: float) -> tuple[np.ndarray, np.ndarray]:
+def pixel_offsets(cell: int, px: float, py: float) -> tuple[np.ndarray, np.ndarray]:
     """(x, y) offsets (mm, y up; (cell * cell,) float32, row-major, read-only) of a cell's pixel centres from
     the cell's centre."""
     v, u = (a.ravel() for a in np.meshgrid(np.arange(cell), np.arange(cell), indexing="ij"))
