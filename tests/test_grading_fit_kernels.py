@@ -1,21 +1,14 @@
 """heoslice.grading.fit_kernels: a one-ring family's lattice fit in one compiled call labels every pixel as the
-general fit's steps label it (field._fitted_index, the path of families of several ring sets), and it groups
-the ring's vertices by cell as refine.ring_vertices does."""
+general fit's steps label it (field._fitted_index, the path of families of several ring sets)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import PX, circle, grid_around, layer, rough_outline
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from helpers import circle, grid_around, layer, rough_outline
 
 from heoslice.grading import RegionSpec, family_field, layer_families
 from heoslice.grading import field as field_module
-from heoslice.grading.fit_kernels import _vertices_by_cell
-from heoslice.grading.lattice import Lattice
-from heoslice.grading.refine import ring_vertices
-from heoslice.grading.search import LazyTree, RingSet
 from heoslice.layers.rasterising import solid_mask
 
 pytestmark = pytest.mark.usefixtures("lattice_fit_for_every_family")  # conftest.py: small families on the lattice too
@@ -69,22 +62,3 @@ def _counted(function, name: str, calls: list):
         calls.append(name)
         return function(*args, **kwargs)
     return counting
-
-
-@settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 10_000), rows=st.integers(1, 9), cols=st.integers(1, 9), cell=st.integers(4, 16))
-def test_vertices_grouped_by_cell_as_ring_vertices_groups_them(seed, rows, cols, cell):
-    """_vertices_by_cell gives refine.ring_vertices' CSR of one ring set's vertices (s = 0), in the same order,
-    for vertices inside, on the edges of and outside the lattice."""
-    rng = np.random.default_rng(seed)
-    lattice = Lattice(row0=0, col0=0, cell=cell, rows=rows, cols=cols, x0=-1.0, y0=2.0, dx=cell * PX, dy=cell * PX)
-    count = int(rng.integers(1, 60))
-    x = lattice.x0 + rng.uniform(-0.3, 1.3, count) * cols * lattice.dx
-    y = lattice.y0 - rng.uniform(-0.3, 1.3, count) * rows * lattice.dy
-    x[: count // 4] = lattice.x0 + rng.integers(0, cols + 1, count // 4) * lattice.dx  # on the cells' edges
-    edges = field_module.ring_edges(np.column_stack([x, y]), np.array([0, count]), [0])
-    rings = RingSet((0,), edges, True, LazyTree(edges))
-    expected = ring_vertices([(rings, 0.0)], lattice)
-    start, vx, vy, vs = _vertices_by_cell(edges.x, edges.y, lattice.x0, lattice.y0, lattice.dx, lattice.dy, rows, cols)
-    assert np.array_equal(start, expected.start)
-    assert np.array_equal(vx, expected.x) and np.array_equal(vy, expected.y) and np.array_equal(vs, expected.s)

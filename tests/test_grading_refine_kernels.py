@@ -1,7 +1,8 @@
 """Tests of heoslice.grading.refine_kernels: which cells refine_flags refines (planes and quadratics that
 fit, kinks, turns beside the outline), hessian_of against numpy.gradient, band_cells against eq. 10 of modelled
 or measured distances, the sensitivities of eq. 10 against central differences, and the compiled ring_models
-against the numpy formulation it replaced, and measured_cells against the two steps it fuses."""
+against the numpy formulation it replaced, measured_cells against the two steps it fuses, and vertices_by_cell
+against a stable sort of the vertices by cell."""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from heoslice.grading.refine_kernels import (
     measured_cells,
     refine_flags,
     ring_models,
+    vertices_by_cell,
 )
 from heoslice.grading.search_kernels import edge_tree, nearest_in_groups
 
@@ -385,3 +387,33 @@ def test_ring_models_is_the_numpy_formulation(seed, holes):
     np.testing.assert_allclose(np.stack(models), expected, rtol=1e-9, atol=1e-12)
     direct = ring_models(d, g, grad, ci, cj, lattice.dx, lattice.dy, layout.count, h, TOLERANCE_PX * px)
     np.testing.assert_array_equal(direct, np.stack(models))
+
+
+def vertices_sorted_by_cell(x, y, s, x0, y0, dx, dy, rows, cols):
+    """The reference: each vertex's cell from floor((x - x0) / dx) and floor((y0 - y) / dy), vertices off the
+    lattice dropped, the rest in np.argsort(kind="stable") order of their cell, and the cells' CSR start."""
+    col = np.floor((x - x0) / dx).astype(np.int64)
+    row = np.floor((y0 - y) / dy).astype(np.int64)
+    keep = (col >= 0) & (col < cols) & (row >= 0) & (row < rows)
+    key = (row * cols + col)[keep]
+    order = np.argsort(key, kind="stable")
+    start = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=rows * cols))])
+    return start, x[keep][order], y[keep][order], s[keep][order]
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10_000), rows=st.integers(1, 9), cols=st.integers(1, 9), cell=st.floats(0.1, 0.7))
+def test_vertices_by_cell_is_a_stable_sort_by_cell(seed, rows, cols, cell):
+    """vertices_by_cell groups vertices inside, on the edges of and outside a lattice by their cell: the CSR
+    start, x, y and s of a stable sort by cell, bit for bit, vertices off the lattice left out."""
+    rng = np.random.default_rng(seed)
+    x0, y0, count = -1.0, 2.0, int(rng.integers(1, 60))
+    x = x0 + rng.uniform(-0.3, 1.3, count) * cols * cell
+    y = y0 - rng.uniform(-0.3, 1.3, count) * rows * cell
+    x[: count // 4] = x0 + rng.integers(0, cols + 1, count // 4) * cell  # on the cells' edges
+    s = rng.integers(0, 3, count).astype(np.float64)  # ring sets' exact s: 0 on the starting rings, N_R on the ends
+    found = vertices_by_cell(x, y, s, x0, y0, cell, cell, rows, cols)
+    expected = vertices_sorted_by_cell(x, y, s, x0, y0, cell, cell, rows, cols)
+    assert (found.x0, found.y0) == (x0, y0)
+    for got, wanted in zip(found[:4], expected):
+        assert np.array_equal(got, wanted)

@@ -104,6 +104,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     rasterising_kernels._packed_mask: (f8_2, i8_1, i8, i8, f8, f8, f8, f8, u1_2),
     refine_kernels._refine_flags: (CELL_FIELD, types.UniTuple(f8_2, 3), FIT_TEST, VERTICES),
     refine_kernels._hessian_of: (f8_3, f8, f8),
+    refine_kernels._vertices_by_cell: (f8_1, f8_1, f8_1, f8, f8, f8, f8, i8, i8),
     refine_kernels._ring_models: (f8_3, f8_4, f8_3, i8_1, i8_1, f8, f8, f8, f8, f8),
     refine_kernels._band_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, f8_3, f4_2, i8_2, f8, f8),
     refine_kernels._measured_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, types.UniTuple(f8, 4), f8_1,

@@ -245,14 +245,14 @@ def _lattice_index(lattice: Lattice, grid: Grid, layout: FamilyLayout, ring_sets
     # measured on the lattice padded by a cell, so that every cell of the family has its eight neighbours
     padded_lattice = padded(lattice)
 
-    def measure(measured: list[RingSet]) -> list[tuple]:
-        """The ``measured`` ring sets' centres (signed, gradient, foot, edge) over the padded lattice, in the
-        blocks on the family's side of each of them; each set's measures kept for the next layer."""
+    def measure(sets: list[RingSet]) -> list[tuple]:
+        """The ring ``sets``' centres (signed, gradient, foot, edge) over the padded lattice, in the blocks on
+        the family's side of each of them; each set's measures kept for the next layer."""
         measures = [memo.earlier((rings.key, padded_lattice)) or ring_measures(rings, padded_lattice)
-                    for rings in measured]
+                    for rings in sets]
         wanted = ~np.logical_or.reduce([m.far for m in measures])
-        centres = [measured_centres(rings, m, padded_lattice, wanted) for rings, m in zip(measured, measures)]
-        for rings, (_, m) in zip(measured, centres):
+        centres = [measured_centres(rings, m, padded_lattice, wanted) for rings, m in zip(sets, measures)]
+        for rings, (_, m) in zip(sets, centres):
             memo.keep((rings.key, padded_lattice), m)
         return [at for at, _ in centres]
 

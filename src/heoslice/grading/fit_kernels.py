@@ -10,8 +10,8 @@ from typing import NamedTuple
 import numpy as np
 
 from heoslice.grading.field_kernels import _cell_classes, _curve_cells, _curved_cells, _expand_planes
-from heoslice.grading.refine_kernels import _hessian_of, _measured_cells, _refine_flags
-from heoslice.jit import EXACT, f64, helper, kernel
+from heoslice.grading.refine_kernels import _hessian_of, _measured_cells, _refine_flags, _vertices_by_cell
+from heoslice.jit import EXACT, f64, kernel
 
 
 class OneRingFit(NamedTuple):
@@ -32,33 +32,6 @@ class OneRingFit(NamedTuple):
     y0: float
 
 
-@helper(EXACT, inline=False)
-def _vertices_by_cell(x, y, x0, y0, dx, dy, rows, cols):  # pragma: no cover - compiled
-    """refine.ring_vertices of one ring set (s = 0 on it): its vertices (x, y mm) grouped by the lattice cell
-    holding them, a CSR (start (rows * cols + 1,)) in the order np.argsort(kind="stable") gives, then x, y
-    and s of each."""
-    n = len(x)
-    key = np.empty(n, dtype=np.int64)
-    start = np.zeros(rows * cols + 1, dtype=np.int64)
-    for v in range(n):
-        col = np.int64(np.floor((x[v] - x0) / dx))
-        row = np.int64(np.floor((y0 - y[v]) / dy))
-        key[v] = row * cols + col if 0 <= col < cols and 0 <= row < rows else -1
-        if key[v] >= 0:
-            start[key[v] + 1] += 1
-    for cell in range(rows * cols):
-        start[cell + 1] += start[cell]
-    kept = start[rows * cols]
-    vx, vy, vs = np.empty(kept), np.empty(kept), np.zeros(kept)
-    filled = start[:-1].copy()
-    for v in range(n):
-        if key[v] >= 0:
-            slot = filled[key[v]]
-            vx[slot], vy[slot] = x[v], y[v]
-            filled[key[v]] += 1
-    return start, vx, vy, vs
-
-
 @kernel(EXACT, label_arg=0)
 def _one_ring_labels(target, d, g, fit, pixels, frame, ox, oy, tree, edges):  # pragma: no cover - compiled
     """:func:`one_ring_labels`: s = d N_R / L_S and its gradient at the centres, the cells' classes, their
@@ -75,7 +48,7 @@ def _one_ring_labels(target, d, g, fit, pixels, frame, ox, oy, tree, edges):  # 
     touched, beyond, candidate, known, side = _cell_classes(s, gx, gy, d.reshape((1, rows, cols)), half_diagonal,
                                                             count)
     hessian = _hessian_of(grad, dx, dy)
-    start, vx, vy, vs = _vertices_by_cell(edges[0], edges[1], x0, y0, dx, dy, rows, cols)
+    start, vx, vy, vs = _vertices_by_cell(edges[0], edges[1], np.zeros(len(edges[0])), x0, y0, dx, dy, rows, cols)
     refine = _refine_flags((s, grad, known, side, candidate), (hessian[0], hessian[1], hessian[2]),
                            (dx, dy, tolerance, limit, count), (start, vx, vy, vs, x0, y0))
     refined = 0

@@ -20,6 +20,7 @@ from heoslice.grading.refine_kernels import (
     measured_cells,
     refine_flags,
     ring_models,
+    vertices_by_cell,
 )
 from heoslice.grading.search import RingSet, nearest_edges
 from heoslice.layers.rasterising import Grid
@@ -78,13 +79,7 @@ def ring_vertices(ring_sets: list[tuple[RingSet, float]], lattice: Lattice) -> R
     x = np.concatenate([rings.edges.x for rings, _ in ring_sets])
     y = np.concatenate([rings.edges.y for rings, _ in ring_sets])
     s = np.concatenate([np.full(len(rings.edges.x), value) for rings, value in ring_sets])
-    col = np.floor((x - lattice.x0) / lattice.dx).astype(np.int64)
-    row = np.floor((lattice.y0 - y) / lattice.dy).astype(np.int64)
-    keep = (col >= 0) & (col < lattice.cols) & (row >= 0) & (row < lattice.rows)
-    key = (row * lattice.cols + col)[keep]
-    order = np.argsort(key, kind="stable")
-    start = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=lattice.rows * lattice.cols))])
-    return RingVertices(start, x[keep][order], y[keep][order], s[keep][order], lattice.x0, lattice.y0)
+    return vertices_by_cell(x, y, s, lattice.x0, lattice.y0, lattice.dx, lattice.dy, lattice.rows, lattice.cols)
 
 
 def fit_ring_models(layout: FamilyLayout, d: np.ndarray, g: np.ndarray, grad: np.ndarray, lattice: Lattice, grid: Grid,

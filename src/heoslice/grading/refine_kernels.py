@@ -15,7 +15,7 @@ from heoslice.grading.field_kernels import (
 )
 from heoslice.grading.edges_kernels import edge_arrays
 from heoslice.grading.search_kernels import EdgeTree, _nearest_in_batches
-from heoslice.jit import JIT, f32, f64, helper, i64, kernel
+from heoslice.jit import EXACT, JIT, f32, f64, helper, i64, kernel
 
 #: Most per-pixel distances measured and held at once when cells are evaluated per pixel (float32: 16 MB).
 MEASURED_VALUES = 1 << 22
@@ -54,6 +54,42 @@ class RingVertices(NamedTuple):
     s: np.ndarray
     x0: float
     y0: float
+
+
+@kernel(EXACT)
+def _vertices_by_cell(x, y, s, x0, y0, dx, dy, rows, cols):  # pragma: no cover - compiled
+    """Ring vertices (x, y mm, s) grouped by the lattice cell holding them (x0 + j dx, y0 - i dy its corner):
+    (start (rows * cols + 1,) int, x, y, s) of :class:`RingVertices`, each cell's vertices in their given order
+    (a stable counting sort); vertices off the lattice are left out."""
+    n = len(x)
+    key = np.empty(n, dtype=np.int64)
+    start = np.zeros(rows * cols + 1, dtype=np.int64)
+    for v in range(n):
+        col = np.int64(np.floor((x[v] - x0) / dx))
+        row = np.int64(np.floor((y0 - y[v]) / dy))
+        key[v] = row * cols + col if 0 <= col < cols and 0 <= row < rows else -1
+        if key[v] >= 0:
+            start[key[v] + 1] += 1
+    for cell in range(rows * cols):
+        start[cell + 1] += start[cell]
+    kept = start[rows * cols]
+    vx, vy, vs = np.empty(kept), np.empty(kept), np.empty(kept)
+    filled = start[:-1].copy()
+    for v in range(n):
+        if key[v] >= 0:
+            slot = filled[key[v]]
+            vx[slot], vy[slot], vs[slot] = x[v], y[v], s[v]
+            filled[key[v]] += 1
+    return start, vx, vy, vs
+
+
+def vertices_by_cell(x: np.ndarray, y: np.ndarray, s: np.ndarray, x0: float, y0: float, dx: float, dy: float,
+                     rows: int, cols: int) -> RingVertices:
+    """The RingVertices of vertices (x, y mm, exact s there; (n,) each) on a lattice of rows x cols cells of dx x
+    dy mm whose top-left corner is (x0, y0) (compiled :func:`_vertices_by_cell`)."""
+    start, vx, vy, vs = _vertices_by_cell(f64(x), f64(y), f64(s), float(x0), float(y0), float(dx), float(dy),
+                                          int(rows), int(cols))
+    return RingVertices(start, vx, vy, vs, float(x0), float(y0))
 
 
 @helper(JIT)
