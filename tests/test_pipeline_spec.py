@@ -82,10 +82,12 @@ def test_a_part_one_layer_high_in_single_precision_is_one_layer(tmp_path, run_cl
 
 
 def test_a_layer_taller_than_the_part_warns(tmp_path, run_cli, cube):
-    """--layer 1000 on a 10 mm pillar slices (one layer) and says so in one warning naming --layer."""
+    """--layer 1000 on a 10 mm pillar slices (one layer) and says so in one warning naming --layer; the layer,
+    cut above the part, is empty, so a second warning says the stack cannot print."""
     code, _, err = run_cli("slice", cube, "-o", tmp_path / "stack", "--layer", "1000", "--dpi", "50")
     warned = [line for line in err.splitlines() if line.startswith("warning:")]
-    assert code == 0 and len(warned) == 1 and "--layer" in warned[0] and "one layer" in warned[0], err
+    assert code == 0 and len(warned) == 2 and "--layer" in warned[0] and "one layer" in warned[0], err
+    assert "cannot print: every layer is empty" in warned[1]
 
 
 @pytest.mark.parametrize("channels", [False, True])

@@ -21,7 +21,7 @@ from heoslice.errors import InputError
 from heoslice.material import MaterialsFile, material_roles, read_materials_file
 from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, without_materials
 from heoslice.pipeline import SliceSpec, check_scale, plan_parts, slice_to_stack, slice_warnings
-from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3
+from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, print_refusal, refusal_line, stack_volume_mm3
 
 #: SliceSpec and slice_to_stack parameters -> the options that set them (library errors name the parameter).
 SPEC_FLAGS = {
@@ -321,6 +321,8 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
         except InputError as err:
             raise flag_error(err) from None
     open_layers = [entry["index"] for entry in manifest["layers"] if entry["open_contours"]]
+    refusal = print_refusal(manifest)
+    unprintable = [refusal_line(refusal, directory)] if refusal is not None and refusal.slice_warns else []
     materials = (manifest.get("grading") or {}).get("materials") or []
     masks = bool(manifest["layers"]) and "channels" in manifest["layers"][0]
     summary = {
@@ -334,7 +336,7 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
         "materials": [m["name"] for m in materials],
         "droplet_masks": masks,
         "open_contour_layers": open_layers,
-        "warnings": list(mesh.warnings),
+        "warnings": [*mesh.warnings, *unprintable],
         **({"parts": manifest["parts"]} if "parts" in manifest else {}),
         "seconds": {"slice": times.slice, "contours": times.contours, "raster_cpu": times.raster,
                     "encode_cpu": times.encode, "total": times.total},
@@ -345,6 +347,8 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
         shown = ", ".join(str(i) for i in open_layers[:10]) + (" ..." if len(open_layers) > 10 else "")
         click.echo(f"warning: {model}: open mesh: contours closed in {len(open_layers)} layer(s): {shown}",
                    err=True)
+    for text in unprintable:
+        click.echo(f"warning: {text}", err=True)
     click.echo(f"{directory}: {plural(summary['layers'], 'layer')} of "
                f"{summary['image'][0]} x {summary['image'][1]} px "
                f"at {manifest['dpi'][0]:g} x {manifest['dpi'][1]:g} dpi, volume {summary['volume_mm3']:.1f} mm^3, "

@@ -14,7 +14,9 @@ from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, volume_check
 from heoslice.stack import (
     check_input_path,
     layer_height_problems,
+    print_refusal,
     read_manifest,
+    refusal_line,
     stack_volume_mm3,
     verify_stack,
 )
@@ -107,8 +109,9 @@ Examples:
 def verify(stack: Path, models: tuple[Path, ...], scale: float, tolerance: float, as_json: bool) -> None:
     """Check STACK before printing: manifest (format, version, complete), every layer file
     (inside the stack, present, sha256, size, dpi, solid pixel count), no missing or extra
-    layers; with --mesh also the volume and layer heights against the mesh (the parts' meshes
-    together, one --mesh per part file, for a multi-part stack).
+    layers, and that it can print (not an RGBA preview, not every layer empty); with --mesh
+    also the volume and layer heights against the mesh (the parts' meshes together, one
+    --mesh per part file, for a multi-part stack).
 
     Prints one line per problem. Exit status 0 only when the stack is clean, 4 when it
     has problems, 2 when STACK or the mesh cannot be read at all.
@@ -124,6 +127,8 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float, tolerance: float
     if mesh is not None and report.manifest:
         mesh_problems, warnings, mesh_summary = mesh_checks(report.manifest, mesh, scale, tolerance, models)
         problems += mesh_problems
+    refusal = print_refusal(report.manifest) if report.manifest else None
+    problems += [refusal_line(refusal, stack)] if refusal is not None else []
     layers = report.manifest.get("layers", []) if report.manifest else []
     summary = {
         "stack": str(stack),

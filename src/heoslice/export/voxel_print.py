@@ -6,8 +6,9 @@ or white for a one-material stack), empty pixels the background colour (default 
 at a 0.027 mm pitch (the J750's high-mix mode) unless asked otherwise. The stack is resampled by
 nearest sample, never blended, so every printed voxel keeps exactly one material: in the plane each
 slice pixel takes the stack pixel under its centre, in z each slice the stack layer holding its
-centre height. Refused: stacks whose pixels carry blended colours (RGBA, sliced with
-``--rgba``), materials without a colour, two materials of one colour or one of the background's.
+centre height. Refused: stacks that cannot print (:mod:`heoslice.stack.printable`: RGBA previews sliced
+with ``--rgba``, every layer empty), materials without a colour, two materials of one colour or one of
+the background's.
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ import numpy as np
 
 from heoslice.errors import InputError
 from heoslice.export.base import ExportFormat, ExportOptions, Sink
-from heoslice.stack import MANIFEST, MAX_IMAGE_PIXELS, MAX_LAYERS, read_layer_channels, read_layer_mask
+from heoslice.stack import (MANIFEST, MAX_IMAGE_PIXELS, MAX_LAYERS, check_printable, read_layer_channels,
+                            read_layer_mask)
 
 #: The J750's Voxel Print resolution (dpi x, y) and layer pitch (mm).
 DEFAULT_DPI = (600.0, 300.0)
@@ -34,11 +36,9 @@ SUMMARY_FILE = "voxelprint.json"
 def palette(manifest: dict, background: tuple[int, int, int],
             source: str | Path = MANIFEST) -> list[tuple[str, tuple[int, int, int]]]:
     """(name, colour) of every material in label order (label m + 1 is material m); InputError when the
-    stack cannot be printed with one exact colour per material (naming the manifest file ``source`` when a
-    material has no colour there)."""
-    if manifest["image"].get("mode", "1") != "1":
-        raise InputError("format: voxel-print needs one material per pixel, but this stack's layers carry blended "
-                         "colours (RGBA, a --rgba preview stack); slice it without --rgba")
+    stack's materials cannot be told apart by one exact colour each (naming the manifest file ``source`` when a
+    material has no colour there). Whether the stack can print at all is :func:`heoslice.stack.check_printable`'s
+    rule, applied by :func:`write`."""
     channels = manifest["layers"][0].get("channels") if manifest["layers"] else None
     if not channels:
         materials = [SINGLE_MATERIAL]
@@ -86,6 +86,7 @@ def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -
     dpi = options.dpi or DEFAULT_DPI
     pitch = options.pitch_mm or DEFAULT_PITCH_MM
     background = tuple(options.background or DEFAULT_BACKGROUND)
+    check_printable(manifest, directory)
     materials = palette(manifest, background, Path(directory) / MANIFEST)
     image, (px, py), h = manifest["image"], manifest["pixel_size_mm"], manifest["layer_height_mm"]
     new_px, new_py = 25.4 / dpi[0], 25.4 / dpi[1]

@@ -45,20 +45,22 @@ def pack_mask(mask: np.ndarray) -> bytes:
 
 
 def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
-    """Verify a stack (VerifyError if it fails) and return its job and layer source.
+    """Verify a stack (VerifyError if it fails), refuse one that cannot print (InputError:
+    :func:`heoslice.stack.check_printable`) and return its job and layer source.
 
     Channel 0 is the solid mask; each droplet mask of a layer entry's ``"channels"`` list goes on the printer
     channel :func:`mask_channels` gives it, and channels no mask names (below the highest, or of a layer
     with fewer masks) carry empty masks. Each layer is checked against its sha256 again when it is read for
     sending; a mismatch or a missing file raises StackChangedError (exit 19).
     """
-    from heoslice.stack import decode_mask, load_verified, read_layer_mask, resolve_inside
+    from heoslice.stack import check_printable, decode_mask, load_verified, read_layer_mask, resolve_inside
 
     directory = Path(directory)
     manifest = load_verified(directory)
     layers = manifest["layers"]
     if not layers:
         raise InputError(f"{directory}: the stack has no layers")
+    check_printable(manifest, directory)
     width, height = manifest["image"]["width"], manifest["image"]["height"]
     widest = widest_masks(manifest)
     targets = mask_channels(manifest, directory)
