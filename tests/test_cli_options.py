@@ -92,3 +92,43 @@ def test_a_parts_job_refuses_grading_options_it_would_ignore(run_cli, tmp_path):
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("heoslice: error: --alpha, --to: only used with --grade"), err
     assert not (tmp_path / "stack").exists()
+
+
+def test_scale_is_one_option_of_slice_color_and_info():
+    """--scale has the same flags, type, default and help in slice, color and info (one declaration)."""
+    from heoslice.cli.info import info
+
+    declared = [_options(command)["scale"] for command in (slice_cmd, color, info)]
+    assert all((o.opts, o.default, o.help, o.type) == (declared[0].opts, 1.0, declared[0].help, declared[0].type)
+               for o in declared)
+
+
+def test_info_and_color_apply_the_scale(tmp_path, run_cli):
+    """info --scale 1000 of a 0.02 x 0.01 x 0.005 m box reports 20 x 10 x 5 mm and 1000 mm^3; color --scale 1000
+    writes the PLY in mm (bounds x1000) and measures --range in mm of the scaled model, with --surface scaled
+    too; a scale out of range names --scale."""
+    import json
+
+    import numpy as np
+
+    from heoslice import procedural
+    from heoslice.mesh import load_mesh
+
+    procedural.box((0.02, 0.01, 0.005)).export(tmp_path / "box_m.ply")
+    code, out, err = run_cli("info", tmp_path / "box_m.ply", "--scale", "1000", "--json")
+    summary = json.loads(out)
+    assert code == 0, err
+    assert np.allclose(np.subtract(*summary["bounds_mm"][::-1]), [20, 10, 5]) and summary["volume_mm3"] == \
+        pytest.approx(1000.0)
+    procedural.box((0.002, 0.002, 0.002), origin=(0.0, 0.0, 0.0)).export(tmp_path / "corner_m.ply")
+    code, out, err = run_cli("color", tmp_path / "box_m.ply", "--scale", "1000", "--ref", "surface", "--surface",
+                             tmp_path / "corner_m.ply", "--range", "0", "10", "-o", tmp_path / "box_mm.ply",
+                             "--json")
+    assert code == 0, err
+    colored = load_mesh(tmp_path / "box_mm.ply")
+    assert np.allclose(colored.bounds, [[0, 0, 0], [20, 10, 5]])
+    # the box corner (0, 10, 0) lies 8 mm from the 2 mm corner cube: r = 0.8 (unscaled cube: 10 mm, r = 1)
+    corner = np.flatnonzero(np.all(np.isclose(colored.vertices, [0.0, 10.0, 0.0]), axis=1))
+    assert len(corner) == 1 and colored.material[corner[0]] == pytest.approx(0.8, abs=1e-6)
+    code, _, err = run_cli("info", tmp_path / "box_m.ply", "--scale", "1e9")
+    assert code == 2 and err.startswith("heoslice: error: --scale: ") and err.count("\n") == 1

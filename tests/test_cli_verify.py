@@ -91,3 +91,55 @@ def test_a_wrong_mesh_count_is_refused_before_any_mesh_is_read(two_part_stack, r
     code, out, err = run_cli("verify", two_part_stack / "stack", "--mesh", two_part_stack / "missing.ply")
     assert code == EXIT_INPUT, (out, err)
     assert "was sliced from the 2 part files a.ply, b.ply" in err and "missing.ply" not in err
+
+
+@pytest.fixture
+def metre_box_stack(tmp_path, run_cli):
+    """A 0.02 x 0.01 x 0.005 m box sliced with --scale 1000 (a 20 x 10 x 5 mm part) into tmp_path/stack."""
+    procedural.box((0.02, 0.01, 0.005)).export(tmp_path / "box_m.ply")
+    code, _, err = run_cli("slice", tmp_path / "box_m.ply", "--scale", "1000", "--layer", "0.5", "--dpi", "254",
+                           "-j", "1", "-o", tmp_path / "stack")
+    assert code == 0, err
+    return tmp_path
+
+
+def test_the_manifest_remembers_the_scale_and_verify_applies_it(metre_box_stack, run_cli):
+    """slice --scale 1000 records scale 1000 in the manifest; verify --mesh then passes without --scale (the
+    mesh volume 1000 mm^3, summary scale 1000) and with the same --scale; a --scale that disagrees is one
+    line naming both scales, exit 2, before any mesh is read."""
+    folder = metre_box_stack
+    manifest = json.loads((folder / "stack" / "manifest.json").read_text())
+    assert manifest["scale"] == 1000.0
+    code, out, err = run_cli("verify", folder / "stack", "--mesh", folder / "box_m.ply", "--json")
+    summary = json.loads(out)
+    assert code == 0 and summary["ok"], out + err
+    assert summary["mesh"]["scale"] == 1000.0 and summary["mesh"]["volume_mm3"] == pytest.approx(1000.0)
+    assert run_cli("verify", folder / "stack", "--mesh", folder / "box_m.ply", "--scale", "1000")[0] == 0
+    code, out, err = run_cli("verify", folder / "stack", "--mesh", folder / "missing.ply", "--scale", "10")
+    assert code == EXIT_INPUT and out == "" and err.count("\n") == 1
+    assert err.startswith("heoslice: error: --scale: 10 disagrees with the scale 1000 ") and "missing" not in err
+
+
+def test_a_stack_without_a_recorded_scale_takes_verify_scale(metre_box_stack, run_cli):
+    """A manifest written before the scale was recorded (no 'scale') is still read: verify --mesh takes
+    --scale as given (1000 passes) and scale 1 without it (the metre box fails on volume, exit 4)."""
+    folder = metre_box_stack
+    path = folder / "stack" / "manifest.json"
+    manifest = json.loads(path.read_text())
+    del manifest["scale"]
+    path.write_text(json.dumps(manifest))
+    assert run_cli("verify", folder / "stack")[0] == 0
+    assert run_cli("verify", folder / "stack", "--mesh", folder / "box_m.ply", "--scale", "1000")[0] == 0
+    code, out, _ = run_cli("verify", folder / "stack", "--mesh", folder / "box_m.ply")
+    assert code == EXIT_VERIFY and "differs from the mesh volume" in out
+
+
+@pytest.mark.parametrize("value", [0, -1000, "1000", None, True])
+def test_a_malformed_scale_fails_verify(metre_box_stack, run_cli, value):
+    """A manifest 'scale' that is not a positive number is a manifest problem naming 'scale' (exit 4)."""
+    path = metre_box_stack / "stack" / "manifest.json"
+    manifest = json.loads(path.read_text())
+    manifest["scale"] = value
+    path.write_text(json.dumps(manifest))
+    code, out, _ = run_cli("verify", metre_box_stack / "stack")
+    assert code == EXIT_VERIFY and "'scale' must be a positive number" in out

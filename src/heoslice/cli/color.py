@@ -10,10 +10,12 @@ import click
 from heoslice.cli.common import echo_warnings, progress_bar
 from heoslice.cli.options import (
     FUNCTION_FLAGS,
+    apply_scale,
     flags,
     function_from_options,
     function_options,
     option,
+    scale_option,
 )
 from heoslice.errors import InputError
 from heoslice.material import (
@@ -44,6 +46,7 @@ Examples:
   heoslice color rod.ply --ref axis --direction 1,0,0 --func expr --expr "0.5-0.5*cos(3*pi*r)"
   heoslice color liver.ply --ref surface --surface lesion.ply --to tumour --materials mats.toml
   heoslice color liver.ply --shell-colors 1=255,0,0 --max-edge 0.5
+  heoslice color scan_m.ply --scale 1000 --func linear -o scan_mm.ply   # writes mm: slice without --scale
 \b
 r is the minimum distance of each vertex to the reference, divided by the largest
 such distance over the model (or mapped from --range R0 R1 mm to 0..1, clipped).
@@ -121,17 +124,22 @@ def parse_shell_colors(entries: tuple[str, ...], table) -> dict:
               help="Subdivide first so that no edge is longer than this.")
 @click.option("--shell-colors", "shell_colors", multiple=True, metavar="SHELL=MATERIAL",
               help="Colour a whole shell with a material (repeatable; shells as numbered by heoslice info).")
+@scale_option
 @click.option("--ascii", "ascii_ply", is_flag=True, help="Write an ASCII PLY [default: binary].")
 @click.option("--force", is_flag=True, help="Overwrite an existing output file.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
 def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, lam, periods, expression,
           ref_kind: str, at, normal, direction, surface_path, r_range, m1_text, m2_text, materials_file,
-          max_edge, shell_colors, ascii_ply: bool, force: bool, as_json: bool) -> None:
+          max_edge, shell_colors, scale: float, ascii_ply: bool, force: bool, as_json: bool) -> None:
     """Colour MODEL's vertices by a material distribution function of the distance to a reference.
 
     The paper's Z-axis modelling (eq. 1-5, Fig. 2): the default reference is the X-Y
     plane through the model's lowest point, so `--func linear` grades from M1 at the
     bottom to M2 at the top.
+
+    With --scale the model (and the --surface mesh) are scaled first: --at, --range and
+    --max-edge are in mm of the scaled model, and the PLY is written in mm (slice it without
+    --scale).
     """
     if func_kind is None:
         func_kind = "expression" if expression is not None else "linear"
@@ -162,7 +170,10 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
         raise InputError(f"--to: {materials_file} defines one material: name the target material (M2)")
     shells = {**file_shells, **parse_shell_colors(shell_colors, table)}
 
-    mesh = load_mesh(model)
+    mesh = apply_scale(load_mesh(model), scale)
+    if surface_path is not None and scale != 1.0:
+        with option("--surface"):
+            surface_path = apply_scale(load_mesh(surface_path), scale)
     if not as_json:
         echo_warnings(model, mesh.warnings)
     spec = ColorSpec(function=function, reference=ref_kind, at=point, normal=plane_normal,

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from heoslice.cli.options import apply_scale, scale_option
 from heoslice.mesh import load_mesh, mesh_info
 
 
@@ -14,13 +15,16 @@ from heoslice.mesh import load_mesh, mesh_info
 Examples:
   heoslice info vase.ply
   heoslice info liver.stl --json | jq .volume_mm3
+  heoslice info scan.ply --scale 1000   # a model in metres: bounding box and volume in mm, as sliced
 """)
 @click.argument("model", type=click.Path(path_type=Path))
+@scale_option
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-def info(model: Path, as_json: bool) -> None:
+def info(model: Path, scale: float, as_json: bool) -> None:
     """Print MODEL's vertices, triangles, bounding box, watertightness, winding, shells, duplicate faces,
-    volume (of the solid the slicer fills: overlapping shells count once, as in 'verify --mesh'), colours."""
-    summary = mesh_info(load_mesh(model))
+    volume (of the solid the slicer fills: overlapping shells count once, as in 'verify --mesh'), colours;
+    with --scale, of the model as 'slice --scale' slices it."""
+    summary = mesh_info(apply_scale(load_mesh(model), scale))
     if as_json:
         click.echo(json.dumps({"model": str(model), "ok": True, **summary}))
         return

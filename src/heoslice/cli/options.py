@@ -1,4 +1,5 @@
-"""Options shared by ``color`` and ``slice``, declared once, and the map from library parameters to flags.
+"""Options shared by ``color``, ``slice`` and ``info``, declared once, and the map from library parameters to
+flags.
 
 The library's errors begin with the parameter at fault (``alpha: must be finite``);
 :func:`flags` rewrites that prefix to the option the user typed (``--alpha: ...``).
@@ -13,6 +14,8 @@ import click
 
 from heoslice.errors import InputError
 from heoslice.material import FUNCTIONS, DistributionFunction, make_function
+from heoslice.mesh import Mesh, scaled
+from heoslice.pipeline import check_scale
 
 #: Library parameter of :func:`heoslice.material.make_function` -> its option.
 FUNCTION_FLAGS = {"alpha": "--alpha", "beta": "--beta", "lam": "--lambda", "periods": "--periods",
@@ -81,3 +84,17 @@ def function_from_options(kind_flag: str, kind: str, alpha: float | None, beta: 
         kind = "expression"
     with flags({**FUNCTION_FLAGS, "kind": kind_flag}):
         return make_function(kind, alpha=alpha, beta=beta, lam=lam, periods=periods, expression=expression)
+
+
+#: ``--scale`` of every command that reads a model (slice, color, info): its coordinates times this, in mm.
+scale_option = click.option("--scale", type=float, default=1.0, show_default=True,
+                            help="Multiply coordinates by this (1000 for a model in metres).")
+
+
+def apply_scale(mesh: Mesh, scale: float) -> Mesh:
+    """``mesh`` with its coordinates multiplied by ``scale`` (the --scale option; range errors name it)."""
+    if scale == 1.0:
+        return mesh
+    with flags({"scale": "--scale"}):
+        check_scale(scale, mesh.bounds)
+        return scaled(mesh, scale)

@@ -15,12 +15,12 @@ from heoslice.cli.common import (
     progress_bar,
     run_each,
 )
-from heoslice.cli.options import flags, function_from_options, function_options, option
+from heoslice.cli.options import apply_scale, flags, function_from_options, function_options, option, scale_option
 from heoslice.cli.parts import GRADE_REFUSAL, is_parts_job, part_settings, report_parts
 from heoslice.errors import InputError
 from heoslice.material import MaterialsFile, material_roles, read_materials_file
-from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, without_materials
-from heoslice.pipeline import SliceSpec, check_scale, plan_parts, slice_to_stack, slice_warnings
+from heoslice.mesh import Mesh, load_assembly, load_mesh, without_materials
+from heoslice.pipeline import SliceSpec, plan_parts, slice_to_stack, slice_warnings
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, print_refusal, refusal_line, stack_volume_mm3
 
 #: SliceSpec and slice_to_stack parameters -> the options that set them (library errors name the parameter).
@@ -166,8 +166,7 @@ Several parts in one stack (a multi-part job; one 1-bit droplet mask per materia
 @click.option("--margin", type=float, default=1.0, show_default=True, help="Empty border around the part, mm.")
 @click.option("--compress", "compression", type=click.Choice(list(COMPRESSIONS)), default=DEFAULT_COMPRESSION,
               show_default=True, help="Lossless TIFF compression.")
-@click.option("--scale", type=float, default=1.0, show_default=True,
-              help="Multiply coordinates by this (1000 for a model in metres).")
+@scale_option
 @click.option("-j", "--jobs", type=int, default=0, show_default=True, help="Worker processes (0 = all cores).")
 @click.option("--force", is_flag=True, help="Overwrite a non-empty output directory.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
@@ -307,17 +306,12 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
     mesh = load_mesh(model) if mesh is None else mesh
     if solid_only:
         mesh = without_materials(mesh)
-    if scale != 1.0:
-        try:
-            check_scale(scale, mesh.bounds)
-        except InputError as err:
-            raise flag_error(err) from None
-        mesh = scaled(mesh, scale)
+    mesh = apply_scale(mesh, scale)
     if not as_json:
         echo_warnings(model, [*mesh.warnings, *(flag_message(text) for text in slice_warnings(mesh, spec))])
     with progress_bar(f"slicing {model.name}" if several else "slicing", unit="layer") as update:
         try:
-            manifest, times = slice_to_stack(mesh, directory, spec, force=force, progress=update)
+            manifest, times = slice_to_stack(mesh, directory, spec, force=force, progress=update, scale=scale)
         except InputError as err:
             raise flag_error(err) from None
     open_layers = [entry["index"] for entry in manifest["layers"] if entry["open_contours"]]

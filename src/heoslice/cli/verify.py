@@ -17,6 +17,7 @@ from heoslice.stack import (
     print_refusal,
     read_manifest,
     refusal_line,
+    source_scale,
     stack_volume_mm3,
     verify_stack,
 )
@@ -80,33 +81,49 @@ def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float,
     return problems, warnings, summary
 
 
-def _check_count_first(stack: Path, models: tuple[Path, ...]) -> None:
-    """:func:`check_mesh_count` before any mesh is loaded or layer hashed (a wrong count is known from the
-    manifest alone); a manifest that cannot be read is left to verify_stack's problem lines."""
+def mesh_scale(stack: Path, manifest: dict, given: float | None) -> float:
+    """The factor to multiply the --mesh coordinates by: the ``scale`` the stack's manifest records (``slice
+    --scale``), or ``given`` (--scale) for a stack that records none (1 without either). A ``given`` that
+    disagrees with the recorded one is an InputError (one line)."""
+    if "scale" not in manifest:
+        return 1.0 if given is None else given
+    recorded = source_scale(manifest)
+    if given is not None and abs(given - recorded) > 1e-9 * recorded:
+        raise InputError(f"--scale: {given:g} disagrees with the scale {recorded:g} {stack} was sliced with (its "
+                         "manifest records it); leave --scale out")
+    return recorded
+
+
+def _check_mesh_options_first(stack: Path, models: tuple[Path, ...], given: float | None) -> float:
+    """:func:`check_mesh_count` and :func:`mesh_scale` before any mesh is loaded or layer hashed (both are
+    known from the manifest alone); the scale. A manifest that cannot be read is left to verify_stack's
+    problem lines (the scale is then ``given``, or 1)."""
     try:
         manifest = read_manifest(stack)
     except VerifyError:
-        return
+        return 1.0 if given is None else given
     check_mesh_count(stack, manifest, models)
+    return mesh_scale(stack, manifest, given)
 
 
 @click.command("verify", epilog="""\b
 Examples:
   heoslice verify vase_stack/
   heoslice verify vase_stack/ --mesh vase.ply
-  heoslice verify scan_stack/ --mesh scan.ply --scale 1000 --json
+  heoslice verify scan_stack/ --mesh scan.ply --json   # sliced with --scale 1000: the stack remembers
   heoslice verify liver_stack/ --mesh liver.stl --mesh lesion.stl   # a multi-part stack: one per part file
 """)
 @click.argument("stack", type=click.Path(path_type=Path))
 @click.option("--mesh", "models", type=click.Path(path_type=Path), multiple=True,
               help="Also compare volume and layer heights with this mesh file; for a multi-part stack (slice "
                    "--parts) repeat it, one per part file in the order they were sliced.")
-@click.option("--scale", type=click.FloatRange(min=0.0, min_open=True), default=1.0, show_default=True,
-              help="Scale the mesh was sliced with (as given to 'heoslice slice --scale').")
+@click.option("--scale", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="Scale the mesh was sliced with ('heoslice slice --scale'), for a stack whose manifest does "
+                   "not record it [default: the manifest's scale, else 1].")
 @click.option("--tolerance", type=click.FloatRange(min=0.0), default=0.01, show_default=True,
               help="Largest relative volume difference accepted with --mesh (0.01 = 1 %).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-def verify(stack: Path, models: tuple[Path, ...], scale: float, tolerance: float, as_json: bool) -> None:
+def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance: float, as_json: bool) -> None:
     """Check STACK before printing: manifest (format, version, complete), every layer file
     (inside the stack, present, sha256, size, dpi, solid pixel count), no missing or extra
     layers, and that it can print (not an RGBA preview, not every layer empty); with --mesh
@@ -119,7 +136,7 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float, tolerance: float
     check_input_path(stack)
     mesh = None
     if models:
-        _check_count_first(stack, models)
+        scale = _check_mesh_options_first(stack, models, scale)
         mesh = load_mesh(models[0]) if len(models) == 1 else load_assembly(models)
         mesh = scaled(mesh, scale) if scale != 1.0 else mesh
     report = verify_stack(stack)

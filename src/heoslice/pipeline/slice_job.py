@@ -80,10 +80,13 @@ def _check_sizes(mesh: Mesh, spec: SliceSpec) -> None:
 
 
 def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool = False,
-                   progress: Callable[[int, int], None] | None = None) -> tuple[dict, StageTimes]:
+                   progress: Callable[[int, int], None] | None = None,
+                   scale: float = 1.0) -> tuple[dict, StageTimes]:
     """Slice ``mesh`` into a stack in ``directory``; return the manifest and stage timings.
 
-    ``progress(done, total)`` is called as layers finish. The manifest is written
+    ``scale``: the factor ``mesh``'s file coordinates were multiplied by (``--scale``), recorded in the
+    manifest so that ``verify --mesh`` compares with the file as sliced. ``progress(done, total)`` is called
+    as layers finish. The manifest is written
     last; if anything fails before, the directory holds no manifest.
     """
     directory = Path(directory)
@@ -132,7 +135,7 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
             source_file=mesh.source.name, source_sha256=mesh.sha256, layer_height_mm=spec.layer_height_mm,
             dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
             image=ImageRecord(grid.width, grid.height, (grid.x_left, grid.y_top), mode, spec.compression),
-            z_range_mm=(bounds[0, 2], bounds[1, 2]), warnings=mesh.warnings,
+            z_range_mm=(bounds[0, 2], bounds[1, 2]), warnings=mesh.warnings, scale=scale,
             layers=[LayerRecord(z[index], results[index][0], results[index][1], open_layers[index],
                                 None if droplets is None else _channel_records(droplets, results[index][2]))
                     for index in range(len(z))],

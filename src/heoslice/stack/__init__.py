@@ -30,6 +30,7 @@ from heoslice.stack.manifest import (
     mask_channels,
     max_layer_count,
     parse_manifest,
+    source_scale,
     stack_volume_mm3,
     widest_masks,
 )
@@ -50,11 +51,12 @@ from heoslice.stack.write import prepare_directory, write_file, write_manifest
 
 __all__ = [
     "COMPRESSIONS", "DEFAULT_COMPRESSION", "FORMAT_NAME", "FORMAT_VERSION", "IMAGE_MODES", "LAYER_PATTERN",
-    "MANIFEST", "MAX_IMAGE_PIXELS", "PRINT_RULES", "PrintRule", "check_printable", "print_refusal", "refusal_line", "MAX_LAYERS", "MAX_MANIFEST_BYTES", "MAX_MANIFEST_CONTAINERS", "ChannelRecord",
+    "MANIFEST", "MAX_IMAGE_PIXELS", "MAX_LAYERS", "MAX_MANIFEST_BYTES", "MAX_MANIFEST_CONTAINERS", "ChannelRecord",
     "ImageRecord", "LayerRecord", "StackReport", "build_manifest", "check_image_size", "check_input_path",
     "decode_mask", "droplet_summary", "encode_bilevel_tiff", "encode_tiff", "expected_layer_count", "grading_summary",
     "layer_file_name", "layer_height_problems", "layer_strips", "load_verified", "manifest_problem", "mask_channels",
     "max_layer_count", "parse_manifest",
     "prepare_directory", "read_layer_channels", "read_layer_mask", "read_layer_pixels", "read_manifest",
     "resolve_inside", "stack_volume_mm3", "verify_stack", "widest_masks", "write_file", "write_manifest",
+    "PRINT_RULES", "PrintRule", "check_printable", "print_refusal", "refusal_line", "source_scale",
 ]

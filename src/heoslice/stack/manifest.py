@@ -106,16 +106,18 @@ def max_layer_count(channel_materials: Sequence[str] = ()) -> int:
 def build_manifest(*, source_file: str, source_sha256: str, layer_height_mm: float, dpi: tuple[float, float],
                    pixel_size_mm: tuple[float, float], image: ImageRecord, z_range_mm: tuple[float, float],
                    warnings: Sequence[str], layers: Sequence[LayerRecord], grading: dict | None = None,
-                   parts: Sequence[dict] | None = None) -> dict:
+                   parts: Sequence[dict] | None = None, scale: float = 1.0) -> dict:
     """The ``manifest.json`` object of a finished stack, checked by :func:`manifest_problem` before it is
     returned (a failure is a bug in the slicer, raised as ValueError). ``parts``: a multi-part job's parts
-    (:func:`heoslice.pipeline.parts.parts_records`)."""
+    (:func:`heoslice.pipeline.parts.parts_records`); ``scale``: the factor the source file's coordinates were
+    multiplied by before slicing (``slice --scale``)."""
     manifest = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
         "complete": True,
         "created_by": f"heoslice {__version__}",
         "source": {"file": source_file, "sha256": source_sha256},
+        "scale": float(scale),
         "layer_height_mm": layer_height_mm,
         "dpi": [float(dpi[0]), float(dpi[1])],
         "pixel_size_mm": [pixel_size_mm[0], pixel_size_mm[1]],
@@ -310,6 +312,8 @@ def _header_problem(manifest: dict) -> str | None:
             return f"'{key}' must be two positive numbers"
     if not (_is_number(manifest.get("layer_height_mm")) and manifest["layer_height_mm"] > 0):
         return "'layer_height_mm' must be a positive number"
+    if "scale" in manifest and not (_is_number(manifest["scale"]) and manifest["scale"] > 0):
+        return f"'scale' must be a positive number, not {_show(manifest['scale'])}"
     z_range = manifest.get("z_range_mm")
     if not (isinstance(z_range, list) and len(z_range) == 2 and all(_is_number(v) for v in z_range)
             and z_range[0] <= z_range[1]):
@@ -397,6 +401,12 @@ def layer_height_problems(manifest: dict, z_min: float, z_max: float, source: st
         problems.append(f"layer {first}: z_mm {z[first]:.6g}, expected {want[first]:.6g} from {source} "
                         f"z_min {z_min:g} + ({first} + 1/2) x {h:g} ({len(off)} layer(s) off)")
     return problems
+
+
+def source_scale(manifest: dict) -> float:
+    """The factor the source file's coordinates were multiplied by before slicing (``slice --scale``): the
+    manifest's ``scale``, 1.0 for a stack written before it was recorded."""
+    return float(manifest.get("scale", 1.0))
 
 
 def stack_volume_mm3(manifest: dict) -> float:
