@@ -468,7 +468,7 @@ def test_decode_mask_of_a_channel_file(stack):
 
 def test_droplet_masks_must_partition_the_layer(tmp_path, run_cli):
     """A graded stack with droplet masks verifies clean; a mask replaced by another (hash updated) is
-    reported as pixels jetted twice and as masks not covering the layer."""
+    reported as pixels jetted twice and as solid pixels in no mask, each naming its first pixel."""
     model = tmp_path / "vase.ply"
     procedural.vase(rings_outer=10, rings_inner=8, sections=24).export(model)
     directory = tmp_path / "graded"
@@ -482,5 +482,7 @@ def test_droplet_masks_must_partition_the_layer(tmp_path, run_cli):
     edit_manifest(directory, lambda m: m["layers"][4]["channels"][1].update(
         sha256=first["sha256"], solid_pixels=first["solid_pixels"]))
     found = problems(directory)
-    assert f"layer 4: {first['solid_pixels']} pixels are set in more than one droplet mask" in found
-    assert any(line.startswith("layer 4: ") and "do not cover exactly" in line for line in found)
+    assert any(line.startswith(f"layer 4: {first['solid_pixels']} pixel(s) in two or more droplet masks, first at "
+                               "pixel x ") for line in found), found
+    assert any(line.startswith(f"layer 4: {second['solid_pixels']} solid pixel(s) in no droplet mask, first at ")
+               for line in found), found

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from heoslice.cli import material_report
 from heoslice.cli.common import plural, signed_percent
 from heoslice.errors import InputError, VerifyError
 from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, volume_check
@@ -122,8 +123,12 @@ Examples:
                    "not record it [default: the manifest's scale, else 1].")
 @click.option("--tolerance", type=click.FloatRange(min=0.0), default=0.01, show_default=True,
               help="Largest relative volume difference accepted with --mesh (0.01 = 1 %).")
+@click.option("--design", "preview", type=click.Path(path_type=Path), default=None, metavar="PREVIEW_STACK",
+              help="The --rgba preview stack of the same slice: compare every 2 mm x 2 mm window of a "
+                   "two-material graded or coloured stack with the mix its colours design.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance: float, as_json: bool) -> None:
+def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance: float, preview: Path | None,
+           as_json: bool) -> None:
     """Check STACK before printing: manifest (format, version, complete), every layer file
     (inside the stack, present, sha256, size, dpi, solid pixel count), no missing or extra
     layers, and that it can print (not an RGBA preview, not every layer empty); with --mesh
@@ -147,6 +152,9 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     refusal = print_refusal(report.manifest) if report.manifest else None
     problems += [refusal_line(refusal, stack)] if refusal is not None else []
     layers = report.manifest.get("layers", []) if report.manifest else []
+    delivered = None
+    if report.ok and layers:
+        delivered = material_report.compute(stack, report.manifest, mesh, preview)
     summary = {
         "stack": str(stack),
         "ok": not problems,
@@ -155,6 +163,7 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
         "layers": len(layers),
         "volume_mm3": stack_volume_mm3(report.manifest) if report.manifest else None,
         "mesh": mesh_summary,
+        "delivered": None if delivered is None else material_report.as_json(report.manifest, *delivered),
     }
     if as_json:
         click.echo(json.dumps(summary))
@@ -168,6 +177,8 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
                        + (f", mesh volume {mesh_summary['volume_mm3']:.6g} mm^3 "
                           f"({signed_percent(mesh_summary['relative_volume_difference'])})"
                           if mesh_summary and mesh_summary["relative_volume_difference"] is not None else ""))
+        for line in [] if delivered is None else material_report.text_lines(report.manifest, *delivered):
+            click.echo(line)
     sys.stdout.flush()
     if problems:
         raise VerifyError(f"{stack}: {len(problems)} problem(s); do not print this stack")

@@ -12,7 +12,7 @@ from heoslice.mesh.ply import check_ply_header, parse_ply_header, read_ply
 from heoslice.mesh.raw import MATERIAL_PROPERTY, RawMesh
 from heoslice.mesh.threemf import Material, ModelObject, ThreeMF, read_3mf
 from heoslice.mesh.topology import EdgeGroups, edge_groups, edge_use_counts, shell_labels
-from heoslice.mesh.volume import signed_volume_mm3, solid_volume_mm3, winding_number
+from heoslice.mesh.volume import ranked_part_volumes_mm3, signed_volume_mm3, solid_volume_mm3, winding_number
 
 __all__ = [
     "MATERIAL_PROPERTY", "MAX_COORDINATE", "SUPPORTED_SUFFIXES", "EdgeGroups", "Material", "Mesh", "ModelObject",
@@ -20,4 +20,5 @@ __all__ = [
     "column_bounds", "edge_groups", "edge_use_counts", "file_sha256", "load_mesh", "mesh_info", "parse_ply_header",
     "read_ply", "scaled", "shell_labels", "signed_volume_mm3", "solid_volume_mm3", "winding_number",
     "without_materials", "VolumeCheck", "volume_check", "Part", "assemble", "load_assembly", "uniform_color",
+    "ranked_part_volumes_mm3",
 ]

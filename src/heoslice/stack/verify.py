@@ -13,6 +13,7 @@ from heoslice.errors import VerifyError
 from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST, layer_height_problems, mask_channels
 from heoslice.stack.read import (decode_checked, decode_mask, read_checked, read_layer_mask, read_manifest,
                                  resolve_inside)
+from heoslice.stack.report import fault_lines, mask_faults
 
 
 @dataclass(frozen=True)
@@ -45,21 +46,13 @@ def _layer_file_problem(path: Path, name: str, digest: str, solid: int | None, m
 
 
 def _channel_problems(directory: Path, manifest: dict, index: int) -> list[str]:
-    """Droplet masks against their layer: every solid pixel in exactly one mask, empty pixels in none."""
+    """Droplet masks against their layer: every solid pixel in exactly one mask, empty pixels in none; a line
+    per kind of fault naming its first pixel (:func:`heoslice.stack.report.mask_faults`)."""
     entry = manifest["layers"][index]
-    solid = read_layer_mask(directory, manifest, index)
-    jets = np.zeros(solid.shape, dtype=np.uint8)
-    for channel in entry["channels"]:
-        jets += decode_mask(resolve_inside(directory, channel["file"]), manifest, sha256=channel["sha256"])
-    problems = []
-    doubled = int(np.count_nonzero(jets > 1))
-    if doubled:
-        problems.append(f"layer {index}: {doubled} pixels are set in more than one droplet mask")
-    unmatched = int(np.count_nonzero((jets > 0) != solid))
-    if unmatched:
-        problems.append(f"layer {index}: {unmatched} pixels where the droplet masks do not cover exactly "
-                        "the layer's solid pixels")
-    return problems
+    solid = np.packbits(read_layer_mask(directory, manifest, index), axis=-1)
+    masks = np.stack([np.packbits(decode_mask(resolve_inside(directory, channel["file"]), manifest,
+                                              sha256=channel["sha256"]), axis=-1) for channel in entry["channels"]])
+    return fault_lines(index, mask_faults(solid, masks), manifest)
 
 
 def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:

@@ -1,0 +1,109 @@
+"""``verify``'s delivered-material report: computed by :mod:`heoslice.stack.report`, shown here as text lines and
+as the ``delivered`` object of ``verify --json``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from heoslice.errors import InputError, VerifyError
+from heoslice.mesh import Mesh, ranked_part_volumes_mm3
+from heoslice.stack import read_manifest
+from heoslice.stack.report import (
+    MaterialReport,
+    PartShare,
+    material_report,
+    part_shares,
+    pixel_position,
+    preview_design,
+    window_pixels,
+)
+
+
+def designed_part_volumes(manifest: dict, mesh: Mesh | None) -> dict[str, float] | None:
+    """Each part's designed volume (mm^3, by name) of a multi-part stack from its --mesh assembly: its volume
+    less what parts of a lower rank take where they overlap; None without parts or meshes."""
+    parts = manifest.get("parts")
+    if not parts or mesh is None or not mesh.parts or len(mesh.parts) != len(parts):
+        return None
+    order = sorted(range(len(parts)), key=lambda label: parts[label]["rank"])
+    volumes = ranked_part_volumes_mm3(mesh, order)
+    return None if volumes is None else {str(part["name"]): float(v) for part, v in zip(parts, volumes)}
+
+
+def design_of_preview(stack: Path, manifest: dict, preview: Path):
+    """The design read from ``preview``, the --rgba stack of the same slice (:func:`preview_design`);
+    InputError naming --design when it cannot be one for ``stack``."""
+    materials = (manifest.get("grading") or {}).get("materials") or []
+    if len(materials) != 2 or not all(isinstance(m.get("color"), list) for m in materials):
+        raise InputError(f"--design: {stack} is not a stack of two coloured materials; a preview stack gives the "
+                         "design of a two-material graded or coloured stack only")
+    try:
+        other = read_manifest(preview)
+    except VerifyError as err:
+        raise InputError(f"--design: {err}") from None
+    if other["image"].get("mode") != "RGBA" or len(other["layers"]) != len(manifest["layers"]):
+        raise InputError(f"--design: {preview} is not the --rgba preview stack of the same slice (an RGBA stack "
+                         f"of {len(manifest['layers'])} layers)")
+    try:
+        return preview_design(preview, manifest, [m["color"] for m in materials], other)
+    except ValueError as err:
+        raise InputError(f"--design: {preview}: {err}") from None
+
+
+def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None):
+    """The report of a verified stack and its parts against their design (None without): (report, parts)."""
+    design = None if preview is None else design_of_preview(stack, manifest, preview)
+    report = material_report(stack, manifest, design)
+    designed = designed_part_volumes(manifest, mesh)
+    return report, (None if designed is None else part_shares(manifest, report, designed))
+
+
+def window_centre_mm(manifest: dict, pixel: tuple[int, int]) -> tuple[float, float]:
+    """Model coordinates (x, y) mm of the centre of the window whose top-left pixel is (row, column)."""
+    rows, columns = window_pixels(manifest)
+    return pixel_position(manifest, (pixel[0] + (rows - 1) / 2, pixel[1] + (columns - 1) / 2))
+
+
+def as_json(manifest: dict, report: MaterialReport, parts: tuple[PartShare, ...] | None) -> dict:
+    """The ``delivered`` object of ``verify --json``."""
+    worst = report.worst
+    names = [m.name for m in report.materials]
+    window = None
+    if worst is not None:
+        rows, columns = window_pixels(manifest)
+        px, py = manifest["pixel_size_mm"]
+        window = {"layer": worst.layer, "pixel": [worst.pixel[1], worst.pixel[0]],
+                  "centre_mm": list(window_centre_mm(manifest, worst.pixel)), "size_mm": [columns * px, rows * py],
+                  "solid_pixels": worst.solid, "material": names[worst.material],
+                  "designed_share": worst.designed, "delivered_share": worst.delivered,
+                  "difference": worst.difference}
+    return {
+        "solid": {"voxels": report.solid_voxels, "volume_mm3": report.solid_mm3},
+        "materials": [{"name": m.name, "voxels": m.voxels, "volume_mm3": m.volume_mm3, "share": m.share}
+                      for m in report.materials],
+        "parts": None if parts is None else [
+            {"parts": list(p.parts), "material": p.material, "designed_mm3": p.designed_mm3,
+             "delivered_mm3": p.delivered_mm3, "designed_share": p.designed, "delivered_share": p.delivered,
+             "difference": p.difference} for p in parts],
+        "worst_window": window,
+    }
+
+
+def _percent(share: float) -> str:
+    return f"{100 * share:.2f} %"
+
+
+def text_lines(manifest: dict, report: MaterialReport, parts: tuple[PartShare, ...] | None) -> list[str]:
+    """The report as indented text lines, under verify's OK line."""
+    lines = [f"  {m.name}: {m.voxels} voxels, {m.volume_mm3:.6g} mm^3, {_percent(m.share)} of the solid"
+             for m in report.materials]
+    for part in parts or ():
+        lines.append(f"  part {', '.join(part.parts)} ({part.material}): designed {_percent(part.designed)}, "
+                     f"delivered {_percent(part.delivered)} ({100 * part.difference:+.2f} points)")
+    worst = report.worst
+    if worst is not None:
+        x, y = window_centre_mm(manifest, worst.pixel)
+        lines.append(f"  worst 2 mm window: layer {worst.layer}, centred at x {x:.4g}, y {y:.4g} mm: "
+                     f"{report.materials[worst.material].name} designed {_percent(worst.designed)}, "
+                     f"delivered {_percent(worst.delivered)} ({100 * worst.difference:+.2f} points)")
+    return lines

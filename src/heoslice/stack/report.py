@@ -1,0 +1,304 @@
+"""The delivered-material report of a stack: what each material's droplet masks put where, against the design.
+
+Per material: its voxels (set pixels of its droplet mask over all layers), volume (voxels x pixel area x layer
+height, mm^3) and share of the solid. With a design: the designed against the delivered share of each part
+(:func:`part_shares`) and of every 2 mm x 2 mm window of every layer (the worst is reported). A solid pixel in
+no droplet mask, or in two, is a fault named by layer and position (:func:`mask_faults`, which ``verify`` uses).
+
+"Designed" per stack kind (docs in README, ``verify``):
+
+- a multi-part job: each part is designed all of its material; its designed volume is its own volume less what
+  parts of a lower rank take where they overlap (computed from the meshes by the caller);
+- a graded or coloured stack: the per-pixel mix the halftone was given, supplied by a :data:`DesignSource`
+  (e.g. :func:`preview_design`: the same slice's ``--rgba`` stack, whose colour is eq. 1's blend).
+
+The work is a function of one layer's arrays (:func:`layer_tally`) plus a reduction (:func:`reduce_tallies`),
+so layers can be tallied in any order or in parallel; the bit logic runs on ``np.packbits`` rows.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.stack.manifest import widest_masks
+from heoslice.stack.read import read_layer_channels, read_layer_mask, read_layer_pixels
+
+#: Side of the windows the design is checked over, mm.
+WINDOW_MM = 2.0
+#: A window is compared when at least this share of its pixels is solid: in a window the part barely enters,
+#: one droplet is a large share, which no halftone can match.
+WINDOW_MIN_SOLID = 0.5
+#: Name of the one material of a stack without droplet masks.
+SOLID = "solid"
+
+#: The designed mix of one layer: (K, h, w) float, per solid pixel each material's share (summing to 1), in
+#: the order of the layer's droplet masks; None when the layer has no design to compare.
+DesignSource = Callable[[int], "np.ndarray | None"]
+
+
+@dataclass(frozen=True, slots=True)
+class PixelFault:
+    """Pixels of one layer that break "every solid pixel in exactly one droplet mask": how many, and the first
+    (row, column) in reading order."""
+
+    count: int
+    first: tuple[int, int]
+
+
+@dataclass(frozen=True, slots=True)
+class MaskFaults:
+    """One layer's faults: solid pixels in no mask, pixels in two or more masks, mask pixels outside the solid
+    (None: no such pixel)."""
+
+    uncovered: PixelFault | None
+    doubled: PixelFault | None
+    outside: PixelFault | None
+
+
+@dataclass(frozen=True, slots=True)
+class Window:
+    """A 2 mm x 2 mm window of one layer against the design: its layer, top-left pixel (row, column), solid
+    pixels, the material compared and its designed and delivered share of the window's solid."""
+
+    layer: int
+    pixel: tuple[int, int]
+    solid: int
+    material: int
+    designed: float
+    delivered: float
+
+    @property
+    def difference(self) -> float:
+        return self.delivered - self.designed
+
+
+@dataclass(frozen=True, slots=True)
+class LayerTally:
+    """One layer's contribution: (K,) voxels per material, solid pixels, its faults and its worst window (None
+    without a design, or without a window solid enough)."""
+
+    index: int
+    voxels: np.ndarray
+    solid: int
+    faults: MaskFaults
+    worst: Window | None
+
+
+@dataclass(frozen=True, slots=True)
+class MaterialShare:
+    """One material of the report: name, voxels, volume (mm^3), share of the solid (0..1)."""
+
+    name: str
+    voxels: int
+    volume_mm3: float
+    share: float
+
+
+@dataclass(frozen=True, slots=True)
+class PartShare:
+    """One part (or the parts of one material together) against the design: names, material, designed and
+    delivered volume (mm^3) and share of the solid (designed: of the designed solid)."""
+
+    parts: tuple[str, ...]
+    material: str
+    designed_mm3: float
+    delivered_mm3: float
+    designed: float
+    delivered: float
+
+    @property
+    def difference(self) -> float:
+        return self.delivered - self.designed
+
+
+@dataclass(frozen=True, slots=True)
+class MaterialReport:
+    """The whole stack's report: per material, the solid's voxels and volume, the worst window (None without a
+    design) and the layers with faults, in layer order."""
+
+    materials: tuple[MaterialShare, ...]
+    solid_voxels: int
+    solid_mm3: float
+    worst: Window | None
+    faults: tuple[tuple[int, MaskFaults], ...]
+
+
+def _first_set(packed: np.ndarray) -> PixelFault | None:
+    """How many bits of (h, ceil(w / 8)) packed rows are set, and the first (row, column), or None."""
+    count = int(np.bitwise_count(packed).sum())
+    if not count:
+        return None
+    flat = int(np.flatnonzero(packed)[0])
+    row, byte = divmod(flat, packed.shape[1])
+    bit = int(np.flatnonzero(np.unpackbits(packed[row, byte:byte + 1]))[0])
+    return PixelFault(count, (row, 8 * byte + bit))
+
+
+def mask_faults(solid: np.ndarray, masks: np.ndarray) -> MaskFaults:
+    """Faults of one layer's droplet masks against its solid mask, on packed bits: ``solid`` (h, ceil(w / 8))
+    uint8 and ``masks`` (K, h, ceil(w / 8)) uint8 (``np.packbits(..., axis=-1)``)."""
+    seen = np.zeros_like(solid)
+    doubled = np.zeros_like(solid)
+    for mask in masks:
+        doubled |= seen & mask
+        seen |= mask
+    return MaskFaults(_first_set(solid & ~seen), _first_set(doubled), _first_set(seen & ~solid))
+
+
+def pixel_position(manifest: dict, pixel: tuple[int, int]) -> tuple[float, float]:
+    """Model coordinates (x, y) mm of the centre of pixel (row, column) (docs/stack-format.md)."""
+    (px, py), (x_left, y_top) = manifest["pixel_size_mm"], manifest["image"]["origin_mm"]
+    row, column = pixel
+    return x_left + (column + 0.5) * px, y_top - (row + 0.5) * py
+
+
+def where(manifest: dict, pixel: tuple[int, int]) -> str:
+    """'pixel x C, y R (x X, y Y mm)' for a message."""
+    x, y = pixel_position(manifest, pixel)
+    return f"pixel x {pixel[1]}, y {pixel[0]} (x {x:.4f}, y {y:.4f} mm)"
+
+
+def fault_lines(index: int, faults: MaskFaults, manifest: dict) -> list[str]:
+    """One problem line per kind of fault of layer ``index``, naming the count and the first pixel."""
+    kinds = (("uncovered", "solid pixel(s) in no droplet mask"), ("doubled", "pixel(s) in two or more droplet masks"),
+             ("outside", "droplet-mask pixel(s) outside the layer's solid pixels"))
+    lines = []
+    for field, text in kinds:
+        fault = getattr(faults, field)
+        if fault is not None:
+            lines.append(f"layer {index}: {fault.count} {text}, first at {where(manifest, fault.first)}")
+    return lines
+
+
+def window_pixels(manifest: dict) -> tuple[int, int]:
+    """(rows, columns) of a WINDOW_MM x WINDOW_MM window at the stack's pixel size (at least 1)."""
+    px, py = manifest["pixel_size_mm"]
+    return max(1, round(WINDOW_MM / py)), max(1, round(WINDOW_MM / px))
+
+
+def _window_sums(values: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Sums of (..., h, w) values over windows of ``size`` (rows, columns) tiling the image from its top-left
+    corner (the last row and column of windows padded with zeros): (..., h / rows, w / columns)."""
+    rows, columns = size
+    h, w = values.shape[-2:]
+    padded = np.zeros((*values.shape[:-2], -(-h // rows) * rows, -(-w // columns) * columns), dtype=values.dtype)
+    padded[..., :h, :w] = values
+    shape = (*values.shape[:-2], padded.shape[-2] // rows, rows, padded.shape[-1] // columns, columns)
+    return padded.reshape(shape).sum(axis=(-3, -1))
+
+
+def worst_window(index: int, solid: np.ndarray, masks: np.ndarray, designed: np.ndarray,
+                 size: tuple[int, int]) -> Window | None:
+    """The window of one layer whose delivered share of some material is furthest from its designed share, over
+    windows at least WINDOW_MIN_SOLID solid. solid (h, w) bool; masks (K, h, w) bool; designed (K, h, w) float
+    shares per pixel; size (rows, columns) of a window."""
+    solid_count = _window_sums(solid.astype(np.int64), size)
+    compared = solid_count >= WINDOW_MIN_SOLID * size[0] * size[1]
+    if not compared.any():
+        return None
+    delivered = _window_sums((masks & solid).astype(np.int64), size)[:, compared] / solid_count[compared]
+    planned = _window_sums(np.where(solid, designed, 0.0), size)[:, compared] / solid_count[compared]
+    material, position = np.unravel_index(int(np.argmax(np.abs(delivered - planned))), delivered.shape)
+    window = np.argwhere(compared)[position]
+    return Window(index, (int(window[0]) * size[0], int(window[1]) * size[1]), int(solid_count[tuple(window)]),
+                  int(material), float(planned[material, position]), float(delivered[material, position]))
+
+
+def layer_tally(index: int, solid: np.ndarray, masks: np.ndarray, designed: np.ndarray | None = None,
+                window: tuple[int, int] = (1, 1)) -> LayerTally:
+    """One layer's tally: solid (h, w) bool; masks (K, h, w) bool, the droplet masks (K = 0: the solid is the
+    one material); designed (K, h, w) float per-pixel shares, or None; window (rows, columns)."""
+    packed_solid = np.packbits(solid, axis=-1)
+    if not len(masks):
+        empty = MaskFaults(None, None, None)
+        return LayerTally(index, np.array([int(np.bitwise_count(packed_solid).sum())]), int(solid.sum()), empty,
+                          None)
+    packed = np.packbits(masks, axis=-1)
+    voxels = np.bitwise_count(packed).sum(axis=(1, 2)).astype(np.int64)
+    worst = None if designed is None else worst_window(index, solid, masks, designed, window)
+    return LayerTally(index, voxels, int(np.bitwise_count(packed_solid).sum()), mask_faults(packed_solid, packed),
+                      worst)
+
+
+def material_names(manifest: dict) -> list[str]:
+    """The report's materials: the droplet masks' materials in mask order, or SOLID for a stack without."""
+    widest = widest_masks(manifest)
+    return [str(mask.get("material", f"mask {n + 1}")) for n, mask in enumerate(widest)] or [SOLID]
+
+
+def reduce_tallies(manifest: dict, tallies: Sequence[LayerTally]) -> MaterialReport:
+    """The stack's report from its layers' tallies (any order)."""
+    names = material_names(manifest)
+    (px, py), h = manifest["pixel_size_mm"], manifest["layer_height_mm"]
+    voxel_mm3 = px * py * h
+    voxels = np.zeros(len(names), dtype=np.int64)
+    for tally in tallies:
+        voxels[:len(tally.voxels)] += tally.voxels
+    solid = sum(tally.solid for tally in tallies)
+    windows = [tally.worst for tally in tallies if tally.worst is not None]
+    worst = max(windows, key=lambda w: (abs(w.difference), -w.layer), default=None)
+    faults = tuple((t.index, t.faults) for t in sorted(tallies, key=lambda t: t.index)
+                   if any(getattr(t.faults, f) for f in ("uncovered", "doubled", "outside")))
+    materials = tuple(MaterialShare(name, int(count), float(count * voxel_mm3), float(count / solid) if solid else 0.0)
+                      for name, count in zip(names, voxels))
+    return MaterialReport(materials, int(solid), float(solid * voxel_mm3), worst, faults)
+
+
+def tally_layer(directory: Path, manifest: dict, index: int, design: DesignSource | None = None) -> LayerTally:
+    """Read layer ``index`` of a verified stack (its files checked against their SHA-256 again) and tally it."""
+    solid = read_layer_mask(directory, manifest, index)
+    masks = read_layer_channels(directory, manifest, index)
+    designed = None if design is None or not len(masks) else design(index)
+    return layer_tally(index, solid, masks, designed, window_pixels(manifest))
+
+
+def material_report(directory: Path, manifest: dict, design: DesignSource | None = None) -> MaterialReport:
+    """The report of a verified stack, layer by layer; ``design`` gives each layer's designed mix."""
+    return reduce_tallies(manifest, [tally_layer(directory, manifest, index, design)
+                                     for index in range(len(manifest["layers"]))])
+
+
+def part_shares(manifest: dict, report: MaterialReport, designed_mm3: dict[str, float]) -> tuple[PartShare, ...]:
+    """A multi-part job's parts against their design: each material's parts together (a material's voxels
+    cannot be told apart by part), designed volume the sum of their ``designed_mm3`` (by part name: each part's
+    volume less what lower-ranked parts take where they overlap), delivered that material's volume."""
+    delivered = {share.name: share.volume_mm3 for share in report.materials}
+    if list(delivered) == [SOLID]:
+        delivered = {part["material"]: report.solid_mm3 for part in manifest["parts"]}
+    groups: dict[str, list[str]] = {}
+    for part in manifest["parts"]:
+        groups.setdefault(str(part["material"]), []).append(str(part["name"]))
+    designed_total = sum(designed_mm3.values()) or 1.0
+    solid = report.solid_mm3 or 1.0
+    return tuple(PartShare(tuple(names), material, sum(designed_mm3[name] for name in names),
+                           delivered.get(material, 0.0),
+                           sum(designed_mm3[name] for name in names) / designed_total,
+                           delivered.get(material, 0.0) / solid)
+                 for material, names in groups.items())
+
+
+def preview_design(preview: Path, manifest: dict, colors: Sequence[Sequence[int]],
+                   preview_manifest: dict) -> DesignSource:
+    """The design of a two-material graded or coloured stack read from the same slice's RGBA preview stack
+    (``slice --rgba``, same grid): each pixel's colour is eq. 1's blend start + f (target - start), so its
+    target share f is the projection of (colour - start) on (target - start), clipped to [0, 1]. ``colors``:
+    the two masks' display colours [start, target] in mask order (the manifest's ``grading.materials``)."""
+    start, target = (np.asarray(color, dtype=np.float64) for color in colors)
+    axis = target - start
+    scale = float(axis @ axis)
+    if not scale:
+        raise ValueError("the two materials have one colour: a preview cannot tell their shares apart")
+    if [manifest["image"][k] for k in ("width", "height")] != [preview_manifest["image"][k] for k in
+                                                                ("width", "height")]:
+        raise ValueError("the preview stack's layers are not the size of the stack's")
+
+    def design(index: int) -> np.ndarray:
+        pixels = read_layer_pixels(preview, preview_manifest, index).astype(np.float64)
+        f = np.clip(((pixels[..., :3] - start) @ axis) / scale, 0.0, 1.0)
+        return np.stack([1.0 - f, f])
+
+    return design

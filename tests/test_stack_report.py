@@ -1,0 +1,187 @@
+"""Tests of stack/report.py (and its display by `verify`): per-material voxels against brute-force counts, faults
+named by layer and position, a graded vase's and a multi-part job's delivered shares against their design."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from printing_jobs import disc_masks, make_stack
+
+from heoslice import procedural
+from heoslice.errors import EXIT_VERIFY
+from heoslice.stack import read_layer_channels, read_manifest
+from heoslice.stack.report import layer_tally, mask_faults, reduce_tallies, worst_window
+
+
+def first_pixel(mask: np.ndarray):
+    """Brute-force reference: (count, first (row, column) in reading order) of a bool mask, or None."""
+    found = np.argwhere(mask)
+    return None if not len(found) else (len(found), tuple(int(v) for v in found[0]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 20), st.integers(1, 37), st.integers(0, 4), st.integers(0, 2**32 - 1))
+def test_faults_and_counts_match_a_brute_force_reference(h, w, k, seed):
+    """For random solid and droplet masks (any width, not a multiple of 8): the per-material voxels are the
+    masks' set pixels, and each fault's count and first pixel are those of the literal pixel sets (solid in no
+    mask, in two or more, mask outside the solid)."""
+    rng = np.random.default_rng(seed)
+    solid = rng.random((h, w)) < 0.6
+    masks = rng.random((k, h, w)) < 0.4
+    tally = layer_tally(3, solid, masks)
+    if k == 0:
+        assert tally.voxels.tolist() == [int(solid.sum())]
+        return
+    assert tally.voxels.tolist() == masks.sum(axis=(1, 2)).tolist() and tally.solid == int(solid.sum())
+    jets = masks.sum(axis=0)
+    faults = mask_faults(np.packbits(solid, axis=-1), np.packbits(masks, axis=-1))
+    for fault, reference in ((faults.uncovered, solid & (jets == 0)), (faults.doubled, jets > 1),
+                             (faults.outside, (jets > 0) & ~solid)):
+        assert (None if fault is None else (fault.count, fault.first)) == first_pixel(reference)
+
+
+def test_worst_window_against_a_literal_loop():
+    """The worst window of a layer is the one a loop over every window and material finds (windows at least
+    half solid), with its designed and delivered shares."""
+    rng = np.random.default_rng(7)
+    solid = np.ones((30, 41), dtype=bool)
+    solid[:, 35:] = False
+    designed_m1 = np.clip(np.linspace(0, 1, 41)[None, :] + 0 * solid, 0, 1)
+    masks = np.stack([rng.random(solid.shape) < designed_m1, np.zeros_like(solid)])
+    masks[1] = solid & ~masks[0]
+    designed = np.stack([designed_m1, 1 - designed_m1])
+    window = worst_window(0, solid, masks, designed, (8, 8))
+    best = None
+    for r in range(0, 30, 8):
+        for c in range(0, 41, 8):
+            inside = solid[r:r + 8, c:c + 8]
+            if inside.sum() < 32:
+                continue
+            for m in range(2):
+                plan = designed[m, r:r + 8, c:c + 8][inside].mean()
+                got = masks[m, r:r + 8, c:c + 8][inside].mean()
+                if best is None or abs(got - plan) > best[0] + 1e-12:
+                    best = (abs(got - plan), (r, c), m, plan, got)
+    assert window.pixel == best[1] and window.material == best[2]
+    assert window.designed == pytest.approx(best[3]) and window.delivered == pytest.approx(best[4])
+
+
+def test_a_pixel_in_two_masks_and_one_in_none_fail_verify_naming_them(tmp_path, run_cli):
+    """A hand-made stack of discs split into two droplet masks: clean, it verifies with each material's voxels;
+    one pixel set in both masks (layer 1) and one solid pixel in neither (layer 2) each fail verify (exit 4) with
+    a line naming the layer, the pixel (x column, y row) and its centre in mm."""
+    solids = disc_masks(3)
+    halves = [[solid & (np.arange(solid.shape[1]) < 20), solid & (np.arange(solid.shape[1]) >= 20)]
+              for solid in solids]
+    clean = make_stack(tmp_path / "clean", solids, halves)
+    code, out, err = run_cli("verify", clean, "--json")
+    delivered = json.loads(out)["delivered"]
+    assert code == 0, out + err
+    assert [m["voxels"] for m in delivered["materials"]] == [sum(int(h[n].sum()) for h in halves) for n in (0, 1)]
+    assert delivered["solid"]["voxels"] == sum(int(s.sum()) for s in solids)
+    doubled = [[half.copy() for half in layer] for layer in halves]
+    doubled[1][1][15, 19] = True  # a solid pixel of mask 0 set in mask 1 too
+    none = [[half.copy() for half in layer] for layer in halves]
+    none[2][0][16, 18] = False  # a solid pixel of mask 0 taken out of it
+    assert solids[1][15, 19] and halves[1][0][15, 19] and halves[2][0][16, 18]
+    pitch = 25.4 / 600
+    for name, layers, line in (
+            ("doubled", doubled, f"layer 1: 1 pixel(s) in two or more droplet masks, first at pixel x 19, y 15 "
+                                  f"(x {19.5 * pitch:.4f}, y {-15.5 * pitch:.4f} mm)"),
+            ("none", none, f"layer 2: 1 solid pixel(s) in no droplet mask, first at pixel x 18, y 16 "
+                           f"(x {18.5 * pitch:.4f}, y {-16.5 * pitch:.4f} mm)")):
+        code, out, err = run_cli("verify", make_stack(tmp_path / name, solids, layers))
+        assert code == EXIT_VERIFY and f"{tmp_path / name}: {line}" in out.splitlines(), out
+
+
+@pytest.fixture(scope="module")
+def graded_vase(tmp_path_factory):
+    """The vase graded linearly at 600 dpi, 5 mm layers: its droplet-mask stack and the same slice's RGBA preview
+    (the design), and the preview of a quadratic grading (another design)."""
+    from helpers import in_process
+
+    folder = tmp_path_factory.mktemp("report")
+    procedural.vase().export(folder / "vase.ply")
+    for name, extra in (("masks", ["--grade", "linear"]), ("design", ["--grade", "linear", "--rgba"]),
+                        ("other", ["--grade", "quadratic", "--alpha", "1", "--rgba"])):
+        assert in_process("slice", folder / "vase.ply", "--layer", "5", "--dpi", "600", "-j", "1",
+                          "-o", folder / name, *extra) == 0
+    return folder
+
+
+def test_the_graded_vase_delivers_its_design_in_every_2_mm_window(graded_vase, run_cli):
+    """verify --design PREVIEW: every 2 mm x 2 mm window (at least half solid) of every layer delivers each
+    material's designed share within 2 points; the per-material voxels are the masks' pixels counted directly;
+    against another grading's preview the worst window is far off (the comparison can fail)."""
+    folder = graded_vase
+    code, out, err = run_cli("verify", folder / "masks", "--design", folder / "design", "--json")
+    assert code == 0, out + err
+    delivered = json.loads(out)["delivered"]
+    worst = delivered["worst_window"]
+    assert worst is not None and abs(worst["difference"]) <= 0.02, worst
+    assert worst["size_mm"] == pytest.approx([47 * 25.4 / 600] * 2)
+    manifest = read_manifest(folder / "masks")
+    counts = np.zeros(2, dtype=np.int64)
+    for index in range(len(manifest["layers"])):
+        counts += read_layer_channels(folder / "masks", manifest, index).sum(axis=(1, 2))
+    assert [m["voxels"] for m in delivered["materials"]] == counts.tolist()
+    assert sum(m["share"] for m in delivered["materials"]) == pytest.approx(1.0)
+    code, out, _ = run_cli("verify", folder / "masks", "--design", folder / "other", "--json")
+    assert code == 0 and abs(json.loads(out)["delivered"]["worst_window"]["difference"]) > 0.1
+    code, out, _ = run_cli("verify", folder / "masks", "--design", folder / "design")
+    assert code == 0 and any(line.startswith("  worst 2 mm window: layer ") for line in out.splitlines())
+
+
+def test_a_parts_job_delivers_each_parts_designed_share(tmp_path, run_cli):
+    """A lesion (4 mm ball) inside an organ (20 mm box) and a separate 6 mm cube, each its own material: with
+    --mesh per part, each part's delivered share of the solid is its designed share (its volume, the organ's
+    less the lesion it encloses) within 2 points; text shows one line per part."""
+    procedural.box((20.0, 20.0, 20.0)).export(tmp_path / "organ.ply")
+    procedural.sphere(4.0, subdivisions=4, center=(10.0, 10.0, 10.0)).export(tmp_path / "lesion.ply")
+    procedural.box((6.0, 6.0, 6.0), origin=(25.0, 0.0, 0.0)).export(tmp_path / "cube.ply")
+    files = [tmp_path / f"{name}.ply" for name in ("organ", "lesion", "cube")]
+    code, _, err = run_cli("slice", *files, "--part", "organ=M1", "--part", "lesion=M2", "--part", "cube=M3",
+                           "--materials", _three_materials(tmp_path), "--layer", "0.25", "--dpi", "254", "-j", "1",
+                           "-o", tmp_path / "stack")
+    assert code == 0, err
+    meshes = [item for path in files for item in ("--mesh", path)]
+    code, out, err = run_cli("verify", tmp_path / "stack", *meshes, "--json")
+    assert code == 0, out + err
+    parts = {tuple(p["parts"]): p for p in json.loads(out)["delivered"]["parts"]}
+    ball = 4 / 3 * np.pi * 4.0 ** 3
+    total = 8000.0 + 216.0
+    assert parts[("lesion",)]["designed_mm3"] == pytest.approx(ball, rel=0.01)
+    assert parts[("organ",)]["designed_mm3"] == pytest.approx(8000.0 - parts[("lesion",)]["designed_mm3"])
+    assert parts[("cube",)]["designed_share"] == pytest.approx(216.0 / total, rel=1e-6)
+    for part in parts.values():
+        assert abs(part["difference"]) <= 0.02, part
+        assert part["delivered_share"] == pytest.approx(part["delivered_mm3"] / json.loads(out)["volume_mm3"])
+    code, out, _ = run_cli("verify", tmp_path / "stack", *meshes)
+    assert code == 0 and sum(line.startswith("  part ") for line in out.splitlines()) == 3
+
+
+def _three_materials(folder):
+    path = folder / "mats.toml"
+    path.write_text('[materials.M1]\ncolor = "240,240,240"\n[materials.M2]\ncolor = "0,255,0"\n'
+                    '[materials.M3]\ncolor = "255,0,0"\n')
+    return path
+
+
+def test_reduce_sums_layers_in_any_order():
+    """The reduction of the same tallies in two orders is the same report (layers can be tallied in parallel)."""
+    manifest = {"pixel_size_mm": [0.1, 0.1], "layer_height_mm": 0.5,
+                "layers": [{"channels": [{"material": "a"}, {"material": "b"}]}] * 4}
+    rng = np.random.default_rng(1)
+    tallies = []
+    for index in range(4):
+        solid = rng.random((9, 13)) < 0.7
+        first = solid & (rng.random(solid.shape) < 0.5)
+        tallies.append(layer_tally(index, solid, np.stack([first, solid & ~first])))
+    one, two = reduce_tallies(manifest, tallies), reduce_tallies(manifest, tallies[::-1])
+    assert one == two and one.solid_voxels == sum(t.solid for t in tallies)
+    assert one.materials[0].volume_mm3 == pytest.approx(one.materials[0].voxels * 0.1 * 0.1 * 0.5)
+    assert not one.faults
