@@ -14,7 +14,16 @@ from printing_jobs import disc_masks, make_stack
 from heoslice import procedural
 from heoslice.errors import EXIT_VERIFY
 from heoslice.stack import read_layer_channels, read_manifest
-from heoslice.stack.report import layer_tally, mask_faults, reduce_tallies, worst_window
+from heoslice.stack.report import (
+    band_table,
+    layer_tally,
+    mask_faults,
+    material_report,
+    pixel_position,
+    preview_design,
+    reduce_tallies,
+    worst_window,
+)
 
 
 def first_pixel(mask: np.ndarray):
@@ -130,6 +139,8 @@ def test_the_graded_vase_delivers_its_design_in_every_2_mm_window(graded_vase, r
         counts += read_layer_channels(folder / "masks", manifest, index).sum(axis=(1, 2))
     assert [m["voxels"] for m in delivered["materials"]] == counts.tolist()
     assert sum(m["share"] for m in delivered["materials"]) == pytest.approx(1.0)
+    assert len(delivered["bands"]) == 10 and all(abs(band["difference"]) <= 0.02 for band in delivered["bands"])
+    assert sum(band["voxels"] for band in delivered["bands"]) == delivered["solid"]["voxels"]
     code, out, _ = run_cli("verify", folder / "masks", "--design", folder / "other", "--json")
     assert code == 0 and abs(json.loads(out)["delivered"]["worst_window"]["difference"]) > 0.1
     code, out, _ = run_cli("verify", folder / "masks", "--design", folder / "design")
@@ -185,3 +196,40 @@ def test_reduce_sums_layers_in_any_order():
     assert one == two and one.solid_voxels == sum(t.solid for t in tallies)
     assert one.materials[0].volume_mm3 == pytest.approx(one.materials[0].voxels * 0.1 * 0.1 * 0.5)
     assert not one.faults
+
+
+def test_band_table_against_a_literal_sum():
+    """A layer's band table: per band its solid pixels, each material's delivered voxels and designed shares
+    summed, as a loop over the bands computes them; pixels in band -1 or outside the solid are in none."""
+    rng = np.random.default_rng(5)
+    solid = rng.random((17, 23)) < 0.7
+    first = solid & (rng.random(solid.shape) < 0.4)
+    masks = np.stack([first, solid & ~first])
+    share = rng.random(solid.shape)
+    designed = np.stack([1 - share, share])
+    labels = rng.integers(-1, 4, solid.shape)
+    table = band_table(solid, masks, designed, labels, 4)
+    for band in range(4):
+        inside = solid & (labels == band)
+        assert table.solid[band] == inside.sum()
+        assert table.delivered[:, band].tolist() == [float(m[inside].sum()) for m in masks]
+        assert np.allclose(table.designed[:, band], [d[inside].sum() for d in designed])
+
+
+def test_a_band_source_of_r_plugs_in(graded_vase):
+    """Any per-pixel band source plugs into the report: bands of r = the distance from the vase's axis (2 mm
+    rings), each holding the designed share (the preview's) of its pixels within 2 points, and together every
+    solid voxel the design covers."""
+    folder = graded_vase
+    manifest = read_manifest(folder / "masks")
+    materials = manifest["grading"]["materials"]
+    design = preview_design(folder / "design", manifest, [m["color"] for m in materials],
+                            read_manifest(folder / "design"))
+    rows, columns = np.mgrid[0:manifest["image"]["height"], 0:manifest["image"]["width"]]
+    x, y = pixel_position(manifest, (rows, columns))
+    rings = (np.hypot(x, y) / 2.0).astype(np.int64)
+
+    report = material_report(folder / "masks", manifest, design, lambda index, designed: rings, 20)
+    assert report.bands and all(band.difference <= 0.02 for band in report.bands)
+    assert sum(band.voxels for band in report.bands) == report.solid_voxels
+    assert {band.band for band in report.bands} <= set(range(20))

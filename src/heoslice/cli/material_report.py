@@ -15,8 +15,12 @@ from heoslice.stack.report import (
     part_shares,
     pixel_position,
     preview_design,
+    share_bands,
     window_pixels,
 )
+
+#: Bands of the designed target share ``verify --design`` compares (10: 0-10 %, ..., 90-100 %).
+SHARE_BANDS = 10
 
 
 def designed_part_volumes(manifest: dict, mesh: Mesh | None) -> dict[str, float] | None:
@@ -53,7 +57,7 @@ def design_of_preview(stack: Path, manifest: dict, preview: Path):
 def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None):
     """The report of a verified stack and its parts against their design (None without): (report, parts)."""
     design = None if preview is None else design_of_preview(stack, manifest, preview)
-    report = material_report(stack, manifest, design)
+    report = material_report(stack, manifest, design, share_bands(SHARE_BANDS), SHARE_BANDS)
     designed = designed_part_volumes(manifest, mesh)
     return report, (None if designed is None else part_shares(manifest, report, designed))
 
@@ -86,6 +90,9 @@ def as_json(manifest: dict, report: MaterialReport, parts: tuple[PartShare, ...]
              "delivered_mm3": p.delivered_mm3, "designed_share": p.designed, "delivered_share": p.delivered,
              "difference": p.difference} for p in parts],
         "worst_window": window,
+        "bands": [{"designed_share_of": names[-1], "band": [b.band / SHARE_BANDS, (b.band + 1) / SHARE_BANDS],
+                   "voxels": b.voxels, "designed": dict(zip(names, b.designed)),
+                   "delivered": dict(zip(names, b.delivered)), "difference": b.difference} for b in report.bands],
     }
 
 
@@ -106,4 +113,9 @@ def text_lines(manifest: dict, report: MaterialReport, parts: tuple[PartShare, .
         lines.append(f"  worst 2 mm window: layer {worst.layer}, centred at x {x:.4g}, y {y:.4g} mm: "
                      f"{report.materials[worst.material].name} designed {_percent(worst.designed)}, "
                      f"delivered {_percent(worst.delivered)} ({100 * worst.difference:+.2f} points)")
+    target = report.materials[-1].name
+    for band in report.bands:
+        low, high = 100 * band.band // SHARE_BANDS, 100 * (band.band + 1) // SHARE_BANDS
+        lines.append(f"  designed {target} {low}-{high} %: {band.voxels} voxels, {target} designed "
+                     f"{_percent(band.designed[-1])}, delivered {_percent(band.delivered[-1])}")
     return lines

@@ -2,7 +2,8 @@
 
 Per material: its voxels (set pixels of its droplet mask over all layers), volume (voxels x pixel area x layer
 height, mm^3) and share of the solid. With a design: the designed against the delivered share of each part
-(:func:`part_shares`) and of every 2 mm x 2 mm window of every layer (the worst is reported). A solid pixel in
+(:func:`part_shares`), of every 2 mm x 2 mm window of every layer (the worst is reported) and of every band of
+a :data:`BandSource` (bands of r, or of the designed share: :func:`share_bands`). A solid pixel in
 no droplet mask, or in two, is a fault named by layer and position (:func:`mask_faults`, which ``verify`` uses).
 
 "Designed" per stack kind (docs in README, ``verify``):
@@ -38,6 +39,9 @@ SOLID = "solid"
 #: The designed mix of one layer: (K, h, w) float, per solid pixel each material's share (summing to 1), in
 #: the order of the layer's droplet masks; None when the layer has no design to compare.
 DesignSource = Callable[[int], "np.ndarray | None"]
+#: The band of every pixel of one layer, given the layer index and its designed mix: (h, w) int, 0..B-1, or -1
+#: for a pixel in no band (e.g. bands of r, the distance to the reference, from a recorded design).
+BandSource = Callable[[int, "np.ndarray | None"], np.ndarray]
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,15 +81,29 @@ class Window:
 
 
 @dataclass(frozen=True, slots=True)
+class BandTable:
+    """Per band: solid pixels (B,), and per material (K, B) the delivered voxels and the designed shares summed
+    over the band's solid pixels. Tables of several layers add up."""
+
+    solid: np.ndarray
+    delivered: np.ndarray
+    designed: np.ndarray
+
+    def __add__(self, other: BandTable) -> BandTable:
+        return BandTable(self.solid + other.solid, self.delivered + other.delivered, self.designed + other.designed)
+
+
+@dataclass(frozen=True, slots=True)
 class LayerTally:
-    """One layer's contribution: (K,) voxels per material, solid pixels, its faults and its worst window (None
-    without a design, or without a window solid enough)."""
+    """One layer's contribution: (K,) voxels per material, solid pixels, its faults, its worst window (None
+    without a design, or without a window solid enough) and its band table (None without bands)."""
 
     index: int
     voxels: np.ndarray
     solid: int
     faults: MaskFaults
     worst: Window | None
+    bands: BandTable | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -116,15 +134,32 @@ class PartShare:
 
 
 @dataclass(frozen=True, slots=True)
+class BandShare:
+    """One band over the whole stack: its index, solid voxels, and per material (K,) the designed and delivered
+    share of the band's solid."""
+
+    band: int
+    voxels: int
+    designed: tuple[float, ...]
+    delivered: tuple[float, ...]
+
+    @property
+    def difference(self) -> float:
+        """The largest |delivered - designed| over the materials."""
+        return max(abs(d - p) for d, p in zip(self.delivered, self.designed))
+
+
+@dataclass(frozen=True, slots=True)
 class MaterialReport:
     """The whole stack's report: per material, the solid's voxels and volume, the worst window (None without a
-    design) and the layers with faults, in layer order."""
+    design), the layers with faults, in layer order, and the bands (() without bands)."""
 
     materials: tuple[MaterialShare, ...]
     solid_voxels: int
     solid_mm3: float
     worst: Window | None
     faults: tuple[tuple[int, MaskFaults], ...]
+    bands: tuple[BandShare, ...] = ()
 
 
 def _first_set(packed: np.ndarray) -> PixelFault | None:
@@ -208,10 +243,24 @@ def worst_window(index: int, solid: np.ndarray, masks: np.ndarray, designed: np.
                   int(material), float(planned[material, position]), float(delivered[material, position]))
 
 
+def band_table(solid: np.ndarray, masks: np.ndarray, designed: np.ndarray, labels: np.ndarray,
+               count: int) -> BandTable:
+    """One layer's band table: solid (h, w) bool, masks (K, h, w) bool, designed (K, h, w) float shares,
+    labels (h, w) int band of each pixel (-1: none), ``count`` bands."""
+    band = labels[solid]
+    keep = (band >= 0) & (band < count)
+    band = band[keep]
+    delivered = np.stack([np.bincount(band, weights=mask[solid][keep], minlength=count) for mask in masks])
+    planned = np.stack([np.bincount(band, weights=share[solid][keep], minlength=count) for share in designed])
+    return BandTable(np.bincount(band, minlength=count), delivered, planned)
+
+
 def layer_tally(index: int, solid: np.ndarray, masks: np.ndarray, designed: np.ndarray | None = None,
-                window: tuple[int, int] = (1, 1)) -> LayerTally:
+                window: tuple[int, int] = (1, 1), bands: np.ndarray | None = None,
+                band_count: int = 0) -> LayerTally:
     """One layer's tally: solid (h, w) bool; masks (K, h, w) bool, the droplet masks (K = 0: the solid is the
-    one material); designed (K, h, w) float per-pixel shares, or None; window (rows, columns)."""
+    one material); designed (K, h, w) float per-pixel shares, or None; window (rows, columns); bands (h, w)
+    int band labels of ``band_count`` bands (with a design), or None."""
     packed_solid = np.packbits(solid, axis=-1)
     if not len(masks):
         empty = MaskFaults(None, None, None)
@@ -220,8 +269,9 @@ def layer_tally(index: int, solid: np.ndarray, masks: np.ndarray, designed: np.n
     packed = np.packbits(masks, axis=-1)
     voxels = np.bitwise_count(packed).sum(axis=(1, 2)).astype(np.int64)
     worst = None if designed is None else worst_window(index, solid, masks, designed, window)
+    table = None if designed is None or bands is None else band_table(solid, masks, designed, bands, band_count)
     return LayerTally(index, voxels, int(np.bitwise_count(packed_solid).sum()), mask_faults(packed_solid, packed),
-                      worst)
+                      worst, table)
 
 
 def material_names(manifest: dict) -> list[str]:
@@ -245,21 +295,46 @@ def reduce_tallies(manifest: dict, tallies: Sequence[LayerTally]) -> MaterialRep
                    if any(getattr(t.faults, f) for f in ("uncovered", "doubled", "outside")))
     materials = tuple(MaterialShare(name, int(count), float(count * voxel_mm3), float(count / solid) if solid else 0.0)
                       for name, count in zip(names, voxels))
-    return MaterialReport(materials, int(solid), float(solid * voxel_mm3), worst, faults)
+    tables = [tally.bands for tally in tallies if tally.bands is not None]
+    return MaterialReport(materials, int(solid), float(solid * voxel_mm3), worst, faults,
+                          band_shares(sum(tables[1:], tables[0])) if tables else ())
 
 
-def tally_layer(directory: Path, manifest: dict, index: int, design: DesignSource | None = None) -> LayerTally:
+def band_shares(table: BandTable) -> tuple[BandShare, ...]:
+    """The bands of a stack's summed table that hold solid voxels, each with its designed and delivered shares."""
+    return tuple(BandShare(band, int(table.solid[band]), tuple(float(v) for v in table.designed[:, band] /
+                                                               table.solid[band]),
+                           tuple(float(v) for v in table.delivered[:, band] / table.solid[band]))
+                 for band in np.flatnonzero(table.solid))
+
+
+def tally_layer(directory: Path, manifest: dict, index: int, design: DesignSource | None = None,
+                bands: BandSource | None = None, band_count: int = 0) -> LayerTally:
     """Read layer ``index`` of a verified stack (its files checked against their SHA-256 again) and tally it."""
     solid = read_layer_mask(directory, manifest, index)
     masks = read_layer_channels(directory, manifest, index)
     designed = None if design is None or not len(masks) else design(index)
-    return layer_tally(index, solid, masks, designed, window_pixels(manifest))
+    labels = None if bands is None or designed is None else bands(index, designed)
+    return layer_tally(index, solid, masks, designed, window_pixels(manifest), labels, band_count)
 
 
-def material_report(directory: Path, manifest: dict, design: DesignSource | None = None) -> MaterialReport:
-    """The report of a verified stack, layer by layer; ``design`` gives each layer's designed mix."""
-    return reduce_tallies(manifest, [tally_layer(directory, manifest, index, design)
+def material_report(directory: Path, manifest: dict, design: DesignSource | None = None,
+                    bands: BandSource | None = None, band_count: int = 0) -> MaterialReport:
+    """The report of a verified stack, layer by layer; ``design`` gives each layer's designed mix, ``bands``
+    each pixel's band (of ``band_count``) to compare designed and delivered shares per band."""
+    return reduce_tallies(manifest, [tally_layer(directory, manifest, index, design, bands, band_count)
                                      for index in range(len(manifest["layers"]))])
+
+
+def share_bands(count: int = 10, material: int = 1) -> BandSource:
+    """Bands of the designed share of mask ``material``: band b holds the pixels designed b / count .. (b + 1) /
+    count of it (the last band includes 1). For a function of r that rises with r (linear) these are bands
+    of r; a recorded design can give bands of r itself."""
+
+    def bands(index: int, designed: np.ndarray | None) -> np.ndarray:
+        return np.minimum((designed[material] * count).astype(np.int64), count - 1)
+
+    return bands
 
 
 def part_shares(manifest: dict, report: MaterialReport, designed_mm3: dict[str, float]) -> tuple[PartShare, ...]:
