@@ -49,6 +49,8 @@ Examples:
 def print_cmd(stack: Path, port: str | None, baud: int, from_layer: int | None, resume: bool, restart: bool,
               dry_run: bool, log_path: Path | None, max_payload: int, as_json: bool) -> None:
     """Verify STACK (manifest, sha256 of every file, paths inside it), then print it on PORT.
+    A stack that cannot print is refused in one line, --dry-run too: an RGBA preview stack
+    (slice --rgba) or one whose every layer is empty.
 
     Each layer's solid mask is sent as channel 0 (bit-packed rows), droplet masks as
     channels 1.. when the stack has them. Progress shows on a terminal; Ctrl-C sends

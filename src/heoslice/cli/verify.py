@@ -113,6 +113,8 @@ Examples:
   heoslice verify vase_stack/ --mesh vase.ply
   heoslice verify scan_stack/ --mesh scan.ply --json   # sliced with --scale 1000: the stack remembers
   heoslice verify liver_stack/ --mesh liver.stl --mesh lesion.stl   # a multi-part stack: one per part file
+  heoslice slice vase.ply --grade linear --rgba -o vase_design        # the design, as a preview stack
+  heoslice verify vase_stack/ --design vase_design                   # every 2 mm window against it
 """)
 @click.argument("stack", type=click.Path(path_type=Path))
 @click.option("--mesh", "models", type=click.Path(path_type=Path), multiple=True,
@@ -135,8 +137,12 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     also the volume and layer heights against the mesh (the parts' meshes together, one
     --mesh per part file, for a multi-part stack).
 
-    Prints one line per problem. Exit status 0 only when the stack is clean, 4 when it
-    has problems, 2 when STACK or the mesh cannot be read at all.
+    Prints one line per problem; a pixel in two droplet masks, or a solid one in none,
+    is named by layer, pixel and mm. A clean stack is followed by what it delivers: each
+    material's voxels, mm^3 and share of the solid; with --mesh, each part's designed
+    against delivered share (a multi-part stack); with --design, the worst 2 mm x 2 mm
+    window and each band of designed share against the design. Exit status 0 only when
+    the stack is clean, 4 when it has problems, 2 when STACK or the mesh cannot be read.
     """
     check_input_path(stack)
     mesh = None
