@@ -233,3 +233,14 @@ def test_a_band_source_of_r_plugs_in(graded_vase):
     assert report.bands and all(band.difference <= 0.02 for band in report.bands)
     assert sum(band.voxels for band in report.bands) == report.solid_voxels
     assert {band.band for band in report.bands} <= set(range(20))
+
+
+def test_the_counts_a_verified_manifest_records_are_the_files_counts(graded_vase):
+    """Without a design the report takes each layer's counts from its verified manifest entry: the same report
+    as reading and tallying every layer's files."""
+    from heoslice.stack.report import tally_layer
+
+    folder = graded_vase / "masks"
+    manifest = read_manifest(folder)
+    read = reduce_tallies(manifest, [tally_layer(folder, manifest, index) for index in range(len(manifest["layers"]))])
+    assert material_report(folder, manifest) == read and read.solid_voxels > 0

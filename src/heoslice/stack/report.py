@@ -318,12 +318,28 @@ def tally_layer(directory: Path, manifest: dict, index: int, design: DesignSourc
     return layer_tally(index, solid, masks, designed, window_pixels(manifest), labels, band_count)
 
 
+def counted_tally(manifest: dict, index: int) -> LayerTally | None:
+    """Layer ``index``'s tally from the set-pixel counts its manifest entry records (verified against the files
+    by :func:`heoslice.stack.verify_stack`, faults included), or None when a mask records no count."""
+    entry = manifest["layers"][index]
+    counts = [channel.get("solid_pixels") for channel in entry.get("channels", [])] or [entry["solid_pixels"]]
+    if any(count is None for count in counts):
+        return None
+    return LayerTally(index, np.array(counts, dtype=np.int64), int(entry["solid_pixels"]),
+                      MaskFaults(None, None, None), None)
+
+
 def material_report(directory: Path, manifest: dict, design: DesignSource | None = None,
                     bands: BandSource | None = None, band_count: int = 0) -> MaterialReport:
-    """The report of a verified stack, layer by layer; ``design`` gives each layer's designed mix, ``bands``
-    each pixel's band (of ``band_count``) to compare designed and delivered shares per band."""
-    return reduce_tallies(manifest, [tally_layer(directory, manifest, index, design, bands, band_count)
-                                     for index in range(len(manifest["layers"]))])
+    """The report of a stack :func:`heoslice.stack.verify_stack` passed, layer by layer; ``design`` gives each
+    layer's designed mix, ``bands`` each pixel's band (of ``band_count``) to compare designed and delivered
+    shares per band. Without a design a layer's counts come from its verified manifest entry when it records
+    them (no file is read again)."""
+    tallies = []
+    for index in range(len(manifest["layers"])):
+        counted = None if design is not None else counted_tally(manifest, index)
+        tallies.append(counted or tally_layer(directory, manifest, index, design, bands, band_count))
+    return reduce_tallies(manifest, tallies)
 
 
 def share_bands(count: int = 10, material: int = 1) -> BandSource:
