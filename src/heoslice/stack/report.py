@@ -236,7 +236,7 @@ def worst_window(index: int, solid: np.ndarray, masks: np.ndarray, designed: np.
     if not compared.any():
         return None
     delivered = _window_sums((masks & solid).astype(np.int64), size)[:, compared] / solid_count[compared]
-    planned = _window_sums(np.where(solid, designed, 0.0), size)[:, compared] / solid_count[compared]
+    planned = _window_sums(np.where(solid, designed, np.float32(0.0)), size)[:, compared] / solid_count[compared]
     material, position = np.unravel_index(int(np.argmax(np.abs(delivered - planned))), delivered.shape)
     window = np.argwhere(compared)[position]
     return Window(index, (int(window[0]) * size[0], int(window[1]) * size[1]), int(solid_count[tuple(window)]),
@@ -378,7 +378,7 @@ def preview_design(preview: Path, manifest: dict, colors: Sequence[Sequence[int]
     (``slice --rgba``, same grid): each pixel's colour is eq. 1's blend start + f (target - start), so its
     target share f is the projection of (colour - start) on (target - start), clipped to [0, 1]. ``colors``:
     the two masks' display colours [start, target] in mask order (the manifest's ``grading.materials``)."""
-    start, target = (np.asarray(color, dtype=np.float64) for color in colors)
+    start, target = (np.asarray(color, dtype=np.int32) for color in colors)
     axis = target - start
     scale = float(axis @ axis)
     if not scale:
@@ -388,8 +388,9 @@ def preview_design(preview: Path, manifest: dict, colors: Sequence[Sequence[int]
         raise ValueError("the preview stack's layers are not the size of the stack's")
 
     def design(index: int) -> np.ndarray:
-        pixels = read_layer_pixels(preview, preview_manifest, index).astype(np.float64)
-        f = np.clip(((pixels[..., :3] - start) @ axis) / scale, 0.0, 1.0)
+        pixels = read_layer_pixels(preview, preview_manifest, index)
+        dot = sum((pixels[..., c].astype(np.int32) - start[c]) * axis[c] for c in range(3))
+        f = np.clip(dot.astype(np.float32) / np.float32(scale), 0.0, 1.0)
         return np.stack([1.0 - f, f])
 
     return design
