@@ -150,7 +150,8 @@ def test_the_graded_vase_delivers_its_design_in_every_2_mm_window(graded_vase, r
 def test_a_parts_job_delivers_each_parts_designed_share(tmp_path, run_cli):
     """A lesion (4 mm ball) inside an organ (20 mm box) and a separate 6 mm cube, each its own material: with
     --mesh per part, each part's delivered share of the solid is its designed share (its volume, the organ's
-    less the lesion it encloses) within 2 points; text shows one line per part."""
+    less the lesion it encloses) within 2 points; text shows one line per part. The slice recorded the same
+    designed volumes in the manifest, so verify without --mesh gives the same parts."""
     procedural.box((20.0, 20.0, 20.0)).export(tmp_path / "organ.ply")
     procedural.sphere(4.0, subdivisions=4, center=(10.0, 10.0, 10.0)).export(tmp_path / "lesion.ply")
     procedural.box((6.0, 6.0, 6.0), origin=(25.0, 0.0, 0.0)).export(tmp_path / "cube.ply")
@@ -173,6 +174,12 @@ def test_a_parts_job_delivers_each_parts_designed_share(tmp_path, run_cli):
         assert part["delivered_share"] == pytest.approx(part["delivered_mm3"] / json.loads(out)["volume_mm3"])
     code, out, _ = run_cli("verify", tmp_path / "stack", *meshes)
     assert code == 0 and sum(line.startswith("  part ") for line in out.splitlines()) == 3
+    recorded = json.loads((tmp_path / "stack" / "manifest.json").read_text())["parts"]
+    assert [part["volume_mm3"] for part in recorded] == pytest.approx([p["designed_mm3"] for p in
+                                                                        (parts[("organ",)], parts[("lesion",)],
+                                                                         parts[("cube",)])])
+    code, out, _ = run_cli("verify", tmp_path / "stack", "--json")
+    assert code == 0 and json.loads(out)["delivered"]["parts"] == list(parts.values())
 
 
 def _three_materials(folder):

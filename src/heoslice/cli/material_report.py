@@ -23,15 +23,21 @@ from heoslice.stack.report import (
 SHARE_BANDS = 10
 
 
-def designed_part_volumes(manifest: dict, mesh: Mesh | None) -> dict[str, float] | None:
-    """Each part's designed volume (mm^3, by name) of a multi-part stack from its --mesh assembly: its volume
-    less what parts of a lower rank take where they overlap; None without parts or meshes."""
+def designed_part_volumes(manifest: dict, mesh: Mesh | None) -> list[float] | None:
+    """Each part's designed volume (mm^3, in the manifest's part order) of a multi-part stack: its volume less what parts of a lower
+    rank take where they overlap, from its --mesh assembly when given, else as the manifest records it; None
+    without parts, or when neither knows."""
     parts = manifest.get("parts")
-    if not parts or mesh is None or not mesh.parts or len(mesh.parts) != len(parts):
+    if not parts:
         return None
-    order = sorted(range(len(parts)), key=lambda label: parts[label]["rank"])
-    volumes = ranked_part_volumes_mm3(mesh, order)
-    return None if volumes is None else {str(part["name"]): float(v) for part, v in zip(parts, volumes)}
+    volumes = None
+    if mesh is not None and len(mesh.parts) == len(parts):
+        volumes = ranked_part_volumes_mm3(mesh, sorted(range(len(parts)), key=lambda label: parts[label]["rank"]))
+    if volumes is None:
+        volumes = [part.get("volume_mm3") for part in parts]
+    if any(volume is None for volume in volumes):
+        return None
+    return [float(volume) for volume in volumes]
 
 
 def design_of_preview(stack: Path, manifest: dict, preview: Path):

@@ -182,10 +182,12 @@ def render_parts_run(contours: Contours, context: RunContext, first_layer: int) 
     return done
 
 
-def parts_records(parts: Sequence[Part], plan: PartsPlan) -> list[dict]:
-    """The manifest's ``parts`` list: per part its name, file, file SHA-256, material, given priority and rank
-    (0 wins over every part it overlaps)."""
+def parts_records(parts: Sequence[Part], plan: PartsPlan, volumes: Sequence[float] | None = None) -> list[dict]:
+    """The manifest's ``parts`` list: per part its name, file, file SHA-256, material, given priority, rank
+    (0 wins over every part it overlaps) and designed volume (mm^3: its own less what parts ranked before it
+    take, :func:`heoslice.mesh.ranked_part_volumes_mm3`; None when not known)."""
     rank = {label: position for position, label in enumerate(plan.order)}
     return [{"name": part.name, "file": Path(part.source).name, "sha256": part.sha256,
              "material": plan.materials[plan.part_material[label]].name, "priority": plan.priorities[label],
-             "rank": rank[label]} for label, part in enumerate(parts)]
+             "rank": rank[label], "volume_mm3": None if volumes is None else float(volumes[label])}
+            for label, part in enumerate(parts)]

@@ -19,7 +19,7 @@ from heoslice.layers.planes import layer_count, plane_heights
 from heoslice.layers.rasterising import grid_for
 from heoslice.layers.slicing import face_z_range
 from heoslice.locks import hold_stack
-from heoslice.mesh import Mesh
+from heoslice.mesh import Mesh, ranked_part_volumes_mm3
 from heoslice.pipeline.materials import material_job
 from heoslice.pipeline.parallel import run_all
 from heoslice.pipeline.parts import parts_records
@@ -139,7 +139,8 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
             layers=[LayerRecord(z[index], results[index][0], results[index][1], open_layers[index],
                                 None if droplets is None else _channel_records(droplets, results[index][2]))
                     for index in range(len(z))],
-            grading=_grading(spec), parts=None if spec.parts is None else parts_records(mesh.parts, spec.parts))
+            grading=_grading(spec), parts=None if spec.parts is None else parts_records(
+                mesh.parts, spec.parts, ranked_part_volumes_mm3(mesh, spec.parts.order)))
         write_manifest(directory, manifest)
         times.total = time.perf_counter() - started
         return manifest, times

@@ -253,7 +253,18 @@ def manifest_problem(manifest) -> str | None:
         problem = _layer_problem(entry, position, pixels)
         if problem:
             return problem
-    return _grading_problem(manifest)
+    return _grading_problem(manifest) or _parts_problem(manifest)
+
+
+def _parts_problem(manifest: dict) -> str | None:
+    """The first problem of the parts' designed volumes (``parts[].volume_mm3``: a number >= 0, or null or
+    absent when not known), or None."""
+    parts = manifest.get("parts")
+    for number, part in enumerate(parts if isinstance(parts, list) else []):
+        volume = part.get("volume_mm3") if isinstance(part, dict) else None
+        if volume is not None and not (_is_number(volume) and volume >= 0):
+            return f"parts[{number}]: 'volume_mm3' must be a number >= 0 or null, not {_show(volume)}"
+    return None
 
 
 def _grading_problem(manifest: dict) -> str | None:

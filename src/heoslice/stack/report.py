@@ -353,23 +353,26 @@ def share_bands(count: int = 10, material: int = 1) -> BandSource:
     return bands
 
 
-def part_shares(manifest: dict, report: MaterialReport, designed_mm3: dict[str, float]) -> tuple[PartShare, ...]:
+def part_shares(manifest: dict, report: MaterialReport, designed_mm3: Sequence[float]) -> tuple[PartShare, ...]:
     """A multi-part job's parts against their design: each material's parts together (a material's voxels
-    cannot be told apart by part), designed volume the sum of their ``designed_mm3`` (by part name: each part's
-    volume less what lower-ranked parts take where they overlap), delivered that material's volume."""
+    cannot be told apart by part), designed volume the sum of their ``designed_mm3`` (in the manifest's part
+    order: each part's volume less what lower-ranked parts take where they overlap), delivered that material's
+    volume; shares of the designed and of the delivered solid."""
     delivered = {share.name: share.volume_mm3 for share in report.materials}
     if list(delivered) == [SOLID]:
         delivered = {part["material"]: report.solid_mm3 for part in manifest["parts"]}
-    groups: dict[str, list[str]] = {}
-    for part in manifest["parts"]:
-        groups.setdefault(str(part["material"]), []).append(str(part["name"]))
-    designed_total = sum(designed_mm3.values()) or 1.0
+    groups: dict[str, list[int]] = {}
+    for number, part in enumerate(manifest["parts"]):
+        groups.setdefault(str(part["material"]), []).append(number)
+    designed_total = sum(designed_mm3) or 1.0
     solid = report.solid_mm3 or 1.0
-    return tuple(PartShare(tuple(names), material, sum(designed_mm3[name] for name in names),
-                           delivered.get(material, 0.0),
-                           sum(designed_mm3[name] for name in names) / designed_total,
-                           delivered.get(material, 0.0) / solid)
-                 for material, names in groups.items())
+    shares = []
+    for material, numbers in groups.items():
+        designed = sum(designed_mm3[number] for number in numbers)
+        got = delivered.get(material, 0.0)
+        shares.append(PartShare(tuple(str(manifest["parts"][n]["name"]) for n in numbers), material, designed, got,
+                                designed / designed_total, got / solid))
+    return tuple(shares)
 
 
 def preview_design(preview: Path, manifest: dict, colors: Sequence[Sequence[int]],
