@@ -178,3 +178,23 @@ def test_mask_channels_refuses_two_masks_on_one_channel():
     with pytest.raises(VerifyError, match="a, b all name printer channel 2") as caught:
         mask_channels(manifest_of(("a", 2), ("b", 2), ("c", None)), "some_stack")
     assert str(caught.value).startswith("some_stack: ") and "\n" not in str(caught.value)
+
+
+@pytest.mark.parametrize("change, problem", [
+    (lambda m: m.update(scale=0), "'scale' must be a positive number"),
+    (lambda m: m.update(scale="1000"), "'scale' must be a positive number"),
+    (lambda m: m.update(parts=[{"name": "a", "volume_mm3": -1.0}]), "parts[0]: 'volume_mm3' must be a number >= 0"),
+    (lambda m: m.update(parts=[{"name": "a", "volume_mm3": "12"}]), "parts[0]: 'volume_mm3' must be a number >= 0"),
+])
+def test_the_recorded_scale_and_part_volumes_are_checked(cube_stack, change, problem):
+    """The manifest's 'scale' (a positive number) and parts' 'volume_mm3' (a number >= 0 or null) are checked
+    by the one manifest check; a stack without them (written before they were recorded) is read."""
+    from heoslice.stack import manifest_problem
+
+    manifest = read_manifest(cube_stack)
+    assert manifest["scale"] == 1.0 and manifest_problem(manifest) is None
+    old = {key: value for key, value in manifest.items() if key != "scale"}
+    assert manifest_problem(old) is None
+    assert manifest_problem({**manifest, "parts": [{"name": "a", "volume_mm3": None}]}) is None
+    change(manifest)
+    assert problem in manifest_problem(manifest)
