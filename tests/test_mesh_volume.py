@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from heoslice import procedural
 from heoslice.mesh import load_mesh, solid_volume_mm3
 
 
@@ -62,3 +63,17 @@ def test_solid_volume_is_manifold3d_union(tmp_path):
     assert exact
     assert volume == pytest.approx(union.volume(), rel=1e-5)
     assert volume < 0.95 * sum(s.volume for s in spheres)
+
+
+def test_ranked_part_volumes_take_overlaps_from_the_lower_ranks(tmp_path):
+    """Two 10 mm cubes overlapping by 5 x 10 x 10 mm and a separate 2 mm cube: the part ranked first keeps its
+    1000 mm^3, the other cube loses the 500 mm^3 overlap, whichever order; the separate cube keeps 8 mm^3
+    (the analytic volumes)."""
+    from heoslice.mesh import load_assembly, ranked_part_volumes_mm3
+
+    procedural.box((10.0, 10.0, 10.0)).export(tmp_path / "a.ply")
+    procedural.box((10.0, 10.0, 10.0), origin=(5.0, 0.0, 0.0)).export(tmp_path / "b.ply")
+    procedural.box((2.0, 2.0, 2.0), origin=(30.0, 0.0, 0.0)).export(tmp_path / "c.ply")
+    mesh = load_assembly([tmp_path / name for name in ("a.ply", "b.ply", "c.ply")])
+    assert ranked_part_volumes_mm3(mesh, (0, 1, 2)) == pytest.approx([1000.0, 500.0, 8.0])
+    assert ranked_part_volumes_mm3(mesh, (1, 2, 0)) == pytest.approx([500.0, 1000.0, 8.0])
