@@ -143,3 +143,14 @@ def test_a_malformed_scale_fails_verify(metre_box_stack, run_cli, value):
     path.write_text(json.dumps(manifest))
     code, out, _ = run_cli("verify", metre_box_stack / "stack")
     assert code == EXIT_VERIFY and "'scale' must be a positive number" in out
+
+
+def test_the_shared_bunny_in_metres_verifies_without_scale(shared_data, tmp_path, run_cli):
+    """The issue's case: scans/bunny_watertight_7k.ply (metres) sliced with --scale 1000 verifies against its
+    file without --scale (volume within 1 %)."""
+    bunny = shared_data / "scans" / "bunny_watertight_7k.ply"
+    code, _, err = run_cli("slice", bunny, "--scale", "1000", "--layer", "1", "--dpi", "100", "-j", "1",
+                           "-o", tmp_path / "bunny")
+    assert code == 0, err
+    code, out, err = run_cli("verify", tmp_path / "bunny", "--mesh", bunny)
+    assert code == 0 and out.startswith(f"{tmp_path / 'bunny'}: OK"), out + err

@@ -103,3 +103,15 @@ def test_verify_and_export_apply_the_same_rule(stacks, run_cli, tmp_path):
     code, out, err = run_cli("verify", stacks / "masks", "--json")
     assert code == 0 and json.loads(out)["ok"]
     assert read_manifest(stacks / "rgba")["image"]["mode"] == "RGBA"
+
+
+def test_the_shared_triangle_soup_cannot_print(shared_data, run_cli, tmp_path):
+    """The issue's case: bad/soup.ply (loose triangles) slices to 0 mm^3 with a warning; verify --mesh fails it
+    and print --dry-run refuses it, each naming the stack."""
+    soup = shared_data / "bad" / "soup.ply"
+    code, _, err = run_cli("slice", soup, "--layer", "0.1", "--dpi", "300", "-j", "1", "-o", tmp_path / "soup")
+    assert code == 0 and "cannot print: every layer is empty" in err
+    code, out, _ = run_cli("verify", tmp_path / "soup", "--mesh", soup)
+    assert code == EXIT_VERIFY and f"{tmp_path / 'soup'}: cannot print: every layer is empty" in out
+    code, _, err = run_cli("print", tmp_path / "soup", "--dry-run")
+    assert code == EXIT_INPUT and err.count("\n") == 1 and str(tmp_path / "soup") in err
