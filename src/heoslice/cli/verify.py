@@ -138,8 +138,8 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     --mesh per part file, for a multi-part stack).
 
     Prints one line per problem; a pixel in two droplet masks, or a solid one in none,
-    is named by layer, pixel and mm. A clean stack is followed by what it delivers: each
-    material's voxels, mm^3 and share of the solid; with --mesh, each part's designed
+    is named by layer, pixel and mm. A stack whose files pass is followed by what it
+    delivers: each material's voxels, mm^3 and share of the solid; each part's designed
     against delivered share (a multi-part stack); with --design, the worst 2 mm x 2 mm
     window and each band of designed share against the design. Exit status 0 only when
     the stack is clean, 4 when it has problems, 2 when STACK or the mesh cannot be read.
