@@ -342,3 +342,30 @@ def test_simulator_options_checked_logging_and_fresh_boot_ids(tmp_path, controll
     assert run("print", stack, "--port", two.port, "--baud", 1000000).returncode == 0
     two.stop()
     assert two.lines == []
+
+
+def test_a_job_finished_after_its_host_was_killed_is_not_printed_again(tmp_path, controller):
+    """A job smaller than the controller's receive buffer is all sent before the head is done; kill -9 the host,
+    the controller finishes alone. Then the same command, and --from-layer N (the killed run's log count), are
+    each refused with one line (exit 20) naming the job, the layers the head executed and --restart; the head
+    executed every layer exactly once. --restart prints it again, on purpose."""
+    ctl = controller(layer_time=0.1)
+    stack = make_stack(tmp_path / "s", disc_masks(20))
+    log = tmp_path / "s.print-log.jsonl"
+    proc = start_print(stack, ctl.port)
+    ctl.wait_for("end received")
+    proc.kill()
+    proc.communicate(timeout=10)
+    job = job_of(log)
+    logged = sum(r["event"] == "layer" for r in events(log))
+    assert logged < 20
+    ctl.wait_for(f"job {job} done", timeout=20)
+    time.sleep(3.2)  # the killed host's claim lapses
+    for extra in ((), ("--from-layer", logged)):
+        again = run("print", stack, "--port", ctl.port, "--baud", 1000000, *extra)
+        line = one_line(again.stderr)
+        assert again.returncode == 20 and job in line and "up to 19, all 20" in line and "--restart" in line
+    assert ctl.executed(job) == list(range(20))
+    restarted = run("print", stack, "--port", ctl.port, "--baud", 1000000, "--restart")
+    assert restarted.returncode == 0, restarted.stderr
+    assert ctl.executed(job) == list(range(20)) * 2
