@@ -9,6 +9,7 @@ and its exit status; any other exception is a bug, shown as one line unless
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 from pathlib import Path
 
@@ -54,6 +55,9 @@ Option defaults are read from ./heoslice.toml and ~/.config/heoslice/heoslice.to
 Shell completion (bash): eval "$(_HEOSLICE_COMPLETE=bash_source heoslice)"
 """
 
+
+#: The environment variable with which a shell asks for completions (click's convention for "heoslice").
+COMPLETION_VARIABLE = "_HEOSLICE_COMPLETE"
 
 #: Sub-command name -> "module:attribute"; imported only when that command runs, so
 #: `heoslice slice` does not pay for the printer link and `--help` stays quick.
@@ -139,7 +143,11 @@ def main(argv: list[str] | None = None) -> None:
     state: dict = {}
     interrupt_on_terminating_signals()
     try:
-        cli.main(args=args, prog_name="heoslice", standalone_mode=False, obj=state)
+        if COMPLETION_VARIABLE in os.environ:  # click's main answers shell completion
+            cli.main(args=args, prog_name="heoslice", standalone_mode=False, obj=state)
+        else:  # not cli.main: it echoes a blank line on Ctrl-C before our one line
+            with cli.make_context("heoslice", list(args), obj=state) as ctx:
+                cli.invoke(ctx)
         if argv is None:
             parallel.skip_exit_collection()
     except click.exceptions.Exit as done:
