@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from heoslice.errors import InputError
+from heoslice.errors import InputError, shown
 from heoslice.files import check_regular, open_regular, refuse_sparse
 from heoslice.mesh.limits import MAX_MESH_BYTES
 from heoslice.mesh.obj import read_with_trimesh
@@ -173,7 +173,12 @@ def prepared_mesh(path: Path, raw: RawMesh, sha256) -> Mesh:
     colors = _vertex_colors(raw)
     material = raw.vertex_properties.get(MATERIAL_PROPERTY)
     if material is not None and len(material) == len(vertices):
-        material = np.clip(np.nan_to_num(material.astype(np.float64)), 0.0, 1.0)
+        material = material.astype(np.float64)
+        bad = np.flatnonzero(~np.isfinite(material))
+        if len(bad):
+            raise InputError(f"{path}: vertex {int(bad[0])}: '{MATERIAL_PROPERTY}' is {shown(material[bad[0]])}, "
+                             f"not a number 0..1 ({len(bad)} vertices are NaN or infinite)")
+        material = np.clip(material, 0.0, 1.0)
     else:
         material = None
 
