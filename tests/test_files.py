@@ -213,3 +213,33 @@ def test_check_output_in_the_library(tmp_path):
     (tmp_path / "empty").mkdir()
     assert check_output(tmp_path / "empty", "thing", force=False, made_here=lambda p: False, folder=True,
                         empty_folder_is_free=True) is False
+
+
+def test_print_log_on_a_full_disk_is_one_line_exit_3(project, tmp_path):
+    """`print --log` whose file cannot grow (a file size limit, as a full disk refuses the write): one line naming
+    the log, exit 3, no traceback; the stack and the log's earlier records unchanged."""
+    import resource
+    import signal
+
+    log = tmp_path / "full.jsonl"
+    log.write_text('{"time": "2026-01-01T00:00:00.000+00:00", "event": "start"}\n')
+    size = log.stat().st_size
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+
+    before = {**snapshot(project / "stack"), **snapshot(log)}
+    done = subprocess.run([sys.executable, "-m", "heoslice", "print", str(project / "stack"), "--port", "sim://",
+                           "--log", str(log)], capture_output=True, text=True, preexec_fn=limit, timeout=120)
+    assert done.returncode == EXIT_OUTPUT and done.stderr.count("\n") == 1, done.stderr
+    assert done.stderr.startswith(f"heoslice: error: {log}: cannot write (file size limit exceeded)"), done.stderr
+    assert {**snapshot(project / "stack"), **snapshot(log)} == before
+
+
+def test_print_log_to_dev_full_is_refused(project, run_cli):
+    """`print --log /dev/full` (a device): one line, exit 3, the device untouched."""
+    if not Path("/dev/full").exists():
+        pytest.skip("no /dev/full")
+    assert_refused(run_cli("print", project / "stack", "--port", "sim://", "--log", "/dev/full"),
+                   "character device")

@@ -84,6 +84,9 @@ def read_file(path: Path, commands: list[str] | tuple[str, ...]) -> DefaultsFile
         raise InputError(f"{path}: not UTF-8 text (a defaults file is TOML)") from None
     except tomllib.TOMLDecodeError as err:
         raise InputError(f"{path}: not valid TOML ({err})") from None
+    except RecursionError:
+        raise InputError(f"{path}: arrays or tables nested too deeply; not a defaults file "
+                         "(heoslice --no-config ignores it)") from None
     for name, table in document.items():
         if not isinstance(table, dict):
             raise InputError(f"{path}: {name} = ... is outside a table; put it under its command, e.g. [slice]")
