@@ -14,7 +14,7 @@ from heoslice.files import check_output, write_output
 from heoslice.preview.png import is_preview, png_bytes
 from heoslice.preview.layer import MAX_PREVIEW_SIDE, MIN_PREVIEW_SIDE
 from heoslice.preview.sheet import MAX_SHEET_LAYERS, MAX_TILE, MIN_TILE
-from heoslice.stack import check_input_path, read_manifest
+from heoslice.stack import check_input_path, load_verified
 
 #: Library parameter names -> the options that set them, for error messages.
 FLAGS = {"section": "--section", "size": "--size", "tile": "--tile", "columns": "--columns", "layers": "--layers",
@@ -69,7 +69,9 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
     colours over dark grey; other 1-bit layers dark on white.
     """
     check_input_path(stack)
-    manifest = read_manifest(stack)
+    # verify's own check (every file present, of its layout, mode and sha256): a stack it refuses is not drawn;
+    # pixels are decoded, and checked, for what is drawn
+    manifest = load_verified(stack, check_pixels=False)
     count = len(manifest["layers"])
     if count == 0:
         raise InputError(f"{stack}: the stack has no layers")
