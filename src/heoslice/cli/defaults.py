@@ -28,8 +28,9 @@ else:  # pragma: no cover - Python 3.10
 FILE_NAME = "heoslice.toml"
 MAX_BYTES = 1 << 20  # a defaults file is a few lines; anything larger is not one
 
-#: Options that act on one run only and so cannot be defaults: where a run writes, overwriting, where a print resumes.
-PER_RUN_OPTIONS = frozenset({"output", "force", "from-layer", "help"})
+#: Options that act on one run only and so cannot be defaults: where a run writes (a file in a downloaded
+#: project folder must not redirect outputs), overwriting, where a print resumes.
+PER_RUN_OPTIONS = frozenset({"output", "into", "log", "force", "from-layer", "help"})
 
 
 @dataclass(frozen=True, slots=True)
