@@ -12,8 +12,11 @@ Prints:
   OBJ index 0, --scale 1e308; previews of small files declaring 32768^2 1-bit and 16384^2
   RGBA layers, absurd sheets, FIFO layers; --materials /dev/zero and FIFO; --canvas, --margin,
   --offsets, --nozzle, --depth and verify --scale beyond range; 100,000 layers; a manifest
-  without z_range_mm), each through the command line, and the worst wall time and peak RSS
-  over them;
+  without z_range_mm) and of issue 47 (export/preview/print --log over the stack, a device
+  node or a link; nested, bomb, encrypted, bzip2 and absurd-index 3MF; a 3MF flood of vertex
+  elements; non-finite fractions; a deeply nested defaults file; non-ASCII --expr; info of
+  100,000 shells apart and piled; print --dry-run of 50,000 layers), each through the command
+  line, and the worst wall time and peak RSS over them;
 - the strict PLY reader (``heoslice.mesh.read_ply``) against trimesh's PLY reader on the same
   binary and ASCII files (ratio = heoslice / trimesh);
 - ``verify_stack`` (hash, header checks and a full strip-by-strip decode of every
@@ -41,9 +44,11 @@ def run_measured(args: list[str]) -> tuple[float, int, int]:
     """(wall seconds, peak RSS KiB, exit code) of ``python -m heoslice ARGS`` in a fresh child process
     (killed after 300 s: exit -9)."""
     probe = ("import resource, subprocess, sys, time; t = time.perf_counter(); "
-             "r = subprocess.run([sys.executable, '-m', 'heoslice'] + sys.argv[1:], capture_output=True, "
-             "stdin=subprocess.DEVNULL, timeout=300); "
-             "print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, r.returncode)")
+             "p = subprocess.Popen([sys.executable, '-m', 'heoslice'] + sys.argv[1:], stdout=subprocess.DEVNULL, "
+             "stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)\n"
+             "try:\n    code = p.wait(timeout=300)\n"
+             "except subprocess.TimeoutExpired:\n    p.kill(); p.wait(); code = -9\n"
+             "print(time.perf_counter() - t, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, code)")
     out = subprocess.run([sys.executable, "-c", probe, *args], capture_output=True, text=True, check=True).stdout
     seconds, rss, code = out.split()
     return float(seconds), int(rss), int(code)
@@ -185,6 +190,124 @@ def option_cases(work: Path) -> list[tuple[str, list[str]]]:
             ("verify without z_range_mm", ["verify", str(work / "cut_short")])]
 
 
+def issue47_cases(work: Path, quick: bool) -> list[tuple[str, list[str]]]:
+    """(name, heoslice arguments) of issue 47's cases: outputs that must not destroy (the stack, a device node or
+    a link's target as -o), hostile 3MF archives, non-finite fractions, deep TOML, non-ASCII --expr, info of
+    100,000 shells and the dry run of a 50,000-layer stack (5,000 with --quick)."""
+    import json
+    import stat
+    import zipfile
+
+    import numpy as np
+    import trimesh
+
+    from heoslice import procedural
+    from heoslice.mesh import load_mesh
+    from heoslice.pipeline import SliceSpec, slice_to_stack
+    from heoslice.stack import write_manifest
+
+    box = work / "box47.ply"
+    procedural.box((5.0, 5.0, 2.0)).export(box)
+    stack = work / "stack47"
+    slice_to_stack(load_mesh(box), stack, SliceSpec(layer_height_mm=0.5, dpi=(100.0, 100.0)))
+    node = work / "node47"
+    if os.geteuid() == 0:
+        os.mknod(node, 0o666 | stat.S_IFCHR, os.stat("/dev/null").st_rdev)
+    else:
+        os.mkfifo(node)
+    target = work / "target47.txt"
+    target.write_text("not heoslice's\n")
+    (work / "link47.png").symlink_to(target)
+    (work / "link47.jsonl").symlink_to(target)
+
+    ns = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
+    tetra = ('<object id="1" type="model"><mesh><vertices><vertex x="0" y="0" z="0"/><vertex x="1" y="0" z="0"/>'
+             '<vertex x="0" y="1" z="0"/><vertex x="0" y="0" z="1"/></vertices><triangles>'
+             '<triangle v1="0" v2="2" v3="1"/><triangle v1="0" v2="1" v3="3"/><triangle v1="0" v2="3" v3="2"/>'
+             '<triangle v1="1" v2="2" v3="3"/></triangles></mesh></object>')
+
+    def model(resources: str, build: str) -> str:
+        return (f'<?xml version="1.0" encoding="UTF-8"?><model unit="millimeter" xmlns="{ns}"><resources>{resources}'
+                f"</resources><build>{build}</build></model>")
+
+    def archive(name: str, members: dict, method=zipfile.ZIP_DEFLATED) -> Path:
+        with zipfile.ZipFile(work / name, "w", method) as out:
+            for member, data in members.items():
+                out.writestr(member, data)
+        return work / name
+
+    nested = [tetra] + [f'<object id="{k + 1}"><components>' + f'<component objectid="{k}"/>' * 4
+                        + "</components></object>" for k in range(1, 16)]
+    flood = "".join(f'<vertex x="{k}" y="{k % 7}" z="{k % 11}"/>' for k in range(300_000 if quick else 3_000_000))
+    fan = "".join(f'<triangle v1="0" v2="{k}" v3="{k + 1}"/>' for k in range(1, 1000))
+    plain = model(tetra, '<item objectid="1"/>')
+    encrypted = archive("encrypted47.3mf", {"3D/3dmodel.model": plain})
+    data = bytearray(encrypted.read_bytes())
+    for signature, field in ((b"PK\x03\x04", 6), (b"PK\x01\x02", 8)):
+        data[data.find(signature) + field] |= 1
+    encrypted.write_bytes(bytes(data))
+    nan_ply = work / "nan47.ply"
+    nan_ply.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+                       "property float z\nproperty float material\nelement face 4\n"
+                       "property list uchar int vertex_indices\nend_header\n0 0 0 0.5\n10 0 0 nan\n0 10 0 0.5\n"
+                       "0 0 10 0.5\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n")
+    deep = work / "deep47.toml"
+    deep.write_text("a = " + "[" * 5000 + "]" * 5000 + "\n")
+
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    tet_faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    for name, centres in (("apart", 2.0 * np.stack(np.meshgrid(*map(np.arange, (50, 50, 40)), indexing="ij"),
+                                                    -1).reshape(-1, 3)),
+                          ("piled", np.random.default_rng(1).random((100_000, 3)) * 0.5)):
+        trimesh.Trimesh((centres[:, None] + corners[None]).reshape(-1, 3),
+                        (tet_faces[None] + 4 * np.arange(len(centres))[:, None, None]).reshape(-1, 3),
+                        process=False).export(work / f"{name}47.ply")
+
+    layers = 5_000 if quick else 50_000
+    tall = work / "tall47"
+    manifest, _ = slice_to_stack(load_mesh(_tiny(work)), tall, SliceSpec(layer_height_mm=0.001, dpi=(50.0, 50.0)))
+    first = manifest["layers"][0]
+    entries = []
+    for index in range(layers):
+        name = f"layer_{index:05d}.tif"
+        if index >= len(manifest["layers"]):
+            os.link(tall / first["file"], tall / name)
+        entries.append({**first, "index": index, "file": name, "z_mm": 0.0005 + 0.001 * index})
+    write_manifest(tall, {**manifest, "layers": entries, "z_range_mm": [0.0, 0.001 * layers]})
+    return [("export -o STACK --force", ["export", str(stack), "--format", "png", "-o", str(stack), "--force"]),
+            ("export -o a device node --force", ["export", str(stack), "--format", "png", "-o", str(node), "--force"]),
+            ("preview -o a symlink", ["preview", str(stack), "-o", str(work / "link47.png")]),
+            ("print --log a symlink", ["print", str(stack), "--port", "sim://", "--log", str(work / "link47.jsonl")]),
+            ("3MF 4^15 nested placements", ["info", str(archive("nested47.3mf", {"3D/3dmodel.model": model(
+                "".join(nested), '<item objectid="16"/>')}))]),
+            (f"3MF {len(flood) >> 20} MB of vertex elements", ["info", str(archive("flood47.3mf", {
+                "3D/3dmodel.model": model(f'<object id="1"><mesh><vertices>{flood}</vertices><triangles>{fan}'
+                                          "</triangles></mesh></object>", '<item objectid="1"/>')}))]),
+            ("3MF 64 MB zip bomb in _rels/.rels", ["info", str(archive("bomb47.3mf", {
+                "_rels/.rels": b" " * (64 << 20), "3D/3dmodel.model": plain}))]),
+            ("3MF encrypted member", ["info", str(encrypted)]),
+            ("3MF bzip2 member", ["info", str(archive("bzip47.3mf", {"3D/3dmodel.model": plain}, zipfile.ZIP_BZIP2))]),
+            ("3MF index 1e30", ["info", str(archive("index47.3mf", {"3D/3dmodel.model": plain.replace(
+                'v3="1"', 'v3="1e30"')}))]),
+            ("color --periods 1e308", ["color", str(box), "--func", "sine", "--periods", "1e308",
+                                       "-o", str(work / "sine47.ply")]),
+            ("PLY material nan", ["slice", str(nan_ply), "-o", str(work / "nan47_stack")]),
+            ("defaults file nested 5000 deep", ["--config", str(deep), "info", str(box)]),
+            ("--expr with a fullwidth r", ["color", str(box), "--expr", "\uff52", "-o", str(work / "expr47.ply")]),
+            ("info: 100,000 separate shells", ["info", str(work / "apart47.ply")]),
+            ("info: 100,000 piled shells", ["info", str(work / "piled47.ply")]),
+            (f"print --dry-run of {layers} layers", ["print", str(tall), "--dry-run"])]
+
+
+def _tiny(work: Path) -> Path:
+    """A 2 x 2 x 0.002 mm box: two layers at 0.001 mm, the seed of a many-layer stack."""
+    from heoslice import procedural
+
+    path = work / "tiny47.ply"
+    procedural.box((2.0, 2.0, 0.002)).export(path)
+    return path
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="smaller meshes and stack")
@@ -209,7 +332,7 @@ def main() -> None:
 
     print("== hostile mesh inputs (subprocess, wall time and peak RSS)")
     worst_s, worst_rss = 0.0, 0
-    for name, command in hostile_cases(work) + option_cases(work):
+    for name, command in hostile_cases(work) + option_cases(work) + issue47_cases(work, args.quick):
         seconds, rss, code = run_measured(command)
         worst_s, worst_rss = max(worst_s, seconds), max(worst_rss, rss)
         print(f"{name:36s} exit {code}, {seconds:.2f} s, {rss / 1024:.0f} MB")

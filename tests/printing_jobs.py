@@ -41,16 +41,17 @@ def random_job(layer_count: int, rows: int, seed: int = 0, job_id: int = 0xBEEF)
 
 def make_stack(directory: Path, masks: list[np.ndarray], droplets: list[list[np.ndarray]] | None = None) -> Path:
     """A stack as docs/stack-format.md describes it (L images 0/255, 600 dpi), with optional droplet channels
-    (per layer, a list of masks partitioning its solid pixels)."""
+    (per layer, a list of masks partitioning its solid pixels, 1-bit as the format requires)."""
     import tifffile
 
     directory.mkdir()
     height, width = masks[0].shape
     layers = []
 
-    def write(name, mask):
-        tifffile.imwrite(directory / name, (mask * 255).astype(np.uint8), resolution=(600.0, 600.0),
-                         resolutionunit="INCH", photometric="minisblack")
+    def write(name, mask, bilevel=False):
+        pixels = mask.astype(bool) if bilevel else (mask * 255).astype(np.uint8)
+        tifffile.imwrite(directory / name, pixels, resolution=(600.0, 600.0), resolutionunit="INCH",
+                         photometric="minisblack")
         return hashlib.sha256((directory / name).read_bytes()).hexdigest()
 
     for index, mask in enumerate(masks):
@@ -61,7 +62,7 @@ def make_stack(directory: Path, masks: list[np.ndarray], droplets: list[list[np.
             entry["channels"] = []
             for number, drop in enumerate(droplets[index]):
                 name = f"layer_{index:05d}_drop{number}.tif"
-                entry["channels"].append({"file": name, "sha256": write(name, drop)})
+                entry["channels"].append({"file": name, "sha256": write(name, drop, bilevel=True)})
         layers.append(entry)
     manifest = {"format": "heoslice-stack", "version": 1, "complete": True, "created_by": "test",
                 "source": {"file": "x.ply", "sha256": "0" * 64}, "layer_height_mm": 0.1, "dpi": [600.0, 600.0],

@@ -80,8 +80,12 @@ def test_print_table_sets_the_baud_rate(run_cli, place):
     ("[print]\nbaud = 1.5\n", "heoslice.toml: [print] baud: '1.5' is not a valid integer range."),
     ("[slice]\nforce = true\n", "heoslice.toml: [slice] force: --force acts on one run"),
     ("[slice]\noutput = \"x\"\n", "heoslice.toml: [slice] output: --output acts on one run"),
+    ("[slice]\ninto = \"/tmp\"\n", "heoslice.toml: [slice] into: --into acts on one run"),
+    ("[print]\nlog = \"/etc/passwd\"\n", "heoslice.toml: [print] log: --log acts on one run"),
     ("layer = 2\n", "heoslice.toml: layer = ... is outside a table"),
     ("[slice\n", "heoslice.toml: not valid TOML (Expected ']'"),
+    ("a = " + "[" * 5000 + "]" * 5000 + "\n", "heoslice.toml: arrays or tables nested too deeply"),
+    ("a = " + "{b = " * 3000 + "1" + "}" * 3000 + "\n", "heoslice.toml: arrays or tables nested too deeply"),
 ])
 def test_bad_files_are_one_line_naming_the_file(run_cli, place, text, problem):
     """Unknown tables and keys, per-run options, bad values and bad TOML: one line naming the file, exit 2."""

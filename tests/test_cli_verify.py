@@ -154,3 +154,27 @@ def test_the_shared_bunny_in_metres_verifies_without_scale(shared_data, tmp_path
     assert code == 0, err
     code, out, err = run_cli("verify", tmp_path / "bunny", "--mesh", bunny)
     assert code == 0 and out.startswith(f"{tmp_path / 'bunny'}: OK"), out + err
+def test_an_8_bit_droplet_mask_is_refused(two_part_stack, run_cli):
+    """A droplet mask stored as 8-bit grey (the format says 1-bit) fails verify (exit 4, naming the file), and
+    preview, export and print --dry-run refuse the same stack with the same check, writing nothing."""
+    import hashlib
+
+    import tifffile
+
+    stack = two_part_stack / "stack"
+    manifest = json.loads((stack / "manifest.json").read_text())
+    channel = manifest["layers"][1]["channels"][0]
+    mask_file = stack / channel["file"]
+    bits = tifffile.imread(mask_file).astype(bool)
+    tifffile.imwrite(mask_file, bits.astype("uint8") * 255, resolution=tuple(manifest["dpi"]),
+                     resolutionunit="INCH", photometric="minisblack")
+    channel["sha256"] = hashlib.sha256(mask_file.read_bytes()).hexdigest()
+    (stack / "manifest.json").write_text(json.dumps(manifest))
+    code, out, err = run_cli("verify", stack)
+    assert code == EXIT_VERIFY and f"{mask_file.name}: pixels are 8-bit x 1, manifest says mode '1'" in out + err
+    before = sorted(p.name for p in two_part_stack.iterdir())
+    for command in (("preview", stack, "--layer", "0", "-o", two_part_stack / "p.png"),
+                    ("export", stack, "--format", "png", "-o", two_part_stack / "e"), ("print", stack, "--dry-run")):
+        code, out, err = run_cli(*command)
+        assert code == EXIT_VERIFY and err.count("\n") == 1 and mask_file.name in err, (command, err)
+    assert sorted(p.name for p in two_part_stack.iterdir()) == before

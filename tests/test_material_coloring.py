@@ -181,7 +181,7 @@ def test_write_refuses_existing_and_leaves_nothing(tmp_path, box_mesh):
     """An existing output is not overwritten without force; a failed write leaves no file or temporary."""
     colored = color_mesh(box_mesh, ColorSpec())
     target = write_ply(tmp_path / "a.ply", colored)
-    with pytest.raises(OutputError, match="already exists"):
+    with pytest.raises(OutputError, match="exists"):
         write_ply(target, colored)
     write_ply(target, colored, force=True)
     with pytest.raises(OutputError, match="does not exist"):
@@ -306,11 +306,16 @@ def test_cli_huge_direction_is_the_same_direction(run_cli, vase_copy, flag, huge
 
 
 def test_cli_existing_output(run_cli, vase_copy):
-    """An existing output file is an output error (exit 3) unless --force; the file is then replaced."""
+    """An existing output file is an output error (exit 3) unless --force, which replaces only a PLY heoslice
+    color wrote: a file the user made stays as it was."""
     target = vase_copy.parent / "vase_linear.ply"
     target.write_bytes(b"old")
     code, _, err = run_cli("color", vase_copy)
-    assert code == 3 and "already exists" in err and target.read_bytes() == b"old"
+    assert code == 3 and "exists" in err and target.read_bytes() == b"old"
+    code, _, err = run_cli("color", vase_copy, "--force")
+    assert code == 3 and "not a coloured PLY heoslice wrote" in err and target.read_bytes() == b"old"
+    target.unlink()
+    assert run_cli("color", vase_copy)[0] == 0
     code, _, err = run_cli("color", vase_copy, "--force")
     assert code == 0 and load_mesh(target).material is not None
 

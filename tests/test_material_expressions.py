@@ -62,12 +62,26 @@ def test_expression_refusals(text, fragment):
 
 
 def test_expression_deep_nesting_and_nan():
-    """Deep nesting is an InputError or a value, never a crash; NaN results name the r where they occur."""
+    """Deep nesting is an InputError or a value, never a crash; NaN and infinite results name the r where they
+    occur."""
     try:
         compile_expression("(" * 300 + "r" + ")" * 300)
     except InputError:
         pass
     with pytest.raises(InputError, match=r"undefined \(NaN\) at r = "):
         evaluate(make_function("expression", expression="sqrt(r - 0.5)"), R)
-    huge = evaluate(make_function("expression", expression="9**9**9 * r"), np.array([0.5]))
-    assert np.isinf(huge).all()  # floats overflow to inf; the blend clips them, nothing hangs
+    with pytest.raises(InputError, match=r"gives f = inf at r = 0.5"):  # overflow is refused, nothing hangs
+        evaluate(make_function("expression", expression="9**9**9 * r"), np.array([0.5]))
+
+
+@pytest.mark.parametrize("text", ["ｒ", "𝑟*2", "sin(ｒ)", "ᵣ", "r²", "r—1", "١"])
+def test_non_ascii_expressions_are_refused(run_cli, tmp_path, text):
+    """An expression with a non-ASCII character (which Python would fold to ASCII, or the ASCII PLY header could
+    not hold) is one line naming --expr and the character, exit 2, nothing written."""
+    from heoslice import procedural
+
+    model = tmp_path / "box.ply"
+    procedural.box().export(model)
+    code, _, err = run_cli("color", model, "--expr", text)
+    assert code == 2 and err.count("\n") == 1 and err.startswith("heoslice: error: --expr: ") and "U+" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["box.ply"]

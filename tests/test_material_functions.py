@@ -96,3 +96,34 @@ def test_function_is_frozen_dataclass():
     with pytest.raises(AttributeError):
         func.alpha = 2.0  # type: ignore[misc]
     assert set(FUNCTION_KINDS) == {"constant", "linear", "quadratic", "sine", "expression"}
+
+
+@pytest.mark.parametrize("kind, options, culprit", [
+    ("sine", dict(periods=1e308), "periods"),
+    ("quadratic", dict(alpha=1e308, beta=1e308), "alpha"),
+    ("linear", dict(alpha=1e308, lam=1e308), "alpha"),
+    ("expression", dict(expression="1/r"), "expression"),
+    ("expression", dict(expression="exp(1000*r)"), "expression"),
+])
+def test_non_finite_fractions_are_refused_naming_the_parameter(kind, options, culprit):
+    """A function whose value is infinite or NaN somewhere on r in [0, 1] is refused (InputError naming the
+    parameter that caused it), never handed on to be clipped into M1 or M2, and without numpy warnings."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InputError, match=rf"^{culprit}: "):
+            make_function(kind, **options)(np.linspace(0.0, 1.0, 101))
+
+
+def test_cli_refuses_non_finite_fractions_naming_the_option(run_cli, tmp_path):
+    """`color --func sine --periods 1e308`: exit 2, one line naming --periods, nothing written, no warning."""
+    from heoslice import procedural
+
+    model = tmp_path / "box.ply"
+    procedural.box().export(model)
+    code, out, err = run_cli("color", model, "--func", "sine", "--periods", "1e308")
+    assert code == 2 and err.count("\n") == 1 and err.startswith("heoslice: error: --periods: "), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["box.ply"]
+    code, out, err = run_cli("color", model, "--func", "quadratic", "--alpha", "1e308", "--beta", "1e308")
+    assert code == 2 and err.startswith("heoslice: error: --alpha: ") and "Warning" not in err, err

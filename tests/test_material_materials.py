@@ -118,6 +118,7 @@ def test_materials_file(tmp_path):
     ("[materials]\n", "no \\[materials.NAME\\]"),
     ("materials = 3\n", "no \\[materials.NAME\\]"),
     ("[materials.a\ncolor = 'red'\n", "not a valid TOML"),
+    ("a = " + "[" * 5000 + "]" * 5000 + "\n", "nested too deeply"),
     ("[materials.a]\ncolor = 'red'\n[shells]\nliver = 'a'\n", "not a shell number"),
     ("[materials.a]\ncolor = 'red'\n[shells]\n1 = 'b'\n", "neither a material name"),
 ])

@@ -119,3 +119,19 @@ def test_absurd_coordinates_are_refused(tmp_path):
     path = write(tmp_path, "far.ply", ply_bytes("binary_little_endian", vertices, TETRA_FACES, coord="double"))
     assert "beyond" in one_line_error(path)
 
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
+def test_a_non_finite_material_fraction_is_refused(tmp_path, run_cli, value):
+    """A PLY whose vertex property `material` is NaN or infinite is refused when read (one line, exit 2, naming
+    the vertex), by `info` and `slice` alike, never sliced into the M1 mask."""
+    path = tmp_path / "tet.ply"
+    rows = [(0, 0, 0, 0.5), (10, 0, 0, value), (0, 10, 0, 0.5), (0, 0, 10, 0.5)]
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+                    "property float material\nelement face 4\nproperty list uchar int vertex_indices\nend_header\n"
+                    + "".join(f"{x} {y} {z} {m}\n" for x, y, z, m in rows)
+                    + "3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n")
+    for command in (("info", path), ("slice", path, "-o", tmp_path / "stack", "--dpi", "50")):
+        code, _, err = run_cli(*command)
+        assert code == 2 and err.count("\n") == 1 and "vertex 1: 'material' is" in err, err
+    assert not (tmp_path / "stack" / "manifest.json").exists()

@@ -85,3 +85,115 @@ def test_malformed_3mf_is_one_line_input_error(tmp_path, change, expected):
     with pytest.raises(InputError, match=expected) as caught:
         read_3mf(bad)
     assert "\n" not in str(caught.value) and str(bad) in str(caught.value)
+
+
+# --- bounded: hostile archives and models, through the command line under a time and memory limit ----------
+
+def _model(resources: str, build: str) -> bytes:
+    from heoslice.mesh.threemf import CORE
+
+    return (f'<?xml version="1.0" encoding="UTF-8"?><model unit="millimeter" xmlns="{CORE.strip("{}")}">'
+            f"<resources>{resources}</resources><build>{build}</build></model>").encode()
+
+
+def _archive(path, members: dict[str, bytes], method=zipfile.ZIP_DEFLATED):
+    with zipfile.ZipFile(path, "w", method) as archive:
+        for name, data in members.items():
+            archive.writestr(name, data)
+    return path
+
+
+TETRA = ('<object id="1" type="model"><mesh><vertices><vertex x="0" y="0" z="0"/><vertex x="1" y="0" z="0"/>'
+         '<vertex x="0" y="1" z="0"/><vertex x="0" y="0" z="1"/></vertices><triangles><triangle v1="0" v2="2" v3="1"/>'
+         '<triangle v1="0" v2="1" v3="3"/><triangle v1="0" v2="3" v3="2"/><triangle v1="1" v2="2" v3="3"/>'
+         '</triangles></mesh></object>')
+
+
+def _patched(path, offset_of, value: bytes):
+    """Overwrite bytes of the archive at ``offset_of(data)`` (local header and central directory fields)."""
+    data = bytearray(path.read_bytes())
+    for offset in offset_of(bytes(data)):
+        data[offset:offset + len(value)] = value
+    path.write_bytes(bytes(data))
+    return path
+
+
+def _header_offsets(field: int):
+    """Offsets of a field in every local file header (PK\\3\\4, field offset) and central entry (PK\\1\\2, +2)."""
+    def find(data: bytes):
+        out, start = [], 0
+        while (start := data.find(b"PK\x03\x04", start)) >= 0:
+            out.append(start + field)
+            start += 4
+        start = 0
+        while (start := data.find(b"PK\x01\x02", start)) >= 0:
+            out.append(start + field + 2)
+            start += 4
+        return out
+    return find
+
+
+def nested_components(levels: int, fan: int) -> bytes:
+    """Object 1 a tetrahedron; object k+1 holds ``fan`` components of object k: fan^(levels-1) placements."""
+    objects = [TETRA] + [f'<object id="{k + 1}" type="model"><components>'
+                         + f'<component objectid="{k}"/>' * fan + "</components></object>" for k in range(1, levels)]
+    return _model("".join(objects), f'<item objectid="{levels}"/>')
+
+
+def vertex_flood(count: int) -> bytes:
+    """One object of ``count`` vertices (all referenced by a fan of triangles): tens of MB of XML, a small zip."""
+    vertices = "".join(f'<vertex x="{k}" y="{k % 7}" z="{k % 11}"/>' for k in range(count))
+    triangles = "".join(f'<triangle v1="0" v2="{k}" v3="{k + 1}"/>' for k in range(1, min(count - 1, 1000)))
+    return _model(f'<object id="1" type="model"><mesh><vertices>{vertices}</vertices><triangles>{triangles}'
+                  "</triangles></mesh></object>", '<item objectid="1"/>')
+
+
+@pytest.fixture
+def hostile(tmp_path):
+    """name -> (3MF path, expected fragment of the one-line refusal)."""
+    rels_bomb = _archive(tmp_path / "rels_bomb.3mf", {"_rels/.rels": b" " * (64 << 20),
+                                                      "3D/3dmodel.model": _model(TETRA, '<item objectid="1"/>')})
+    encrypted = _patched(_archive(tmp_path / "encrypted.3mf", {"3D/3dmodel.model": _model(TETRA, '<item objectid="1"/>')}),
+                         _header_offsets(6), b"\x01\x00")
+    bad_crc = _patched(_archive(tmp_path / "bad_crc.3mf", {"3D/3dmodel.model": _model(TETRA, '<item objectid="1"/>')}),
+                       _header_offsets(14), b"\x00\x00\x00\x00")
+    return {
+        "nested": (_archive(tmp_path / "nested.3mf", {"3D/3dmodel.model": nested_components(16, 4)}), "places"),
+        "cycle": (_archive(tmp_path / "cycle.3mf", {"3D/3dmodel.model": _model(
+            '<object id="1"><components><component objectid="2"/></components></object>'
+            '<object id="2"><components><component objectid="1"/></components></object>', '<item objectid="1"/>')}),
+            "nest deeper"),
+        "rels_bomb": (rels_bomb, "'_rels/.rels' declares"),
+        "encrypted": (encrypted, "encrypted"),
+        "bzip2": (_archive(tmp_path / "bzip2.3mf", {"3D/3dmodel.model": _model(TETRA, '<item objectid="1"/>')},
+                           zipfile.ZIP_BZIP2), "compression method 12"),
+        "bad_crc": (bad_crc, "bad CRC-32"),
+        "huge_index": (_archive(tmp_path / "index.3mf", {"3D/3dmodel.model": _model(
+            TETRA.replace('v3="1"', 'v3="1000000000000000000000000000000"'), '<item objectid="1"/>')}),
+            "non-numeric"),
+        "float_index": (_archive(tmp_path / "index2.3mf", {"3D/3dmodel.model": _model(
+            TETRA.replace('v3="1"', 'v3="1e30"'), '<item objectid="1"/>')}), "non-numeric"),
+    }
+
+
+@pytest.mark.parametrize("case", ["nested", "cycle", "rels_bomb", "encrypted", "bzip2", "bad_crc", "huge_index",
+                                  "float_index"])
+def test_hostile_3mf_is_one_line_exit_2_in_bounded_time_and_memory(hostile, case):
+    """Nested components (4^15 placements in a small file), a component cycle, a zip bomb in _rels/.rels, an
+    encrypted member, an unknown compression method, a bad CRC and absurd vertex indices: `info` exits 2 with one
+    line naming the problem, within seconds and a few hundred MB."""
+    from test_mesh_limits import assert_one_line_refusal, run_bounded
+
+    path, fragment = hostile[case]
+    assert_one_line_refusal(run_bounded("info", path), fragment, rss_mib=300.0)
+
+
+def test_a_flood_of_vertex_elements_streams_within_the_mesh_budget(tmp_path):
+    """1,000,000 vertex elements (40 MB of XML, a small zip) are read as a stream into flat arrays: `info`
+    succeeds within a memory bound ElementTree's whole tree (hundreds of bytes an element) would exceed."""
+    from test_mesh_limits import run_bounded
+
+    path = _archive(tmp_path / "flood.3mf", {"3D/3dmodel.model": vertex_flood(1_000_000)})
+    code, out, err, seconds, rss = run_bounded("info", path)
+    assert code == 0, err
+    assert rss < 300.0 and seconds < 60.0, (rss, seconds)

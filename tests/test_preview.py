@@ -184,8 +184,8 @@ def test_preview_channels_reduced_and_sheet(run_cli, channels_stack, tmp_path):
 
 
 def test_preview_refuses_altered_channels(run_cli, channels_stack, tmp_path):
-    """An altered droplet mask fails its sha256 check, for one layer and for a sheet (exit 4, one line,
-    no PNG); masks that do not cover the layer's solid pixels once each, or a material without a
+    """An altered droplet mask fails its sha256 check, for one layer, a sheet and any other layer (exit 4, one
+    line, no PNG: preview shares verify's check); masks that do not cover the layer's solid pixels once each, or a material without a
     colour in grading.materials, are refused the same way."""
     copy = copy_stack(channels_stack, tmp_path / "copy")
     manifest = json.loads((copy / "manifest.json").read_text())
@@ -198,14 +198,15 @@ def test_preview_refuses_altered_channels(run_cli, channels_stack, tmp_path):
         assert code == 4 and "sha256" in stderr and victim.name in stderr, stderr
         assert len(stderr.strip().splitlines()) == 1
         assert not (tmp_path / "x.png").exists()
-    assert run_cli("preview", copy, "--layer", "3", "-o", tmp_path / "ok.png")[0] == 0
+    code, _, stderr = run_cli("preview", copy, "--layer", "3", "-o", tmp_path / "other.png")
+    assert code == 4 and victim.name in stderr, stderr  # verify's check: another layer's damage refuses too
 
     swapped = copy_stack(channels_stack, tmp_path / "swapped")
     manifest = json.loads((swapped / "manifest.json").read_text())
     manifest["layers"][3]["channels"][1] = manifest["layers"][1]["channels"][1]
     (swapped / "manifest.json").write_text(json.dumps(manifest))
     code, _, stderr = run_cli("preview", swapped, "--layer", "3", "-o", tmp_path / "y.png")
-    assert code == 4 and "droplet masks do not cover" in stderr and len(stderr.strip().splitlines()) == 1
+    assert code == 4 and "listed twice" in stderr and len(stderr.strip().splitlines()) == 1
 
     uncoloured = copy_stack(channels_stack, tmp_path / "uncoloured")
     manifest = json.loads((uncoloured / "manifest.json").read_text())

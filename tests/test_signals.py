@@ -29,3 +29,33 @@ def test_terminating_signals_raise_interrupted(signum):
 def test_interrupted_is_a_keyboard_interrupt():
     """Every path that handles Ctrl-C handles Interrupted too."""
     assert issubclass(Interrupted, KeyboardInterrupt) and Interrupted(15).exit_code == 143
+
+
+@pytest.fixture(scope="module")
+def colour_job(tmp_path_factory):
+    """A sphere of 327,680 triangles coloured by the distance to a small one: seconds of work."""
+    from heoslice import procedural
+
+    folder = tmp_path_factory.mktemp("colour")
+    procedural.sphere(subdivisions=7).export(folder / "big.ply")
+    procedural.sphere(radius=3.0, subdivisions=3).export(folder / "small.ply")
+    return folder
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
+@pytest.mark.parametrize("after", [0.5, 1.5])
+def test_color_ends_on_every_ending_signal(colour_job, signum, after):
+    """`heoslice color` given SIGTERM, SIGINT or SIGHUP, during start-up or while colouring: exit 128 + signum,
+    the one line 'heoslice: interrupted', and no output (nor a partial file) left beside the model."""
+    import time
+
+    target = colour_job / "out.ply"
+    proc = subprocess.Popen([sys.executable, "-m", "heoslice", "color", str(colour_job / "big.ply"), "--ref",
+                             "surface", "--surface", str(colour_job / "small.ply"), "-o", str(target)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    time.sleep(after)
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signum and err == "heoslice: interrupted\n", (proc.returncode, err)
+    assert sorted(p.name for p in colour_job.iterdir()) == ["big.ply", "small.ply"]

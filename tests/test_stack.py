@@ -139,12 +139,18 @@ def test_force_removes_the_manifest_before_any_layer(stack, monkeypatch):
 
 
 def test_non_empty_directory_needs_force(stack):
-    """Without --force an existing directory with files is refused; with it the old layers go."""
+    """Without --force an existing directory with files is refused; with it the old layers go, but only from
+    a folder holding nothing but a stack's files: a file of the user's makes --force refuse, changing nothing."""
     with pytest.raises(OutputError, match="not empty"):
         prepare_directory(stack, force=False)
     (stack / "notes.txt").write_text("mine")
+    before = sorted(p.name for p in stack.iterdir())
+    with pytest.raises(OutputError, match="not a stack folder heoslice wrote"):
+        prepare_directory(stack, force=True)
+    assert sorted(p.name for p in stack.iterdir()) == before
+    (stack / "notes.txt").unlink()
     prepare_directory(stack, force=True)
-    assert sorted(p.name for p in stack.iterdir()) == ["notes.txt"]
+    assert list(stack.iterdir()) == []
 
 
 def test_write_file_disk_full_is_one_line(tmp_path):

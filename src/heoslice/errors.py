@@ -82,6 +82,7 @@ EXIT_CONTROLLER = 15  # the controller reported an error (layer CRC mismatch, ha
 EXIT_BUSY = 16  # another host is printing on this controller
 EXIT_UNFINISHED = 17  # the controller holds an unfinished job: --resume or --restart
 EXIT_STACK_CHANGED = 19  # a file of the stack changed while it was being printed
+EXIT_FINISHED = 20  # the controller just finished this very job: --restart prints it again on purpose
 
 
 class ProtocolError(HeosliceError):
@@ -148,6 +149,12 @@ class UnfinishedJobError(PrinterError):
     exit_code = EXIT_UNFINISHED
 
 
+class FinishedJobError(PrinterError):
+    """The controller reports this very job as finished by an earlier run; nothing was sent."""
+
+    exit_code = EXIT_FINISHED
+
+
 class StackBusyError(HeosliceError):
     """Another process holds the stack directory (a print reading it, or a slice writing it)."""
 
@@ -183,6 +190,7 @@ EXIT_CODES: dict[int, str] = {
     EXIT_UNFINISHED: "the controller holds an unfinished job: rerun with --resume or --restart",
     EXIT_STACK_BUSY: "another heoslice process holds the stack (a print, or a slice writing it)",
     EXIT_STACK_CHANGED: "a file of the stack changed while it was being printed",
+    EXIT_FINISHED: "the controller already finished this job: rerun with --restart to print it again",
     EXIT_HANGUP: "hung up (SIGHUP); a print sends ABORT first",
     EXIT_INTERRUPTED: "interrupted (Ctrl-C); a print sends ABORT first",
     EXIT_TERMINATED: "terminated (SIGTERM); a print sends ABORT first",

@@ -1,8 +1,11 @@
-"""Terminating signals as interruptions: SIGTERM and SIGHUP raise :class:`~heoslice.errors.Interrupted`.
+"""The ending signals as interruptions, one mechanism for every command: SIGINT, SIGTERM and SIGHUP raise
+:class:`~heoslice.errors.Interrupted`.
 
-A service manager, ``timeout`` or a CI cancel ends a process with SIGTERM, a closed terminal with
-SIGHUP. Raised as a KeyboardInterrupt subclass, they take every path Ctrl-C takes (a print sends
-ABORT, a slice cleans up), and the CLI exits 128 + the signal number.
+Ctrl-C sends SIGINT, a service manager, ``timeout`` or a CI cancel SIGTERM, a closed terminal SIGHUP.
+Raised as a KeyboardInterrupt subclass carrying the signal, they take every path Ctrl-C takes (a print
+sends ABORT, a slice stops its workers, an output being written is discarded), and the CLI prints one
+line and exits 128 + the signal number. Installed first thing in ``python -m heoslice`` and in the
+console script, before the heavy imports, so a signal at any moment ends the command the same way.
 """
 
 from __future__ import annotations
@@ -12,8 +15,8 @@ import threading
 
 from heoslice.errors import Interrupted
 
-#: The signals handled like Ctrl-C (SIGINT keeps Python's own KeyboardInterrupt).
-TERMINATING_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+#: The signals that end a command: each becomes Interrupted(signum).
+TERMINATING_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def _raise_interrupted(signum: int, frame) -> None:
@@ -22,7 +25,8 @@ def _raise_interrupted(signum: int, frame) -> None:
 
 
 def interrupt_on_terminating_signals() -> None:
-    """Install the handler for SIGTERM and SIGHUP (main thread only; a signal already ignored stays ignored)."""
+    """Install the handler for SIGINT, SIGTERM and SIGHUP (main thread only; a signal the parent left ignored,
+    as ``nohup`` or a shell's background job does, stays ignored)."""
     if threading.current_thread() is not threading.main_thread():
         return
     for signum in TERMINATING_SIGNALS:

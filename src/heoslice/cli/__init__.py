@@ -9,6 +9,7 @@ and its exit status; any other exception is a bug, shown as one line unless
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from heoslice.errors import (
     EXIT_BUSY,
     EXIT_CODES,
     EXIT_CONTROLLER,
+    EXIT_FINISHED,
     EXIT_HANGUP,
     EXIT_INPUT,
     EXIT_INTERRUPTED,
@@ -54,6 +56,9 @@ Shell completion (bash): eval "$(_HEOSLICE_COMPLETE=bash_source heoslice)"
 """
 
 
+#: The environment variable with which a shell asks for completions (click's convention for "heoslice").
+COMPLETION_VARIABLE = "_HEOSLICE_COMPLETE"
+
 #: Sub-command name -> "module:attribute"; imported only when that command runs, so
 #: `heoslice slice` does not pay for the printer link and `--help` stays quick.
 COMMANDS = {
@@ -70,7 +75,7 @@ COMMANDS = {
 
 _COMMON_EXITS = (EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_HANGUP, EXIT_INTERRUPTED, EXIT_TERMINATED)
 _PRINTER_EXITS = (EXIT_PORT, EXIT_LINK_DEAD, EXIT_PROTOCOL, EXIT_RETRIES, EXIT_RESET, EXIT_CONTROLLER, EXIT_BUSY,
-                  EXIT_UNFINISHED, EXIT_STACK_BUSY, EXIT_STACK_CHANGED)
+                  EXIT_UNFINISHED, EXIT_STACK_BUSY, EXIT_STACK_CHANGED, EXIT_FINISHED)
 
 #: Sub-command name -> the exit statuses it can end with, listed in its --help (meanings from errors.EXIT_CODES).
 EXIT_STATUSES = {
@@ -138,7 +143,11 @@ def main(argv: list[str] | None = None) -> None:
     state: dict = {}
     interrupt_on_terminating_signals()
     try:
-        cli.main(args=args, prog_name="heoslice", standalone_mode=False, obj=state)
+        if COMPLETION_VARIABLE in os.environ:  # click's main answers shell completion
+            cli.main(args=args, prog_name="heoslice", standalone_mode=False, obj=state)
+        else:  # not cli.main: it echoes a blank line on Ctrl-C before our one line
+            with cli.make_context("heoslice", list(args), obj=state) as ctx:
+                cli.invoke(ctx)
         if argv is None:
             parallel.skip_exit_collection()
     except click.exceptions.Exit as done:

@@ -186,7 +186,8 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
     with progress_bar("colouring", unit="vertices") as progress, flags(mapping):
         colored = color_mesh(mesh, spec, progress)
     target = output if output is not None else default_output(model, function)
-    write_ply(target, colored, ascii=ascii_ply, force=force)
+    write_ply(target, colored, ascii=ascii_ply, force=force,
+              inputs=tuple(p for p in (model, surface_path, materials_file) if p is not None))
     f = colored.material
     if as_json:
         click.echo(json.dumps({

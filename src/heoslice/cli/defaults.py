@@ -28,8 +28,9 @@ else:  # pragma: no cover - Python 3.10
 FILE_NAME = "heoslice.toml"
 MAX_BYTES = 1 << 20  # a defaults file is a few lines; anything larger is not one
 
-#: Options that act on one run only and so cannot be defaults: where a run writes, overwriting, where a print resumes.
-PER_RUN_OPTIONS = frozenset({"output", "force", "from-layer", "help"})
+#: Options that act on one run only and so cannot be defaults: where a run writes (a file in a downloaded
+#: project folder must not redirect outputs), overwriting, where a print resumes.
+PER_RUN_OPTIONS = frozenset({"output", "into", "log", "force", "from-layer", "help"})
 
 
 @dataclass(frozen=True, slots=True)
@@ -84,6 +85,9 @@ def read_file(path: Path, commands: list[str] | tuple[str, ...]) -> DefaultsFile
         raise InputError(f"{path}: not UTF-8 text (a defaults file is TOML)") from None
     except tomllib.TOMLDecodeError as err:
         raise InputError(f"{path}: not valid TOML ({err})") from None
+    except RecursionError:
+        raise InputError(f"{path}: arrays or tables nested too deeply; not a defaults file "
+                         "(heoslice --no-config ignores it)") from None
     for name, table in document.items():
         if not isinstance(table, dict):
             raise InputError(f"{path}: {name} = ... is outside a table; put it under its command, e.g. [slice]")

@@ -11,6 +11,24 @@ from heoslice.cli.options import apply_scale, scale_option
 from heoslice.mesh import load_mesh, mesh_info
 
 
+#: Shells listed one a line in the text output (--json lists every shell).
+SHELLS_SHOWN = 20
+
+
+def _shell_lines(shells: list[dict]) -> list[str]:
+    """One line per shell (its number, triangles, enclosed volume, bounding box), the first SHELLS_SHOWN."""
+    lines = []
+    for shell in shells[:SHELLS_SHOWN]:
+        (x0, y0, z0), (x1, y1, z1) = shell["bounds_mm"]
+        volume = "" if shell["volume_mm3"] is None else f", {shell['volume_mm3']:.6g} mm^3"
+        lines.append(f"  shell {shell['number']}:{' ' * max(1, 10 - len(str(shell['number'])))}"
+                     f"{shell['triangles']} triangles{volume}, x {x0:.4g} .. {x1:.4g}, y {y0:.4g} .. {y1:.4g}, "
+                     f"z {z0:.4g} .. {z1:.4g}")
+    if len(shells) > SHELLS_SHOWN:
+        lines.append(f"  ... and {len(shells) - SHELLS_SHOWN} more shells (--json lists every one)")
+    return lines
+
+
 @click.command("info", epilog="""\b
 Examples:
   heoslice info vase.ply
@@ -21,16 +39,19 @@ Examples:
 @scale_option
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def info(model: Path, scale: float, as_json: bool) -> None:
-    """Print MODEL's vertices, triangles, bounding box, watertightness, winding, shells, duplicate faces,
+    """Print MODEL's vertices, triangles, bounding box, watertightness, winding, shells (each with its number as
+    [shells] and --shell-colors use it, its triangles, enclosed volume and bounding box), duplicate faces,
     volume (of the solid the slicer fills: overlapping shells count once, as in 'verify --mesh'), colours;
-    with --scale, of the model as 'slice --scale' slices it."""
-    summary = mesh_info(apply_scale(load_mesh(model), scale))
+    with --scale, of the model as 'slice --scale' slices it. A flat mesh (zero height) is described with a
+    warning; slice refuses it."""
+    summary = mesh_info(apply_scale(load_mesh(model, flat_ok=True), scale))
     if as_json:
         click.echo(json.dumps({"model": str(model), "ok": True, **summary}))
         return
     low, high = summary["bounds_mm"]
     volume = "n/a (not watertight)" if summary["volume_mm3"] is None else (
-        f"{summary['volume_mm3']:.6g} mm^3" + ("" if summary["volume_exact"] else " (shells not united)"))
+        f"{summary['volume_mm3']:.6g} mm^3" + ("" if summary["volume_exact"] else
+                                           " (not exact: overlapping shells not united)"))
     colours = {"vertex": "per-vertex RGB", "face": "per-face RGB (spread to the vertices)"}.get(
         summary["color_source"], "RGB") if summary["colors"] else "none"
     lines = [
@@ -42,7 +63,8 @@ def info(model: Path, scale: float, as_json: bool) -> None:
         f"watertight:         {'yes' if summary['watertight'] else 'no'} "
         f"({summary['boundary_edges']} boundary, {summary['non_manifold_edges']} non-manifold edges)",
         f"winding consistent: {'yes' if summary['winding_consistent'] else 'no'}",
-        f"shells:             {summary['shells']}",
+        f"shells:             {summary['shells']} (numbered from 0, as [shells] and --shell-colors use them)",
+        *_shell_lines(summary["shell_list"]),
         f"duplicate faces:    {summary['duplicate_faces']} (dropped before slicing)",
         f"volume:             {volume}",
         f"colours:            {colours}"

@@ -9,10 +9,12 @@ from pathlib import Path
 import click
 import numpy as np
 
-from heoslice.errors import InputError, OutputError
+from heoslice.errors import InputError
+from heoslice.files import check_output, write_output
+from heoslice.preview.png import is_preview, png_bytes
 from heoslice.preview.layer import MAX_PREVIEW_SIDE, MIN_PREVIEW_SIDE
 from heoslice.preview.sheet import MAX_SHEET_LAYERS, MAX_TILE, MIN_TILE
-from heoslice.stack import check_input_path, read_manifest
+from heoslice.stack import check_input_path, load_verified
 
 #: Library parameter names -> the options that set them, for error messages.
 FLAGS = {"section": "--section", "size": "--size", "tile": "--tile", "columns": "--columns", "layers": "--layers",
@@ -55,9 +57,10 @@ Examples:
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
               help="PNG file to write [default: ./STACK_layer_NNNNN.png, ./STACK_sheet.png or "
                    "./STACK_section_x12.5.png].")
+@click.option("--force", is_flag=True, help="Replace OUTPUT if it is a preview heoslice wrote.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, size: int | None, tile: int,
-            columns: int | None, section: str | None, output: Path | None, as_json: bool) -> None:
+            columns: int | None, section: str | None, output: Path | None, force: bool, as_json: bool) -> None:
     """Write a PNG of one layer of STACK (or a contact sheet with --sheet).
 
     Files are checked against the manifest (inside the stack, sha256, size) before
@@ -66,19 +69,19 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
     colours over dark grey; other 1-bit layers dark on white.
     """
     check_input_path(stack)
-    manifest = read_manifest(stack)
+    # verify's own check (every file present, of its layout, mode and sha256): a stack it refuses is not drawn;
+    # pixels are decoded, and checked, for what is drawn
+    manifest = load_verified(stack, check_pixels=False)
     count = len(manifest["layers"])
     if count == 0:
         raise InputError(f"{stack}: the stack has no layers")
     with flags_named():
         target, draw = _plan(stack, manifest, layer, sheet, layers, size, tile, columns, section, output)
+        check_output(target, "preview PNG", force=force, made_here=is_preview, inputs=(stack,))
         if target.suffix.lower() != ".png":
             raise InputError(f"{target}: the preview is a PNG; give a file name ending in .png")
         image = draw()
-    try:
-        image.save(target, format="PNG")
-    except OSError as err:
-        raise OutputError(f"{target}: cannot write ({err.strerror or err})") from err
+    write_output(target, png_bytes(image))
     if as_json:
         click.echo(json.dumps({"stack": str(stack), "ok": True, "output": str(target), "width": image.size[0],
                                "height": image.size[1]}))

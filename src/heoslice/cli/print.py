@@ -10,6 +10,7 @@ import click
 
 from heoslice.locks import hold_stack
 from heoslice.printing import (
+    check_log_output,
     Progress,
     default_log_path,
     job_summary,
@@ -86,8 +87,9 @@ def _dry_run(stack: Path, baud: int, max_payload: int, from_layer: int | None, a
 def _print(stack: Path, port: str, baud: int, from_layer: int | None, resume: bool, restart: bool,
            log_path: Path | None, max_payload: int, as_json: bool) -> None:
     """Print the held stack and report."""
-    job, get_layer = stack_job(stack)
     log_path = log_path or default_log_path(stack)
+    check_log_output(log_path, inputs=(stack,))
+    job, get_layer = stack_job(stack)
     with _progress(job.layer_count - (from_layer or 0)) as progress:
         result = print_job(port, job, get_layer, baud=baud, from_layer=from_layer, resume=resume, restart=restart,
                            log_path=log_path, on_progress=progress, max_payload=max_payload,

@@ -293,13 +293,15 @@ def slice_parts(models: tuple[Path, ...], output: Path | None, spec_fields: dict
     except InputError as err:
         raise flag_error(err) from None
     directory = output if output is not None else default_output(inputs.paths[0])
-    summary = slice_model(mesh.source, directory, spec, scale, force, as_json, False, mesh=mesh)
+    summary = slice_model(mesh.source, directory, spec, scale, force, as_json, False, mesh=mesh,
+                          inputs=(*inputs.paths, *((materials.path,) if materials.path else ())))
     if as_json:
         echo_json(summary)
 
 
 def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, force: bool, as_json: bool,
-                several: bool, solid_only: bool = False, mesh: Mesh | None = None) -> dict:
+                several: bool, solid_only: bool = False, mesh: Mesh | None = None,
+                inputs: tuple[Path, ...] | None = None) -> dict:
     """Slice one model (``mesh`` when it is loaded already) into ``directory`` and report it (one text line,
     two for a multi-part job, or nothing with --json); its summary. ``solid_only`` slices it as one
     material, whatever it carries."""
@@ -311,7 +313,8 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
         echo_warnings(model, [*mesh.warnings, *(flag_message(text) for text in slice_warnings(mesh, spec))])
     with progress_bar(f"slicing {model.name}" if several else "slicing", unit="layer") as update:
         try:
-            manifest, times = slice_to_stack(mesh, directory, spec, force=force, progress=update, scale=scale)
+            manifest, times = slice_to_stack(mesh, directory, spec, force=force, progress=update, scale=scale,
+                                             inputs=inputs)
         except InputError as err:
             raise flag_error(err) from None
     open_layers = [entry["index"] for entry in manifest["layers"] if entry["open_contours"]]

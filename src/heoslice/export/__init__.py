@@ -33,7 +33,7 @@ def export_stack(directory: Path, format_name: str, output: Path, options: Expor
         raise InputError(f"format: unknown export format {format_name!r}; choose from {', '.join(known)}")
     check_options(options)
     manifest = load_verified(Path(directory))
-    sink = Sink(output, force=force)
+    sink = Sink(output, force=force, inputs=(Path(directory),))
     try:
         summary = known[format_name].write(Path(directory), manifest, sink, options)
     except BaseException:

@@ -1,22 +1,20 @@
 """What every export format shares: the small writer interface, its options, and an output written safely.
 
 A format is one module in this package defining ``FORMAT``, an :class:`ExportFormat` whose ``write``
-turns a verified stack into files handed to a :class:`Sink`. The sink writes into a temporary
+turns a verified stack into files handed to a :class:`Sink`. The sink writes into a partial
 folder or zip beside the target and renames it into place only when every file is written, so an
 interrupted export never leaves something that looks complete.
 """
 
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from heoslice.errors import InputError, OutputError
+from heoslice.files import check_output, discard_partial, head_bytes, move_into_place, partial_path, write_problem
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,29 +37,45 @@ class ExportFormat:
     write: Callable[[Path, dict, "Sink", ExportOptions], dict]
 
 
-class Sink:
-    """Files of one export: a folder, or a zip when the target ends in ``.zip``; written to a temporary
-    name beside the target and moved into place by :meth:`commit`."""
+#: Marks an export heoslice wrote (the only kind ``export --force`` replaces): a hidden file in a folder
+#: export, the comment of a zip export.
+EXPORT_MARK = ".heoslice-export"
+ZIP_COMMENT = b"heoslice export"
 
-    def __init__(self, target: Path, force: bool = False):
+
+def is_export(path: Path) -> bool:
+    """Whether ``path`` is an export heoslice wrote: a folder holding EXPORT_MARK, or a zip with ZIP_COMMENT."""
+    path = Path(path)
+    if path.is_dir():
+        return (path / EXPORT_MARK).is_file() and not (path / EXPORT_MARK).is_symlink()
+    if not head_bytes(path, 4).startswith(b"PK"):
+        return False
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return archive.comment == ZIP_COMMENT
+    except (zipfile.BadZipFile, OSError, ValueError):
+        return False
+
+
+class Sink:
+    """Files of one export: a folder, or a zip when the target ends in ``.zip``; written to a partial name
+    beside the target and moved into place by :meth:`commit` (the output rule of :mod:`heoslice.files`)."""
+
+    def __init__(self, target: Path, force: bool = False, inputs: tuple[Path, ...] = ()):
         self.target = Path(target)
-        if os.path.lexists(self.target) and not force:
-            raise OutputError(f"{self.target}: exists (use --force to overwrite)")
-        parent = self.target.parent
+        self.is_zip = self.target.suffix.lower() == ".zip"
+        check_output(self.target, "export", force=force, made_here=is_export, inputs=inputs, folder=not self.is_zip)
+        parent = self.target.parent if str(self.target.parent) else Path(".")
         if not parent.is_dir():
             raise OutputError(f"{parent}: no such directory")
-        self.is_zip = self.target.suffix.lower() == ".zip"
-        try:
-            if self.is_zip:
-                handle, name = tempfile.mkstemp(prefix=f".{self.target.name}.", suffix=".partial", dir=parent)
-                os.close(handle)
-                self._temporary = Path(name)
+        self._temporary = partial_path(self.target, folder=not self.is_zip)
+        if self.is_zip:
+            try:
                 self._zip = zipfile.ZipFile(self._temporary, "w", compression=zipfile.ZIP_DEFLATED)
-            else:
-                self._temporary = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".partial",
-                                                        dir=parent))
-        except OSError as err:
-            raise OutputError(f"{self.target}: cannot write ({err.strerror})") from err
+                self._zip.comment = ZIP_COMMENT
+            except OSError as err:
+                discard_partial(self._temporary)
+                raise write_problem(self.target, err) from err
         self.files: list[str] = []
 
     def add(self, name: str, data: bytes) -> None:
@@ -73,26 +87,20 @@ class Sink:
                 (self._temporary / name).write_bytes(data)
         except OSError as err:
             self.discard()
-            raise OutputError(f"{self.target}: cannot write {name} ({err.strerror})") from err
+            raise write_problem(f"{self.target}/{name}", err) from err
         self.files.append(name)
 
     def commit(self) -> None:
-        """Move the finished export into place (replacing an old one only now)."""
+        """Move the finished export into place (replacing an old export only now)."""
         try:
             if self.is_zip:
                 self._zip.close()
-                os.chmod(self._temporary, 0o666 & ~_umask())
             else:
-                os.chmod(self._temporary, 0o777 & ~_umask())
-            if os.path.lexists(self.target):
-                if self.target.is_dir() and not self.target.is_symlink():
-                    shutil.rmtree(self.target)
-                else:
-                    self.target.unlink()
-            os.replace(self._temporary, self.target)
+                (self._temporary / EXPORT_MARK).write_text("written by heoslice export\n")
         except OSError as err:
             self.discard()
-            raise OutputError(f"{self.target}: cannot write ({err.strerror})") from err
+            raise write_problem(self.target, err) from err
+        move_into_place(self._temporary, self.target, folder=not self.is_zip)
 
     def discard(self) -> None:
         """Remove what was written (after a failure)."""
@@ -101,15 +109,7 @@ class Sink:
                 self._zip.close()
             except (OSError, ValueError):
                 pass
-            Path(self._temporary).unlink(missing_ok=True)
-        else:
-            shutil.rmtree(self._temporary, ignore_errors=True)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+        discard_partial(self._temporary)
 
 
 def check_options(options: ExportOptions) -> None:

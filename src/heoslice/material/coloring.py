@@ -21,8 +21,6 @@ so later stages need not invert colours. Header comments record what was done::
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import InputError, OutputError, shown
+from heoslice.files import check_output, head_bytes, write_output
 from heoslice.material.functions import DistributionFunction, evaluate, make_function
 from heoslice.material.materials import DEFAULT_MATERIALS, Material, blend, to_rgb8
 from heoslice.material.references import (
@@ -226,50 +225,29 @@ def ply_bytes(colored: ColoredMesh, ascii: bool = False) -> bytes:
     return head + vertex.tobytes() + face.tobytes()
 
 
-def _umask() -> int:
-    """The process's file-creation mask (read by setting it and putting it back)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
+def is_colored_ply(path: Path) -> bool:
+    """Whether ``path`` is a PLY ``heoslice color`` wrote (its header records the function): the only
+    existing file ``color --force`` replaces."""
+    head = head_bytes(path)
+    return head.startswith(b"ply") and b"\ncomment heoslice color: " in head.split(b"end_header", 1)[0]
 
 
-def write_ply(path: Path, colored: ColoredMesh, ascii: bool = False, force: bool = False) -> Path:
-    """Write ``colored`` to ``path`` atomically (a temporary file renamed at the end), with the mode an
-    ordinary new file gets (0666 less the umask), not the temporary file's 0600.
+def write_ply(path: Path, colored: ColoredMesh, ascii: bool = False, force: bool = False,
+              inputs: tuple[Path, ...] = ()) -> Path:
+    """Write ``colored`` to ``path`` under the output rule (:func:`heoslice.files.check_output`): atomically,
+    never over ``inputs``, a link or a file heoslice did not write (even with ``force``).
 
     Raises OutputError if the file exists (unless ``force``) or cannot be written; a
     failed write leaves nothing behind.
     """
     path = Path(path)
+    check_output(path, "coloured PLY", force=force, made_here=is_colored_ply, inputs=inputs)
     if path.suffix.lower() != ".ply":
         raise OutputError(f"{path}: the output must be a .ply file")
-    if path.exists() and not force:
-        raise OutputError(f"{path}: already exists (use --force to overwrite)")
-    if path.is_dir():
-        raise OutputError(f"{path}: is a directory")
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise OutputError(f"{path}: the folder {folder} does not exist")
-    data = ply_bytes(colored, ascii=ascii)
-    handle, temporary = None, None
-    try:
-        handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-        with os.fdopen(handle, "wb") as out:
-            handle = None
-            out.write(data)
-            out.flush()
-            os.fchmod(out.fileno(), 0o666 & ~_umask())
-            os.fsync(out.fileno())
-        os.replace(temporary, path)
-        temporary = None
-    except OSError as err:
-        raise OutputError(f"{path}: cannot be written ({err.strerror or err})") from None
-    finally:
-        if handle is not None:
-            os.close(handle)
-        if temporary is not None and os.path.exists(temporary):
-            os.unlink(temporary)
-    return path
+    return write_output(path, ply_bytes(colored, ascii=ascii))
 
 
 def default_output(model: Path, function: DistributionFunction) -> Path:

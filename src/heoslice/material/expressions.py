@@ -42,6 +42,10 @@ def compile_expression(text: str) -> ast.Expression:
     text = str(text)
     if len(text) > MAX_CHARS:
         raise _refuse(f"longer than {MAX_CHARS} characters")
+    foreign = next((char for char in text if not char.isascii()), None)
+    if foreign is not None:  # Python would read 'ｒ' as r (NFKC), and the PLY header is ASCII
+        raise _refuse(f"{text!r} holds the non-ASCII character {foreign!r} (U+{ord(foreign):04X}); write the "
+                      "formula in ASCII: r, pi, e, + - * / **, sin cos exp ...")
     try:
         tree = ast.parse(text.strip(), mode="eval")
     except (SyntaxError, ValueError, RecursionError, MemoryError) as err:

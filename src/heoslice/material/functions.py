@@ -154,6 +154,8 @@ def make_function(kind: str, alpha: float | None = None, beta: float | None = No
         if "beta" in given:
             raise InputError("periods: give either beta or periods for the sine function, not both")
         given["beta"] = 2.0 * math.pi * given["periods"]
+        if not math.isfinite(given["beta"]):
+            raise InputError(f"periods: {shown(given['periods'])} periods make beta = 2 pi periods infinite")
     values = {**row.fixed, **row.defaults, **{key: given[key] for key in row.uses if key in given}}
     return DistributionFunction(name, alpha=values["alpha"], beta=values["beta"], lam=values["lam"])
 
@@ -166,4 +168,19 @@ def evaluate(func: DistributionFunction, r: np.ndarray) -> np.ndarray:
     row = FUNCTIONS.get(func.kind)
     if row is None:
         raise InputError(f"kind: unknown distribution function {func.kind!r}")
-    return row.formula(func, np.asarray(r, dtype=np.float64))
+    r = np.asarray(r, dtype=np.float64)
+    with np.errstate(all="ignore"):
+        f = row.formula(func, r)
+    bad = ~np.isfinite(f)
+    if bad.any():
+        at = float(r[bad].flat[0]) if r.shape == f.shape else float("nan")
+        raise InputError(f"{_culprit(func, row)}: {func.describe()} gives f = {shown(float(f[bad].flat[0]))} at "
+                         f"r = {at:.6g}; a material fraction must be a finite number")
+    return f
+
+
+def _culprit(func: DistributionFunction, row: FunctionKind) -> str:
+    """The parameter to blame for a non-finite f: the expression, or the used coefficient of largest size."""
+    if func.kind == "expression":
+        return "expression"
+    return max(row.uses, key=lambda name: abs(getattr(func, name)), default="kind")

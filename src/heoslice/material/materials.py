@@ -142,6 +142,8 @@ def _read_toml(path: Path) -> dict:
         return tomllib.loads(read_bounded(path, MAX_MATERIALS_FILE_BYTES, "materials").decode("utf-8"))
     except tomllib.TOMLDecodeError as err:
         raise InputError(f"{path}: not a valid TOML materials file ({err})") from None
+    except RecursionError:
+        raise InputError(f"{path}: arrays or tables nested too deeply; not a materials file") from None
     except (OSError, UnicodeDecodeError) as err:
         raise InputError(f"{path}: cannot be read ({type(err).__name__}: {err})") from None
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from heoslice.errors import InputError
+from heoslice.errors import InputError, shown
 from heoslice.files import check_regular, open_regular, refuse_sparse
 from heoslice.mesh.limits import MAX_MESH_BYTES
 from heoslice.mesh.obj import read_with_trimesh
@@ -28,7 +28,7 @@ from heoslice.mesh.ply import check_ply_header, read_ply
 from heoslice.mesh.raw import MATERIAL_PROPERTY, RawMesh
 from heoslice.mesh.stl import read_binary_stl
 from heoslice.mesh.topology import edge_groups, orient_outward, topology_notes
-from heoslice.mesh.volume import face_volumes, solid_volume_mm3
+from heoslice.mesh.volume import face_volumes, shell_table, solid_volume_mm3
 from heoslice.mesh.weld import duplicate_faces, weld_vertices
 
 SUPPORTED_SUFFIXES = (".ply", ".stl", ".obj", ".off", ".3mf")
@@ -102,8 +102,10 @@ def _vertex_colors(raw: RawMesh) -> np.ndarray | None:
     return np.clip(np.rint(np.column_stack(sums) / uses[:, None]), 0, 255).astype(np.uint8)
 
 
-def load_mesh(path: str | os.PathLike) -> Mesh:
-    """Read, validate and prepare a mesh for slicing; raise InputError with one line if unusable."""
+def load_mesh(path: str | os.PathLike, *, flat_ok: bool = False) -> Mesh:
+    """Read, validate and prepare a mesh for slicing; raise InputError with one line if unusable.
+
+    ``flat_ok`` (``info``): a mesh of zero height loads with a warning instead of being refused."""
     path = Path(path)
     status = check_regular(path, "mesh")
     if not os.access(path, os.R_OK):
@@ -124,7 +126,7 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
 
     with ThreadPoolExecutor(max_workers=1) as hasher:  # hashing overlaps parsing (hashlib releases the GIL)
         digest = hasher.submit(file_sha256, path)
-        return prepared_mesh(path, _read_raw(path, suffix), digest.result)
+        return prepared_mesh(path, _read_raw(path, suffix), digest.result, flat_ok=flat_ok)
 
 
 #: Magic bytes of files that are often renamed by mistake, and what they are.
@@ -153,7 +155,7 @@ def _read_raw(path: Path, suffix: str) -> RawMesh:
     return read_with_trimesh(path)
 
 
-def prepared_mesh(path: Path, raw: RawMesh, sha256) -> Mesh:
+def prepared_mesh(path: Path, raw: RawMesh, sha256, *, flat_ok: bool = False) -> Mesh:
     """Check, weld, clean and orient a raw mesh; ``sha256`` is the file's digest, or a callable giving it when
     it is ready."""
     notes: list[str] = []
@@ -173,7 +175,12 @@ def prepared_mesh(path: Path, raw: RawMesh, sha256) -> Mesh:
     colors = _vertex_colors(raw)
     material = raw.vertex_properties.get(MATERIAL_PROPERTY)
     if material is not None and len(material) == len(vertices):
-        material = np.clip(np.nan_to_num(material.astype(np.float64)), 0.0, 1.0)
+        material = material.astype(np.float64)
+        bad = np.flatnonzero(~np.isfinite(material))
+        if len(bad):
+            raise InputError(f"{path}: vertex {int(bad[0])}: '{MATERIAL_PROPERTY}' is {shown(material[bad[0]])}, "
+                             f"not a number 0..1 ({len(bad)} vertices are NaN or infinite)")
+        material = np.clip(material, 0.0, 1.0)
     else:
         material = None
 
@@ -198,7 +205,9 @@ def prepared_mesh(path: Path, raw: RawMesh, sha256) -> Mesh:
     low, high = column_bounds(vertices)
     extent = high - low
     if extent[2] <= 0:
-        raise InputError(f"{path}: the mesh has zero height (flat in z); nothing to slice")
+        if not flat_ok:
+            raise InputError(f"{path}: the mesh has zero height (flat in z); nothing to slice")
+        notes.append("the mesh has zero height (flat in z): slice and color refuse it")
     from concurrent.futures import ThreadPoolExecutor
 
     with ThreadPoolExecutor(max_workers=1) as beside:  # the volumes overlap the edge grouping (numpy releases the GIL)
@@ -280,6 +289,11 @@ def mesh_info(mesh: Mesh) -> dict:
     uses = groups.uses
     watertight = bool(np.all(uses == 2))
     volume, exact = solid_volume_mm3(mesh) if watertight else (None, False)
+    triangles, volumes, low, high = shell_table(mesh)
+    shells = [{"number": number, "triangles": int(count), "volume_mm3": float(enclosed) if watertight else None,
+               "bounds_mm": [lo, hi]}
+              for number, (count, enclosed, lo, hi) in enumerate(zip(triangles.tolist(), volumes.tolist(),
+                                                                      low.round(6).tolist(), high.round(6).tolist()))]
     return {
         "file": str(mesh.source),
         "sha256": mesh.sha256,
@@ -293,6 +307,7 @@ def mesh_info(mesh: Mesh) -> dict:
         "non_manifold_edges": int((uses > 2).sum()),
         "shells": int(mesh.shell.max() + 1) if len(mesh.shell) else 0,
         "duplicate_faces": mesh.duplicate_faces,
+        "shell_list": shells,
         "volume_mm3": volume,
         "volume_exact": exact,
         "colors": mesh.colors is not None,

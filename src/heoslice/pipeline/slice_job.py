@@ -36,6 +36,7 @@ from heoslice.stack import (
     LayerRecord,
     build_manifest,
     check_image_size,
+    check_stack_output,
     droplet_summary,
     grading_summary,
     max_layer_count,
@@ -81,15 +82,18 @@ def _check_sizes(mesh: Mesh, spec: SliceSpec) -> None:
 
 def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool = False,
                    progress: Callable[[int, int], None] | None = None,
-                   scale: float = 1.0) -> tuple[dict, StageTimes]:
+                   scale: float = 1.0, inputs: tuple[Path, ...] | None = None) -> tuple[dict, StageTimes]:
     """Slice ``mesh`` into a stack in ``directory``; return the manifest and stage timings.
 
     ``scale``: the factor ``mesh``'s file coordinates were multiplied by (``--scale``), recorded in the
     manifest so that ``verify --mesh`` compares with the file as sliced. ``progress(done, total)`` is called
-    as layers finish. The manifest is written
-    last; if anything fails before, the directory holds no manifest.
+    as layers finish. The manifest is written last; if anything fails before, the directory holds no
+    manifest. ``inputs`` (default: the mesh's file) are never written over (the output rule,
+    :func:`heoslice.stack.check_stack_output`).
     """
     directory = Path(directory)
+    inputs = (mesh.source,) if inputs is None else inputs
+    check_stack_output(directory, force, inputs)
     times = StageTimes()
     started = time.perf_counter()
     _check_sizes(mesh, spec)
@@ -108,7 +112,7 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
         existed = directory.is_dir()
         if existed:
             held.enter_context(hold_stack(directory, "slicing into it"))
-        prepare_directory(directory, force)
+        prepare_directory(directory, force, inputs)
         if not existed:
             held.enter_context(hold_stack(directory, "slicing into it"))
         z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)

@@ -9,13 +9,13 @@ is the simulated controller, reached only as the ``sim://`` pyserial URL handler
 
 from heoslice.printing.job import JobSpec, LayerSource, job_summary, pack_mask, stack_job
 from heoslice.printing.link import PrinterLink, PrintResult, Progress, print_job
-from heoslice.printing.log import PrintLog, default_log_path
+from heoslice.printing.log import PrintLog, check_log_output, default_log_path
 from heoslice.printing.ports import Connector, Port, SerialConnector, connector_for
 from heoslice.printing.session import LinkTiming, Session
 from heoslice.printing.stream import CHUNK_HEADER, check_from_layer, job_messages, next_chunk, plan_transfer
 from heoslice.printing.window import FrameSizer, SendWindow, optimal_frame_bytes
 
 __all__ = ["JobSpec", "LayerSource", "job_summary", "pack_mask", "stack_job", "PrinterLink",
-           "PrintResult", "Progress", "print_job", "PrintLog", "default_log_path", "Connector", "Port",
+           "PrintResult", "Progress", "print_job", "PrintLog", "check_log_output", "default_log_path", "Connector", "Port",
            "SerialConnector", "connector_for", "LinkTiming", "Session", "CHUNK_HEADER", "check_from_layer", "job_messages",
            "next_chunk", "plan_transfer", "FrameSizer", "SendWindow", "optimal_frame_bytes"]

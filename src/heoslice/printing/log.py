@@ -4,15 +4,36 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import os
 from pathlib import Path
 
 from heoslice.errors import OutputError
+from heoslice.files import check_output, head_bytes, write_problem
 
 
 def default_log_path(stack: Path) -> Path:
     """The print log beside a stack directory: ``<stack>.print-log.jsonl``."""
     stack = Path(stack).resolve()
     return stack.with_name(stack.name + ".print-log.jsonl")
+
+
+def is_print_log(path: Path) -> bool:
+    """Whether ``path`` is a print log heoslice wrote (empty, or its first line an event record): the only
+    existing file a print appends to."""
+    head = head_bytes(path)
+    if not head:
+        return os.path.isfile(path) and os.path.getsize(path) == 0
+    try:
+        first = json.loads(head.split(b"\n", 1)[0])
+    except ValueError:
+        return False
+    return isinstance(first, dict) and {"time", "event"} <= first.keys()
+
+
+def check_log_output(path: Path, inputs: tuple[Path, ...] = ()) -> None:
+    """The output rule for a print log (:func:`heoslice.files.check_output`): a log is appended to, so an
+    existing file must be a print log; never a link, a device, the stack or a file inside it."""
+    check_output(path, "print log", force=True, made_here=is_print_log, inputs=inputs)
 
 
 class PrintLog:
@@ -23,9 +44,11 @@ class PrintLog:
         self._handle = None
         if path is not None:
             try:
-                self._handle = open(path, "a", encoding="utf-8")
+                descriptor = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC,
+                                     0o666)
             except OSError as err:
                 raise OutputError(f"{path}: cannot write the print log ({err.strerror})") from err
+            self._handle = os.fdopen(descriptor, "a", encoding="utf-8")
 
     def write(self, event: str, **fields) -> None:
         """Append one event with the UTC time."""
@@ -33,10 +56,21 @@ class PrintLog:
             return
         record = {"time": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds"),
                   "event": event, **fields}
-        self._handle.write(json.dumps(record, sort_keys=False) + "\n")
-        self._handle.flush()
+        try:
+            self._handle.write(json.dumps(record, sort_keys=False) + "\n")
+            self._handle.flush()
+        except OSError as err:
+            self._drop()
+            raise write_problem(self.path, err) from None
+
+    def _drop(self) -> None:
+        """Close the handle, ignoring what a full disk says about the bytes still buffered."""
+        handle, self._handle = self._handle, None
+        try:
+            handle.close()
+        except OSError:
+            pass
 
     def close(self) -> None:
         if self._handle is not None:
-            self._handle.close()
-            self._handle = None
+            self._drop()

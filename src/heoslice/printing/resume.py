@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from heoslice.errors import ControllerResetError, InputError, UnfinishedJobError
+from heoslice.errors import ControllerResetError, FinishedJobError, InputError, UnfinishedJobError
 from heoslice.printing import protocol as P
 from heoslice.printing.job import JobSpec
 from heoslice.printing.stream import check_from_layer
@@ -36,6 +36,14 @@ def unfinished(ack: P.HelloAck) -> bool:
     return False
 
 
+def finished(ack: P.HelloAck, job: JobSpec) -> bool:
+    """True when the controller reports ``job`` itself as printed to its last layer (done, or idle or aborted
+    after its last layer): a run killed after sending the whole job, whose controller finished it alone."""
+    return (ack.job_id == job.job_id and ack.layer_count == job.layer_count
+            and ack.last_completed >= job.layer_count - 1
+            and ack.state in (P.STATE_DONE, P.STATE_IDLE, P.STATE_ABORTED))
+
+
 def decide_start(ack: P.HelloAck, job: JobSpec, port: str, label: str, *, from_layer: int | None = None,
                  resume: bool = False, restart: bool = False) -> Start:
     """The :class:`Start` of a new run, or the one-line refusal (UnfinishedJobError exit 17, reset exit 14).
@@ -49,6 +57,14 @@ def decide_start(ack: P.HelloAck, job: JobSpec, port: str, label: str, *, from_l
     if from_layer is not None:
         check_from_layer(job, from_layer)
     state = P.STATE_NAMES.get(ack.state, str(ack.state))
+    if finished(ack, job):
+        if restart:
+            return Start(0, event="restart")
+        asked = f" (--from-layer {from_layer} included)" if from_layer is not None else ""
+        raise FinishedJobError(
+            f"{port}: the controller reports job {ack.job_id:08x} ({label}) finished: the head executed its layers "
+            f"up to {ack.last_completed}, all {ack.layer_count}; nothing was sent{asked}; rerun with --restart "
+            "to print it again on purpose")
     if not unfinished(ack):
         if resume:
             raise InputError(f"--resume: {port} holds no unfinished job to resume (controller {state}, "

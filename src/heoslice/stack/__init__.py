@@ -47,12 +47,12 @@ from heoslice.stack.read import (
 from heoslice.stack.printable import PRINT_RULES, PrintRule, check_printable, print_refusal, refusal_line
 from heoslice.stack.tiff import COMPRESSIONS, DEFAULT_COMPRESSION, encode_bilevel_tiff, encode_tiff
 from heoslice.stack.verify import StackReport, load_verified, verify_stack
-from heoslice.stack.write import prepare_directory, write_file, write_manifest
+from heoslice.stack.write import check_stack_output, is_stack_folder, prepare_directory, write_file, write_manifest
 
 __all__ = [
     "COMPRESSIONS", "DEFAULT_COMPRESSION", "FORMAT_NAME", "FORMAT_VERSION", "IMAGE_MODES", "LAYER_PATTERN",
     "MANIFEST", "MAX_IMAGE_PIXELS", "MAX_LAYERS", "MAX_MANIFEST_BYTES", "MAX_MANIFEST_CONTAINERS", "ChannelRecord",
-    "ImageRecord", "LayerRecord", "StackReport", "build_manifest", "check_image_size", "check_input_path",
+    "ImageRecord", "LayerRecord", "StackReport", "build_manifest", "check_stack_output", "is_stack_folder", "check_image_size", "check_input_path",
     "decode_mask", "droplet_summary", "encode_bilevel_tiff", "encode_tiff", "expected_layer_count", "grading_summary",
     "layer_file_name", "layer_height_problems", "layer_strips", "load_verified", "manifest_problem", "mask_channels",
     "max_layer_count", "parse_manifest",

@@ -32,6 +32,8 @@ MAX_MANIFEST_CONTAINERS = 1 << 18
 MAX_IMAGE_PIXELS = 1 << 30
 #: Manifest image modes -> (bits per sample, samples per pixel) of the layer TIFFs.
 IMAGE_MODES = {"1": (1, 1), "L": (8, 1), "RGB": (8, 3), "RGBA": (8, 4)}
+#: The image mode of every droplet mask (docs/stack-format.md): 1-bit, whatever the layers' mode.
+MASK_MODE = "1"
 #: Most layers one stack may have (a 500 mm part at 10 micrometre layers); fewer with droplet masks, whose
 #: entries make each layer's manifest entry longer (see max_layer_count).
 MAX_LAYERS = 50_000

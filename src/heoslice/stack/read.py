@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import InputError, VerifyError
-from heoslice.stack.manifest import MANIFEST, MAX_MANIFEST_BYTES, parse_manifest
+from heoslice.stack.manifest import MANIFEST, MASK_MODE, MAX_MANIFEST_BYTES, parse_manifest
 from heoslice.stack.tiff import checked_page, decode_solid, file_limit, open_tiff
 
 #: Largest decoded strip a streaming reader accepts, bytes (heoslice writes strips of 64 or 256 rows:
@@ -162,7 +162,7 @@ def read_layer_channels(directory: Path, manifest: dict, index: int) -> np.ndarr
         path = resolve_inside(Path(directory), channel["file"])
         if path is None:
             raise VerifyError(f"layer {index}: file {channel['file']!r} lies outside the stack")
-        masks[number] = decode_mask(path, manifest, sha256=channel["sha256"])
+        masks[number] = decode_mask(path, manifest, sha256=channel["sha256"], mode=MASK_MODE)
     return masks
 
 
@@ -209,7 +209,7 @@ def layer_strips(directory: Path, manifest: dict, index: int, channels: bool = F
                             entry["sha256"], manifest, mode)]
     for channel in entry.get("channels", []) if channels else []:
         readers.append(_file_strips(resolve_inside(directory, channel["file"]), f"layer {index}: {channel['file']}",
-                                    channel["sha256"], manifest, None))
+                                    channel["sha256"], manifest, MASK_MODE))
     for strips in zip(*readers):
         row, pixels = strips[0]
         if any(other_row != row or other.shape[:2] != pixels.shape[:2] for other_row, other in strips[1:]):

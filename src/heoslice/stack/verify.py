@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import VerifyError
-from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST, layer_height_problems, mask_channels
+from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST, MASK_MODE, layer_height_problems, mask_channels
 from heoslice.stack.read import (decode_checked, decode_mask, read_checked, read_layer_mask, read_manifest,
                                  resolve_inside)
 from heoslice.stack.report import fault_lines, mask_faults
@@ -51,7 +51,8 @@ def _channel_problems(directory: Path, manifest: dict, index: int) -> list[str]:
     entry = manifest["layers"][index]
     solid = np.packbits(read_layer_mask(directory, manifest, index), axis=-1)
     masks = np.stack([np.packbits(decode_mask(resolve_inside(directory, channel["file"]), manifest,
-                                              sha256=channel["sha256"]), axis=-1) for channel in entry["channels"]])
+                                              sha256=channel["sha256"], mode=MASK_MODE), axis=-1)
+                      for channel in entry["channels"]])
     return fault_lines(index, mask_faults(solid, masks), manifest)
 
 
@@ -71,7 +72,7 @@ def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:
     for entry in manifest["layers"]:
         index = entry["index"]
         files = [(entry["file"], entry["sha256"], entry["solid_pixels"], mode)]
-        files += [(channel["file"], channel["sha256"], channel.get("solid_pixels"), None)
+        files += [(channel["file"], channel["sha256"], channel.get("solid_pixels"), MASK_MODE)
                   for channel in entry.get("channels", [])]
         for name, digest, solid, file_mode in files:
             path = resolve_inside(directory, name)
@@ -83,7 +84,7 @@ def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:
                 continue
             listed[path] = f"layer {index}"
             if not path.is_file():
-                problems.append(f"layer {index}: {name} is missing")
+                problems.append(f"layer {index}: {name} is {'not a regular file' if path.exists() else 'missing'}")
                 continue
             problem = _layer_file_problem(path, name, digest, solid, manifest, file_mode, check_pixels)
             if problem:
@@ -96,16 +97,20 @@ def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:
         problems.append(str(err))
     z_min, z_max = manifest["z_range_mm"]
     problems += layer_height_problems(manifest, z_min, z_max, "the manifest's")
-    names = {path.name for path in listed if path.parent == directory.resolve()}
+    root = directory.resolve()
+    names = {path.name for path in listed if path.parent == root}
     for entry in sorted(directory.iterdir()):
         if LAYER_PATTERN.match(entry.name) and entry.name not in names:
             problems.append(f"{entry.name}: layer file not listed in the manifest")
     return StackReport(directory, tuple(problems), manifest)
 
 
-def load_verified(directory: Path) -> dict:
-    """The manifest of a stack that passes :func:`verify_stack`; raise VerifyError with its problems otherwise."""
-    report = verify_stack(directory)
+def load_verified(directory: Path, *, check_pixels: bool = True) -> dict:
+    """The manifest of a stack that passes :func:`verify_stack`; raise VerifyError with its problems otherwise.
+
+    ``check_pixels`` False (preview, which decodes what it draws) skips decoding: every file is still checked
+    present, regular, inside, of the manifest's layout and mode, and of its sha256."""
+    report = verify_stack(directory, check_pixels=check_pixels)
     if not report.ok:
         more = f" (and {len(report.problems) - 1} more problem(s))" if len(report.problems) > 1 else ""
         first = report.problems[0]

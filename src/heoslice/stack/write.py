@@ -8,25 +8,42 @@ complete stack only when its manifest says so.
 from __future__ import annotations
 
 import contextlib
-import errno
 import hashlib
 import json
 import os
 from pathlib import Path
 
 from heoslice.errors import OutputError
+from heoslice.files import check_output, write_problem
 from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST, MAX_MANIFEST_BYTES
 
 
-def prepare_directory(directory: Path, force: bool) -> None:
-    """Create the output directory, refusing a non-empty one unless ``force``.
+def is_stack_folder(directory: Path) -> bool:
+    """Whether ``directory`` holds nothing but what a slice writes (a manifest, its temporary, layer files):
+    a stack, or one a killed slice left incomplete. Only such a folder is replaced by ``slice --force``."""
+    try:
+        names = [entry.name for entry in os.scandir(directory)]
+    except OSError:
+        return False
+    return all(name in (MANIFEST, MANIFEST + ".tmp") or LAYER_PATTERN.match(name) for name in names)
+
+
+def check_stack_output(directory: Path, force: bool, inputs: tuple[Path, ...] = ()) -> None:
+    """The output rule (:func:`heoslice.files.check_output`) for a stack folder: an empty or missing folder is
+    free; an existing stack only with ``force``; never a link, a file, the input's folder or a folder holding
+    anything a slice did not write."""
+    check_output(directory, "stack folder", force=force, made_here=is_stack_folder, inputs=inputs, folder=True,
+                 empty_folder_is_free=True)
+
+
+def prepare_directory(directory: Path, force: bool, inputs: tuple[Path, ...] = ()) -> None:
+    """Create the output directory under the stack's output rule (:func:`check_stack_output`).
 
     With ``force``, the old manifest is removed first (so the directory never looks
     complete while being rewritten), then the old layer files.
     """
     directory = Path(directory)
-    if directory.exists() and not directory.is_dir():
-        raise OutputError(f"{directory}: exists and is not a directory")
+    check_stack_output(directory, force, inputs)
     try:
         directory.mkdir(parents=True, exist_ok=True)
         existing = list(directory.iterdir())
@@ -48,21 +65,13 @@ def prepare_directory(directory: Path, force: bool) -> None:
         raise OutputError(f"{directory}: directory is not writable")
 
 
-def _write_error(path: Path, err: OSError) -> OutputError:
-    """One-line OutputError for a failed write: disk full, quota, file size limit, read-only, permission."""
-    reasons = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exceeded",
-               errno.EFBIG: "file size limit exceeded", errno.EROFS: "read-only file system",
-               errno.EACCES: "permission denied", errno.EPERM: "permission denied"}
-    return OutputError(f"{path}: cannot write ({reasons.get(err.errno, err.strerror or str(err))})")
-
-
 def write_file(path: Path, data: bytes) -> str:
     """Write bytes to ``path``; return their SHA-256. Disk errors become one-line OutputErrors."""
     try:
         with _create(path) as handle:
             handle.write(data)
     except OSError as err:
-        raise _write_error(path, err) from err
+        raise write_problem(path, err) from err
     return hashlib.sha256(data).hexdigest()
 
 
@@ -107,6 +116,6 @@ def write_manifest(directory: Path, manifest: dict) -> Path:
     except OSError as err:
         with contextlib.suppress(OSError):
             temporary.unlink()
-        raise _write_error(target, err) from err
+        raise write_problem(target, err) from err
     _fsync_directory(directory)
     return target

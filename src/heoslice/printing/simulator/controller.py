@@ -518,6 +518,8 @@ class SimController:
         elif isinstance(message, P.Execute):
             self._queue_layer(message.layer)
         elif isinstance(message, P.JobEnd):
+            if not self.job_end:
+                self._say(f"job {self.job_id:08x}: end received (layers up to {self.last_queued} queued)")
             self.job_end = True
             self._check_done()
 
