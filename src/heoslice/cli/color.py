@@ -171,13 +171,14 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
     shells = {**file_shells, **parse_shell_colors(shell_colors, table)}
 
     mesh = apply_scale(load_mesh(model), scale)
+    surface = surface_path
     if surface_path is not None and scale != 1.0:
         with option("--surface"):
-            surface_path = apply_scale(load_mesh(surface_path), scale)
+            surface = apply_scale(load_mesh(surface_path), scale)
     if not as_json:
         echo_warnings(model, mesh.warnings)
     spec = ColorSpec(function=function, reference=ref_kind, at=point, normal=plane_normal,
-                     direction=axis_direction, surface=surface_path,
+                     direction=axis_direction, surface=surface,
                      r_range=None if r_range is None else (float(r_range[0]), float(r_range[1])),
                      m1=roles.m1, m2=roles.m2, max_edge=max_edge, shell_materials=tuple(sorted(shells.items())))
     range_flag = "--range" if spec.r_range is not None else f"--ref {ref_kind}"
