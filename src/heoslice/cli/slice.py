@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -27,7 +28,7 @@ from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3
 SPEC_FLAGS = {
     "layer_height_mm": "--layer", "dpi": "--dpi", "margin_mm": "--margin", "canvas_mm": "--canvas",
     "compression": "--compress", "jobs": "--jobs", "channels": "--channels", "materials": "--materials",
-    "scale": "--scale",
+    "scale": "--scale", "interior": "--interior",
 }
 
 
@@ -196,6 +197,13 @@ Several parts in one stack (a multi-part job; one 1-bit droplet mask per materia
                    "print job), or an RGBA preview stack in the materials' display colours instead "
                    "[default: masks whenever the stack holds more than one material; a one-material "
                    "model stays a solid mask either way].")
+@click.option("--interior", type=click.Choice(["field", "contour"]), default=None,
+              help="What the solid of a model coloured by `heoslice color` gets: 'field', the design's f(r) at "
+                   "every voxel from its own 3-D distance to the reference (the distribution of section II.B "
+                   "evaluated in 3D), or 'contour', the material of the nearest point of the voxel's layer "
+                   "contour carried inward (the paper's layer-wise Z-axis distribution, section III.A) "
+                   "[default: field for a model carrying a design; contour for other coloured models; "
+                   "--grade is the paper's eq. 8-10 sub-regions].")
 @click.option("--solid", "solid_only", is_flag=True,
               help="One material: ignore the mesh's material fractions and colours (a 1-bit solid mask per "
                    "layer; not with --grade or --channels).")
@@ -212,8 +220,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
               grade_kind: str | None, alpha: float | None, beta: float | None, lam: float | None,
               periods: float | None, expression: str | None, target: str | None, start: str | None,
               nozzle: float, depth: float | None, offset_count: int | None, direction: str,
-              materials_file: Path | None, channels: bool | None, solid_only: bool, parts_flag: bool,
-              part_options: tuple[str, ...]) -> None:
+              materials_file: Path | None, channels: bool | None, interior: str | None, solid_only: bool,
+              parts_flag: bool, part_options: tuple[str, ...]) -> None:
     """Slice each MODEL (PLY, STL, OBJ, OFF, 3MF) into one TIFF per layer plus manifest.json.
 
     Layers are cut at their centres, z = z_min + (i + 1/2) x layer; a pixel is solid
@@ -243,14 +251,18 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
                                          canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs),
                     scale, force, as_json, materials, part_options, bool(channels))
         return
-    if solid_only and (grade_kind is not None or channels):
-        raise InputError("--solid: slices one material; it cannot be combined with --grade or --channels")
+    if solid_only and (grade_kind is not None or channels or interior):
+        raise InputError("--solid: slices one material; it cannot be combined with --grade, --channels or "
+                         "--interior")
+    if interior is not None and grade_kind is not None:
+        raise InputError(f"--interior: --grade grades the interior by eq. 8-10 sub-regions; it cannot be "
+                         f"combined with --interior {interior}")
     grade = grade_spec(grade_kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth,
                        offset_count, direction, materials, channels)
     try:
         spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
                          canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
-                         grade=grade, channels=channels, materials=materials_table(materials))
+                         grade=grade, channels=channels, materials=materials_table(materials), interior=interior)
     except InputError as err:
         raise flag_error(err) from None
     inputs = expand_inputs(models)
@@ -260,7 +272,7 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
         raise click.UsageError("give -o/--output (one stack) or --into DIR, not both")
     targets = stack_directories(inputs.paths, output, into)
     run_each(inputs, lambda model: slice_model(model, targets[model], spec, scale, force, as_json, inputs.several,
-                                               solid_only),
+                                               solid_only, materials=materials),
              key="model", as_json=as_json, debug=(ctx.find_root().obj or {}).get("debug", False))
 
 
@@ -299,14 +311,32 @@ def slice_parts(models: tuple[Path, ...], output: Path | None, spec_fields: dict
         echo_json(summary)
 
 
+def model_design(mesh: Mesh, scale: float, materials: MaterialsFile | None):
+    """The design ``heoslice color`` recorded in the model (None without one), at the slice's ``--scale``, its
+    materials settled against the materials file (:func:`heoslice.material.design.settle_materials`: without
+    a file the design's own materials are the stack's)."""
+    from heoslice.material.design import design_of, settle_materials
+
+    design = design_of(mesh)
+    if design is None or mesh.material is None:
+        return None
+    table = None if materials is None or materials.path is None else materials.materials
+    return settle_materials(design.scaled(scale), table, str(None if materials is None else materials.path),
+                            str(mesh.source))
+
+
 def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, force: bool, as_json: bool,
-                several: bool, solid_only: bool = False, mesh: Mesh | None = None) -> dict:
+                several: bool, solid_only: bool = False, mesh: Mesh | None = None,
+                materials: MaterialsFile | None = None) -> dict:
     """Slice one model (``mesh`` when it is loaded already) into ``directory`` and report it (one text line,
     two for a multi-part job, or nothing with --json); its summary. ``solid_only`` slices it as one
-    material, whatever it carries."""
+    material, whatever it carries; a design the model carries is followed (:func:`model_design`, its
+    materials checked against ``materials``, the materials file)."""
     mesh = load_mesh(model) if mesh is None else mesh
     if solid_only:
         mesh = without_materials(mesh)
+    elif spec.parts is None:
+        spec = replace(spec, design=model_design(mesh, scale, materials))
     if scale != 1.0:
         try:
             check_scale(scale, mesh.bounds)
