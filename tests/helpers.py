@@ -11,6 +11,7 @@ import zipfile
 import manifold3d
 import numpy as np
 import shapely
+import trimesh
 
 from heoslice.grading.edges import ring_edges
 from heoslice.grading.halftone import thresholds
@@ -334,3 +335,20 @@ def executed_on_simulator(job, get_layer) -> list:
         return [e for e in controller.executed if e.job_id == job.job_id]
     finally:
         controller.stop()
+
+
+def lesion_distance(lesion: trimesh.Trimesh, points: np.ndarray, cap: float = np.inf) -> np.ndarray:
+    """Brute-force distance (n,) from points (n, 3) to the lesion's surface: every point against every triangle
+    (trimesh's closest point on each triangle), the least; a point whose distance from the lesion's vertex centre
+    less the lesion's radius about it is ``cap`` or more gets that lower bound instead (at least ``cap``)."""
+    triangles = lesion.triangles
+    centre = lesion.vertices.mean(axis=0)
+    bound = np.linalg.norm(points - centre, axis=1) - np.linalg.norm(lesion.vertices - centre, axis=1).max()
+    out = bound.copy()
+    near = np.flatnonzero(bound < cap)
+    for start in range(0, len(near), 200):
+        chunk = points[near[start:start + 200]]
+        pairs = np.repeat(chunk, len(triangles), axis=0)
+        feet = trimesh.triangles.closest_point(np.tile(triangles, (len(chunk), 1, 1)), pairs)
+        out[near[start:start + 200]] = np.linalg.norm(pairs - feet, axis=1).reshape(len(chunk), -1).min(axis=1)
+    return out

@@ -13,6 +13,7 @@ import trimesh
 
 from heoslice import procedural
 from heoslice.stack.read import read_layer_channels, read_layer_mask, read_layer_pixels
+from helpers import lesion_distance
 
 MATERIALS = """\
 [materials.gel]
@@ -150,23 +151,6 @@ def test_a_design_that_disagrees_with_the_materials_file_is_one_line(run_cli, va
     line = err.strip()
     assert "\n" not in line and "'cells'" in line and str(other) in line and message in line, line
     assert not (tmp_path / "stack" / "manifest.json").exists()
-
-
-def lesion_distance(lesion: trimesh.Trimesh, points: np.ndarray, cap: float = np.inf) -> np.ndarray:
-    """Brute-force distance (n,) from points (n, 3) to the lesion's surface: every point against every triangle
-    (trimesh's closest point on each triangle), the least; a point whose distance from the lesion's vertex centre
-    less the lesion's radius about it is ``cap`` or more gets that lower bound instead (at least ``cap``)."""
-    triangles = lesion.triangles
-    centre = lesion.vertices.mean(axis=0)
-    bound = np.linalg.norm(points - centre, axis=1) - np.linalg.norm(lesion.vertices - centre, axis=1).max()
-    out = bound.copy()
-    near = np.flatnonzero(bound < cap)
-    for start in range(0, len(near), 200):
-        chunk = points[near[start:start + 200]]
-        pairs = np.repeat(chunk, len(triangles), axis=0)
-        feet = trimesh.triangles.closest_point(np.tile(triangles, (len(chunk), 1, 1)), pairs)
-        out[near[start:start + 200]] = np.linalg.norm(pairs - feet, axis=1).reshape(len(chunk), -1).min(axis=1)
-    return out
 
 
 @pytest.fixture(scope="module")
