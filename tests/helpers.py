@@ -338,17 +338,24 @@ def executed_on_simulator(job, get_layer) -> list:
 
 
 def lesion_distance(lesion: trimesh.Trimesh, points: np.ndarray, cap: float = np.inf) -> np.ndarray:
-    """Brute-force distance (n,) from points (n, 3) to the lesion's surface: every point against every triangle
-    (trimesh's closest point on each triangle), the least; a point whose distance from the lesion's vertex centre
-    less the lesion's radius about it is ``cap`` or more gets that lower bound instead (at least ``cap``)."""
+    """Brute-force distance (n,) from points (n, 3) to the lesion's surface: the least of trimesh's closest point on
+    every triangle that can be nearest (one whose bounding sphere is no farther than the point's nearest vertex;
+    the others cannot be); a point whose distance from the lesion's vertex centre less the lesion's radius about
+    it is ``cap`` or more gets that lower bound instead (at least ``cap``)."""
     triangles = lesion.triangles
     centre = lesion.vertices.mean(axis=0)
     bound = np.linalg.norm(points - centre, axis=1) - np.linalg.norm(lesion.vertices - centre, axis=1).max()
     out = bound.copy()
     near = np.flatnonzero(bound < cap)
-    for start in range(0, len(near), 200):
-        chunk = points[near[start:start + 200]]
-        pairs = np.repeat(chunk, len(triangles), axis=0)
-        feet = trimesh.triangles.closest_point(np.tile(triangles, (len(chunk), 1, 1)), pairs)
-        out[near[start:start + 200]] = np.linalg.norm(pairs - feet, axis=1).reshape(len(chunk), -1).min(axis=1)
+    middle = triangles.mean(axis=1)
+    radius = np.linalg.norm(triangles - middle[:, None], axis=2).max(axis=1)
+    for start in range(0, len(near), 2000):
+        chunk = points[near[start:start + 2000]]
+        upper = np.linalg.norm(chunk[:, None] - lesion.vertices[None], axis=2).min(axis=1)
+        lower = np.linalg.norm(chunk[:, None] - middle[None], axis=2) - radius[None]
+        point, triangle = np.nonzero(lower <= upper[:, None] + 1e-9)
+        feet = trimesh.triangles.closest_point(triangles[triangle], chunk[point])
+        distance = np.full(len(chunk), np.inf)
+        np.minimum.at(distance, point, np.linalg.norm(chunk[point] - feet, axis=1))
+        out[near[start:start + 2000]] = distance
     return out

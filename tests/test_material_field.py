@@ -144,3 +144,36 @@ def test_sphere_delivers_f_per_band_of_r(sphere, run_cli, tmp_path):
     assert error.max() <= 0.02, error
     # the shells are in the interior: the inner bands' designed f is not the surface's, and is delivered
     assert np.ptp(bands[full, 1] / bands[full, 0]) > 0.5
+
+
+@pytest.mark.parametrize("kind, at, direction", [("plane", (0.0, 1.0, -2.0), (0.3, -0.2, 0.9)),
+                                                 ("point", (1.0, -2.0, 0.5), None),
+                                                 ("axis", (0.5, 0.5, 0.0), (1.0, 2.0, 0.5))])
+def test_layer_fraction_over_the_grid_is_f_of_each_pixels_r(kind, at, direction):
+    """The closed-form grid evaluation of a layer gives, at every solid pixel, f of the analytic r of that
+    pixel centre (point, plane and axis distances written out here)."""
+    from heoslice.material.design import ReferenceRecord
+    from heoslice.material.materials import Material
+
+    unit = None if direction is None else tuple(np.array(direction) / np.linalg.norm(direction))
+    design = Design(Material("a", (0, 0, 0), 1), Material("b", (255, 255, 255), 2),
+                    ReferenceRecord(kind, at, unit), make_function("sine", periods=2), (0.5, 7.0))
+    field = material_field(design)
+    grid = Grid(120, 100, -6.0, 5.0, 0.1, 0.1)
+    solid = np.zeros((100, 120), dtype=bool)
+    solid[13:77, 21:99] = np.random.default_rng(1).random((64, 78)) < 0.8
+    packed = np.packbits(solid, axis=1)
+    z = 1.3
+    (r0, r1, c0, c1), f = field.layer_fraction(packed, grid, z)
+    f = np.broadcast_to(f, (r1 - r0, c1 - c0))
+    rows, cols = np.nonzero(solid)
+    q = np.column_stack([grid.x_left + (cols + 0.5) * 0.1, grid.y_top - (rows + 0.5) * 0.1, np.full(len(rows), z)])
+    o = q - np.array(at)
+    if kind == "plane":
+        d = np.abs(o @ np.array(unit))
+    elif kind == "point":
+        d = np.linalg.norm(o, axis=1)
+    else:
+        d = np.linalg.norm(np.cross(o, np.array(unit)), axis=1)
+    r = np.clip((d - 0.5) / 6.5, 0, 1)
+    assert np.abs(f[rows - r0, cols - c0] - np.clip(0.5 * np.sin(4 * np.pi * r) + 0.5, 0, 1)).max() < 1e-9

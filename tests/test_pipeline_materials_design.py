@@ -174,7 +174,7 @@ def test_organ_graded_from_its_lesion_delivers_the_design(run_cli, organ_files, 
     assert run_cli("color", organ, "--ref", "surface", "--surface", lesion_path, "--from", start, "--to", target,
                    "--range", "0", "4", "--materials", mats, "-o", coloured)[0] == 0
     stack = tmp_path / "stack"
-    code, _, err = run_cli("slice", coloured, "--layer", "0.5", "--dpi", "300", "-o", stack, "--materials", mats)
+    code, _, err = run_cli("slice", coloured, "--layer", "0.5", "--dpi", "600", "-o", stack, "--materials", mats)
     assert code == 0, err
     manifest = json.loads((stack / "manifest.json").read_text())
     centre = lesion.vertices.mean(axis=0)

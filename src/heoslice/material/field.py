@@ -21,7 +21,7 @@ import numpy as np
 from heoslice.errors import InputError
 from heoslice.material.design import Design, surface_path
 from heoslice.material.functions import evaluate
-from heoslice.material.references import Reference, normalise, reference_distance
+from heoslice.material.references import REFERENCES, Reference, grid_distance, normalise, reference_distance
 
 #: The interiors a coloured model's solid can get (``slice --interior``): the design's f(r) at every voxel in 3D,
 #: or the contour's material carried inward (the paper's layer-wise Z-axis distribution); ``graded`` is
@@ -45,8 +45,28 @@ class MaterialField:
         return normalise(reference_distance(self.reference, points), self.design.r_range)
 
     def fraction(self, r: np.ndarray) -> np.ndarray:
-        """The share of the target material f(r) clipped to [0, 1] (eq. 1), (n,) for r (n,)."""
-        return np.clip(np.nan_to_num(evaluate(self.design.function, r)), 0.0, 1.0)
+        """The share of the target material f(r) clipped to [0, 1] (eq. 1), of r's shape (an expression undefined
+        at some r is refused by :func:`heoslice.material.evaluate`)."""
+        r = np.asarray(r, dtype=np.float64)
+        return np.clip(evaluate(self.design.function, r.ravel()).reshape(r.shape), 0.0, 1.0)
+
+    def layer_fraction(self, packed: np.ndarray, grid, z: float) -> tuple[tuple[int, int, int, int], np.ndarray]:
+        """f(r) clipped to [0, 1] over the box of a layer's solid pixels (``packed``: (h, ceil(w / 8)) uint8, MSB
+        first) cut at height z (mm) on ``grid``: (the box (first row, end row, first column, end column), f as an
+        array that broadcasts to the box: (1, 1), (rows, 1) or (1, cols) where it does not change along a grid
+        axis), exact at every solid pixel centre (to :data:`R_TOLERANCE` / 2 in r for a surface), anything
+        elsewhere in the box."""
+        r0, r1, c0, c1 = solid_box(packed, grid.width)
+        x = grid.x_left + (np.arange(c0, c1) + 0.5) * grid.px
+        y = grid.y_top - (np.arange(r0, r1) + 0.5) * grid.py
+        if REFERENCES[self.reference.kind].closed_form is not None:
+            r = normalise(grid_distance(self.reference, x, y, z), self.design.r_range)
+        else:
+            solid = np.unpackbits(packed[r0:r1], axis=1, count=grid.width)[:, c0:c1].view(bool)
+            rows, cols = np.nonzero(solid)
+            r = np.zeros(solid.shape)
+            r[rows, cols] = self.layer_r(rows + r0, cols + c0, grid, z)
+        return (r0, r1, c0, c1), self.fraction(r)
 
     def layer_r(self, rows: np.ndarray, cols: np.ndarray, grid, z: float) -> np.ndarray:
         """r (n,) at the centres of pixels (rows (n,), cols (n,) int) of a layer cut at height z (mm) on
@@ -72,6 +92,16 @@ class MaterialField:
         if measure.any():
             r[measure] = self.r_at(np.column_stack([x[measure], y[measure], np.full(int(measure.sum()), float(z))]))
         return r
+
+
+def solid_box(packed: np.ndarray, width: int) -> tuple[int, int, int, int]:
+    """(first row, last row + 1, first column, last column + 1) of a packed layer's solid pixels, the columns to
+    whole bytes (clipped to ``width``); an empty box (0, 0, 0, 0) for an empty layer."""
+    rows = np.flatnonzero(packed.any(axis=1))
+    if not len(rows):
+        return 0, 0, 0, 0
+    columns = np.flatnonzero(packed[rows[0]:rows[-1] + 1].any(axis=0))
+    return int(rows[0]), int(rows[-1]) + 1, 8 * int(columns[0]), min(8 * (int(columns[-1]) + 1), int(width))
 
 
 def material_field(design: Design, model: Path | None = None) -> MaterialField:

@@ -161,17 +161,18 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
 
 def _render_field_and_write(job: LayerJob, packed: np.ndarray, solid: int, cache: PipelineCache | None,
                             started: float) -> tuple:
-    """The ``field`` interior's branch of :func:`render_and_write`: each solid pixel's mix from the design's f(r)
-    at its own 3-D r, as droplet masks beside the 1-bit solid layer, or as an RGBA preview layer."""
+    """The ``field`` interior's branch of :func:`render_and_write`: each solid pixel's share of the design's target,
+    f(r) at the pixel centre's own 3-D r (:class:`heoslice.material.field.MaterialField`), as droplet masks beside
+    the 1-bit solid layer (:func:`heoslice.grading.pixel_mix.fraction_planes`), or as an RGBA preview layer."""
     from heoslice.grading import droplet_counts
-    from heoslice.grading.pixel_mix import field_mix, pixel_mix_colors, pixel_mix_planes, solid_pixels
+    from heoslice.grading.pixel_mix import fraction_colors, fraction_planes
 
     graded = job.graded
-    grade = graded.spec
-    rows, cols = solid_pixels(packed, job.grid.width)
-    mix = field_mix(graded.field, grade, rows, cols, job.grid, graded.z)
+    grade, design = graded.spec, graded.field.design
+    box, f = graded.field.layer_fraction(packed, job.grid, graded.z)
     if graded.channel_paths is not None:
-        planes = pixel_mix_planes(packed, rows, cols, mix, job.grid, job.index, grade.channel_index(grade.base))
+        planes = fraction_planes(packed, box, f, job.grid, job.index, grade.channel_index(design.start),
+                                 grade.channel_index(design.target), len(grade.channel_materials()))
         rendered = time.perf_counter()
         width, part = job.grid.width, part_rows(job.points, job.grid)
         level = deflate_level(True)
@@ -184,8 +185,12 @@ def _render_field_and_write(job: LayerJob, packed: np.ndarray, solid: int, cache
         channels = tuple((path.name, write_file(path, blob), count) for path, blob, count in pieces)
         return job.index, digest, solid, rendered - started, encoded - rendered, channels
     image = np.zeros((job.grid.height, job.grid.width, 4), dtype=np.uint8)
-    image[rows, cols, :3] = np.clip(np.rint(pixel_mix_colors(mix, grade)), 0, 255).astype(np.uint8)
-    image[rows, cols, 3] = 255
+    r0, r1, c0, c1 = box
+    rows, cols = np.nonzero(np.unpackbits(packed[r0:r1], axis=1, count=job.grid.width)[:, c0:c1])
+    colors = fraction_colors(np.broadcast_to(f, (r1 - r0, c1 - c0))[rows, cols], design.start.color,
+                             design.target.color)
+    image[rows + r0, cols + c0, :3] = np.clip(np.rint(colors), 0, 255)
+    image[rows + r0, cols + c0, 3] = 255
     rendered = time.perf_counter()
     data = encode_tiff(image, job.dpi, job.compression, job.layer_height_mm)
     encoded = time.perf_counter()
