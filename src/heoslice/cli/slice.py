@@ -100,7 +100,7 @@ def refuse_options_without_grade(alpha, beta, lam, periods, expression, depth, o
 
 
 def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth, offset_count,
-               direction, materials: MaterialsFile, channels):
+               direction, materials: MaterialsFile, channels, depth_from: str = "layer"):
     """The GradeSpec the grading options ask for, or None when none is given: the mesh's own materials then
     decide (:func:`heoslice.pipeline.material_job`).
 
@@ -124,7 +124,8 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
     with flags({"start": "--from", "target": "--to"}):
         roles = material_roles(table, start=start, target=target)
     return GradeSpec(
-        regions=RegionSpec(nozzle_mm=nozzle, depth_mm=depth, direction=direction, count=offset_count),
+        regions=RegionSpec(nozzle_mm=nozzle, depth_mm=depth, direction=direction, count=offset_count,
+                           depth_from=depth_from),
         function=function, target=roles.m2 if function is not None else roles.target, start=roles.start,
         base=roles.first, second=roles.second, shells=tuple(sorted(shells.items())),
     )
@@ -186,6 +187,11 @@ Several parts in one stack (a multi-part job; one 1-bit droplet mask per materia
 @click.option("--depth", type=float, default=None,
               help="Grade to this depth (L_S, mm) from the contour instead of to the inner rings "
                    "[default: to the holes, or to the deepest point].")
+@click.option("--depth-from", "depth_from", type=click.Choice(["layer", "surface"]), default="layer",
+              show_default=True,
+              help="Measure --depth from each layer's own contour (the paper's offset sub-regions, eq. 8-10: a "
+                   "top or bottom skin comes out thinner or thicker than the sides) or from the model's 3-D "
+                   "surface (the exact point-to-mesh distance: every skin graded alike; needs --depth).")
 @click.option("--offsets", "offset_count", type=int, default=None,
               help="Number of sub-regions N_R instead of eq. 8 (the paper's Fig. 3b used 200).")
 @click.option("--direction", type=click.Choice(["in", "out"]), default="in", show_default=True,
@@ -219,7 +225,7 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
               margin: float, compression: str, scale: float, jobs: int, force: bool, as_json: bool,
               grade_kind: str | None, alpha: float | None, beta: float | None, lam: float | None,
               periods: float | None, expression: str | None, target: str | None, start: str | None,
-              nozzle: float, depth: float | None, offset_count: int | None, direction: str,
+              nozzle: float, depth: float | None, depth_from: str, offset_count: int | None, direction: str,
               materials_file: Path | None, channels: bool | None, interior: str | None, solid_only: bool,
               parts_flag: bool, part_options: tuple[str, ...]) -> None:
     """Slice each MODEL (PLY, STL, OBJ, OFF, 3MF) into one TIFF per layer plus manifest.json.
@@ -257,8 +263,10 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     if interior is not None and grade_kind is not None:
         raise InputError(f"--interior: --grade grades the interior by eq. 8-10 sub-regions; it cannot be "
                          f"combined with --interior {interior}")
+    if depth_from != "layer" and grade_kind is None:
+        raise InputError("--depth-from: only used with --grade FUNC (ignored without it)")
     grade = grade_spec(grade_kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth,
-                       offset_count, direction, materials, channels)
+                       offset_count, direction, materials, channels, depth_from)
     try:
         spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
                          canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,

@@ -29,7 +29,7 @@ _MODULES = {
                   "to_rgb8", "with_table_channels"),
     "references": ("REFERENCE_KINDS", "REFERENCES", "Reference", "ReferenceKind", "make_reference",
                    "material_fraction", "normalise", "reference_distance", "reference_kinds_taking"),
-    "field": ("INTERIORS", "MaterialField", "material_field"),
+    "field": ("INTERIORS", "MaterialField", "depth_field", "material_field"),
     "surface": ("SurfaceIndex", "build_surface_index", "surface_distance"),
     "triangles": ("closest_points_on_triangles", "point_triangle_distance"),
 }

@@ -35,10 +35,13 @@ R_TOLERANCE = 1e-3
 
 @dataclass(frozen=True, eq=False)
 class MaterialField:
-    """A :class:`Design` ready to evaluate at points: its reference resolved (a surface indexed)."""
+    """A :class:`Design` ready to evaluate at points: its reference resolved (a surface indexed). ``bands``
+    (N_R) steps r to the sub-region values k / N_R, k = max(ceil(r N_R), 1) (eq. 8's sub-regions measured in
+    3D, ``slice --grade --depth-from surface``); None keeps r continuous."""
 
     design: Design
     reference: Reference
+    bands: int | None = None
 
     def r_at(self, points: np.ndarray) -> np.ndarray:
         """Exact r (n,) in [0, 1] at points (n, 3) mm: the design's normalisation of the 3-D distance."""
@@ -48,6 +51,8 @@ class MaterialField:
         """The share of the target material f(r) clipped to [0, 1] (eq. 1), of r's shape (an expression undefined
         at some r is refused by :func:`heoslice.material.evaluate`)."""
         r = np.asarray(r, dtype=np.float64)
+        if self.bands is not None:
+            r = np.maximum(np.ceil(r * self.bands), 1.0) / self.bands
         return np.clip(evaluate(self.design.function, r.ravel()).reshape(r.shape), 0.0, 1.0)
 
     def layer_fraction(self, packed: np.ndarray, grid, z: float) -> tuple[tuple[int, int, int, int], np.ndarray]:
@@ -92,6 +97,14 @@ class MaterialField:
         if measure.any():
             r[measure] = self.r_at(np.column_stack([x[measure], y[measure], np.full(int(measure.sum()), float(z))]))
         return r
+
+
+def depth_field(vertices: np.ndarray, faces: np.ndarray, design: Design, bands: int | None) -> MaterialField:
+    """The field of a grading measured from the model's own 3-D surface (vertices (n, 3) mm, faces (m, 3)):
+    r = the exact distance to the nearest triangle over ``design.r_range`` (0 .. the depth), in ``bands``."""
+    from heoslice.material.surface import build_surface_index
+
+    return MaterialField(design, Reference("surface", surface=build_surface_index(vertices, faces)), bands)
 
 
 def solid_box(packed: np.ndarray, width: int) -> tuple[int, int, int, int]:

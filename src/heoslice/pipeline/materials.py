@@ -161,4 +161,24 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
     if channels:
         grade = grade.with_printer_channels(table)
         check_one_per_channel(grade.channel_materials(), "the droplet masks")
+    if grade.function is not None and grade.regions.depth_from == "surface":
+        field = _surface_depth_field(mesh, grade, mix)
     return MaterialJob(replace(spec, grade=grade, channels=channels), mix, field)
+
+
+def _surface_depth_field(mesh: Mesh, grade, mix):
+    """The field of ``--grade ... --depth D --depth-from surface``: from the start material (``--from``, else the
+    base) at the model's surface to the target at depth D, r the exact 3-D distance to the surface over D in
+    eq. 8's N_R sub-regions of the nozzle's width (or ``--offsets``)."""
+    from heoslice.grading.spec import band_count
+    from heoslice.material.design import Design, ReferenceRecord
+    from heoslice.material.field import depth_field
+
+    if mix is not None and grade.start is None:
+        raise InputError("depth_from: grading from the 3-D surface starts from one material: name it with --from "
+                         "(this model's contours carry several)")
+    regions = grade.regions
+    bands = regions.count if regions.count is not None else band_count(regions.depth_mm, regions.nozzle_mm)
+    start = grade.start if grade.start is not None else grade.base
+    design = Design(start, grade.target, ReferenceRecord("surface"), grade.function, (0.0, regions.depth_mm))
+    return depth_field(mesh.vertices, mesh.faces, design, bands)

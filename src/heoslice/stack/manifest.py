@@ -153,6 +153,8 @@ def grading_summary(grade, interior: str | None = None, design: dict | None = No
     regions = grade.regions
     material = _material_record
     extra = {key: value for key, value in (("interior", interior), ("design", design)) if value is not None}
+    if getattr(regions, "depth_from", "layer") != "layer":
+        extra["depth_from"] = regions.depth_from
     return {**extra,
         "function": None if grade.function is None else grade.function.describe(),
         "target": material(grade.target),
