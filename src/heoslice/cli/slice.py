@@ -141,8 +141,13 @@ Examples:
   heoslice slice scan.ply --scale 1000 --json   # a model in metres
   heoslice slice "scans/*.ply" --into stacks/   # one stack per model: stacks/NAME_stack
 \b
+Coloured models (heoslice color's output):
+  heoslice slice vase_linear.ply                       # the design's field at every voxel, in 3D
+  heoslice slice vase_linear.ply --interior contour    # each layer's contour material carried inward
+\b
 Graded interiors (the paper's Fig. 3b, 9b):
   heoslice slice model.ply --grade linear --to 0,255,0 --nozzle 0.2
+  heoslice slice liver.ply --grade linear --depth 8 --depth-from surface   # skins graded in 3D
   heoslice slice vase.ply --grade linear --to 0,255,0 --offsets 200
   heoslice slice liver.ply --grade sine --periods 2 --to M2 --depth 10
   heoslice slice part.ply --grade linear --from M1 --to M2 --direction out --materials mats.toml
@@ -236,10 +241,22 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     A model that carries materials (the material fraction `heoslice color` writes,
     colours that map to more than one material of the table, per-shell materials) or a
     graded slice gives a multi-material stack: each layer's 1-bit solid mask plus one
-    1-bit droplet mask per material, what `heoslice print` sends; every solid pixel
-    takes the material of the nearest point of its contour (or its graded sub-region).
-    Colours map to the material of nearest display colour. A one-material model gives
-    the solid mask alone.
+    1-bit droplet mask per material, what `heoslice print` sends. Colours map to the
+    material of nearest display colour. A one-material model gives the solid mask alone.
+
+    \b
+    What the interior of a coloured model gets (--interior; recorded in the manifest):
+      field    a model from `heoslice color` (it records its design): every solid voxel
+               jets f(r) of its own 3-D distance to the design's reference, with the
+               r normalisation color used (the default for such a model)
+      contour  every solid pixel takes the material of the nearest point of its layer's
+               contour (the paper's layer-wise Z-axis distribution; the default for
+               other coloured models, e.g. colour scans)
+      graded   --grade FUNC: the paper's offset sub-regions (eq. 8-10) from the contour's
+               material to --to; --depth-from surface measures --depth in 3D instead
+    The design's materials are the stack's: the fraction is the share of the material
+    named as its target. With --materials each must be in the file, with the same colour
+    and channel (else one error line naming both); without, they are used as recorded.
 
     Several models (or a quoted pattern such as "scans/*.ply", expanded by heoslice)
     each go to their own stack; one that fails is reported and the others still run.
