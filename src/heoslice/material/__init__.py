@@ -20,7 +20,8 @@ from heoslice.lazy import lazy_exports
 _MODULES = {
     "coloring": ("MAX_SUBDIVIDED_TRIANGLES", "ColoredMesh", "ColorSpec", "color_mesh", "default_output",
                  "material_comment", "ply_bytes", "subdivide", "write_ply"),
-    "design": ("DESIGN_VERSION", "Design", "ReferenceRecord", "design_of", "settle_materials", "surface_path"),
+    "design": ("DESIGN_VERSION", "INTERIORS", "Design", "ReferenceRecord", "design_of", "settle_materials",
+               "surface_path"),
     "expressions": ("EXPRESSION_CONSTANTS", "EXPRESSION_FUNCTIONS", "compile_expression", "evaluate_expression"),
     "functions": ("FUNCTION_KINDS", "FUNCTIONS", "DistributionFunction", "FunctionKind", "evaluate", "make_function"),
     "materials": ("DEFAULT_MATERIALS", "MAX_CHANNEL", "Material", "MaterialRoles", "MaterialsFile", "PartSetting",
@@ -29,7 +30,7 @@ _MODULES = {
                   "to_rgb8", "with_table_channels"),
     "references": ("REFERENCE_KINDS", "REFERENCES", "Reference", "ReferenceKind", "make_reference",
                    "material_fraction", "normalise", "reference_distance", "reference_kinds_taking"),
-    "field": ("INTERIORS", "MaterialField", "depth_field", "material_field"),
+    "field": ("MaterialField", "depth_field", "material_field"),
     "surface": ("SurfaceIndex", "build_surface_index", "surface_distance"),
     "triangles": ("closest_points_on_triangles", "point_triangle_distance"),
 }

@@ -34,6 +34,10 @@ from heoslice.errors import InputError
 from heoslice.material.functions import DistributionFunction, make_function
 from heoslice.material.materials import Material, table_material
 
+#: The interiors a coloured model's solid can get (``slice --interior``): the design's f(r) at every voxel in 3D
+#: (:mod:`heoslice.material.field`), or the contour's material carried inward (the paper's layer-wise Z-axis
+#: distribution); ``graded`` is ``--grade``'s eq. 8-10 sub-regions.
+INTERIORS = ("field", "contour", "graded")
 #: The version of the design record this heoslice writes and reads.
 DESIGN_VERSION = 1
 #: What every design comment line starts with.

@@ -19,14 +19,11 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import InputError
-from heoslice.material.design import Design, surface_path
+from heoslice.material.design import INTERIORS, Design, surface_path
 from heoslice.material.functions import evaluate
 from heoslice.material.references import REFERENCES, Reference, grid_distance, normalise, reference_distance
 
-#: The interiors a coloured model's solid can get (``slice --interior``): the design's f(r) at every voxel in 3D,
-#: or the contour's material carried inward (the paper's layer-wise Z-axis distribution); ``graded`` is
-#: ``--grade``'s eq. 8-10 sub-regions.
-INTERIORS = ("field", "contour", "graded")
+__all__ = ["CELL", "INTERIORS", "R_TOLERANCE", "MaterialField", "depth_field", "material_field", "solid_box"]
 #: Side of a lattice cell, pixels (:func:`MaterialField.layer_r` for a surface reference).
 CELL = 16
 #: Largest error of a voxel's r where the lattice settles it (twice the bound the midpoint keeps).

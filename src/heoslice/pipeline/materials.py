@@ -97,7 +97,7 @@ def _design(mesh: Mesh, spec: SliceSpec):
 
 
 def _interior(spec: SliceSpec, design) -> str:
-    """What the solid of a model gets (:data:`heoslice.material.field.INTERIORS`): the spec's, checked against
+    """What the solid of a model gets (:data:`heoslice.material.design.INTERIORS`): the spec's, checked against
     what the model and the grading allow, else the default (the field for a model with a design)."""
     graded = spec.grade is not None and spec.grade.function is not None
     if spec.interior is None:

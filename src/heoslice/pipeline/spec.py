@@ -66,7 +66,7 @@ class SliceSpec:
     ``parts`` makes the slice a multi-part job (:mod:`heoslice.pipeline.parts`; not graded).
     ``design`` is the coloured model's design (:class:`heoslice.material.design.Design`, its materials as
     the table has them; None: the mesh's own record, if any, is read); ``interior`` what a coloured model's
-    solid gets (:data:`heoslice.material.field.INTERIORS`; None: ``field`` for a model with a design,
+    solid gets (:data:`heoslice.material.design.INTERIORS`; None: ``field`` for a model with a design,
     ``graded`` with ``grade``'s function, else ``contour``).
     """
 
@@ -86,7 +86,7 @@ class SliceSpec:
     interior: str | None = None
 
     def __post_init__(self):
-        from heoslice.material.field import INTERIORS
+        from heoslice.material.design import INTERIORS
 
         if self.interior is not None and self.interior not in INTERIORS:
             raise InputError(f"interior: unknown interior {self.interior!r} (choose from {', '.join(INTERIORS)})")
