@@ -151,7 +151,8 @@ def test_sphere_delivers_f_per_band_of_r(sphere, run_cli, tmp_path):
                                                  ("axis", (0.5, 0.5, 0.0), (1.0, 2.0, 0.5))])
 def test_layer_fraction_over_the_grid_is_f_of_each_pixels_r(kind, at, direction):
     """The closed-form grid evaluation of a layer gives, at every solid pixel, f of the analytic r of that
-    pixel centre (point, plane and axis distances written out here)."""
+    pixel centre (point, plane and axis distances written out here), to f's single precision (the halftone
+    resolves 1/256)."""
     from heoslice.material.design import ReferenceRecord
     from heoslice.material.materials import Material
 
@@ -176,4 +177,4 @@ def test_layer_fraction_over_the_grid_is_f_of_each_pixels_r(kind, at, direction)
     else:
         d = np.linalg.norm(np.cross(o, np.array(unit)), axis=1)
     r = np.clip((d - 0.5) / 6.5, 0, 1)
-    assert np.abs(f[rows - r0, cols - c0] - np.clip(0.5 * np.sin(4 * np.pi * r) + 0.5, 0, 1)).max() < 1e-9
+    assert np.abs(f[rows - r0, cols - c0] - np.clip(0.5 * np.sin(4 * np.pi * r) + 0.5, 0, 1)).max() < 2e-6

@@ -23,7 +23,8 @@ LEVELS = TILE * TILE
 
 def levels_below(f: np.ndarray) -> np.ndarray:
     """q int64 of f's shape: how many of the dither levels (k + 1/2) / 256 lie below each f in [0, 1]."""
-    q = np.asarray(f, dtype=np.float64) * LEVELS
+    q = np.asarray(f) * np.float32(LEVELS) if np.asarray(f).dtype == np.float32 else (
+        np.asarray(f, dtype=np.float64) * LEVELS)
     q -= 0.5
     np.ceil(q, out=q)
     np.clip(q, 0, LEVELS, out=q)

@@ -45,12 +45,13 @@ class MaterialField:
         return normalise(reference_distance(self.reference, points), self.design.r_range)
 
     def fraction(self, r: np.ndarray) -> np.ndarray:
-        """The share of the target material f(r) clipped to [0, 1] (eq. 1), of r's shape (an expression undefined
-        at some r is refused by :func:`heoslice.material.evaluate`)."""
-        r = np.asarray(r, dtype=np.float64)
+        """The share of the target material f(r) clipped to [0, 1] (eq. 1), of r's shape, in r's precision (an
+        expression undefined at some r is refused by :func:`heoslice.material.evaluate`)."""
+        r = np.asarray(r)
         if self.bands is not None:
             r = np.maximum(np.ceil(r * self.bands), 1.0) / self.bands
-        return np.clip(evaluate(self.design.function, r.ravel()).reshape(r.shape), 0.0, 1.0)
+        f = evaluate(self.design.function, r.ravel()).reshape(r.shape)
+        return np.clip(f, 0.0, 1.0, out=f)
 
     def layer_fraction(self, packed: np.ndarray, grid, z: float) -> tuple[tuple[int, int, int, int], np.ndarray]:
         """f(r) clipped to [0, 1] over the box of a layer's solid pixels (``packed``: (h, ceil(w / 8)) uint8, MSB
@@ -68,7 +69,8 @@ class MaterialField:
             rows, cols = np.nonzero(solid)
             r = np.zeros(solid.shape)
             r[rows, cols] = self.layer_r(rows + r0, cols + c0, grid, z)
-        return (r0, r1, c0, c1), self.fraction(r)
+        # f to the halftone's 1/256 needs no more than single precision: r (in [0, 1]) rounds by 6e-8
+        return (r0, r1, c0, c1), self.fraction(r.astype(np.float32))
 
     def layer_r(self, rows: np.ndarray, cols: np.ndarray, grid, z: float) -> np.ndarray:
         """r (n,) at the centres of pixels (rows (n,), cols (n,) int) of a layer cut at height z (mm) on

@@ -112,7 +112,8 @@ def _plane_at(reference: Reference, x, y, z) -> np.ndarray:
 def _point_at(reference: Reference, x, y, z) -> np.ndarray:
     """|q - p| at points q = (x, y, z) (arrays that broadcast, mm): the distance to the point."""
     ox, oy, oz = _offsets(reference, x, y, z)
-    return np.sqrt(ox * ox + oy * oy + oz * oz)
+    square = (ox * ox + oz * oz) + oy * oy  # over a layer's grid: one (h, w) sum, the others a row's
+    return np.sqrt(square, out=square) if isinstance(square, np.ndarray) else np.sqrt(square)
 
 
 def _axis_at(reference: Reference, x, y, z) -> np.ndarray:
@@ -232,7 +233,8 @@ def normalise(distance: np.ndarray, r_range: tuple[float, float] | None = None) 
     low, high = (finite("r_range", v) for v in r_range)
     if not high > low:
         raise InputError(f"r_range: {low:g} {high:g} mm is of zero or negative width (need R0 < R1)")
-    return np.clip((distance - low) / (high - low), 0.0, 1.0)
+    r = np.asarray((distance - low) / (high - low))
+    return np.clip(r, 0.0, 1.0, out=r) if r.ndim else np.clip(r, 0.0, 1.0)
 
 
 def material_fraction(points: np.ndarray, reference: Reference, func: DistributionFunction,
