@@ -226,3 +226,18 @@ def test_the_labs_reversed_liver_prints_liver_where_designed(run_cli, shared_dat
         delivered = masks[names.index("liver")][rows, cols]
         assert abs(delivered.mean() - f.mean()) <= TOLERANCE
         assert f.mean() < 0.999 and delivered[f == 1.0].all()  # the lesion is in this layer; liver beyond 10 mm
+
+
+def test_interior_choices_are_checked(run_cli, vase_file, tmp_path):
+    """--interior field needs a recorded design, and a design with shells coloured whole is sliced 'contour' by
+    default; --interior with --grade is refused (one line, exit 2)."""
+    code, _, err = run_cli("slice", vase_file, "--interior", "field", "-o", tmp_path / "a")
+    assert code == 2 and "field" in err and "design" in err
+    code, _, err = run_cli("slice", vase_file, "--interior", "contour", "--grade", "linear", "-o", tmp_path / "b")
+    assert code == 2 and "--interior" in err
+    shelled = tmp_path / "shell.ply"
+    assert run_cli("color", vase_file, "--shell-colors", "0=255,0,0", "-o", shelled)[0] == 0
+    assert run_cli("slice", shelled, "--layer", "5", "--dpi", "50", "-o", tmp_path / "c")[0] == 0
+    assert json.loads((tmp_path / "c" / "manifest.json").read_text())["grading"]["interior"] == "contour"
+    code, _, err = run_cli("slice", shelled, "--interior", "field", "-o", tmp_path / "d")
+    assert code == 2 and "shell" in err
