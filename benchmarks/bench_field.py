@@ -11,7 +11,7 @@ Examples:
   python benchmarks/bench_field.py                               # liver_scan, 2 repeats
   python benchmarks/bench_field.py --meshes liver_scan,lucy,dragon --repeats 3
   python benchmarks/bench_field.py --quick --meshes organ       # 40 mm meshes, a smoke test
-  python benchmarks/bench_field.py --ref surface                 # distance to a sphere inside the mesh
+  python benchmarks/bench_field.py --ref surface --range 0 5    # distance to a sphere inside the mesh
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ def heoslice(*args) -> float:
     return elapsed
 
 
-def coloured(name: str, quick: bool, ref: str, folder: Path) -> Path:
+def coloured(name: str, quick: bool, ref: str, folder: Path, r_range: list[str] | None = None) -> Path:
     """The benchmark mesh, written as PLY and coloured (untimed) by a point-referenced sine (or by distance to a
     sphere of a fifth of its size at its centre, ``ref='surface'``)."""
     mesh = prusa_meshes.build(name, quick)
@@ -59,6 +59,8 @@ def coloured(name: str, quick: bool, ref: str, folder: Path) -> Path:
         inner.apply_translation(mesh.bounds.mean(axis=0))
         inner.export(folder / "inner.ply")
         extra += ["--surface", folder / "inner.ply"]
+    if r_range:
+        extra += ["--range", *r_range]
     target = folder / f"{name}_sine.ply"
     heoslice("color", plain, *extra, "--func", "sine", "--periods", "3", "-o", target)
     return target
@@ -70,6 +72,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--quick", action="store_true", help="the quick set's sizes (scans at 40 mm)")
     parser.add_argument("--ref", default="point", choices=["point", "plane", "axis", "surface"])
+    parser.add_argument("--range", nargs=2, default=None, metavar=("R0", "R1"), help="color's --range, mm")
     parser.add_argument("--layer", default="0.1")
     parser.add_argument("--dpi", default="600")
     parser.add_argument("--json", type=Path, default=None, help="write the results here too")
@@ -78,7 +81,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as work:
         work = Path(work)
         for name in options.meshes.split(","):
-            model = coloured(name, options.quick, options.ref, work)
+            model = coloured(name, options.quick, options.ref, work, options.range)
             times: dict[str, list[float]] = {mode: [] for mode in MODES}
             for repeat in range(options.repeats):
                 for mode in (MODES if repeat % 2 == 0 else reversed(list(MODES))):
