@@ -11,6 +11,7 @@ import zipfile
 import manifold3d
 import numpy as np
 import shapely
+import trimesh
 
 from heoslice.grading.edges import ring_edges
 from heoslice.grading.halftone import thresholds
@@ -334,3 +335,27 @@ def executed_on_simulator(job, get_layer) -> list:
         return [e for e in controller.executed if e.job_id == job.job_id]
     finally:
         controller.stop()
+
+
+def lesion_distance(lesion: trimesh.Trimesh, points: np.ndarray, cap: float = np.inf) -> np.ndarray:
+    """Brute-force distance (n,) from points (n, 3) to the lesion's surface: the least of trimesh's closest point on
+    every triangle that can be nearest (one whose bounding sphere is no farther than the point's nearest vertex;
+    the others cannot be); a point whose distance from the lesion's vertex centre less the lesion's radius about
+    it is ``cap`` or more gets that lower bound instead (at least ``cap``)."""
+    triangles = lesion.triangles
+    centre = lesion.vertices.mean(axis=0)
+    bound = np.linalg.norm(points - centre, axis=1) - np.linalg.norm(lesion.vertices - centre, axis=1).max()
+    out = bound.copy()
+    near = np.flatnonzero(bound < cap)
+    middle = triangles.mean(axis=1)
+    radius = np.linalg.norm(triangles - middle[:, None], axis=2).max(axis=1)
+    for start in range(0, len(near), 2000):
+        chunk = points[near[start:start + 2000]]
+        upper = np.linalg.norm(chunk[:, None] - lesion.vertices[None], axis=2).min(axis=1)
+        lower = np.linalg.norm(chunk[:, None] - middle[None], axis=2) - radius[None]
+        point, triangle = np.nonzero(lower <= upper[:, None] + 1e-9)
+        feet = trimesh.triangles.closest_point(triangles[triangle], chunk[point])
+        distance = np.full(len(chunk), np.inf)
+        np.minimum.at(distance, point, np.linalg.norm(chunk[point] - feet, axis=1))
+        out[near[start:start + 2000]] = distance
+    return out

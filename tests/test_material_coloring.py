@@ -113,7 +113,7 @@ def test_double_coordinates_when_float_is_not_exact(tmp_path):
     """Coordinates that float32 cannot hold exactly are written as double, so they read back exactly."""
     mesh = load_mesh(save(procedural.sphere(radius=10.0, subdivisions=1), tmp_path / "s.ply"))
     colored = color_mesh(mesh, ColorSpec(make_function("linear"), max_edge=1.3))
-    assert b"property double x" in ply_bytes(colored)[:600]
+    assert b"property double x" in ply_bytes(colored).split(b"end_header")[0]
     for ascii_ply in (False, True):
         back = load_mesh(write_ply(tmp_path / f"d{ascii_ply}.ply", colored, ascii=ascii_ply))
         assert np.array_equal(back.vertices, colored.vertices)

@@ -57,6 +57,13 @@ in r with + - * / **, pi, e and sin cos tan exp log sqrt abs floor min max clip.
 Each vertex gets M1 + clip(f, 0, 1) (M2 - M1) as its colour, and f clipped to
 [0, 1] as the float vertex property 'material'.
 \b
+The PLY also records the design (header lines 'heoslice design 1 ...'): M1 and M2 by
+name, colour and channel, the reference (a --surface by path and SHA-256), f and the
+r normalisation. `slice` follows it: 'material' is the share of the named --to
+material, and by default every voxel inside gets f(r) of its own 3-D distance to the
+reference (the design's field; `slice --interior contour` carries each layer's
+contour material inward instead, the paper's layer-wise distribution).
+\b
 Materials file (TOML), shared with slice and print:
   [materials.gel]
   color = "#f0f0f0"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -27,7 +28,7 @@ from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, print_refusal, ref
 SPEC_FLAGS = {
     "layer_height_mm": "--layer", "dpi": "--dpi", "margin_mm": "--margin", "canvas_mm": "--canvas",
     "compression": "--compress", "jobs": "--jobs", "channels": "--channels", "materials": "--materials",
-    "scale": "--scale",
+    "scale": "--scale", "interior": "--interior",
 }
 
 
@@ -99,7 +100,7 @@ def refuse_options_without_grade(alpha, beta, lam, periods, expression, depth, o
 
 
 def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth, offset_count,
-               direction, materials: MaterialsFile, channels):
+               direction, materials: MaterialsFile, channels, depth_from: str = "layer"):
     """The GradeSpec the grading options ask for, or None when none is given: the mesh's own materials then
     decide (:func:`heoslice.pipeline.material_job`).
 
@@ -123,7 +124,8 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
     with flags({"start": "--from", "target": "--to"}):
         roles = material_roles(table, start=start, target=target)
     return GradeSpec(
-        regions=RegionSpec(nozzle_mm=nozzle, depth_mm=depth, direction=direction, count=offset_count),
+        regions=RegionSpec(nozzle_mm=nozzle, depth_mm=depth, direction=direction, count=offset_count,
+                           depth_from=depth_from),
         function=function, target=roles.m2 if function is not None else roles.target, start=roles.start,
         base=roles.first, second=roles.second, shells=tuple(sorted(shells.items())),
     )
@@ -139,8 +141,13 @@ Examples:
   heoslice slice scan.ply --scale 1000 --json   # a model in metres
   heoslice slice "scans/*.ply" --into stacks/   # one stack per model: stacks/NAME_stack
 \b
+Coloured models (heoslice color's output):
+  heoslice slice vase_linear.ply                       # the design's field at every voxel, in 3D
+  heoslice slice vase_linear.ply --interior contour    # each layer's contour material carried inward
+\b
 Graded interiors (the paper's Fig. 3b, 9b):
   heoslice slice model.ply --grade linear --to 0,255,0 --nozzle 0.2
+  heoslice slice liver.ply --grade linear --depth 8 --depth-from surface   # skins graded in 3D
   heoslice slice vase.ply --grade linear --to 0,255,0 --offsets 200
   heoslice slice liver.ply --grade sine --periods 2 --to M2 --depth 10
   heoslice slice part.ply --grade linear --from M1 --to M2 --direction out --materials mats.toml
@@ -184,6 +191,11 @@ Several parts in one stack (a multi-part job; one 1-bit droplet mask per materia
 @click.option("--depth", type=float, default=None,
               help="Grade to this depth (L_S, mm) from the contour instead of to the inner rings "
                    "[default: to the holes, or to the deepest point].")
+@click.option("--depth-from", "depth_from", type=click.Choice(["layer", "surface"]), default="layer",
+              show_default=True,
+              help="Measure --depth from each layer's own contour (the paper's offset sub-regions, eq. 8-10: a "
+                   "top or bottom skin comes out thinner or thicker than the sides) or from the model's 3-D "
+                   "surface (the exact point-to-mesh distance: every skin graded alike; needs --depth).")
 @click.option("--offsets", "offset_count", type=int, default=None,
               help="Number of sub-regions N_R instead of eq. 8 (the paper's Fig. 3b used 200).")
 @click.option("--direction", type=click.Choice(["in", "out"]), default="in", show_default=True,
@@ -195,6 +207,13 @@ Several parts in one stack (a multi-part job; one 1-bit droplet mask per materia
                    "print job), or an RGBA preview stack in the materials' display colours instead "
                    "[default: masks whenever the stack holds more than one material; a one-material "
                    "model stays a solid mask either way].")
+@click.option("--interior", type=click.Choice(["field", "contour"]), default=None,
+              help="What the solid of a model coloured by `heoslice color` gets: 'field', the design's f(r) at "
+                   "every voxel from its own 3-D distance to the reference (the distribution of section II.B "
+                   "evaluated in 3D), or 'contour', the material of the nearest point of the voxel's layer "
+                   "contour carried inward (the paper's layer-wise Z-axis distribution, section III.A) "
+                   "[default: field for a model carrying a design; contour for other coloured models; "
+                   "--grade is the paper's eq. 8-10 sub-regions].")
 @click.option("--solid", "solid_only", is_flag=True,
               help="One material: ignore the mesh's material fractions and colours (a 1-bit solid mask per "
                    "layer; not with --grade or --channels).")
@@ -210,9 +229,9 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
               margin: float, compression: str, scale: float, jobs: int, force: bool, as_json: bool,
               grade_kind: str | None, alpha: float | None, beta: float | None, lam: float | None,
               periods: float | None, expression: str | None, target: str | None, start: str | None,
-              nozzle: float, depth: float | None, offset_count: int | None, direction: str,
-              materials_file: Path | None, channels: bool | None, solid_only: bool, parts_flag: bool,
-              part_options: tuple[str, ...]) -> None:
+              nozzle: float, depth: float | None, depth_from: str, offset_count: int | None, direction: str,
+              materials_file: Path | None, channels: bool | None, interior: str | None, solid_only: bool,
+              parts_flag: bool, part_options: tuple[str, ...]) -> None:
     """Slice each MODEL (PLY, STL, OBJ, OFF, 3MF) into one TIFF per layer plus manifest.json.
 
     Layers are cut at their centres, z = z_min + (i + 1/2) x layer; a pixel is solid
@@ -221,10 +240,22 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     A model that carries materials (the material fraction `heoslice color` writes,
     colours that map to more than one material of the table, per-shell materials) or a
     graded slice gives a multi-material stack: each layer's 1-bit solid mask plus one
-    1-bit droplet mask per material, what `heoslice print` sends; every solid pixel
-    takes the material of the nearest point of its contour (or its graded sub-region).
-    Colours map to the material of nearest display colour. A one-material model gives
-    the solid mask alone.
+    1-bit droplet mask per material, what `heoslice print` sends. Colours map to the
+    material of nearest display colour. A one-material model gives the solid mask alone.
+
+    \b
+    What the interior of a coloured model gets (--interior; recorded in the manifest):
+      field    a model from `heoslice color` (it records its design): every solid voxel
+               jets f(r) of its own 3-D distance to the design's reference, with the
+               r normalisation color used (the default for such a model)
+      contour  every solid pixel takes the material of the nearest point of its layer's
+               contour (the paper's layer-wise Z-axis distribution; the default for
+               other coloured models, e.g. colour scans)
+      graded   --grade FUNC: the paper's offset sub-regions (eq. 8-10) from the contour's
+               material to --to; --depth-from surface measures --depth in 3D instead
+    The design's materials are the stack's: the fraction is the share of the material
+    named as its target. With --materials each must be in the file, with the same colour
+    and channel (else one error line naming both); without, they are used as recorded.
 
     Several models (or a quoted pattern such as "scans/*.ply", expanded by heoslice)
     each go to their own stack; one that fails is reported and the others still run.
@@ -242,14 +273,20 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
                                          canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs),
                     scale, force, as_json, materials, part_options, bool(channels))
         return
-    if solid_only and (grade_kind is not None or channels):
-        raise InputError("--solid: slices one material; it cannot be combined with --grade or --channels")
+    if solid_only and (grade_kind is not None or channels or interior):
+        raise InputError("--solid: slices one material; it cannot be combined with --grade, --channels or "
+                         "--interior")
+    if interior is not None and grade_kind is not None:
+        raise InputError(f"--interior: --grade grades the interior by eq. 8-10 sub-regions; it cannot be "
+                         f"combined with --interior {interior}")
+    if depth_from != "layer" and grade_kind is None:
+        raise InputError("--depth-from: only used with --grade FUNC (ignored without it)")
     grade = grade_spec(grade_kind, alpha, beta, lam, periods, expression, target, start, nozzle, depth,
-                       offset_count, direction, materials, channels)
+                       offset_count, direction, materials, channels, depth_from)
     try:
         spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
                          canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
-                         grade=grade, channels=channels, materials=materials_table(materials))
+                         grade=grade, channels=channels, materials=materials_table(materials), interior=interior)
     except InputError as err:
         raise flag_error(err) from None
     inputs = expand_inputs(models)
@@ -259,7 +296,7 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
         raise click.UsageError("give -o/--output (one stack) or --into DIR, not both")
     targets = stack_directories(inputs.paths, output, into)
     run_each(inputs, lambda model: slice_model(model, targets[model], spec, scale, force, as_json, inputs.several,
-                                               solid_only),
+                                               solid_only, materials=materials),
              key="model", as_json=as_json, debug=(ctx.find_root().obj or {}).get("debug", False))
 
 
@@ -299,15 +336,32 @@ def slice_parts(models: tuple[Path, ...], output: Path | None, spec_fields: dict
         echo_json(summary)
 
 
+def model_design(mesh: Mesh, scale: float, materials: MaterialsFile | None):
+    """The design ``heoslice color`` recorded in the model (None without one), at the slice's ``--scale``, its
+    materials settled against the materials file (:func:`heoslice.material.design.settle_materials`: without
+    a file the design's own materials are the stack's)."""
+    from heoslice.material.design import design_of, settle_materials
+
+    design = design_of(mesh)
+    if design is None or mesh.material is None:
+        return None
+    table = None if materials is None or materials.path is None else materials.materials
+    return settle_materials(design.scaled(scale), table, str(None if materials is None else materials.path),
+                            str(mesh.source))
+
+
 def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, force: bool, as_json: bool,
                 several: bool, solid_only: bool = False, mesh: Mesh | None = None,
-                inputs: tuple[Path, ...] | None = None) -> dict:
+                inputs: tuple[Path, ...] | None = None, materials: MaterialsFile | None = None) -> dict:
     """Slice one model (``mesh`` when it is loaded already) into ``directory`` and report it (one text line,
     two for a multi-part job, or nothing with --json); its summary. ``solid_only`` slices it as one
-    material, whatever it carries."""
+    material, whatever it carries; a design the model carries is followed (:func:`model_design`, its
+    materials checked against ``materials``, the materials file)."""
     mesh = load_mesh(model) if mesh is None else mesh
     if solid_only:
         mesh = without_materials(mesh)
+    elif spec.parts is None:
+        spec = replace(spec, design=model_design(mesh, scale, materials))
     mesh = apply_scale(mesh, scale)
     if not as_json:
         echo_warnings(model, [*mesh.warnings, *(flag_message(text) for text in slice_warnings(mesh, spec))])

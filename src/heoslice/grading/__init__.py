@@ -28,10 +28,10 @@ from heoslice.grading.labels import (
 )
 from heoslice.grading.materials import contour_values
 from heoslice.grading.render import GradedLayer, render_graded
-from heoslice.grading.spec import DIRECTIONS, GradeSpec, RegionSpec, band_count
+from heoslice.grading.spec import DEPTH_FROM, DIRECTIONS, GradeSpec, RegionSpec, band_count
 
 __all__ = [
-    "DIRECTIONS", "TILE", "Family", "FamilyField", "FamilyLayout", "GradeSpec", "GradedLayer", "GradingCache",
+    "DEPTH_FROM", "DIRECTIONS", "TILE", "Family", "FamilyField", "FamilyLayout", "GradeSpec", "GradedLayer", "GradingCache",
     "LayerRegions", "RegionSpec", "band_count", "bayer_matrix", "contour_values", "droplet_counts", "droplet_planes",
     "family_field", "family_layout", "family_of", "label_fractions", "layer_families", "layer_regions", "layer_tile",
     "render_graded", "thresholds",

@@ -15,6 +15,9 @@ import numpy as np
 from heoslice.errors import InputError
 
 DIRECTIONS = ("in", "out")
+#: Where --depth is measured from: each layer's own contour (the paper's offset sub-regions, eq. 8-10), or the
+#: model's 3-D surface (the exact point-to-mesh distance, so top and bottom skins are graded like the sides).
+DEPTH_FROM = ("layer", "surface")
 
 
 #: Most sub-regions a family may be cut into (eq. 8's N_R, or --offsets): far more than 8-bit colours can tell apart.
@@ -30,13 +33,15 @@ class RegionSpec:
     ``direction`` 'in' offsets the outer ring inwards (r = 0 at the outer ring, 1 at the
     inner rings or the depth); 'out' offsets the inner rings outwards (r = 0 at the holes).
     A family without holes is always graded inwards from its outer ring. ``count``
-    fixes N_R instead of eq. 8 (the paper's Fig. 3b: 200 offsets).
+    fixes N_R instead of eq. 8 (the paper's Fig. 3b: 200 offsets). ``depth_from`` 'layer' measures depth
+    from each layer's contour (the paper's), 'surface' from the model's 3-D surface (needs ``depth_mm``).
     """
 
     nozzle_mm: float = 0.2
     depth_mm: float | None = None
     direction: str = "in"
     count: int | None = None
+    depth_from: str = "layer"
 
     def __post_init__(self):
         if self.count is not None and (isinstance(self.count, bool) or int(self.count) != self.count
@@ -55,6 +60,11 @@ class RegionSpec:
                              f"{MAX_BANDS} sub-regions (eq. 8)")
         if self.direction not in DIRECTIONS:
             raise InputError(f"--direction: expected 'in' or 'out', got {self.direction!r}")
+        if self.depth_from not in DEPTH_FROM:
+            raise InputError(f"--depth-from: expected {' or '.join(DEPTH_FROM)}, got {self.depth_from!r}")
+        if self.depth_from == "surface" and (self.depth_mm is None or self.direction != "in"):
+            raise InputError("--depth-from: 'surface' grades inwards from the model's surface to --depth D mm: "
+                             "give --depth (and not --direction out)")
 
 
 def band_count(length_mm: float, nozzle_mm: float, precision_mm: float = 0.0) -> int:

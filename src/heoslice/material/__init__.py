@@ -5,7 +5,8 @@ Modules, in the order a material distribution is built (paper section II.B, III.
 table of kinds), ``triangles`` and ``surface`` (exact point-triangle and nearest-surface
 distance), ``references`` (plane, point, axis, surface as one table of kinds, and r),
 ``materials`` (the TOML materials table, eq. 1's blend and the default roles of M1 and
-M2), ``coloring`` (a mesh coloured by a function and written as PLY).
+M2), ``coloring`` (a mesh coloured by a function and written as PLY), ``design`` (what ``color`` did,
+recorded in the PLY for ``slice``) and ``field`` (a design evaluated at every voxel, in 3D).
 
 The names below are loaded on first use (PEP 562), not when the package is imported: slicing reads the
 materials table and the distribution functions, never the colouring's modules.
@@ -19,6 +20,8 @@ from heoslice.lazy import lazy_exports
 _MODULES = {
     "coloring": ("MAX_SUBDIVIDED_TRIANGLES", "ColoredMesh", "ColorSpec", "color_mesh", "default_output",
                  "material_comment", "ply_bytes", "subdivide", "write_ply"),
+    "design": ("DESIGN_VERSION", "INTERIORS", "Design", "ReferenceRecord", "design_of", "settle_materials",
+               "surface_path"),
     "expressions": ("EXPRESSION_CONSTANTS", "EXPRESSION_FUNCTIONS", "compile_expression", "evaluate_expression"),
     "functions": ("FUNCTION_KINDS", "FUNCTIONS", "DistributionFunction", "FunctionKind", "evaluate", "make_function"),
     "materials": ("DEFAULT_MATERIALS", "MAX_CHANNEL", "Material", "MaterialRoles", "MaterialsFile", "PartSetting",
@@ -27,6 +30,7 @@ _MODULES = {
                   "to_rgb8", "with_table_channels"),
     "references": ("REFERENCE_KINDS", "REFERENCES", "Reference", "ReferenceKind", "make_reference",
                    "material_fraction", "normalise", "reference_distance", "reference_kinds_taking"),
+    "field": ("MaterialField", "depth_field", "material_field"),
     "surface": ("SurfaceIndex", "build_surface_index", "surface_distance"),
     "triangles": ("closest_points_on_triangles", "point_triangle_distance"),
 }

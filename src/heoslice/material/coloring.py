@@ -16,6 +16,9 @@ so later stages need not invert colours. Header comments record what was done::
     comment heoslice material M1 M1 240,240,240 channel 1
     comment heoslice material M2 M2 0,255,0 channel 2
     comment heoslice shell 1 tumour 255,0,0 channel 3
+
+and, as the machine-readable record ``slice`` follows, the :class:`~heoslice.material.design.Design` (its
+``heoslice design 1 ...`` lines: materials and roles, reference, function, r normalisation, shells).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ import numpy as np
 
 from heoslice.errors import InputError, OutputError, shown
 from heoslice.files import check_output, head_bytes, write_output
+from heoslice.material.design import Design, ReferenceRecord
 from heoslice.material.functions import DistributionFunction, evaluate, make_function
 from heoslice.material.materials import DEFAULT_MATERIALS, Material, blend, to_rgb8
 from heoslice.material.references import (
@@ -88,6 +92,7 @@ class ColoredMesh:
     vertex_shell: np.ndarray
     reference: Reference
     comments: tuple[str, ...] = ()
+    design: Design | None = None
 
 
 def subdivide(vertices: np.ndarray, faces: np.ndarray, max_edge: float) -> tuple[np.ndarray, np.ndarray]:
@@ -154,7 +159,7 @@ def color_mesh(mesh: Mesh, spec: ColorSpec, progress: Callable[[int, int], None]
     if spec.max_edge is not None:
         vertices, faces = _canonical(*subdivide(vertices, faces, spec.max_edge))
         shell = shell_labels(faces)
-    surface = None
+    surface, surface_source = None, None
     if spec.reference == "surface":
         if spec.surface is None:
             raise InputError("surface: a surface reference needs a second mesh: every vertex of the model "
@@ -164,11 +169,13 @@ def color_mesh(mesh: Mesh, spec: ColorSpec, progress: Callable[[int, int], None]
         except InputError as err:
             raise InputError(f"surface: {err}") from None
         surface = (other.vertices, other.faces)
+        surface_source = (str(Path(other.source).resolve()), other.sha256)
     reference = make_reference(spec.reference, vertices, faces, at=spec.at, normal=spec.normal,
                                direction=spec.direction, surface=surface)
     colors = np.zeros((len(vertices), 3), dtype=np.uint8)  # step 2: every vertex starts at (0, 0, 0)
     distance = reference_distance(reference, vertices, progress)
     r = normalise(distance, spec.r_range)
+    r_range = spec.r_range if spec.r_range is not None else (0.0, float(distance.max(initial=0.0)))
     f = evaluate(spec.function, r)
     fraction = np.clip(f, 0.0, 1.0).astype(np.float32).astype(np.float64)
     colors[:] = to_rgb8(blend(spec.m1, spec.m2, fraction))
@@ -180,7 +187,20 @@ def color_mesh(mesh: Mesh, spec: ColorSpec, progress: Callable[[int, int], None]
         colors[mine] = material.color
         fraction[mine] = 1.0
         comments.append(material_comment(f"shell {number}", material))
-    return ColoredMesh(vertices, faces, colors, fraction, r, vertex_shell, reference, tuple(comments))
+    design = Design(spec.m1, spec.m2, _reference_record(reference, surface_source), spec.function,
+                    (float(r_range[0]), float(r_range[1])), "max" if spec.r_range is None else "range",
+                    tuple(spec.shell_materials))
+    comments.extend(design.to_header())
+    return ColoredMesh(vertices, faces, colors, fraction, r, vertex_shell, reference, tuple(comments), design)
+
+
+def _reference_record(reference: Reference, surface_source: tuple[str, str] | None) -> ReferenceRecord:
+    """The design's record of a resolved reference (a surface by its mesh's absolute path and SHA-256)."""
+    if reference.kind == "surface":
+        if surface_source is None:
+            return ReferenceRecord("surface")
+        return ReferenceRecord("surface", surface=surface_source[0], surface_sha256=surface_source[1])
+    return ReferenceRecord(reference.kind, reference.point, reference.direction)
 
 
 def _coordinate_type(vertices: np.ndarray) -> tuple[str, str]:

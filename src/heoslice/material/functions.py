@@ -162,13 +162,15 @@ def make_function(kind: str, alpha: float | None = None, beta: float | None = No
 
 def evaluate(func: DistributionFunction, r: np.ndarray) -> np.ndarray:
     """f(r) (n,) float64 for r (n,) in [0, 1], by the kind's formula (eq. 2-5); not clipped (eq. 1's blend clips).
+    A float32 r gives a float32 f for the kinds of eq. 2-5 (the field interior's halftone needs f to 1/256).
 
     An expression that is undefined (NaN) at some r raises InputError naming that r.
     """
     row = FUNCTIONS.get(func.kind)
     if row is None:
         raise InputError(f"kind: unknown distribution function {func.kind!r}")
-    r = np.asarray(r, dtype=np.float64)
+    r = np.asarray(r)
+    r = r if r.dtype == np.float32 else r.astype(np.float64, copy=False)
     with np.errstate(all="ignore"):
         f = row.formula(func, r)
     bad = ~np.isfinite(f)

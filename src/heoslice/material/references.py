@@ -96,24 +96,38 @@ def _resolve_surface(vertices, faces, at, normal, direction, surface) -> Referen
     return Reference("surface", surface=build_surface_index(*surface))
 
 
-def _offset(reference: Reference, points: np.ndarray) -> np.ndarray:
-    return points - np.asarray(reference.point)
+def _offsets(reference: Reference, x, y, z) -> tuple:
+    """The offsets from the reference's point along x, y and z (arrays that broadcast together, mm)."""
+    p = reference.point
+    return x - p[0], y - p[1], z - p[2]
 
 
-def _plane_distance(reference: Reference, points: np.ndarray, progress) -> np.ndarray:
-    return np.abs(_offset(reference, points) @ np.asarray(reference.direction))
+def _plane_at(reference: Reference, x, y, z) -> np.ndarray:
+    """|(q - p) . n| at points q = (x, y, z) (arrays that broadcast, mm): the distance to the plane; a coordinate
+    the normal has no component along is not read (a level plane's distance over a layer is one number)."""
+    terms = [offset * n for offset, n in zip(_offsets(reference, x, y, z), reference.direction) if n != 0.0]
+    return np.abs(sum(terms[1:], terms[0]))
 
 
-def _point_distance(reference: Reference, points: np.ndarray, progress) -> np.ndarray:
-    offset = _offset(reference, points)
-    return np.sqrt(np.einsum("ij,ij->i", offset, offset))
+def _point_at(reference: Reference, x, y, z) -> np.ndarray:
+    """|q - p| at points q = (x, y, z) (arrays that broadcast, mm): the distance to the point."""
+    ox, oy, oz = _offsets(reference, x, y, z)
+    square = (ox * ox + oz * oz) + oy * oy  # over a layer's grid: one (h, w) sum, the others a row's
+    return np.sqrt(square, out=square) if isinstance(square, np.ndarray) else np.sqrt(square)
 
 
-def _axis_distance(reference: Reference, points: np.ndarray, progress) -> np.ndarray:
-    offset = _offset(reference, points)
-    along = offset @ np.asarray(reference.direction)
-    across = offset - along[:, None] * np.asarray(reference.direction)
-    return np.sqrt(np.einsum("ij,ij->i", across, across))
+def _axis_at(reference: Reference, x, y, z) -> np.ndarray:
+    """|(q - p) - ((q - p) . u) u| at points q = (x, y, z) (arrays that broadcast, mm): the distance to the axis."""
+    ox, oy, oz = _offsets(reference, x, y, z)
+    u = reference.direction
+    along = ox * u[0] + oy * u[1] + oz * u[2]
+    ax, ay, az = ox - along * u[0], oy - along * u[1], oz - along * u[2]
+    return np.sqrt(ax * ax + ay * ay + az * az)
+
+
+def _columns(at: Callable) -> Callable:
+    """A closed-form distance at (x, y, z) arrays as a distance at points (n, 3)."""
+    return lambda reference, points, progress: at(reference, points[:, 0], points[:, 1], points[:, 2])
 
 
 def _surface_distance(reference: Reference, points: np.ndarray, progress) -> np.ndarray:
@@ -126,13 +140,16 @@ class ReferenceKind:
 
     options: the geometry parameters of :func:`make_reference` it takes; resolve(vertices,
     faces, at, normal, direction, surface) -> Reference with the defaults filled in;
-    distance(reference, points (n, 3), progress) -> (n,) mm; written(reference) -> text.
+    distance(reference, points (n, 3), progress) -> (n,) mm; written(reference) -> text;
+    closed_form(reference, x, y, z) -> the distance at coordinate arrays that broadcast together (None for
+    a surface, which is searched).
     """
 
     options: tuple[str, ...]
     resolve: Callable[..., Reference]
     distance: Callable[[Reference, np.ndarray, Callable | None], np.ndarray]
     written: Callable[[Reference], str]
+    closed_form: Callable | None = None
 
 
 #: The kinds of reference feature, by name. Defaults: plane = normal +Z through the model's
@@ -140,12 +157,13 @@ class ReferenceKind:
 #: bounding-box centre; axis = vertical (or ``direction``) through the bounding-box centre;
 #: surface = the model's own surface, or a second mesh.
 REFERENCES: dict[str, ReferenceKind] = {
-    "plane": ReferenceKind(("at", "normal"), _resolve_plane, _plane_distance,
-                           lambda ref: f"plane through {_text(ref.point)} with normal {_text(ref.direction)}"),
-    "point": ReferenceKind(("at",), _resolve_point, _point_distance,
-                           lambda ref: f"point {_text(ref.point)}"),
-    "axis": ReferenceKind(("at", "direction"), _resolve_axis, _axis_distance,
-                          lambda ref: f"axis through {_text(ref.point)} along {_text(ref.direction)}"),
+    "plane": ReferenceKind(("at", "normal"), _resolve_plane, _columns(_plane_at),
+                           lambda ref: f"plane through {_text(ref.point)} with normal {_text(ref.direction)}",
+                           _plane_at),
+    "point": ReferenceKind(("at",), _resolve_point, _columns(_point_at),
+                           lambda ref: f"point {_text(ref.point)}", _point_at),
+    "axis": ReferenceKind(("at", "direction"), _resolve_axis, _columns(_axis_at),
+                          lambda ref: f"axis through {_text(ref.point)} along {_text(ref.direction)}", _axis_at),
     "surface": ReferenceKind(("surface",), _resolve_surface, _surface_distance,
                              lambda ref: f"surface of {len(ref.surface.faces)} triangles"),
 }
@@ -185,6 +203,20 @@ def reference_distance(reference: Reference, points: np.ndarray,
     return REFERENCES[reference.kind].distance(reference, points, progress)
 
 
+def grid_distance(reference: Reference, x: np.ndarray, y: np.ndarray, z: float) -> np.ndarray:
+    """Distance float64 mm from the points of a layer's pixel grid (x (w,), y (h,) mm, height z) to a plane,
+    point or axis, in closed form over the whole grid at once (the same formula as
+    :func:`reference_distance`): an array that broadcasts to (h, w), of shape (1, 1), (h, 1) or (1, w) where
+    the distance does not change along a grid axis. Raises ValueError for a surface (searched point by point)."""
+    at = REFERENCES[reference.kind].closed_form
+    if at is None:
+        raise ValueError(f"a {reference.kind} reference has no closed-form distance")
+    x = np.asarray(x, dtype=np.float64)[None, :]
+    y = np.asarray(y, dtype=np.float64)[:, None]
+    distance = np.asarray(at(reference, x, y, float(z)), dtype=np.float64)
+    return distance.reshape(np.broadcast_shapes(distance.shape, (1, 1)))
+
+
 def normalise(distance: np.ndarray, r_range: tuple[float, float] | None = None) -> np.ndarray:
     """r (n,) in [0, 1]: distance / its maximum, or (distance - R0) / (R1 - R0) clipped.
 
@@ -201,7 +233,8 @@ def normalise(distance: np.ndarray, r_range: tuple[float, float] | None = None) 
     low, high = (finite("r_range", v) for v in r_range)
     if not high > low:
         raise InputError(f"r_range: {low:g} {high:g} mm is of zero or negative width (need R0 < R1)")
-    return np.clip((distance - low) / (high - low), 0.0, 1.0)
+    r = np.asarray((distance - low) / (high - low))
+    return np.clip(r, 0.0, 1.0, out=r) if r.ndim else np.clip(r, 0.0, 1.0)
 
 
 def material_fraction(points: np.ndarray, reference: Reference, func: DistributionFunction,

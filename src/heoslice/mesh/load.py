@@ -50,7 +50,8 @@ class Mesh:
     spread to the vertices as the mean of the faces around each). duplicate_faces: how
     many faces repeated an earlier one and were dropped. part: (m,) int64 part label per face of an
     assembly (several files, a 3MF's objects), index into ``parts`` (:class:`heoslice.mesh.assembly.Part`),
-    or None for a mesh of one file that is not an assembly.
+    or None for a mesh of one file that is not an assembly. comments: the file's header comment lines (PLY),
+    where ``heoslice color`` records the design (:class:`heoslice.material.design.Design`).
     """
 
     vertices: np.ndarray
@@ -65,6 +66,7 @@ class Mesh:
     duplicate_faces: int = 0
     part: np.ndarray | None = None
     parts: tuple = ()
+    comments: tuple[str, ...] = ()
 
     @property
     def bounds(self) -> np.ndarray:
@@ -234,7 +236,7 @@ def prepared_mesh(path: Path, raw: RawMesh, sha256, *, flat_ok: bool = False) ->
     return Mesh(vertices=vertices, faces=faces, colors=colors, material=material, shell=shell, source=path,
                 sha256=sha256() if callable(sha256) else sha256, warnings=tuple(notes),
                 color_source=raw.color_source if colors is not None else None,
-                duplicate_faces=duplicate)
+                duplicate_faces=duplicate, comments=raw.comments)
 
 
 _METRES_NOTE = "largest extent is "

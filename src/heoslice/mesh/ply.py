@@ -48,11 +48,13 @@ class PlyProperty:
 
 @dataclass(frozen=True)
 class PlyHeader:
-    """A parsed PLY header: format ('ascii' or a binary byte order), elements in file order, body offset."""
+    """A parsed PLY header: format ('ascii' or a binary byte order), elements in file order, body offset, and
+    its ``comment`` and ``obj_info`` lines' text in file order (where ``heoslice color`` records the design)."""
 
     format: str
     elements: tuple[tuple[str, int, tuple[PlyProperty, ...]], ...]
     body_offset: int
+    comments: tuple[str, ...] = ()
 
 
 def parse_ply_header(path: Path, head: bytes) -> PlyHeader:
@@ -67,11 +69,15 @@ def parse_ply_header(path: Path, head: bytes) -> PlyHeader:
         raise InputError(f"{path}: PLY 'end_header' is not followed by a line break")
     fmt = None
     elements: list[tuple[str, int, list[PlyProperty]]] = []
+    comments: list[str] = []
     lines = head[:marker].decode("ascii", errors="replace").splitlines()
     for number, raw in enumerate(lines[1:], start=2):
         words = raw.split()
         where = f"{path}: PLY header line {number}"
-        if not words or words[0] in ("comment", "obj_info"):
+        if not words:
+            continue
+        if words[0] in ("comment", "obj_info"):
+            comments.append(" ".join(words[1:]))
             continue
         if words[0] == "format":
             if len(words) != 3 or words[1] not in _PLY_FORMATS or fmt is not None:
@@ -106,7 +112,7 @@ def parse_ply_header(path: Path, head: bytes) -> PlyHeader:
     for name, count, props in elements:
         if count and not props:
             raise InputError(f"{path}: PLY element {name!r} has {count} rows but no properties")
-    return PlyHeader(fmt, tuple((n, c, tuple(p)) for n, c, p in elements), newline + 1)
+    return PlyHeader(fmt, tuple((n, c, tuple(p)) for n, c, p in elements), newline + 1, tuple(comments))
 
 
 def _ply_min_body_bytes(header: PlyHeader) -> int:
@@ -348,7 +354,7 @@ def _read_ascii_elements(path: Path, header: PlyHeader, body: bytes, first_line:
     return elements
 
 
-def _ply_mesh(path: Path, elements: dict[str, dict]) -> RawMesh:
+def _ply_mesh(path: Path, elements: dict[str, dict], comments: tuple[str, ...] = ()) -> RawMesh:
     """Check the parsed elements and build a :class:`RawMesh` (vertex scalar columns kept as vertex_properties)."""
     vertex = elements.get("vertex")
     if vertex is None:
@@ -379,7 +385,7 @@ def _ply_mesh(path: Path, elements: dict[str, dict]) -> RawMesh:
     vertex_colors = _vertex_rgb(vertex_columns)
     source = "vertex" if vertex_colors is not None else "face" if face_colors is not None else None
     return RawMesh(vertices, triangles, vertex_colors=vertex_colors, face_colors=face_colors, color_source=source,
-                   vertex_properties=vertex_columns)
+                   vertex_properties=vertex_columns, comments=comments)
 
 
 def _vertex_rgb(columns: dict[str, np.ndarray]) -> np.ndarray | None:
@@ -424,5 +430,5 @@ def read_ply(path: Path) -> RawMesh:
             elements[name], offset = _read_binary_element(path, buffer, offset, name, count, props, order)
         if data[offset:].strip():
             raise InputError(f"{path}: {len(data) - offset} bytes of data after the last declared PLY element")
-    return _ply_mesh(path, elements)
+    return _ply_mesh(path, elements, header.comments)
 

@@ -25,7 +25,8 @@ class RawMesh:
     RGB given per vertex, or None. face_colors: (m, 3) uint8 RGB given per face, or None.
     color_source: 'vertex' or 'face' (what the file's colours belong to), or None.
     vertex_properties: the file's other per-vertex scalar columns by name, (n,) arrays
-    (the material fraction written by ``heoslice color`` among them).
+    (the material fraction written by ``heoslice color`` among them). comments: the file's header comment
+    lines (PLY ``comment``/``obj_info``; ``heoslice color``'s design among them).
     """
 
     vertices: np.ndarray
@@ -34,6 +35,7 @@ class RawMesh:
     face_colors: np.ndarray | None = None
     color_source: str | None = None
     vertex_properties: Mapping[str, np.ndarray] = field(default_factory=dict)
+    comments: tuple[str, ...] = ()
 
 
 def fan_triangles(lengths: np.ndarray, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -49,7 +49,8 @@ class PipelineCache:
 class GradedJob:
     """The extra a graded layer needs: its loops' signed areas, parents and shells ((l,), within
     the layer), the contour points' material mixes ((p, K) float over the channel materials, or None),
-    and the channel files."""
+    and the channel files; for the ``field`` interior, the design's field
+    (:class:`heoslice.material.field.MaterialField`) and the layer's height z (mm)."""
 
     spec: GradeSpec
     area: np.ndarray
@@ -57,6 +58,8 @@ class GradedJob:
     loop_shell: np.ndarray | None
     point_material: np.ndarray | None
     channel_paths: tuple[Path, ...] | None
+    field: object | None = None
+    z: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -128,6 +131,8 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
     grading_cache = None if cache is None else cache.grading
     started = time.perf_counter()
     packed, solid = packed_mask_and_count(job.points, job.offsets, job.grid)
+    if graded.field is not None:
+        return _render_field_and_write(job, packed, solid, cache, started)
     if graded.channel_paths is not None:
         planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, None,
                                 job.grid, graded.spec, job.index, point_material=graded.point_material,
@@ -154,13 +159,53 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
     return job.index, digest, layer.solid, rendered - started, encoded - rendered, ()
 
 
+def _render_field_and_write(job: LayerJob, packed: np.ndarray, solid: int, cache: PipelineCache | None,
+                            started: float) -> tuple:
+    """The ``field`` interior's branch of :func:`render_and_write`: each solid pixel's share of the design's target,
+    f(r) at the pixel centre's own 3-D r (:class:`heoslice.material.field.MaterialField`), as droplet masks beside
+    the 1-bit solid layer (:func:`heoslice.grading.pixel_mix.fraction_planes`), or as an RGBA preview layer."""
+    from heoslice.grading import droplet_counts
+    from heoslice.grading.pixel_mix import fraction_colors, fraction_planes
+
+    graded = job.graded
+    grade, design = graded.spec, graded.field.design
+    box, f = graded.field.layer_fraction(packed, job.grid, graded.z)
+    if graded.channel_paths is not None:
+        planes = fraction_planes(packed, box, f, job.grid, job.index, grade.channel_index(design.start),
+                                 grade.channel_index(design.target), len(grade.channel_materials()))
+        rendered = time.perf_counter()
+        width, part = job.grid.width, part_rows(job.points, job.grid)
+        level = deflate_level(True)
+        data = _solid_tiff(packed, solid, job, cache, level, part)
+        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm,
+                                             level=level, rows=part), count)
+                  for path, plane, count in zip(graded.channel_paths, planes, droplet_counts(planes, solid))]
+        encoded = time.perf_counter()
+        digest = write_file(job.path, data)
+        channels = tuple((path.name, write_file(path, blob), count) for path, blob, count in pieces)
+        return job.index, digest, solid, rendered - started, encoded - rendered, channels
+    image = np.zeros((job.grid.height, job.grid.width, 4), dtype=np.uint8)
+    r0, r1, c0, c1 = box
+    rows, cols = np.nonzero(np.unpackbits(packed[r0:r1], axis=1, count=job.grid.width)[:, c0:c1])
+    colors = fraction_colors(np.broadcast_to(f, (r1 - r0, c1 - c0))[rows, cols], design.start.color,
+                             design.target.color)
+    image[rows + r0, cols + c0, :3] = np.clip(np.rint(colors), 0, 255)
+    image[rows + r0, cols + c0, 3] = 255
+    rendered = time.perf_counter()
+    data = encode_tiff(image, job.dpi, job.compression, job.layer_height_mm)
+    encoded = time.perf_counter()
+    return job.index, write_file(job.path, data), solid, rendered - started, encoded - rendered, ()
+
+
 def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, directory: Path,
-               first_layer: int = 0, vertex_mix: np.ndarray | None = None):
+               first_layer: int = 0, vertex_mix: np.ndarray | None = None, field=None,
+               z: np.ndarray | None = None):
     """One LayerJob per layer of ``contours`` (layer k is stack layer first_layer + k), built lazily.
 
     A graded layer's contour points carry ``vertex_mix`` ((n, K) float,
     :class:`heoslice.pipeline.materials.MaterialJob`) interpolated along their edges; its colours come from
-    the materials, never from the mesh's own colours (which :func:`material_job` mapped to materials).
+    the materials, never from the mesh's own colours (which :func:`material_job` mapped to materials). With a
+    ``field`` (the ``field`` interior) each layer is evaluated at its plane's height z[index] ((L,) mm).
     """
     grade = spec.grade
     materials = grade.channel_materials() if grade is not None else ()
@@ -184,6 +229,7 @@ def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, dire
                 point_material=point_material,
                 channel_paths=tuple(directory / layer_file_name(index, channel_name(m)) for m in materials)
                 if spec.channels else None,
+                field=field, z=0.0 if z is None else float(z[index]),
             )
         yield LayerJob(
             index=index,

@@ -15,6 +15,12 @@ One rule, :func:`material_job`, decides per mesh:
 
 Each vertex's material is a mix over the spec's channel materials ((n, K) float, rows summing to 1),
 interpolated along the sliced edges like any vertex attribute.
+
+A model ``heoslice color`` made carries its design (:class:`heoslice.material.design.Design`): its material
+fraction is the share of the design's named target (M2) against its start (M1), whatever their places in the
+materials table, and its interior is by default the design's field evaluated at every voxel in 3D
+(``interior`` ``field``, :mod:`heoslice.material.field`); ``contour`` carries the contour's material inward
+(the rule above), ``graded`` is ``--grade``.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from heoslice.errors import InputError
 from heoslice.material import (
     DEFAULT_MATERIALS,
     Material,
@@ -42,6 +49,7 @@ class MaterialJob:
 
     spec: SliceSpec
     vertex_mix: np.ndarray | None
+    field: object | None = None
 
 
 def _plain_grade(table: tuple[Material, ...]):
@@ -71,6 +79,49 @@ def _fraction_mix(fraction: np.ndarray, grade) -> np.ndarray:
     return point_mixes(grade, np.nan_to_num(np.asarray(fraction, dtype=np.float64)))
 
 
+def _design(mesh: Mesh, spec: SliceSpec):
+    """The slice's design: the spec's (the command line settled it), else the mesh's own record with its
+    materials settled against ``spec.materials`` (:func:`heoslice.material.design.settle_materials`); None for
+    a model without one or without a material fraction."""
+    if mesh.material is None:
+        return None
+    if spec.design is not None:
+        return spec.design
+    from heoslice.material.design import design_of, settle_materials
+
+    design = design_of(mesh)
+    if design is None:
+        return None
+    table = {m.name: m for m in with_table_channels({m.name: m for m in spec.materials}).values()}
+    return settle_materials(design, table or None, "the materials table", str(mesh.source))
+
+
+def _interior(spec: SliceSpec, design) -> str:
+    """What the solid of a model gets (:data:`heoslice.material.design.INTERIORS`): the spec's, checked against
+    what the model and the grading allow, else the default (the field for a model with a design)."""
+    graded = spec.grade is not None and spec.grade.function is not None
+    if spec.interior is None:
+        return "graded" if graded else "field" if design is not None and not design.shells else "contour"
+    if spec.interior == "graded" and not graded:
+        raise InputError("interior: 'graded' needs a distribution function to grade with (grade)")
+    if spec.interior != "graded" and graded:
+        raise InputError(f"interior: a graded slice (grade) is 'graded', not {spec.interior!r}")
+    if spec.interior == "field" and design is None:
+        raise InputError("interior: 'field' evaluates the design heoslice color records in the model; this "
+                         "model has none (colour it with heoslice color, or use 'contour')")
+    if spec.interior == "field" and design.shells:
+        raise InputError("interior: 'field' does not colour shells whole; a design with shell colours is "
+                         "sliced with 'contour'")
+    return spec.interior
+
+
+def _designed(grade, design):
+    """``grade`` with the design's roles: its fraction mixes the design's start (base) and target (second),
+    and its shells coloured whole keep their material (a materials file's [shells] entry wins)."""
+    return replace(grade, base=design.start, second=design.target,
+                   shells=tuple(sorted({**dict(design.shells), **dict(grade.shells)}.items())))
+
+
 def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
     """The material model of slicing ``mesh`` with ``spec`` (the module's rule); ``spec.materials`` is the
     table colours map to (the built-in M1, M2 when empty)."""
@@ -78,10 +129,19 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
         return MaterialJob(spec, None)
     # a library caller's table gets its channels as a materials file's does (keyed by position: names may repeat)
     table = tuple(with_table_channels(dict(enumerate(spec.materials or DEFAULT_MATERIALS.values()))).values())
-    grade, mix = _masks_used(spec.grade, mesh), None
+    grade, mix, field = _masks_used(spec.grade, mesh), None, None
+    design = _design(mesh, spec)
+    interior = _interior(spec, design)
+    spec = replace(spec, design=design, interior=interior)
     if mesh.material is not None:
         grade = grade if grade is not None else _plain_grade(table)
-        if grade.second is not None:
+        if design is not None:
+            grade = _designed(grade, design)
+        if interior == "field":
+            from heoslice.material.field import material_field
+
+            field = material_field(design, mesh.source)
+        elif grade.second is not None:
             mix = _fraction_mix(mesh.material, grade)
     elif mesh.colors is not None:
         chosen = nearest_materials(mesh.colors, table)
@@ -101,4 +161,24 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
     if channels:
         grade = grade.with_printer_channels(table)
         check_one_per_channel(grade.channel_materials(), "the droplet masks")
-    return MaterialJob(replace(spec, grade=grade, channels=channels), mix)
+    if grade.function is not None and grade.regions.depth_from == "surface":
+        field = _surface_depth_field(mesh, grade, mix)
+    return MaterialJob(replace(spec, grade=grade, channels=channels), mix, field)
+
+
+def _surface_depth_field(mesh: Mesh, grade, mix):
+    """The field of ``--grade ... --depth D --depth-from surface``: from the start material (``--from``, else the
+    base) at the model's surface to the target at depth D, r the exact 3-D distance to the surface over D in
+    eq. 8's N_R sub-regions of the nozzle's width (or ``--offsets``)."""
+    from heoslice.grading.spec import band_count
+    from heoslice.material.design import Design, ReferenceRecord
+    from heoslice.material.field import depth_field
+
+    if mix is not None and grade.start is None:
+        raise InputError("depth_from: grading from the 3-D surface starts from one material: name it with --from "
+                         "(this model's contours carry several)")
+    regions = grade.regions
+    bands = regions.count if regions.count is not None else band_count(regions.depth_mm, regions.nozzle_mm)
+    start = grade.start if grade.start is not None else grade.base
+    design = Design(start, grade.target, ReferenceRecord("surface"), grade.function, (0.0, regions.depth_mm))
+    return depth_field(mesh.vertices, mesh.faces, design, bands)

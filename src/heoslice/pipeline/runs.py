@@ -28,7 +28,8 @@ class RunContext:
     """What every run of planes needs: the mesh, the planes ((L,) float, mm), each face's z-range
     ((m,) lowest and highest, mm), the grid, the spec (as
     :func:`heoslice.pipeline.materials.material_job` settled it), the stack directory and each vertex's
-    material mix ((n, K) float or None, :class:`heoslice.pipeline.materials.MaterialJob`)."""
+    material mix ((n, K) float or None, :class:`heoslice.pipeline.materials.MaterialJob`) or the design's field
+    (the ``field`` interior)."""
 
     mesh: Mesh
     z: np.ndarray
@@ -37,6 +38,7 @@ class RunContext:
     spec: SliceSpec
     directory: Path
     vertex_mix: np.ndarray | None = None
+    field: object | None = None
 
 
 @dataclass(frozen=True)
@@ -72,7 +74,7 @@ def slice_run(context: RunContext, start: int, stop: int, cache: PipelineCache |
         layers = render_parts_run(contours, context, start)
     else:
         jobs = layer_jobs(contours, context.mesh, context.grid, context.spec, context.directory,
-                          first_layer=start, vertex_mix=context.vertex_mix)
+                          first_layer=start, vertex_mix=context.vertex_mix, field=context.field, z=context.z)
         cache = PipelineCache() if cache is None else cache
         layers = [render_and_write(job, cache) for job in jobs]
     return RunResult(layers=layers, open_layers=start + contours.layer[contours.closed_by_join],

@@ -131,7 +131,7 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
                 progress(len(results), len(z))
 
         context = RunContext(mesh=mesh, z=z, face_range=face_z_range(mesh.vertices, mesh.faces), grid=grid,
-                             spec=spec, directory=directory, vertex_mix=job.vertex_mix)
+                             spec=spec, directory=directory, vertex_mix=job.vertex_mix, field=job.field)
         run_all(context, spec.worker_count(), on_done)
         mode = _image_mode(spec)
         droplets = _droplet_materials(spec)
@@ -160,7 +160,10 @@ def _grading(spec: SliceSpec) -> dict | None:
     """The manifest's ``grading`` object: the grading's, a multi-part job's droplet masks', or None."""
     if spec.parts is not None:
         return droplet_summary(spec.parts.materials) if spec.parts.channels else None
-    return None if spec.grade is None else grading_summary(spec.grade)
+    if spec.grade is None:
+        return None
+    return grading_summary(spec.grade, interior=spec.interior,
+                           design=None if spec.design is None else spec.design.record())
 
 
 def _channel_records(materials: tuple, written: tuple) -> tuple[ChannelRecord, ...]:

@@ -64,6 +64,10 @@ class SliceSpec:
     mesh's colours map to (empty: the built-in M1, M2). :func:`heoslice.pipeline.material_job` settles
     both for a mesh.
     ``parts`` makes the slice a multi-part job (:mod:`heoslice.pipeline.parts`; not graded).
+    ``design`` is the coloured model's design (:class:`heoslice.material.design.Design`, its materials as
+    the table has them; None: the mesh's own record, if any, is read); ``interior`` what a coloured model's
+    solid gets (:data:`heoslice.material.design.INTERIORS`; None: ``field`` for a model with a design,
+    ``graded`` with ``grade``'s function, else ``contour``).
     """
 
     layer_height_mm: float = 0.1
@@ -78,8 +82,14 @@ class SliceSpec:
     #: Segments sliced and chained at once; bounds memory (a few hundred bytes per segment).
     max_segments: int = 50_000
     parts: PartsPlan | None = None
+    design: object | None = None
+    interior: str | None = None
 
     def __post_init__(self):
+        from heoslice.material.design import INTERIORS
+
+        if self.interior is not None and self.interior not in INTERIORS:
+            raise InputError(f"interior: unknown interior {self.interior!r} (choose from {', '.join(INTERIORS)})")
         if self.compression not in COMPRESSIONS:
             raise InputError(f"compression: unknown compression {self.compression!r}; "
                              f"choose one of {', '.join(COMPRESSIONS)}")

@@ -149,12 +149,17 @@ def _layer_entry(index: int, layer: LayerRecord) -> dict:
     return entry
 
 
-def grading_summary(grade) -> dict:
+def grading_summary(grade, interior: str | None = None, design: dict | None = None) -> dict:
     """The manifest's ``grading`` object of a grading specification (``GradeSpec``): what the interiors
-    were graded with, and the materials of the droplet masks in the order of the layers' masks."""
+    were graded with, and the materials of the droplet masks in the order of the layers' masks; ``interior``
+    (``field``, ``contour`` or ``graded``: what a coloured model's solid got) and ``design`` (the model's
+    recorded design, :meth:`heoslice.material.design.Design.record`) when given."""
     regions = grade.regions
     material = _material_record
-    return {
+    extra = {key: value for key, value in (("interior", interior), ("design", design)) if value is not None}
+    if getattr(regions, "depth_from", "layer") != "layer":
+        extra["depth_from"] = regions.depth_from
+    return {**extra,
         "function": None if grade.function is None else grade.function.describe(),
         "target": material(grade.target),
         "from": material(grade.start),

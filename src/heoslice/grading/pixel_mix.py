@@ -1,0 +1,57 @@
+"""Droplet masks and preview colours of a layer whose every solid pixel has its own share f of a target material
+against a start material: the ``field`` interior (:mod:`heoslice.material.field`).
+
+The masks are the graded layers' own compiled ordered dither (:func:`heoslice.grading.droplets_kernels.droplet_bits`)
+with one label per dither level: a pixel jets the target where its threshold t (one of the 256 levels
+(k + 1/2) / 256 of :mod:`heoslice.grading.halftone`) is below f, so every f between two levels decides alike,
+and a pixel's label is q + 1, q = the number of levels below its f; the table of choices per label and level
+is then the whole halftone (no per-pixel arithmetic in the kernel). Over each aligned 16 x 16 tile of one f the
+target's share is q / 256, within 1/512 of f.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from heoslice.grading.droplets_kernels import Dither, LabelledLayer, LayerMixes, droplet_bits
+from heoslice.grading.halftone import TILE, layer_tile
+from heoslice.layers.rasterising import Grid
+
+#: The dither's levels: a tile holds each of them once.
+LEVELS = TILE * TILE
+
+
+def levels_below(f: np.ndarray) -> np.ndarray:
+    """q int64 of f's shape: how many of the dither levels (k + 1/2) / 256 lie below each f in [0, 1]."""
+    q = np.asarray(f) * np.float32(LEVELS) if np.asarray(f).dtype == np.float32 else (
+        np.asarray(f, dtype=np.float64) * LEVELS)
+    q -= 0.5
+    np.ceil(q, out=q)
+    np.clip(q, 0, LEVELS, out=q)
+    return q.astype(np.int64)
+
+
+def fraction_planes(packed: np.ndarray, box: tuple[int, int, int, int], f: np.ndarray, grid: Grid, layer: int,
+                    start: int, target: int, channels: int) -> np.ndarray:
+    """The droplet masks ((channels, h, ceil(w / 8)) uint8, bit-packed) of a layer whose solid pixels (``packed``,
+    every one inside ``box``: first row, end row, first column, end column) jet the ``target`` channel in the
+    share f (in [0, 1], an array that broadcasts to the box; its values off the solid pixels are not read) and
+    the ``start`` channel otherwise, by the layer's ordered dither (the module's rule)."""
+    planes = np.zeros((channels, grid.height, -(-grid.width // 8)), dtype=np.uint8)
+    row0, row1, col0, col1 = box
+    if row1 <= row0 or col1 <= col0:
+        return planes
+    label = np.broadcast_to((levels_below(f) + 1).astype(np.uint16), (row1 - row0, col1 - col0))
+    table = np.full((LEVELS + 2, LEVELS), start, dtype=np.int8)
+    table[1:] = np.where(np.arange(LEVELS)[None, :] < np.arange(LEVELS + 1)[:, None], target, start)
+    labels = LEVELS + 2
+    mixing = LayerMixes(np.zeros(labels, np.int64), np.zeros(labels), np.array([[row0, col0, 1, 1, 0]], np.int64),
+                        np.zeros(channels), np.zeros(channels))
+    return droplet_bits(LabelledLayer(label, row0, col0, packed), mixing, Dither(layer_tile(layer), table, start),
+                        planes)
+
+
+def fraction_colors(f: np.ndarray, start_color, target_color) -> np.ndarray:
+    """The display colour (n, 3) float 0..255 of each pixel's share f (n,): eq. 1's blend of the two colours."""
+    start, target = (np.asarray(c, dtype=np.float64) for c in (start_color, target_color))
+    return start + np.asarray(f, dtype=np.float64)[:, None] * (target - start)
