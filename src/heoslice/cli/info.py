@@ -1,4 +1,4 @@
-"""``heoslice info``: what a mesh file holds, before slicing it."""
+"""``heoslice info``: what a mesh file or a volume (label map, CT) holds, before slicing it."""
 
 from __future__ import annotations
 
@@ -8,18 +8,39 @@ from pathlib import Path
 import click
 
 from heoslice.mesh import load_mesh, mesh_info
+from heoslice.volume import is_volume_path
 
 
 @click.command("info", epilog="""\b
 Examples:
   heoslice info vase.ply
   heoslice info liver.stl --json | jq .volume_mm3
+  heoslice info example_seg.nii.gz              # a label map: each label's name, voxels and volume
+  heoslice info ct_dicom/                       # a DICOM series folder (or a folder of structure files)
 """)
 @click.argument("model", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-def info(model: Path, as_json: bool) -> None:
+@click.option("--as", "kind", type=click.Choice(["labels", "intensity"]), default=None,
+              help="Read a volume as a label map or an intensity volume [default: guessed: whole numbers, none "
+                   "negative, at most 1000 values make a label map].")
+def info(model: Path, as_json: bool, kind: str | None) -> None:
     """Print MODEL's vertices, triangles, bounding box, watertightness, winding, shells, duplicate faces,
-    volume (of the solid the slicer fills: overlapping shells count once, as in 'verify --mesh'), colours."""
+    volume (of the solid the slicer fills: overlapping shells count once, as in 'verify --mesh'), colours.
+
+    For a volume (NIfTI .nii/.nii.gz, NRRD/.seg.nrrd, a folder of one NIfTI per structure, a DICOM series
+    folder): its shape, voxel size, orientation, extent in mm and, for a label map, each label's name (where
+    the file has one), voxel count and volume.
+    """
+    if is_volume_path(model):
+        from heoslice.volume import load_volume
+        from heoslice.volume.info import info_lines, volume_info
+
+        summary = volume_info(load_volume(model, kind))
+        if as_json:
+            click.echo(json.dumps({"model": str(model), "ok": True, **summary}))
+        else:
+            click.echo("\n".join(info_lines(summary)))
+        return
     summary = mesh_info(load_mesh(model))
     if as_json:
         click.echo(json.dumps({"model": str(model), "ok": True, **summary}))
