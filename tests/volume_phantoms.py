@@ -12,6 +12,8 @@ import numpy as np
 
 #: RAS <-> LPS: x and y negated.
 FLIP_XY = np.diag([-1.0, -1.0, 1.0, 1.0])
+#: The torus phantom's radii (major, minor), mm: its tube at least three 3 mm voxels in radius.
+TORUS = (24.0, 12.0)
 
 
 def grid_affine(voxel_mm: float, origin_mm) -> np.ndarray:
@@ -32,18 +34,21 @@ def sphere_field(points: np.ndarray, centre, radius: float) -> np.ndarray:
     return np.linalg.norm(points - np.asarray(centre), axis=-1) - radius
 
 
-def torus_field(points: np.ndarray, centre, major: float, minor: float) -> np.ndarray:
-    """Signed distance to a torus about the z axis through ``centre``, mm (negative inside)."""
+def torus_field(points: np.ndarray, centre, major: float, minor: float, axis=(1.0, 2.0, 3.0)) -> np.ndarray:
+    """Signed distance to a torus about ``axis`` through ``centre``, mm (negative inside); the default axis is
+    tilted off the voxel axes, so that no row of voxels runs along the tube."""
     p = points - np.asarray(centre)
-    ring = np.hypot(p[..., 0], p[..., 1]) - major
-    return np.hypot(ring, p[..., 2]) - minor
+    normal = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    height = p @ normal
+    ring = np.linalg.norm(p - height[..., None] * normal, axis=-1) - major
+    return np.hypot(ring, height) - minor
 
 
 def phantom(kind: str, voxel_mm: float, seed: int = 0):
     """(labels (i, j, k) uint8, RAS affine, centre mm, field function) of a sphere (label 1, radius 20 mm) or a
-    torus (label 2, radii 20 and 8 mm) voxelised at ``voxel_mm`` with the centre off the voxel grid."""
+    torus (label 2, radii TORUS mm) voxelised at ``voxel_mm`` with the centre off the voxel grid."""
     rng = np.random.default_rng(seed)
-    extent = 34.0 if kind == "sphere" else 36.0
+    extent = 34.0 if kind == "sphere" else 46.0
     count = int(np.ceil(2 * extent / voxel_mm)) + 1
     affine = grid_affine(voxel_mm, [-extent, -extent + 3.0, -extent + 50.0])
     centre = np.array([0.0, 3.0, 50.0]) + rng.uniform(-0.5, 0.5, 3) * voxel_mm
@@ -54,7 +59,7 @@ def phantom(kind: str, voxel_mm: float, seed: int = 0):
         value = 1
     else:
         def field(p):
-            return torus_field(p, centre, 20.0, 8.0)
+            return torus_field(p, centre, TORUS[0], TORUS[1])
         value = 2
     labels = np.where(field(points) <= 0, value, 0).astype(np.uint8)
     return labels, affine, centre, field

@@ -1,0 +1,77 @@
+"""``heoslice slice`` of a volume (a label map: NIfTI, NRRD/.seg.nrrd, a folder of structure files): the
+options it adds, the labels' materials from the materials file, the slice and its report."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from heoslice.cli.common import echo_json, echo_warnings, plural, progress_bar
+from heoslice.errors import InputError
+from heoslice.material import MaterialsFile
+from heoslice.pipeline import SliceSpec
+from heoslice.stack import stack_volume_mm3
+
+#: File-name endings dropped to name a volume's default stack (example_seg.nii.gz -> example_seg_stack).
+VOLUME_ENDINGS = (".seg.nrrd", ".nii.gz", ".nii", ".nrrd", ".nhdr")
+
+
+def volume_stem(path: Path) -> str:
+    """A volume's name without its format's endings."""
+    name = path.name.rstrip("/") or path.resolve().name
+    for ending in VOLUME_ENDINGS:
+        if name.lower().endswith(ending):
+            return name[: -len(ending)]
+    return name
+
+
+def volume_options(command):
+    """The options ``slice`` takes for a volume."""
+    command = click.option("--up", type=click.Choice(["S", "I", "A", "P", "R", "L"]), default="S", show_default=True,
+                           help="Volumes: the anatomical direction that becomes the printer's +z (S superior, I "
+                                "inferior, A anterior, P posterior, R right, L left).")(command)
+    command = click.option("--smooth", type=float, default=None, metavar="VOXELS",
+                           help="Volumes: the blur (sigma, voxels) that smooths each label's surface between voxel "
+                                "centres [default: 0.3 x the label's largest inscribed radius, 1.5 .. 3].")(command)
+    return click.option("--as", "volume_kind", type=click.Choice(["labels", "intensity"]), default=None,
+                        help="Volumes: read as a label map or an intensity volume [default: guessed].")(command)
+
+
+def slice_volume(model: Path, output: Path | None, spec: SliceSpec, force: bool, as_json: bool,
+                 materials: MaterialsFile, channels: bool, up: str, smooth: float | None, kind: str | None) -> None:
+    """Load the label map at ``model``, plan its labels' materials ([labels]), slice it and report."""
+    from heoslice.pipeline.volume_job import plan_labels, slice_volume_to_stack
+    from heoslice.volume import load_volume
+
+    if smooth is not None and not 0 <= smooth <= 10:
+        raise InputError(f"--smooth: must be from 0 to 10 voxels, got {smooth:g}")
+    volume = load_volume(model, kind)
+    if volume.kind != "labels":
+        raise InputError(f"{model}: an intensity volume; slicing one needs an [intensity] curve in the materials "
+                         "file (not yet supported); slice its label map, or say --as labels")
+    settings = materials.labels() if materials.has_labels else None
+    plan = plan_labels(volume, materials.materials, settings, channels)
+    directory = output if output is not None else Path.cwd() / f"{volume_stem(model)}_stack"
+    if not as_json:
+        echo_warnings(model, [*volume.warnings, *plan.warnings])
+    with progress_bar("slicing", unit="layer") as update:
+        manifest, times = slice_volume_to_stack(volume, directory, spec, plan, up=up, smooth=smooth, force=force,
+                                                progress=update)
+    names = [material.name for material in plan.materials]
+    summary = {"model": str(model), "ok": True, "stack": str(directory), "layers": len(manifest["layers"]),
+               "image": [manifest["image"]["width"], manifest["image"]["height"]], "dpi": manifest["dpi"],
+               "volume_mm3": stack_volume_mm3(manifest), "materials": names, "droplet_masks": plan.channels,
+               "labels": manifest["labels"], "placement": manifest["placement"],
+               "warnings": list(manifest["warnings"]), "seconds": {"fields": times.slice, "raster_cpu": times.raster,
+                                                                  "encode_cpu": times.encode, "total": times.total}}
+    if as_json:
+        echo_json(summary)
+        return
+    masks = f"a solid mask and {plural(len(names), 'droplet mask')} per layer" if plan.channels else \
+        "one material: a solid mask per layer"
+    click.echo(f"{directory}: {plural(summary['layers'], 'layer')} of {summary['image'][0]} x {summary['image'][1]} px "
+               f"at {manifest['dpi'][0]:g} x {manifest['dpi'][1]:g} dpi, volume {summary['volume_mm3']:.1f} mm^3, "
+               f"{times.total:.1f} s; {plural(len(plan.labels), 'label')}, {masks}")
+    sys.stdout.flush()

@@ -1,0 +1,117 @@
+"""The volume route's compiled kernels (numba source, compiled at install: :mod:`heoslice.jit`): one layer's
+label fields resampled at the pixel centres into a material code per pixel, and those codes packed into
+the layer's 1-bit solid mask and droplet masks.
+
+The fields are given on the layer's plane at the voxel nodes (already interpolated along z), so a pixel's
+value is their bilinear interpolation: exactly the trilinear interpolation of the voxel fields. A pixel
+belongs to the label of highest score (its field, plus the label's boost where the field is positive);
+the layer is solid where the union's field or any label's field is positive. Along a pixel row the fields
+are linear within each voxel cell, so a cell whose two ends agree on the winner (inside at both ends) and
+in which no field changes sign is filled at once; only the cells a boundary crosses are evaluated per pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from heoslice.jit import JIT, kernel
+
+
+@kernel(JIT)
+def _label_codes(fields, union, boost, codes, boxes, row_cell, row_frac, cell_start, col_frac, out):
+    """Fill ``out`` ((H, W) uint8, zeroed) with each pixel's material code (0: empty).
+
+    fields: (L, NY, NX) float32, each label's field at the layer's voxel nodes (positive inside); union:
+    (NY, NX) float32; boost: (L,) float32; codes: (L,) uint8 (1..K); boxes: (L, 4) int64, the node ranges
+    [y0, y1) and [x0, x1) where a label's field is given (elsewhere it is far outside); row_cell, row_frac: (H,)
+    each pixel row's node row below it and its fraction towards the next (cell -1: off the grid);
+    cell_start: (NX,) int64, the first pixel column of each node column's cell (the last entry: the end);
+    col_frac: (W,) float32, each pixel column's fraction across its cell.
+    """
+    count, rows_n, columns_n = fields.shape
+    row_values = np.zeros((count, columns_n), dtype=np.float32)
+    union_row = np.zeros(columns_n, dtype=np.float32)
+    active = np.zeros(count, dtype=np.int64)
+    for row in range(out.shape[0]):
+        cy = row_cell[row]
+        if cy < 0 or cy > rows_n - 2:
+            continue
+        fy = row_frac[row]
+        present = 0
+        for label in range(count):
+            if boxes[label, 0] <= cy and cy + 1 < boxes[label, 1]:
+                for x in range(boxes[label, 2], boxes[label, 3]):
+                    row_values[label, x] = fields[label, cy, x] + fy * (fields[label, cy + 1, x] - fields[label, cy, x])
+                active[present] = label
+                present += 1
+        for x in range(columns_n):
+            union_row[x] = union[cy, x] + fy * (union[cy + 1, x] - union[cy, x])
+        for cx in range(columns_n - 1):
+            first, stop = cell_start[cx], cell_start[cx + 1]
+            if first >= stop:
+                continue
+            ua, ub = union_row[cx], union_row[cx + 1]
+            best_a, best_b = -np.inf, -np.inf
+            win_a, win_b = -1, -1
+            mixed = False
+            inside_a, inside_b = False, False
+            for position in range(present):
+                label = active[position]
+                if boxes[label, 2] > cx or cx + 1 >= boxes[label, 3]:
+                    continue
+                va, vb = row_values[label, cx], row_values[label, cx + 1]
+                sa = va + boost[label] if va > 0 else va
+                sb = vb + boost[label] if vb > 0 else vb
+                if sa > best_a:
+                    best_a, win_a = sa, label
+                if sb > best_b:
+                    best_b, win_b = sb, label
+                if (va > 0) != (vb > 0):
+                    mixed = True
+                inside_a = inside_a or va > 0
+                inside_b = inside_b or vb > 0
+            if not mixed and not inside_a and not inside_b and ua <= 0 and ub <= 0:
+                continue
+            if not mixed and win_a == win_b and win_a >= 0 and row_values[win_a, cx] > 0 \
+                    and row_values[win_a, cx + 1] > 0:
+                code = codes[win_a]
+                for column in range(first, stop):
+                    out[row, column] = code
+                continue
+            for column in range(first, stop):
+                fx = col_frac[column]
+                solid = ua + fx * (ub - ua) > 0
+                best, winner = -np.inf, -1
+                for position in range(present):
+                    label = active[position]
+                    if boxes[label, 2] > cx or cx + 1 >= boxes[label, 3]:
+                        continue
+                    va = row_values[label, cx]
+                    value = va + fx * (row_values[label, cx + 1] - va)
+                    score = value
+                    if value > 0:
+                        solid = True
+                        score = value + boost[label]
+                    if score > best:
+                        best, winner = score, label
+                if solid and winner >= 0:
+                    out[row, column] = codes[winner]
+
+
+@kernel(JIT)
+def _pack_codes(codes, planes, counts):
+    """Pack a layer's material codes ((H, W) uint8, 0 empty) into ``planes`` ((K + 1, H, ceil(W / 8)) uint8,
+    zeroed, most significant bit first): plane 0 the solid mask, plane m the pixels of code m; ``counts``
+    ((K + 1,) int64) their set pixels."""
+    height, width = codes.shape
+    for row in range(height):
+        for column in range(width):
+            code = codes[row, column]
+            if code == 0:
+                continue
+            bit = np.uint8(0x80 >> (column & 7))
+            byte = column >> 3
+            planes[0, row, byte] |= bit
+            planes[code, row, byte] |= bit
+            counts[0] += 1
+            counts[code] += 1
