@@ -126,16 +126,3 @@ def label_field(oriented: np.ndarray, value: int, box: tuple[slice, ...], smooth
     printer's axes) within ``box`` (their bounding box); ``smooth`` fixes the blur (None: by thickness)."""
     crop, start = padded_crop(oriented, box, padding(MAX_SMOOTH if smooth is None else smooth))
     return _field_of(crop == value, start, smooth)
-
-
-def union_field(masks: list[tuple[np.ndarray, int, tuple[slice, ...]]], smooth: float | None = None) -> LabelField:
-    """The field of the union of several labels ((oriented array, value, box) each): where the print is solid."""
-    pad = padding(MAX_SMOOTH if smooth is None else smooth)
-    low = np.min([[piece.start for piece in box] for _, _, box in masks], axis=0)
-    high = np.max([[piece.stop for piece in box] for _, _, box in masks], axis=0)
-    box = tuple(slice(int(a), int(b)) for a, b in zip(low, high))
-    union = None
-    for oriented, value, _ in masks:
-        crop, start = padded_crop(oriented, box, pad)
-        union = (crop == value) if union is None else union | (crop == value)
-    return _field_of(union, start, smooth)

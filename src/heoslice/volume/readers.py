@@ -273,7 +273,9 @@ def _read_folder(path: Path, kind: str | None) -> Volume:
         if kind == "intensity":
             raise InputError(f"{path}: a folder of NIfTI files is read as one label file per structure")
         return read_structure_folder(path, niftis)
-    return read_dicom_series(path, files)
+    volume = read_dicom_series(path, files)
+    return volume if kind != "labels" else _finish(path, volume.data, volume.affine, "LPS", "labels", None,
+                                                   volume.sha256)
 
 
 def _structure_name(file: Path) -> str:

@@ -3,8 +3,8 @@
 (:mod:`heoslice.volume.resample_kernels`). Memory: the fields (each on its label's box) plus one layer's
 codes and masks; nothing grows with the number of layers.
 
-The rule at a pixel: it is solid where the union of the printed labels' field is positive, or any label's
-field is; it takes the label of highest score, a label's score being its field plus its boost where its
+The rule at a pixel: it is solid where a printed label's field is positive, or where two labels' fields
+both come within CRACK_VOXELS of it (the seam of two touching labels); it takes the label of highest score, a label's score being its field plus its boost where its
 field is positive. A label map's labels do not overlap, so their boost is 0 and the label most inside wins,
 except labels of fewer than PROTECT_VOXELS voxels, boosted: they keep every pixel their own field marks
 inside (a one-voxel label is never swallowed by the organ around it). Overlapping structures (a folder of
@@ -18,9 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from heoslice.jit import f32
 from heoslice.layers.rasterising import Grid
-from heoslice.volume.fields import FAR_OUTSIDE, LabelField, label_field, union_field
+from heoslice.volume.fields import FAR_OUTSIDE, LabelField, label_field
 from heoslice.volume.model import Label, Volume
 from heoslice.volume.placement import Placement
 from heoslice.volume.resample_kernels import _label_codes, _pack_codes
@@ -29,19 +28,20 @@ from heoslice.volume.resample_kernels import _label_codes, _pack_codes
 PROTECT_VOXELS = 64
 #: The boost of a protected label, and of each rank of overlapping structures: above any field's range.
 BOOST = np.float32(1e4)
+#: Voxels: two labels whose fields both come this close to positive at a pixel make it solid (their seam).
+CRACK_VOXELS = 0.25
 
 
 @dataclass(frozen=True)
 class LabelPrint:
     """A label map ready to resample: the printed labels' fields, material codes (1..K, (L,) uint8) and
-    boosts ((L,) float32), the union's field, and the oriented grid (origin: printer (z, y, x) mm of index
+    boosts ((L,) float32), and the oriented grid (origin: printer (z, y, x) mm of index
     (0, 0, 0); spacing: (3,) mm). ``boxes``: (L, 2, 3) int64, each label's voxel box [start, stop) (unpadded)."""
 
     labels: tuple[Label, ...]
     fields: tuple[LabelField, ...]
     codes: np.ndarray
     boost: np.ndarray
-    union: LabelField
     origin: np.ndarray
     spacing: np.ndarray
     boxes: np.ndarray
@@ -67,19 +67,18 @@ def label_print(volume: Volume, placement: Placement, printed: list[tuple[Label,
         wanted = max((label.value for label, _ in printed if label.layer == layer), default=0)
         if wanted > 0:
             objects[layer] = ndimage.find_objects(oriented, max_label=wanted)
-    fields, boxes, sources = [], [], []
+    fields, boxes = [], []
     for label, _ in printed:
         box = objects[label.layer][label.value - 1]
         fields.append(label_field(oriented_layers[label.layer], label.value, box, smooth))
         boxes.append([[piece.start for piece in box], [piece.stop for piece in box]])
-        sources.append((oriented_layers[label.layer], label.value, box))
     if ranks is None:
         boost = np.array([BOOST if field.voxels < PROTECT_VOXELS else 0.0 for field in fields], dtype=np.float32)
     else:
         boost = np.array([BOOST * (len(ranks) - rank) for rank in ranks], dtype=np.float32)
     shape = volume.shape
     return LabelPrint(tuple(label for label, _ in printed), tuple(fields),
-                      np.array([code for _, code in printed], dtype=np.uint8), boost, union_field(sources, smooth),
+                      np.array([code for _, code in printed], dtype=np.uint8), boost,
                       placement.oriented_origin(shape), placement.spacing, np.array(boxes, dtype=np.int64))
 
 
@@ -112,33 +111,27 @@ def layer_masks(plan: LabelPrint, z_mm: float, grid: Grid, materials: int) -> tu
     planes = np.zeros((materials + 1, grid.height, -(-grid.width // 8)), dtype=np.uint8)
     counts = np.zeros(materials + 1, dtype=np.int64)
     k = (z_mm - plan.origin[0]) / plan.spacing[0]
-    union = _plane(plan.union, k)
-    if union is None:
-        return planes, counts
-    start = plan.union.start
-    rows_n, columns_n = union.shape
-    chosen, boxes = [], []
-    for index, field in enumerate(plan.fields):
-        values = _plane(field, k)
-        if values is None:
-            continue
-        offset = field.start[1:] - start[1:]
-        chosen.append((index, values, offset))
-        boxes.append([offset[0], offset[0] + values.shape[0], offset[1], offset[1] + values.shape[1]])
+    chosen = [(index, values, field.start) for index, field in enumerate(plan.fields)
+              if (values := _plane(field, k)) is not None]
     if not chosen:
         return planes, counts
+    low = np.min([start[1:] for _, _, start in chosen], axis=0)
+    high = np.max([start[1:] + values.shape for _, values, start in chosen], axis=0)
+    rows_n, columns_n = (int(n) for n in high - low)
     fields = np.full((len(chosen), rows_n, columns_n), FAR_OUTSIDE, dtype=np.float32)
-    for slot, (_, values, offset) in enumerate(chosen):
-        fields[slot, offset[0]:offset[0] + values.shape[0], offset[1]:offset[1] + values.shape[1]] = values
+    boxes = np.zeros((len(chosen), 4), dtype=np.int64)
+    for slot, (_, values, start) in enumerate(chosen):
+        y0, x0 = (int(n) for n in start[1:] - low)
+        fields[slot, y0:y0 + values.shape[0], x0:x0 + values.shape[1]] = values
+        boxes[slot] = (y0, y0 + values.shape[0], x0, x0 + values.shape[1])
     picked = np.array([index for index, _, _ in chosen])
     x, y = grid.centres()
-    row_cell, row_frac = _cells(y, plan.origin[1], plan.spacing[1], int(start[1]), rows_n)
+    row_cell, row_frac = _cells(y, plan.origin[1], plan.spacing[1], int(low[0]), rows_n)
     row_cell[row_cell > rows_n - 2] = -1
-    col_cell, col_frac = _cells(x, plan.origin[2], plan.spacing[2], int(start[2]), columns_n)
+    col_cell, col_frac = _cells(x, plan.origin[2], plan.spacing[2], int(low[1]), columns_n)
     cell_start = np.searchsorted(col_cell, np.arange(columns_n)).astype(np.int64)
     codes = np.zeros((grid.height, grid.width), dtype=np.uint8)
-    _label_codes(fields, f32(union), np.ascontiguousarray(plan.boost[picked]),
-                 np.ascontiguousarray(plan.codes[picked]), np.array(boxes, dtype=np.int64), row_cell, row_frac,
-                 cell_start, col_frac, codes)
+    _label_codes(fields, np.ascontiguousarray(plan.boost[picked]), np.ascontiguousarray(plan.codes[picked]), boxes,
+                 CRACK_VOXELS, row_cell, row_frac, cell_start, col_frac, codes)
     _pack_codes(codes, planes, counts)
     return planes, counts

@@ -5,7 +5,9 @@ the layer's 1-bit solid mask and droplet masks.
 The fields are given on the layer's plane at the voxel nodes (already interpolated along z), so a pixel's
 value is their bilinear interpolation: exactly the trilinear interpolation of the voxel fields. A pixel
 belongs to the label of highest score (its field, plus the label's boost where the field is positive);
-the layer is solid where the union's field or any label's field is positive. Along a pixel row the fields
+the layer is solid where a label's field is positive, or where two labels' fields both come within a
+``crack`` of it (the seam between two touching labels, whose fields need not meet exactly: a gap of
+background between labels is a voxel or more wide and stays). Along a pixel row the fields
 are linear within each voxel cell, so a cell whose two ends agree on the winner (inside at both ends) and
 in which no field changes sign is filled at once; only the cells a boundary crosses are evaluated per pixel.
 """
@@ -18,19 +20,19 @@ from heoslice.jit import JIT, kernel
 
 
 @kernel(JIT)
-def _label_codes(fields, union, boost, codes, boxes, row_cell, row_frac, cell_start, col_frac, out):
+def _label_codes(fields, boost, codes, boxes, crack, row_cell, row_frac, cell_start, col_frac, out):
     """Fill ``out`` ((H, W) uint8, zeroed) with each pixel's material code (0: empty).
 
-    fields: (L, NY, NX) float32, each label's field at the layer's voxel nodes (positive inside); union:
-    (NY, NX) float32; boost: (L,) float32; codes: (L,) uint8 (1..K); boxes: (L, 4) int64, the node ranges
-    [y0, y1) and [x0, x1) where a label's field is given (elsewhere it is far outside); row_cell, row_frac: (H,)
-    each pixel row's node row below it and its fraction towards the next (cell -1: off the grid);
-    cell_start: (NX,) int64, the first pixel column of each node column's cell (the last entry: the end);
-    col_frac: (W,) float32, each pixel column's fraction across its cell.
+    fields: (L, NY, NX) float32, each label's field at the layer's voxel nodes (voxels, positive inside);
+    boost: (L,) float32; codes: (L,) uint8 (1..K); boxes: (L, 4) int64, the node ranges [y0, y1) and [x0, x1)
+    where a label's field is given (elsewhere it is far outside); crack: voxels, the seam two labels' fields
+    may leave between them and still be one solid; row_cell, row_frac: (H,) each pixel row's node row below it
+    and its fraction towards the next (cell -1: off the grid); cell_start: (NX,) int64, the first pixel column
+    of each node column's cell (the last entry: the end); col_frac: (W,) float32, each pixel column's fraction
+    across its cell.
     """
     count, rows_n, columns_n = fields.shape
     row_values = np.zeros((count, columns_n), dtype=np.float32)
-    union_row = np.zeros(columns_n, dtype=np.float32)
     active = np.zeros(count, dtype=np.int64)
     for row in range(out.shape[0]):
         cy = row_cell[row]
@@ -44,17 +46,15 @@ def _label_codes(fields, union, boost, codes, boxes, row_cell, row_frac, cell_st
                     row_values[label, x] = fields[label, cy, x] + fy * (fields[label, cy + 1, x] - fields[label, cy, x])
                 active[present] = label
                 present += 1
-        for x in range(columns_n):
-            union_row[x] = union[cy, x] + fy * (union[cy + 1, x] - union[cy, x])
         for cx in range(columns_n - 1):
             first, stop = cell_start[cx], cell_start[cx + 1]
             if first >= stop:
                 continue
-            ua, ub = union_row[cx], union_row[cx + 1]
             best_a, best_b = -np.inf, -np.inf
             win_a, win_b = -1, -1
             mixed = False
-            inside_a, inside_b = False, False
+            inside = False
+            near = 0
             for position in range(present):
                 label = active[position]
                 if boxes[label, 2] > cx or cx + 1 >= boxes[label, 3]:
@@ -68,9 +68,11 @@ def _label_codes(fields, union, boost, codes, boxes, row_cell, row_frac, cell_st
                     best_b, win_b = sb, label
                 if (va > 0) != (vb > 0):
                     mixed = True
-                inside_a = inside_a or va > 0
-                inside_b = inside_b or vb > 0
-            if not mixed and not inside_a and not inside_b and ua <= 0 and ub <= 0:
+                if va > 0 or vb > 0:
+                    inside = True
+                if va > -crack or vb > -crack:
+                    near += 1
+            if not inside and near < 2:
                 continue
             if not mixed and win_a == win_b and win_a >= 0 and row_values[win_a, cx] > 0 \
                     and row_values[win_a, cx + 1] > 0:
@@ -80,21 +82,22 @@ def _label_codes(fields, union, boost, codes, boxes, row_cell, row_frac, cell_st
                 continue
             for column in range(first, stop):
                 fx = col_frac[column]
-                solid = ua + fx * (ub - ua) > 0
                 best, winner = -np.inf, -1
+                top, second = -np.inf, -np.inf
                 for position in range(present):
                     label = active[position]
                     if boxes[label, 2] > cx or cx + 1 >= boxes[label, 3]:
                         continue
                     va = row_values[label, cx]
                     value = va + fx * (row_values[label, cx + 1] - va)
-                    score = value
-                    if value > 0:
-                        solid = True
-                        score = value + boost[label]
+                    score = value + boost[label] if value > 0 else value
                     if score > best:
                         best, winner = score, label
-                if solid and winner >= 0:
+                    if value > top:
+                        top, second = value, top
+                    elif value > second:
+                        second = value
+                if winner >= 0 and (top > 0 or second > -crack):
                     out[row, column] = codes[winner]
 
 
