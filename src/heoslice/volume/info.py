@@ -84,3 +84,12 @@ def info_lines(summary: dict) -> list[str]:
                      f"{label['volume_mm3']:.6g} mm^3" + (f" (layer {label['layer']})" if summary["layers"] > 1 else ""))
     lines += [f"warning:            {text}" for text in summary["warnings"]]
     return lines
+
+
+def printed_voxel_volume_mm3(volume: Volume, records: list[dict]) -> float:
+    """The voxel volume (mm^3) of the labels a stack's manifest lists as printed (``labels``: value and layer
+    each): what ``verify --mesh VOLUME`` compares the stack's volume with. A listed label the volume does
+    not hold counts 0 voxels."""
+    counts = dict(zip(((label.layer, label.value) for label in volume.labels), label_counts(volume)))
+    voxels = sum(counts.get((int(record.get("layer", 0)), int(record["value"])), 0) for record in records)
+    return voxels * volume.voxel_volume_mm3
