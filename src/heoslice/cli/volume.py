@@ -49,8 +49,8 @@ def slice_volume(model: Path, output: Path | None, spec: SliceSpec, force: bool,
         raise InputError(f"--smooth: must be from 0 to 10 voxels, got {smooth:g}")
     volume = load_volume(model, kind)
     if volume.kind != "labels":
-        raise InputError(f"{model}: an intensity volume; slicing one needs an [intensity] curve in the materials "
-                         "file (not yet supported); slice its label map, or say --as labels")
+        slice_intensity(model, volume, output, spec, force, as_json, materials, up)
+        return
     settings = materials.labels() if materials.has_labels else None
     plan = plan_labels(volume, materials.materials, settings, channels)
     directory = output if output is not None else Path.cwd() / f"{volume_stem(model)}_stack"
@@ -74,4 +74,34 @@ def slice_volume(model: Path, output: Path | None, spec: SliceSpec, force: bool,
     click.echo(f"{directory}: {plural(summary['layers'], 'layer')} of {summary['image'][0]} x {summary['image'][1]} px "
                f"at {manifest['dpi'][0]:g} x {manifest['dpi'][1]:g} dpi, volume {summary['volume_mm3']:.1f} mm^3, "
                f"{times.total:.1f} s; {plural(len(plan.labels), 'label')}, {masks}")
+    sys.stdout.flush()
+
+
+def slice_intensity(model: Path, volume, output: Path | None, spec: SliceSpec, force: bool, as_json: bool,
+                    materials: MaterialsFile, up: str) -> None:
+    """Slice an intensity volume (a CT) through the materials file's [intensity] curve, and report."""
+    from heoslice.pipeline.volume_job import slice_intensity_to_stack
+    from heoslice.volume.intensity import read_curve
+
+    if "intensity" not in materials.data:
+        raise InputError(f"{model}: an intensity volume: slicing it needs an [intensity] curve (value -> blend of "
+                         "materials) in the --materials file; or slice its label map, or say --as labels")
+    curve = read_curve(materials.data["intensity"], materials.materials, f"{materials.path}: [intensity]")
+    directory = output if output is not None else Path.cwd() / f"{volume_stem(model)}_stack"
+    with progress_bar("slicing", unit="layer") as update:
+        manifest, times = slice_intensity_to_stack(volume, directory, spec, curve, up=up, force=force,
+                                                   progress=update)
+    names = [material.name for material in curve.materials]
+    summary = {"model": str(model), "ok": True, "stack": str(directory), "layers": len(manifest["layers"]),
+               "image": [manifest["image"]["width"], manifest["image"]["height"]], "dpi": manifest["dpi"],
+               "volume_mm3": stack_volume_mm3(manifest), "materials": names, "droplet_masks": True,
+               "placement": manifest["placement"], "warnings": list(manifest["warnings"]),
+               "seconds": {"raster_cpu": times.raster, "encode_cpu": times.encode, "total": times.total}}
+    if as_json:
+        echo_json(summary)
+        return
+    click.echo(f"{directory}: {plural(summary['layers'], 'layer')} of {summary['image'][0]} x {summary['image'][1]} px "
+               f"at {manifest['dpi'][0]:g} x {manifest['dpi'][1]:g} dpi, volume {summary['volume_mm3']:.1f} mm^3, "
+               f"{times.total:.1f} s; intensities as {', '.join(names)}: a solid mask and "
+               f"{plural(len(names), 'droplet mask')} per layer")
     sys.stdout.flush()

@@ -190,3 +190,71 @@ def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan
 def label_voxel_volumes(plan: LabelPlan, volume: Volume) -> np.ndarray:
     """(L,) float, mm^3: each printed label's voxel volume (what verify compares a volume's stack with)."""
     return np.asarray(plan.voxels, dtype=np.float64) * volume.voxel_volume_mm3
+
+
+def slice_intensity_to_stack(volume: Volume, directory: Path, spec: SliceSpec, curve, *, up: str = "S",
+                             force: bool = False, progress: Callable[[int, int], None] | None = None
+                             ) -> tuple[dict, StageTimes]:
+    """Slice an intensity volume (a CT) into a stack: per layer the values interpolated at the pixels, solid
+    where they reach the curve's first point, each solid pixel's blend of materials from ``curve``
+    (:class:`heoslice.volume.intensity.IntensityCurve`) halftoned into one droplet mask per material."""
+    from heoslice.volume.intensity import halftone_mix, intensity_plane
+
+    directory = Path(directory)
+    times = StageTimes()
+    started = time.perf_counter()
+    placement = place(volume, up)
+    oriented = placement.orient(volume.data)
+    origin, spacing = placement.oriented_origin(volume.shape), placement.spacing
+    printed = np.argwhere(oriented >= curve.values[0])
+    if not len(printed):
+        raise InputError(f"{volume.source}: no voxel reaches the curve's first value ({curve.values[0]:g}): nothing "
+                         "to print")
+    low = origin + (printed.min(axis=0) - 1.0) * spacing
+    high = origin + (printed.max(axis=0) + 1.0) * spacing
+    bounds = np.stack([low[::-1], high[::-1]])
+    grid = grid_for(bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
+    check_image_size(grid.width, grid.height)
+    masks = curve.materials
+    limit = max_layer_count([channel_name(m) for m in masks])
+    if layer_count(bounds[0, 2], bounds[1, 2], spec.layer_height_mm, limit) > limit:
+        raise InputError(f"layer_height_mm: {spec.layer_height_mm:g} mm gives more than {limit} layers for this "
+                         f"volume's {float(bounds[1, 2] - bounds[0, 2]):g} mm (the most one stack's manifest holds)")
+    level = deflate_level(True)
+    with ExitStack() as held:
+        existed = directory.is_dir()
+        if existed:
+            held.enter_context(hold_stack(directory, "slicing into it"))
+        prepare_directory(directory, force)
+        if not existed:
+            held.enter_context(hold_stack(directory, "slicing into it"))
+        z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
+        layers = []
+        for index, height in enumerate(z):
+            began = time.perf_counter()
+            values, inside = intensity_plane(oriented, origin, spacing, float(height), grid)
+            solid = inside & (values >= curve.values[0])
+            planes = halftone_mix(curve.mix(values), solid, index)
+            rendered = time.perf_counter()
+            encode = lambda bits: encode_bilevel_tiff(np.packbits(bits, axis=1), grid.width, spec.dpi,  # noqa: E731
+                                                      spec.compression, spec.layer_height_mm, level=level)
+            digest = write_file(directory / layer_file_name(index), encode(solid))
+            channels = tuple(ChannelRecord(material.name, layer_file_name(index, channel_name(material)),
+                                           write_file(directory / layer_file_name(index, channel_name(material)),
+                                                      encode(plane)), int(plane.sum()))
+                             for material, plane in zip(masks, planes))
+            layers.append(LayerRecord(float(height), digest, int(solid.sum()), False, channels))
+            times.raster += rendered - began
+            times.encode += time.perf_counter() - rendered
+            if progress is not None:
+                progress(index + 1, len(z))
+        manifest = build_manifest(
+            source_file=volume.source.name, source_sha256=volume.sha256, layer_height_mm=spec.layer_height_mm,
+            dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
+            image=ImageRecord(grid.width, grid.height, (grid.x_left, grid.y_top), "1", spec.compression),
+            z_range_mm=(float(bounds[0, 2]), float(bounds[1, 2])), warnings=list(volume.warnings), layers=layers,
+            grading=droplet_summary(masks),
+            placement=placement.record(volume.space, (grid.x_left, grid.y_top, float(bounds[0, 2]))))
+        write_manifest(directory, manifest)
+    times.total = time.perf_counter() - started
+    return manifest, times
