@@ -90,7 +90,8 @@ def main() -> None:
     best = {name: (min(r[0] for r in runs), max(r[1] for r in runs)) for name, runs in results.items()}
     print(f"layer {args.layer} mm, {args.dpi} dpi, best of {args.repeats}: volume route {best['volume'][0]:.1f} s "
           f"{best['volume'][1]:.0f} MiB; mesh route {best['mesh'][0]:.1f} s {best['mesh'][1]:.0f} MiB; "
-          f"mesh / volume: time x{best['mesh'][0] / best['volume'][0]:.2f}, RSS x{best['mesh'][1] / best['volume'][1]:.2f}")
+          f"mesh / volume: time x{best['mesh'][0] / best['volume'][0]:.2f}, "
+          f"RSS x{best['mesh'][1] / best['volume'][1]:.2f}")
 
 
 if __name__ == "__main__":

@@ -75,7 +75,8 @@ def write_nrrd(path: Path, data: np.ndarray, affine_lps: np.ndarray, extra: dict
     """An NRRD in LPS space (gzip), a 4-D label map with a list axis first when ``layered``."""
     directions = [list(column) for column in affine_lps[:3, :3].T]
     header = {"space": "left-posterior-superior", "space origin": affine_lps[:3, 3].tolist(),
-              "space directions": np.array(([[np.nan] * 3] if layered else []) + directions, dtype=float), "encoding": "gzip",
+              "space directions": np.array(([[np.nan] * 3] if layered else []) + directions, dtype=float),
+              "encoding": "gzip",
               "kinds": (["list"] if layered else []) + ["domain"] * 3}
     header.update(extra or {})
     nrrd.write(str(path), data, header, custom_field_map={key: "string" for key in extra or {}})

@@ -187,11 +187,6 @@ def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan
     return manifest, times
 
 
-def label_voxel_volumes(plan: LabelPlan, volume: Volume) -> np.ndarray:
-    """(L,) float, mm^3: each printed label's voxel volume (what verify compares a volume's stack with)."""
-    return np.asarray(plan.voxels, dtype=np.float64) * volume.voxel_volume_mm3
-
-
 def slice_intensity_to_stack(volume: Volume, directory: Path, spec: SliceSpec, curve, *, up: str = "S",
                              force: bool = False, progress: Callable[[int, int], None] | None = None
                              ) -> tuple[dict, StageTimes]:

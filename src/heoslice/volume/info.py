@@ -81,7 +81,8 @@ def info_lines(summary: dict) -> list[str]:
     for label in summary.get("labels", []):
         name = label["name"] or "(no name in the file)"
         lines.append(f"label {label['value']:>5}:        {name}: {label['voxels']} voxels, "
-                     f"{label['volume_mm3']:.6g} mm^3" + (f" (layer {label['layer']})" if summary["layers"] > 1 else ""))
+                     f"{label['volume_mm3']:.6g} mm^3"
+                     + (f" (layer {label['layer']})" if summary["layers"] > 1 else ""))
     lines += [f"warning:            {text}" for text in summary["warnings"]]
     return lines
 

@@ -61,7 +61,8 @@ def read_curve(data: dict, table: dict[str, Material], where: str = "[intensity]
         for name, fraction in point["mix"].items():
             material = table_material(name, table)
             if material is None:
-                raise InputError(f"{where}: point {number + 1}: unknown material {name!r} (materials: {', '.join(table)})")
+                raise InputError(f"{where}: point {number + 1}: unknown material {name!r} "
+                                 f"(materials: {', '.join(table)})")
             if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) or not 0 <= fraction:
                 raise InputError(f"{where}: point {number + 1}: fraction of {name} must be a number >= 0")
             used.setdefault(material.name, material)

@@ -121,7 +121,8 @@ def check_affine(path: Path, affine: np.ndarray, shape) -> np.ndarray:
     axes = affine[:3, :3]
     sizes = np.linalg.norm(axes, axis=0)
     if not np.all(sizes > 0) or abs(np.linalg.det(axes)) <= 1e-12 * float(np.prod(np.maximum(sizes, 1e-300))):
-        raise InputError(f"{path}: the voxel-to-patient transform is singular (voxel axes {np.round(sizes, 6).tolist()} mm)")
+        raise InputError(f"{path}: the voxel-to-patient transform is singular "
+                         f"(voxel axes {np.round(sizes, 6).tolist()} mm)")
     if np.any(sizes < MIN_VOXEL_MM) or np.any(sizes > MAX_VOXEL_MM):
         raise InputError(f"{path}: voxel size {np.round(sizes, 6).tolist()} mm is outside the "
                          f"{MIN_VOXEL_MM:g} .. {MAX_VOXEL_MM:g} mm heoslice accepts")

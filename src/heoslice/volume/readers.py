@@ -107,7 +107,8 @@ def _spatial(path: Path, data_shape: tuple[int, ...]) -> tuple[int, ...]:
     while len(shape) > 3 and shape[-1] == 1:
         shape.pop()
     if len(shape) != 3:
-        raise InputError(f"{path}: a {len(data_shape)}-D image of shape {tuple(data_shape)}; heoslice reads 3-D volumes")
+        raise InputError(f"{path}: a {len(data_shape)}-D image of shape {tuple(data_shape)}; "
+                         "heoslice reads 3-D volumes")
     return tuple(shape)
 
 

@@ -4,12 +4,13 @@
 codes and masks; nothing grows with the number of layers.
 
 The rule at a pixel: it is solid where a printed label's field is positive, or where two labels' fields
-both come within CRACK_VOXELS of it (the seam of two touching labels); it takes the label of highest score, a label's score being its field plus its boost where its
-field is positive. A label map's labels do not overlap, so their boost is 0 and the label most inside wins,
-except labels of fewer than PROTECT_VOXELS voxels, boosted: they keep every pixel their own field marks
-inside (a one-voxel label is never swallowed by the organ around it). Overlapping structures (a folder of
-one file per structure, a .seg.nrrd in layers) are boosted by rank (:func:`heoslice.pipeline.parts.part_order`):
-where several claim a pixel, the higher rank wins.
+both come within CRACK_VOXELS of it (the seam of two touching labels); it takes the label of highest score,
+a label's score being its field plus its boost where its field is positive. A label map's labels do not
+overlap, so their boost is 0 and the label most inside wins, except labels of fewer than PROTECT_VOXELS
+voxels, boosted: they keep every pixel their own field marks inside (a one-voxel label is never swallowed
+by the organ around it). Overlapping structures (a folder of one file per structure, a .seg.nrrd in
+layers) are boosted by rank (:func:`heoslice.pipeline.parts.part_order`): where several claim a pixel, the
+higher rank wins.
 """
 
 from __future__ import annotations
@@ -57,8 +58,9 @@ class LabelPrint:
 def label_print(volume: Volume, placement: Placement, printed: list[tuple[Label, int]], smooth: float | None = None,
                 ranks: list[int] | None = None) -> LabelPrint:
     """The :class:`LabelPrint` of ``printed`` ((label, material code 1..K) pairs, labels with voxels) of
-    ``volume`` placed by ``placement``, blurred by ``smooth`` voxels (None: by each label's thickness); ``ranks`` (overlapping structures: 0 wins
-    over all) gives boosts by rank, else small labels are protected (the module's rule)."""
+    ``volume`` placed by ``placement``, blurred by ``smooth`` voxels (None: by each label's thickness);
+    ``ranks`` (overlapping structures: 0 wins over all) gives boosts by rank, else small labels are protected
+    (the module's rule)."""
     from scipy import ndimage
 
     oriented_layers = [placement.orient(volume.layer(layer)) for layer in range(volume.layer_count)]
