@@ -93,3 +93,38 @@ def test_ct_sliced_by_its_curve(tmp_path, capsys):
         assert solid[row:row + 47, column:column + 47].all() and abs(window.mean() - share) <= 0.02
     air = int((top - 28.0) / px)  # y = 28 mm: past the slabs (300 HU at y 26, air at 28: 100 HU at y 26.3)
     assert not solid[air].any()
+
+
+def test_ct_bone_by_its_curve_and_labelled_soft_tissue_in_one_job(tmp_path, capsys):
+    """CT + label map in one job: label 1 ('bone', 700 HU) prints by the curve (bone share 0.75 within 2 % over
+    a 2 mm window), label 2 prints as tissue whatever its HU, every solid pixel in exactly one mask, and the
+    CT's 700 HU outside the labels (label 0) does not print."""
+    hu = np.full((24, 16, 10), -1000, np.int16)
+    hu[2:10, 2:14, 2:8] = 700
+    hu[10:18, 2:14, 2:8] = 0
+    hu[18:22, 2:14, 2:8] = 700  # dense, but in no label
+    labels = np.zeros(hu.shape, np.uint8)
+    labels[2:10, 2:14, 2:8] = 1
+    labels[10:18, 2:14, 2:8] = 2
+    ct = write_nifti(tmp_path / "ct.nii.gz", hu, grid_affine(2.0, [0, 0, 0]))
+    seg = write_nifti(tmp_path / "seg.nii.gz", labels, grid_affine(2.0, [0, 0, 0]))
+    (tmp_path / "m.toml").write_text(MATERIALS + 'within = [1]\n[labels]\n2 = "tissue"\n')
+    assert in_process("slice", ct, "--labels", seg, "--materials", tmp_path / "m.toml", "--layer", "0.5", "--dpi",
+                      "600", "-o", tmp_path / "out", "--json") == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["materials"] == ["tissue", "bone"]
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    middle = len(manifest["layers"]) // 2
+    solid = read_layer_mask(tmp_path / "out", manifest, middle).astype(bool)
+    masks = read_layer_channels(tmp_path / "out", manifest, middle).astype(bool)
+    assert np.array_equal(masks.sum(axis=0), solid.astype(int))
+    left, top = manifest["image"]["origin_mm"]
+    px = manifest["pixel_size_mm"][0]
+    row = int((top - 16.0) / px)
+    bone = int((10.0 - left) / px)  # x 10 mm: inside label 1 (x 4..18 mm)
+    window = masks[1, row:row + 47, bone:bone + 47]
+    assert solid[row:row + 47, bone:bone + 47].all() and abs(window.mean() - 0.75) <= 0.02
+    tissue = int((28.0 - left) / px)  # x 28 mm: inside label 2 (x 20..34 mm)
+    assert masks[0, row:row + 47, tissue:tissue + 47].all()
+    beyond = int(np.ceil((35.5 - left) / px))  # the unlabelled dense slab's voxels start at x 36 mm (face 35)
+    assert beyond < solid.shape[1] and not solid[:, beyond:].any()

@@ -160,6 +160,8 @@ Volumes (a label map: NIfTI .nii/.nii.gz, NRRD or Slicer .seg.nrrd, a folder of 
   heoslice slice example_seg.nii.gz --materials organs.toml   # organs.toml's [labels]: 5 = "tissue"
   heoslice slice segmentation.seg.nrrd --materials mats.toml  # [labels] by segment name: "liver" = "gel"
   heoslice slice totalseg_output/ --up A                      # printer +z = the patient's anterior
+  heoslice slice ct.nii.gz --materials ct.toml                # a CT through ct.toml's [intensity] curve
+  heoslice slice ct.nii.gz --labels seg.nii.gz --materials ct.toml   # bone by density, [labels] as tissue
   Each label's surface is smoothed between voxel centres; labels not listed in [labels] are left out
   (without a [labels] table every label prints, in the table's first material).
 """)
@@ -223,7 +225,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
               periods: float | None, expression: str | None, target: str | None, start: str | None,
               nozzle: float, depth: float | None, offset_count: int | None, direction: str,
               materials_file: Path | None, channels: bool | None, solid_only: bool, parts_flag: bool,
-              part_options: tuple[str, ...], up: str, smooth: float | None, volume_kind: str | None) -> None:
+              part_options: tuple[str, ...], up: str, smooth: float | None, label_map: Path | None,
+              volume_kind: str | None) -> None:
     """Slice each MODEL (PLY, STL, OBJ, OFF, 3MF) into one TIFF per layer plus manifest.json.
 
     Layers are cut at their centres, z = z_min + (i + 1/2) x layer; a pixel is solid
@@ -254,7 +257,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
                              canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs)
         except InputError as err:
             raise flag_error(err) from None
-        slice_volume(models[0], output, spec, force, as_json, materials, bool(channels), up, smooth, volume_kind)
+        slice_volume(models[0], output, spec, force, as_json, materials, bool(channels), up, smooth, volume_kind,
+                     label_map)
         return
     if is_parts_job(models, parts_flag, part_options, materials):
         if grade_kind is not None:

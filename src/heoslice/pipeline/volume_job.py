@@ -42,7 +42,7 @@ from heoslice.stack.tiff import deflate_level
 from heoslice.volume import Label, Volume
 from heoslice.volume.info import label_counts
 from heoslice.volume.placement import place
-from heoslice.volume.resample import label_print, layer_masks
+from heoslice.volume.resample import label_print, layer_codes, layer_masks
 
 
 @dataclass(frozen=True)
@@ -124,27 +124,20 @@ def plan_labels(volume: Volume, table: dict[str, Material], settings: Mapping[st
                      channels or len(used) > 1, warnings)
 
 
-def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan: LabelPlan, *, up: str = "S",
-                          smooth: float | None = None, force: bool = False,
-                          progress: Callable[[int, int], None] | None = None) -> tuple[dict, StageTimes]:
-    """Slice the label map ``volume`` into a stack in ``directory`` as ``plan`` says, printer +z the
-    anatomical direction ``up``; the manifest (written last) and stage timings."""
-    directory = Path(directory)
-    times = StageTimes()
-    started = time.perf_counter()
-    placement = place(volume, up)
-    prepared = label_print(volume, placement, [(label, material + 1) for label, material in
-                                               zip(plan.labels, plan.label_material)], smooth,
-                           None if plan.ranks is None else list(plan.ranks))
-    times.slice = time.perf_counter() - started
-    bounds = prepared.bounds_mm()
-    grid = grid_for(bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
-    check_image_size(grid.width, grid.height)
-    masks = plan.materials if plan.channels else ()
+def _check_layers(spec: SliceSpec, bounds: np.ndarray, masks: tuple[Material, ...]) -> None:
+    """Refuse a layer count above what one stack with droplet masks of ``masks`` holds, before slicing."""
     limit = max_layer_count([channel_name(m) for m in masks])
     if layer_count(bounds[0, 2], bounds[1, 2], spec.layer_height_mm, limit) > limit:
         raise InputError(f"layer_height_mm: {spec.layer_height_mm:g} mm gives more than {limit} layers for this "
                          f"volume's {float(bounds[1, 2] - bounds[0, 2]):g} mm (the most one stack's manifest holds)")
+
+
+def _write_stack(directory: Path, spec: SliceSpec, grid, bounds: np.ndarray, masks: tuple[Material, ...],
+                 render: Callable[[int, float], tuple[np.ndarray, np.ndarray]], manifest_fields: dict, times: StageTimes,
+                 force: bool, progress: Callable[[int, int], None] | None) -> dict:
+    """Write a volume's stack layer by layer as the mesh route writes one: ``render(index, z)`` gives a layer's
+    packed planes ((1 + len(masks), H, ceil(W / 8)) uint8: the solid mask, then one droplet mask per material of
+    ``masks``, none for a one-material stack) and their set pixels; the manifest last. Returns it."""
     level = deflate_level(bool(masks))
     with ExitStack() as held:
         existed = directory.is_dir()
@@ -157,34 +150,67 @@ def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan
         layers = []
         for index, height in enumerate(z):
             began = time.perf_counter()
-            planes, counts = layer_masks(prepared, float(height), grid, len(plan.materials))
+            planes, counts = render(index, float(height))
             rendered = time.perf_counter()
-            encode = lambda plane: encode_bilevel_tiff(plane, grid.width, spec.dpi, spec.compression,  # noqa: E731
-                                                       spec.layer_height_mm, level=level)
-            solid = encode(planes[0])
-            pieces = [(layer_file_name(index, channel_name(material)), encode(planes[number + 1]),
-                       int(counts[number + 1])) for number, material in enumerate(masks)]
-            encoded = time.perf_counter()
-            digest = write_file(directory / layer_file_name(index), solid)
+            encoded = [encode_bilevel_tiff(plane, grid.width, spec.dpi, spec.compression, spec.layer_height_mm,
+                                           level=level) for plane in planes[:1 + len(masks)]]
+            written = time.perf_counter()
+            digest = write_file(directory / layer_file_name(index), encoded[0])
             channels = None if not masks else tuple(
-                ChannelRecord(material.name, name, write_file(directory / name, data), count)
-                for material, (name, data, count) in zip(masks, pieces))
+                ChannelRecord(material.name, layer_file_name(index, channel_name(material)),
+                              write_file(directory / layer_file_name(index, channel_name(material)), data),
+                              int(count))
+                for material, data, count in zip(masks, encoded[1:], counts[1:]))
             layers.append(LayerRecord(float(height), digest, int(counts[0]), False, channels))
             times.raster += rendered - began
-            times.encode += encoded - rendered
+            times.encode += written - rendered
             if progress is not None:
                 progress(index + 1, len(z))
         manifest = build_manifest(
-            source_file=volume.source.name, source_sha256=volume.sha256, layer_height_mm=spec.layer_height_mm,
-            dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
+            layer_height_mm=spec.layer_height_mm, dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
             image=ImageRecord(grid.width, grid.height, (grid.x_left, grid.y_top), "1", spec.compression),
-            z_range_mm=(float(bounds[0, 2]), float(bounds[1, 2])), warnings=[*volume.warnings, *plan.warnings],
-            layers=layers, grading=droplet_summary(masks) if masks else None,
-            placement=placement.record(volume.space, (grid.x_left, grid.y_top, float(bounds[0, 2]))),
-            labels=plan.records())
+            z_range_mm=(float(bounds[0, 2]), float(bounds[1, 2])), layers=layers,
+            grading=droplet_summary(masks) if masks else None, **manifest_fields)
         write_manifest(directory, manifest)
+    return manifest
+
+
+def _grid(spec: SliceSpec, bounds: np.ndarray):
+    grid = grid_for(bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
+    check_image_size(grid.width, grid.height)
+    return grid
+
+
+def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan: LabelPlan, *, up: str = "S",
+                          smooth: float | None = None, force: bool = False,
+                          progress: Callable[[int, int], None] | None = None) -> tuple[dict, StageTimes]:
+    """Slice the label map ``volume`` into a stack in ``directory`` as ``plan`` says, printer +z the
+    anatomical direction ``up``; the manifest (written last) and stage timings."""
+    times = StageTimes()
+    started = time.perf_counter()
+    placement = place(volume, up)
+    prepared = label_print(volume, placement, [(label, material + 1) for label, material in
+                                               zip(plan.labels, plan.label_material)], smooth,
+                           None if plan.ranks is None else list(plan.ranks))
+    times.slice = time.perf_counter() - started
+    bounds = prepared.bounds_mm()
+    grid = _grid(spec, bounds)
+    masks = plan.materials if plan.channels else ()
+    _check_layers(spec, bounds, masks)
+    manifest = _write_stack(
+        Path(directory), spec, grid, bounds, masks,
+        lambda index, z: layer_masks(prepared, z, grid, len(plan.materials)),
+        {"source_file": volume.source.name, "source_sha256": volume.sha256,
+         "warnings": [*volume.warnings, *plan.warnings],
+         "placement": placement.record(volume.space, (grid.x_left, grid.y_top, float(bounds[0, 2]))),
+         "labels": plan.records()}, times, force, progress)
     times.total = time.perf_counter() - started
     return manifest, times
+
+
+def _packed(masks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(packed (n, H, ceil(W / 8)) uint8, set pixels (n,) int64) of boolean masks (n, H, W)."""
+    return np.packbits(masks, axis=2), masks.reshape(len(masks), -1).sum(axis=1)
 
 
 def slice_intensity_to_stack(volume: Volume, directory: Path, spec: SliceSpec, curve, *, up: str = "S",
@@ -195,7 +221,6 @@ def slice_intensity_to_stack(volume: Volume, directory: Path, spec: SliceSpec, c
     (:class:`heoslice.volume.intensity.IntensityCurve`) halftoned into one droplet mask per material."""
     from heoslice.volume.intensity import halftone_mix, intensity_plane
 
-    directory = Path(directory)
     times = StageTimes()
     started = time.perf_counter()
     placement = place(volume, up)
@@ -208,48 +233,80 @@ def slice_intensity_to_stack(volume: Volume, directory: Path, spec: SliceSpec, c
     low = origin + (printed.min(axis=0) - 1.0) * spacing
     high = origin + (printed.max(axis=0) + 1.0) * spacing
     bounds = np.stack([low[::-1], high[::-1]])
-    grid = grid_for(bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
-    check_image_size(grid.width, grid.height)
-    masks = curve.materials
-    limit = max_layer_count([channel_name(m) for m in masks])
-    if layer_count(bounds[0, 2], bounds[1, 2], spec.layer_height_mm, limit) > limit:
-        raise InputError(f"layer_height_mm: {spec.layer_height_mm:g} mm gives more than {limit} layers for this "
-                         f"volume's {float(bounds[1, 2] - bounds[0, 2]):g} mm (the most one stack's manifest holds)")
-    level = deflate_level(True)
-    with ExitStack() as held:
-        existed = directory.is_dir()
-        if existed:
-            held.enter_context(hold_stack(directory, "slicing into it"))
-        prepare_directory(directory, force)
-        if not existed:
-            held.enter_context(hold_stack(directory, "slicing into it"))
-        z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
-        layers = []
-        for index, height in enumerate(z):
-            began = time.perf_counter()
-            values, inside = intensity_plane(oriented, origin, spacing, float(height), grid)
-            solid = inside & (values >= curve.values[0])
-            planes = halftone_mix(curve.mix(values), solid, index)
-            rendered = time.perf_counter()
-            encode = lambda bits: encode_bilevel_tiff(np.packbits(bits, axis=1), grid.width, spec.dpi,  # noqa: E731
-                                                      spec.compression, spec.layer_height_mm, level=level)
-            digest = write_file(directory / layer_file_name(index), encode(solid))
-            channels = tuple(ChannelRecord(material.name, layer_file_name(index, channel_name(material)),
-                                           write_file(directory / layer_file_name(index, channel_name(material)),
-                                                      encode(plane)), int(plane.sum()))
-                             for material, plane in zip(masks, planes))
-            layers.append(LayerRecord(float(height), digest, int(solid.sum()), False, channels))
-            times.raster += rendered - began
-            times.encode += time.perf_counter() - rendered
-            if progress is not None:
-                progress(index + 1, len(z))
-        manifest = build_manifest(
-            source_file=volume.source.name, source_sha256=volume.sha256, layer_height_mm=spec.layer_height_mm,
-            dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
-            image=ImageRecord(grid.width, grid.height, (grid.x_left, grid.y_top), "1", spec.compression),
-            z_range_mm=(float(bounds[0, 2]), float(bounds[1, 2])), warnings=list(volume.warnings), layers=layers,
-            grading=droplet_summary(masks),
-            placement=placement.record(volume.space, (grid.x_left, grid.y_top, float(bounds[0, 2]))))
-        write_manifest(directory, manifest)
+    grid = _grid(spec, bounds)
+    _check_layers(spec, bounds, curve.materials)
+
+    def render(index: int, z: float) -> tuple[np.ndarray, np.ndarray]:
+        values, inside = intensity_plane(oriented, origin, spacing, z, grid)
+        solid = inside & (values >= curve.values[0])
+        return _packed(np.concatenate([solid[None], halftone_mix(curve.mix(values), solid, index)]))
+
+    manifest = _write_stack(
+        Path(directory), spec, grid, bounds, curve.materials, render,
+        {"source_file": volume.source.name, "source_sha256": volume.sha256, "warnings": list(volume.warnings),
+         "placement": placement.record(volume.space, (grid.x_left, grid.y_top, float(bounds[0, 2])))},
+        times, force, progress)
+    times.total = time.perf_counter() - started
+    return manifest, times
+
+
+def slice_ct_with_labels_to_stack(ct: Volume, labels: Volume, directory: Path, spec: SliceSpec, plan: LabelPlan,
+                                  curve, curve_labels: frozenset[int], *, up: str = "S", smooth: float | None = None,
+                                  force: bool = False, progress: Callable[[int, int], None] | None = None
+                                  ) -> tuple[dict, StageTimes]:
+    """One job of a CT and its label map on the same grid: the labels of ``plan`` print as the label route
+    prints them, except those whose index in ``plan.labels`` is in ``curve_labels``: inside them each pixel's
+    material follows the CT's value through ``curve`` (bone by its density), halftoned. The droplet masks'
+    materials are the labels' and the curve's, ordered by printer channel."""
+    from heoslice.volume.intensity import halftone_mix, intensity_plane
+
+    if ct.shape != labels.shape or not np.allclose(ct.ras_affine(), labels.ras_affine(), atol=1e-3):
+        raise InputError(f"{labels.source}: not on the grid of {ct.source} (shape and affine must agree)")
+    times = StageTimes()
+    started = time.perf_counter()
+    placement = place(labels, up)
+    ct_placement = place(ct, up)
+    oriented = ct_placement.orient(ct.data)
+    origin, spacing = ct_placement.oriented_origin(ct.shape), ct_placement.spacing
+    label_materials = [plan.materials[material] for index, material in enumerate(plan.label_material)
+                       if index not in curve_labels]
+    used = {m.name: m for m in [*label_materials, *curve.materials]}
+    rank = {name: position for position, name in enumerate(used)}
+    masks = tuple(sorted(used.values(), key=lambda m: (m.channel is None, m.channel or 0, rank[m.name])))
+    position = {m.name: index for index, m in enumerate(masks)}
+    curve_code = len(masks) + 1
+    codes = [curve_code if index in curve_labels else position[plan.materials[material].name] + 1
+             for index, material in enumerate(plan.label_material)]
+    prepared = label_print(labels, placement, list(zip(plan.labels, codes)), smooth,
+                           None if plan.ranks is None else list(plan.ranks))
+    times.slice = time.perf_counter() - started
+    bounds = prepared.bounds_mm()
+    grid = _grid(spec, bounds)
+    _check_layers(spec, bounds, masks)
+    curve_columns = [position[m.name] for m in curve.materials]
+
+    def render(index: int, z: float) -> tuple[np.ndarray, np.ndarray]:
+        code = layer_codes(prepared, z, grid)
+        planes = np.zeros((1 + len(masks), grid.height, grid.width), dtype=bool)
+        planes[0] = code > 0
+        for number in range(len(masks)):
+            planes[number + 1] = code == number + 1
+        inside = code == curve_code
+        if inside.any():
+            values, _ = intensity_plane(oriented, origin, spacing, z, grid)
+            blend = halftone_mix(curve.mix(values), inside, index)
+            for column, plane in zip(curve_columns, blend):
+                planes[column + 1] |= plane
+        return _packed(planes)
+
+    records = plan.records()
+    for index in curve_labels:
+        records[index]["material"] = "intensity curve"
+    manifest = _write_stack(
+        Path(directory), spec, grid, bounds, masks, render,
+        {"source_file": labels.source.name, "source_sha256": labels.sha256,
+         "warnings": [*ct.warnings, *labels.warnings, *plan.warnings],
+         "placement": placement.record(labels.space, (grid.x_left, grid.y_top, float(bounds[0, 2]))),
+         "labels": records}, times, force, progress)
     times.total = time.perf_counter() - started
     return manifest, times

@@ -112,11 +112,18 @@ def layer_masks(plan: LabelPrint, z_mm: float, grid: Grid, materials: int) -> tu
     code) and their set pixels ((materials + 1,) int64) at printer height ``z_mm``."""
     planes = np.zeros((materials + 1, grid.height, -(-grid.width // 8)), dtype=np.uint8)
     counts = np.zeros(materials + 1, dtype=np.int64)
+    _pack_codes(layer_codes(plan, z_mm, grid), planes, counts)
+    return planes, counts
+
+
+def layer_codes(plan: LabelPrint, z_mm: float, grid: Grid) -> np.ndarray:
+    """(H, W) uint8: each pixel's material code at printer height ``z_mm`` (0: empty)."""
+    codes = np.zeros((grid.height, grid.width), dtype=np.uint8)
     k = (z_mm - plan.origin[0]) / plan.spacing[0]
     chosen = [(index, values, field.start) for index, field in enumerate(plan.fields)
               if (values := _plane(field, k)) is not None]
     if not chosen:
-        return planes, counts
+        return codes
     low = np.min([start[1:] for _, _, start in chosen], axis=0)
     high = np.max([start[1:] + values.shape for _, values, start in chosen], axis=0)
     rows_n, columns_n = (int(n) for n in high - low)
@@ -132,8 +139,6 @@ def layer_masks(plan: LabelPrint, z_mm: float, grid: Grid, materials: int) -> tu
     row_cell[row_cell > rows_n - 2] = -1
     col_cell, col_frac = _cells(x, plan.origin[2], plan.spacing[2], int(low[1]), columns_n)
     cell_start = np.searchsorted(col_cell, np.arange(columns_n)).astype(np.int64)
-    codes = np.zeros((grid.height, grid.width), dtype=np.uint8)
     _label_codes(fields, np.ascontiguousarray(plan.boost[picked]), np.ascontiguousarray(plan.codes[picked]), boxes,
                  CRACK_VOXELS, row_cell, row_frac, cell_start, col_frac, codes)
-    _pack_codes(codes, planes, counts)
-    return planes, counts
+    return codes
