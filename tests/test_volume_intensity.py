@@ -126,5 +126,5 @@ def test_ct_bone_by_its_curve_and_labelled_soft_tissue_in_one_job(tmp_path, caps
     assert solid[row:row + 47, bone:bone + 47].all() and abs(window.mean() - 0.75) <= 0.02
     tissue = int((28.0 - left) / px)  # x 28 mm: inside label 2 (x 20..34 mm)
     assert masks[0, row:row + 47, tissue:tissue + 47].all()
-    beyond = int(np.ceil((35.5 - left) / px))  # the unlabelled dense slab's voxels start at x 36 mm (face 35)
+    beyond = int(np.ceil((36.2 - left) / px))  # past label 2 (face 35, its rounded box bulges < 1 mm): the dense slab
     assert beyond < solid.shape[1] and not solid[:, beyond:].any()
