@@ -30,36 +30,50 @@ def _label_codes(fields, boost, codes, boxes, crack, row_cell, row_frac, cell_st
     and its fraction towards the next (cell -1: off the grid); cell_start: (NX,) int64, the first pixel column
     of each node column's cell (the last entry: the end); col_frac: (W,) float32, each pixel column's fraction
     across its cell.
+
+    A label at or below -crack at a cell's four corners is so everywhere in the cell (bilinear), so it can
+    neither make a pixel solid nor win one: each cell's candidates are the other labels, listed once.
     """
     count, rows_n, columns_n = fields.shape
-    row_values = np.zeros((count, columns_n), dtype=np.float32)
-    active = np.zeros(count, dtype=np.int64)
+    cells = (rows_n - 1) * (columns_n - 1)
+    starts = np.zeros(cells + 1, dtype=np.int64)
+    for label in range(count):
+        for cy in range(max(boxes[label, 0], 0), min(boxes[label, 1], rows_n) - 1):
+            for cx in range(max(boxes[label, 2], 0), min(boxes[label, 3], columns_n) - 1):
+                if fields[label, cy, cx] > -crack or fields[label, cy, cx + 1] > -crack \
+                        or fields[label, cy + 1, cx] > -crack or fields[label, cy + 1, cx + 1] > -crack:
+                    starts[cy * (columns_n - 1) + cx + 1] += 1
+    for cell in range(cells):
+        starts[cell + 1] += starts[cell]
+    candidates = np.zeros(starts[cells], dtype=np.int64)
+    filled = starts[:-1].copy()
+    for label in range(count):
+        for cy in range(max(boxes[label, 0], 0), min(boxes[label, 1], rows_n) - 1):
+            for cx in range(max(boxes[label, 2], 0), min(boxes[label, 3], columns_n) - 1):
+                if fields[label, cy, cx] > -crack or fields[label, cy, cx + 1] > -crack \
+                        or fields[label, cy + 1, cx] > -crack or fields[label, cy + 1, cx + 1] > -crack:
+                    cell = cy * (columns_n - 1) + cx
+                    candidates[filled[cell]] = label
+                    filled[cell] += 1
     for row in range(out.shape[0]):
         cy = row_cell[row]
         if cy < 0 or cy > rows_n - 2:
             continue
         fy = row_frac[row]
-        present = 0
-        for label in range(count):
-            if boxes[label, 0] <= cy and cy + 1 < boxes[label, 1]:
-                for x in range(boxes[label, 2], boxes[label, 3]):
-                    row_values[label, x] = fields[label, cy, x] + fy * (fields[label, cy + 1, x] - fields[label, cy, x])
-                active[present] = label
-                present += 1
         for cx in range(columns_n - 1):
             first, stop = cell_start[cx], cell_start[cx + 1]
-            if first >= stop:
+            cell = cy * (columns_n - 1) + cx
+            if first >= stop or starts[cell] == starts[cell + 1]:
                 continue
             best_a, best_b = -np.inf, -np.inf
             win_a, win_b = -1, -1
             mixed = False
             inside = False
             near = 0
-            for position in range(present):
-                label = active[position]
-                if boxes[label, 2] > cx or cx + 1 >= boxes[label, 3]:
-                    continue
-                va, vb = row_values[label, cx], row_values[label, cx + 1]
+            for position in range(starts[cell], starts[cell + 1]):
+                label = candidates[position]
+                va = fields[label, cy, cx] + fy * (fields[label, cy + 1, cx] - fields[label, cy, cx])
+                vb = fields[label, cy, cx + 1] + fy * (fields[label, cy + 1, cx + 1] - fields[label, cy, cx + 1])
                 sa = va + boost[label] if va > 0 else va
                 sb = vb + boost[label] if vb > 0 else vb
                 if sa > best_a:
@@ -74,22 +88,23 @@ def _label_codes(fields, boost, codes, boxes, crack, row_cell, row_frac, cell_st
                     near += 1
             if not inside and near < 2:
                 continue
-            if not mixed and win_a == win_b and win_a >= 0 and row_values[win_a, cx] > 0 \
-                    and row_values[win_a, cx + 1] > 0:
-                code = codes[win_a]
-                for column in range(first, stop):
-                    out[row, column] = code
-                continue
+            if not mixed and win_a == win_b and win_a >= 0:
+                wa = fields[win_a, cy, cx] + fy * (fields[win_a, cy + 1, cx] - fields[win_a, cy, cx])
+                wb = fields[win_a, cy, cx + 1] + fy * (fields[win_a, cy + 1, cx + 1] - fields[win_a, cy, cx + 1])
+                if wa > 0 and wb > 0:
+                    code = codes[win_a]
+                    for column in range(first, stop):
+                        out[row, column] = code
+                    continue
             for column in range(first, stop):
                 fx = col_frac[column]
                 best, winner = -np.inf, -1
                 top, second = -np.inf, -np.inf
-                for position in range(present):
-                    label = active[position]
-                    if boxes[label, 2] > cx or cx + 1 >= boxes[label, 3]:
-                        continue
-                    va = row_values[label, cx]
-                    value = va + fx * (row_values[label, cx + 1] - va)
+                for position in range(starts[cell], starts[cell + 1]):
+                    label = candidates[position]
+                    va = fields[label, cy, cx] + fy * (fields[label, cy + 1, cx] - fields[label, cy, cx])
+                    vb = fields[label, cy, cx + 1] + fy * (fields[label, cy + 1, cx + 1] - fields[label, cy, cx + 1])
+                    value = va + fx * (vb - va)
                     score = value + boost[label] if value > 0 else value
                     if score > best:
                         best, winner = score, label
