@@ -81,15 +81,45 @@ def supersampled(values: np.ndarray, factor: int) -> np.ndarray:
     return out
 
 
+def _samples_near(values: np.ndarray, factor: int, low: float) -> np.ndarray:
+    """The trilinear samples of ``values`` at ``factor`` evenly spaced points across each voxel (as
+    :func:`supersampled`), taken only around voxels with a neighbour above ``low`` (elsewhere every sample is at
+    most ``low``): (n,) float32."""
+    from scipy import ndimage
+
+    chosen = np.argwhere(ndimage.maximum_filter(values, size=3, mode="nearest") > low)
+    top = np.array(values.shape) - 1
+    offsets = (np.arange(factor) + 0.5) / factor - 0.5
+    out = []
+    for tz in offsets:
+        for ty in offsets:
+            for tx in offsets:
+                point = chosen + np.array([tz, ty, tx])
+                base = np.clip(np.floor(point).astype(np.int64), 0, np.maximum(top - 1, 0))
+                weight = np.clip(point - base, 0.0, 1.0)
+                total = np.zeros(len(chosen))
+                for corner in range(8):
+                    step = np.array([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1])
+                    index = np.minimum(base + step, top)
+                    w = np.prod(np.where(step, weight, 1.0 - weight), axis=1)
+                    total += w * values[index[:, 0], index[:, 1], index[:, 2]]
+                out.append(total)
+    return np.concatenate(out).astype(np.float32) if out else np.zeros(0, np.float32)
+
+
 def level_offset(values: np.ndarray, voxels: int) -> float:
     """The value whose upper level set of ``values`` ((nz, ny, nx) float32), trilinearly interpolated and
     sampled k times per voxel along each axis (k from 2 to 4, enough samples inside even a one-voxel label),
-    holds ``voxels`` voxels: the volume-preserving zero level."""
+    holds ``voxels`` voxels: the volume-preserving zero level. Only samples near the label are made (those
+    above ``low``, lowered until they hold the volume), so a thin label with a large box stays cheap."""
     factor = int(np.clip(np.ceil((LEVEL_SAMPLES_INSIDE / max(voxels, 1)) ** (1 / 3)), 2, 4))
-    samples = supersampled(values, factor)
-    wanted = int(min(samples.size, max(1, round(voxels * factor ** 3))))
-    flat = samples.ravel()
-    return float(-np.partition(-flat, wanted - 1)[wanted - 1])
+    wanted = int(max(1, round(voxels * factor ** 3)))
+    for low in (-1.0, -3.0, -np.inf):
+        flat = _samples_near(values, factor, low) if np.isfinite(low) else supersampled(values, factor).ravel()
+        if np.count_nonzero(flat > low) >= wanted or not np.isfinite(low):
+            wanted = min(wanted, flat.size)
+            return float(-np.partition(-flat, wanted - 1)[wanted - 1])
+    raise AssertionError("unreachable")
 
 
 def curvature_shift(values: np.ndarray, smooth: float) -> np.ndarray:
