@@ -8,7 +8,8 @@ Volume route: ``heoslice slice example_seg.nii.gz`` (every label, one material).
 marching cubes of each label (level 0.5 of its 0/1 mask, in RAS mm by the file's affine), each written as a
 PLY, then ``heoslice slice *.ply --parts`` (one multi-part stack, every part one material): meshing time
 included. Each route runs as its own process, alternating, ``--repeats`` times; reported: each route's best
-wall time and peak RSS (the process's ru_maxrss, from wait4), and their ratios (mesh / volume).
+wall time, CPU time (user + system: steadier than wall time on a shared machine) and peak RSS (ru_maxrss,
+from wait4), and their ratios (mesh / volume).
 """
 
 from __future__ import annotations
@@ -54,8 +55,8 @@ main()
 '''
 
 
-def run(arguments: list[str]) -> tuple[float, float]:
-    """(wall seconds, peak RSS MiB) of one child process running ``arguments``."""
+def run(arguments: list[str]) -> tuple[float, float, float]:
+    """(wall seconds, peak RSS MiB, CPU seconds: user + system) of one child process running ``arguments``."""
     started = time.perf_counter()
     child = subprocess.Popen(arguments, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                              env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
@@ -63,7 +64,7 @@ def run(arguments: list[str]) -> tuple[float, float]:
     seconds = time.perf_counter() - started
     if status != 0:
         raise SystemExit(f"{' '.join(arguments[:4])} ... failed: {child.stderr.read().decode()[-400:]}")
-    return seconds, usage.ru_maxrss / 1024
+    return seconds, usage.ru_maxrss / 1024, usage.ru_utime + usage.ru_stime
 
 
 def main() -> None:
@@ -86,12 +87,15 @@ def main() -> None:
             for name, command in (("volume", volume_cmd), ("mesh", mesh_cmd)) if repeat % 2 == 0 else (
                     ("mesh", mesh_cmd), ("volume", volume_cmd)):
                 results[name].append(run(command))
-                print(f"{name:>6}: {results[name][-1][0]:8.1f} s, peak RSS {results[name][-1][1]:7.0f} MiB", flush=True)
-    best = {name: (min(r[0] for r in runs), max(r[1] for r in runs)) for name, runs in results.items()}
-    print(f"layer {args.layer} mm, {args.dpi} dpi, best of {args.repeats}: volume route {best['volume'][0]:.1f} s "
-          f"{best['volume'][1]:.0f} MiB; mesh route {best['mesh'][0]:.1f} s {best['mesh'][1]:.0f} MiB; "
-          f"mesh / volume: time x{best['mesh'][0] / best['volume'][0]:.2f}, "
-          f"RSS x{best['mesh'][1] / best['volume'][1]:.2f}")
+                wall, rss, cpu = results[name][-1]
+                print(f"{name:>6}: {wall:8.1f} s wall, {cpu:8.1f} s CPU, peak RSS {rss:7.0f} MiB", flush=True)
+    best = {name: (min(r[0] for r in runs), max(r[1] for r in runs), min(r[2] for r in runs))
+            for name, runs in results.items()}
+    volume, mesh = best["volume"], best["mesh"]
+    print(f"layer {args.layer} mm, {args.dpi} dpi, best of {args.repeats}: volume route {volume[0]:.1f} s wall "
+          f"{volume[2]:.1f} s CPU {volume[1]:.0f} MiB; mesh route {mesh[0]:.1f} s wall {mesh[2]:.1f} s CPU "
+          f"{mesh[1]:.0f} MiB; mesh / volume: wall x{mesh[0] / volume[0]:.2f}, CPU x{mesh[2] / volume[2]:.2f}, "
+          f"RSS x{mesh[1] / volume[1]:.2f}")
 
 
 if __name__ == "__main__":
