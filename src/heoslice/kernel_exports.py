@@ -122,8 +122,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     topology_kernels._lowest_connected: (i8_1, i8_1, i8),
     weld_kernels._first_rows: (u8_1, u4_2),
     resample_kernels._label_codes: (types.float32[:, :, ::1], f4_1, types.uint8[::1], i8_2, f8, i8_1, f4_1, i8_1,
-                                    f4_1, u1_2),
-    resample_kernels._pack_codes: (u1_2, u1_3, i8_1),
+                                    f4_1, u1_3, i8_1),
 }
 
 

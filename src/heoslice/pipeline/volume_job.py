@@ -42,7 +42,7 @@ from heoslice.stack.tiff import deflate_level
 from heoslice.volume import Label, Volume
 from heoslice.volume.info import label_counts
 from heoslice.volume.placement import place
-from heoslice.volume.resample import label_print, layer_codes, layer_masks
+from heoslice.volume.resample import label_print, layer_masks
 
 
 @dataclass(frozen=True)
@@ -286,12 +286,9 @@ def slice_ct_with_labels_to_stack(ct: Volume, labels: Volume, directory: Path, s
     curve_columns = [position[m.name] for m in curve.materials]
 
     def render(index: int, z: float) -> tuple[np.ndarray, np.ndarray]:
-        code = layer_codes(prepared, z, grid)
-        planes = np.zeros((1 + len(masks), grid.height, grid.width), dtype=bool)
-        planes[0] = code > 0
-        for number in range(len(masks)):
-            planes[number + 1] = code == number + 1
-        inside = code == curve_code
+        packed, _ = layer_masks(prepared, z, grid, curve_code)  # the last plane: the curve's labels' pixels
+        planes = np.unpackbits(packed, axis=2, count=grid.width).astype(bool)[:-1]
+        inside = np.unpackbits(packed[-1], axis=1, count=grid.width).astype(bool)
         if inside.any():
             values, _ = intensity_plane(oriented, origin, spacing, z, grid)
             blend = halftone_mix(curve.mix(values), inside, index)

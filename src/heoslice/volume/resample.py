@@ -1,7 +1,7 @@
 """A label map resampled layer by layer at the printer's pixels: per printed label its smooth field
-(:mod:`heoslice.volume.fields`), then per layer a material code per pixel and the packed masks
+(:mod:`heoslice.volume.fields`), then per layer the packed solid mask and one mask per material code
 (:mod:`heoslice.volume.resample_kernels`). Memory: the fields (each on its label's box) plus one layer's
-codes and masks; nothing grows with the number of layers.
+packed masks; nothing grows with the number of layers.
 
 The rule at a pixel: it is solid where a printed label's field is positive, or where two labels' fields
 both come within CRACK_VOXELS of it (the seam of two touching labels); it takes the label of highest score,
@@ -23,7 +23,7 @@ from heoslice.layers.rasterising import Grid
 from heoslice.volume.fields import FAR_OUTSIDE, LabelField, label_field
 from heoslice.volume.model import Label, Volume
 from heoslice.volume.placement import Placement
-from heoslice.volume.resample_kernels import _label_codes, _pack_codes
+from heoslice.volume.resample_kernels import _label_codes
 
 #: Labels of fewer voxels win every pixel their own field marks inside (a label map's small structures).
 PROTECT_VOXELS = 64
@@ -31,8 +31,6 @@ PROTECT_VOXELS = 64
 BOOST = np.float32(1e4)
 #: Voxels: two labels whose fields both come this close to positive at a pixel make it solid (their seam).
 CRACK_VOXELS = 0.25
-#: Pixel rows whose material codes are made at once (a byte each) before they are packed.
-BAND_ROWS = 256
 
 
 @dataclass(frozen=True)
@@ -111,33 +109,14 @@ def _cells(centres: np.ndarray, origin: float, spacing: float, first: int, nodes
 
 def layer_masks(plan: LabelPrint, z_mm: float, grid: Grid, materials: int) -> tuple[np.ndarray, np.ndarray]:
     """One layer's packed masks ((materials + 1, H, ceil(W / 8)) uint8: the solid mask, then one per material
-    code) and their set pixels ((materials + 1,) int64) at printer height ``z_mm``; the codes are made and
-    packed BAND_ROWS rows at a time, so a layer costs its packed masks, not a byte per pixel."""
+    code) and their set pixels ((materials + 1,) int64) at printer height ``z_mm``."""
     planes = np.zeros((materials + 1, grid.height, -(-grid.width // 8)), dtype=np.uint8)
     counts = np.zeros(materials + 1, dtype=np.int64)
-    for first, codes in _code_bands(plan, z_mm, grid, BAND_ROWS):
-        band = np.zeros((materials + 1, codes.shape[0], planes.shape[2]), dtype=np.uint8)
-        _pack_codes(codes, band, counts)
-        planes[:, first:first + codes.shape[0]] = band
-    return planes, counts
-
-
-def layer_codes(plan: LabelPrint, z_mm: float, grid: Grid) -> np.ndarray:
-    """(H, W) uint8: each pixel's material code at printer height ``z_mm`` (0: empty)."""
-    codes = np.zeros((grid.height, grid.width), dtype=np.uint8)
-    for first, band in _code_bands(plan, z_mm, grid, grid.height):
-        codes[first:first + band.shape[0]] = band
-    return codes
-
-
-def _code_bands(plan: LabelPrint, z_mm: float, grid: Grid, rows: int):
-    """(first row, (rows', W) uint8 material codes) of the layer at ``z_mm``, band after band of ``rows`` rows
-    (bands without any label left out)."""
     k = (z_mm - plan.origin[0]) / plan.spacing[0]
     chosen = [(index, values, field.start) for index, field in enumerate(plan.fields)
               if (values := _plane(field, k)) is not None]
     if not chosen:
-        return
+        return planes, counts
     low = np.min([start[1:] for _, _, start in chosen], axis=0)
     high = np.max([start[1:] + values.shape for _, values, start in chosen], axis=0)
     rows_n, columns_n = (int(n) for n in high - low)
@@ -148,18 +127,11 @@ def _code_bands(plan: LabelPrint, z_mm: float, grid: Grid, rows: int):
         fields[slot, y0:y0 + values.shape[0], x0:x0 + values.shape[1]] = values
         boxes[slot] = (y0, y0 + values.shape[0], x0, x0 + values.shape[1])
     picked = np.array([index for index, _, _ in chosen])
-    boost, codes = np.ascontiguousarray(plan.boost[picked]), np.ascontiguousarray(plan.codes[picked])
     x, y = grid.centres()
     row_cell, row_frac = _cells(y, plan.origin[1], plan.spacing[1], int(low[0]), rows_n)
     row_cell[row_cell > rows_n - 2] = -1
     col_cell, col_frac = _cells(x, plan.origin[2], plan.spacing[2], int(low[1]), columns_n)
     cell_start = np.searchsorted(col_cell, np.arange(columns_n)).astype(np.int64)
-    on_grid = np.flatnonzero(row_cell >= 0)
-    if not len(on_grid):
-        return
-    for first in range(int(on_grid[0]), int(on_grid[-1]) + 1, rows):
-        stop = min(first + rows, int(on_grid[-1]) + 1)
-        band = np.zeros((stop - first, grid.width), dtype=np.uint8)
-        _label_codes(fields, boost, codes, boxes, CRACK_VOXELS, np.ascontiguousarray(row_cell[first:stop]),
-                     np.ascontiguousarray(row_frac[first:stop]), cell_start, col_frac, band)
-        yield first, band
+    _label_codes(fields, np.ascontiguousarray(plan.boost[picked]), np.ascontiguousarray(plan.codes[picked]), boxes,
+                 CRACK_VOXELS, row_cell, row_frac, cell_start, col_frac, planes, counts)
+    return planes, counts

@@ -1,6 +1,6 @@
-"""The volume route's compiled kernels (numba source, compiled at install: :mod:`heoslice.jit`): one layer's
-label fields resampled at the pixel centres into a material code per pixel, and those codes packed into
-the layer's 1-bit solid mask and droplet masks.
+"""The volume route's compiled kernel (numba source, compiled at install: :mod:`heoslice.jit`): one layer's
+label fields resampled at the pixel centres into the layer's packed 1-bit solid mask and one mask per
+material code (a span of pixels set at once where a voxel cell is one label's throughout).
 
 The fields are given on the layer's plane at the voxel nodes (already interpolated along z), so a pixel's
 value is their bilinear interpolation: exactly the trilinear interpolation of the voxel fields. A pixel
@@ -17,11 +17,13 @@ from __future__ import annotations
 import numpy as np
 
 from heoslice.jit import JIT, kernel
+from heoslice.layers.rasterising_kernels import _fill_span
 
 
 @kernel(JIT)
-def _label_codes(fields, boost, codes, boxes, crack, row_cell, row_frac, cell_start, col_frac, out):
-    """Fill ``out`` ((H, W) uint8, zeroed) with each pixel's material code (0: empty).
+def _label_codes(fields, boost, codes, boxes, crack, row_cell, row_frac, cell_start, col_frac, planes, counts):
+    """Set each pixel's bits in ``planes`` ((K + 1, H, ceil(W / 8)) uint8, zeroed, most significant bit first):
+    plane 0 the solid mask, plane m the pixels of material code m; ``counts`` ((K + 1,) int64) their set pixels.
 
     fields: (L, NY, NX) float32, each label's field at the layer's voxel nodes (voxels, positive inside);
     boost: (L,) float32; codes: (L,) uint8 (1..K); boxes: (L, 4) int64, the node ranges [y0, y1) and [x0, x1)
@@ -55,7 +57,7 @@ def _label_codes(fields, boost, codes, boxes, crack, row_cell, row_frac, cell_st
                     cell = cy * (columns_n - 1) + cx
                     candidates[filled[cell]] = label
                     filled[cell] += 1
-    for row in range(out.shape[0]):
+    for row in range(row_cell.shape[0]):
         cy = row_cell[row]
         if cy < 0 or cy > rows_n - 2:
             continue
@@ -93,8 +95,10 @@ def _label_codes(fields, boost, codes, boxes, crack, row_cell, row_frac, cell_st
                 wb = fields[win_a, cy, cx + 1] + fy * (fields[win_a, cy + 1, cx + 1] - fields[win_a, cy, cx + 1])
                 if wa > 0 and wb > 0:
                     code = codes[win_a]
-                    for column in range(first, stop):
-                        out[row, column] = code
+                    _fill_span(planes[0], row, first, stop)
+                    _fill_span(planes[code], row, first, stop)
+                    counts[0] += stop - first
+                    counts[code] += stop - first
                     continue
             for column in range(first, stop):
                 fx = col_frac[column]
@@ -113,23 +117,9 @@ def _label_codes(fields, boost, codes, boxes, crack, row_cell, row_frac, cell_st
                     elif value > second:
                         second = value
                 if winner >= 0 and (top > 0 or second > -crack):
-                    out[row, column] = codes[winner]
-
-
-@kernel(JIT)
-def _pack_codes(codes, planes, counts):
-    """Pack a layer's material codes ((H, W) uint8, 0 empty) into ``planes`` ((K + 1, H, ceil(W / 8)) uint8,
-    zeroed, most significant bit first): plane 0 the solid mask, plane m the pixels of code m; ``counts``
-    ((K + 1,) int64) their set pixels."""
-    height, width = codes.shape
-    for row in range(height):
-        for column in range(width):
-            code = codes[row, column]
-            if code == 0:
-                continue
-            bit = np.uint8(0x80 >> (column & 7))
-            byte = column >> 3
-            planes[0, row, byte] |= bit
-            planes[code, row, byte] |= bit
-            counts[0] += 1
-            counts[code] += 1
+                    code = codes[winner]
+                    bit = np.uint8(0x80 >> (column & 7))
+                    planes[0, row, column >> 3] |= bit
+                    planes[code, row, column >> 3] |= bit
+                    counts[0] += 1
+                    counts[code] += 1
