@@ -11,13 +11,13 @@ import heoslice
 
 SOURCE = Path(heoslice.__file__).resolve().parent
 #: The stages in pipeline order; a module may import its own stage or an earlier one, never a later one.
-STAGES = ("base", "mesh", "material", "layers", "grading", "build", "stack", "pipeline", "preview", "export",
+STAGES = ("base", "mesh", "material", "layers", "grading", "volume", "build", "stack", "pipeline", "preview", "export",
           "printing", "cli")
 #: The stage of each first name under heoslice (a package, or a base module that every stage may use).
 STAGE_OF = {
     "__init__": "base", "errors": "base", "files": "base", "jit": "base", "lazy": "base", "locks": "base", "signals": "base",
     "mesh": "mesh", "procedural": "mesh",
-    "material": "material", "layers": "layers", "grading": "grading", "kernel_exports": "build", "stack": "stack",
+    "material": "material", "layers": "layers", "grading": "grading", "volume": "volume", "kernel_exports": "build", "stack": "stack",
     "pipeline": "pipeline",
     "preview": "preview", "export": "export", "printing": "printing",
     "cli": "cli", "__main__": "cli",

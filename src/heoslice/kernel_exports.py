@@ -45,6 +45,7 @@ from heoslice.jit import (
 from heoslice.layers import contours_kernels, rasterising_kernels, slicing_kernels
 from heoslice.material import surface_kernels
 from heoslice.mesh import topology_kernels, weld_kernels
+from heoslice.volume import resample_kernels
 
 f8, i8, b1 = types.float64, types.int64, types.boolean
 f8_1, f8_2, f8_3, f8_4 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1], types.float64[:, :, :, ::1]
@@ -120,6 +121,8 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     topology_kernels._edge_runs: (i8_2, i8),
     topology_kernels._lowest_connected: (i8_1, i8_1, i8),
     weld_kernels._first_rows: (u8_1, u4_2),
+    resample_kernels._label_codes: (types.float32[:, :, ::1], f4_1, types.uint8[::1], i8_2, f8, i8_1, f4_1, i8_1,
+                                    f4_1, u1_3, i8_1),
 }
 
 

@@ -1,4 +1,4 @@
-"""``heoslice info``: what a mesh file holds, before slicing it."""
+"""``heoslice info``: what a mesh file or a volume (label map, CT) holds, before slicing it."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import click
 
 from heoslice.cli.options import apply_scale, scale_option
 from heoslice.mesh import load_mesh, mesh_info
+from heoslice.volume import is_volume_path
 
 
 #: Shells listed one a line in the text output (--json lists every shell).
@@ -34,16 +35,38 @@ Examples:
   heoslice info vase.ply
   heoslice info liver.stl --json | jq .volume_mm3
   heoslice info scan.ply --scale 1000   # a model in metres: bounding box and volume in mm, as sliced
+  heoslice info example_seg.nii.gz              # a label map: each label's name, voxels and volume
+  heoslice info ct_dicom/                       # a DICOM series folder (or a folder of structure files)
 """)
 @click.argument("model", type=click.Path(path_type=Path))
 @scale_option
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-def info(model: Path, scale: float, as_json: bool) -> None:
+@click.option("--as", "kind", type=click.Choice(["labels", "intensity"]), default=None,
+              help="Read a volume as a label map or an intensity volume [default: guessed: whole numbers, none "
+                   "negative, at most 1000 values make a label map].")
+def info(model: Path, scale: float, as_json: bool, kind: str | None) -> None:
     """Print MODEL's vertices, triangles, bounding box, watertightness, winding, shells (each with its number as
     [shells] and --shell-colors use it, its triangles, enclosed volume and bounding box), duplicate faces,
     volume (of the solid the slicer fills: overlapping shells count once, as in 'verify --mesh'), colours;
     with --scale, of the model as 'slice --scale' slices it. A flat mesh (zero height) is described with a
-    warning; slice refuses it."""
+    warning; slice refuses it.
+
+    For a volume (NIfTI .nii/.nii.gz, NRRD/.seg.nrrd, a folder of one NIfTI per structure, a DICOM series
+    folder): its shape, voxel size, orientation, extent in mm and, for a label map, each label's name (where
+    the file has one), voxel count and volume.
+    """
+    if is_volume_path(model):
+        from heoslice.volume import load_volume
+        from heoslice.volume.info import info_lines, volume_info
+
+        if scale != 1.0:
+            raise InputError("--scale: a volume is placed by its own voxel size and affine; leave --scale out")
+        summary = volume_info(load_volume(model, kind))
+        if as_json:
+            click.echo(json.dumps({"model": str(model), "ok": True, **summary}))
+        else:
+            click.echo("\n".join(info_lines(summary)))
+        return
     summary = mesh_info(apply_scale(load_mesh(model, flat_ok=True), scale))
     if as_json:
         click.echo(json.dumps({"model": str(model), "ok": True, **summary}))

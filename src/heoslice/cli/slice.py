@@ -18,11 +18,13 @@ from heoslice.cli.common import (
 )
 from heoslice.cli.options import apply_scale, flags, function_from_options, function_options, option, scale_option
 from heoslice.cli.parts import GRADE_REFUSAL, is_parts_job, part_settings, report_parts
+from heoslice.cli.volume import slice_volume, volume_options
 from heoslice.errors import InputError
 from heoslice.material import MaterialsFile, material_roles, read_materials_file
 from heoslice.mesh import Mesh, load_assembly, load_mesh, without_materials
 from heoslice.pipeline import SliceSpec, plan_parts, slice_to_stack, slice_warnings
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, print_refusal, refusal_line, stack_volume_mm3
+from heoslice.volume import is_volume_path
 
 #: SliceSpec and slice_to_stack parameters -> the options that set them (library errors name the parameter).
 SPEC_FLAGS = {
@@ -160,6 +162,15 @@ Several parts in one stack (a multi-part job; one 1-bit droplet mask per materia
   --part names, else its 3MF base material's name if that is a table material, else the table
   material nearest its one colour. Where parts overlap the higher [parts] priority wins, then
   the smaller part (so an enclosed lesion wins over its organ). Not graded: --grade is refused.
+\b
+Volumes (a label map: NIfTI .nii/.nii.gz, NRRD or Slicer .seg.nrrd, a folder of one NIfTI per structure):
+  heoslice slice example_seg.nii.gz --materials organs.toml   # organs.toml's [labels]: 5 = "tissue"
+  heoslice slice segmentation.seg.nrrd --materials mats.toml  # [labels] by segment name: "liver" = "gel"
+  heoslice slice totalseg_output/ --up A                      # printer +z = the patient's anterior
+  heoslice slice ct.nii.gz --materials ct.toml                # a CT through ct.toml's [intensity] curve
+  heoslice slice ct.nii.gz --labels seg.nii.gz --materials ct.toml   # bone by density, [labels] as tissue
+  Each label's surface is smoothed between voxel centres; labels not listed in [labels] are left out
+  (without a [labels] table every label prints, in the table's first material).
 """)
 @click.argument("models", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="MODEL...")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
@@ -223,6 +234,7 @@ Several parts in one stack (a multi-part job; one 1-bit droplet mask per materia
 @click.option("--part", "part_options", multiple=True, metavar="NAME=MATERIAL",
               help="Material of the part NAME (a file's stem or a 3MF object's name) in a multi-part job; "
                    "repeat for each part (overrides the materials file's [parts]).")
+@volume_options
 @click.pass_context
 def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None, into: Path | None,
               layer_height: float, dpi: str, canvas: str | None,
@@ -231,7 +243,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
               periods: float | None, expression: str | None, target: str | None, start: str | None,
               nozzle: float, depth: float | None, depth_from: str, offset_count: int | None, direction: str,
               materials_file: Path | None, channels: bool | None, interior: str | None, solid_only: bool,
-              parts_flag: bool, part_options: tuple[str, ...]) -> None:
+              parts_flag: bool, part_options: tuple[str, ...], up: str, smooth: float | None,
+              label_map: Path | None, volume_kind: str | None) -> None:
     """Slice each MODEL (PLY, STL, OBJ, OFF, 3MF) into one TIFF per layer plus manifest.json.
 
     Layers are cut at their centres, z = z_min + (i + 1/2) x layer; a pixel is solid
@@ -263,6 +276,20 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     """
     with option("--materials"):
         materials = read_materials_file(materials_file)  # the one read of the file: its tables are passed on
+    if len(models) == 1 and is_volume_path(models[0]):
+        if grade_kind is not None or parts_flag or part_options or solid_only or scale != 1.0:
+            raise InputError("a volume is sliced by its labels: --grade, --parts, --part, --solid and --scale do "
+                             "not apply (map labels to materials in the materials file's [labels] table)")
+        if into is not None:
+            raise click.UsageError("--into: one volume makes one stack; name it with -o/--output")
+        try:
+            spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
+                             canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs)
+        except InputError as err:
+            raise flag_error(err) from None
+        slice_volume(models[0], output, spec, force, as_json, materials, bool(channels), up, smooth, volume_kind,
+                     label_map)
+        return
     if is_parts_job(models, parts_flag, part_options, materials):
         if grade_kind is not None:
             raise InputError(GRADE_REFUSAL)

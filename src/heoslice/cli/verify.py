@@ -12,6 +12,7 @@ from heoslice.cli import material_report
 from heoslice.cli.common import plural, signed_percent
 from heoslice.errors import InputError, VerifyError
 from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, volume_check
+from heoslice.volume import is_volume_path
 from heoslice.stack import (
     check_input_path,
     layer_height_problems,
@@ -82,6 +83,27 @@ def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float,
     return problems, warnings, summary
 
 
+def volume_checks(manifest: dict, model: Path, tolerance: float) -> tuple[list[str], list[str], dict]:
+    """Compare a volume's stack with the label map it was sliced from: which file it is, and the stack's volume
+    against the voxel volume of the labels its manifest lists as printed. Returns (problems, warnings, summary)."""
+    from heoslice.volume import load_volume
+    from heoslice.volume.info import printed_voxel_volume_mm3
+
+    volume = load_volume(model, "labels")
+    warnings = [] if (manifest.get("source") or {}).get("sha256") in (None, volume.sha256) else [
+        f"{model}: not the file this stack was sliced from (its sha256 differs from the manifest's)"]
+    records = manifest.get("labels")
+    if not isinstance(records, list):
+        raise InputError(f"--mesh: {model} is a volume, but this stack lists no printed labels (not sliced from one)")
+    expected = printed_voxel_volume_mm3(volume, records)
+    relative = (stack_volume_mm3(manifest) - expected) / expected if expected else float("inf")
+    problems = [] if abs(relative) <= tolerance else [
+        f"stack volume {stack_volume_mm3(manifest):.6g} mm^3 differs from the printed labels' voxel volume "
+        f"{expected:.6g} mm^3 by {100 * relative:+.2f} % (tolerance {100 * tolerance:g} %)"]
+    return problems, warnings, {"file": str(model), "scale": 1.0, "watertight": None, "volume_mm3": expected,
+                                "relative_volume_difference": relative, "z_range_mm": manifest["z_range_mm"]}
+
+
 def mesh_scale(stack: Path, manifest: dict, given: float | None) -> float:
     """The factor to multiply the --mesh coordinates by: the ``scale`` the stack's manifest records (``slice
     --scale``), or ``given`` (--scale) for a stack that records none (1 without either). A ``given`` that
@@ -115,6 +137,7 @@ Examples:
   heoslice verify liver_stack/ --mesh liver.stl --mesh lesion.stl   # a multi-part stack: one per part file
   heoslice slice vase.ply --grade linear --rgba -o vase_design        # the design, as a preview stack
   heoslice verify vase_stack/ --design vase_design                   # every 2 mm window against it
+  heoslice verify seg_stack/ --mesh example_seg.nii.gz   # a volume's stack: its labels' voxel volume
 """)
 @click.argument("stack", type=click.Path(path_type=Path))
 @click.option("--mesh", "models", type=click.Path(path_type=Path), multiple=True,
@@ -135,7 +158,8 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     (inside the stack, present, sha256, size, dpi, solid pixel count), no missing or extra
     layers, and that it can print (not an RGBA preview, not every layer empty); with --mesh
     also the volume and layer heights against the mesh (the parts' meshes together, one
-    --mesh per part file, for a multi-part stack).
+    --mesh per part file, for a multi-part stack). A stack sliced from a volume (label map)
+    takes the volume as --mesh: its volume is compared with the printed labels' voxel volume.
 
     Prints one line per problem; a pixel in two droplet masks, or a solid one in none,
     is named by layer, pixel and mm. A stack whose files pass is followed by what it
@@ -146,7 +170,8 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     """
     check_input_path(stack)
     mesh = None
-    if models:
+    volume_model = models[0] if len(models) == 1 and is_volume_path(models[0]) else None
+    if models and volume_model is None:
         scale = _check_mesh_options_first(stack, models, scale)
         mesh = load_mesh(models[0]) if len(models) == 1 else load_assembly(models)
         mesh = scaled(mesh, scale) if scale != 1.0 else mesh
@@ -154,6 +179,9 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     problems, warnings, mesh_summary = list(report.problems), [], None
     if mesh is not None and report.manifest:
         mesh_problems, warnings, mesh_summary = mesh_checks(report.manifest, mesh, scale, tolerance, models)
+        problems += mesh_problems
+    elif volume_model is not None and report.manifest:
+        mesh_problems, warnings, mesh_summary = volume_checks(report.manifest, volume_model, tolerance)
         problems += mesh_problems
     refusal = print_refusal(report.manifest) if report.manifest else None
     problems += [refusal_line(refusal, stack)] if refusal is not None else []
@@ -178,9 +206,10 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
             click.echo(f"warning: {text}", err=True)
         for line in problems:
             click.echo(line if line.startswith(str(stack)) else f"{stack}: {line}")
+        compared = "labels' voxel volume" if volume_model else "mesh volume"
         if not problems:
             click.echo(f"{stack}: OK, {plural(len(layers), 'layer')}, volume {summary['volume_mm3']:.6g} mm^3"
-                       + (f", mesh volume {mesh_summary['volume_mm3']:.6g} mm^3 "
+                       + (f", {compared} {mesh_summary['volume_mm3']:.6g} mm^3 "
                           f"({signed_percent(mesh_summary['relative_volume_difference'])})"
                           if mesh_summary and mesh_summary["relative_volume_difference"] is not None else ""))
         for line in [] if delivered is None else material_report.text_lines(report.manifest, *delivered):

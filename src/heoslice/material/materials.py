@@ -21,6 +21,10 @@ jetting head; channel 0 of a print job is the solid mask). ``color``, ``slice`` 
     liver = "gel"            # (a file's stem, a 3MF object's name)
     lesion = { material = "cells", priority = 1 }   # higher priority wins where parts overlap
 
+    [labels]                 # optional: material of a volume's label, by label value or segment name
+    5 = "gel"                # (labels not listed are left out of the print)
+    "tumour" = { material = "cells", priority = 1 }
+
 Without a file the built-in default has two materials, ``M1`` (light grey
 (240, 240, 240), channel 1) and ``M2`` (green (0, 255, 0), channel 2).
 
@@ -194,23 +198,24 @@ class PartSetting:
     priority: int | None = None
 
 
-def _parts_of(data: dict, path: Path, table: dict[str, Material]) -> dict[str, PartSetting]:
-    """{part name: PartSetting} of the optional [parts] table of a parsed materials file ({} without one)."""
-    parts = data.get("parts", {})
+def _parts_of(data: dict, path: Path, table: dict[str, Material], section: str = "parts") -> dict[str, PartSetting]:
+    """{part name: PartSetting} of the optional [parts] table of a parsed materials file ({} without one);
+    ``section`` "labels" reads the [labels] table, of the same form, keyed by label value or name."""
+    parts = data.get(section, {})
     if not isinstance(parts, dict):
-        raise InputError(f"{path}: [parts] must map part names to material names")
+        raise InputError(f"{path}: [{section}] must map {section[:-1]} names to material names")
     out = {}
     for name, value in parts.items():
         entry = {"material": value} if isinstance(value, str) else value
         if not isinstance(entry, dict) or not isinstance(entry.get("material"), str) or set(entry) - {"material",
                                                                                                       "priority"}:
-            raise InputError(f"{path}: [parts] {name}: give a material name, or "
+            raise InputError(f"{path}: [{section}] {name}: give a material name, or "
                              "{ material = NAME, priority = N }")
         priority = entry.get("priority")
         if priority is not None and (isinstance(priority, bool) or not isinstance(priority, int)):
-            raise InputError(f"{path}: [parts] {name}: priority must be a whole number, got {priority!r}")
+            raise InputError(f"{path}: [{section}] {name}: priority must be a whole number, got {priority!r}")
         if table_material(entry["material"], table) is None:
-            raise InputError(f"{path}: [parts] {name}: unknown material {entry['material']!r} "
+            raise InputError(f"{path}: [{section}] {name}: unknown material {entry['material']!r} "
                              f"(materials: {', '.join(table)})")
         out[str(name)] = PartSetting(entry["material"], priority)
     return out
@@ -234,6 +239,16 @@ class MaterialsFile:
         """{part name: PartSetting} of the file's [parts] table ({} without one, or without a file); each
         material must be one of the file's materials."""
         return {} if self.path is None else _parts_of(self.data, self.path, self.materials)
+
+    def labels(self) -> dict[str, PartSetting]:
+        """{label value or segment name (as written): PartSetting} of the file's [labels] table ({} without
+        one); each material must be one of the file's materials."""
+        return {} if self.path is None else _parts_of(self.data, self.path, self.materials, "labels")
+
+    @property
+    def has_labels(self) -> bool:
+        """Whether the file has a [labels] table (an empty one leaves every label out)."""
+        return "labels" in self.data
 
 
 def read_materials_file(path: Path | None) -> MaterialsFile:

@@ -25,6 +25,7 @@ _MODULES = {
     "materials": ("MaterialJob", "material_job"),
     "parallel": ("run_all", "keep_freed_memory"),
     "parts": ("PartsPlan", "plan_parts", "part_order", "compose_part_masks"),
+    "volume_job": ("LabelPlan", "plan_labels", "slice_volume_to_stack"),
 }
 
 __all__, __getattr__, __dir__ = lazy_exports(__name__, _MODULES)

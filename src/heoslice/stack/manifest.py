@@ -108,11 +108,13 @@ def max_layer_count(channel_materials: Sequence[str] = ()) -> int:
 def build_manifest(*, source_file: str, source_sha256: str, layer_height_mm: float, dpi: tuple[float, float],
                    pixel_size_mm: tuple[float, float], image: ImageRecord, z_range_mm: tuple[float, float],
                    warnings: Sequence[str], layers: Sequence[LayerRecord], grading: dict | None = None,
-                   parts: Sequence[dict] | None = None, scale: float = 1.0) -> dict:
+                   parts: Sequence[dict] | None = None, scale: float = 1.0, placement: dict | None = None,
+                   labels: Sequence[dict] | None = None) -> dict:
     """The ``manifest.json`` object of a finished stack, checked by :func:`manifest_problem` before it is
     returned (a failure is a bug in the slicer, raised as ValueError). ``parts``: a multi-part job's parts
     (:func:`heoslice.pipeline.parts.parts_records`); ``scale``: the factor the source file's coordinates were
-    multiplied by before slicing (``slice --scale``)."""
+    multiplied by before slicing (``slice --scale``); ``placement`` and ``labels``: a volume's place in its
+    scan's space and its printed labels (:mod:`heoslice.pipeline.volume_job`)."""
     manifest = {
         "format": FORMAT_NAME,
         "version": FORMAT_VERSION,
@@ -134,6 +136,10 @@ def build_manifest(*, source_file: str, source_sha256: str, layer_height_mm: flo
         manifest["grading"] = grading
     if parts is not None:
         manifest["parts"] = list(parts)
+    if placement is not None:
+        manifest["placement"] = placement
+    if labels is not None:
+        manifest["labels"] = list(labels)
     problem = manifest_problem(manifest)
     if problem:
         raise ValueError(f"the slicer built a manifest its readers refuse: {problem}")
@@ -260,7 +266,7 @@ def manifest_problem(manifest) -> str | None:
         problem = _layer_problem(entry, position, pixels)
         if problem:
             return problem
-    return _grading_problem(manifest) or _parts_problem(manifest)
+    return _grading_problem(manifest) or _parts_problem(manifest) or _placement_problem(manifest)
 
 
 def _parts_problem(manifest: dict) -> str | None:
@@ -271,6 +277,22 @@ def _parts_problem(manifest: dict) -> str | None:
         volume = part.get("volume_mm3") if isinstance(part, dict) else None
         if volume is not None and not (_is_number(volume) and volume >= 0):
             return f"parts[{number}]: 'volume_mm3' must be a number >= 0 or null, not {_show(volume)}"
+    return None
+
+
+def _placement_problem(manifest: dict) -> str | None:
+    """The problem of a volume stack's optional ``placement`` (an object whose ``printer_from_scan`` is a
+    4 x 4 matrix of numbers and ``print_origin_in_scan_mm`` three numbers), or None."""
+    placement = manifest.get("placement")
+    if placement is None:
+        return None
+    matrix = placement.get("printer_from_scan") if isinstance(placement, dict) else None
+    origin = placement.get("print_origin_in_scan_mm") if isinstance(placement, dict) else None
+    if not (isinstance(matrix, list) and len(matrix) == 4 and all(
+            isinstance(row, list) and len(row) == 4 and all(_is_number(v) for v in row) for row in matrix)):
+        return "'placement.printer_from_scan' must be a 4 x 4 matrix of numbers"
+    if not (isinstance(origin, list) and len(origin) == 3 and all(_is_number(v) for v in origin)):
+        return "'placement.print_origin_in_scan_mm' must be three numbers"
     return None
 
 

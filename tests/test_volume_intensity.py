@@ -1,0 +1,130 @@
+"""Intensities become materials: the curve's blend (eq. 1 with the image value for r), its halftone (every solid
+pixel in exactly one mask; each material's share following its fraction within 2 % over any 2 mm x 2 mm window
+of constant value), and a CT sliced through the materials file's [intensity] table."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from helpers import in_process
+from volume_phantoms import grid_affine, write_nifti
+
+from heoslice.errors import InputError
+from heoslice.material import read_materials_file
+from heoslice.stack import read_layer_channels, read_layer_mask
+from heoslice.volume.intensity import halftone_mix, read_curve
+
+MATERIALS = """
+[materials.tissue]
+color = "#f0a0a0"
+channel = 1
+[materials.bone]
+color = "#ffffff"
+channel = 2
+[intensity]
+points = [ { value = 100, mix = { tissue = 1.0 } }, { value = 900, mix = { bone = 1.0 } } ]
+"""
+
+
+def curve(tmp_path):
+    path = tmp_path / "m.toml"
+    path.write_text(MATERIALS)
+    table = read_materials_file(path)
+    return read_curve(table.data["intensity"], table.materials)
+
+
+def test_curve_blends_linearly_and_holds_its_ends(tmp_path):
+    """Bone fraction (value - 100) / 800 between the points, 0 below, 1 above; fractions sum to 1."""
+    blend = curve(tmp_path)
+    values = np.array([-500.0, 100.0, 300.0, 500.0, 900.0, 2000.0])
+    mix = blend.mix(values)
+    names = [material.name for material in blend.materials]
+    bone = mix[:, names.index("bone")]
+    assert np.allclose(bone, np.clip((values - 100) / 800, 0, 1)) and np.allclose(mix.sum(axis=1), 1)
+
+
+@pytest.mark.parametrize("fraction", [0.1, 0.25, 0.5, 0.8])
+def test_halftone_share_follows_the_fraction(fraction):
+    """Over every 2 mm x 2 mm window (47 x 47 px at 600 dpi) of constant mix, each material's share is its
+    fraction within 2 %; every solid pixel is in one mask."""
+    shape = (200, 300)
+    mix = np.zeros((*shape, 2), np.float32)
+    mix[..., 0], mix[..., 1] = 1 - fraction, fraction
+    solid = np.ones(shape, bool)
+    solid[:, :20] = False
+    masks = halftone_mix(mix, solid, layer=7)
+    assert np.array_equal(masks.sum(axis=0), solid.astype(int))
+    for top in range(0, 200 - 47, 31):
+        for left in range(20, 300 - 47, 37):
+            share = masks[1, top:top + 47, left:left + 47].mean()
+            assert abs(share - fraction) <= 0.02
+
+
+def test_unknown_material_in_the_curve_is_one_line(tmp_path):
+    table = read_materials_file(None)
+    with pytest.raises(InputError, match="unknown material 'bone'"):
+        read_curve({"points": [{"value": 1, "mix": {"bone": 1.0}}]}, table.materials)
+
+
+def test_ct_sliced_by_its_curve(tmp_path, capsys):
+    """A CT of two slabs (300 and 700 HU) in air (-1000 HU): air is not printed; inside the slabs (away from
+    their boundary) the bone mask's share is 0.25 and 0.75 within 2 % over 2 mm windows."""
+    hu = np.full((20, 16, 10), -1000, np.int16)
+    hu[2:10, 2:14, 2:8] = 300
+    hu[10:18, 2:14, 2:8] = 700
+    path = write_nifti(tmp_path / "ct.nii.gz", hu, grid_affine(2.0, [0, 0, 0]))
+    (tmp_path / "m.toml").write_text(MATERIALS)
+    assert in_process("slice", path, "--materials", tmp_path / "m.toml", "--layer", "0.5", "--dpi", "600", "-o",
+                      tmp_path / "out", "--json") == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["materials"] == ["tissue", "bone"]
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    middle = len(manifest["layers"]) // 2
+    solid = read_layer_mask(tmp_path / "out", manifest, middle).astype(bool)
+    masks = read_layer_channels(tmp_path / "out", manifest, middle).astype(bool)
+    assert np.array_equal(masks.sum(axis=0), solid.astype(int))
+    left, top = manifest["image"]["origin_mm"]
+    px = manifest["pixel_size_mm"][0]
+    for x_mm, share in ((8.0, 0.25), (28.0, 0.75)):  # slab centres: x 4..20 mm at 300 HU, 20..36 mm at 700 HU
+        column, row = int((x_mm - 1.0 - left) / px), int((top - 15.0) / px)
+        window = masks[1, row:row + 47, column:column + 47]
+        assert solid[row:row + 47, column:column + 47].all() and abs(window.mean() - share) <= 0.02
+    air = int((top - 28.0) / px)  # y = 28 mm: past the slabs (300 HU at y 26, air at 28: 100 HU at y 26.3)
+    assert not solid[air].any()
+
+
+def test_ct_bone_by_its_curve_and_labelled_soft_tissue_in_one_job(tmp_path, capsys):
+    """CT + label map in one job: label 1 ('bone', 700 HU) prints by the curve (bone share 0.75 within 2 % over
+    a 2 mm window), label 2 prints as tissue whatever its HU, every solid pixel in exactly one mask, and the
+    CT's 700 HU outside the labels (label 0) does not print."""
+    hu = np.full((24, 16, 10), -1000, np.int16)
+    hu[2:10, 2:14, 2:8] = 700
+    hu[10:18, 2:14, 2:8] = 0
+    hu[18:22, 2:14, 2:8] = 700  # dense, but in no label
+    labels = np.zeros(hu.shape, np.uint8)
+    labels[2:10, 2:14, 2:8] = 1
+    labels[10:18, 2:14, 2:8] = 2
+    ct = write_nifti(tmp_path / "ct.nii.gz", hu, grid_affine(2.0, [0, 0, 0]))
+    seg = write_nifti(tmp_path / "seg.nii.gz", labels, grid_affine(2.0, [0, 0, 0]))
+    (tmp_path / "m.toml").write_text(MATERIALS + 'within = [1]\n[labels]\n2 = "tissue"\n')
+    assert in_process("slice", ct, "--labels", seg, "--materials", tmp_path / "m.toml", "--layer", "0.5", "--dpi",
+                      "600", "-o", tmp_path / "out", "--json") == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["materials"] == ["tissue", "bone"]
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    middle = len(manifest["layers"]) // 2
+    solid = read_layer_mask(tmp_path / "out", manifest, middle).astype(bool)
+    masks = read_layer_channels(tmp_path / "out", manifest, middle).astype(bool)
+    assert np.array_equal(masks.sum(axis=0), solid.astype(int))
+    left, top = manifest["image"]["origin_mm"]
+    px = manifest["pixel_size_mm"][0]
+    row = int((top - 16.0) / px)
+    bone = int((10.0 - left) / px)  # x 10 mm: inside label 1 (x 4..18 mm)
+    window = masks[1, row:row + 47, bone:bone + 47]
+    assert solid[row:row + 47, bone:bone + 47].all() and abs(window.mean() - 0.75) <= 0.02
+    tissue = int((28.0 - left) / px)  # x 28 mm: inside label 2 (x 20..34 mm)
+    assert masks[0, row:row + 47, tissue:tissue + 47].all()
+    beyond = int(np.ceil((36.2 - left) / px))  # past label 2 (face 35, its rounded box bulges < 1 mm): the dense slab
+    assert beyond < solid.shape[1] and not solid[:, beyond:].any()
