@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from contextlib import ExitStack
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +38,7 @@ from heoslice.stack import (
     check_image_size,
     droplet_summary,
     grading_summary,
+    incomplete_stack,
     max_layer_count,
     prepare_directory,
     write_manifest,
@@ -108,6 +109,7 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
         prepare_directory(directory, force)
         if not existed:
             held.enter_context(hold_stack(directory, "slicing into it"))
+        held.enter_context(_incomplete_if_interrupted(directory))
         z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
         results: dict[int, tuple] = {}
         open_layers = np.zeros(len(z), dtype=bool)
@@ -140,6 +142,17 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
         write_manifest(directory, manifest)
         times.total = time.perf_counter() - started
         return manifest, times
+
+
+@contextmanager
+def _incomplete_if_interrupted(directory: Path):
+    """An interruption (Ctrl-C, a terminating signal) of the block leaves ``directory`` without its manifest: it
+    carries a note (PEP 678 ``__notes__``, which the CLI appends to its one line) saying so and what to run."""
+    try:
+        yield
+    except KeyboardInterrupt as interrupt:
+        interrupt.__notes__ = [*getattr(interrupt, "__notes__", ()), incomplete_stack(directory)]
+        raise
 
 
 def _image_mode(spec: SliceSpec) -> str:
