@@ -96,7 +96,8 @@ def _print(stack: Path, port: str, baud: int | None, from_layer: int | None, res
                            label=f"stack {stack}", name=Path(stack).resolve().name)
     if as_json:
         click.echo(json.dumps({"stack": str(stack), "ok": True, "port": port, "log": str(log_path),
-                               "job_id": f"{job.job_id:08x}", **result.__dict__}))
+                               "job_id": f"{job.job_id:08x}",
+                               **{**result.__dict__, "boot_id": f"{result.boot_id:08x}"}}))
         return
     rate = result.bytes_sent / result.elapsed_s if result.elapsed_s > 0 else 0.0
     click.echo(f"{stack}: printed layers {result.first_layer}..{result.last_completed} on {port} "

@@ -32,8 +32,9 @@ SPEC_FLAGS = {
 
 
 def default_output(model: Path, parent: Path | None = None) -> Path:
-    """Where a stack goes without -o: ``<model stem>_stack`` in ``parent`` (--into), else the current directory."""
-    return (parent if parent is not None else Path.cwd()) / f"{model.stem}_stack"
+    """Where a stack goes without -o: ``<model stem>_stack`` in ``parent`` (--into), else the current directory (a
+    relative path, so reports name it as a user would, as ``verify`` and ``print`` name what they are given)."""
+    return (parent if parent is not None else Path()) / f"{model.stem}_stack"
 
 
 def stack_directories(models: tuple[Path, ...], output: Path | None, into: Path | None) -> dict[Path, Path]:
