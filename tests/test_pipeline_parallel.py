@@ -295,3 +295,14 @@ def test_portable_workers_end_with_a_killed_or_signalled_slice(tmp_path, slow_sl
     assert process.returncode == 143 and len(lines) == 1 and "interrupted" in lines[0], lines
     time.sleep(0.5)
     assert _living(process.pid) == []
+
+
+def test_worker_count_needs_no_affinity_call(monkeypatch):
+    """One worker per usable core: the affinity where the platform has it (Linux), else the core count (macOS has
+    no sched_getaffinity)."""
+    import os
+
+    assert SliceSpec(jobs=0).worker_count() == len(os.sched_getaffinity(0))
+    monkeypatch.delattr(os, "sched_getaffinity")
+    monkeypatch.setattr(os, "cpu_count", lambda: 3)
+    assert SliceSpec(jobs=0).worker_count() == 3 and SliceSpec(jobs=2).worker_count() == 2

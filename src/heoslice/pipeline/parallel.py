@@ -67,6 +67,12 @@ def portable() -> bool:
                 and "fork" in multiprocessing.get_all_start_methods())
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity, where the platform has one: Linux), at least 1."""
+    affinity = getattr(os, "sched_getaffinity", None)
+    return max(1, len(affinity(0)) if affinity is not None else os.cpu_count() or 1)
+
+
 #: What the ``heoslice`` command sets in its own environment before numpy loads, unless the user set it, and why:
 #: heoslice makes no BLAS call worth threads (its workers are processes), and OpenBLAS's pools, started when
 #: numpy and scipy load it, only spin; numpy's transparent huge pages for large arrays make each fresh
