@@ -71,13 +71,36 @@ def _fraction_mix(fraction: np.ndarray, grade) -> np.ndarray:
     return point_mixes(grade, np.nan_to_num(np.asarray(fraction, dtype=np.float64)))
 
 
+def _table(spec: SliceSpec) -> tuple[Material, ...]:
+    """The materials colours map to: the spec's table (the built-in M1, M2 when empty), with its channels as a
+    materials file's get them (keyed by position: names may repeat)."""
+    return tuple(with_table_channels(dict(enumerate(spec.materials or DEFAULT_MATERIALS.values()))).values())
+
+
+def colour_collapse(mesh: Mesh, spec: SliceSpec) -> str | None:
+    """One line when the mesh's distinct colours (at least 3, no material fraction) map onto fewer materials of
+    the table (a scan's shades onto M1 and M2): how many onto which, and what to do for more; else None."""
+    if spec.parts is not None or mesh.material is not None or mesh.colors is None:
+        return None
+    rgb = np.asarray(mesh.colors)[:, :3].astype(np.int64)
+    packed = np.unique((rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2])
+    distinct = np.stack([packed >> 16, (packed >> 8) & 255, packed & 255], axis=1)
+    table = _table(spec)
+    used = [table[index].name for index in np.unique(nearest_materials(distinct, table))]
+    if len(distinct) < 3 or len(distinct) <= len(used):
+        return None
+    return (f"its {len(distinct)} distinct colours map onto {len(used)} material{'s' if len(used) > 1 else ''} "
+            f"({', '.join(used)}), each colour to the material of nearest display colour: the stack holds only "
+            f"{'these' if len(used) > 1 else 'this one'} (list more materials with --materials FILE.toml, or "
+            "grade between two with heoslice color)")
+
+
 def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
     """The material model of slicing ``mesh`` with ``spec`` (the module's rule); ``spec.materials`` is the
     table colours map to (the built-in M1, M2 when empty)."""
     if spec.parts is not None:  # a multi-part job: each part is one material (heoslice.pipeline.parts)
         return MaterialJob(spec, None)
-    # a library caller's table gets its channels as a materials file's does (keyed by position: names may repeat)
-    table = tuple(with_table_channels(dict(enumerate(spec.materials or DEFAULT_MATERIALS.values()))).values())
+    table = _table(spec)
     grade, mix = _masks_used(spec.grade, mesh), None
     if mesh.material is not None:
         grade = grade if grade is not None else _plain_grade(table)

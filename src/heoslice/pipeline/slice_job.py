@@ -20,7 +20,7 @@ from heoslice.layers.rasterising import grid_for
 from heoslice.layers.slicing import face_z_range
 from heoslice.locks import hold_stack
 from heoslice.mesh import Mesh
-from heoslice.pipeline.materials import material_job
+from heoslice.pipeline.materials import colour_collapse, material_job
 from heoslice.pipeline.parallel import run_all
 from heoslice.pipeline.parts import parts_records
 from heoslice.pipeline.runs import RunContext, RunResult
@@ -60,15 +60,18 @@ def _droplet_materials(spec: SliceSpec) -> tuple | None:
 
 
 def slice_warnings(mesh: Mesh, spec: SliceSpec) -> list[str]:
-    """What about this slice the user should know before it runs (one line each), e.g. a layer height
-    above the part's height, which makes one layer of the whole part."""
+    """What about this slice the user should know before it runs (one line each), e.g. a scan's many colours
+    mapped onto few materials, or a layer height above the part's height, which makes one layer of the whole
+    part."""
+    collapse = colour_collapse(mesh, spec)
+    warnings = [] if collapse is None else [collapse]
     z_min, z_max = (float(v) for v in mesh.bounds[:, 2])
     height, cut = z_max - z_min, z_min + spec.layer_height_mm / 2
     if spec.layer_height_mm <= height:
-        return []
+        return warnings
     outcome = "above the part: the stack is empty" if cut >= z_max else "through the part"
-    return [f"layer_height_mm: {spec.layer_height_mm:g} mm is more than the part's height ({height:g} mm): "
-            f"the stack is one layer, cut at z = {cut:g} mm, {outcome}"]
+    return [*warnings, f"layer_height_mm: {spec.layer_height_mm:g} mm is more than the part's height ({height:g} "
+            f"mm): the stack is one layer, cut at z = {cut:g} mm, {outcome}"]
 
 
 def _check_sizes(mesh: Mesh, spec: SliceSpec) -> None:
