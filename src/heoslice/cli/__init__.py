@@ -76,7 +76,7 @@ _PRINTER_EXITS = (EXIT_PORT, EXIT_LINK_DEAD, EXIT_PROTOCOL, EXIT_RETRIES, EXIT_R
 EXIT_STATUSES = {
     "info": _COMMON_EXITS,
     "color": (*_COMMON_EXITS, EXIT_OUTPUT),
-    "slice": (*_COMMON_EXITS, EXIT_OUTPUT),
+    "slice": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_STACK_BUSY),  # busy: a print or another slice holds the stack
     "preview": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_VERIFY),
     "verify": (*_COMMON_EXITS, EXIT_VERIFY),
     "print": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_VERIFY, *_PRINTER_EXITS),
