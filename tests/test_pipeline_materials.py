@@ -329,3 +329,25 @@ def test_a_scans_many_colours_collapsing_onto_two_materials_are_said(run_cli, va
     code, _, err = run_cli("slice", model, "--layer", "2", "--dpi", "50", "-o", tmp_path / "stack")
     assert code == 0, err
     assert err.count("warning:") == 1 and "distinct colours map onto 2 materials" in err
+
+
+def test_slice_json_names_the_material_of_a_one_material_stack(run_cli, vase_file, tmp_path):
+    """A one-material stack's `slice --json` names its material (it gave an empty list): the table's first for a
+    mesh without colours, the one a scan's colours all map to otherwise; the text line names it too."""
+    from heoslice.material import DEFAULT_MATERIALS
+
+    code, out, err = run_cli("slice", vase_file, "--layer", "2", "--dpi", "50", "-o", tmp_path / "plain", "--json")
+    assert code == 0, err
+    assert json.loads(out)["materials"] == ["M1"] and json.loads(out)["droplet_masks"] is False
+    import trimesh
+
+    plain = load_mesh(vase_file)
+    near_m2 = np.clip(np.array(DEFAULT_MATERIALS["M2"].color) + [3, -3, 2], 0, 255).astype(np.uint8)
+    model = tmp_path / "greenish.ply"
+    trimesh.Trimesh(plain.vertices, plain.faces, vertex_colors=np.tile(near_m2, (len(plain.vertices), 1)),
+                    process=False).export(model)
+    code, out, err = run_cli("slice", model, "--layer", "2", "--dpi", "50", "-o", tmp_path / "green", "--json")
+    assert code == 0, err
+    assert json.loads(out)["materials"] == ["M2"] and json.loads(out)["droplet_masks"] is False
+    code, out, err = run_cli("slice", vase_file, "--layer", "2", "--dpi", "50", "-o", tmp_path / "text")
+    assert code == 0 and "one material (M1): a solid mask per layer" in out

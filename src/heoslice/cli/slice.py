@@ -20,7 +20,7 @@ from heoslice.cli.parts import GRADE_REFUSAL, is_parts_job, part_settings, repor
 from heoslice.errors import InputError
 from heoslice.material import MaterialsFile, material_roles, read_materials_file
 from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, without_materials
-from heoslice.pipeline import SliceSpec, check_scale, plan_parts, slice_to_stack, slice_warnings
+from heoslice.pipeline import SliceSpec, check_scale, one_material, plan_parts, slice_to_stack, slice_warnings
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3
 
 #: SliceSpec and slice_to_stack parameters -> the options that set them (library errors name the parameter).
@@ -277,7 +277,7 @@ def material_line(names: list[str], masks: bool, mode: str) -> str:
         return f"materials {', '.join(names)}: a solid mask and {plural(len(names), 'droplet mask')} per layer"
     if mode == "RGBA":
         return f"materials {', '.join(names)}: an RGBA preview image per layer (no droplet masks: not a print job)"
-    return "one material: a solid mask per layer"
+    return f"one material{f' ({names[0]})' if names else ''}: a solid mask per layer"
 
 
 def slice_parts(models: tuple[Path, ...], output: Path | None, spec_fields: dict, scale: float, force: bool,
@@ -324,6 +324,7 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
     open_layers = [entry["index"] for entry in manifest["layers"] if entry["open_contours"]]
     materials = (manifest.get("grading") or {}).get("materials") or []
     masks = bool(manifest["layers"]) and "channels" in manifest["layers"][0]
+    only = None if materials else one_material(mesh, spec)
     summary = {
         "model": str(model),
         "ok": True,
@@ -332,7 +333,7 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
         "image": [manifest["image"]["width"], manifest["image"]["height"]],
         "dpi": manifest["dpi"],
         "volume_mm3": stack_volume_mm3(manifest),
-        "materials": [m["name"] for m in materials],
+        "materials": [m["name"] for m in materials] if materials else [only] if only else [],
         "droplet_masks": masks,
         "open_contour_layers": open_layers,
         "warnings": list(mesh.warnings),

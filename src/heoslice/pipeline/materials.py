@@ -95,6 +95,17 @@ def colour_collapse(mesh: Mesh, spec: SliceSpec) -> str | None:
             "grade between two with heoslice color)")
 
 
+def one_material(mesh: Mesh, spec: SliceSpec) -> str | None:
+    """The name of the material a one-material slice of ``mesh`` is made of (None when the slice holds several,
+    or is a multi-part job): the one its colours all map to, else the table's first (M1 by the default roles)."""
+    if spec.parts is not None or material_job(mesh, spec).spec.grade is not None:
+        return None
+    table = _table(spec)
+    if mesh.colors is not None and mesh.material is None and len(mesh.colors):
+        return table[int(nearest_materials(np.asarray(mesh.colors)[:1, :3], table)[0])].name
+    return material_roles({m.name: m for m in table}).first.name
+
+
 def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
     """The material model of slicing ``mesh`` with ``spec`` (the module's rule); ``spec.materials`` is the
     table colours map to (the built-in M1, M2 when empty)."""
