@@ -23,15 +23,14 @@ DEFAULT_BAUD = 115200
 #: Device paths of pseudo-terminals (Linux's /dev/pts/N, macOS's /dev/ttysNNN): where a line speed is an
 #: announcement rather than a wire's setting.
 PSEUDO_TERMINAL = re.compile(r"^/dev/(pts/\d+|ttys\d+)$")
-#: Why a port would not open, by errno -> what to do (the errno's own text is said once, before it).
+_ABSENT = "no such device: is the printer plugged in and powered, and is this its port?"
+_DENIED = ("permission denied: add your user to the group owning the device (on Linux usually 'dialout': "
+           "sudo usermod -aG dialout $USER, then log in again)")
+#: Why a port would not open, by errno -> what it means to the user and what to do (the errno's symbol follows,
+#: once: not the OS's text quoted inside pyserial's).
 OPEN_ADVICE = {
-    errno.ENOENT: "no such device: is the printer plugged in and powered, and is this its port?",
-    errno.ENODEV: "no such device: is the printer plugged in and powered, and is this its port?",
-    errno.ENXIO: "no such device: is the printer plugged in and powered, and is this its port?",
-    errno.EACCES: "permission denied: add your user to the group owning the device (on Linux usually "
-                  "'dialout': sudo usermod -aG dialout $USER, then log in again)",
-    errno.EPERM: "permission denied: add your user to the group owning the device (on Linux usually "
-                 "'dialout': sudo usermod -aG dialout $USER, then log in again)",
+    errno.ENOENT: _ABSENT, errno.ENODEV: _ABSENT, errno.ENXIO: _ABSENT,
+    errno.EACCES: _DENIED, errno.EPERM: _DENIED,
     errno.EBUSY: "the device is busy: another program (a serial monitor, another print) has it open; close it",
     errno.ENOTTY: "not a serial port (a plain file or another kind of device)",
     errno.EIO: "input/output error: the device was unplugged or is failing; replug it",
