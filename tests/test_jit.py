@@ -52,6 +52,7 @@ def _slice(model: Path, out: Path, environment: dict) -> dict[str, bytes]:
     return {path.name: path.read_bytes() for path in sorted(out.iterdir())}
 
 
+@pytest.mark.slow  # among the slowest (README "Development"): numba compiles the graded path's kernels
 def test_compiled_and_just_in_time_kernels_make_the_same_stack(tmp_path):
     """The same graded job (holes and islands: several ring sets, nested families, droplet masks) sliced with
     the compiled kernels and with numba compiling the same sources just in time: every file byte for byte."""
