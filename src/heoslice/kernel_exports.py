@@ -66,9 +66,11 @@ HIERARCHY = types.NamedTuple((f8_2, f8_2, i8_1, i8_1, i8_1, i8_1, f8_3, f8_2, f8
 
 #: The kernels' modules whose exports go into the second extension module (COMPILED_MODULES[1]); every other
 #: module's go into the first. The build compiles the two in parallel processes, so this splits the compile
-#: about in half: these hold roughly half the compile time (each kernel's compile measured with numba).
+#: about in half: these (the grading field's fit, with the droplets) hold about half of numba's compile time,
+#: measured per kernel (benchmarks/README.md).
 SECOND_MODULE_KERNELS = frozenset({
     "heoslice.grading.droplets_kernels", "heoslice.grading.field_kernels", "heoslice.grading.edges_kernels",
+    "heoslice.grading.fit_kernels", "heoslice.grading.refine_kernels",
 })
 
 
