@@ -107,3 +107,30 @@ def test_an_interrupted_input_stops_the_others(tmp_path):
     with pytest.raises(HeosliceError) as caught:
         run_each(expand_inputs([Path("a.ply"), Path("b.ply")]), run, key="model", as_json=False)
     assert caught.value.exit_code == EXIT_INTERRUPTED and ran == [Path("a.ply")]
+
+
+def test_json_fields_have_one_form_across_commands(run_cli, tmp_path, monkeypatch):
+    """The fields several commands print agree: `slice`'s default stack is named as `verify` and `print` name it
+    (relative, as a user types it, not absolute), the print log beside it likewise, and `boot_id` is 8 hex digits
+    in `print --json` as in `controller --json` and the print log."""
+    import re
+
+    from heoslice import procedural
+
+    monkeypatch.chdir(tmp_path)
+    procedural.sphere(4.0, subdivisions=2).export(tmp_path / "ball.ply")
+    code, out, err = run_cli("slice", "ball.ply", "--layer", "1", "--dpi", "50", "--json")
+    assert code == 0, err
+    sliced = json.loads(out)["stack"]
+    code, out, err = run_cli("verify", "ball_stack", "--json")
+    assert code == 0, err
+    assert sliced == json.loads(out)["stack"] == "ball_stack"
+    code, out, err = run_cli("print", "ball_stack", "--port", "sim://", "--json")
+    assert code == 0, err
+    printed = json.loads(out)
+    assert printed["stack"] == sliced and printed["log"] == "ball_stack.print-log.jsonl"
+    assert re.fullmatch(r"[0-9a-f]{8}", printed["boot_id"])
+    logged = [json.loads(line) for line in Path(printed["log"]).read_text().splitlines()]
+    assert {event["boot_id"] for event in logged if "boot_id" in event} == {printed["boot_id"]}
+    code, out, err = run_cli("controller", "--pty", "--duration", "0.1", "--json")
+    assert code == 0 and re.fullmatch(r"[0-9a-f]{8}", json.loads(out)["boot_id"])

@@ -66,3 +66,93 @@ def test_bash_completion_completes_commands_and_options(words, expected):
     done = completion(_HEOSLICE_COMPLETE="bash_complete", COMP_WORDS=words, COMP_CWORD=str(len(words.split()) - 1))
     assert done.returncode == 0, done.stderr
     assert f"plain,{expected}" in done.stdout.splitlines()
+
+
+# --- the statuses a command lists are the statuses its code can give ---------------------------------------------
+
+#: Statuses every command can give whatever its code: success, a bug, a usage error (click), the signals.
+ANY_COMMAND = {0, 1, 2, 129, 130, 143}
+#: (command, module) pairs whose raised statuses the command never gives, and why: what the reference below cannot
+#: see (it reads whole modules, not the functions a command calls).
+NEVER_REACHED = {
+    ("slice", "heoslice.stack.read"): "reading a stack (VerifyError): slice only writes one",
+    ("slice", "heoslice.stack.verify"): "verifying a stack: slice only writes one",
+    ("slice", "heoslice.stack.tiff"): "decoding a layer (VerifyError): slice only encodes",
+    ("slice", "heoslice.stack.manifest"): "checking a manifest read from disk: slice builds its own",
+    ("export", "heoslice.locks"): "a slice's lock: export imports the slice command's module for its --dpi parser only",
+    ("controller", "heoslice.printing.simulator.config"): "a bad option: the command says it as InputError (2)",
+    ("controller", "heoslice.printing.ports"): "the host's port: the controller opens none",
+    ("controller", "heoslice.printing.protocol"): "a bad frame from the host: the simulator logs it and goes on",
+}
+
+
+def _module_file(name: str):
+    """The source file of heoslice module ``name``, or None when it is not one."""
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec(name) if name.startswith("heoslice") else None
+    except ModuleNotFoundError:  # a name inside a module, not a module
+        return None
+    return spec.origin if spec is not None and spec.origin and spec.origin.endswith(".py") else None
+
+
+def _imported(name: str) -> set[str]:
+    """The heoslice modules module ``name`` imports (anywhere in it, lazily too): an imported function or class
+    counts as the module that defines it, not the package that re-exports it."""
+    import ast
+    import importlib
+
+    imported = set()
+    for node in ast.walk(ast.parse(open(_module_file(name), encoding="utf-8").read())):
+        if isinstance(node, ast.Import):
+            imported |= {alias.name for alias in node.names if _module_file(alias.name)}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("heoslice"):
+            for alias in node.names:
+                if _module_file(f"{node.module}.{alias.name}"):
+                    imported.add(f"{node.module}.{alias.name}")
+                    continue
+                where = getattr(getattr(importlib.import_module(node.module), alias.name, None), "__module__", None)
+                imported.add(where if where and _module_file(where) else node.module)
+    return imported
+
+
+def _raised_statuses(name: str) -> set[int]:
+    """The exit statuses module ``name`` raises: each heoslice error class it constructs (its exit_code), and each
+    ``exit_code=EXIT_...`` it passes."""
+    import ast
+
+    from heoslice import errors
+
+    found = set()
+    for node in ast.walk(ast.parse(open(_module_file(name), encoding="utf-8").read())):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
+            error = getattr(errors, node.func.id, None)
+            if isinstance(error, type) and issubclass(error, errors.HeosliceError):
+                found.add(error.exit_code)
+        if (isinstance(node, ast.keyword) and node.arg == "exit_code" and isinstance(node.value, ast.Name)
+                and node.value.id.startswith("EXIT_")):
+            found.add(getattr(errors, node.value.id))
+    return found
+
+
+@pytest.mark.parametrize("command", list(COMMANDS))
+def test_a_commands_listed_statuses_are_exactly_those_its_code_can_give(command):
+    """A reference read from the source: the statuses raised in every heoslice module a command's module reaches by
+    its imports (each import followed to the module that defines the name), plus those any command gives, less the
+    NEVER_REACHED modules (each with its reason), are the statuses its help lists, no more and no fewer."""
+    reached, waiting = set(), [COMMANDS[command].split(":")[0]]
+    while waiting:
+        name = waiting.pop()
+        if name not in reached:
+            reached.add(name)
+            waiting += _imported(name)
+    by_module = {name: _raised_statuses(name) for name in reached if (command, name) not in NEVER_REACHED}
+    possible = ANY_COMMAND.union(*by_module.values())
+    if command == "controller":
+        possible -= {129, 130, 143}  # it stops normally on a signal (exit 0), as its help says
+    listed = set(EXIT_STATUSES[command])
+    unlisted = {status: sorted(name for name, found in by_module.items() if status in found)
+                for status in possible - listed}
+    assert not unlisted, f"{command} can give {unlisted} (status: raised in) but its help does not list them"
+    assert listed <= possible, f"{command}'s help lists {sorted(listed - possible)}, which nothing it runs gives"

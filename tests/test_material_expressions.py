@@ -46,6 +46,8 @@ def test_expression_values(text, reference):
     ("r if r else 0", "not allowed"),
     ("r > 0.5", "not allowed"),
     ("r % 2", "not allowed"),
+    ("r^2", r"use \*\* \(r\*\*2"),
+    ("1 - (r ^ 3)", r"\^ is not a power here, use \*\*"),
     ("sin(r, 2)", "takes 1 argument"),
     ("clip(r, a_min=0, a_max=1)", "takes 3 argument"),
     ("np.sin(r)", "unknown function"),

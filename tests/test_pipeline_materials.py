@@ -300,3 +300,54 @@ def test_interior_takes_the_material_of_the_nearest_outer_ring_point(tmp_path):
     assert decided.sum() > 0.6 * len(rows) and expected_red[decided].any() and not expected_red[decided].all()
     assert np.array_equal(got_red[decided], expected_red[decided])
     assert np.array_equal(masks["blue"][rows, cols][decided], ~expected_red[decided])
+
+
+def test_a_scans_many_colours_collapsing_onto_two_materials_are_said(run_cli, vase_file, tmp_path):
+    """A scan's many shades (a gradient of reds to greens up the vase) that map onto the table's two materials give one
+    warning before the slice, naming the count and the materials; colours that are the materials' own display
+    colours (two colours, two materials) and a mesh without colours give none."""
+    from heoslice.material import DEFAULT_MATERIALS
+    from heoslice.pipeline import slice_warnings
+
+    plain = load_mesh(vase_file)
+    shade = np.round(np.interp(plain.vertices[:, 2], [plain.bounds[0, 2], plain.bounds[1, 2]], [0, 255]))
+    scan = np.stack([255 - shade, shade, np.full_like(shade, 40)], axis=1).astype(np.uint8)
+    distinct = len(np.unique(scan, axis=0))
+    assert distinct > 20
+    spec = SliceSpec(layer_height_mm=1.0)
+    warned = slice_warnings(type(plain)(**{**plain.__dict__, "colors": scan}), spec)
+    assert len(warned) == 1 and f"its {distinct} distinct colours map onto 2 materials (M1, M2)" in warned[0]
+    own = np.where((plain.vertices[:, 2] > 30)[:, None], DEFAULT_MATERIALS["M2"].color,
+                   DEFAULT_MATERIALS["M1"].color).astype(np.uint8)
+    assert slice_warnings(type(plain)(**{**plain.__dict__, "colors": own}), spec) == []
+    assert slice_warnings(plain, spec) == []
+    import trimesh
+
+    model = tmp_path / "scan.ply"
+
+    trimesh.Trimesh(plain.vertices, plain.faces, vertex_colors=scan, process=False).export(model)
+    code, _, err = run_cli("slice", model, "--layer", "2", "--dpi", "50", "-o", tmp_path / "stack")
+    assert code == 0, err
+    assert err.count("warning:") == 1 and "distinct colours map onto 2 materials" in err
+
+
+def test_slice_json_names_the_material_of_a_one_material_stack(run_cli, vase_file, tmp_path):
+    """A one-material stack's `slice --json` names its material (it gave an empty list): the table's first for a
+    mesh without colours, the one a scan's colours all map to otherwise; the text line names it too."""
+    from heoslice.material import DEFAULT_MATERIALS
+
+    code, out, err = run_cli("slice", vase_file, "--layer", "2", "--dpi", "50", "-o", tmp_path / "plain", "--json")
+    assert code == 0, err
+    assert json.loads(out)["materials"] == ["M1"] and json.loads(out)["droplet_masks"] is False
+    import trimesh
+
+    plain = load_mesh(vase_file)
+    near_m2 = np.clip(np.array(DEFAULT_MATERIALS["M2"].color) + [3, -3, 2], 0, 255).astype(np.uint8)
+    model = tmp_path / "greenish.ply"
+    trimesh.Trimesh(plain.vertices, plain.faces, vertex_colors=np.tile(near_m2, (len(plain.vertices), 1)),
+                    process=False).export(model)
+    code, out, err = run_cli("slice", model, "--layer", "2", "--dpi", "50", "-o", tmp_path / "green", "--json")
+    assert code == 0, err
+    assert json.loads(out)["materials"] == ["M2"] and json.loads(out)["droplet_masks"] is False
+    code, out, err = run_cli("slice", vase_file, "--layer", "2", "--dpi", "50", "-o", tmp_path / "text")
+    assert code == 0 and "one material (M1): a solid mask per layer" in out

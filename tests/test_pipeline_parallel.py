@@ -116,11 +116,11 @@ def slow_slice(tmp_path_factory):
             "--nozzle", "0.3"]
 
 
-def _started(slow_slice, directory: Path, until_files: int, at_least_s: float = 0.0):
-    """`heoslice slice` in a session of its own, once ``directory`` holds ``until_files`` files and
-    ``at_least_s`` have passed."""
+def _started(slow_slice, directory: Path, until_files: int, at_least_s: float = 0.0, env: dict | None = None):
+    """`heoslice slice` in a session of its own (with environment ``env``), once ``directory`` holds
+    ``until_files`` files and ``at_least_s`` have passed."""
     process = subprocess.Popen([sys.executable, "-m", "heoslice", "slice", *slow_slice, "-o", str(directory)],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True, env=env)
     began = time.monotonic()
     while time.monotonic() - began < 60 and process.poll() is None:
         count = len(list(directory.iterdir())) if directory.is_dir() else 0
@@ -212,3 +212,97 @@ def test_a_run_sent_to_a_worker_that_has_ended_is_the_dead_worker_error():
     with pytest.raises(RuntimeError, match=r"^a slice worker ended unexpectedly \(exit status 5\)$"):
         parallel._give(ours, process, (0, 1))
     ours.close()
+
+
+# --- the portable path (no fork, no prctl, no glibc call) ------------------------------------------------------
+
+def test_the_portable_path_is_taken_where_the_fast_one_cannot_run_or_when_forced(monkeypatch):
+    """HEOSLICE_PORTABLE=1 forces it; another platform, a C library other than glibc or no fork choose it; Linux
+    with glibc and fork, unforced (or set to 0), takes the fast path."""
+    import multiprocessing
+
+    from heoslice.pipeline import parallel
+
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.setattr(platform, "libc_ver", lambda: ("glibc", "2.36"))
+    monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: ["fork", "spawn", "forkserver"])
+    monkeypatch.delenv(parallel.PORTABLE_VARIABLE, raising=False)
+    assert not parallel.portable()
+    monkeypatch.setenv(parallel.PORTABLE_VARIABLE, "0")
+    assert not parallel.portable()
+    monkeypatch.setenv(parallel.PORTABLE_VARIABLE, "1")
+    assert parallel.portable()
+    monkeypatch.delenv(parallel.PORTABLE_VARIABLE)
+    for change in (lambda: monkeypatch.setattr(sys, "platform", "darwin"),
+                   lambda: monkeypatch.setattr(platform, "libc_ver", lambda: ("", "")),
+                   lambda: monkeypatch.setattr(multiprocessing, "get_all_start_methods", lambda: ["spawn"])):
+        with monkeypatch.context() as inner:
+            inner.setattr(sys, "platform", "linux")
+            change()
+            assert parallel.portable()
+
+
+def test_portable_path_stacks_are_byte_for_byte_the_fast_paths(tmp_path, monkeypatch):
+    """Forced, the portable path starts its workers by spawn only (no fork; no C library call in this process) and
+    writes the same graded droplet-mask stack, file for file, as the fast path and as one process."""
+    import ctypes
+    import hashlib
+
+    from heoslice.pipeline import parallel
+
+    mesh = load_mesh(write_mesh(procedural.shell_with_island(8.0, 5.0, 2.0, 3), tmp_path / "m.ply"))
+
+    def files(name, **changes):
+        slice_to_stack(mesh, tmp_path / name, _graded_spec(**changes))
+        return {path.name: hashlib.sha256(path.read_bytes()).hexdigest() for path in (tmp_path / name).iterdir()}
+
+    fast = files("fast", jobs=2, max_segments=400)
+    methods, real_context = [], parallel.get_context
+
+    def recording(method):
+        methods.append(method)
+        return real_context(method)
+
+    def no_c_library(*args, **kwargs):
+        raise AssertionError("the portable path called the C library")
+
+    monkeypatch.setenv(parallel.PORTABLE_VARIABLE, "1")
+    monkeypatch.setattr(parallel, "get_context", recording)
+    monkeypatch.setattr(ctypes, "CDLL", no_c_library)
+    portable = files("portable", jobs=2, max_segments=400)
+    assert methods and set(methods) == {"spawn"}
+    assert portable == fast == files("serial", jobs=1)
+
+
+def test_portable_workers_end_with_a_killed_or_signalled_slice(tmp_path, slow_slice):
+    """On the forced portable path, SIGKILL of `heoslice slice` with its workers writing leaves no process of it
+    alive 1 s later and the directory unchanged after; SIGTERM ends it with one line, exit 143, no process left."""
+    import os
+
+    env = {**os.environ, "HEOSLICE_PORTABLE": "1"}
+    process = _started(slow_slice, tmp_path / "killed", 100, env=env)
+    process.kill()
+    process.wait()
+    time.sleep(1.0)
+    assert _living(process.pid) == []
+    before = _files(tmp_path / "killed")
+    time.sleep(0.5)
+    assert _files(tmp_path / "killed") == before and "manifest.json" not in before
+    process = _started(slow_slice, tmp_path / "terminated", 100, env=env)
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=30)
+    lines = stderr.decode().strip().splitlines()
+    assert process.returncode == 143 and len(lines) == 1 and "interrupted" in lines[0], lines
+    time.sleep(0.5)
+    assert _living(process.pid) == []
+
+
+def test_worker_count_needs_no_affinity_call(monkeypatch):
+    """One worker per usable core: the affinity where the platform has it (Linux), else the core count (macOS has
+    no sched_getaffinity)."""
+    import os
+
+    assert SliceSpec(jobs=0).worker_count() == len(os.sched_getaffinity(0))
+    monkeypatch.delattr(os, "sched_getaffinity")
+    monkeypatch.setattr(os, "cpu_count", lambda: 3)
+    assert SliceSpec(jobs=0).worker_count() == 3 and SliceSpec(jobs=2).worker_count() == 2

@@ -106,6 +106,21 @@ def test_preview_size_and_sheet(run_cli, stacks, tmp_path):
     assert Image.open(sheet).size == (2 * (64 + 4) + 4, 2 * (64 + 14 + 4) + 4)
 
 
+def test_preview_sheet_says_when_layers_are_clipped(run_cli, stacks, tmp_path):
+    """A --layers range past the stack's last layer is clipped with one warning naming the layers shown; a range
+    inside the stack gives none."""
+    plain, _ = stacks
+    count = len(json.loads((plain / "manifest.json").read_text())["layers"])
+    code, _, stderr = run_cli("preview", plain, "--sheet", "--layers", "0:1000", "--tile", "32",
+                              "-o", tmp_path / "all.png")
+    assert code == 0, stderr
+    assert stderr.count("warning:") == 1
+    assert f"clipped to layers 0..{count - 1}" in stderr and "0:1000" in stderr
+    code, _, stderr = run_cli("preview", plain, "--sheet", "--layers", f"0:{count}", "--tile", "32",
+                              "-o", tmp_path / "exact.png")
+    assert code == 0 and stderr == ""
+
+
 def test_preview_refuses_altered_and_missing(run_cli, stacks, tmp_path):
     """An altered layer file fails its sha256 check (exit 4, one line); a missing layer number is exit 2;
     a directory that is not a stack is refused."""

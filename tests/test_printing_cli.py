@@ -145,6 +145,7 @@ def assert_true_log(run_events: list[dict], layers: range) -> None:
     assert all(i > connected for i, kind in enumerate(kinds) if kind == "layer")
 
 
+@pytest.mark.slow  # among the slowest (README "Development"): waits on a paced simulator
 def test_two_jobs_in_a_row_give_two_true_logs(tmp_path, controller):
     """Two stacks, then the first again, on one running controller: three true logs, each layer executed once per
     run; the dry run, the log and the controller show the job id the same way (8 hex digits)."""
@@ -167,6 +168,7 @@ def test_two_jobs_in_a_row_give_two_true_logs(tmp_path, controller):
 
 @pytest.mark.parametrize("signum, option", [(signal.SIGTERM, "--resume"), (signal.SIGHUP, "--restart"),
                                             (signal.SIGINT, "--resume")])
+@pytest.mark.slow  # among the slowest (README "Development"): waits on a paced simulator
 def test_signal_aborts_and_a_rerun_needs_resume_or_restart(tmp_path, controller, signum, option):
     """SIGTERM, SIGHUP and SIGINT mid-job send ABORT, log `interrupted` and exit 128 + signum with one line naming
     the last layer the head really completed; a plain rerun is refused naming --resume and --restart; --resume
@@ -201,6 +203,7 @@ def test_signal_aborts_and_a_rerun_needs_resume_or_restart(tmp_path, controller,
         assert "restart" in [r["event"] for r in runs(log)[-1]]
 
 
+@pytest.mark.slow  # among the slowest (README "Development"): waits on a paced simulator
 @pytest.mark.parametrize("after_layers", [1, 8])
 def test_kill_9_then_reruns_execute_each_layer_once(tmp_path, controller, after_layers):
     """After kill -9 of a print: a rerun at once is refused as busy (the dead host's lease runs 3 s); then a plain
@@ -228,6 +231,7 @@ def test_kill_9_then_reruns_execute_each_layer_once(tmp_path, controller, after_
     assert ctl.executed(job_of(log)) == list(range(20))
 
 
+@pytest.mark.slow  # among the slowest (README "Development"): waits on a paced simulator
 def test_two_concurrent_prints_and_the_stack_lock(tmp_path, controller):
     """A second print to a busy controller (its port held exclusively) is refused with one line (exit 16) and the
     first completes exactly once;
@@ -277,6 +281,7 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
+@pytest.mark.slow  # among the slowest (README "Development"): waits on a paced simulator
 def test_a_restarted_simulator_is_detected_as_a_reset(tmp_path, controller):
     """A controller killed and started again at the same address has a fresh boot id (same --seed): the print
     reports a reset (exit 14) naming --from-layer, instead of resuming."""
@@ -293,6 +298,7 @@ def test_a_restarted_simulator_is_detected_as_a_reset(tmp_path, controller):
     assert second.boot_id() != boot
 
 
+@pytest.mark.slow  # among the slowest (README "Development"): waits on a paced simulator
 def test_misbehaving_controllers_end_in_bounded_time(tmp_path, controller):
     """Controllers granting no credit, offering window 0, claiming absurd progress, never acknowledging data, or
     no longer reading end the print within seconds with their documented exit codes and one line."""
@@ -335,6 +341,7 @@ def test_a_1e_2_link_completes(tmp_path, controller, fault, seed):
     assert ctl.executed(job_of(tmp_path / "s.print-log.jsonl")) == list(range(8))
 
 
+@pytest.mark.slow  # among the slowest (README "Development"): waits on a paced simulator
 def test_simulator_options_checked_logging_and_fresh_boot_ids(tmp_path, controller):
     """Bad simulator options are one line (sim:// exit 10, --set exit 2); two starts with one seed draw different
     boot ids; the controller logs connections, jobs and layers on stderr, and nothing with -q; sim:// is fast."""

@@ -141,8 +141,9 @@ def test_sigkill_at_random_moments_never_leaves_a_bad_stack_that_verifies(tmp_pa
 
 
 def test_ctrl_c_is_one_line_exit_130_and_no_stack(tmp_path, vase_model, run_cli):
-    """SIGINT to the whole process group (Ctrl-C in a terminal): 'heoslice: interrupted', exit 130, no worker
-    tracebacks, no manifest."""
+    """SIGINT to the whole process group (Ctrl-C in a terminal): one line 'heoslice: interrupted' saying the folder
+    holds an incomplete stack and to rerun with --force, exit 130, no worker tracebacks, no manifest; `verify` on
+    the folder says the same (exit 4)."""
     directory = tmp_path / "stack"
     process = heoslice("slice", vase_model, "-o", directory, *SLICE_ARGS, stdin=subprocess.DEVNULL)
     deadline = time.monotonic() + 60
@@ -152,8 +153,12 @@ def test_ctrl_c_is_one_line_exit_130_and_no_stack(tmp_path, vase_model, run_cli)
     os.killpg(process.pid, signal.SIGINT)
     _, err = process.communicate(timeout=60)
     assert process.returncode == 130
-    assert [line for line in err.splitlines() if line.strip()] == ["heoslice: interrupted"], err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"heoslice: interrupted: {directory}: incomplete stack"), err
+    assert "run that slice again with --force" in lines[0]
     assert not (directory / MANIFEST).exists() and not verify_stack(directory).ok
+    code, out, _ = run_cli("verify", directory)
+    assert code == EXIT_VERIFY and "incomplete stack" in out and "again with --force" in out
 
 
 def one_error_line(stderr: str) -> str:

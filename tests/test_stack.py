@@ -385,9 +385,14 @@ def test_huge_manifest_refused_before_parsing(stack):
 
 
 def test_manifest_that_is_a_directory_or_missing(stack):
-    """No manifest, or a manifest that is not a regular file, is reported (an interrupted run)."""
+    """No manifest beside layer files is an incomplete stack (an interrupted slice: rerun it with --force); no
+    manifest in a folder without layer files is not a stack; a manifest that is not a regular file is reported."""
     (stack / MANIFEST).unlink()
-    assert "no manifest.json (not a stack, or an interrupted run)" in problems(stack)[0]
+    assert "incomplete stack, no manifest.json" in problems(stack)[0]
+    assert "run that slice again with --force" in problems(stack)[0]
+    for layer in stack.glob("layer_*.tif"):
+        layer.unlink()
+    assert problems(stack)[0].endswith("no manifest.json (not a stack)")
     (stack / MANIFEST).mkdir()
     assert "is not a regular file" in problems(stack)[0]
 

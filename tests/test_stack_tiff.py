@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 import tifffile
 from helpers import in_process
 from hypothesis import given, settings
@@ -15,6 +16,7 @@ from hypothesis import strategies as st
 from PIL import Image
 
 import heoslice
+import heoslice.stack.tiff
 from heoslice import procedural
 
 
@@ -114,3 +116,31 @@ def test_a_layout_tifffile_no_longer_writes_falls_back_to_tifffile(monkeypatch):
     packed = np.packbits(np.eye(300, 40, dtype=bool), axis=1)
     data = tiff.encode_bilevel_tiff(packed, 40, (600.0, 600.0), "deflate", 0.1)
     assert data == _tifffile_reference(packed, 40, (600.0, 600.0), "deflate", 0.1, 256, 1)
+
+
+def _documented_pillow_reading(document: str) -> str:
+    """The one line a document gives for reading a mask with Pillow (the code before its comment)."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / document).read_text(encoding="utf-8")
+    lines = [line.split("`")[1] if "`solid = " in line else line.strip().split("#")[0].strip()
+             for line in text.splitlines() if "solid = " in line and "PIL.Image.open(path)" in line]
+    assert lines, f"{document} gives no one-line Pillow reading of a mask"
+    return lines[0]
+
+
+@pytest.mark.parametrize("document", ["README.md", "docs/stack-format.md"])
+def test_the_documented_pillow_one_liner_reads_solid_as_true(tmp_path, document):
+    """The line the README and the stack format give for reading a 1-bit layer with Pillow gives True exactly
+    where the layer is solid (as tifffile reads it), on a layer whose solid part is not symmetric."""
+    import PIL.Image
+
+    solid = np.zeros((37, 53), bool)
+    solid[5:20, 3:30] = True
+    solid[25, 40:] = True
+    path = tmp_path / "layer_00000.tif"
+    path.write_bytes(heoslice.stack.tiff.encode_tiff(solid, (600.0, 600.0), "deflate", 0.1))
+    assert np.array_equal(tifffile.imread(path), solid)
+    namespace = {"numpy": np, "PIL": PIL, "path": path}
+    exec(_documented_pillow_reading(document), namespace)  # noqa: S102 - the documented line itself
+    assert namespace["solid"].dtype == bool and np.array_equal(namespace["solid"], solid)

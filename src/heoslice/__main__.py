@@ -11,4 +11,5 @@ except KeyboardInterrupt as interrupt:
     print("heoslice: interrupted", file=sys.stderr)
     sys.exit(getattr(interrupt, "exit_code", 130))
 
-main()
+if __name__ == "__main__":  # not when a spawned worker process imports this module as its parent's main
+    main()

@@ -3,7 +3,7 @@
 The kernels are written once, as numba functions in the ``*_kernels`` modules beside the code they speed up
 (the weld's, the edge grouping's and the shells' in ``mesh``; the slicing's, the chaining's and the
 rasteriser's in ``layers``; the surface distance's in ``material``; the grading's in ``grading``). Installing heoslice compiles them ahead of time
-into the extension module ``heoslice._compiled`` (:mod:`heoslice.kernel_exports`, run by ``setup.py``), so
+into the extension modules ``heoslice._compiled`` and ``heoslice._compiled_b`` (a share each, compiled side by side) (:mod:`heoslice.kernel_exports`, run by ``setup.py``), so
 that a slice loads neither numba nor LLVM: they cost every process of a slice its largest fixed share of
 memory and start-up time (benchmarks/README.md). :func:`kernel` hands each module the compiled function
 when that extension was built from these very sources (its digest matches), else numba's just-in-time
@@ -35,9 +35,10 @@ EXACT = {"cache": True, "nogil": True, "error_model": "numpy"}
 JIT_VARIABLE = "HEOSLICE_JIT"
 #: The environment variable that makes every compiled kernel check its arguments' types and layout first.
 CHECK_VARIABLE = "HEOSLICE_CHECK_KERNELS"
-#: The extension module the ahead-of-time build writes, and its exports of its sources' digest and of its
-#: kernels' argument layouts (JSON: export name -> one layout per argument).
-COMPILED_MODULE = "heoslice._compiled"
+#: The extension modules the ahead-of-time build writes, each with a share of the kernels (compiled side by side,
+#: one process each: :data:`heoslice.kernel_exports.SECOND_MODULE_KERNELS`), and each module's exports of its
+#: sources' digest and of its kernels' argument layouts (JSON: export name -> one layout per argument).
+COMPILED_MODULES = ("heoslice._compiled", "heoslice._compiled_b")
 DIGEST_EXPORT, LAYOUTS_EXPORT = "source_digest", "argument_layouts"
 #: Label widths (bits) a kernel taking a label array is exported for, labels unsigned: uint8 (a layer of
 #: few sub-regions: half the memory traffic of its per-pixel passes), uint16, and uint32 past 65535
@@ -79,22 +80,49 @@ def _enabled(variable: str) -> bool:
     return os.environ.get(variable, "") not in ("", "0")
 
 
+@dataclass(frozen=True)
+class CompiledKernels:
+    """The ahead-of-time compiled kernels: the extension modules of COMPILED_MODULES, each holding a share of
+    the exports; an export is an attribute, found in whichever module holds it."""
+
+    modules: tuple
+
+    def __getattr__(self, name: str):
+        for module in self.modules:
+            if hasattr(module, name):
+                return getattr(module, name)
+        raise AttributeError(f"no compiled kernel {name!r}")
+
+    def source_digest(self) -> int:
+        """The digest of the sources the modules were built from (the same in each, checked on loading)."""
+        return getattr(self.modules[0], DIGEST_EXPORT)()
+
+    def argument_layouts(self) -> str:
+        """Every module's export layouts, merged (JSON: export name -> one layout per argument)."""
+        merged = {}
+        for module in self.modules:
+            merged.update(json.loads(getattr(module, LAYOUTS_EXPORT)()))
+        return json.dumps(merged)
+
+
 @functools.cache
-def compiled_module():
-    """The ahead-of-time compiled kernels, or None: not built, built from other sources, or HEOSLICE_JIT=1."""
+def compiled_module() -> CompiledKernels | None:
+    """The ahead-of-time compiled kernels, or None: a module not built, one built from other sources, or
+    HEOSLICE_JIT=1."""
     if _enabled(JIT_VARIABLE):
         return None
     try:
-        module = importlib.import_module(COMPILED_MODULE)
+        modules = tuple(importlib.import_module(name) for name in COMPILED_MODULES)
     except ImportError:
         return None
-    return module if getattr(module, DIGEST_EXPORT)() == source_digest() else None
+    digest = source_digest()
+    return CompiledKernels(modules) if all(getattr(m, DIGEST_EXPORT)() == digest for m in modules) else None
 
 
 @functools.cache
 def _argument_layouts() -> dict:
     """Every export's argument layouts, read once from the extension (HEOSLICE_CHECK_KERNELS only)."""
-    return json.loads(getattr(compiled_module(), LAYOUTS_EXPORT)())
+    return json.loads(compiled_module().argument_layouts())
 
 
 def _compiled_export(name: str) -> Callable:

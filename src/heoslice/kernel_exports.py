@@ -34,7 +34,7 @@ from heoslice.grading import (
     search_kernels,
 )
 from heoslice.jit import (
-    COMPILED_MODULE,
+    COMPILED_MODULES,
     DIGEST_EXPORT,
     ENTRIES,
     LABEL_BITS,
@@ -63,6 +63,16 @@ FIT_TEST = types.NamedUniTuple(f8, 5, refine_kernels.FitTest)
 VERTICES = types.NamedTuple((i8_1, f8_1, f8_1, f8_1, f8, f8), refine_kernels.RingVertices)
 ONE_RING_FIT = types.NamedUniTuple(f8, 10, fit_kernels.OneRingFit)
 HIERARCHY = types.NamedTuple((f8_2, f8_2, i8_1, i8_1, i8_1, i8_1, f8_3, f8_2, f8_1), surface_kernels.Hierarchy)
+
+
+#: The kernels' modules whose exports go into the second extension module (COMPILED_MODULES[1]); every other
+#: module's go into the first. The build compiles the two in parallel processes, so this splits the compile
+#: about in half: these (the grading field's fit, with the droplets) hold about half of numba's compile time,
+#: measured per kernel (benchmarks/README.md).
+SECOND_MODULE_KERNELS = frozenset({
+    "heoslice.grading.droplets_kernels", "heoslice.grading.field_kernels", "heoslice.grading.edges_kernels",
+    "heoslice.grading.fit_kernels", "heoslice.grading.refine_kernels",
+})
 
 
 def _target(bits: int) -> types.Type:
@@ -153,17 +163,23 @@ class _GilReleasingFlags(Flags):
     release_gil = Option(type=bool, default=True, doc="Release the GIL inside the native function")
 
 
-def compile_kernels(directory: Path, filename: str) -> Path:
-    """Compile every kernel of ENTRIES into ``directory/filename`` (the extension module COMPILED_MODULE),
-    for this machine's processor as numba's just-in-time compilation would; returns its path."""
+def module_part(entry) -> int:
+    """Which extension module of COMPILED_MODULES (0 or 1) an entry of ENTRIES is compiled into."""
+    return int(entry.dispatcher.py_func.__module__ in SECOND_MODULE_KERNELS)
+
+
+def compile_kernels(directory: Path, filename: str, part: int = 0) -> Path:
+    """Compile the kernels of ENTRIES that go into extension module ``part`` (:func:`module_part`) into
+    ``directory/filename`` (the module COMPILED_MODULES[part]), for this machine's processor as numba's
+    just-in-time compilation would; returns its path."""
     listed = {entry.dispatcher for entry in ENTRIES}
     if listed != set(ARGUMENTS):
         names = sorted(kernel.__name__ for kernel in listed ^ set(ARGUMENTS))
         raise RuntimeError(f"the kernels and the export table disagree on {', '.join(names)}")
-    cc = CC(COMPILED_MODULE.rsplit(".", 1)[1])
+    cc = CC(COMPILED_MODULES[part].rsplit(".", 1)[1])
     cc.output_dir, cc.output_file, cc.target_cpu = str(directory), filename, "host"
     layouts = {}
-    for entry in ENTRIES:
+    for entry in (entry for entry in ENTRIES if module_part(entry) == part):
         function = entry.dispatcher.py_func
         arguments = ARGUMENTS[entry.dispatcher]
         variants = ([(None, arguments)] if entry.label_arg is None

@@ -81,7 +81,7 @@ _PRINTER_EXITS = (EXIT_PORT, EXIT_LINK_DEAD, EXIT_PROTOCOL, EXIT_RETRIES, EXIT_R
 EXIT_STATUSES = {
     "info": _COMMON_EXITS,
     "color": (*_COMMON_EXITS, EXIT_OUTPUT),
-    "slice": (*_COMMON_EXITS, EXIT_OUTPUT),
+    "slice": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_STACK_BUSY),  # busy: a print or another slice holds the stack
     "preview": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_VERIFY),
     "verify": (*_COMMON_EXITS, EXIT_VERIFY),
     "print": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_VERIFY, *_PRINTER_EXITS),
@@ -134,6 +134,13 @@ def cli(ctx: click.Context, debug: bool, config_file: Path | None, no_config: bo
         ctx.default_map = {ctx.invoked_subcommand: defaults.values} if defaults.values else None
 
 
+def _interrupted_line(interrupt: BaseException | None) -> str:
+    """The one line an interruption ends with: 'heoslice: interrupted', then what the work left behind (the
+    interruption's PEP 678 notes, e.g. an incomplete stack and the command that replaces it)."""
+    notes = getattr(interrupt, "__notes__", None) or ()
+    return ": ".join(["heoslice: interrupted", *(" ".join(str(note).split()) for note in notes)])
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: run the group, map errors to one line and an exit status."""
     args = sys.argv[1:] if argv is None else argv
@@ -158,10 +165,11 @@ def main(argv: list[str] | None = None) -> None:
         click.echo(f"heoslice: error: {' '.join(err.format_message().split())}{hint}", err=True)
         sys.exit(err.exit_code)
     except click.exceptions.Abort as abort:
-        click.echo("heoslice: interrupted", err=True)
-        sys.exit(getattr(abort.__cause__ or abort.__context__, "exit_code", EXIT_INTERRUPTED))
+        interrupt = abort.__cause__ or abort.__context__
+        click.echo(_interrupted_line(interrupt), err=True)
+        sys.exit(getattr(interrupt, "exit_code", EXIT_INTERRUPTED))
     except KeyboardInterrupt as interrupt:
-        click.echo("heoslice: interrupted", err=True)
+        click.echo(_interrupted_line(interrupt), err=True)
         sys.exit(getattr(interrupt, "exit_code", EXIT_INTERRUPTED))
     except Exception as err:  # noqa: BLE001 - the last line of defence for users; a HeosliceError is theirs
         line, code = error_line(err, debug)

@@ -12,18 +12,21 @@ import click
 
 from heoslice.cli.common import echo_json, json_option, plural
 from heoslice.errors import InputError
+from heoslice.printing.ports import announce_baud
 
 
 @click.command("controller", epilog="""\b
 Examples:
   heoslice controller --pty                      # prints e.g. /dev/pts/5
-  heoslice print vase_stack/ --port /dev/pts/5 --baud 1000000   # in another terminal
+  heoslice print vase_stack/ --port /dev/pts/5   # in another terminal, at the modelled rate
   heoslice controller --listen 127.0.0.1:7000 --layer-time 0.05
   heoslice controller --pty --set byte_error_rate=1e-3 --set reset_at_layer=40 --seed 3
   heoslice controller --pty --real-pacing        # a 115200-baud UART and a 0.2 s head
 \b
 By default the link is modelled fast (1,000,000 baud, 2 ms a layer) so a dry run takes
-seconds; --baud and --layer-time override it. Connections, jobs, layers, aborts, pauses,
+seconds; --baud and --layer-time override it. On --pty the modelled rate is announced as
+the terminal's line speed, so `print` paces itself to it without --baud (a rate termios
+cannot name is not announced: give print the same --baud). Connections, jobs, layers, aborts, pauses,
 resumes and resets are logged on stderr (-q: quiet).
 --set takes any field of SimConfig or FaultSpec (heoslice.printing.simulator), e.g.
 frame_drop_rate, frame_dup_rate, ack_loss_rate, disconnect_at_layer, dead_at_layer,
@@ -79,10 +82,11 @@ def controller(use_pty: bool, listen: str | None, baud: int | None, layer_time: 
         print(f"controller: {text}", file=sys.stderr, flush=True)
 
     sim = SimController(config, faults, log=None if quiet else log)
-    slave = None
+    slave, announced = None, False
     if use_pty:
         master, slave = os.openpty()
         tty.setraw(slave)
+        announced = announce_baud(slave, config.baud / config.time_scale)
         transport = FdTransport(master)
         where = os.ttyname(slave)
     else:
@@ -98,7 +102,7 @@ def controller(use_pty: bool, listen: str | None, baud: int | None, layer_time: 
         click.echo(where)
     if not quiet:
         log(f"serving on {where}: {config.baud} baud, {config.layer_time_s:g} s a layer, boot id {sim.boot_id:08x}; "
-            f"print with --port {where} --baud {config.baud}")
+            f"print with --port {where}" + ("" if announced else f" --baud {config.baud}"))
     sim.start(transport)
     try:
         end = None if duration is None else time.monotonic() + duration

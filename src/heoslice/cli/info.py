@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from heoslice.cli.options import apply_scale, scale_option
+from heoslice.errors import InputError
 from heoslice.mesh import load_mesh, mesh_info
 from heoslice.volume import is_volume_path
 

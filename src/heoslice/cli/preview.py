@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from heoslice.cli.common import echo_warnings
 from heoslice.errors import InputError
 from heoslice.files import check_output, write_output
 from heoslice.preview.png import is_preview, png_bytes
@@ -114,7 +115,7 @@ def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: s
     if sheet:
         if layer is not None:
             raise InputError("--layer: use --layers with --sheet")
-        chosen = parse_layers(layers, count) if layers else sorted(set(np.linspace(0, count - 1, min(16, count))
+        chosen = parse_layers(layers, count, lambda text: echo_warnings(stack, [text])) if layers else sorted(set(np.linspace(0, count - 1, min(16, count))
                                                                        .round().astype(int).tolist()))
         sheet_size(len(chosen), tile, columns)
         return (output or Path.cwd() / f"{name}_sheet.png",

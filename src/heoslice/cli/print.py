@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from heoslice.locks import hold_stack
+from heoslice.printing.ports import DEFAULT_BAUD
 from heoslice.printing import (
     check_log_output,
     Progress,
@@ -28,6 +29,7 @@ Examples:
   heoslice print vase_stack/ --port /dev/ttyACM0 --from-layer 120   # after a controller reset
   heoslice print vase_stack/ --port /dev/ttyACM0 --resume            # continue an interrupted job
   heoslice print vase_stack/ --port /dev/ttyACM0 --restart           # abort it, start at layer 0
+  heoslice print vase_stack/ --port /dev/pts/5                       # `heoslice controller --pty`, at its rate
   heoslice print vase_stack/ --port sim://                           # built-in simulator, fast
   heoslice print vase_stack/ --port 'sim://?pace=real'               # ... at 115200 baud, 0.2 s a layer
   heoslice print vase_stack/ --dry-run                               # verify and size, no port
@@ -35,8 +37,9 @@ Examples:
 @click.argument("stack", type=click.Path(path_type=Path))
 @click.option("-p", "--port", default=None,
               help="Device path or pyserial URL (socket://HOST:PORT, rfc2217://..., sim://?OPTIONS).")
-@click.option("--baud", type=click.IntRange(min=1), default=115200, show_default=True,
-              help="Link rate, bits/s (also paces writes on URLs that ignore it).")
+@click.option("--baud", type=click.IntRange(min=1), default=None,
+              help="Link rate, bits/s (also paces writes on URLs that ignore it) [default: the rate `heoslice "
+                   "controller --pty` announces on its terminal, else 115200].")
 @click.option("--from-layer", type=click.IntRange(min=0), default=None,
               help="Start at this layer (after a controller reset) instead of 0 or the controller's resume point.")
 @click.option("--resume", is_flag=True, help="Continue the controller's unfinished job of this stack.")
@@ -47,7 +50,7 @@ Examples:
 @click.option("--max-payload", type=click.IntRange(80, 4096), default=1024, show_default=True,
               help="Largest frame payload offered to the controller, bytes.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
-def print_cmd(stack: Path, port: str | None, baud: int, from_layer: int | None, resume: bool, restart: bool,
+def print_cmd(stack: Path, port: str | None, baud: int | None, from_layer: int | None, resume: bool, restart: bool,
               dry_run: bool, log_path: Path | None, max_payload: int, as_json: bool) -> None:
     """Verify STACK (manifest, sha256 of every file, paths inside it), then print it on PORT.
     A stack that cannot print is refused in one line, --dry-run too: an RGBA preview stack
@@ -73,8 +76,9 @@ def print_cmd(stack: Path, port: str | None, baud: int, from_layer: int | None, 
         _print(stack, port, baud, from_layer, resume, restart, log_path, max_payload, as_json)
 
 
-def _dry_run(stack: Path, baud: int, max_payload: int, from_layer: int | None, as_json: bool) -> None:
+def _dry_run(stack: Path, baud: int | None, max_payload: int, from_layer: int | None, as_json: bool) -> None:
     """Verify and size the transfer; no port."""
+    baud = baud or DEFAULT_BAUD
     job, get_layer = stack_job(stack)
     summary = {"stack": str(stack), "ok": True, "job_id": f"{job.job_id:08x}",
                **plan_transfer(job, get_layer, baud=baud, max_payload=max_payload, from_layer=from_layer or 0)}
@@ -84,7 +88,7 @@ def _dry_run(stack: Path, baud: int, max_payload: int, from_layer: int | None, a
                f"({summary['raw_bytes']} raw), about {summary['seconds_at_baud']:.1f} s at {baud} baud")
 
 
-def _print(stack: Path, port: str, baud: int, from_layer: int | None, resume: bool, restart: bool,
+def _print(stack: Path, port: str, baud: int | None, from_layer: int | None, resume: bool, restart: bool,
            log_path: Path | None, max_payload: int, as_json: bool) -> None:
     """Print the held stack and report."""
     log_path = log_path or default_log_path(stack)
@@ -96,7 +100,8 @@ def _print(stack: Path, port: str, baud: int, from_layer: int | None, resume: bo
                            label=f"stack {stack}", name=Path(stack).resolve().name)
     if as_json:
         click.echo(json.dumps({"stack": str(stack), "ok": True, "port": port, "log": str(log_path),
-                               "job_id": f"{job.job_id:08x}", **result.__dict__}))
+                               "job_id": f"{job.job_id:08x}",
+                               **{**result.__dict__, "boot_id": f"{result.boot_id:08x}"}}))
         return
     rate = result.bytes_sent / result.elapsed_s if result.elapsed_s > 0 else 0.0
     click.echo(f"{stack}: printed layers {result.first_layer}..{result.last_completed} on {port} "

@@ -22,7 +22,7 @@ from heoslice.cli.volume import slice_volume, volume_options
 from heoslice.errors import InputError
 from heoslice.material import MaterialsFile, material_roles, read_materials_file
 from heoslice.mesh import Mesh, load_assembly, load_mesh, without_materials
-from heoslice.pipeline import SliceSpec, plan_parts, slice_to_stack, slice_warnings
+from heoslice.pipeline import SliceSpec, one_material, plan_parts, slice_to_stack, slice_warnings
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, print_refusal, refusal_line, stack_volume_mm3
 from heoslice.volume import is_volume_path
 
@@ -35,8 +35,9 @@ SPEC_FLAGS = {
 
 
 def default_output(model: Path, parent: Path | None = None) -> Path:
-    """Where a stack goes without -o: ``<model stem>_stack`` in ``parent`` (--into), else the current directory."""
-    return (parent if parent is not None else Path.cwd()) / f"{model.stem}_stack"
+    """Where a stack goes without -o: ``<model stem>_stack`` in ``parent`` (--into), else the current directory (a
+    relative path, so reports name it as a user would, as ``verify`` and ``print`` name what they are given)."""
+    return (parent if parent is not None else Path()) / f"{model.stem}_stack"
 
 
 def stack_directories(models: tuple[Path, ...], output: Path | None, into: Path | None) -> dict[Path, Path]:
@@ -339,7 +340,7 @@ def material_line(names: list[str], masks: bool, mode: str) -> str:
         return f"materials {', '.join(names)}: a solid mask and {plural(len(names), 'droplet mask')} per layer"
     if mode == "RGBA":
         return f"materials {', '.join(names)}: an RGBA preview image per layer (no droplet masks: not a print job)"
-    return "one material: a solid mask per layer"
+    return f"one material{f' ({names[0]})' if names else ''}: a solid mask per layer"
 
 
 def slice_parts(models: tuple[Path, ...], output: Path | None, spec_fields: dict, scale: float, force: bool,
@@ -403,6 +404,7 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
     unprintable = [refusal_line(refusal, directory)] if refusal is not None and refusal.slice_warns else []
     materials = (manifest.get("grading") or {}).get("materials") or []
     masks = bool(manifest["layers"]) and "channels" in manifest["layers"][0]
+    only = None if materials else one_material(mesh, spec)
     summary = {
         "model": str(model),
         "ok": True,
@@ -411,7 +413,7 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
         "image": [manifest["image"]["width"], manifest["image"]["height"]],
         "dpi": manifest["dpi"],
         "volume_mm3": stack_volume_mm3(manifest),
-        "materials": [m["name"] for m in materials],
+        "materials": [m["name"] for m in materials] if materials else [only] if only else [],
         "droplet_masks": masks,
         "open_contour_layers": open_layers,
         "warnings": [*mesh.warnings, *unprintable],

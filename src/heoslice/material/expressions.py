@@ -64,7 +64,9 @@ def compile_expression(text: str) -> ast.Expression:
 
 
 def _check_node(node: ast.AST, text: str) -> None:
-    """Refuse every AST node outside the whitelist."""
+    """Refuse every AST node outside the whitelist (``^``, Python's exclusive or, as the power it was meant as)."""
+    if isinstance(node, ast.BitXor):
+        raise _refuse(f"{text!r}: ^ is not a power here, use ** (r**2 for r squared)")
     if not isinstance(node, _ALLOWED):
         raise _refuse(f"{text!r}: {type(node).__name__.lower()} is not allowed "
                       "(use numbers, r, pi, e, + - * / ** and functions like sin, exp, clip)")

@@ -22,7 +22,7 @@ _MODULES = {
     "layer_job": ("LayerJob", "GradedJob", "PipelineCache", "layer_jobs", "render_and_write"),
     "runs": ("RunContext", "RunResult", "run_contours", "slice_run", "plane_runs"),
     "slice_job": ("slice_to_stack", "grading_summary", "layer_limit", "slice_warnings"),
-    "materials": ("MaterialJob", "material_job"),
+    "materials": ("MaterialJob", "material_job", "one_material"),
     "parallel": ("run_all", "keep_freed_memory"),
     "parts": ("PartsPlan", "plan_parts", "part_order", "compose_part_masks"),
     "volume_job": ("LabelPlan", "plan_labels", "slice_volume_to_stack"),

@@ -79,6 +79,41 @@ def _fraction_mix(fraction: np.ndarray, grade) -> np.ndarray:
     return point_mixes(grade, np.nan_to_num(np.asarray(fraction, dtype=np.float64)))
 
 
+def _table(spec: SliceSpec) -> tuple[Material, ...]:
+    """The materials colours map to: the spec's table (the built-in M1, M2 when empty), with its channels as a
+    materials file's get them (keyed by position: names may repeat)."""
+    return tuple(with_table_channels(dict(enumerate(spec.materials or DEFAULT_MATERIALS.values()))).values())
+
+
+def colour_collapse(mesh: Mesh, spec: SliceSpec) -> str | None:
+    """One line when the mesh's distinct colours (at least 3, no material fraction) map onto fewer materials of
+    the table (a scan's shades onto M1 and M2): how many onto which, and what to do for more; else None."""
+    if spec.parts is not None or mesh.material is not None or mesh.colors is None:
+        return None
+    rgb = np.asarray(mesh.colors)[:, :3].astype(np.int64)
+    packed = np.unique((rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2])
+    distinct = np.stack([packed >> 16, (packed >> 8) & 255, packed & 255], axis=1)
+    table = _table(spec)
+    used = [table[index].name for index in np.unique(nearest_materials(distinct, table))]
+    if len(distinct) < 3 or len(distinct) <= len(used):
+        return None
+    return (f"its {len(distinct)} distinct colours map onto {len(used)} material{'s' if len(used) > 1 else ''} "
+            f"({', '.join(used)}), each colour to the material of nearest display colour: the stack holds only "
+            f"{'these' if len(used) > 1 else 'this one'} (list more materials with --materials FILE.toml, or "
+            "grade between two with heoslice color)")
+
+
+def one_material(mesh: Mesh, spec: SliceSpec) -> str | None:
+    """The name of the material a one-material slice of ``mesh`` is made of (None when the slice holds several,
+    or is a multi-part job): the one its colours all map to, else the table's first (M1 by the default roles)."""
+    if spec.parts is not None or material_job(mesh, spec).spec.grade is not None:
+        return None
+    table = _table(spec)
+    if mesh.colors is not None and mesh.material is None and len(mesh.colors):
+        return table[int(nearest_materials(np.asarray(mesh.colors)[:1, :3], table)[0])].name
+    return material_roles({m.name: m for m in table}).first.name
+
+
 def _design(mesh: Mesh, spec: SliceSpec):
     """The slice's design: the spec's (the command line settled it), else the mesh's own record with its
     materials settled against ``spec.materials`` (:func:`heoslice.material.design.settle_materials`); None for
@@ -127,8 +162,7 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
     table colours map to (the built-in M1, M2 when empty)."""
     if spec.parts is not None:  # a multi-part job: each part is one material (heoslice.pipeline.parts)
         return MaterialJob(spec, None)
-    # a library caller's table gets its channels as a materials file's does (keyed by position: names may repeat)
-    table = tuple(with_table_channels(dict(enumerate(spec.materials or DEFAULT_MATERIALS.values()))).values())
+    table = _table(spec)
     grade, mix, field = _masks_used(spec.grade, mesh), None, None
     design = _design(mesh, spec)
     interior = _interior(spec, design)

@@ -8,6 +8,12 @@ render and write them and send back what they wrote. Every child ignores the sig
 SIGTERM, SIGHUP: the parent reports them) and is killed by the kernel when the parent ends however it ends
 (``PR_SET_PDEATHSIG``), so nothing writes into the stack after the parent has gone.
 
+That fast path needs Linux with glibc (fork, prctl, mallopt). Elsewhere, or with ``HEOSLICE_PORTABLE=1``
+(:func:`portable`), the **portable path** is taken, byte for byte the same stack: workers are started by
+``spawn`` (a fresh interpreter that is given the run's context, never a fork), each from an empty cache (the
+cache only saves work); a worker ignores the same signals and watches its parent from a thread, ending itself
+within :data:`_PARENT_POLL_S` of the parent's end; no C library function is called.
+
 Importing this module loads nothing but the standard library, so that the ``heoslice`` command can set its
 process's environment for numpy (:func:`command_environment`) before numpy loads; numpy and the pipeline's
 stages are imported by the functions that use them.
@@ -40,6 +46,31 @@ _PR_SET_PDEATHSIG = 1
 #: M_MMAP_THRESHOLD on 64 bits) come from the heap, and freed heap memory stays in the process.
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
 _KEPT_BYTES, _HEAP_BLOCK_BYTES = 2**31 - 1, 32 << 20  # mallopt takes a C int
+
+
+#: The environment variable that forces the portable path (module docstring) where the fast one would run.
+PORTABLE_VARIABLE = "HEOSLICE_PORTABLE"
+#: How often a portable worker checks that its parent still runs, s.
+_PARENT_POLL_S = 0.2
+
+
+def portable() -> bool:
+    """Whether slices take the portable path: HEOSLICE_PORTABLE set (not empty or 0), or this platform lacks what
+    the fast path calls (fork, Linux's prctl, glibc's mallopt)."""
+    import multiprocessing
+    import platform
+    import sys
+
+    if os.environ.get(PORTABLE_VARIABLE, "") not in ("", "0"):
+        return True
+    return not (sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc"
+                and "fork" in multiprocessing.get_all_start_methods())
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity, where the platform has one: Linux), at least 1."""
+    affinity = getattr(os, "sched_getaffinity", None)
+    return max(1, len(affinity(0)) if affinity is not None else os.cpu_count() or 1)
 
 
 #: What the ``heoslice`` command sets in its own environment before numpy loads, unless the user set it, and why:
@@ -107,11 +138,32 @@ def _enter_worker(parent: int) -> None:
     keep_freed_memory()
 
 
-def _start(enter: Callable[[int], None], target: Callable, *args):
-    """Fork a daemon process that calls ``enter(pid of this process)`` (:func:`_enter_child` or
-    :func:`_enter_worker`) and then ``target(*args)``, with the ending signals held back over the fork: the
-    child ignores them before any can arrive (they reach this process after)."""
-    child = get_context("fork").Process(target=_child_main, args=(os.getpid(), enter, target, args), daemon=True)
+def _enter_portable_worker(parent: int) -> None:
+    """First thing in a spawned worker (the portable path): ignore the signals that end a run, take them back from
+    the mask it was started under, and end (at once, or within _PARENT_POLL_S) when ``parent`` has ended: a
+    daemon thread watches the parent's id, as no C library call is made."""
+    import threading
+    import time
+
+    for number in ENDING_SIGNALS:
+        signal.signal(number, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, ENDING_SIGNALS)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(_PARENT_POLL_S)
+        os._exit(1)
+
+    if os.getppid() != parent:
+        os._exit(1)
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+def _start(enter: Callable[[int], None], target: Callable, *args, method: str = "fork"):
+    """Start (fork, or ``method``) a daemon process that calls ``enter(pid of this process)`` (:func:`_enter_child`,
+    :func:`_enter_worker` or :func:`_enter_portable_worker`) and then ``target(*args)``, with the ending signals
+    held back over the start: the child ignores them before any can arrive (they reach this process after)."""
+    child = get_context(method).Process(target=_child_main, args=(os.getpid(), enter, target, args), daemon=True)
     held = signal.pthread_sigmask(signal.SIG_BLOCK, ENDING_SIGNALS)
     try:
         child.start()
@@ -173,16 +225,17 @@ def _serve(conn, context: RunContext, cache: PipelineCache) -> None:
 
 
 def _run_on_workers(context: RunContext, runs: list[tuple[int, int]], workers: int, cache: PipelineCache,
-                    on_done: Callable[[RunResult], None]) -> None:
-    """Every run through ``workers`` forked :func:`_serve` processes, each given at most _RUNS_IN_FLIGHT runs
-    at once (results arrive in any order; memory stays bounded); the workers are ended on the way out,
-    whatever happens, before any error goes on."""
+                    on_done: Callable[[RunResult], None], spawned: bool = False) -> None:
+    """Every run through ``workers`` forked (``spawned``: spawned, the portable path) :func:`_serve` processes,
+    each given at most _RUNS_IN_FLIGHT runs at once (results arrive in any order; memory stays bounded); the
+    workers are ended on the way out, whatever happens, before any error goes on."""
     waiting = list(reversed(runs))
     pool = {}
+    method, enter = ("spawn", _enter_portable_worker) if spawned else ("fork", _enter_worker)
     try:
         for _ in range(min(workers, len(runs))):
-            ours, theirs = get_context("fork").Pipe()
-            process = _start(_enter_worker, _serve, theirs, context, cache)
+            ours, theirs = get_context(method).Pipe()
+            process = _start(enter, _serve, theirs, context, cache, method=method)
             theirs.close()
             pool[ours] = (process, [])
         for conn, (process, given) in pool.items():
@@ -235,7 +288,8 @@ def _ended(process) -> RuntimeError:
 
 def run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], None]) -> None:
     """Every run of planes through :func:`heoslice.pipeline.runs.slice_run`: in this process, or (but for the
-    first layer, rendered here) in ``workers`` forked processes (module docstring). ``on_done`` is called with
+    first layer, rendered here) in ``workers`` forked processes, or on the portable path in ``workers`` spawned
+    ones (module docstring). ``on_done`` is called with
     each run's result, in any order, in this process."""
     from heoslice.pipeline.layer_job import PipelineCache
     from heoslice.pipeline.runs import plane_runs, slice_run
@@ -245,6 +299,9 @@ def run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], No
         cache = PipelineCache()
         for start, stop in runs:
             on_done(slice_run(context, start, stop, cache))
+        return
+    if portable():
+        _run_on_workers(context, runs, workers, PipelineCache(), on_done, spawned=True)
         return
     start, stop = runs[0]
     runs = ([(start + 1, stop)] if stop > start + 1 else []) + runs[1:]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from contextlib import ExitStack
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +20,7 @@ from heoslice.layers.rasterising import grid_for
 from heoslice.layers.slicing import face_z_range
 from heoslice.locks import hold_stack
 from heoslice.mesh import Mesh, ranked_part_volumes_mm3
-from heoslice.pipeline.materials import material_job
+from heoslice.pipeline.materials import colour_collapse, material_job
 from heoslice.pipeline.parallel import run_all
 from heoslice.pipeline.parts import parts_records
 from heoslice.pipeline.runs import RunContext, RunResult
@@ -39,6 +39,7 @@ from heoslice.stack import (
     check_stack_output,
     droplet_summary,
     grading_summary,
+    incomplete_stack,
     max_layer_count,
     prepare_directory,
     write_manifest,
@@ -60,15 +61,18 @@ def _droplet_materials(spec: SliceSpec) -> tuple | None:
 
 
 def slice_warnings(mesh: Mesh, spec: SliceSpec) -> list[str]:
-    """What about this slice the user should know before it runs (one line each), e.g. a layer height
-    above the part's height, which makes one layer of the whole part."""
+    """What about this slice the user should know before it runs (one line each), e.g. a scan's many colours
+    mapped onto few materials, or a layer height above the part's height, which makes one layer of the whole
+    part."""
+    collapse = colour_collapse(mesh, spec)
+    warnings = [] if collapse is None else [collapse]
     z_min, z_max = (float(v) for v in mesh.bounds[:, 2])
     height, cut = z_max - z_min, z_min + spec.layer_height_mm / 2
     if spec.layer_height_mm <= height:
-        return []
+        return warnings
     outcome = "above the part: the stack is empty" if cut >= z_max else "through the part"
-    return [f"layer_height_mm: {spec.layer_height_mm:g} mm is more than the part's height ({height:g} mm): "
-            f"the stack is one layer, cut at z = {cut:g} mm, {outcome}"]
+    return [*warnings, f"layer_height_mm: {spec.layer_height_mm:g} mm is more than the part's height ({height:g} "
+            f"mm): the stack is one layer, cut at z = {cut:g} mm, {outcome}"]
 
 
 def _check_sizes(mesh: Mesh, spec: SliceSpec) -> None:
@@ -115,6 +119,7 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
         prepare_directory(directory, force, inputs)
         if not existed:
             held.enter_context(hold_stack(directory, "slicing into it"))
+        held.enter_context(_incomplete_if_interrupted(directory))
         z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
         results: dict[int, tuple] = {}
         open_layers = np.zeros(len(z), dtype=bool)
@@ -148,6 +153,17 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
         write_manifest(directory, manifest)
         times.total = time.perf_counter() - started
         return manifest, times
+
+
+@contextmanager
+def _incomplete_if_interrupted(directory: Path):
+    """An interruption (Ctrl-C, a terminating signal) of the block leaves ``directory`` without its manifest: it
+    carries a note (PEP 678 ``__notes__``, which the CLI appends to its one line) saying so and what to run."""
+    try:
+        yield
+    except KeyboardInterrupt as interrupt:
+        interrupt.__notes__ = [*getattr(interrupt, "__notes__", ()), incomplete_stack(directory)]
+        raise
 
 
 def _image_mode(spec: SliceSpec) -> str:

@@ -5,7 +5,6 @@ Errors name the parameter (``layer_height_mm: ...``); the command line maps para
 
 from __future__ import annotations
 
-import os
 import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -113,7 +112,9 @@ class SliceSpec:
 
     def worker_count(self) -> int:
         """Worker processes to use: ``jobs``, or with 0 one per core this process may run on."""
-        return self.jobs if self.jobs > 0 else max(1, len(os.sched_getaffinity(0)))
+        from heoslice.pipeline.parallel import usable_cores
+
+        return self.jobs if self.jobs > 0 else usable_cores()
 
 
 def channel_name(material) -> str:

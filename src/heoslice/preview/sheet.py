@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from itertools import islice
 from pathlib import Path
 
@@ -18,12 +19,14 @@ MAX_SHEET_PIXELS = 1 << 25
 LABEL_HEIGHT = 14
 
 
-def parse_layers(text: str, count: int) -> list[int]:
+def parse_layers(text: str, count: int, warn: Callable[[str], None] | None = None) -> list[int]:
     """Layer numbers from 'N', 'A,B,C' or a Python-style range 'START:STOP[:STEP]' (stop excluded, may be empty).
 
+    A range's stop past the last layer is clipped to it, and ``warn`` (if given) is told so in one line.
     Raises InputError naming the text when it does not parse or names no existing layer.
     """
     layers: list[int] = []
+    clipped = False
     try:
         for part in str(text).split(","):
             part = part.strip()
@@ -36,6 +39,7 @@ def parse_layers(text: str, count: int) -> list[int]:
                 step = int(pieces[2]) if len(pieces) > 2 and pieces[2] else 1
                 if step <= 0:
                     raise ValueError
+                clipped = clipped or stop > count
                 layers.extend(islice(range(start, min(stop, count), step), MAX_SHEET_LAYERS + 1 - len(layers)))
             else:
                 layers.append(int(part))
@@ -50,6 +54,9 @@ def parse_layers(text: str, count: int) -> list[int]:
         raise InputError(f"--layers: layer {bad[0]} does not exist (the stack has layers 0..{count - 1})")
     if not layers:
         raise InputError(f"--layers: {text[:60]!r} selects no layer (the stack has layers 0..{count - 1})")
+    if clipped and warn is not None:
+        warn(f"--layers {text[:60]!r} reaches past the last layer: clipped to layers {min(layers)}..{max(layers)} "
+             f"(the stack has layers 0..{count - 1})")
     return layers
 
 

@@ -149,7 +149,8 @@ class PrinterLink:
             self._restart_stream(self.first_layer)
             self.log.write("connected", boot_id=f"{ack.boot_id:08x}", controller_state=P.STATE_NAMES.get(ack.state),
                            first_layer=self.first_layer, encodings=self._negotiated, window=self.window.window,
-                           rx_buffer=ack.rx_buffer, sack=self.window.sack)
+                           rx_buffer=ack.rx_buffer, sack=self.window.sack,
+                           baud=getattr(self.session.connector, "baud", None))
             self._pump()
         except KeyboardInterrupt as interrupt:
             raise self._interrupted(interrupt) from None
@@ -524,7 +525,7 @@ class PrinterLink:
                 self._reconnect(str(lost))
 
 
-def print_job(port: str, job: JobSpec, get_layer: LayerSource, *, baud: int = 115200,
+def print_job(port: str, job: JobSpec, get_layer: LayerSource, *, baud: int | None = None,
               from_layer: int | None = None, resume: bool = False, restart: bool = False,
               timing: LinkTiming = LinkTiming(), log_path: Path | None = None,
               on_progress: Callable[[Progress], None] | None = None, connector: Connector | None = None,
@@ -532,7 +533,8 @@ def print_job(port: str, job: JobSpec, get_layer: LayerSource, *, baud: int = 11
               label: str = "this stack", name: str = "") -> PrintResult:
     """Print ``job`` on ``port`` (device path, pyserial URL or ``sim://``); raise a PrinterError subclass on failure.
 
-    ``label`` names the stack in messages, ``name`` goes to the controller with the job (JOB_BEGIN).
+    ``label`` names the stack in messages, ``name`` goes to the controller with the job (JOB_BEGIN). ``baud``
+    None: the rate a simulated controller's pseudo-terminal announces, else ports.DEFAULT_BAUD.
     """
     own = connector is None
     connector = connector or connector_for(port, baud)

@@ -12,8 +12,10 @@ from heoslice.files import check_output, head_bytes, write_problem
 
 
 def default_log_path(stack: Path) -> Path:
-    """The print log beside a stack directory: ``<stack>.print-log.jsonl``."""
-    stack = Path(stack).resolve()
+    """The print log beside a stack directory: ``<stack>.print-log.jsonl``, a path of the form the stack was given in
+    (relative stays relative; ``.`` and ``..`` are resolved to be named)."""
+    stack = Path(stack)
+    stack = stack.resolve() if stack.name in ("", ".", "..") else stack
     return stack.with_name(stack.name + ".print-log.jsonl")
 
 

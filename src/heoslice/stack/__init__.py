@@ -37,6 +37,7 @@ from heoslice.stack.manifest import (
 from heoslice.stack.read import (
     check_input_path,
     decode_mask,
+    incomplete_stack,
     layer_strips,
     read_layer_channels,
     read_layer_mask,

@@ -331,7 +331,7 @@ def _header_problem(manifest: dict) -> str | None:
     if not _is_int(manifest.get("version")) or manifest["version"] != FORMAT_VERSION:
         return f"version {_show(manifest.get('version'))} is not supported (expected {FORMAT_VERSION})"
     if manifest.get("complete") is not True:
-        return "stack is not complete (interrupted run?)"
+        return "stack is not complete (an interrupted slice?): run that slice again with --force to replace it"
     image = manifest.get("image")
     if not isinstance(image, dict):
         return "missing 'image'"

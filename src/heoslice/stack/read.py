@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import InputError, VerifyError
-from heoslice.stack.manifest import MANIFEST, MASK_MODE, MAX_MANIFEST_BYTES, parse_manifest
+from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST, MASK_MODE, MAX_MANIFEST_BYTES, parse_manifest
 from heoslice.stack.tiff import checked_page, decode_solid, file_limit, open_tiff
 
 #: Largest decoded strip a streaming reader accepts, bytes (heoslice writes strips of 64 or 256 rows:
@@ -31,7 +31,9 @@ def read_manifest(directory: Path) -> dict:
         raise VerifyError(f"{directory}: not a directory")
     path = directory / MANIFEST
     if not (path.exists() or path.is_symlink()):
-        raise VerifyError(f"{directory}: no {MANIFEST} (not a stack, or an interrupted run)")
+        if _holds_layer_files(directory):
+            raise VerifyError(incomplete_stack(directory))
+        raise VerifyError(f"{directory}: no {MANIFEST} (not a stack)")
     inside = resolve_inside(directory, MANIFEST)
     if inside is None:
         raise VerifyError(f"{path}: is a link to outside the stack")
@@ -46,6 +48,21 @@ def read_manifest(directory: Path) -> dict:
     except OSError as err:
         raise VerifyError(f"{path}: cannot read ({err.strerror})") from err
     return parse_manifest(raw, path)
+
+
+def incomplete_stack(directory: Path) -> str:
+    """What a directory a slice left without its manifest is, and what to run: the one wording of ``verify``
+    and of an interrupted ``slice``."""
+    return (f"{directory}: incomplete stack, no {MANIFEST} (the slice that wrote it was interrupted or failed); "
+            "run that slice again with --force to replace it")
+
+
+def _holds_layer_files(directory: Path) -> bool:
+    """Whether ``directory`` holds a file named like a layer or droplet mask."""
+    try:
+        return any(LAYER_PATTERN.match(entry.name) for entry in os.scandir(directory))
+    except OSError:
+        return False
 
 
 def resolve_inside(directory: Path, name: str) -> Path | None:
