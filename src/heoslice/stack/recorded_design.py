@@ -11,15 +11,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from heoslice.errors import InputError
-from heoslice.layers.rasterising import Grid
-from heoslice.material.design import Design
-from heoslice.material.field import MaterialField, material_field
 from heoslice.stack.manifest import source_scale, widest_masks
 from heoslice.stack.read import read_layer_mask
+
+if TYPE_CHECKING:
+    from heoslice.layers.rasterising import Grid
+    from heoslice.material.field import MaterialField
 
 #: Bands of r the recorded design is compared over (10: r in [0, 0.1), ..., [0.9, 1]).
 R_BANDS = 10
@@ -80,6 +82,10 @@ def field_comparison(directory: Path, manifest: dict) -> RecordedField | None:
     record = recorded_design(manifest)
     if record is None:
         return None
+    from heoslice.layers.rasterising import Grid  # the design's machinery, loaded only for a stack that has one
+    from heoslice.material.design import Design
+    from heoslice.material.field import material_field
+
     design = Design.from_record(record, str(directory))
     if design.reference.kind == "surface":  # the recorded range and point are scaled; the surface file is not
         design = replace(design, reference=replace(design.reference, surface_scale=source_scale(manifest)))
