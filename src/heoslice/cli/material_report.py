@@ -3,6 +3,7 @@ as the ``delivered`` object of ``verify --json``."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from heoslice.errors import InputError, VerifyError
@@ -18,9 +19,13 @@ from heoslice.stack.report import (
     share_bands,
     window_pixels,
 )
+from heoslice.stack.recorded_design import R_BANDS, field_comparison
 
-#: Bands of the designed target share ``verify --design`` compares (10: 0-10 %, ..., 90-100 %).
-SHARE_BANDS = 10
+#: Bands ``verify`` compares: of the designed target share with --design (10: 0-10 %, ..., 90-100 %), of r with a
+#: recorded design (the same count, :data:`heoslice.stack.recorded_design.R_BANDS`).
+SHARE_BANDS = R_BANDS
+#: A band's or window's delivered share further than this from the designed one is reported (a warning line).
+DESIGN_TOLERANCE = 0.02
 
 
 def designed_part_volumes(manifest: dict, mesh: Mesh | None) -> list[float] | None:
@@ -60,12 +65,58 @@ def design_of_preview(stack: Path, manifest: dict, preview: Path):
         raise InputError(f"--design: {preview}: {err}") from None
 
 
-def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None):
-    """The report of a verified stack and its parts against their design (None without): (report, parts)."""
-    design = None if preview is None else design_of_preview(stack, manifest, preview)
-    report = material_report(stack, manifest, design, share_bands(SHARE_BANDS), SHARE_BANDS)
+@dataclass(frozen=True)
+class Comparison:
+    """What the report's design came from: ``preview`` (--design) or ``manifest`` (the recorded design of a
+    field-interior stack), what its bands are of (``share``: the designed target share; ``r``) and the target's
+    mask index."""
+
+    source: str
+    bands_of: str
+    target: int
+
+
+def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None, warnings: list[str]):
+    """The report of a verified stack and its parts against their design (None without): (report, parts,
+    comparison). A field-interior stack is compared with the design its manifest records (bands of r) unless
+    --design is given; when that design cannot be evaluated (its reference surface missing or changed) one line
+    is added to ``warnings`` and the design is not compared."""
+    comparison = None
+    if preview is not None:
+        design, bands = design_of_preview(stack, manifest, preview), share_bands(SHARE_BANDS)
+        comparison = Comparison("preview", "share", -1)
+    else:
+        design = bands = None
+        try:
+            recorded = field_comparison(stack, manifest)
+        except InputError as err:
+            recorded = None
+            warnings.append(f"{err}; the delivered material is not compared with the design")
+        if recorded is not None:
+            design, bands = recorded.design, recorded.bands
+            comparison = Comparison("manifest", "r", recorded.target)
+    report = material_report(stack, manifest, design, bands, SHARE_BANDS)
     designed = designed_part_volumes(manifest, mesh)
-    return report, (None if designed is None else part_shares(manifest, report, designed))
+    parts = None if designed is None else part_shares(manifest, report, designed)
+    off = design_mismatch(report, comparison)
+    warnings += [f"{stack}: {off}"] if off else []
+    return report, parts, comparison
+
+
+def design_mismatch(report: MaterialReport, comparison: Comparison | None) -> str | None:
+    """A line when the delivered material strays more than DESIGN_TOLERANCE from the design in a band or
+    in the worst 2 mm window, else None."""
+    if comparison is None:
+        return None
+    off = [f"band {b.band} of {'r' if comparison.bands_of == 'r' else 'designed share'} by "
+           f"{100 * b.difference:.2f} points" for b in report.bands if b.difference > DESIGN_TOLERANCE]
+    worst = report.worst
+    if worst is not None and abs(worst.difference) > DESIGN_TOLERANCE:
+        off.append(f"the worst 2 mm window (layer {worst.layer}) by {100 * abs(worst.difference):.2f} points")
+    if not off:
+        return None
+    return (f"the delivered material differs from the design by more than {100 * DESIGN_TOLERANCE:g} points: "
+            + "; ".join(off))
 
 
 def window_centre_mm(manifest: dict, pixel: tuple[int, int]) -> tuple[float, float]:
@@ -74,10 +125,12 @@ def window_centre_mm(manifest: dict, pixel: tuple[int, int]) -> tuple[float, flo
     return pixel_position(manifest, (pixel[0] + (rows - 1) / 2, pixel[1] + (columns - 1) / 2))
 
 
-def as_json(manifest: dict, report: MaterialReport, parts: tuple[PartShare, ...] | None) -> dict:
+def as_json(manifest: dict, report: MaterialReport, parts: tuple[PartShare, ...] | None,
+            comparison: Comparison | None = None) -> dict:
     """The ``delivered`` object of ``verify --json``."""
     worst = report.worst
     names = [m.name for m in report.materials]
+    target = -1 if comparison is None else comparison.target
     window = None
     if worst is not None:
         rows, columns = window_pixels(manifest)
@@ -96,7 +149,9 @@ def as_json(manifest: dict, report: MaterialReport, parts: tuple[PartShare, ...]
              "delivered_mm3": p.delivered_mm3, "designed_share": p.designed, "delivered_share": p.delivered,
              "difference": p.difference} for p in parts],
         "worst_window": window,
-        "bands": [{"designed_share_of": names[-1], "band": [b.band / SHARE_BANDS, (b.band + 1) / SHARE_BANDS],
+        "design": None if comparison is None else {"from": comparison.source, "bands_of": comparison.bands_of,
+                                                    "target": names[target]},
+        "bands": [{"designed_share_of": names[target], "band": [b.band / SHARE_BANDS, (b.band + 1) / SHARE_BANDS],
                    "voxels": b.voxels, "designed": dict(zip(names, b.designed)),
                    "delivered": dict(zip(names, b.delivered)), "difference": b.difference} for b in report.bands],
     }
@@ -106,7 +161,8 @@ def _percent(share: float) -> str:
     return f"{100 * share:.2f} %"
 
 
-def text_lines(manifest: dict, report: MaterialReport, parts: tuple[PartShare, ...] | None) -> list[str]:
+def text_lines(manifest: dict, report: MaterialReport, parts: tuple[PartShare, ...] | None,
+               comparison: Comparison | None = None) -> list[str]:
     """The report as indented text lines, under verify's OK line."""
     lines = [f"  {m.name}: {m.voxels} voxels, {m.volume_mm3:.6g} mm^3, {_percent(m.share)} of the solid"
              for m in report.materials]
@@ -119,9 +175,12 @@ def text_lines(manifest: dict, report: MaterialReport, parts: tuple[PartShare, .
         lines.append(f"  worst 2 mm window: layer {worst.layer}, centred at x {x:.4g}, y {y:.4g} mm: "
                      f"{report.materials[worst.material].name} designed {_percent(worst.designed)}, "
                      f"delivered {_percent(worst.delivered)} ({100 * worst.difference:+.2f} points)")
-    target = report.materials[-1].name
+    index = -1 if comparison is None else comparison.target
+    target = report.materials[index].name
     for band in report.bands:
         low, high = 100 * band.band // SHARE_BANDS, 100 * (band.band + 1) // SHARE_BANDS
-        lines.append(f"  designed {target} {low}-{high} %: {band.voxels} voxels, {target} designed "
-                     f"{_percent(band.designed[-1])}, delivered {_percent(band.delivered[-1])}")
+        what = (f"r {low / 100:.1f}-{high / 100:.1f}" if comparison is not None and comparison.bands_of == "r"
+                else f"designed {target} {low}-{high} %")
+        lines.append(f"  {what}: {band.voxels} voxels, {target} designed "
+                     f"{_percent(band.designed[index])}, delivered {_percent(band.delivered[index])}")
     return lines

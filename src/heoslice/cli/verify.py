@@ -138,6 +138,8 @@ Examples:
   heoslice slice vase.ply --grade linear --rgba -o vase_design        # the design, as a preview stack
   heoslice verify vase_stack/ --design vase_design                   # every 2 mm window against it
   heoslice verify seg_stack/ --mesh example_seg.nii.gz   # a volume's stack: its labels' voxel volume
+  heoslice slice ball_c.ply --dpi 600 -o ball_stack   # a model heoslice color designed: field interior
+  heoslice verify ball_stack/                         # against its recorded design, per band of r
 """)
 @click.argument("stack", type=click.Path(path_type=Path))
 @click.option("--mesh", "models", type=click.Path(path_type=Path), multiple=True,
@@ -150,7 +152,8 @@ Examples:
               help="Largest relative volume difference accepted with --mesh (0.01 = 1 %).")
 @click.option("--design", "preview", type=click.Path(path_type=Path), default=None, metavar="PREVIEW_STACK",
               help="The --rgba preview stack of the same slice: compare every 2 mm x 2 mm window of a "
-                   "two-material graded or coloured stack with the mix its colours design.")
+                   "two-material graded or coloured stack with the mix its colours design (a field-interior "
+                   "stack is compared with the design its manifest records without it).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance: float, preview: Path | None,
            as_json: bool) -> None:
@@ -165,8 +168,12 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     is named by layer, pixel and mm. A stack whose files pass is followed by what it
     delivers: each material's voxels, mm^3 and share of the solid; each part's designed
     against delivered share (a multi-part stack); with --design, the worst 2 mm x 2 mm
-    window and each band of designed share against the design. Exit status 0 only when
-    the stack is clean, 4 when it has problems, 2 when STACK or the mesh cannot be read.
+    window and each band of designed share against the design. A stack sliced with the
+    field interior from a designed model is compared with the design its manifest
+    records: f(r) per pixel computed again, 10 bands of r and the worst window (a missing
+    or changed reference surface is a warning, and no comparison). A band or window more
+    than 2 points off the design is a warning. Exit status 0 only when the stack is
+    clean, 4 when it has problems, 2 when STACK or the mesh cannot be read.
     """
     check_input_path(stack)
     mesh = None
@@ -188,7 +195,7 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     layers = report.manifest.get("layers", []) if report.manifest else []
     delivered = None
     if report.ok and layers:
-        delivered = material_report.compute(stack, report.manifest, mesh, preview)
+        delivered = material_report.compute(stack, report.manifest, mesh, preview, warnings)
     summary = {
         "stack": str(stack),
         "ok": not problems,

@@ -138,6 +138,19 @@ class Design:
         except (KeyError, TypeError, ValueError, IndexError) as err:
             raise InputError(f"{source}: malformed design record ({type(err).__name__}: {err})") from None
 
+    @classmethod
+    def from_record(cls, record: dict, source: str = "stack") -> Design:
+        """The design a stack's manifest records (``grading.design``, :meth:`record`). InputError naming
+        ``source`` for an unknown version or a malformed record."""
+        version = record.get("version") if isinstance(record, dict) else None
+        if version != DESIGN_VERSION:
+            raise InputError(f"{source}: design record version {version} (this heoslice reads version "
+                             f"{DESIGN_VERSION})")
+        try:
+            return _design_of(record, list(record.get("shells") or []))
+        except (KeyError, TypeError, ValueError, IndexError) as err:
+            raise InputError(f"{source}: malformed design record ({type(err).__name__}: {err})") from None
+
     def scaled(self, factor: float) -> Design:
         """The design of the model with coordinates multiplied by ``factor`` (``slice --scale``): the reference
         point and the range in mm scale with it (r, f and the materials do not change)."""

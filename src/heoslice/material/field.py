@@ -59,6 +59,13 @@ class MaterialField:
         array that broadcasts to the box: (1, 1), (rows, 1) or (1, cols) where it does not change along a grid
         axis), exact at every solid pixel centre (to :data:`R_TOLERANCE` / 2 in r for a surface), anything
         elsewhere in the box."""
+        box, r = self.layer_distance(packed, grid, z)
+        # f to the halftone's 1/256 needs no more than single precision: r (in [0, 1]) rounds by 6e-8
+        return box, self.fraction(r.astype(np.float32))
+
+    def layer_distance(self, packed: np.ndarray, grid, z: float) -> tuple[tuple[int, int, int, int], np.ndarray]:
+        """r over the box of a layer's solid pixels, as :meth:`layer_fraction` gives f(r) (the box, and r
+        broadcasting to it; 0 at a surface reference's pixels outside the solid)."""
         r0, r1, c0, c1 = solid_box(packed, grid.width)
         x = grid.x_left + (np.arange(c0, c1) + 0.5) * grid.px
         y = grid.y_top - (np.arange(r0, r1) + 0.5) * grid.py
@@ -69,8 +76,7 @@ class MaterialField:
             rows, cols = np.nonzero(solid)
             r = np.zeros(solid.shape)
             r[rows, cols] = self.layer_r(rows + r0, cols + c0, grid, z)
-        # f to the halftone's 1/256 needs no more than single precision: r (in [0, 1]) rounds by 6e-8
-        return (r0, r1, c0, c1), self.fraction(r.astype(np.float32))
+        return (r0, r1, c0, c1), r
 
     def layer_r(self, rows: np.ndarray, cols: np.ndarray, grid, z: float) -> np.ndarray:
         """r (n,) at the centres of pixels (rows (n,), cols (n,) int) of a layer cut at height z (mm) on

@@ -1,0 +1,122 @@
+"""`verify` of a field-interior stack against the design its manifest records (stack/recorded_design.py, shown by
+cli/material_report.py): no --design needed; the designed f per pixel is the analytic one, every band of r and the
+worst 2 mm window are delivered within 2 points, and a stack whose masks were swapped is caught."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from heoslice import procedural
+from heoslice.stack import read_manifest
+from heoslice.stack.read import read_layer_mask
+from heoslice.stack.recorded_design import field_comparison
+from heoslice.stack.report import pixel_position
+
+RADIUS = 6.0
+
+
+@pytest.fixture(scope="module")
+def sine_ball(tmp_path_factory):
+    """A 6 mm sphere coloured by a point-referenced sine of 3 periods, sliced in the field interior at 600 dpi
+    with 1 mm layers (12 layers): the folder and the stack."""
+    from helpers import in_process
+
+    folder = tmp_path_factory.mktemp("design")
+    procedural.sphere(radius=RADIUS, subdivisions=4).export(folder / "ball.ply")
+    assert in_process("color", folder / "ball.ply", "--ref", "point", "--at", "0,0,0", "--func", "sine",
+                      "--periods", "3", "-o", folder / "ball_c.ply") == 0
+    assert in_process("slice", folder / "ball_c.ply", "--layer", "1", "--dpi", "600", "-j", "1",
+                      "-o", folder / "stack") == 0
+    return folder, folder / "stack"
+
+
+def test_the_recorded_design_is_the_analytic_sine_at_every_solid_pixel(sine_ball):
+    """The designed target share the manifest's design gives each solid pixel is 0.5 sin(6 pi r) + 0.5 with r the
+    pixel centre's distance to the centre over the largest vertex distance (written out here), within 1e-5."""
+    _, stack = sine_ball
+    manifest = read_manifest(stack)
+    recorded = field_comparison(stack, manifest)
+    r_max = float(manifest["grading"]["design"]["range"]["mm"][1])
+    assert r_max == pytest.approx(RADIUS, rel=1e-3)
+    for index in (0, 5, 11):
+        solid = read_layer_mask(stack, manifest, index)
+        rows, cols = np.nonzero(solid)
+        x, y = pixel_position(manifest, (rows, cols))
+        r = np.sqrt(x ** 2 + y ** 2 + manifest["layers"][index]["z_mm"] ** 2) / r_max
+        expected = np.clip(0.5 * np.sin(6 * np.pi * r) + 0.5, 0, 1)
+        mix = recorded.design(index)
+        assert np.abs(mix[recorded.target][rows, cols] - expected).max() <= 1e-5
+        assert np.allclose(mix.sum(axis=0)[rows, cols], 1.0)
+        bands = recorded.bands(index, mix)
+        assert (bands[rows, cols] == np.minimum((r * 10).astype(int), 9)).mean() > 0.999
+
+
+def test_verify_compares_a_field_stack_with_its_recorded_design(sine_ball, run_cli):
+    """verify without --design: every band of r (10) and the worst 2 mm window within 2 points, no warning; the
+    text names the bands of r."""
+    _, stack = sine_ball
+    code, out, err = run_cli("verify", stack, "--json")
+    assert code == 0, out + err
+    summary = json.loads(out)
+    assert summary["warnings"] == []
+    delivered = summary["delivered"]
+    assert delivered["design"] == {"from": "manifest", "bands_of": "r", "target": "M2"}
+    assert len(delivered["bands"]) == 10
+    assert all(abs(band["difference"]) <= 0.02 for band in delivered["bands"]), delivered["bands"]
+    assert sum(band["voxels"] for band in delivered["bands"]) == delivered["solid"]["voxels"]
+    assert abs(delivered["worst_window"]["difference"]) <= 0.02, delivered["worst_window"]
+    assert delivered["worst_window"]["solid_pixels"] >= 1100
+    code, out, err = run_cli("verify", stack)
+    assert code == 0 and err == ""
+    assert "  r 0.9-1.0: " in out and "  worst 2 mm window: layer " in out
+
+
+def test_a_stack_with_swapped_masks_fails_the_comparison(sine_ball, tmp_path, run_cli):
+    """Swapping the M1 and M2 masks of one layer (their files, hashes and counts, so the stack still verifies)
+    is caught: the worst window is far off and verify warns that the delivered material differs from the
+    design."""
+    _, stack = sine_ball
+    broken = tmp_path / "broken"
+    shutil.copytree(stack, broken)
+    manifest = json.loads((broken / "manifest.json").read_text())
+    first, second = manifest["layers"][6]["channels"]
+    a, b = (broken / first["file"]).read_bytes(), (broken / second["file"]).read_bytes()
+    (broken / first["file"]).write_bytes(b)
+    (broken / second["file"]).write_bytes(a)
+    for channel, data in ((first, b), (second, a)):
+        channel["sha256"] = hashlib.sha256(data).hexdigest()
+    first["solid_pixels"], second["solid_pixels"] = second["solid_pixels"], first["solid_pixels"]
+    (broken / "manifest.json").write_text(json.dumps(manifest))
+    code, out, err = run_cli("verify", broken, "--json")
+    summary = json.loads(out)
+    assert summary["problems"] == [], summary
+    assert abs(summary["delivered"]["worst_window"]["difference"]) > 0.1
+    assert summary["delivered"]["worst_window"]["layer"] == 6
+    assert any("differs from the design by more than 2 points" in line for line in summary["warnings"])
+    code, out, err = run_cli("verify", broken)
+    assert "differs from the design by more than 2 points" in err
+
+
+@pytest.mark.parametrize("change", ["missing", "changed"])
+def test_a_missing_or_changed_reference_surface_is_one_warning(sine_ball, tmp_path, run_cli, change):
+    """A recorded surface reference that is missing, or whose bytes changed: one warning line naming it, the
+    design not compared (no bands, no window), the stack still verified."""
+    folder, stack = sine_ball
+    copy = tmp_path / "stack"
+    shutil.copytree(stack, copy)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    path = tmp_path / "gone.ply" if change == "missing" else folder / "ball.ply"
+    manifest["grading"]["design"]["reference"] = {"kind": "surface", "path": str(path), "sha256": "0" * 64}
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    code, out, err = run_cli("verify", copy, "--json")
+    summary = json.loads(out)
+    assert code == 0 and len(summary["warnings"]) == 1, summary
+    assert str(path) in summary["warnings"][0] and "not compared with the design" in summary["warnings"][0]
+    assert ("missing" if change == "missing" else "changed") in summary["warnings"][0]
+    assert summary["delivered"]["design"] is None and summary["delivered"]["bands"] == []
+    assert summary["delivered"]["worst_window"] is None
