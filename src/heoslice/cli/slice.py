@@ -18,6 +18,7 @@ from heoslice.cli.common import (
 from heoslice.cli.options import flags, function_from_options, function_options, option
 from heoslice.cli.parts import GRADE_REFUSAL, is_parts_job, part_settings, report_parts
 from heoslice.errors import InputError
+from heoslice.grading.halftone import DEFAULT_METHOD, METHODS
 from heoslice.material import MaterialsFile, material_roles, read_materials_file
 from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, without_materials
 from heoslice.pipeline import SliceSpec, check_scale, plan_parts, slice_to_stack, slice_warnings
@@ -27,7 +28,7 @@ from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3
 SPEC_FLAGS = {
     "layer_height_mm": "--layer", "dpi": "--dpi", "margin_mm": "--margin", "canvas_mm": "--canvas",
     "compression": "--compress", "jobs": "--jobs", "channels": "--channels", "materials": "--materials",
-    "scale": "--scale",
+    "scale": "--scale", "halftone": "--halftone",
 }
 
 
@@ -144,6 +145,7 @@ Graded interiors (the paper's Fig. 3b, 9b):
   heoslice slice vase.ply --grade linear --to 0,255,0 --offsets 200
   heoslice slice liver.ply --grade sine --periods 2 --to M2 --depth 10
   heoslice slice part.ply --grade linear --from M1 --to M2 --direction out --materials mats.toml
+  heoslice slice liver.ply --grade linear --to M2 --halftone error-diffusion
 \b
 Several parts in one stack (a multi-part job; one 1-bit droplet mask per material per layer):
   heoslice slice liver.stl lesion.stl vessels.stl --materials mats.toml -o liver_stack   # mats.toml has [parts]
@@ -196,6 +198,9 @@ Several parts in one stack (a multi-part job; one 1-bit droplet mask per materia
                    "print job), or an RGBA preview stack in the materials' display colours instead "
                    "[default: masks whenever the stack holds more than one material; a one-material "
                    "model stays a solid mask either way].")
+@click.option("--halftone", type=click.Choice(list(METHODS)), default=DEFAULT_METHOD, show_default=True,
+              help="How each pixel's mix becomes one material's droplet: "
+                   + "; ".join(f"{name}: {line}" for name, line in METHODS.items()) + ".")
 @click.option("--solid", "solid_only", is_flag=True,
               help="One material: ignore the mesh's material fractions and colours (a 1-bit solid mask per "
                    "layer; not with --grade or --channels).")
@@ -212,8 +217,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
               grade_kind: str | None, alpha: float | None, beta: float | None, lam: float | None,
               periods: float | None, expression: str | None, target: str | None, start: str | None,
               nozzle: float, depth: float | None, offset_count: int | None, direction: str,
-              materials_file: Path | None, channels: bool | None, solid_only: bool, parts_flag: bool,
-              part_options: tuple[str, ...]) -> None:
+              materials_file: Path | None, channels: bool | None, halftone: str, solid_only: bool,
+              parts_flag: bool, part_options: tuple[str, ...]) -> None:
     """Slice each MODEL (PLY, STL, OBJ, OFF, 3MF) into one TIFF per layer plus manifest.json.
 
     Layers are cut at their centres, z = z_min + (i + 1/2) x layer; a pixel is solid
@@ -250,7 +255,7 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     try:
         spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
                          canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
-                         grade=grade, channels=channels, materials=materials_table(materials))
+                         grade=grade, channels=channels, materials=materials_table(materials), halftone=halftone)
     except InputError as err:
         raise flag_error(err) from None
     inputs = expand_inputs(models)

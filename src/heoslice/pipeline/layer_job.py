@@ -20,6 +20,7 @@ from heoslice.stack.tiff import deflate_level
 
 if TYPE_CHECKING:  # the grading package loads its kernels and shapely: a one-material slice never imports it
     from heoslice.grading import GradeSpec, GradingCache
+    from heoslice.grading.diffusion import DiffusionCarry
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,18 +39,22 @@ class PipelineCache:
 
     ``grading`` is the grading stage's own cache (sub-regions, rings, choice table), handed to it
     unchanged; ``solid`` the last 1-bit layer's encoding. One cache per process, kept from run to run
-    (the same slice); a worker starts from a copy of the one its parent's first layer filled.
+    (the same slice); a worker starts from a copy of the one its parent's first layer filled. ``carry`` is
+    not a cache but state: the error an error-diffusion halftone leaves to the next layer
+    (:class:`heoslice.grading.diffusion.DiffusionCarry`), dropped where a run of planes starts
+    (:func:`heoslice.pipeline.runs.slice_run`).
     """
 
     grading: GradingCache | None = None
     solid: EncodedSolid | None = None
+    carry: DiffusionCarry | None = None
 
 
 @dataclass(frozen=True)
 class GradedJob:
     """The extra a graded layer needs: its loops' signed areas, parents and shells ((l,), within
     the layer), the contour points' material mixes ((p, K) float over the channel materials, or None),
-    and the channel files."""
+    the channel files, and the halftoning method of the droplet masks."""
 
     spec: GradeSpec
     area: np.ndarray
@@ -57,6 +62,7 @@ class GradedJob:
     loop_shell: np.ndarray | None
     point_material: np.ndarray | None
     channel_paths: tuple[Path, ...] | None
+    halftone: str = "ordered"
 
 
 @dataclass(frozen=True)
@@ -126,12 +132,17 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
     if cache is not None and cache.grading is None:
         cache.grading = GradingCache()
     grading_cache = None if cache is None else cache.grading
+    if cache is not None and cache.carry is None and graded.halftone == "error-diffusion":
+        from heoslice.grading.diffusion import DiffusionCarry
+
+        cache.carry = DiffusionCarry()
     started = time.perf_counter()
     packed, solid = packed_mask_and_count(job.points, job.offsets, job.grid)
     if graded.channel_paths is not None:
         planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, None,
                                 job.grid, graded.spec, job.index, point_material=graded.point_material,
-                                packed=packed, cache=grading_cache)
+                                packed=packed, cache=grading_cache, method=graded.halftone,
+                                carry=None if cache is None else cache.carry)
         rendered = time.perf_counter()
         width, rows = job.grid.width, part_rows(job.points, job.grid)
         level = deflate_level(True)
@@ -184,6 +195,7 @@ def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, dire
                 point_material=point_material,
                 channel_paths=tuple(directory / layer_file_name(index, channel_name(m)) for m in materials)
                 if spec.channels else None,
+                halftone=spec.halftone,
             )
         yield LayerJob(
             index=index,

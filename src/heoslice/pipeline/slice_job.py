@@ -152,7 +152,7 @@ def _grading(spec: SliceSpec) -> dict | None:
     """The manifest's ``grading`` object: the grading's, a multi-part job's droplet masks', or None."""
     if spec.parts is not None:
         return droplet_summary(spec.parts.materials) if spec.parts.channels else None
-    return None if spec.grade is None else grading_summary(spec.grade)
+    return None if spec.grade is None else grading_summary(spec.grade, spec.halftone if spec.channels else None)
 
 
 def _channel_records(materials: tuple, written: tuple) -> tuple[ChannelRecord, ...]:

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from heoslice.errors import InputError, shown
+from heoslice.grading.halftone import DEFAULT_METHOD, check_method
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION
 
 if TYPE_CHECKING:  # the grading package loads its kernels and shapely: a one-material slice never imports it
@@ -63,7 +64,8 @@ class SliceSpec:
     than one material, False for an RGBA preview stack instead; ``materials`` is the materials table a
     mesh's colours map to (empty: the built-in M1, M2). :func:`heoslice.pipeline.material_job` settles
     both for a mesh.
-    ``parts`` makes the slice a multi-part job (:mod:`heoslice.pipeline.parts`; not graded).
+    ``parts`` makes the slice a multi-part job (:mod:`heoslice.pipeline.parts`; not graded). ``halftone`` is
+    how a graded layer's mix becomes droplets (:data:`heoslice.grading.halftone.METHODS`).
     """
 
     layer_height_mm: float = 0.1
@@ -78,8 +80,13 @@ class SliceSpec:
     #: Segments sliced and chained at once; bounds memory (a few hundred bytes per segment).
     max_segments: int = 50_000
     parts: PartsPlan | None = None
+    halftone: str = DEFAULT_METHOD
 
     def __post_init__(self):
+        try:
+            check_method(self.halftone)
+        except ValueError as err:
+            raise InputError(str(err)) from None
         if self.compression not in COMPRESSIONS:
             raise InputError(f"compression: unknown compression {self.compression!r}; "
                              f"choose one of {', '.join(COMPRESSIONS)}")

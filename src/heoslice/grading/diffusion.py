@@ -1,0 +1,106 @@
+"""Error diffusion for K materials: each solid pixel takes the material nearest its mix plus the error that
+reached it, and passes the difference on (the ``error-diffusion`` halftone of :mod:`.halftone`).
+
+Vector error diffusion (Jarvis, Judice and Ninke's weights, serpentine rows) over the mix of K materials: the
+material taken is the largest component of the corrected mix among those the pixel holds, so a region of
+one material stays pure. A share :data:`LAYER_SHARE` of each pixel's error goes to the same pixel of the
+next layer (:class:`DiffusionCarry`), so that a column that took one material is pushed towards the
+others one layer up and columns do not line up from layer to layer; the rest goes to the pixels after it
+in the layer. The error is carried from layer to layer within one run of planes of a slice (consecutive
+layers rendered by one process, :func:`heoslice.pipeline.runs.slice_run`) and starts afresh at a run's
+first layer, so a stack does not depend on how many processes made it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from heoslice.grading.diffusion_kernels import _diffuse, _pixel_mixes
+from heoslice.grading.droplets_kernels import LabelledLayer, LayerMixes
+from heoslice.jit import f32, i64
+
+#: Jarvis, Judice and Ninke's weights (1976): this row (ahead of the pixel) and the two below it, columns
+#: -2 .. 2 along the row's direction, summing to 1. Over a constant 30 % mix they leave half the low-frequency
+#: noise Floyd-Steinberg's four weights do once layers are decorrelated (benchmarks/bench_halftone.py).
+JARVIS_JUDICE_NINKE = np.array([[0, 0, 0, 7, 5], [3, 5, 7, 5, 3], [1, 3, 5, 3, 1]], dtype=np.float32) / 48
+#: The share of a pixel's error carried to the same pixel of the next layer (the rest stays in the layer): a
+#: little is enough to decorrelate the layers; more adds low-frequency noise (benchmarks/bench_halftone.py).
+LAYER_SHARE = 0.02
+
+
+@dataclass(slots=True)
+class DiffusionCarry:
+    """The error a layer's diffusion leaves to the next: its layer index, the top-left pixel (row, col) of the
+    box it covers, and per pixel of the box the error per material ((rows, cols, K) float32). State handed
+    from one layer to the next, not a cache: it changes what the next layer jets."""
+
+    layer: int = -1
+    origin: tuple[int, int] = (0, 0)
+    error: np.ndarray | None = None
+
+    def incoming(self, layer: int, origin: tuple[int, int], shape: tuple[int, int, int]) -> np.ndarray:
+        """The error reaching ``layer``'s box (``shape`` (rows, cols, K) at ``origin``): the part of the
+        carried box it overlaps when the carry is the layer before's with the same K, zeros elsewhere."""
+        incoming = np.zeros(shape, dtype=np.float32)
+        error = self.error
+        if error is None or self.layer != layer - 1 or error.shape[2] != shape[2]:
+            return incoming
+        top, left = max(origin[0], self.origin[0]), max(origin[1], self.origin[1])
+        bottom = min(origin[0] + shape[0], self.origin[0] + error.shape[0])
+        right = min(origin[1] + shape[1], self.origin[1] + error.shape[1])
+        if top < bottom and left < right:
+            incoming[top - origin[0]:bottom - origin[0], left - origin[1]:right - origin[1]] = \
+                error[top - self.origin[0]:bottom - self.origin[0], left - self.origin[1]:right - self.origin[1]]
+        return incoming
+
+    def keep(self, layer: int, origin: tuple[int, int], error: np.ndarray) -> None:
+        """Hold ``layer``'s outgoing error (its box at ``origin``) for the next layer."""
+        self.layer, self.origin, self.error = int(layer), (int(origin[0]), int(origin[1])), error
+
+
+def _diffused(mix: np.ndarray, layer: int, carry: DiffusionCarry | None, origin: tuple[int, int],
+              planes: np.ndarray, at: tuple[int, int]) -> np.ndarray:
+    """Diffuse ``mix`` ((rows, cols, K) float32) of ``layer`` into ``planes`` at pixel ``at`` (row, col), the
+    error from ``carry`` (the layer before's; None: none) coming in and this layer's kept there."""
+    incoming = (np.zeros(mix.shape, np.float32) if carry is None
+                else carry.incoming(layer, origin, mix.shape))
+    _diffuse(f32(mix), incoming, JARVIS_JUDICE_NINKE, float(LAYER_SHARE), int(layer) & 1, planes, int(at[0]), int(at[1]))
+    if carry is not None:
+        carry.keep(layer, origin, incoming)
+    return planes
+
+
+def diffuse_mix(mix: np.ndarray, layer: int, carry: DiffusionCarry | None = None,
+                origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """The droplet masks ((K, rows, cols) bool) of a per-pixel mix ((rows, cols, K) float, rows summing to 1
+    at solid pixels, 0 at empty ones) by error diffusion; the box's top-left pixel is ``origin`` of the
+    layer (it places the carried error). ``carry``, when given, brings the layer before's error and takes
+    this layer's."""
+    mix = f32(mix)
+    rows, cols, count = mix.shape
+    planes = np.zeros((count, rows, -(-cols // 8)), dtype=np.uint8)
+    _diffused(mix, layer, carry, origin, planes, (0, 0))
+    return np.unpackbits(planes, axis=2, count=cols).view(bool)
+
+
+def diffused_planes(layer: LabelledLayer, mixing: LayerMixes, base_channel: int, index: int,
+                    planes: np.ndarray, carry: DiffusionCarry | None) -> np.ndarray:
+    """The droplet masks of a labelled layer (``index``) by error diffusion, into ``planes`` ((K, h, ceil(w/8))
+    uint8, zero): the label box's per-pixel mix (:func:`heoslice.grading.diffusion_kernels._pixel_mixes`)
+    diffused, and every solid pixel outside the box on ``base_channel``."""
+    label = layer.label
+    rows = label.shape[0]
+    if rows > 1 and label.strides[0] == 0:
+        label = label[:1]
+    origin = (int(layer.row0), int(layer.col0))
+    mix = np.zeros((rows, label.shape[1], planes.shape[0]), dtype=np.float32)
+    packed = np.ascontiguousarray(layer.packed)
+    _pixel_mixes((np.ascontiguousarray(label), origin[0], origin[1], packed, rows),
+                 (i64(mixing.family_of_label), f32(mixing.fraction), i64(mixing.layout), f32(mixing.mixes),
+                  f32(mixing.target)), int(base_channel), mix)
+    _diffused(mix, index, carry, origin, planes, origin)
+    taken = np.bitwise_or.reduce(planes, axis=0)
+    planes[base_channel] |= packed & ~taken
+    return planes
