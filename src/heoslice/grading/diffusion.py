@@ -28,6 +28,8 @@ JARVIS_JUDICE_NINKE = np.array([[0, 0, 0, 7, 5], [3, 5, 7, 5, 3], [1, 3, 5, 3, 1
 #: The share of a pixel's error carried to the same pixel of the next layer (the rest stays in the layer): a
 #: little is enough to decorrelate the layers; more adds low-frequency noise (benchmarks/bench_halftone.py).
 LAYER_SHARE = 0.02
+#: The share of the blue-noise halftone's choice less the mix that a region's first row starts from (:func:`top_error`).
+TOP_SHARE = 0.5
 
 
 @dataclass(slots=True)
@@ -40,16 +42,16 @@ class DiffusionCarry:
     origin: tuple[int, int] = (0, 0)
     error: np.ndarray | None = None
 
-    def incoming(self, layer: int, origin: tuple[int, int], shape: tuple[int, int, int]) -> np.ndarray:
-        """The error reaching ``layer``'s box (``shape`` (rows, cols, K) at ``origin``): the part of the
-        carried box it overlaps when the carry is the layer before's with the same K, zeros elsewhere."""
-        incoming = np.zeros(shape, dtype=np.float32)
+    def incoming(self, layer: int, origin: tuple[int, int], mix: np.ndarray) -> np.ndarray | None:
+        """The error reaching ``layer``'s box (``mix`` (rows, cols, K) at ``origin``) when the carry is the
+        layer before's with the same K: the part of the carried box it overlaps, zeros elsewhere; else None."""
         error = self.error
-        if error is None or self.layer != layer - 1 or error.shape[2] != shape[2]:
-            return incoming
+        if error is None or self.layer != layer - 1 or error.shape[2] != mix.shape[2]:
+            return None
+        incoming = np.zeros(mix.shape, dtype=np.float32)
         top, left = max(origin[0], self.origin[0]), max(origin[1], self.origin[1])
-        bottom = min(origin[0] + shape[0], self.origin[0] + error.shape[0])
-        right = min(origin[1] + shape[1], self.origin[1] + error.shape[1])
+        bottom = min(origin[0] + mix.shape[0], self.origin[0] + error.shape[0])
+        right = min(origin[1] + mix.shape[1], self.origin[1] + error.shape[1])
         if top < bottom and left < right:
             incoming[top - origin[0]:bottom - origin[0], left - origin[1]:right - origin[1]] = \
                 error[top - self.origin[0]:bottom - self.origin[0], left - self.origin[1]:right - self.origin[1]]
@@ -60,13 +62,54 @@ class DiffusionCarry:
         self.layer, self.origin, self.error = int(layer), (int(origin[0]), int(origin[1])), error
 
 
+def fresh_error(mix: np.ndarray, layer: int, origin: tuple[int, int]) -> np.ndarray:
+    """What stands in for the layer before's error where there is none (a run's first layer): :data:`LAYER_SHARE`
+    of the error the blue-noise halftone of the same mix would leave ((rows, cols, K) float32), so that such a
+    layer starts from an error that varies from pixel to pixel and from layer to layer, as a carried one
+    does, rather than from zero (whose first rows would all take the largest share's material)."""
+    from heoslice.grading.halftone import halftone
+
+    error = mix - np.moveaxis(halftone(mix, layer, "blue-noise", origin=origin), 0, 2)
+    return (np.float32(LAYER_SHARE) * error).astype(np.float32)
+
+
+def top_error(mix: np.ndarray, layer: int, origin: tuple[int, int]) -> np.ndarray:
+    """(rows, cols, K) float32: at the pixels where a material's mixed region starts from above (the pixel mixes
+    it with others, the one above does not: it is of one material, or empty, or the box's first row),
+    :data:`TOP_SHARE` of the blue-noise halftone's choice there less the mix, for those materials; 0 elsewhere.
+    No error reaches such a pixel from the rows above: without it a material of small share would start only
+    rows into its region (the error building up from nothing); with it the region's first row starts as the
+    blue-noise halftone would, from an error spread as a running diffusion's is."""
+    held = mix > 0
+    passing = held & (held.sum(axis=2, keepdims=True) > 1)  # the pixels that pass a material's error on
+    top = passing.copy()
+    top[1:] &= ~passing[:-1]
+    rows, cols = np.nonzero(top.any(axis=2))
+    out = np.zeros(mix.shape, dtype=np.float32)
+    if len(rows):
+        from heoslice.grading.halftone import BLUE_TILE, layer_tile
+
+        tile = layer_tile(layer, "blue-noise").astype(np.float32)
+        threshold = tile[(rows + origin[0]) % BLUE_TILE, (cols + origin[1]) % BLUE_TILE]
+        shares = mix[rows, cols]
+        running = np.cumsum(shares, axis=1, dtype=np.float32)
+        jetted = np.minimum((threshold[:, None] * running[:, -1:] >= running).sum(axis=1), mix.shape[2] - 1)
+        taken = jetted[:, None] == np.arange(mix.shape[2])
+        out[rows, cols] = np.where(top[rows, cols], np.float32(TOP_SHARE) * (taken - shares), 0.0)
+    return out
+
+
 def _diffused(mix: np.ndarray, layer: int, carry: DiffusionCarry | None, origin: tuple[int, int],
               planes: np.ndarray, at: tuple[int, int]) -> np.ndarray:
     """Diffuse ``mix`` ((rows, cols, K) float32) of ``layer`` into ``planes`` at pixel ``at`` (row, col), the
-    error from ``carry`` (the layer before's; None: none) coming in and this layer's kept there."""
-    incoming = (np.zeros(mix.shape, np.float32) if carry is None
-                else carry.incoming(layer, origin, mix.shape))
-    _diffuse(f32(mix), incoming, JARVIS_JUDICE_NINKE, float(LAYER_SHARE), int(layer) & 1, planes, int(at[0]), int(at[1]))
+    error from ``carry`` (the layer before's; None, or another layer's: :func:`fresh_error`) coming in, with
+    :func:`top_error` where regions start, and this layer's kept there."""
+    incoming = None if carry is None else carry.incoming(layer, origin, mix)
+    if incoming is None:
+        incoming = fresh_error(mix, layer, origin)
+    incoming += top_error(mix, layer, origin)
+    _diffuse(f32(mix), incoming, JARVIS_JUDICE_NINKE, float(LAYER_SHARE), int(layer) & 1, planes, int(at[0]),
+             int(at[1]))
     if carry is not None:
         carry.keep(layer, origin, incoming)
     return planes

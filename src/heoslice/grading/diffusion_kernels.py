@@ -68,58 +68,85 @@ def _diffuse(mix, carry, weights, layer_share, flip, planes, r0, c0):  # pragma:
     K) float32) is largest. The difference between the corrected mix and the material taken goes to the
     pixels after it by ``weights`` ((3, 5) float32: this row and the two below, columns -2 .. 2 along the
     row's direction, summing to 1) times 1 - ``layer_share``, and ``layer_share`` of it to the same pixel of
-    the next layer (written in place into ``carry``). A pixel of one material takes it and passes no error
-    on, and the errors of the materials a pixel does not hold stop there, so a region of one material stays
-    pure. Rows run left to right when (row + flip) is even, else right to left."""
+    the next layer (written in place into ``carry``). A material's error goes only to the pixels after it that
+    mix the material with others, its weights scaled up to make up for those that do not (so the error stays in its
+    region and the region's total is kept); a pixel of one material takes it and passes no error on, so a
+    region of one material stays pure. Rows run left to right when (row + flip) is even, else right to left."""
     rows, cols, channels = mix.shape
+    mixed = np.zeros((rows, cols), dtype=np.bool_)  # the pixels that hold more than one material
+    for r in range(rows):
+        for c in range(cols):
+            held = 0
+            for m in range(channels):
+                held += mix[r, c, m] > np.float32(0.0)
+            mixed[r, c] = held > 1
     errors = np.zeros((3, cols + 4, channels), dtype=np.float32)
     share = np.float32(layer_share)
-    taps = 0  # the nonzero weights: row below, column offset, weight times 1 - share
+    kept = weights
+    ahead_1, ahead_2 = kept[0, 3], kept[0, 4]
+    taps = 0  # the nonzero weights: rows below, columns along the row's direction, weight
     tap_row = np.empty(15, dtype=np.int64)
     tap_col = np.empty(15, dtype=np.int64)
     tap_weight = np.empty(15, dtype=np.float32)
     for dr in range(3):
         for dc in range(5):
             if weights[dr, dc] != np.float32(0.0):
-                tap_row[taps], tap_col[taps] = dr, dc - 2
-                tap_weight[taps] = weights[dr, dc] * (np.float32(1.0) - share)
+                tap_row[taps], tap_col[taps], tap_weight[taps] = dr, dc - 2, weights[dr, dc]
                 taps += 1
-    error = np.empty(channels, dtype=np.float32)
+    left = np.zeros((cols + 4, channels), dtype=np.float32)  # each pixel's error, for the rows below
     for r in range(rows):
         errors[0, :, :] = errors[1]
         errors[1, :, :] = errors[2]
         errors[2, :, :] = 0.0
+        left[:, :] = 0.0
         forward = ((r + flip) & 1) == 0
         step = 1 if forward else -1
         row = r0 + r
         for k in range(cols):
             c = k if forward else cols - 1 - k
-            shares = mix[r, c]
             held, pick = 0, 0
             best = -np.inf
             for m in range(channels):
-                if shares[m] > np.float32(0.0):
+                share_m = mix[r, c, m]
+                if share_m > np.float32(0.0):
                     held += 1
-                    value = shares[m] + errors[0, c + 2, m] + carry[r, c, m]
-                    error[m] = value
+                    value = share_m + errors[0, c + 2, m] + carry[r, c, m]
+                    left[c + 2, m] = value
                     if value > best:
                         best, pick = value, m
-                else:
-                    error[m] = np.float32(0.0)
             if held == 0:
                 continue
             if held > 1:
-                error[pick] -= np.float32(1.0)
-                for t in range(taps):
-                    line = errors[tap_row[t], c + 2 + step * tap_col[t]]
-                    w = tap_weight[t]
-                    for m in range(channels):
-                        line[m] += error[m] * w
+                left[c + 2, pick] -= np.float32(1.0)
                 for m in range(channels):
-                    carry[r, c, m] = error[m] * share
+                    if mix[r, c, m] <= np.float32(0.0):
+                        continue
+                    # the weights of the pixels after it that hold this material: its error is shared among them
+                    reach = np.float32(0.0)
+                    for t in range(taps):
+                        rr, cc = r + tap_row[t], c + step * tap_col[t]
+                        if rr < rows and 0 <= cc < cols and mixed[rr, cc] and mix[rr, cc, m] > np.float32(0.0):
+                            reach += tap_weight[t]
+                    error = left[c + 2, m]
+                    carry[r, c, m] = error * share
+                    error = error * (np.float32(1.0) - share) / reach if reach > np.float32(0.0) else np.float32(0.0)
+                    left[c + 2, m] = error
+                    errors[0, c + 2 + step, m] += error * ahead_1
+                    errors[0, c + 2 + 2 * step, m] += error * ahead_2
             else:
+                left[c + 2, pick] = np.float32(0.0)
                 for m in range(channels):
                     carry[r, c, m] = np.float32(0.0)
             col = c0 + c
             planes[pick, row, col >> 3] |= np.uint8(0x80 >> (col & 7))
+        # the rows below take each pixel's error by their weights, mirrored on a row run right to left
+        for below in range(1, 3):
+            for dc in range(5):
+                w = kept[below, dc if forward else 4 - dc]
+                if w == np.float32(0.0):
+                    continue
+                shift = dc - 2
+                for c in range(max(0, -shift), min(cols, cols - shift)):
+                    for m in range(channels):
+                        errors[below, c + 2 + shift, m] += left[c + 2, m] * w
     return planes
