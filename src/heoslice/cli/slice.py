@@ -22,13 +22,14 @@ from heoslice.grading.halftone import DEFAULT_METHOD, METHODS
 from heoslice.material import MaterialsFile, material_roles, read_materials_file
 from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, without_materials
 from heoslice.pipeline import SliceSpec, check_scale, plan_parts, slice_to_stack, slice_warnings
+from heoslice.pipeline.printers import PRESETS, PrinterPreset, presets_table, printer_preset
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, stack_volume_mm3
 
 #: SliceSpec and slice_to_stack parameters -> the options that set them (library errors name the parameter).
 SPEC_FLAGS = {
     "layer_height_mm": "--layer", "dpi": "--dpi", "margin_mm": "--margin", "canvas_mm": "--canvas",
     "compression": "--compress", "jobs": "--jobs", "channels": "--channels", "materials": "--materials",
-    "scale": "--scale", "halftone": "--halftone",
+    "scale": "--scale", "halftone": "--halftone", "printer": "--printer",
 }
 
 
@@ -139,6 +140,8 @@ Examples:
   heoslice slice part.stl --dpi 600x300 --canvas 200x150 --compress packbits
   heoslice slice scan.ply --scale 1000 --json   # a model in metres
   heoslice slice "scans/*.ply" --into stacks/   # one stack per model: stacks/NAME_stack
+  heoslice slice liver.ply --printer j750-27um  # the J750's 600x300 dpi grid and 27 um layers
+  heoslice slice --printer list                 # the printer presets
 \b
 Graded interiors (the paper's Fig. 3b, 9b):
   heoslice slice model.ply --grade linear --to 0,255,0 --nozzle 0.2
@@ -156,7 +159,7 @@ Several parts in one stack (a multi-part job; one 1-bit droplet mask per materia
   material nearest its one colour. Where parts overlap the higher [parts] priority wins, then
   the smaller part (so an enclosed lesion wins over its organ). Not graded: --grade is refused.
 """)
-@click.argument("models", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="MODEL...")
+@click.argument("models", nargs=-1, type=click.Path(path_type=Path), metavar="MODEL...")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
               help="Stack directory, for one model [default: ./MODEL_stack].")
 @click.option("--into", type=click.Path(path_type=Path, file_okay=False), default=None, metavar="DIR",
@@ -198,6 +201,9 @@ Several parts in one stack (a multi-part job; one 1-bit droplet mask per materia
                    "print job), or an RGBA preview stack in the materials' display colours instead "
                    "[default: masks whenever the stack holds more than one material; a one-material "
                    "model stays a solid mask either way].")
+@click.option("--printer", default=None, metavar="NAME",
+              help=f"Printer preset: its resolution, layer pitch, width padding and material limit in one word "
+                   f"({', '.join(PRESETS)}); 'list' shows them. An explicit --dpi or --layer must agree with it.")
 @click.option("--halftone", type=click.Choice(list(METHODS)), default=DEFAULT_METHOD, show_default=True,
               help="How each pixel's mix becomes one material's droplet: "
                    + "; ".join(f"{name}: {line}" for name, line in METHODS.items()) + ".")
@@ -217,8 +223,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
               grade_kind: str | None, alpha: float | None, beta: float | None, lam: float | None,
               periods: float | None, expression: str | None, target: str | None, start: str | None,
               nozzle: float, depth: float | None, offset_count: int | None, direction: str,
-              materials_file: Path | None, channels: bool | None, halftone: str, solid_only: bool,
-              parts_flag: bool, part_options: tuple[str, ...]) -> None:
+              materials_file: Path | None, channels: bool | None, printer: str | None, halftone: str,
+              solid_only: bool, parts_flag: bool, part_options: tuple[str, ...]) -> None:
     """Slice each MODEL (PLY, STL, OBJ, OFF, 3MF) into one TIFF per layer plus manifest.json.
 
     Layers are cut at their centres, z = z_min + (i + 1/2) x layer; a pixel is solid
@@ -236,6 +242,17 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     each go to their own stack; one that fails is reported and the others still run.
     With --parts (or --part, a 3MF, a [parts] table) they are the parts of one stack.
     """
+    if printer == "list":
+        click.echo("\n".join(presets_table()))
+        return
+    if not models:
+        raise click.UsageError("Missing argument 'MODEL...'.")
+    try:
+        preset = None if printer is None else printer_preset(printer)
+    except InputError as err:
+        raise flag_error(err) from None
+    if preset is not None:
+        layer_height, dpi = preset_grid(ctx, preset, layer_height, dpi)
     with option("--materials"):
         materials = read_materials_file(materials_file)  # the one read of the file: its tables are passed on
     if is_parts_job(models, parts_flag, part_options, materials):
@@ -255,7 +272,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     try:
         spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
                          canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
-                         grade=grade, channels=channels, materials=materials_table(materials), halftone=halftone)
+                         grade=grade, channels=channels, materials=materials_table(materials), halftone=halftone,
+                         printer=preset)
     except InputError as err:
         raise flag_error(err) from None
     inputs = expand_inputs(models)
@@ -267,6 +285,21 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     run_each(inputs, lambda model: slice_model(model, targets[model], spec, scale, force, as_json, inputs.several,
                                                solid_only),
              key="model", as_json=as_json, debug=(ctx.find_root().obj or {}).get("debug", False))
+
+
+def preset_grid(ctx: click.Context, preset: PrinterPreset, layer_height: float, dpi: str) -> tuple[float, str]:
+    """The layer height (mm) and --dpi text a printer preset slices at; InputError when --layer or --dpi was
+    given (on the command line or in heoslice.toml) with another value."""
+    wanted_dpi = f"{preset.dpi[0]:g}x{preset.dpi[1]:g}"
+    for name, flag, value, agrees in (
+            ("layer_height", "--layer", f"{layer_height:g} mm", lambda: float(layer_height) == preset.layer_mm),
+            ("dpi", "--dpi", str(dpi), lambda: parse_dpi(dpi) == preset.dpi)):
+        given = ctx.get_parameter_source(name) not in (click.core.ParameterSource.DEFAULT, None)
+        if given and not agrees():
+            wanted = f"{preset.layer_mm:g} mm" if name == "layer_height" else wanted_dpi
+            raise InputError(f"{flag}: {value} disagrees with --printer {preset.name} ({wanted}); give one or the "
+                             "other")
+    return preset.layer_mm, wanted_dpi
 
 
 def materials_table(materials: MaterialsFile) -> tuple:

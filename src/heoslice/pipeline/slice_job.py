@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -93,6 +94,9 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     job = material_job(mesh, spec)
     spec = job.spec
     grid = grid_for(mesh.bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
+    if spec.printer is not None:
+        _check_printer_materials(spec)
+        grid = replace(grid, width=-(-grid.width // spec.printer.pad_x_px) * spec.printer.pad_x_px)
     check_image_size(grid.width, grid.height)
     bounds = mesh.bounds
     limit = layer_limit(spec)
@@ -140,6 +144,14 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
         write_manifest(directory, manifest)
         times.total = time.perf_counter() - started
         return manifest, times
+
+
+def _check_printer_materials(spec: SliceSpec) -> None:
+    """Refuse a slice with more droplet-mask materials than its printer preset jets in one job."""
+    count = len(_droplet_materials(spec) or ()) or 1
+    if count > spec.printer.max_materials:
+        raise InputError(f"printer: {spec.printer.name} jets at most {spec.printer.max_materials} model materials "
+                         f"in one job; this slice has {count}")
 
 
 def _image_mode(spec: SliceSpec) -> str:

@@ -19,6 +19,7 @@ from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION
 if TYPE_CHECKING:  # the grading package loads its kernels and shapely: a one-material slice never imports it
     from heoslice.grading import GradeSpec
     from heoslice.pipeline.parts import PartsPlan
+    from heoslice.pipeline.printers import PrinterPreset
 
 MIN_LAYER_MM, MAX_LAYER_MM = 1e-3, 10_000.0
 MIN_DPI, MAX_DPI = 1.0, 100_000.0
@@ -65,7 +66,9 @@ class SliceSpec:
     mesh's colours map to (empty: the built-in M1, M2). :func:`heoslice.pipeline.material_job` settles
     both for a mesh.
     ``parts`` makes the slice a multi-part job (:mod:`heoslice.pipeline.parts`; not graded). ``halftone`` is
-    how a graded layer's mix becomes droplets (:data:`heoslice.grading.halftone.METHODS`).
+    how a graded layer's mix becomes droplets (:data:`heoslice.grading.halftone.METHODS`). ``printer`` (a
+    :class:`heoslice.pipeline.printers.PrinterPreset`) pads the image width to its multiple and limits the
+    materials; its resolution and layer pitch must be the spec's.
     """
 
     layer_height_mm: float = 0.1
@@ -81,8 +84,14 @@ class SliceSpec:
     max_segments: int = 50_000
     parts: PartsPlan | None = None
     halftone: str = DEFAULT_METHOD
+    printer: PrinterPreset | None = None
 
     def __post_init__(self):
+        if self.printer is not None and (tuple(map(float, self.dpi)) != self.printer.dpi
+                                         or float(self.layer_height_mm) != self.printer.layer_mm):
+            raise InputError(f"printer: {self.printer.name} slices at {self.printer.dpi[0]:g}x{self.printer.dpi[1]:g} "
+                             f"dpi and {self.printer.layer_mm:g} mm layers, not {self.dpi[0]:g}x{self.dpi[1]:g} dpi "
+                             f"and {self.layer_height_mm:g} mm")
         try:
             check_method(self.halftone)
         except ValueError as err:
