@@ -18,6 +18,9 @@ from pathlib import Path
 
 from heoslice.errors import InputError, OutputError
 
+#: Output names written as one zip file rather than a folder (a GrabCAD Voxel Print File is a zip).
+ZIP_SUFFIXES = (".zip", ".gcvf")
+
 
 @dataclass(frozen=True, slots=True)
 class ExportOptions:
@@ -40,7 +43,7 @@ class ExportFormat:
 
 
 class Sink:
-    """Files of one export: a folder, or a zip when the target ends in ``.zip``; written to a temporary
+    """Files of one export: a folder, or a zip when the target ends in ``.zip`` (or ``.gcvf``); written to a temporary
     name beside the target and moved into place by :meth:`commit`."""
 
     def __init__(self, target: Path, force: bool = False):
@@ -50,7 +53,7 @@ class Sink:
         parent = self.target.parent
         if not parent.is_dir():
             raise OutputError(f"{parent}: no such directory")
-        self.is_zip = self.target.suffix.lower() == ".zip"
+        self.is_zip = self.target.suffix.lower() in ZIP_SUFFIXES
         try:
             if self.is_zip:
                 handle, name = tempfile.mkstemp(prefix=f".{self.target.name}.", suffix=".partial", dir=parent)
