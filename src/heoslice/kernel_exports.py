@@ -83,7 +83,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     contours_kernels._chain_loops: (i8_1, i8_1),
     diffusion_kernels._pixel_mixes: lambda bits: (
         _layer(bits), types.Tuple((i8_1, f4_1, i8_2, f4_1, f4_1)), i8, f4_3),
-    diffusion_kernels._diffuse: (f4_3, f4_3, f4_2, f8, i8, u1_3, i8, i8),
+    diffusion_kernels._diffuse: (f4_3, f4_3, f4_2, f4_1, f4_2, i8, u1_3, i8, i8),
     droplets_kernels._agreed_choices: (f4_2, f4_1, f4_1, f4_1),
     droplets_kernels._droplet_bits: lambda bits: (
         _layer(bits), types.Tuple((i8_1, f4_1, i8_2, f4_1, f4_1)), types.Tuple((f4_2, i8_2, i1_2, i8)), u1_3),

@@ -28,7 +28,8 @@ JARVIS_JUDICE_NINKE = np.array([[0, 0, 0, 7, 5], [3, 5, 7, 5, 3], [1, 3, 5, 3, 1
 #: The share of a pixel's error carried to the same pixel of the next layer (the rest stays in the layer): a
 #: little is enough to decorrelate the layers; more adds low-frequency noise (benchmarks/bench_halftone.py).
 LAYER_SHARE = 0.02
-#: The share of the blue-noise halftone's choice less the mix that a region's first row starts from (:func:`top_error`).
+#: The share of the blue-noise halftone's choice less the mix that a region's first row starts from: no error reaches
+#: it from above, and without it a material of small share would start only rows into its region.
 TOP_SHARE = 0.5
 
 
@@ -73,43 +74,20 @@ def fresh_error(mix: np.ndarray, layer: int, origin: tuple[int, int]) -> np.ndar
     return (np.float32(LAYER_SHARE) * error).astype(np.float32)
 
 
-def top_error(mix: np.ndarray, layer: int, origin: tuple[int, int]) -> np.ndarray:
-    """(rows, cols, K) float32: at the pixels where a material's mixed region starts from above (the pixel mixes
-    it with others, the one above does not: it is of one material, or empty, or the box's first row),
-    :data:`TOP_SHARE` of the blue-noise halftone's choice there less the mix, for those materials; 0 elsewhere.
-    No error reaches such a pixel from the rows above: without it a material of small share would start only
-    rows into its region (the error building up from nothing); with it the region's first row starts as the
-    blue-noise halftone would, from an error spread as a running diffusion's is."""
-    held = mix > 0
-    passing = held & (held.sum(axis=2, keepdims=True) > 1)  # the pixels that pass a material's error on
-    top = passing.copy()
-    top[1:] &= ~passing[:-1]
-    rows, cols = np.nonzero(top.any(axis=2))
-    out = np.zeros(mix.shape, dtype=np.float32)
-    if len(rows):
-        from heoslice.grading.halftone import BLUE_TILE, layer_tile
-
-        tile = layer_tile(layer, "blue-noise").astype(np.float32)
-        threshold = tile[(rows + origin[0]) % BLUE_TILE, (cols + origin[1]) % BLUE_TILE]
-        shares = mix[rows, cols]
-        running = np.cumsum(shares, axis=1, dtype=np.float32)
-        jetted = np.minimum((threshold[:, None] * running[:, -1:] >= running).sum(axis=1), mix.shape[2] - 1)
-        taken = jetted[:, None] == np.arange(mix.shape[2])
-        out[rows, cols] = np.where(top[rows, cols], np.float32(TOP_SHARE) * (taken - shares), 0.0)
-    return out
-
-
 def _diffused(mix: np.ndarray, layer: int, carry: DiffusionCarry | None, origin: tuple[int, int],
               planes: np.ndarray, at: tuple[int, int]) -> np.ndarray:
     """Diffuse ``mix`` ((rows, cols, K) float32) of ``layer`` into ``planes`` at pixel ``at`` (row, col), the
-    error from ``carry`` (the layer before's; None, or another layer's: :func:`fresh_error`) coming in, with
-    :func:`top_error` where regions start, and this layer's kept there."""
+    error from ``carry`` (the layer before's; None, or another layer's: :func:`fresh_error`) coming in, regions
+    starting from the blue-noise halftone's choice (:data:`TOP_SHARE`), and this layer's error kept there."""
+    from heoslice.grading.halftone import layer_tile
+
     incoming = None if carry is None else carry.incoming(layer, origin, mix)
     if incoming is None:
         incoming = fresh_error(mix, layer, origin)
-    incoming += top_error(mix, layer, origin)
-    _diffuse(f32(mix), incoming, JARVIS_JUDICE_NINKE, float(LAYER_SHARE), int(layer) & 1, planes, int(at[0]),
-             int(at[1]))
+    # the layer's blue-noise thresholds, indexed by the planes' pixels (the box's pixel (0, 0) at ``at``)
+    start = f32(np.roll(layer_tile(layer, "blue-noise"), (at[0] - origin[0], at[1] - origin[1]), axis=(0, 1)))
+    _diffuse(f32(mix), incoming, JARVIS_JUDICE_NINKE, np.array([LAYER_SHARE, TOP_SHARE], dtype=np.float32), start,
+             int(layer) & 1, planes, int(at[0]), int(at[1]))
     if carry is not None:
         carry.keep(layer, origin, incoming)
     return planes

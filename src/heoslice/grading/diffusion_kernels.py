@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from heoslice.grading.droplets_kernels import _moved_sums
-from heoslice.jit import EXACT, kernel
+from heoslice.jit import EXACT, helper, kernel
 
 
 @kernel(EXACT, label_arg=0)
@@ -58,8 +58,24 @@ def _pixel_mixes(layer, mixing, base_channel, out):  # pragma: no cover - compil
     return out
 
 
+@helper(EXACT)
+def _held_signature(mix, r, c, channels):  # pragma: no cover - compiled
+    """The materials pixel (r, c) mixes, as bits (bit m: it holds material m), when it holds two or more; 0 for
+    a pixel of one material or none; -1 for a mix of more than 62 materials (no bit set for them)."""
+    bits = np.int64(0)
+    held = 0
+    for m in range(channels):
+        if mix[r, c, m] > np.float32(0.0):
+            held += 1
+            if m < 62:
+                bits |= np.int64(1) << m
+    if held < 2:
+        return np.int64(0)
+    return bits if channels <= 62 else np.int64(-1)
+
+
 @kernel(EXACT)
-def _diffuse(mix, carry, weights, layer_share, flip, planes, r0, c0):  # pragma: no cover - compiled
+def _diffuse(mix, carry, weights, shares, start, flip, planes, r0, c0):  # pragma: no cover - compiled
     """Serpentine vector error diffusion of ``mix`` ((rows, cols, K) float32, all 0 at empty pixels) into the
     bit-packed ``planes`` ((K, h, ceil(w / 8)) uint8, the box's pixel (0, 0) at (r0, c0); bits only set).
 
@@ -67,23 +83,22 @@ def _diffuse(mix, carry, weights, layer_share, flip, planes, r0, c0):  # pragma:
     arriving at it (from the pixels before it in the layer, and ``carry``: the layer before's, (rows, cols,
     K) float32) is largest. The difference between the corrected mix and the material taken goes to the
     pixels after it by ``weights`` ((3, 5) float32: this row and the two below, columns -2 .. 2 along the
-    row's direction, summing to 1) times 1 - ``layer_share``, and ``layer_share`` of it to the same pixel of
-    the next layer (written in place into ``carry``). A material's error goes only to the pixels after it that
-    mix the material with others, its weights scaled up to make up for those that do not (so the error stays in its
-    region and the region's total is kept); a pixel of one material takes it and passes no error on, so a
-    region of one material stays pure. Rows run left to right when (row + flip) is even, else right to left."""
+    row's direction, summing to 1) times 1 - ``shares[0]``, and ``shares[0]`` of it to the same pixel of the
+    next layer (written in place into ``carry``; 0 at empty pixels). A material's error goes only to the
+    pixels after it that mix the material with others, its weights scaled up to make up for those that do not
+    (so the error stays in its region and the region's total is kept); a pixel of one material takes it and
+    passes no error on, so a region of one material stays pure. Where a material's mixed region starts from
+    above (no error comes from the rows above), ``shares[1]`` times the choice of the threshold mask
+    ``start`` ((n, n) float32 thresholds, n a power of two, anchored at the layer's pixel (0, 0)) less the mix
+    is added to what arrives. Rows run left to right when (row + flip) is even, else right to left."""
     rows, cols, channels = mix.shape
-    mixed = np.zeros((rows, cols), dtype=np.bool_)  # the pixels that hold more than one material
+    layer_share, top_share = np.float32(shares[0]), np.float32(shares[1])
+    wrap = start.shape[0] - 1
+    signature = np.empty((rows, cols), dtype=np.int64)
     for r in range(rows):
         for c in range(cols):
-            held = 0
-            for m in range(channels):
-                held += mix[r, c, m] > np.float32(0.0)
-            mixed[r, c] = held > 1
+            signature[r, c] = _held_signature(mix, r, c, channels)
     errors = np.zeros((3, cols + 4, channels), dtype=np.float32)
-    share = np.float32(layer_share)
-    kept = weights
-    ahead_1, ahead_2 = kept[0, 3], kept[0, 4]
     taps = 0  # the nonzero weights: rows below, columns along the row's direction, weight
     tap_row = np.empty(15, dtype=np.int64)
     tap_col = np.empty(15, dtype=np.int64)
@@ -93,6 +108,8 @@ def _diffuse(mix, carry, weights, layer_share, flip, planes, r0, c0):  # pragma:
             if weights[dr, dc] != np.float32(0.0):
                 tap_row[taps], tap_col[taps], tap_weight[taps] = dr, dc - 2, weights[dr, dc]
                 taps += 1
+    ahead_1, ahead_2 = weights[0, 3], weights[0, 4]
+    kept = np.float32(1.0) - layer_share
     left = np.zeros((cols + 4, channels), dtype=np.float32)  # each pixel's error, for the rows below
     for r in range(rows):
         errors[0, :, :] = errors[1]
@@ -104,45 +121,69 @@ def _diffuse(mix, carry, weights, layer_share, flip, planes, r0, c0):  # pragma:
         row = r0 + r
         for k in range(cols):
             c = k if forward else cols - 1 - k
-            held, pick = 0, 0
+            own = signature[r, c]
+            col = c0 + c
+            if own == 0:  # empty, or one material: taken as it is, no error passed on
+                pick = -1
+                for m in range(channels):
+                    carry[r, c, m] = np.float32(0.0)
+                    if pick < 0 and mix[r, c, m] > np.float32(0.0):
+                        pick = m
+                if pick >= 0:
+                    planes[pick, row, col >> 3] |= np.uint8(0x80 >> (col & 7))
+                continue
+            above = signature[r - 1, c] if r > 0 else np.int64(0)
+            starts = own != above or own == -1
+            chosen = channels - 1
+            if starts:  # the threshold mask's choice where a region starts from above
+                threshold = start[row & wrap, col & wrap]
+                running = np.float32(0.0)
+                for m in range(channels - 1):
+                    running += mix[r, c, m]
+                    if threshold < running:
+                        chosen = m
+                        break
+            pick = 0
             best = -np.inf
             for m in range(channels):
                 share_m = mix[r, c, m]
                 if share_m > np.float32(0.0):
-                    held += 1
                     value = share_m + errors[0, c + 2, m] + carry[r, c, m]
+                    if starts and (r == 0 or mix[r - 1, c, m] <= np.float32(0.0) or above == 0):
+                        value += top_share * ((np.float32(1.0) if m == chosen else np.float32(0.0)) - share_m)
                     left[c + 2, m] = value
                     if value > best:
                         best, pick = value, m
-            if held == 0:
-                continue
-            if held > 1:
-                left[c + 2, pick] -= np.float32(1.0)
-                for m in range(channels):
-                    if mix[r, c, m] <= np.float32(0.0):
-                        continue
-                    # the weights of the pixels after it that hold this material: its error is shared among them
+            left[c + 2, pick] -= np.float32(1.0)
+            # the pixels after it that mix as this one does take its error by their weights as they are
+            same = own != -1
+            for t in range(taps):
+                rr, cc = r + tap_row[t], c + step * tap_col[t]
+                if not (rr < rows and 0 <= cc < cols and signature[rr, cc] == own):
+                    same = False
+                    break
+            for m in range(channels):
+                if mix[r, c, m] <= np.float32(0.0):
+                    carry[r, c, m] = np.float32(0.0)
+                    continue
+                reach = np.float32(1.0)
+                if not same:
                     reach = np.float32(0.0)
                     for t in range(taps):
                         rr, cc = r + tap_row[t], c + step * tap_col[t]
-                        if rr < rows and 0 <= cc < cols and mixed[rr, cc] and mix[rr, cc, m] > np.float32(0.0):
+                        if rr < rows and 0 <= cc < cols and signature[rr, cc] != 0 and mix[rr, cc, m] > 0.0:
                             reach += tap_weight[t]
-                    error = left[c + 2, m]
-                    carry[r, c, m] = error * share
-                    error = error * (np.float32(1.0) - share) / reach if reach > np.float32(0.0) else np.float32(0.0)
-                    left[c + 2, m] = error
-                    errors[0, c + 2 + step, m] += error * ahead_1
-                    errors[0, c + 2 + 2 * step, m] += error * ahead_2
-            else:
-                left[c + 2, pick] = np.float32(0.0)
-                for m in range(channels):
-                    carry[r, c, m] = np.float32(0.0)
-            col = c0 + c
+                error = left[c + 2, m]
+                carry[r, c, m] = error * layer_share
+                error = error * kept / reach if reach > np.float32(0.0) else np.float32(0.0)
+                left[c + 2, m] = error
+                errors[0, c + 2 + step, m] += error * ahead_1
+                errors[0, c + 2 + 2 * step, m] += error * ahead_2
             planes[pick, row, col >> 3] |= np.uint8(0x80 >> (col & 7))
         # the rows below take each pixel's error by their weights, mirrored on a row run right to left
         for below in range(1, 3):
             for dc in range(5):
-                w = kept[below, dc if forward else 4 - dc]
+                w = weights[below, dc if forward else 4 - dc]
                 if w == np.float32(0.0):
                     continue
                 shift = dc - 2
