@@ -13,8 +13,8 @@ same in all 10 (independent layers: 0.3^10 + 0.7^10 = 0.028).
 
 Speed: ``heoslice slice SCAN --grade linear --to 0,255,0 --nozzle 0.2 --channels --halftone METHOD``
 (bench_prusa's graded arguments) on each benchmark scan (prusa_meshes.SCANS, from ../shared/data), the
-methods alternating in every round, wall time of the whole command; the median per method and its ratio
-to ordered's in the same run.
+methods alternating in every round (after one untimed run of each), wall time of the whole command; the
+median per method and its ratio to ordered's in the same run.
 """
 
 from __future__ import annotations
@@ -98,6 +98,10 @@ def speed(quick: bool, repeats: int, layer_mm: float) -> None:
             model = work / f"{name}.ply"
             prusa_meshes.scan(name, quick).export(model)
             times = {method: [] for method in METHODS}
+            for method in METHODS:  # untimed: kernels compiled or loaded, caches warm
+                subprocess.run([sys.executable, "-m", "heoslice", "--no-config", "slice", str(model), "-o",
+                                str(work / f"warm_{name}_{method}"), "--layer", str(4 * layer_mm), "--halftone", method,
+                                *GRADED_ARGS], check=True, capture_output=True)
             for round_number in range(repeats):
                 order = list(METHODS) if round_number % 2 == 0 else list(reversed(METHODS))
                 for method in order:

@@ -94,40 +94,48 @@ def blue_noise_ranks(size: int = BLUE_TILE, sigma: float = _BLUE_SIGMA) -> np.nd
     count = size * size
     impulse = np.zeros((size, size))
     impulse[0, 0] = 1.0
-    response = gaussian_filter(impulse, sigma, mode="wrap")
-
-    def energy_of(pattern: np.ndarray) -> np.ndarray:
-        return gaussian_filter(pattern.astype(np.float64), sigma, mode="wrap")
+    tiled = np.tile(gaussian_filter(impulse, sigma, mode="wrap"), (2, 2))
 
     def spread(pixel: int) -> np.ndarray:
-        return np.roll(response, divmod(pixel, size), axis=(0, 1)).ravel()
+        """The wrapped impulse response centred on ``pixel``: a view of the tiled response, no copy."""
+        row, col = divmod(pixel, size)
+        return tiled[size - row:2 * size - row, size - col:2 * size - col]
 
-    pattern = (_hashed_unit(count, 1) < 0.1).reshape(size, size)
-    ones = pattern.ravel().copy()
-    energy = energy_of(pattern).ravel()
+    ones = (_hashed_unit(count, 1) < 0.1).reshape(size, size)
+    energy = gaussian_filter(ones.astype(np.float64), sigma, mode="wrap")
+    # the energy seen by the tightest-cluster search (of the ones) and by the largest-void search (of the zeros)
+    cluster_energy, void_energy = np.where(ones, energy, -np.inf), np.where(ones, np.inf, energy)
+
+    def move(pixel: int, sign: float) -> None:
+        """Set (sign 1) or clear (sign -1) ``pixel`` and update the energies."""
+        response = spread(pixel)
+        energy[...] += sign * response
+        cluster_energy[...] += sign * response
+        void_energy[...] += sign * response
+        row, col = divmod(pixel, size)
+        ones[row, col] = sign > 0
+        cluster_energy[row, col] = energy[row, col] if sign > 0 else -np.inf
+        void_energy[row, col] = np.inf if sign > 0 else energy[row, col]
+
     for _ in range(count):  # relaxation: far fewer steps in practice
-        cluster = int(np.argmax(np.where(ones, energy, -np.inf)))
-        ones[cluster] = False
-        energy -= spread(cluster)
-        void = int(np.argmin(np.where(ones, np.inf, energy)))
-        ones[void] = True
-        energy += spread(void)
+        cluster = int(np.argmax(cluster_energy))
+        move(cluster, -1.0)
+        void = int(np.argmin(void_energy))
+        move(void, 1.0)
         if void == cluster:
             break
-    initial, initial_energy = ones.copy(), energy.copy()
-    ranks = np.zeros(count, dtype=np.int64)
-    for rank in range(int(initial.sum()) - 1, -1, -1):
-        cluster = int(np.argmax(np.where(ones, energy, -np.inf)))
-        ones[cluster] = False
-        energy -= spread(cluster)
-        ranks[cluster] = rank
-    ones, energy = initial, initial_energy
-    for rank in range(int(initial.sum()), count):
-        void = int(np.argmin(np.where(ones, np.inf, energy)))
-        ones[void] = True
-        energy += spread(void)
-        ranks[void] = rank
-    ranks = ranks.reshape(size, size)
+    kept = ones.copy(), energy.copy(), cluster_energy.copy(), void_energy.copy()
+    ranks = np.zeros((size, size), dtype=np.int64)
+    placed = int(ones.sum())
+    for rank in range(placed - 1, -1, -1):
+        cluster = int(np.argmax(cluster_energy))
+        move(cluster, -1.0)
+        ranks[divmod(cluster, size)] = rank
+    ones[...], energy[...], cluster_energy[...], void_energy[...] = kept
+    for rank in range(placed, count):
+        void = int(np.argmin(void_energy))
+        move(void, 1.0)
+        ranks[divmod(void, size)] = rank
     ranks.setflags(write=False)
     return ranks
 
