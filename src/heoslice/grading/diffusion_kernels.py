@@ -98,7 +98,21 @@ def _diffuse(mix, carry, weights, shares, start, flip, planes, r0, c0):  # pragm
     for r in range(rows):
         for c in range(cols):
             signature[r, c] = _held_signature(mix, r, c, channels)
-    errors = np.zeros((3, cols + 4, channels), dtype=np.float32)
+    # pixels whose 3 x 5 neighbourhood (this row and the two below, two columns either side) all mix as they do:
+    # their error reaches every weight, whichever way their row runs
+    level = np.zeros((rows, cols), dtype=np.bool_)  # the pixel and the two on either side mix alike
+    for r in range(rows):
+        for c in range(2, cols - 2):
+            own = signature[r, c]
+            level[r, c] = (own != 0 and own != -1 and signature[r, c - 2] == own and signature[r, c - 1] == own
+                           and signature[r, c + 1] == own and signature[r, c + 2] == own)
+    interior = np.zeros((rows, cols), dtype=np.bool_)
+    for r in range(rows - 2):
+        for c in range(cols):
+            own = signature[r, c]
+            interior[r, c] = (level[r, c] and level[r + 1, c] and level[r + 2, c] and signature[r + 1, c] == own
+                              and signature[r + 2, c] == own)
+    errors = np.zeros((3, channels, cols + 4), dtype=np.float32)
     taps = 0  # the nonzero weights: rows below, columns along the row's direction, weight
     tap_row = np.empty(15, dtype=np.int64)
     tap_col = np.empty(15, dtype=np.int64)
@@ -110,7 +124,7 @@ def _diffuse(mix, carry, weights, shares, start, flip, planes, r0, c0):  # pragm
                 taps += 1
     ahead_1, ahead_2 = weights[0, 3], weights[0, 4]
     kept = np.float32(1.0) - layer_share
-    left = np.zeros((cols + 4, channels), dtype=np.float32)  # each pixel's error, for the rows below
+    left = np.zeros((channels, cols + 4), dtype=np.float32)  # each pixel's error, for the rows below
     for r in range(rows):
         errors[0, :, :] = errors[1]
         errors[1, :, :] = errors[2]
@@ -148,20 +162,15 @@ def _diffuse(mix, carry, weights, shares, start, flip, planes, r0, c0):  # pragm
             for m in range(channels):
                 share_m = mix[r, c, m]
                 if share_m > np.float32(0.0):
-                    value = share_m + errors[0, c + 2, m] + carry[r, c, m]
+                    value = share_m + errors[0, m, c + 2] + carry[r, c, m]
                     if starts and (r == 0 or mix[r - 1, c, m] <= np.float32(0.0) or above == 0):
                         value += top_share * ((np.float32(1.0) if m == chosen else np.float32(0.0)) - share_m)
-                    left[c + 2, m] = value
+                    left[m, c + 2] = value
                     if value > best:
                         best, pick = value, m
-            left[c + 2, pick] -= np.float32(1.0)
+            left[pick, c + 2] -= np.float32(1.0)
             # the pixels after it that mix as this one does take its error by their weights as they are
-            same = own != -1
-            for t in range(taps):
-                rr, cc = r + tap_row[t], c + step * tap_col[t]
-                if not (rr < rows and 0 <= cc < cols and signature[rr, cc] == own):
-                    same = False
-                    break
+            same = interior[r, c]
             for m in range(channels):
                 if mix[r, c, m] <= np.float32(0.0):
                     carry[r, c, m] = np.float32(0.0)
@@ -173,12 +182,12 @@ def _diffuse(mix, carry, weights, shares, start, flip, planes, r0, c0):  # pragm
                         rr, cc = r + tap_row[t], c + step * tap_col[t]
                         if rr < rows and 0 <= cc < cols and signature[rr, cc] != 0 and mix[rr, cc, m] > 0.0:
                             reach += tap_weight[t]
-                error = left[c + 2, m]
+                error = left[m, c + 2]
                 carry[r, c, m] = error * layer_share
                 error = error * kept / reach if reach > np.float32(0.0) else np.float32(0.0)
-                left[c + 2, m] = error
-                errors[0, c + 2 + step, m] += error * ahead_1
-                errors[0, c + 2 + 2 * step, m] += error * ahead_2
+                left[m, c + 2] = error
+                errors[0, m, c + 2 + step] += error * ahead_1
+                errors[0, m, c + 2 + 2 * step] += error * ahead_2
             planes[pick, row, col >> 3] |= np.uint8(0x80 >> (col & 7))
         # the rows below take each pixel's error by their weights, mirrored on a row run right to left
         for below in range(1, 3):
@@ -187,7 +196,8 @@ def _diffuse(mix, carry, weights, shares, start, flip, planes, r0, c0):  # pragm
                 if w == np.float32(0.0):
                     continue
                 shift = dc - 2
-                for c in range(max(0, -shift), min(cols, cols - shift)):
-                    for m in range(channels):
-                        errors[below, c + 2 + shift, m] += left[c + 2, m] * w
+                for m in range(channels):
+                    target, source = errors[below, m], left[m]
+                    for c in range(max(0, -shift), min(cols, cols - shift)):
+                        target[c + 2 + shift] += source[c + 2] * w
     return planes
