@@ -3,6 +3,7 @@
     python benchmarks/bench_halftone.py                  # quality, then speed on the scans (organ size, 2 mm layers)
     python benchmarks/bench_halftone.py --quick          # quality, then speed on the scans made 40 mm, 0.5 mm layers
     python benchmarks/bench_halftone.py --no-speed       # quality only (a few seconds)
+    python benchmarks/bench_halftone.py --quick --no-quality --scans liver_scan --repeats 2
 
 Quality (each method, in this process): over a 1 cm^2 region of constant mix inside a layer, on 3
 layers, the largest error of a material's delivered share over the region and over every 1 mm x 1 mm
@@ -85,8 +86,8 @@ def quality() -> None:
               f"{same[method]:18.4f} {same[method] / (0.3 ** 10 + 0.7 ** 10):8.2f}")
 
 
-def speed(quick: bool, repeats: int, layer_mm: float) -> None:
-    scans = prusa_meshes.available_scans()
+def speed(quick: bool, repeats: int, layer_mm: float, wanted: list[str] | None = None) -> None:
+    scans = [name for name in prusa_meshes.available_scans() if wanted is None or name in wanted]
     if not scans:
         print("speed: no benchmark scans (../shared/data or $HEOSLICE_SHARED_DATA); skipped")
         return
@@ -107,8 +108,8 @@ def speed(quick: bool, repeats: int, layer_mm: float) -> None:
                 for method in order:
                     out = work / f"{name}_{method}_{round_number}"
                     started = time.perf_counter()
-                    subprocess.run([sys.executable, "-m", "heoslice", "--no-config", "slice", str(model), "-o", str(out),
-                                    "--layer", str(layer_mm), "--halftone", method, *GRADED_ARGS],
+                    subprocess.run([sys.executable, "-m", "heoslice", "--no-config", "slice", str(model), "-o",
+                                    str(out), "--layer", str(layer_mm), "--halftone", method, *GRADED_ARGS],
                                    check=True, capture_output=True)
                     times[method].append(time.perf_counter() - started)
             base = statistics.median(times["ordered"])
@@ -122,10 +123,13 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="scans made 40 mm, 0.5 mm layers")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--no-speed", action="store_true", help="quality only")
+    parser.add_argument("--no-quality", action="store_true", help="speed only")
+    parser.add_argument("--scans", default=None, help="comma-separated scans to time [all available]")
     args = parser.parse_args()
-    quality()
+    if not args.no_quality:
+        quality()
     if not args.no_speed:
-        speed(args.quick, args.repeats, 0.5 if args.quick else 2.0)
+        speed(args.quick, args.repeats, 0.5 if args.quick else 2.0, args.scans.split(",") if args.scans else None)
 
 
 if __name__ == "__main__":

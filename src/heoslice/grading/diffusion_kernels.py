@@ -41,7 +41,8 @@ def _pixel_mixes(layer, mixing, base_channel, out):  # pragma: no cover - compil
                 j = (col - layout[family, 1]) // cell
                 start = layout[family, 4] + (((row - layout[family, 0]) // cell) * layout[family, 3] + j) * channels
                 scale = _moved_sums(mixes[start:start + channels], fraction[number], target, sums)
-                mixed_label, cell_from, cell_to = number, layout[family, 1] + j * cell, layout[family, 1] + (j + 1) * cell
+                cell_from = layout[family, 1] + j * cell
+                mixed_label, cell_to = number, cell_from + cell
                 positive = True
                 if channels > 1:
                     total = sums[channels - 2] + (mixes[start + channels - 1] + fraction[number]
