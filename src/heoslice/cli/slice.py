@@ -262,7 +262,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
         if into is not None:
             raise click.UsageError("--into: a multi-part job makes one stack; name it with -o/--output")
         slice_parts(models, output, dict(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
-                                         canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs),
+                                         canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
+                                         printer=preset),
                     scale, force, as_json, materials, part_options, bool(channels))
         return
     if solid_only and (grade_kind is not None or channels):
