@@ -140,14 +140,14 @@ def test_the_blue_noise_mask_is_made_the_same_way_every_time():
 def test_blue_noise_shifts_cover_the_tile():
     """The per-layer shifts of the blue-noise mask take every one of the tile's 4096 offsets once over 4096
     consecutive layers (no short cycle), consecutive layers' shifts lying far apart; a layer's tile is the
-    mask rolled by its shift."""
+    mask rolled by its shift, its ranks 16 to each of the 256 levels."""
     shifts = [blue_noise_shift(layer) for layer in range(1000, 1000 + BLUE_TILE * BLUE_TILE)]
     assert len(set(shifts)) == BLUE_TILE * BLUE_TILE
     for a, b in zip(shifts[:100], shifts[1:101]):
         apart = [min(abs(x - y), BLUE_TILE - abs(x - y)) for x, y in zip(a, b)]
         assert max(apart) >= 8
     assert np.array_equal(layer_tile(7, "blue-noise"),
-                          (np.roll(blue_noise_ranks(), blue_noise_shift(7), axis=(0, 1)) + 0.5) / BLUE_TILE ** 2)
+                          (np.roll(blue_noise_ranks(), blue_noise_shift(7), axis=(0, 1)) // 16 + 0.5) / 256)
 
 
 @pytest.mark.parametrize("method", ["blue-noise", "error-diffusion"])

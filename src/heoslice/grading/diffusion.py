@@ -68,12 +68,17 @@ class DiffusionCarry:
 
 def fresh_error(mix: np.ndarray, layer: int, origin: tuple[int, int]) -> np.ndarray:
     """What stands in for the layer before's error where there is none (a run's first layer): :data:`LAYER_SHARE`
-    of the error the blue-noise halftone of the same mix would leave ((rows, cols, K) float32), so that such a
-    layer starts from an error that varies from pixel to pixel and from layer to layer, as a carried one
-    does, rather than from zero (whose first rows would all take the largest share's material)."""
-    from heoslice.grading.halftone import halftone
+    of the error the blue-noise mask (at every one of its levels) would leave ((rows, cols, K) float32), so that
+    such a layer starts from an error that varies from pixel to pixel and from layer to layer, as a carried one
+    does, rather than from zero."""
+    from heoslice.grading.halftone import BLUE_TILE, blue_noise_thresholds
 
-    error = mix - np.moveaxis(halftone(mix, layer, "blue-noise", origin=origin), 0, 2)
+    rows, cols = (np.arange(size) + start for size, start in zip(mix.shape[:2], origin))
+    threshold = blue_noise_thresholds(layer).astype(np.float32)[np.ix_(rows % BLUE_TILE, cols % BLUE_TILE)]
+    running = np.cumsum(mix, axis=2, dtype=np.float32)
+    jetted = np.minimum((threshold[..., None] * running[..., -1:] >= running).sum(axis=2), mix.shape[2] - 1)
+    taken = jetted[..., None] == np.arange(mix.shape[2])
+    error = np.where(running[..., -1:] > 0, mix - taken, 0.0)
     return (np.float32(LAYER_SHARE) * error).astype(np.float32)
 
 
@@ -82,13 +87,13 @@ def _diffused(mix: np.ndarray, layer: int, carry: DiffusionCarry | None, origin:
     """Diffuse ``mix`` ((rows, cols, K) float32) of ``layer`` into ``planes`` at pixel ``at`` (row, col), the
     error from ``carry`` (the layer before's; None, or another layer's: :func:`fresh_error`) coming in, regions
     starting from the blue-noise halftone's choice (:data:`TOP_SHARE`), and this layer's error kept there."""
-    from heoslice.grading.halftone import layer_tile
+    from heoslice.grading.halftone import blue_noise_thresholds
 
     incoming = None if carry is None else carry.incoming(layer, origin, mix)
     if incoming is None:
         incoming = fresh_error(mix, layer, origin)
     # the layer's blue-noise thresholds, indexed by the planes' pixels (the box's pixel (0, 0) at ``at``)
-    start = f32(np.roll(layer_tile(layer, "blue-noise"), (at[0] - origin[0], at[1] - origin[1]), axis=(0, 1)))
+    start = f32(np.roll(blue_noise_thresholds(layer), (at[0] - origin[0], at[1] - origin[1]), axis=(0, 1)))
     _diffuse(f32(mix), incoming, JARVIS_JUDICE_NINKE, np.array([LAYER_SHARE, TOP_SHARE], dtype=np.float32), start,
              int(layer) & 1, planes, int(at[0]), int(at[1]))
     if carry is not None:

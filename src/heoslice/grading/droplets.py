@@ -78,7 +78,7 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
         return droplet_bits(LabelledLayer(np.zeros((0, 0), np.uint8), 0, 0, packed),
                             LayerMixes(np.zeros(1, np.int64), np.zeros(1), np.zeros((0, 5), np.int64), np.zeros(0),
                                        np.zeros(len(materials))),
-                            Dither(tile, np.full((1, tile.size), base_channel, np.int8), base_channel), planes)
+                            Dither(tile, np.full((1, TILE * TILE), base_channel, np.int8), base_channel), planes)
     target_mix = np.zeros(len(materials))
     if spec.target is not None and spec.function is not None:
         target_mix[spec.channel_index(spec.target)] = 1.0
@@ -87,7 +87,7 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
 
     def as_one(number: int, low: np.ndarray, high: np.ndarray) -> bool:
         return not diffused and jets_as_one(low, high, moved[regions.base[number]:regions.base[number + 1]],
-                                            target_mix, tile.size)
+                                            target_mix)
 
     mixes = family_starts(regions, spec, loop_shell, point_material, as_one)
     family_of_label = np.zeros(regions.label_count, dtype=np.int64)
@@ -104,7 +104,7 @@ def labelled_droplet_planes(regions: LayerRegions, spec: GradeSpec, loop_shell, 
         from heoslice.grading.diffusion import diffused_planes  # its kernels load with the method that needs them
 
         return diffused_planes(labelled, mixing, base_channel, layer, planes, carry)
-    table = _layer_choice_table(regions, mixes, fractions, target_mix, base_channel, cache, tile.size)
+    table = _layer_choice_table(regions, mixes, fractions, target_mix, base_channel, cache)
     return droplet_bits(labelled, mixing, Dither(tile, table, base_channel), planes)
 
 

@@ -40,6 +40,8 @@ DEFAULT_METHOD = "ordered"
 
 #: Side of the ordered-dither matrix (256 threshold levels).
 TILE = 16
+#: Threshold levels of every threshold tile: (k + 1/2) / LEVELS, k = 0 .. LEVELS - 1.
+LEVELS = TILE * TILE
 #: Side of the blue-noise threshold mask (4096 levels), and the void-and-cluster filter's sigma (pixels).
 BLUE_TILE = 64
 _BLUE_SIGMA = 1.5
@@ -147,12 +149,21 @@ def blue_noise_shift(layer: int, size: int = BLUE_TILE) -> tuple[int, int]:
     return divmod(offset, size)
 
 
+def blue_noise_thresholds(layer: int) -> np.ndarray:
+    """(BLUE_TILE, BLUE_TILE) float: the blue-noise mask of ``layer`` at every one of its levels, (rank + 1/2) /
+    BLUE_TILE^2 (error diffusion starts its regions from it)."""
+    return (np.roll(blue_noise_ranks(), blue_noise_shift(layer), axis=(0, 1)) + 0.5) / (BLUE_TILE * BLUE_TILE)
+
+
 def layer_tile(layer: int, method: str = DEFAULT_METHOD) -> np.ndarray:
-    """The (n, n) thresholds in (0, 1) of one layer (n = TILE for ordered, BLUE_TILE for blue noise), levels
-    (k + 1/2) / n^2: ordered, the Bayer matrix under a symmetry and shift chosen from the layer number (a fixed
-    pseudo-random sequence); blue noise, the void-and-cluster mask under the layer's shift."""
+    """The (n, n) thresholds in (0, 1) of one layer (n = TILE for ordered, BLUE_TILE for blue noise), at the
+    LEVELS levels (k + 1/2) / LEVELS: ordered, the Bayer matrix under a symmetry and shift chosen from the layer
+    number (a fixed pseudo-random sequence); blue noise, the void-and-cluster mask under the layer's shift, its
+    ranks taken 16 to a level (each level on 16 pixels of the tile: the shares as fine as ordered dither's, and
+    the compiled halftone's table of choices per level as small)."""
     if check_method(method) == "blue-noise":
-        return (np.roll(blue_noise_ranks(), blue_noise_shift(layer), axis=(0, 1)) + 0.5) / (BLUE_TILE * BLUE_TILE)
+        ranks = np.roll(blue_noise_ranks(), blue_noise_shift(layer), axis=(0, 1))
+        return (ranks // (BLUE_TILE * BLUE_TILE // LEVELS) + 0.5) / LEVELS
     if method != "ordered":
         raise ValueError(f"halftone: {method} has no threshold tile")
     mix = (int(layer) * 0x9E3779B1 + 0x7F4A7C15) & 0xFFFFFFFF
