@@ -86,7 +86,8 @@ def quality() -> None:
               f"{same[method]:18.4f} {same[method] / (0.3 ** 10 + 0.7 ** 10):8.2f}")
 
 
-def speed(quick: bool, repeats: int, layer_mm: float, wanted: list[str] | None = None) -> None:
+def speed(quick: bool, repeats: int, layer_mm: float, wanted: list[str] | None = None,
+          methods: list[str] = list(METHODS)) -> None:
     scans = [name for name in prusa_meshes.available_scans() if wanted is None or name in wanted]
     if not scans:
         print("speed: no benchmark scans (../shared/data or $HEOSLICE_SHARED_DATA); skipped")
@@ -98,13 +99,13 @@ def speed(quick: bool, repeats: int, layer_mm: float, wanted: list[str] | None =
         for name in scans:
             model = work / f"{name}.ply"
             prusa_meshes.scan(name, quick).export(model)
-            times = {method: [] for method in METHODS}
-            for method in METHODS:  # untimed: kernels compiled or loaded, caches warm
+            times = {method: [] for method in methods}
+            for method in methods:  # untimed: kernels compiled or loaded, caches warm
                 subprocess.run([sys.executable, "-m", "heoslice", "--no-config", "slice", str(model), "-o",
                                 str(work / f"warm_{name}_{method}"), "--layer", str(4 * layer_mm), "--halftone", method,
                                 *GRADED_ARGS], check=True, capture_output=True)
             for round_number in range(repeats):
-                order = list(METHODS) if round_number % 2 == 0 else list(reversed(METHODS))
+                order = methods if round_number % 2 == 0 else methods[::-1]
                 for method in order:
                     out = work / f"{name}_{method}_{round_number}"
                     started = time.perf_counter()
@@ -125,11 +126,13 @@ def main() -> None:
     parser.add_argument("--no-speed", action="store_true", help="quality only")
     parser.add_argument("--no-quality", action="store_true", help="speed only")
     parser.add_argument("--scans", default=None, help="comma-separated scans to time [all available]")
+    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods, ordered first")
     args = parser.parse_args()
     if not args.no_quality:
         quality()
     if not args.no_speed:
-        speed(args.quick, args.repeats, 0.5 if args.quick else 2.0, args.scans.split(",") if args.scans else None)
+        speed(args.quick, args.repeats, 0.5 if args.quick else 2.0, args.scans.split(",") if args.scans else None,
+              args.methods.split(","))
 
 
 if __name__ == "__main__":
