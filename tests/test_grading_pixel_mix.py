@@ -45,3 +45,21 @@ def test_each_pixel_jets_the_target_where_its_threshold_is_below_f(layer, start,
             if solid[box].all() and not own[box].any():
                 assert abs(masks[target][box].mean() - tile_f[i, j]) <= 1 / 512
             assert (masks[target][box][plain] == (t[box] < tile_f[i, j])[plain]).all()
+
+
+@pytest.mark.parametrize("method", ["blue-noise", "error-diffusion"])
+@pytest.mark.parametrize("share", [0.3, 0.7])
+def test_other_halftone_methods_keep_one_material_per_pixel_and_the_share(method, share):
+    """With --halftone blue-noise or error-diffusion the field interior's masks still give every solid pixel
+    exactly one of its two materials, none to an empty pixel, and deliver the share f within 1 % over a
+    constant 256 x 192 box (the halftone of heoslice.grading.halftone.halftone)."""
+    from heoslice.grading.diffusion import DiffusionCarry
+
+    grid = Grid(272, 200, 0.0, 10.0, 0.1, 0.1)
+    solid = np.zeros((grid.height, grid.width), dtype=bool)
+    solid[4:196, 16:272] = True
+    planes = fraction_planes(np.packbits(solid, axis=1), (4, 196, 16, 272), np.float32(share), grid, 3, 0, 1, 2,
+                             method=method, carry=DiffusionCarry() if method == "error-diffusion" else None)
+    masks = np.unpackbits(planes, axis=2, count=grid.width).astype(bool)
+    assert (masks.sum(axis=0) == solid).all()
+    assert abs(masks[1][solid].mean() - share) <= 0.01

@@ -198,3 +198,26 @@ def test_the_recorded_scale_and_part_volumes_are_checked(cube_stack, change, pro
     assert manifest_problem({**manifest, "parts": [{"name": "a", "volume_mm3": None}]}) is None
     change(manifest)
     assert problem in manifest_problem(manifest)
+
+
+@pytest.mark.parametrize("method", ["ordered", "blue-noise", "error-diffusion"])
+def test_the_manifest_records_the_halftone_and_verify_accepts_every_method(tmp_path, method):
+    """A droplet-mask stack records its halftone (ordered: no field, as every stack before the choice) and passes
+    verify whatever the method; a manifest naming an unknown method is refused by every reader."""
+    from heoslice.grading import GradeSpec, RegionSpec
+    from heoslice.material import DEFAULT_MATERIALS, make_function
+    from heoslice.mesh import load_mesh
+    from heoslice.pipeline import SliceSpec, slice_to_stack
+    from heoslice.stack import manifest_problem, verify_stack
+
+    procedural.box((4.0, 3.0, 1.0)).export(tmp_path / "b.ply")
+    grade = GradeSpec(RegionSpec(nozzle_mm=0.4), make_function("linear"), DEFAULT_MATERIALS["M2"], None,
+                      DEFAULT_MATERIALS["M1"], DEFAULT_MATERIALS["M2"])
+    manifest, _ = slice_to_stack(load_mesh(tmp_path / "b.ply"), tmp_path / "s",
+                                 SliceSpec(layer_height_mm=0.5, dpi=(200.0, 200.0), grade=grade, channels=True,
+                                           halftone=method))
+    assert manifest["grading"].get("halftone", "ordered") == method
+    assert ("halftone" in manifest["grading"]) == (method != "ordered")
+    assert verify_stack(tmp_path / "s").ok
+    manifest["grading"]["halftone"] = "floyd"
+    assert "grading.halftone" in manifest_problem(manifest)

@@ -14,7 +14,8 @@ from volume_phantoms import grid_affine, write_nifti
 from heoslice.errors import InputError
 from heoslice.material import read_materials_file
 from heoslice.stack import read_layer_channels, read_layer_mask
-from heoslice.volume.intensity import halftone_mix, read_curve
+from heoslice.grading.halftone import METHODS, halftone
+from heoslice.volume.intensity import read_curve
 
 MATERIALS = """
 [materials.tissue]
@@ -45,16 +46,18 @@ def test_curve_blends_linearly_and_holds_its_ends(tmp_path):
     assert np.allclose(bone, np.clip((values - 100) / 800, 0, 1)) and np.allclose(mix.sum(axis=1), 1)
 
 
+@pytest.mark.parametrize("method", list(METHODS))
 @pytest.mark.parametrize("fraction", [0.1, 0.25, 0.5, 0.8])
-def test_halftone_share_follows_the_fraction(fraction):
-    """Over every 2 mm x 2 mm window (47 x 47 px at 600 dpi) of constant mix, each material's share is its
-    fraction within 2 %; every solid pixel is in one mask."""
+def test_halftone_share_follows_the_fraction(fraction, method):
+    """The halftone a CT's curve goes through (grading.halftone.halftone, every method): over every 2 mm x 2 mm
+    window (47 x 47 px at 600 dpi) of constant mix, each material's share is its fraction within 2 %; every
+    solid pixel is in one mask."""
     shape = (200, 300)
     mix = np.zeros((*shape, 2), np.float32)
     mix[..., 0], mix[..., 1] = 1 - fraction, fraction
     solid = np.ones(shape, bool)
     solid[:, :20] = False
-    masks = halftone_mix(mix, solid, layer=7)
+    masks = halftone(mix * solid[..., None], 7, method)
     assert np.array_equal(masks.sum(axis=0), solid.astype(int))
     for top in range(0, 200 - 47, 31):
         for left in range(20, 300 - 47, 37):

@@ -23,6 +23,7 @@ from numba.pycc import CC
 from numba.pycc import compiler as pycc_compiler
 
 from heoslice.grading import (
+    diffusion_kernels,
     droplets_kernels,
     edges_kernels,
     field_kernels,
@@ -49,7 +50,7 @@ from heoslice.volume import resample_kernels
 
 f8, i8, b1 = types.float64, types.int64, types.boolean
 f8_1, f8_2, f8_3, f8_4 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1], types.float64[:, :, :, ::1]
-f4_1, f4_2 = types.float32[::1], types.float32[:, ::1]
+f4_1, f4_2, f4_3 = types.float32[::1], types.float32[:, ::1], types.float32[:, :, ::1]
 i8_1, i8_2, i1_2 = types.int64[::1], types.int64[:, ::1], types.int8[:, ::1]
 b_2, u1_2, u1_3 = types.boolean[:, ::1], types.uint8[:, ::1], types.uint8[:, :, ::1]
 u4_2, u8_1 = types.uint32[:, ::1], types.uint64[::1]
@@ -91,6 +92,9 @@ def _layer(bits: int) -> types.Type:
 #: width (bits) for the kernels that take labels.
 ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     contours_kernels._chain_loops: (i8_1, i8_1),
+    diffusion_kernels._pixel_mixes: lambda bits: (
+        _layer(bits), types.Tuple((i8_1, f4_1, i8_2, f4_1, f4_1)), i8, f4_3),
+    diffusion_kernels._diffuse: (f4_3, f4_3, f4_2, f4_1, f4_2, i8, u1_3, i8, i8),
     droplets_kernels._agreed_choices: (f4_2, f4_1, f4_1, f4_1),
     droplets_kernels._droplet_bits: lambda bits: (
         _layer(bits), types.Tuple((i8_1, f4_1, i8_2, f4_1, f4_1)), types.Tuple((f4_2, i8_2, i1_2, i8)), u1_3),

@@ -30,13 +30,14 @@ Examples:
   heoslice export liver_stack --format voxel-print -o liver_voxels
   heoslice export liver_stack --format voxel-print --pitch 0.014 -o liver_voxels.zip
   heoslice export vase_stack --format png -o vase_png.zip
+  heoslice export liver_stack --format gcvf -o liver.gcvf      # GrabCAD Print opens it as it is
 """)
 @click.argument("stack", type=click.Path(path_type=Path))
-@click.option("--format", "format_name", required=True, help="Export format: voxel-print or png.")
+@click.option("--format", "format_name", required=True, help="Export format: voxel-print, gcvf or png.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
-              help="Folder to write, or a .zip file.")
-@click.option("--pitch", type=float, default=None, help="Layer pitch of the export, mm [voxel-print: 0.027].")
-@click.option("--dpi", default=None, help="Resolution of the export: N or NxM [voxel-print: 600x300].")
+              help="Folder to write, or a .zip file (gcvf: a .gcvf file).")
+@click.option("--pitch", type=float, default=None, help="Layer pitch of the export, mm [voxel-print, gcvf: 0.027].")
+@click.option("--dpi", default=None, help="Resolution of the export: N or NxM [voxel-print, gcvf: 600x300].")
 @click.option("--background", default=None, help="Colour of empty pixels, R,G,B [voxel-print: 0,0,0].")
 @click.option("--force", is_flag=True, help="Replace OUTPUT if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")

@@ -20,9 +20,11 @@ from heoslice.cli.options import apply_scale, flags, function_from_options, func
 from heoslice.cli.parts import GRADE_REFUSAL, is_parts_job, part_settings, report_parts
 from heoslice.cli.volume import slice_volume, volume_options
 from heoslice.errors import InputError
+from heoslice.grading.halftone import DEFAULT_METHOD, METHODS
 from heoslice.material import MaterialsFile, material_roles, read_materials_file
 from heoslice.mesh import Mesh, load_assembly, load_mesh, without_materials
 from heoslice.pipeline import SliceSpec, one_material, plan_parts, slice_to_stack, slice_warnings
+from heoslice.pipeline.printers import PRESETS, PrinterPreset, presets_table, printer_preset
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION, print_refusal, refusal_line, stack_volume_mm3
 from heoslice.volume import is_volume_path
 
@@ -30,7 +32,7 @@ from heoslice.volume import is_volume_path
 SPEC_FLAGS = {
     "layer_height_mm": "--layer", "dpi": "--dpi", "margin_mm": "--margin", "canvas_mm": "--canvas",
     "compression": "--compress", "jobs": "--jobs", "channels": "--channels", "materials": "--materials",
-    "scale": "--scale", "interior": "--interior",
+    "scale": "--scale", "interior": "--interior", "halftone": "--halftone", "printer": "--printer",
 }
 
 
@@ -143,6 +145,8 @@ Examples:
   heoslice slice part.stl --dpi 600x300 --canvas 200x150 --compress packbits
   heoslice slice scan.ply --scale 1000 --json   # a model in metres
   heoslice slice "scans/*.ply" --into stacks/   # one stack per model: stacks/NAME_stack
+  heoslice slice liver.ply --printer j750-27um  # the J750's 600x300 dpi grid and 27 um layers
+  heoslice slice --printer list                 # the printer presets
 \b
 Coloured models (heoslice color's output):
   heoslice slice vase_linear.ply                       # the design's field at every voxel, in 3D
@@ -154,6 +158,7 @@ Graded interiors (the paper's Fig. 3b, 9b):
   heoslice slice vase.ply --grade linear --to 0,255,0 --offsets 200
   heoslice slice liver.ply --grade sine --periods 2 --to M2 --depth 10
   heoslice slice part.ply --grade linear --from M1 --to M2 --direction out --materials mats.toml
+  heoslice slice liver.ply --grade linear --to M2 --halftone error-diffusion
 \b
 Several parts in one stack (a multi-part job; one 1-bit droplet mask per material per layer):
   heoslice slice liver.stl lesion.stl vessels.stl --materials mats.toml -o liver_stack   # mats.toml has [parts]
@@ -173,7 +178,7 @@ Volumes (a label map: NIfTI .nii/.nii.gz, NRRD or Slicer .seg.nrrd, a folder of 
   Each label's surface is smoothed between voxel centres; labels not listed in [labels] are left out
   (without a [labels] table every label prints, in the table's first material).
 """)
-@click.argument("models", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="MODEL...")
+@click.argument("models", nargs=-1, type=click.Path(path_type=Path), metavar="MODEL...")
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
               help="Stack directory, for one model [default: ./MODEL_stack].")
 @click.option("--into", type=click.Path(path_type=Path, file_okay=False), default=None, metavar="DIR",
@@ -226,6 +231,12 @@ Volumes (a label map: NIfTI .nii/.nii.gz, NRRD or Slicer .seg.nrrd, a folder of 
                    "contour carried inward (the paper's layer-wise Z-axis distribution, section III.A) "
                    "[default: field for a model carrying a design; contour for other coloured models; "
                    "--grade is the paper's eq. 8-10 sub-regions].")
+@click.option("--printer", default=None, metavar="NAME",
+              help=f"Printer preset: its resolution, layer pitch, width padding and material limit in one word "
+                   f"({', '.join(PRESETS)}); 'list' shows them. An explicit --dpi or --layer must agree with it.")
+@click.option("--halftone", type=click.Choice(list(METHODS)), default=DEFAULT_METHOD, show_default=True,
+              help="How each pixel's mix becomes one material's droplet: "
+                   + "; ".join(f"{name}: {line}" for name, line in METHODS.items()) + ".")
 @click.option("--solid", "solid_only", is_flag=True,
               help="One material: ignore the mesh's material fractions and colours (a 1-bit solid mask per "
                    "layer; not with --grade or --channels).")
@@ -243,9 +254,9 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
               grade_kind: str | None, alpha: float | None, beta: float | None, lam: float | None,
               periods: float | None, expression: str | None, target: str | None, start: str | None,
               nozzle: float, depth: float | None, depth_from: str, offset_count: int | None, direction: str,
-              materials_file: Path | None, channels: bool | None, interior: str | None, solid_only: bool,
-              parts_flag: bool, part_options: tuple[str, ...], up: str, smooth: float | None,
-              label_map: Path | None, volume_kind: str | None) -> None:
+              materials_file: Path | None, channels: bool | None, interior: str | None, printer: str | None,
+              halftone: str, solid_only: bool, parts_flag: bool, part_options: tuple[str, ...], up: str,
+              smooth: float | None, label_map: Path | None, volume_kind: str | None) -> None:
     """Slice each MODEL (PLY, STL, OBJ, OFF, 3MF) into one TIFF per layer plus manifest.json.
 
     Layers are cut at their centres, z = z_min + (i + 1/2) x layer; a pixel is solid
@@ -275,6 +286,17 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     each go to their own stack; one that fails is reported and the others still run.
     With --parts (or --part, a 3MF, a [parts] table) they are the parts of one stack.
     """
+    if printer == "list":
+        click.echo("\n".join(presets_table()))
+        return
+    if not models:
+        raise click.UsageError("Missing argument 'MODEL...'.")
+    try:
+        preset = None if printer is None else printer_preset(printer)
+    except InputError as err:
+        raise flag_error(err) from None
+    if preset is not None:
+        layer_height, dpi = preset_grid(ctx, preset, layer_height, dpi)
     with option("--materials"):
         materials = read_materials_file(materials_file)  # the one read of the file: its tables are passed on
     if len(models) == 1 and is_volume_path(models[0]):
@@ -298,7 +320,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
         if into is not None:
             raise click.UsageError("--into: a multi-part job makes one stack; name it with -o/--output")
         slice_parts(models, output, dict(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
-                                         canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs),
+                                         canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
+                                         printer=preset),
                     scale, force, as_json, materials, part_options, bool(channels))
         return
     if solid_only and (grade_kind is not None or channels or interior):
@@ -314,7 +337,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     try:
         spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
                          canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
-                         grade=grade, channels=channels, materials=materials_table(materials), interior=interior)
+                         grade=grade, channels=channels, materials=materials_table(materials), interior=interior,
+                         halftone=halftone, printer=preset)
     except InputError as err:
         raise flag_error(err) from None
     inputs = expand_inputs(models)
@@ -326,6 +350,21 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     run_each(inputs, lambda model: slice_model(model, targets[model], spec, scale, force, as_json, inputs.several,
                                                solid_only, materials=materials),
              key="model", as_json=as_json, debug=(ctx.find_root().obj or {}).get("debug", False))
+
+
+def preset_grid(ctx: click.Context, preset: PrinterPreset, layer_height: float, dpi: str) -> tuple[float, str]:
+    """The layer height (mm) and --dpi text a printer preset slices at; InputError when --layer or --dpi was
+    given (on the command line or in heoslice.toml) with another value."""
+    wanted_dpi = f"{preset.dpi[0]:g}x{preset.dpi[1]:g}"
+    for name, flag, value, agrees in (
+            ("layer_height", "--layer", f"{layer_height:g} mm", lambda: float(layer_height) == preset.layer_mm),
+            ("dpi", "--dpi", str(dpi), lambda: parse_dpi(dpi) == preset.dpi)):
+        given = ctx.get_parameter_source(name) not in (click.core.ParameterSource.DEFAULT, None)
+        if given and not agrees():
+            wanted = f"{preset.layer_mm:g} mm" if name == "layer_height" else wanted_dpi
+            raise InputError(f"{flag}: {value} disagrees with --printer {preset.name} ({wanted}); give one or the "
+                             "other")
+    return preset.layer_mm, wanted_dpi
 
 
 def materials_table(materials: MaterialsFile) -> tuple:

@@ -16,6 +16,9 @@ from pathlib import Path
 from heoslice.errors import InputError, OutputError
 from heoslice.files import check_output, discard_partial, head_bytes, move_into_place, partial_path, write_problem
 
+#: Output names written as one zip file rather than a folder (a GrabCAD Voxel Print File is a zip).
+ZIP_SUFFIXES = (".zip", ".gcvf")
+
 
 @dataclass(frozen=True, slots=True)
 class ExportOptions:
@@ -58,12 +61,12 @@ def is_export(path: Path) -> bool:
 
 
 class Sink:
-    """Files of one export: a folder, or a zip when the target ends in ``.zip``; written to a partial name
+    """Files of one export: a folder, or a zip when the target ends in ``.zip`` or ``.gcvf``; written to a partial name
     beside the target and moved into place by :meth:`commit` (the output rule of :mod:`heoslice.files`)."""
 
     def __init__(self, target: Path, force: bool = False, inputs: tuple[Path, ...] = ()):
         self.target = Path(target)
-        self.is_zip = self.target.suffix.lower() == ".zip"
+        self.is_zip = self.target.suffix.lower() in ZIP_SUFFIXES
         check_output(self.target, "export", force=force, made_here=is_export, inputs=inputs, folder=not self.is_zip)
         parent = self.target.parent if str(self.target.parent) else Path(".")
         if not parent.is_dir():

@@ -7,32 +7,29 @@ without straight points), :mod:`.search` (exact nearest-edge search), :mod:`.lat
 sub-region index), :mod:`.labels` (a layer's labels), :mod:`.materials`, :mod:`.render`
 (the RGBA image), :mod:`.droplets` and :mod:`.halftone` (droplet masks), and
 :mod:`.cache` (what one layer leaves to the next). Each ``*_kernels`` module holds the
-compiled loops of the module it is named after.
+compiled loops of the module it is named after; :mod:`.diffusion` the error-diffusion halftone.
+
+The names below are loaded on first use (PEP 562), not when the package is imported: the halftoning
+methods' names (:mod:`.halftone`) are read by the manifest's checks without the kernels loading.
 """
 
-from heoslice.grading.cache import GradingCache
-from heoslice.grading.droplets import droplet_counts, droplet_planes
-from heoslice.grading.families import (
-    Family,
-    FamilyLayout,
-    family_layout,
-    layer_families,
-)
-from heoslice.grading.field import FamilyField, family_field
-from heoslice.grading.halftone import TILE, bayer_matrix, layer_tile, thresholds
-from heoslice.grading.labels import (
-    LayerRegions,
-    family_of,
-    label_fractions,
-    layer_regions,
-)
-from heoslice.grading.materials import contour_values
-from heoslice.grading.render import GradedLayer, render_graded
-from heoslice.grading.spec import DEPTH_FROM, DIRECTIONS, GradeSpec, RegionSpec, band_count
+from __future__ import annotations
 
-__all__ = [
-    "DEPTH_FROM", "DIRECTIONS", "TILE", "Family", "FamilyField", "FamilyLayout", "GradeSpec", "GradedLayer", "GradingCache",
-    "LayerRegions", "RegionSpec", "band_count", "bayer_matrix", "contour_values", "droplet_counts", "droplet_planes",
-    "family_field", "family_layout", "family_of", "label_fractions", "layer_families", "layer_regions", "layer_tile",
-    "render_graded", "thresholds",
-]
+from heoslice.lazy import lazy_exports
+
+#: Each module of this package -> the public names it defines.
+_MODULES = {
+    "cache": ("GradingCache",),
+    "droplets": ("droplet_counts", "droplet_planes"),
+    "families": ("Family", "FamilyLayout", "family_layout", "layer_families"),
+    "field": ("FamilyField", "family_field"),
+    "halftone": ("TILE", "METHODS", "DEFAULT_METHOD", "bayer_matrix", "blue_noise_ranks", "check_method", "halftone",
+                 "layer_tile", "thresholds"),
+    "diffusion": ("DiffusionCarry",),
+    "labels": ("LayerRegions", "family_of", "label_fractions", "layer_regions"),
+    "materials": ("contour_values",),
+    "render": ("GradedLayer", "render_graded"),
+    "spec": ("DEPTH_FROM", "DIRECTIONS", "GradeSpec", "RegionSpec", "band_count"),
+}
+
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _MODULES)

@@ -310,20 +310,20 @@ def droplet_bits(layer: LabelledLayer, mixing: LayerMixes, dither: Dither, plane
     cells from layout[f, 4], cells of layout[f, 2] pixels from row layout[f, 0], column
     layout[f, 1], layout[f, 3] cells per row) moved by fraction[label] towards ``target``
     (eq. 1); the pixel jets the first material whose running sum of the mix exceeds the
-    ordered-dither threshold ``tile``[row % n, col % n] (n a power of two) times the mix's total
+    threshold ``tile``[row % n, col % n] (n a power of two) times the mix's total
     (the running-sum choice of :mod:`heoslice.grading.halftone`, in the same float32 arithmetic, so the
     masks agree bit for bit). ``packed`` is the layer's solid mask ((h, ceil(w/8)) uint8,
     rows MSB first, padding bits clear); its solid pixels without a label jet
     ``base_channel``. ``table`` ((labels, n * n) int8) short-cuts all that for a label
     whose entry at the pixel's threshold level is not -1 (the level of threshold t is
-    t n^2 - 1/2: the tile holds the ordered-dither values (k + 1/2) / n^2); its row 0 (no
+    t L - 1/2, L = table.shape[1] levels: the tile holds values (k + 1/2) / L); its row 0 (no
     label) must hold ``base_channel``. Bytes of ``planes`` without a solid pixel are left as
     they are.
     """
     tile, table, base_channel = dither
-    size = tile.shape[0]
+    count = table.shape[1]  # the levels: n^2 for a tile of every level once, fewer for a tile that repeats them
     # C order whichever symmetry the layer's tile has (a transposed one is Fortran-ordered): one compiled signature
-    level = np.ascontiguousarray(np.rint(np.asarray(tile, dtype=np.float64) * size * size - 0.5).astype(np.int64))
+    level = np.ascontiguousarray(np.rint(np.asarray(tile, dtype=np.float64) * count - 0.5).astype(np.int64))
     label = layer.label
     rows = label.shape[0]
     if rows > 1 and label.strides[0] == 0:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from heoslice.grading.droplets_kernels import Dither, LabelledLayer, LayerMixes, droplet_bits
-from heoslice.grading.halftone import TILE, layer_tile
+from heoslice.grading.halftone import DEFAULT_METHOD, TILE, halftone, layer_tile
 from heoslice.layers.rasterising import Grid
 
 #: The dither's levels: a tile holds each of them once.
@@ -32,14 +32,26 @@ def levels_below(f: np.ndarray) -> np.ndarray:
 
 
 def fraction_planes(packed: np.ndarray, box: tuple[int, int, int, int], f: np.ndarray, grid: Grid, layer: int,
-                    start: int, target: int, channels: int) -> np.ndarray:
+                    start: int, target: int, channels: int, method: str = DEFAULT_METHOD,
+                    carry=None) -> np.ndarray:
     """The droplet masks ((channels, h, ceil(w / 8)) uint8, bit-packed) of a layer whose solid pixels (``packed``,
     every one inside ``box``: first row, end row, first column, end column) jet the ``target`` channel in the
     share f (in [0, 1], an array that broadcasts to the box; its values off the solid pixels are not read) and
-    the ``start`` channel otherwise, by the layer's ordered dither (the module's rule)."""
+    the ``start`` channel otherwise: by the layer's ordered dither (the module's rule), or by another halftoning
+    ``method`` through :func:`heoslice.grading.halftone.halftone` (``carry``: error diffusion's layer carry)."""
     planes = np.zeros((channels, grid.height, -(-grid.width // 8)), dtype=np.uint8)
     row0, row1, col0, col1 = box
     if row1 <= row0 or col1 <= col0:
+        return planes
+    if method != DEFAULT_METHOD:
+        solid = np.unpackbits(packed[row0:row1], axis=1, count=grid.width)[:, col0:col1].view(bool)
+        share = np.where(solid, np.broadcast_to(np.asarray(f, dtype=np.float32), solid.shape), np.float32(0))
+        mix = np.zeros((*solid.shape, channels), dtype=np.float32)
+        mix[..., start] = np.where(solid, np.float32(1) - share, np.float32(0))
+        mix[..., target] += share
+        masks = np.zeros((channels, row1 - row0, grid.width), dtype=bool)
+        masks[:, :, col0:col1] = halftone(mix, layer, method, carry, origin=(row0, col0))
+        planes[:, row0:row1] = np.packbits(masks, axis=2)
         return planes
     label = np.broadcast_to((levels_below(f) + 1).astype(np.uint16), (row1 - row0, col1 - col0))
     table = np.full((LEVELS + 2, LEVELS), start, dtype=np.int8)

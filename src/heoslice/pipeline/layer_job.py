@@ -20,6 +20,7 @@ from heoslice.stack.tiff import deflate_level
 
 if TYPE_CHECKING:  # the grading package loads its kernels and shapely: a one-material slice never imports it
     from heoslice.grading import GradeSpec, GradingCache
+    from heoslice.grading.diffusion import DiffusionCarry
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,19 +39,23 @@ class PipelineCache:
 
     ``grading`` is the grading stage's own cache (sub-regions, rings, choice table), handed to it
     unchanged; ``solid`` the last 1-bit layer's encoding. One cache per process, kept from run to run
-    (the same slice); a worker starts from a copy of the one its parent's first layer filled.
+    (the same slice); a worker starts from a copy of the one its parent's first layer filled. ``carry`` is
+    not a cache but state: the error an error-diffusion halftone leaves to the next layer
+    (:class:`heoslice.grading.diffusion.DiffusionCarry`), dropped where a run of planes starts
+    (:func:`heoslice.pipeline.runs.slice_run`).
     """
 
     grading: GradingCache | None = None
     solid: EncodedSolid | None = None
+    carry: DiffusionCarry | None = None
 
 
 @dataclass(frozen=True)
 class GradedJob:
     """The extra a graded layer needs: its loops' signed areas, parents and shells ((l,), within
     the layer), the contour points' material mixes ((p, K) float over the channel materials, or None),
-    and the channel files; for the ``field`` interior, the design's field
-    (:class:`heoslice.material.field.MaterialField`) and the layer's height z (mm)."""
+    and the channel files, and the halftoning method of the droplet masks; for the ``field`` interior, the
+    design's field (:class:`heoslice.material.field.MaterialField`) and the layer's height z (mm)."""
 
     spec: GradeSpec
     area: np.ndarray
@@ -60,6 +65,7 @@ class GradedJob:
     channel_paths: tuple[Path, ...] | None
     field: object | None = None
     z: float = 0.0
+    halftone: str = "ordered"
 
 
 @dataclass(frozen=True)
@@ -129,6 +135,10 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
     if cache is not None and cache.grading is None:
         cache.grading = GradingCache()
     grading_cache = None if cache is None else cache.grading
+    if cache is not None and cache.carry is None and graded.halftone == "error-diffusion":
+        from heoslice.grading.diffusion import DiffusionCarry
+
+        cache.carry = DiffusionCarry()
     started = time.perf_counter()
     packed, solid = packed_mask_and_count(job.points, job.offsets, job.grid)
     if graded.field is not None:
@@ -136,7 +146,8 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
     if graded.channel_paths is not None:
         planes = droplet_planes(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, None,
                                 job.grid, graded.spec, job.index, point_material=graded.point_material,
-                                packed=packed, cache=grading_cache)
+                                packed=packed, cache=grading_cache, method=graded.halftone,
+                                carry=None if cache is None else cache.carry)
         rendered = time.perf_counter()
         width, rows = job.grid.width, part_rows(job.points, job.grid)
         level = deflate_level(True)
@@ -172,7 +183,8 @@ def _render_field_and_write(job: LayerJob, packed: np.ndarray, solid: int, cache
     box, f = graded.field.layer_fraction(packed, job.grid, graded.z)
     if graded.channel_paths is not None:
         planes = fraction_planes(packed, box, f, job.grid, job.index, grade.channel_index(design.start),
-                                 grade.channel_index(design.target), len(grade.channel_materials()))
+                                 grade.channel_index(design.target), len(grade.channel_materials()),
+                                 method=graded.halftone, carry=None if cache is None else cache.carry)
         rendered = time.perf_counter()
         width, part = job.grid.width, part_rows(job.points, job.grid)
         level = deflate_level(True)
@@ -230,6 +242,7 @@ def layer_jobs(contours: Contours, mesh: Mesh, grid: Grid, spec: SliceSpec, dire
                 channel_paths=tuple(directory / layer_file_name(index, channel_name(m)) for m in materials)
                 if spec.channels else None,
                 field=field, z=0.0 if z is None else float(z[index]),
+                halftone=spec.halftone,
             )
         yield LayerJob(
             index=index,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,12 @@ class RunContext:
     vertex_mix: np.ndarray | None = None
     field: object | None = None
 
+    @cached_property
+    def run_starts(self) -> frozenset[int]:
+        """The first plane of each run of :func:`plane_runs`: where an error-diffusion halftone starts afresh,
+        whichever process renders the run (the layer after the parent's first is not one)."""
+        return frozenset(start for start, _ in plane_runs(self))
+
 
 @dataclass(frozen=True)
 class RunResult:
@@ -65,8 +72,12 @@ def slice_run(context: RunContext, start: int, stop: int, cache: PipelineCache |
     """Slice, chain, render and write planes z[start:stop]: the whole pipeline for one run of layers.
 
     ``cache`` keeps what the last layer rendered leaves to the next (:class:`PipelineCache`); kept from run
-    to run, it carries that over to the next run's first layer too.
+    to run, it carries that over to the next run's first layer too, but for the error a diffused layer leaves
+    to the next: dropped at the start of every run of :func:`plane_runs`, so that the stack is the same
+    however its runs were shared among processes.
     """
+    if cache is not None and context.spec.halftone == "error-diffusion" and start in context.run_starts:
+        cache.carry = None
     contours, slice_s, contours_s = run_contours(context, start, stop)
     if context.spec.parts is not None:  # a multi-part job: each part's loops on their own, composed by priority
         from heoslice.pipeline.parts import render_parts_run

@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from contextlib import ExitStack, contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -104,6 +105,9 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     job = material_job(mesh, spec)
     spec = job.spec
     grid = grid_for(mesh.bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
+    if spec.printer is not None:
+        _check_printer_materials(spec)
+        grid = replace(grid, width=-(-grid.width // spec.printer.pad_x_px) * spec.printer.pad_x_px)
     check_image_size(grid.width, grid.height)
     bounds = mesh.bounds
     limit = layer_limit(spec)
@@ -166,6 +170,14 @@ def _incomplete_if_interrupted(directory: Path):
         raise
 
 
+def _check_printer_materials(spec: SliceSpec) -> None:
+    """Refuse a slice with more droplet-mask materials than its printer preset jets in one job."""
+    count = len(_droplet_materials(spec) or ()) or 1
+    if count > spec.printer.max_materials:
+        raise InputError(f"printer: {spec.printer.name} jets at most {spec.printer.max_materials} model materials "
+                         f"in one job; this slice has {count}")
+
+
 def _image_mode(spec: SliceSpec) -> str:
     """The layer images' mode: RGBA for a graded preview stack (materials' colours), else 1-bit: the solid
     mask (with droplet masks, which carry the materials; a multi-part job's too)."""
@@ -178,7 +190,7 @@ def _grading(spec: SliceSpec) -> dict | None:
         return droplet_summary(spec.parts.materials) if spec.parts.channels else None
     if spec.grade is None:
         return None
-    return grading_summary(spec.grade, interior=spec.interior,
+    return grading_summary(spec.grade, spec.halftone if spec.channels else None, interior=spec.interior,
                            design=None if spec.design is None else spec.design.record())
 
 

@@ -12,11 +12,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from heoslice.errors import InputError, shown
+from heoslice.grading.halftone import DEFAULT_METHOD, check_method
 from heoslice.stack import COMPRESSIONS, DEFAULT_COMPRESSION
 
 if TYPE_CHECKING:  # the grading package loads its kernels and shapely: a one-material slice never imports it
     from heoslice.grading import GradeSpec
     from heoslice.pipeline.parts import PartsPlan
+    from heoslice.pipeline.printers import PrinterPreset
 
 MIN_LAYER_MM, MAX_LAYER_MM = 1e-3, 10_000.0
 MIN_DPI, MAX_DPI = 1.0, 100_000.0
@@ -66,7 +68,10 @@ class SliceSpec:
     ``design`` is the coloured model's design (:class:`heoslice.material.design.Design`, its materials as
     the table has them; None: the mesh's own record, if any, is read); ``interior`` what a coloured model's
     solid gets (:data:`heoslice.material.design.INTERIORS`; None: ``field`` for a model with a design,
-    ``graded`` with ``grade``'s function, else ``contour``).
+    ``graded`` with ``grade``'s function, else ``contour``). ``halftone`` is how a graded layer's mix becomes
+    droplets (:data:`heoslice.grading.halftone.METHODS`). ``printer`` (a
+    :class:`heoslice.pipeline.printers.PrinterPreset`) pads the image width to its multiple and limits the
+    materials; its resolution and layer pitch must be the spec's.
     """
 
     layer_height_mm: float = 0.1
@@ -83,12 +88,23 @@ class SliceSpec:
     parts: PartsPlan | None = None
     design: object | None = None
     interior: str | None = None
+    halftone: str = DEFAULT_METHOD
+    printer: PrinterPreset | None = None
 
     def __post_init__(self):
         from heoslice.material.design import INTERIORS
 
         if self.interior is not None and self.interior not in INTERIORS:
             raise InputError(f"interior: unknown interior {self.interior!r} (choose from {', '.join(INTERIORS)})")
+        if self.printer is not None and (tuple(map(float, self.dpi)) != self.printer.dpi
+                                         or float(self.layer_height_mm) != self.printer.layer_mm):
+            raise InputError(f"printer: {self.printer.name} slices at {self.printer.dpi[0]:g}x{self.printer.dpi[1]:g} "
+                             f"dpi and {self.printer.layer_mm:g} mm layers, not {self.dpi[0]:g}x{self.dpi[1]:g} dpi "
+                             f"and {self.layer_height_mm:g} mm")
+        try:
+            check_method(self.halftone)
+        except ValueError as err:
+            raise InputError(str(err)) from None
         if self.compression not in COMPRESSIONS:
             raise InputError(f"compression: unknown compression {self.compression!r}; "
                              f"choose one of {', '.join(COMPRESSIONS)}")

@@ -219,7 +219,8 @@ def slice_intensity_to_stack(volume: Volume, directory: Path, spec: SliceSpec, c
     """Slice an intensity volume (a CT) into a stack: per layer the values interpolated at the pixels, solid
     where they reach the curve's first point, each solid pixel's blend of materials from ``curve``
     (:class:`heoslice.volume.intensity.IntensityCurve`) halftoned into one droplet mask per material."""
-    from heoslice.volume.intensity import halftone_mix, intensity_plane
+    from heoslice.grading.halftone import halftone
+    from heoslice.volume.intensity import intensity_plane
 
     times = StageTimes()
     started = time.perf_counter()
@@ -239,7 +240,8 @@ def slice_intensity_to_stack(volume: Volume, directory: Path, spec: SliceSpec, c
     def render(index: int, z: float) -> tuple[np.ndarray, np.ndarray]:
         values, inside = intensity_plane(oriented, origin, spacing, z, grid)
         solid = inside & (values >= curve.values[0])
-        return _packed(np.concatenate([solid[None], halftone_mix(curve.mix(values), solid, index)]))
+        return _packed(np.concatenate([solid[None], halftone(curve.mix(values) * solid[..., None], index,
+                                                              spec.halftone)]))
 
     manifest = _write_stack(
         Path(directory), spec, grid, bounds, curve.materials, render,
@@ -258,7 +260,8 @@ def slice_ct_with_labels_to_stack(ct: Volume, labels: Volume, directory: Path, s
     prints them, except those whose index in ``plan.labels`` is in ``curve_labels``: inside them each pixel's
     material follows the CT's value through ``curve`` (bone by its density), halftoned. The droplet masks'
     materials are the labels' and the curve's, ordered by printer channel."""
-    from heoslice.volume.intensity import halftone_mix, intensity_plane
+    from heoslice.grading.halftone import halftone
+    from heoslice.volume.intensity import intensity_plane
 
     if ct.shape != labels.shape or not np.allclose(ct.ras_affine(), labels.ras_affine(), atol=1e-3):
         raise InputError(f"{labels.source}: not on the grid of {ct.source} (shape and affine must agree)")
@@ -291,7 +294,7 @@ def slice_ct_with_labels_to_stack(ct: Volume, labels: Volume, directory: Path, s
         inside = np.unpackbits(packed[-1], axis=1, count=grid.width).astype(bool)
         if inside.any():
             values, _ = intensity_plane(oriented, origin, spacing, z, grid)
-            blend = halftone_mix(curve.mix(values), inside, index)
+            blend = halftone(curve.mix(values) * inside[..., None], index, spec.halftone)
             for column, plane in zip(curve_columns, blend):
                 planes[column + 1] |= plane
         return _packed(planes)

@@ -17,6 +17,8 @@ import numpy as np
 
 from heoslice import __version__
 from heoslice.errors import InputError, VerifyError
+from heoslice.grading.halftone import DEFAULT_METHOD as DEFAULT_HALFTONE
+from heoslice.grading.halftone import METHODS as HALFTONE_METHODS
 from heoslice.layers.planes import layer_count
 from heoslice.material import MAX_CHANNEL, is_channel, shared_channel
 
@@ -155,16 +157,22 @@ def _layer_entry(index: int, layer: LayerRecord) -> dict:
     return entry
 
 
-def grading_summary(grade, interior: str | None = None, design: dict | None = None) -> dict:
+def grading_summary(grade, halftone: str | None = None, interior: str | None = None,
+                    design: dict | None = None) -> dict:
     """The manifest's ``grading`` object of a grading specification (``GradeSpec``): what the interiors
-    were graded with, and the materials of the droplet masks in the order of the layers' masks; ``interior``
-    (``field``, ``contour`` or ``graded``: what a coloured model's solid got) and ``design`` (the model's
-    recorded design, :meth:`heoslice.material.design.Design.record`) when given."""
+    were graded with, the materials of the droplet masks in the order of the layers' masks, and, for a stack
+    with droplet masks, the ``halftone`` method that made them (:data:`heoslice.grading.halftone.METHODS`)
+    unless it is ordered dither: without the field a stack is ordered, as every stack made before there was a
+    choice (and an ordered stack stays byte for byte what it was); ``interior`` (``field``, ``contour`` or
+    ``graded``: what a coloured model's solid got) and ``design`` (the model's recorded design,
+    :meth:`heoslice.material.design.Design.record`) when given."""
     regions = grade.regions
     material = _material_record
     extra = {key: value for key, value in (("interior", interior), ("design", design)) if value is not None}
     if getattr(regions, "depth_from", "layer") != "layer":
         extra["depth_from"] = regions.depth_from
+    if halftone not in (None, DEFAULT_HALFTONE):
+        extra["halftone"] = halftone
     return {**extra,
         "function": None if grade.function is None else grade.function.describe(),
         "target": material(grade.target),
@@ -305,6 +313,9 @@ def _grading_problem(manifest: dict) -> str | None:
         return None
     if not isinstance(grading, dict):
         return "'grading' must be an object"
+    halftone = grading.get("halftone", DEFAULT_HALFTONE)
+    if not (isinstance(halftone, str) and halftone in HALFTONE_METHODS):
+        return f"grading.halftone is {_show(halftone)}, not one of {', '.join(HALFTONE_METHODS)}"
     materials = grading.get("materials")
     if materials is None:
         return None

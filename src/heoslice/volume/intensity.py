@@ -78,27 +78,6 @@ def read_curve(data: dict, table: dict[str, Material], where: str = "[intensity]
     return IntensityCurve(values, mixes / totals[:, None], materials)
 
 
-def halftone_mix(mix: np.ndarray, solid: np.ndarray, layer: int) -> np.ndarray:
-    """(K, H, W) bool droplet masks of per-pixel fractions ``mix`` ((H, W, K) float32) over ``solid`` ((H, W)
-    bool): the ordered dither of :func:`heoslice.grading.halftone.thresholds` (the layer's decorrelated Bayer
-    tile), each pixel taking the first material whose running fraction exceeds its threshold; every solid
-    pixel in exactly one mask."""
-    from heoslice.grading.halftone import thresholds
-
-    threshold = thresholds(solid.shape, layer)
-    count = mix.shape[-1]
-    chosen = np.full(solid.shape, count - 1, dtype=np.int16)
-    running = np.zeros(solid.shape, dtype=np.float32)
-    undecided = np.ones(solid.shape, dtype=bool)
-    for material in range(count - 1):
-        running += mix[..., material]
-        here = undecided & (threshold < running)
-        chosen[here] = material
-        undecided &= ~here
-    chosen[~solid] = -1
-    return chosen[None] == np.arange(count, dtype=np.int16)[:, None, None]
-
-
 def intensity_plane(oriented: np.ndarray, origin: np.ndarray, spacing: np.ndarray, z_mm: float,
                     grid: Grid) -> tuple[np.ndarray, np.ndarray]:
     """((H, W) float32 values, (H, W) bool inside) of an intensity volume at the layer's pixel centres:

@@ -1,0 +1,122 @@
+"""``gcvf``: a GrabCAD Voxel Print File (Stratasys PolyJet): one zip GrabCAD Print opens as it is.
+
+The zip holds ``layer_0.png``, ``layer_1.png``, ... (numbered from 0 without padding, bottom first;
+RGBA, one exact colour per material, empty pixels opaque black) and ``ConfigFile.xml``: the
+resolution, the slice thickness in nanometres, the slice size and count, the bit depth, the most
+colours, and per material its name, RGBA and voxel count (its pixels over every slice written).
+The layers are resampled onto the printer grid as ``voxel-print`` does (nearest sample; an exact copy
+for a stack sliced with the printer's preset, ``slice --printer``). Field names and layout follow the
+public builders listed in ``docs/export-formats.md``. At most :data:`MAX_MATERIALS` materials.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from xml.sax.saxutils import escape
+
+import numpy as np
+
+from heoslice.errors import InputError
+from heoslice.export.base import ExportFormat, ExportOptions, Sink
+from heoslice.export.voxel_print import (
+    DEFAULT_DPI,
+    DEFAULT_PITCH_MM,
+    layer_labels,
+    palette,
+    sample_indices,
+)
+from heoslice.stack import MANIFEST, MAX_IMAGE_PIXELS, MAX_LAYERS
+
+#: Most model materials one .gcvf carries (its ConfigFile's MaxNumberOfColors).
+MAX_MATERIALS = 6
+#: ConfigFile.xml's format version and bit depth, as the public builders write them.
+CONFIG_VERSION = 2
+BIT_DEPTH = 4
+BACKGROUND_RGBA = (0, 0, 0, 255)
+CONFIG_FILE = "ConfigFile.xml"
+
+
+def config_xml(materials: list[tuple[str, tuple[int, int, int]]], counts: list[int], dpi: tuple[float, float],
+               pitch_mm: float, size: tuple[int, int], slices: int) -> bytes:
+    """The ``ConfigFile.xml`` of a .gcvf: materials (name, RGB) with their voxel counts, resolution (dpi x, y),
+    slice thickness (mm, written in nanometres), slice size (width, height px) and count."""
+    rows = "\n".join(
+        f"        <Material>\n            <Name>{escape(name)}</Name>\n"
+        f"            <RGBA>{' '.join(str(v) for v in (*colour, 255))}</RGBA>\n"
+        f"            <VoxelCount>{count}</VoxelCount>\n        </Material>"
+        for (name, colour), count in zip(materials, counts))
+    text = f"""<?xml version="1.0" encoding="UTF-8"?>
+<GCVF>
+    <Version>{CONFIG_VERSION}</Version>
+    <Resolution>
+        <XDpi>{round(dpi[0])}</XDpi>
+        <YDpi>{round(dpi[1])}</YDpi>
+        <SliceThicknessNanoMeter>{round(pitch_mm * 1e6)}</SliceThicknessNanoMeter>
+    </Resolution>
+    <SliceDimensions>
+        <SliceWidth>{size[0]}</SliceWidth>
+        <SliceHeight>{size[1]}</SliceHeight>
+    </SliceDimensions>
+    <SliceRange>
+        <StartIndex>0</StartIndex>
+        <NumberOfSlices>{slices}</NumberOfSlices>
+    </SliceRange>
+    <BitDepth>{BIT_DEPTH}</BitDepth>
+    <MaxNumberOfColors>{MAX_MATERIALS}</MaxNumberOfColors>
+    <DataSemantics>Materials</DataSemantics>
+    <CreationMode>MODEL_ONLY</CreationMode>
+    <ImageFilePrefix>layer_</ImageFilePrefix>
+    <MaterialList>
+        <BackGroundMaterialRGBA>{' '.join(str(v) for v in BACKGROUND_RGBA)}</BackGroundMaterialRGBA>
+{rows}
+    </MaterialList>
+</GCVF>
+"""
+    return text.encode("utf-8")
+
+
+def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -> dict:
+    """Write the layers and ``ConfigFile.xml`` into the .gcvf zip."""
+    from PIL import Image
+
+    if not sink.is_zip:
+        raise InputError(f"format: a .gcvf is one zip file; name the output {sink.target.name}.gcvf")
+    if options.background is not None:
+        raise InputError("background: a .gcvf's empty voxels are black (its BackGroundMaterialRGBA)")
+    dpi = options.dpi or DEFAULT_DPI
+    pitch = options.pitch_mm or DEFAULT_PITCH_MM
+    materials = palette(manifest, BACKGROUND_RGBA[:3], Path(directory) / MANIFEST)
+    if len(materials) > MAX_MATERIALS:
+        raise InputError(f"format: a .gcvf carries at most {MAX_MATERIALS} materials; this stack has "
+                         f"{len(materials)} ({', '.join(name for name, _ in materials)})")
+    image, (px, py), h = manifest["image"], manifest["pixel_size_mm"], manifest["layer_height_mm"]
+    new_px, new_py = 25.4 / dpi[0], 25.4 / dpi[1]
+    width, height = max(1, round(image["width"] * px / new_px)), max(1, round(image["height"] * py / new_py))
+    z_min, z_max = manifest["z_range_mm"]
+    slices = max(1, int(np.ceil((z_max - z_min) / pitch - 1e-9)))
+    if width * height > MAX_IMAGE_PIXELS or slices > 4 * MAX_LAYERS:
+        raise InputError(f"dpi: {slices} slices of {width} x {height} px at {dpi[0]:g} x {dpi[1]:g} dpi and "
+                         f"{pitch:g} mm is more than an export writes")
+    columns = sample_indices(image["width"], px, new_px, width)
+    rows = sample_indices(image["height"], py, new_py, height)
+    sources = sample_indices(len(manifest["layers"]), h, pitch, slices)
+    colours = np.array([BACKGROUND_RGBA] + [(*colour, 255) for _, colour in materials], dtype=np.uint8)
+    counts = np.zeros(len(materials) + 1, dtype=np.int64)
+    cached = (None, None, None)
+    for number, source in enumerate(sources):
+        if cached[0] != source:
+            labels = layer_labels(directory, manifest, int(source))[np.ix_(rows, columns)]
+            buffer = io.BytesIO()
+            Image.fromarray(colours[labels], "RGBA").save(buffer, format="PNG", dpi=(round(dpi[0]), round(dpi[1])))
+            cached = (source, buffer.getvalue(), np.bincount(labels.ravel(), minlength=len(colours)))
+        sink.add(f"layer_{number}.png", cached[1])
+        counts += cached[2]
+    sink.add(CONFIG_FILE, config_xml(materials, counts[1:].tolist(), dpi, pitch, (width, height), slices))
+    return {"format": "gcvf", "slices": slices, "width": width, "height": height, "dpi": list(dpi), "pitch_mm": pitch,
+            "materials": [{"name": name, "rgba": [*colour, 255], "voxels": int(count)}
+                          for (name, colour), count in zip(materials, counts[1:])]}
+
+
+FORMAT = ExportFormat("gcvf", "GrabCAD Voxel Print File (Stratasys PolyJet): one zip of layer_N.png and "
+                      "ConfigFile.xml, at most 6 materials, 600 x 300 dpi at 0.027 mm by default", write)
