@@ -83,7 +83,7 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
                    progress: Callable[[int, int], None] | None = None) -> tuple[dict, StageTimes]:
     """Slice ``mesh`` into a stack in ``directory``; return the manifest and stage timings.
 
-    ``progress(done, total)`` is called as layers finish. The manifest is written
+    ``progress(done, total)`` is called as each layer is written. The manifest is written
     last; if anything fails before, the directory holds no manifest.
     """
     directory = Path(directory)
@@ -120,12 +120,17 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
             open_layers[run.open_layers] = True
             times.slice += run.slice_s
             times.contours += run.contours_s
+
+        written = [0]
+
+        def on_layers(count: int) -> None:
+            written[0] += count
             if progress is not None:
-                progress(len(results), len(z))
+                progress(written[0], len(z))
 
         context = RunContext(mesh=mesh, z=z, face_range=face_z_range(mesh.vertices, mesh.faces), grid=grid,
                              spec=spec, directory=directory, vertex_mix=job.vertex_mix)
-        run_all(context, spec.worker_count(), on_done)
+        run_all(context, spec.worker_count(), on_done, on_layers)
         mode = _image_mode(spec)
         droplets = _droplet_materials(spec)
         manifest = build_manifest(

@@ -4,6 +4,7 @@ files."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -11,8 +12,8 @@ import numpy as np
 
 from heoslice.errors import VerifyError
 from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST, layer_height_problems, mask_channels
-from heoslice.stack.read import (decode_checked, decode_mask, read_checked, read_layer_mask, read_manifest,
-                                 resolve_inside)
+from heoslice.stack.packed import Bits, count_bits, read_layer_file, solid_bits
+from heoslice.stack.read import read_manifest, resolve_inside
 
 
 @dataclass(frozen=True)
@@ -29,44 +30,78 @@ class StackReport:
 
 
 
-def _layer_file_problem(path: Path, name: str, digest: str, solid: int | None, manifest: dict,
-                        mode: str | None, check_pixels: bool) -> str | None:
-    """Problem of one listed image file (layout, size, hash, solid pixel count), or None."""
+#: One listed file of a layer to check: (path, name, sha256, solid pixel count or None, image mode or None).
+FileCheck = tuple[Path, str, str, int | None, str | None]
+
+
+def _file_problem(check: FileCheck, manifest: dict, check_pixels: bool) -> tuple[str | None, Bits | None]:
+    """(problem of one listed image file or None, its solid pixels as packed rows when decoded): layout, size,
+    hash, and the solid pixel count (the file read and decoded once)."""
+    path, name, digest, solid, mode = check
     try:
-        data = read_checked(path, name, digest, manifest, mode)
-        if check_pixels and solid is not None:
-            found = decode_checked(data, name, manifest, mode, None)
-            if found != solid:
-                return f"{name}: has {found} solid pixels, manifest says {solid}"
+        layer = read_layer_file(path, name, digest, manifest, mode)
+        if not check_pixels:
+            return None, None
+        bits = solid_bits(layer, manifest["mask"] == "alpha" and mode is not None)
+        found = count_bits(bits.rows[bits.span[0]:bits.span[1]])
+        if solid is not None and found != solid:
+            return f"{name}: has {found} solid pixels, manifest says {solid}", bits
+        return None, bits
     except VerifyError as err:
-        return str(err)
-    return None
+        return str(err), None
 
 
-
-def _channel_problems(directory: Path, manifest: dict, index: int) -> list[str]:
-    """Droplet masks against their layer: every solid pixel in exactly one mask, empty pixels in none."""
-    entry = manifest["layers"][index]
-    solid = read_layer_mask(directory, manifest, index)
-    jets = np.zeros(solid.shape, dtype=np.uint8)
-    for channel in entry["channels"]:
-        jets += decode_mask(resolve_inside(directory, channel["file"]), manifest, sha256=channel["sha256"])
+def _coverage_problems(index: int, solid: Bits, masks: list[Bits]) -> list[str]:
+    """Droplet masks against their layer: every solid pixel in exactly one mask, empty pixels in none (over
+    the rows where any of them has a set bit)."""
+    first = min(bits.span[0] for bits in [solid, *masks])
+    stop = max(bits.span[1] for bits in [solid, *masks])
+    solid_rows = solid.rows[first:stop]
+    seen = np.zeros_like(solid_rows)
+    doubled = np.zeros_like(solid_rows)
+    for mask in masks:
+        rows = mask.rows[first:stop]
+        doubled |= seen & rows
+        seen |= rows
     problems = []
-    doubled = int(np.count_nonzero(jets > 1))
-    if doubled:
-        problems.append(f"layer {index}: {doubled} pixels are set in more than one droplet mask")
-    unmatched = int(np.count_nonzero((jets > 0) != solid))
+    if count_bits(doubled):
+        problems.append(f"layer {index}: {count_bits(doubled)} pixels are set in more than one droplet mask")
+    unmatched = count_bits(seen ^ solid_rows)
     if unmatched:
         problems.append(f"layer {index}: {unmatched} pixels where the droplet masks do not cover exactly "
                         "the layer's solid pixels")
     return problems
 
 
-def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:
+def layer_problems(index: int, plan: list, manifest: dict, check_pixels: bool) -> list[str]:
+    """Problems of layer ``index``, one line each: ``plan`` lists its files in order, each a problem line
+    already found (str) or a :data:`FileCheck`; the droplet masks are checked against the layer when every
+    file passed. Each file is read, hashed and decoded once."""
+    problems, bits = [], []
+    for item in plan:
+        if isinstance(item, str):
+            problems.append(item)
+            continue
+        problem, decoded = _file_problem(item, manifest, check_pixels)
+        if problem:
+            problems.append(f"layer {index}: {problem}")
+        bits.append(decoded)
+    channels = manifest["layers"][index].get("channels")
+    if channels and check_pixels and not problems:
+        problems += _coverage_problems(index, bits[0], bits[1:])
+    return problems
+
+
+def verify_stack(directory: Path, *, check_pixels: bool = True, workers: int | None = None,
+                 progress: Callable[[int, int], None] | None = None) -> StackReport:
     """Check a stack: manifest, every listed file (inside, present, sha256, size, dpi, solid pixels), extras.
 
-    Returns a report listing every problem found, one line each.
+    Returns a report listing every problem found, one line each. The layers are checked in ``workers``
+    processes (:func:`heoslice.pipeline.parallel.ordered_map`; default one per core), each file read and
+    decoded once; ``progress(done, total)`` is called as each layer's check is done.
     """
+    from heoslice.pipeline.parallel import ordered_map
+
     directory = Path(directory)
     try:
         manifest = read_manifest(directory)
@@ -75,28 +110,34 @@ def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:
     problems: list[str] = []
     listed: dict[Path, str] = {}
     mode = manifest["image"].get("mode", "1")
+    plans = []
     for entry in manifest["layers"]:
         index = entry["index"]
         files = [(entry["file"], entry["sha256"], entry["solid_pixels"], mode)]
         files += [(channel["file"], channel["sha256"], channel.get("solid_pixels"), None)
                   for channel in entry.get("channels", [])]
+        plan: list = []
         for name, digest, solid, file_mode in files:
             path = resolve_inside(directory, name)
             if path is None:
-                problems.append(f"layer {index}: file {name!r} lies outside the stack")
+                plan.append(f"layer {index}: file {name!r} lies outside the stack")
                 continue
             if path in listed:
-                problems.append(f"layer {index}: {name} is listed twice (also by {listed[path]})")
+                plan.append(f"layer {index}: {name} is listed twice (also by {listed[path]})")
                 continue
             listed[path] = f"layer {index}"
             if not path.is_file():
-                problems.append(f"layer {index}: {name} is missing")
+                plan.append(f"layer {index}: {name} is missing")
                 continue
-            problem = _layer_file_problem(path, name, digest, solid, manifest, file_mode, check_pixels)
-            if problem:
-                problems.append(f"layer {index}: {problem}")
-        if entry.get("channels") and check_pixels and not any(p.startswith(f"layer {index}:") for p in problems):
-            problems += _channel_problems(directory, manifest, index)
+            plan.append((path, name, digest, solid, file_mode))
+        plans.append(plan)
+    total = len(plans)
+    for done, found in enumerate(ordered_map(lambda index: layer_problems(index, plans[index], manifest,
+                                                                          check_pixels),
+                                             range(total), workers), start=1):
+        problems += found
+        if progress is not None:
+            progress(done, total)
     try:
         mask_channels(manifest, MANIFEST)
     except VerifyError as err:
@@ -110,9 +151,10 @@ def verify_stack(directory: Path, *, check_pixels: bool = True) -> StackReport:
     return StackReport(directory, tuple(problems), manifest)
 
 
-def load_verified(directory: Path) -> dict:
-    """The manifest of a stack that passes :func:`verify_stack`; raise VerifyError with its problems otherwise."""
-    report = verify_stack(directory)
+def load_verified(directory: Path, progress: Callable[[int, int], None] | None = None) -> dict:
+    """The manifest of a stack that passes :func:`verify_stack` (``progress`` passed on); raise VerifyError
+    with its problems otherwise."""
+    report = verify_stack(directory, progress=progress)
     if not report.ok:
         more = f" (and {len(report.problems) - 1} more problem(s))" if len(report.problems) > 1 else ""
         first = report.problems[0]
