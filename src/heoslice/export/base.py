@@ -63,6 +63,13 @@ class Sink:
         except OSError as err:
             raise OutputError(f"{self.target}: cannot write ({err.strerror})") from err
         self.files: list[str] = []
+        #: ``progress(done, total)`` a format reports its layers to (:meth:`progress`), when the caller sets it.
+        self.on_progress: Callable[[int, int], None] | None = None
+
+    def progress(self, done: int, total: int) -> None:
+        """A format has written ``done`` of its ``total`` layers (or slices)."""
+        if self.on_progress is not None:
+            self.on_progress(done, total)
 
     def add(self, name: str, data: bytes) -> None:
         """Write one file of the export."""

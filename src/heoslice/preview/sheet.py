@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from itertools import islice
 from pathlib import Path
 
 import numpy as np
 
 from heoslice.errors import InputError, shown
+from heoslice.pipeline.parallel import ordered_map
 from heoslice.preview.layer import layer_image
 from heoslice.stack import read_manifest
 
@@ -72,9 +74,10 @@ def sheet_size(count: int, tile: int, columns: int | None) -> tuple[int, int, in
 
 
 def contact_sheet(directory: Path, layers: list[int], tile: int = 256, columns: int | None = None,
-                  manifest: dict | None = None):
+                  manifest: dict | None = None, progress: Callable[[int, int], None] | None = None):
     """PIL RGB image: the given layers side by side, each reduced to ``tile`` pixels and labelled with its
-    number and z. Its size is checked (:func:`sheet_size`) before anything is decoded."""
+    number and z. Its size is checked (:func:`sheet_size`) before anything is decoded; the tiles are drawn
+    over the cores (:func:`heoslice.pipeline.parallel.ordered_map`), ``progress(done, total)`` following them."""
     from PIL import Image, ImageDraw
 
     directory = Path(directory)
@@ -82,8 +85,11 @@ def contact_sheet(directory: Path, layers: list[int], tile: int = 256, columns: 
     manifest = read_manifest(directory) if manifest is None else manifest
     sheet = Image.new("RGB", (width, height), (200, 200, 200))
     draw = ImageDraw.Draw(sheet)
-    for position, index in enumerate(layers):
-        image = layer_image(directory, index, tile, manifest)
+    tiles = ordered_map(lambda index: np.asarray(layer_image(directory, index, tile, manifest)), layers)
+    for position, (index, pixels) in enumerate(zip(layers, tiles)):
+        image = Image.fromarray(pixels)
+        if progress is not None:
+            progress(position + 1, len(layers))
         x = 4 + (position % columns) * (tile + 4)
         y = 4 + (position // columns) * (tile + LABEL_HEIGHT + 4)
         sheet.paste(image, (x + (tile - image.size[0]) // 2, y + LABEL_HEIGHT + (tile - image.size[1]) // 2))

@@ -232,6 +232,7 @@ def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, st
             return None
         if done != expected:
             return None
+        target[expected] = 0  # the spare byte, which a decoder may have written: the next strip's, if decoded
         if short and len(_BLANK_STRIPS) < _MAX_BLANK_STRIPS and not target[:expected].any():
             _BLANK_STRIPS.add(bytes(strip))
             continue
