@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from heoslice.cli.common import progress_bar
 from heoslice.errors import InputError, OutputError
 from heoslice.preview.layer import MAX_PREVIEW_SIDE, MIN_PREVIEW_SIDE
 from heoslice.preview.sheet import MAX_SHEET_LAYERS, MAX_TILE, MIN_TILE
@@ -74,7 +75,8 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
         target, draw = _plan(stack, manifest, layer, sheet, layers, size, tile, columns, section, output)
         if target.suffix.lower() != ".png":
             raise InputError(f"{target}: the preview is a PNG; give a file name ending in .png")
-        image = draw()
+        with progress_bar("drawing", enabled=not as_json) as progress:
+            image = draw(progress)
     try:
         image.save(target, format="PNG")
     except OSError as err:
@@ -107,7 +109,7 @@ def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: s
         axis, position = parse_section(section)
         section_line(manifest, axis, position)
         return (output or Path.cwd() / f"{name}_section_{axis}{position:g}.png",
-                lambda: section_image(stack, axis, position, size, manifest))
+                lambda progress: section_image(stack, axis, position, size, manifest, progress))
     if sheet:
         if layer is not None:
             raise InputError("--layer: use --layers with --sheet")
@@ -115,10 +117,12 @@ def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: s
                                                                        .round().astype(int).tolist()))
         sheet_size(len(chosen), tile, columns)
         return (output or Path.cwd() / f"{name}_sheet.png",
-                lambda: contact_sheet(stack, chosen, tile=tile, columns=columns, manifest=manifest))
+                lambda progress: contact_sheet(stack, chosen, tile=tile, columns=columns, manifest=manifest,
+                                               progress=progress))
     if layers is not None:
         raise InputError("--layers: only used with --sheet")
     index = count // 2 if layer is None else layer
     if not 0 <= index < count:
         raise InputError(f"--layer: layer {index} does not exist (the stack has layers 0..{count - 1})")
-    return output or Path.cwd() / f"{name}_layer_{index:05d}.png", lambda: layer_image(stack, index, size, manifest)
+    return (output or Path.cwd() / f"{name}_layer_{index:05d}.png",
+            lambda progress: layer_image(stack, index, size, manifest))

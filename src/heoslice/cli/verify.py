@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from heoslice.cli.common import plural, signed_percent
+from heoslice.cli.common import plural, progress_bar, signed_percent
 from heoslice.errors import InputError, VerifyError
 from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, volume_check
 from heoslice.stack import (
@@ -119,7 +119,8 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float, tolerance: float
         _check_count_first(stack, models)
         mesh = load_mesh(models[0]) if len(models) == 1 else load_assembly(models)
         mesh = scaled(mesh, scale) if scale != 1.0 else mesh
-    report = verify_stack(stack)
+    with progress_bar("verifying", enabled=not as_json) as progress:
+        report = verify_stack(stack, progress=progress)
     problems, warnings, mesh_summary = list(report.problems), [], None
     if mesh is not None and report.manifest:
         mesh_problems, warnings, mesh_summary = mesh_checks(report.manifest, mesh, scale, tolerance, models)
