@@ -92,14 +92,15 @@ def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: s
           tile: int, columns: int | None, section: str | None, output: Path | None):
     """(target PNG path, function drawing the PIL image) of the requested preview, options checked."""
     from heoslice.preview import (
+        annotated_layer_image,
+        annotated_section_image,
         contact_sheet,
-        layer_image,
         parse_layers,
         parse_section,
-        section_image,
         sheet_size,
     )
     from heoslice.preview.section import section_line
+    from heoslice.preview.sheet import layer_aspect
 
     count = len(manifest["layers"])
     name = stack.resolve().name
@@ -109,13 +110,13 @@ def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: s
         axis, position = parse_section(section)
         section_line(manifest, axis, position)
         return (output or Path.cwd() / f"{name}_section_{axis}{position:g}.png",
-                lambda progress: section_image(stack, axis, position, size, manifest, progress))
+                lambda progress: annotated_section_image(stack, axis, position, size, manifest, progress))
     if sheet:
         if layer is not None:
             raise InputError("--layer: use --layers with --sheet")
         chosen = parse_layers(layers, count) if layers else sorted(set(np.linspace(0, count - 1, min(16, count))
                                                                        .round().astype(int).tolist()))
-        sheet_size(len(chosen), tile, columns)
+        sheet_size(len(chosen), tile, columns, layer_aspect(manifest))
         return (output or Path.cwd() / f"{name}_sheet.png",
                 lambda progress: contact_sheet(stack, chosen, tile=tile, columns=columns, manifest=manifest,
                                                progress=progress))
@@ -125,4 +126,4 @@ def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: s
     if not 0 <= index < count:
         raise InputError(f"--layer: layer {index} does not exist (the stack has layers 0..{count - 1})")
     return (output or Path.cwd() / f"{name}_layer_{index:05d}.png",
-            lambda progress: layer_image(stack, index, size, manifest))
+            lambda progress: annotated_layer_image(stack, index, size, manifest))

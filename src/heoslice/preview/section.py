@@ -121,4 +121,22 @@ def section_image(directory: Path, axis: str, position_mm: float, size: int | No
     return Image.fromarray(rows).resize((width_out, height_out), Image.Resampling.BOX)
 
 
-__all__ = ["MAX_PREVIEW_SIDE", "parse_section", "section_image", "section_line"]
+def annotated_section_image(directory: Path, axis: str, position_mm: float, size: int | None = None,
+                            manifest: dict | None = None, progress: Callable[[int, int], None] | None = None):
+    """:func:`section_image` with a footer (:func:`heoslice.preview.annotate.annotate`): the cut's position and
+    the layers' z range, the legend of the stack's materials and a scale bar in mm (the section is drawn at
+    its true aspect ratio, so the bar holds up and across)."""
+    from heoslice.preview.annotate import annotate, legend_of
+    from heoslice.preview.layer import SOLID_GREY
+
+    manifest = read_manifest(Path(directory)) if manifest is None else manifest
+    image = section_image(directory, axis, position_mm, size, manifest, progress)
+    across_px, pixel = ((manifest["image"]["height"], manifest["pixel_size_mm"][1]) if axis == "x"
+                        else (manifest["image"]["width"], manifest["pixel_size_mm"][0]))
+    layers = manifest["layers"]
+    title = (f"section {axis} = {position_mm:g} mm; layers 0..{len(layers) - 1}, "
+             f"z {layers[0]['z_mm']:.2f}..{layers[-1]['z_mm']:.2f} mm")
+    return annotate(image, title, legend_of(manifest, SOLID_GREY), image.size[0] / (across_px * pixel))
+
+
+__all__ = ["MAX_PREVIEW_SIDE", "annotated_section_image", "parse_section", "section_image", "section_line"]
