@@ -5,12 +5,12 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from heoslice.cli.common import plural, progress_bar, signed_percent
 from heoslice.errors import InputError, VerifyError
-from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, volume_check
 from heoslice.stack import (
     check_input_path,
     layer_height_problems,
@@ -18,6 +18,9 @@ from heoslice.stack import (
     stack_volume_mm3,
     verify_stack,
 )
+
+if TYPE_CHECKING:  # the mesh stage loads only with --mesh: a plain verify starts quicker
+    from heoslice.mesh import Mesh
 
 
 def part_files(manifest: dict) -> list[tuple[str, str]]:
@@ -67,6 +70,8 @@ def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float,
     model = mesh.source
     problems: list[str] = []
     warnings = [f"{model}: {text}" for text in mesh.warnings] + source_warnings(manifest, mesh, models)
+    from heoslice.mesh import volume_check
+
     volume = volume_check(mesh, stack_volume_mm3(manifest), tolerance)
     problems += [volume.problem] if volume.problem else []
     warnings += [volume.warning] if volume.warning else []
@@ -117,6 +122,8 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float, tolerance: float
     mesh = None
     if models:
         _check_count_first(stack, models)
+        from heoslice.mesh import load_assembly, load_mesh, scaled
+
         mesh = load_mesh(models[0]) if len(models) == 1 else load_assembly(models)
         mesh = scaled(mesh, scale) if scale != 1.0 else mesh
     with progress_bar("verifying", enabled=not as_json) as progress:

@@ -51,12 +51,14 @@ def _line_planes(directory: Path, manifest: dict, index: int, axis: str, line: i
     if kind in ("bilevel", "channels") and manifest["image"].get("mode", "1") in ("1", "L"):
         rows = (line, line + 1) if axis == "y" else None
         solid, masks = layer_bits(directory, manifest, index, channels=with_channels, rows=rows)
-        if with_channels:
-            seen, doubled = np.zeros_like(solid.rows), np.zeros_like(solid.rows)
+        if with_channels:  # over the rows decoded with a set bit: the others are zero in every file
+            first = min(bits.span[0] for bits in [solid, *masks])
+            stop = max(bits.span[1] for bits in [solid, *masks])
+            seen, doubled = np.zeros_like(solid.rows[first:stop]), np.zeros_like(solid.rows[first:stop])
             for mask in masks:
-                doubled |= seen & mask.rows
-                seen |= mask.rows
-            if doubled.any() or not np.array_equal(seen, solid.rows):
+                doubled |= seen & mask.rows[first:stop]
+                seen |= mask.rows[first:stop]
+            if doubled.any() or not np.array_equal(seen, solid.rows[first:stop]):
                 raise VerifyError(f"layer {index}: the droplet masks do not cover exactly the layer's solid pixels "
                                   "once each")
         width = manifest["image"]["width"]
