@@ -11,6 +11,7 @@ import click
 
 from heoslice.cli.common import plural, progress_bar, signed_percent
 from heoslice.errors import InputError, VerifyError
+from heoslice.pipeline.parallel import ordered_map
 from heoslice.stack import (
     check_input_path,
     layer_height_problems,
@@ -127,7 +128,7 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float, tolerance: float
         mesh = load_mesh(models[0]) if len(models) == 1 else load_assembly(models)
         mesh = scaled(mesh, scale) if scale != 1.0 else mesh
     with progress_bar("verifying", enabled=not as_json) as progress:
-        report = verify_stack(stack, progress=progress)
+        report = verify_stack(stack, progress=progress, layer_map=ordered_map)
     problems, warnings, mesh_summary = list(report.problems), [], None
     if mesh is not None and report.manifest:
         mesh_problems, warnings, mesh_summary = mesh_checks(report.manifest, mesh, scale, tolerance, models)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from heoslice.errors import InputError
 from heoslice.export.base import ExportFormat, ExportOptions, Sink, check_options
+from heoslice.pipeline.parallel import ordered_map
 from heoslice.stack import load_verified
 
 
@@ -35,7 +36,7 @@ def export_stack(directory: Path, format_name: str, output: Path, options: Expor
     if format_name not in known:
         raise InputError(f"format: unknown export format {format_name!r}; choose from {', '.join(known)}")
     check_options(options)
-    manifest = load_verified(Path(directory), verifying)
+    manifest = load_verified(Path(directory), verifying, ordered_map)
     sink = Sink(output, force=force)
     sink.on_progress = writing
     try:

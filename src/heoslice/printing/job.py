@@ -54,11 +54,12 @@ def stack_job(directory: Path, progress: Callable[[int, int], None] | None = Non
     the verification. A layer's masks are read as packed rows (:mod:`heoslice.stack.packed`), which are the
     channel payloads as they are.
     """
+    from heoslice.pipeline.parallel import ordered_map
     from heoslice.stack import load_verified
     from heoslice.stack.packed import layer_bits
 
     directory = Path(directory)
-    manifest = load_verified(directory, progress)
+    manifest = load_verified(directory, progress, ordered_map)
     layers = manifest["layers"]
     if not layers:
         raise InputError(f"{directory}: the stack has no layers")

@@ -4,7 +4,7 @@ files."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -92,16 +92,20 @@ def layer_problems(index: int, plan: list, manifest: dict, check_pixels: bool) -
     return problems
 
 
-def verify_stack(directory: Path, *, check_pixels: bool = True, workers: int | None = None,
+#: ``layer_map(function, items)``: function(item) for each item, yielded in order. The builtin map checks
+#: the layers one after another; a later stage passes :func:`heoslice.pipeline.parallel.ordered_map` to
+#: spread them over the cores (the stack stage holds no process machinery).
+LayerMap = Callable[[Callable, Iterable], Iterable]
+
+
+def verify_stack(directory: Path, *, check_pixels: bool = True, layer_map: LayerMap = map,
                  progress: Callable[[int, int], None] | None = None) -> StackReport:
     """Check a stack: manifest, every listed file (inside, present, sha256, size, dpi, solid pixels), extras.
 
-    Returns a report listing every problem found, one line each. The layers are checked in ``workers``
-    processes (:func:`heoslice.pipeline.parallel.ordered_map`; default one per core), each file read and
-    decoded once; ``progress(done, total)`` is called as each layer's check is done.
+    Returns a report listing every problem found, one line each. The layers are checked through
+    ``layer_map`` (:data:`LayerMap`), each file read and decoded once; ``progress(done, total)`` is called
+    as each layer's check is done.
     """
-    from heoslice.pipeline.parallel import ordered_map
-
     directory = Path(directory)
     try:
         manifest = read_manifest(directory)
@@ -132,9 +136,9 @@ def verify_stack(directory: Path, *, check_pixels: bool = True, workers: int | N
             plan.append((path, name, digest, solid, file_mode))
         plans.append(plan)
     total = len(plans)
-    for done, found in enumerate(ordered_map(lambda index: layer_problems(index, plans[index], manifest,
-                                                                          check_pixels),
-                                             range(total), workers), start=1):
+    for done, found in enumerate(layer_map(lambda index: layer_problems(index, plans[index], manifest,
+                                                                        check_pixels),
+                                           range(total)), start=1):
         problems += found
         if progress is not None:
             progress(done, total)
@@ -151,10 +155,11 @@ def verify_stack(directory: Path, *, check_pixels: bool = True, workers: int | N
     return StackReport(directory, tuple(problems), manifest)
 
 
-def load_verified(directory: Path, progress: Callable[[int, int], None] | None = None) -> dict:
-    """The manifest of a stack that passes :func:`verify_stack` (``progress`` passed on); raise VerifyError
-    with its problems otherwise."""
-    report = verify_stack(directory, progress=progress)
+def load_verified(directory: Path, progress: Callable[[int, int], None] | None = None,
+                  layer_map: LayerMap = map) -> dict:
+    """The manifest of a stack that passes :func:`verify_stack` (``progress`` and ``layer_map`` passed on);
+    raise VerifyError with its problems otherwise."""
+    report = verify_stack(directory, progress=progress, layer_map=layer_map)
     if not report.ok:
         more = f" (and {len(report.problems) - 1} more problem(s))" if len(report.problems) > 1 else ""
         first = report.problems[0]
