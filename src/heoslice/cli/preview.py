@@ -64,7 +64,9 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
     Files are checked against the manifest (inside the stack, sha256, size) before
     they are decoded, and decoded at the size they are drawn. Coloured layers are shown
     over dark grey, layers with droplet masks in their materials'
-    colours over dark grey; other 1-bit layers dark on white.
+    colours over dark grey; other 1-bit layers dark on white. Under a layer or a
+    section a footer gives its number and z (or the cut's position), a legend of the
+    materials in their colours and a scale bar in mm; sheet tiles take the part's aspect.
     """
     check_input_path(stack)
     manifest = read_manifest(stack)

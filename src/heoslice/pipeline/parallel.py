@@ -8,6 +8,10 @@ render and write them and send back what they wrote. Every child ignores the sig
 SIGTERM, SIGHUP: the parent reports them) and is killed by the kernel when the parent ends however it ends
 (``PR_SET_PDEATHSIG``), so nothing writes into the stack after the parent has gone.
 
+Work over the layers of a finished stack (verify, previews, exports, the print's dry run) goes through
+:func:`ordered_map`: the same forked, signal-ignoring, parent-bound workers, each handed a few items at a time,
+the results yielded in the items' order.
+
 Importing this module loads nothing but the standard library, so that the ``heoslice`` command can set its
 process's environment for numpy (:func:`command_environment`) before numpy loads; numpy and the pipeline's
 stages are imported by the functions that use them.
