@@ -176,7 +176,8 @@ def ball_200(tmp_path_factory):
 
 def test_every_long_command_draws_a_moving_bar_on_a_terminal(ball_200):
     """On a pseudo-terminal, slice (two workers: the bar moves per layer written, reported over the workers'
-    pipes), verify, preview --section and --sheet, export (png, voxel-print) and print --dry-run each draw a
+    pipes), verify, preview --section and --sheet, export (png, voxel-print), print --dry-run and a print to
+    the simulator each draw a
     bar that advances at least ten times over a 200-layer stack, with a rate and a time left."""
     stack = ball_200 / "stack"
     code, output = on_terminal("slice", ball_200 / "ball.ply", "--layer", "0.1", "--dpi", "150", "--grade", "linear",
@@ -193,6 +194,7 @@ def test_every_long_command_draws_a_moving_bar_on_a_terminal(ball_200):
         (("export", stack, "--format", "voxel-print", "--pitch", "0.1", "-o", ball_200 / "voxels"),
          "exporting voxel-print"),
         (("print", stack, "--dry-run"), "sizing"),
+        (("print", stack, "--port", "sim://"), "printing"),
     ]
     for args, description in runs:
         code, output = on_terminal(*args)
