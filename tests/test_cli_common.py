@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -134,3 +135,109 @@ def test_json_fields_have_one_form_across_commands(run_cli, tmp_path, monkeypatc
     assert {event["boot_id"] for event in logged if "boot_id" in event} == {printed["boot_id"]}
     code, out, err = run_cli("controller", "--pty", "--duration", "0.1", "--json")
     assert code == 0 and re.fullmatch(r"[0-9a-f]{8}", json.loads(out)["boot_id"])
+# --- progress bars, under a real pseudo-terminal -------------------------------------------------------------
+
+def on_terminal(*args: str, timeout: float = 300.0) -> tuple[int, str]:
+    """Run ``python -m heoslice ARGS`` with stdout and stderr on a new pseudo-terminal (as in a lab's shell, the
+    CI variable unset); return (exit status, everything it wrote there)."""
+    import fcntl
+    import pty
+    import select
+    import struct
+    import termios
+    import subprocess
+    import sys
+    import time
+
+    leader, follower = pty.openpty()
+    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))  # 40 x 120 characters
+    env = {key: value for key, value in os.environ.items() if key != "CI"}
+    env["TERM"] = "xterm"
+    process = subprocess.Popen([sys.executable, "-m", "heoslice", *map(str, args)], stdin=subprocess.DEVNULL,
+                               stdout=follower, stderr=follower, env=env, close_fds=True)
+    os.close(follower)
+    chunks, deadline = [], time.monotonic() + timeout
+    try:
+        while time.monotonic() < deadline:
+            ready, _, _ = select.select([leader], [], [], 1.0)
+            if ready:
+                try:
+                    data = os.read(leader, 65536)
+                except OSError:  # EIO: every writer has closed the terminal
+                    break
+                if not data:
+                    break
+                chunks.append(data)
+            elif process.poll() is not None:
+                break
+    finally:
+        os.close(leader)
+    return process.wait(timeout=60), b"".join(chunks).decode("utf-8", "replace")
+
+
+def bar_counts(output: str, description: str) -> list[int]:
+    """The distinct layer counts a progress bar named ``description`` showed, in the order drawn, and checks
+    that each drawing had a rate and a time left."""
+    import re
+
+    drawn = re.findall(rf"{re.escape(description)}:[^\r\n]*?(\d+)/(\d+) \[[^\]<]*<([^,\]]*), ([^\]]*)\]", output)
+    counts = []
+    for done, _total, left, rate in drawn:
+        assert left and ("/s" in rate or "s/" in rate), (left, rate)
+        if not counts or counts[-1] != int(done):
+            counts.append(int(done))
+    return counts
+
+
+@pytest.fixture(scope="module")
+def ball_200(tmp_path_factory):
+    """A graded ball mesh (20 mm tall: 200 layers of 0.1 mm) and where its stack goes."""
+    from heoslice import procedural
+
+    folder = tmp_path_factory.mktemp("progress")
+    procedural.sphere(10.0, subdivisions=3).export(folder / "ball.ply")
+    return folder
+
+
+def test_every_long_command_draws_a_moving_bar_on_a_terminal(ball_200):
+    """On a pseudo-terminal, slice (two workers: the bar moves per layer written, reported over the workers'
+    pipes), verify, preview --section and --sheet, export (png, voxel-print), print --dry-run and a print to
+    the simulator each draw a
+    bar that advances at least ten times over a 200-layer stack, with a rate and a time left."""
+    stack = ball_200 / "stack"
+    code, output = on_terminal("slice", ball_200 / "ball.ply", "--layer", "0.1", "--dpi", "150", "--grade", "linear",
+                               "--to", "0,255,0", "--channels", "-j", "2", "-o", stack)
+    assert code == 0, output
+    assert len(json.loads((stack / "manifest.json").read_text())["layers"]) == 200
+    assert len(bar_counts(output, "slicing")) >= 10, output[-2000:]
+    runs = [
+        (("verify", stack), "verifying"),
+        (("preview", stack, "--section", "x=0", "-o", ball_200 / "section.png"), "drawing"),
+        (("preview", stack, "--sheet", "--layers", "0:200:10", "--tile", "32", "-o", ball_200 / "sheet.png"),
+         "drawing"),
+        (("export", stack, "--format", "png", "-o", ball_200 / "png"), "exporting png"),
+        (("export", stack, "--format", "voxel-print", "--pitch", "0.1", "-o", ball_200 / "voxels"),
+         "exporting voxel-print"),
+        (("print", stack, "--dry-run"), "sizing"),
+        (("print", stack, "--port", "sim://"), "printing"),
+    ]
+    for args, description in runs:
+        code, output = on_terminal(*args)
+        assert code == 0, output
+        assert len(bar_counts(output, description)) >= 10, (args, output[-2000:])
+
+
+def test_no_progress_without_a_terminal_or_with_json(ball_200, tmp_path):
+    """With stderr a pipe (and with --json) the same commands write nothing to stderr."""
+    from helpers import heoslice
+
+    stack = ball_200 / "quiet"
+    done = heoslice("slice", ball_200 / "ball.ply", "--layer", "0.1", "--dpi", "150", "--grade", "linear",
+                    "--to", "0,255,0", "--channels", "-j", "2", "-o", stack)
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    for args in (("verify", stack), ("preview", stack, "--section", "x=0", "-o", tmp_path / "s.png"),
+                 ("export", stack, "--format", "png", "-o", tmp_path / "png"), ("print", stack, "--dry-run")):
+        done = heoslice(*args)
+        assert done.returncode == 0 and done.stderr == "", (args, done.stderr)
+    code, output = on_terminal("verify", stack, "--json")
+    assert code == 0 and "verifying" not in output and output.strip().startswith("{"), output

@@ -103,3 +103,21 @@ def test_png_zip_holds_every_layer_and_the_manifest(stacks, tmp_path):
             shown = np.asarray(Image.open(handle).convert("L"))
     solid = read_layer_mask(stacks / "masks", manifest, 4)
     assert shown.shape == solid.shape and (shown[solid] == 0).all() and (shown[~solid] == 255).all()
+
+
+def test_sampled_labels_are_the_whole_layers_labels_sampled(stacks):
+    """layer_labels reading packed bits and unpacking only the sampled rows gives, at every sampled pixel, the
+    label of the whole decoded layer (tifffile's masks through read_layer_mask / read_layer_channels)."""
+    from heoslice.export.voxel_print import layer_labels, sample_indices
+
+    stack = stacks / "masks"
+    manifest = read_manifest(stack)
+    image, (px, py) = manifest["image"], manifest["pixel_size_mm"]
+    rows = sample_indices(image["height"], py, 25.4 / 300.0, round(image["height"] * py * 300.0 / 25.4))
+    columns = sample_indices(image["width"], px, 25.4 / 600.0, round(image["width"] * px * 600.0 / 25.4))
+    for index in range(len(manifest["layers"])):
+        whole = read_layer_mask(stack, manifest, index).astype(np.uint8)
+        for number, mask in enumerate(read_layer_channels(stack, manifest, index)):
+            whole[mask] = number + 1
+        assert np.array_equal(layer_labels(stack, manifest, index, rows, columns), whole[np.ix_(rows, columns)])
+        assert np.array_equal(layer_labels(stack, manifest, index), whole)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import platform
 import signal
 import subprocess
@@ -312,3 +314,34 @@ def test_worker_count_needs_no_affinity_call(monkeypatch):
     monkeypatch.delattr(os, "sched_getaffinity")
     monkeypatch.setattr(os, "cpu_count", lambda: 3)
     assert SliceSpec(jobs=0).worker_count() == 3 and SliceSpec(jobs=2).worker_count() == 2
+def test_ordered_map_keeps_the_items_order_over_workers():
+    """ordered_map yields function(item) in the items' order whether the items run in forked workers or here,
+    and its workers are gone once it is done."""
+    from heoslice.pipeline.parallel import ordered_map
+
+    def slow_square(item: int) -> tuple[int, int]:
+        import time
+
+        time.sleep(0.01 * ((7 * item) % 3))  # results arrive out of order
+        return item, os.getpid()
+
+    results = list(ordered_map(slow_square, range(25), workers=2))
+    assert [item for item, _ in results] == list(range(25))
+    assert os.getpid() not in {pid for _, pid in results}
+    assert [item for item, _ in ordered_map(slow_square, range(5), workers=1)] == list(range(5))
+    assert not multiprocessing.active_children()
+
+
+def test_ordered_map_raises_a_workers_error_and_ends_the_workers():
+    """An exception in a worker reaches the caller as itself, with the worker's traceback as a note."""
+    from heoslice.pipeline.parallel import ordered_map
+
+    def fail_on_three(item: int) -> int:
+        if item == 3:
+            raise ValueError("item three")
+        return item
+
+    with pytest.raises(ValueError, match="item three") as raised:
+        list(ordered_map(fail_on_three, range(8), workers=2))
+    assert any("in a worker" in note for note in raised.value.__notes__)
+    assert not multiprocessing.active_children()

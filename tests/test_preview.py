@@ -12,7 +12,9 @@ from PIL import Image
 
 from heoslice import procedural
 from heoslice.errors import InputError
-from heoslice.preview import channels_rgb, layer_rgb, parse_layers
+from heoslice.preview import channels_rgb, layer_image, layer_rgb, parse_layers
+from heoslice.preview.annotate import MIN_FOOTER_WIDTH
+from heoslice.preview.sheet import layer_aspect, tile_box
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +90,9 @@ def test_preview_one_layer(run_cli, stacks, tmp_path):
     code, stdout, stderr = run_cli("preview", graded, "--layer", "4", "-o", target)
     assert code == 0, stderr
     image = np.asarray(Image.open(target))
-    assert image.shape == (manifest["image"]["height"], manifest["image"]["width"], 3)
+    height, width = manifest["image"]["height"], manifest["image"]["width"]
+    assert image.shape[0] > height and image.shape[1] >= width  # the annotation footer below the layer
+    image = image[:height, :width]
     assert (image == 32).all(axis=2).any()  # empty pixels
     assert (image[..., 1] > image[..., 0] + 50).any()  # green interior
 
@@ -98,12 +102,15 @@ def test_preview_size_and_sheet(run_cli, stacks, tmp_path):
     plain, _ = stacks
     small = tmp_path / "small.png"
     assert run_cli("preview", plain, "--layer", "3", "--size", "64", "-o", small)[0] == 0
-    assert max(Image.open(small).size) == 64
+    assert max(layer_image(plain, 3, 64).size) == 64
+    assert Image.open(small).size[0] == max(64, MIN_FOOTER_WIDTH)  # the footer's width
     sheet = tmp_path / "sheet.png"
     code, _, stderr = run_cli("preview", plain, "--sheet", "--layers", "0:8:2", "--tile", "64", "--columns", "2",
                               "-o", sheet)
     assert code == 0, stderr
-    assert Image.open(sheet).size == (2 * (64 + 4) + 4, 2 * (64 + 14 + 4) + 4)
+    box_width, box_height = tile_box(64, layer_aspect(json.loads((plain / "manifest.json").read_text())))
+    assert max(box_width, box_height) == 64
+    assert Image.open(sheet).size == (2 * (box_width + 4) + 4, 2 * (box_height + 14 + 4) + 4)
 
 
 def test_preview_sheet_says_when_layers_are_clipped(run_cli, stacks, tmp_path):
@@ -170,7 +177,7 @@ def test_preview_channels_in_material_colours(run_cli, channels_stack, tmp_path)
     target = tmp_path / "layer.png"
     code, _, stderr = run_cli("preview", channels_stack, "--layer", index, "-o", target)
     assert code == 0, stderr
-    image = np.asarray(Image.open(target).convert("RGB"))
+    image = np.asarray(Image.open(target).convert("RGB"))[:manifest["image"]["height"], :manifest["image"]["width"]]
     colors = {m["name"]: m["color"] for m in manifest["grading"]["materials"]}
     covered = np.zeros(image.shape[:2], dtype=bool)
     for channel in manifest["layers"][index]["channels"]:
@@ -186,15 +193,17 @@ def test_preview_channels_reduced_and_sheet(run_cli, channels_stack, tmp_path):
     never the grey of a plain 1-bit layer); a contact sheet of a --channels stack is written."""
     small = tmp_path / "small.png"
     assert run_cli("preview", channels_stack, "--layer", "4", "--size", "32", "-o", small)[0] == 0
-    pixels = np.asarray(Image.open(small).convert("RGB")).astype(int)
-    assert max(pixels.shape[:2]) == 32
+    drawn_width, drawn_height = layer_image(channels_stack, 4, 32).size
+    assert max(drawn_width, drawn_height) == 32
+    pixels = np.asarray(Image.open(small).convert("RGB")).astype(int)[:drawn_height, :drawn_width]
     assert (pixels[..., 1] > pixels[..., 0] + 30).any()
     sheet = tmp_path / "sheet.png"
     code, _, stderr = run_cli("preview", channels_stack, "--sheet", "--layers", "2:6", "--tile", "64",
                               "--columns", "2", "-o", sheet)
     assert code == 0, stderr
     image = np.asarray(Image.open(sheet).convert("RGB")).astype(int)
-    assert image.shape == (2 * (64 + 14 + 4) + 4, 2 * (64 + 4) + 4, 3)
+    box_width, box_height = tile_box(64, layer_aspect(json.loads((channels_stack / "manifest.json").read_text())))
+    assert image.shape == (2 * (box_height + 14 + 4) + 4, 2 * (box_width + 4) + 4, 3)
     assert (image[..., 1] > image[..., 0] + 30).sum() > 100
 
 

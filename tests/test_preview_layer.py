@@ -95,7 +95,8 @@ def test_huge_bilevel_layer_previews_in_bounded_memory(tmp_path):
     assert (stack / "layer_00000.tif").stat().st_size < 1 << 20
     code, out, err, seconds, rss = measured("preview", stack, "--layer", "0", "-o", tmp_path / "p.png")
     assert code == 0, err
-    assert Image.open(tmp_path / "p.png").size == (4096, 4096)
+    width, height = Image.open(tmp_path / "p.png").size
+    assert width == 4096 and 4096 < height < 4096 + 100  # the layer, and the annotation footer below it
     assert seconds < 20 and rss < 400, (seconds, rss)
 
 
@@ -106,7 +107,8 @@ def test_huge_rgba_layer_previews_in_bounded_memory(tmp_path):
     code, out, err, seconds, rss = measured("preview", stack, "--layer", "0", "--size", "512",
                                             "-o", tmp_path / "p.png")
     assert code == 0, err
-    assert Image.open(tmp_path / "p.png").size == (512, 512)
+    width, height = Image.open(tmp_path / "p.png").size
+    assert width == 512 and 512 < height < 512 + 100  # the layer, and the annotation footer below it
     assert seconds < 20 and rss < 400, (seconds, rss)
 
 

@@ -191,7 +191,7 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
     range_flag = "--range" if spec.r_range is not None else f"--ref {ref_kind}"
     mapping = {**COLOR_FLAGS, "shell_materials": "--shell-colors" if shell_colors else "--materials",
                "r_range": range_flag}
-    with progress_bar("colouring", unit="vertices") as progress, flags(mapping):
+    with progress_bar("colouring", unit="vertices", enabled=not as_json) as progress, flags(mapping):
         colored = color_mesh(mesh, spec, progress)
     target = output if output is not None else default_output(model, function)
     write_ply(target, colored, ascii=ascii_ply, force=force,

@@ -12,6 +12,7 @@ from __future__ import annotations
 import glob
 import json
 import math
+import os
 import sys
 import traceback
 from collections.abc import Callable, Iterator
@@ -39,26 +40,46 @@ def echo_warnings(source: Path, warnings: tuple[str, ...] | list[str]) -> None:
         click.echo(f"warning: {source}: {text}", err=True)
 
 
+def progress_shown(enabled: bool = True) -> bool:
+    """Whether a progress bar is drawn: on a terminal (stderr a tty) only, never with ``--json`` (``enabled``
+    False) nor under CI (the ``CI`` variable set, as CI services set it), so pipes and logs stay clean."""
+    return enabled and sys.stderr.isatty() and not os.environ.get("CI")
+
+
 @contextmanager
-def progress_bar(description: str, unit: str = "it") -> Iterator[Callable[[int, int], None]]:
-    """A ``progress(done, total)`` callback drawing a tqdm bar on a terminal, silent otherwise (tqdm is
-    imported only to draw one: a pipeline's run, logged to a file, does not load it)."""
-    if not sys.stderr.isatty():
-        yield lambda done, total: None
+def progress_bar(description: str, unit: str = "layer",
+                 enabled: bool = True) -> Iterator[Callable[..., None]]:
+    """The one progress display of every command: a ``progress(done, total, note=None)`` callback drawing a tqdm
+    bar (count, rate and time left; ``note`` after them) where :func:`progress_shown`, silent otherwise. The bar
+    appears at the first call, redraws at every call (so it moves per layer or item) and is erased when
+    ``done`` reaches ``total`` or the block ends, so that phases (verify, then write) follow on one line.
+    tqdm is imported only to draw one: a pipeline's run, logged to a file, does not load it."""
+    if not progress_shown(enabled):
+        yield lambda done, total, note=None: None
         return
     from tqdm import tqdm
 
-    bar = tqdm(desc=description, unit=unit, leave=False, dynamic_ncols=True, file=sys.stderr)
+    bars: list = []
 
-    def update(done: int, total: int) -> None:
+    def update(done: int, total: int, note: str | None = None) -> None:
+        if not bars:
+            bars.append(tqdm(desc=description, unit=unit, total=total, leave=False, dynamic_ncols=True,
+                             file=sys.stderr, mininterval=0, miniters=1))
+        bar = bars[0]
+        if bar.disable:
+            return
         bar.total = total
-        bar.n = done
-        bar.refresh()
+        if note is not None:
+            bar.set_postfix_str(note, refresh=False)
+        bar.update(done - bar.n)
+        if done >= total:
+            bar.close()
 
     try:
         yield update
     finally:
-        bar.close()
+        for bar in bars:
+            bar.close()
 
 
 # --- message formatting ------------------------------------------------------------------------------------

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from heoslice.cli.common import progress_bar
 from heoslice.errors import InputError
 
 #: Library parameter names -> the options that set them, for error messages.
@@ -52,7 +53,10 @@ def export(stack: Path, format_name: str, output: Path, pitch: float | None, dpi
     options = ExportOptions(pitch_mm=pitch, dpi=None if dpi is None else tuple(parse_dpi(dpi)),
                             background=_colour(background))
     try:
-        summary = export_stack(stack, format_name, output, options, force=force)
+        with progress_bar("verifying", enabled=not as_json) as verifying, \
+                progress_bar(f"exporting {format_name}", enabled=not as_json) as writing:
+            summary = export_stack(stack, format_name, output, options, force=force, verifying=verifying,
+                                   writing=writing)
     except InputError as err:
         name, _, rest = str(err).partition(": ")
         if name in FLAGS:

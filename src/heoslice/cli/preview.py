@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from heoslice.cli.common import echo_warnings
+from heoslice.cli.common import echo_warnings, progress_bar
 from heoslice.errors import InputError
 from heoslice.files import check_output, write_output
 from heoslice.preview.png import is_preview, png_bytes
@@ -67,7 +67,9 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
     Files are checked against the manifest (inside the stack, sha256, size) before
     they are decoded, and decoded at the size they are drawn. Coloured layers are shown
     over dark grey, layers with droplet masks in their materials'
-    colours over dark grey; other 1-bit layers dark on white.
+    colours over dark grey; other 1-bit layers dark on white. Under a layer or a
+    section a footer gives its number and z (or the cut's position), a legend of the
+    materials in their colours and a scale bar in mm; sheet tiles take the part's aspect.
     """
     check_input_path(stack)
     # verify's own check (every file present, of its layout, mode and sha256): a stack it refuses is not drawn;
@@ -81,7 +83,8 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
         check_output(target, "preview PNG", force=force, made_here=is_preview, inputs=(stack,))
         if target.suffix.lower() != ".png":
             raise InputError(f"{target}: the preview is a PNG; give a file name ending in .png")
-        image = draw()
+        with progress_bar("drawing", enabled=not as_json) as progress:
+            image = draw(progress)
     write_output(target, png_bytes(image))
     if as_json:
         click.echo(json.dumps({"stack": str(stack), "ok": True, "output": str(target), "width": image.size[0],
@@ -94,14 +97,15 @@ def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: s
           tile: int, columns: int | None, section: str | None, output: Path | None):
     """(target PNG path, function drawing the PIL image) of the requested preview, options checked."""
     from heoslice.preview import (
+        annotated_layer_image,
+        annotated_section_image,
         contact_sheet,
-        layer_image,
         parse_layers,
         parse_section,
-        section_image,
         sheet_size,
     )
     from heoslice.preview.section import section_line
+    from heoslice.preview.sheet import layer_aspect
 
     count = len(manifest["layers"])
     name = stack.resolve().name
@@ -111,18 +115,20 @@ def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: s
         axis, position = parse_section(section)
         section_line(manifest, axis, position)
         return (output or Path.cwd() / f"{name}_section_{axis}{position:g}.png",
-                lambda: section_image(stack, axis, position, size, manifest))
+                lambda progress: annotated_section_image(stack, axis, position, size, manifest, progress))
     if sheet:
         if layer is not None:
             raise InputError("--layer: use --layers with --sheet")
         chosen = parse_layers(layers, count, lambda text: echo_warnings(stack, [text])) if layers else sorted(set(np.linspace(0, count - 1, min(16, count))
                                                                        .round().astype(int).tolist()))
-        sheet_size(len(chosen), tile, columns)
+        sheet_size(len(chosen), tile, columns, layer_aspect(manifest))
         return (output or Path.cwd() / f"{name}_sheet.png",
-                lambda: contact_sheet(stack, chosen, tile=tile, columns=columns, manifest=manifest))
+                lambda progress: contact_sheet(stack, chosen, tile=tile, columns=columns, manifest=manifest,
+                                               progress=progress))
     if layers is not None:
         raise InputError("--layers: only used with --sheet")
     index = count // 2 if layer is None else layer
     if not 0 <= index < count:
         raise InputError(f"--layer: layer {index} does not exist (the stack has layers 0..{count - 1})")
-    return output or Path.cwd() / f"{name}_layer_{index:05d}.png", lambda: layer_image(stack, index, size, manifest)
+    return (output or Path.cwd() / f"{name}_layer_{index:05d}.png",
+            lambda progress: annotated_layer_image(stack, index, size, manifest))

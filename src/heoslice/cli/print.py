@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import click
 
+from heoslice.cli.common import progress_bar
 from heoslice.locks import hold_stack
 from heoslice.printing.ports import DEFAULT_BAUD
 from heoslice.printing import (
@@ -79,9 +79,12 @@ def print_cmd(stack: Path, port: str | None, baud: int | None, from_layer: int |
 def _dry_run(stack: Path, baud: int | None, max_payload: int, from_layer: int | None, as_json: bool) -> None:
     """Verify and size the transfer; no port."""
     baud = baud or DEFAULT_BAUD
-    job, get_layer = stack_job(stack)
-    summary = {"stack": str(stack), "ok": True, "job_id": f"{job.job_id:08x}",
-               **plan_transfer(job, get_layer, baud=baud, max_payload=max_payload, from_layer=from_layer or 0)}
+    with progress_bar("verifying", enabled=not as_json) as verifying, \
+            progress_bar("sizing", enabled=not as_json) as sizing:
+        job, get_layer = stack_job(stack, verifying)
+        summary = {"stack": str(stack), "ok": True, "job_id": f"{job.job_id:08x}",
+                   **plan_transfer(job, get_layer, baud=baud, max_payload=max_payload, from_layer=from_layer or 0,
+                                   progress=sizing)}
     click.echo(json.dumps(summary) if as_json else
                f"{stack}: verified; {job_summary(job)}\n"
                f"would send {summary['frames']} frames, {summary['wire_bytes']} bytes "
@@ -93,8 +96,13 @@ def _print(stack: Path, port: str, baud: int | None, from_layer: int | None, res
     """Print the held stack and report."""
     log_path = log_path or default_log_path(stack)
     check_log_output(log_path, inputs=(stack,))
-    job, get_layer = stack_job(stack)
-    with _progress(job.layer_count - (from_layer or 0)) as progress:
+    with progress_bar("verifying", enabled=not as_json) as verifying:
+        job, get_layer = stack_job(stack, verifying)
+    with progress_bar("printing", enabled=not as_json) as update:
+        def progress(state: Progress) -> None:
+            rate = state.bytes_sent / state.elapsed_s if state.elapsed_s > 0 else 0.0
+            update(state.layers_done, state.layers_total, f"layer {state.layer}, {rate / 1000:.1f} kB/s")
+
         result = print_job(port, job, get_layer, baud=baud, from_layer=from_layer, resume=resume, restart=restart,
                            log_path=log_path, on_progress=progress, max_payload=max_payload,
                            label=f"stack {stack}", name=Path(stack).resolve().name)
@@ -107,31 +115,3 @@ def _print(stack: Path, port: str, baud: int | None, from_layer: int | None, res
     click.echo(f"{stack}: printed layers {result.first_layer}..{result.last_completed} on {port} "
                f"in {result.elapsed_s:.1f} s ({result.bytes_sent} bytes, {rate / 1000:.1f} kB/s, "
                f"{result.frames_retransmitted} frames resent); log: {log_path}")
-
-
-class _progress:
-    """A tqdm bar of executed layers with the link's bytes/s, on a terminal only."""
-
-    def __init__(self, total: int):
-        self.total = total
-        self.bar = None
-
-    def __enter__(self):
-        if sys.stderr.isatty():
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=self.total, desc="printing", unit="layer", file=sys.stderr,
-                            dynamic_ncols=True, leave=False)
-        return self
-
-    def __call__(self, progress: Progress) -> None:
-        if self.bar is not None:
-            self.bar.total = progress.layers_total
-            self.bar.n = progress.layers_done
-            rate = progress.bytes_sent / progress.elapsed_s if progress.elapsed_s > 0 else 0.0
-            self.bar.set_postfix_str(f"layer {progress.layer}, {rate / 1000:.1f} kB/s", refresh=False)
-            self.bar.refresh()
-
-    def __exit__(self, *exc) -> None:
-        if self.bar is not None:
-            self.bar.close()

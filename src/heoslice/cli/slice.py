@@ -432,7 +432,7 @@ def slice_model(model: Path, directory: Path, spec: SliceSpec, scale: float, for
     mesh = apply_scale(mesh, scale)
     if not as_json:
         echo_warnings(model, [*mesh.warnings, *(flag_message(text) for text in slice_warnings(mesh, spec))])
-    with progress_bar(f"slicing {model.name}" if several else "slicing", unit="layer") as update:
+    with progress_bar(f"slicing {model.name}" if several else "slicing", enabled=not as_json) as update:
         try:
             manifest, times = slice_to_stack(mesh, directory, spec, force=force, progress=update, scale=scale,
                                              inputs=inputs)

@@ -5,13 +5,14 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from heoslice.cli import material_report
-from heoslice.cli.common import plural, signed_percent
+from heoslice.cli.common import plural, progress_bar, signed_percent
 from heoslice.errors import InputError, VerifyError
-from heoslice.mesh import Mesh, load_assembly, load_mesh, scaled, volume_check
+from heoslice.pipeline.parallel import ordered_map
 from heoslice.volume import is_volume_path
 from heoslice.stack import (
     check_input_path,
@@ -23,6 +24,9 @@ from heoslice.stack import (
     stack_volume_mm3,
     verify_stack,
 )
+
+if TYPE_CHECKING:  # the mesh stage loads only with --mesh: a plain verify starts quicker
+    from heoslice.mesh import Mesh
 
 
 def part_files(manifest: dict) -> list[tuple[str, str]]:
@@ -72,6 +76,8 @@ def mesh_checks(manifest: dict, mesh: Mesh, scale: float, tolerance: float,
     model = mesh.source
     problems: list[str] = []
     warnings = [f"{model}: {text}" for text in mesh.warnings] + source_warnings(manifest, mesh, models)
+    from heoslice.mesh import volume_check
+
     volume = volume_check(mesh, stack_volume_mm3(manifest), tolerance)
     problems += [volume.problem] if volume.problem else []
     warnings += [volume.warning] if volume.warning else []
@@ -180,9 +186,12 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     volume_model = models[0] if len(models) == 1 and is_volume_path(models[0]) else None
     if models and volume_model is None:
         scale = _check_mesh_options_first(stack, models, scale)
+        from heoslice.mesh import load_assembly, load_mesh, scaled
+
         mesh = load_mesh(models[0]) if len(models) == 1 else load_assembly(models)
         mesh = scaled(mesh, scale) if scale != 1.0 else mesh
-    report = verify_stack(stack)
+    with progress_bar("verifying", enabled=not as_json) as progress:
+        report = verify_stack(stack, progress=progress, layer_map=ordered_map)
     problems, warnings, mesh_summary = list(report.problems), [], None
     if mesh is not None and report.manifest:
         mesh_problems, warnings, mesh_summary = mesh_checks(report.manifest, mesh, scale, tolerance, models)

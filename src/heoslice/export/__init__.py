@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+from collections.abc import Callable
 from pathlib import Path
 
 from heoslice.errors import InputError
 from heoslice.export.base import ExportFormat, ExportOptions, Sink, check_options
+from heoslice.pipeline.parallel import ordered_map
 from heoslice.stack import load_verified
 
 
@@ -25,15 +27,18 @@ def formats() -> dict[str, ExportFormat]:
 
 
 def export_stack(directory: Path, format_name: str, output: Path, options: ExportOptions = ExportOptions(),
-                 force: bool = False) -> dict:
+                 force: bool = False, verifying: Callable[[int, int], None] | None = None,
+                 writing: Callable[[int, int], None] | None = None) -> dict:
     """Verify the stack in ``directory``, then write it as ``format_name`` to ``output`` (a folder, or a zip
-    when it ends in .zip); return the format's summary with the files written."""
+    when it ends in .zip); return the format's summary with the files written. ``verifying(done, total)`` and
+    ``writing(done, total)`` follow the two (for progress bars)."""
     known = formats()
     if format_name not in known:
         raise InputError(f"format: unknown export format {format_name!r}; choose from {', '.join(known)}")
     check_options(options)
-    manifest = load_verified(Path(directory))
+    manifest = load_verified(Path(directory), verifying, ordered_map)
     sink = Sink(output, force=force, inputs=(Path(directory),))
+    sink.on_progress = writing
     try:
         summary = known[format_name].write(Path(directory), manifest, sink, options)
     except BaseException:

@@ -80,6 +80,13 @@ class Sink:
                 discard_partial(self._temporary)
                 raise write_problem(self.target, err) from err
         self.files: list[str] = []
+        #: ``progress(done, total)`` a format reports its layers to (:meth:`progress`), when the caller sets it.
+        self.on_progress: Callable[[int, int], None] | None = None
+
+    def progress(self, done: int, total: int) -> None:
+        """A format has written ``done`` of its ``total`` layers (or slices)."""
+        if self.on_progress is not None:
+            self.on_progress(done, total)
 
     def add(self, name: str, data: bytes) -> None:
         """Write one file of the export."""

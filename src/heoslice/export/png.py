@@ -9,7 +9,12 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.export.base import ExportFormat, ExportOptions, Sink
+from heoslice.pipeline.parallel import ordered_map
 from heoslice.stack import MANIFEST, read_layer_channels, read_layer_pixels, resolve_inside
+from heoslice.stack.packed import layer_bits
+
+#: Image modes whose layers a PNG shows as 1-bit (solid or not), written from packed bits.
+BILEVEL_MODES = ("1", "L")
 
 
 def png_bytes(pixels: np.ndarray, dpi: tuple[float, float]) -> bytes:
@@ -23,15 +28,38 @@ def png_bytes(pixels: np.ndarray, dpi: tuple[float, float]) -> bytes:
     return buffer.getvalue()
 
 
+def bits_png_bytes(bits: np.ndarray, width: int, dpi: tuple[float, float]) -> bytes:
+    """:func:`png_bytes` of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, a set bit solid):
+    the same file, made without a byte per pixel."""
+    from PIL import Image
+
+    image = Image.frombytes("1", (width, len(bits)), np.invert(bits).tobytes())
+    buffer = io.BytesIO()
+    image.save(buffer, format="PNG", dpi=(round(dpi[0]), round(dpi[1])))
+    return buffer.getvalue()
+
+
+def layer_pngs(directory: Path, manifest: dict, index: int) -> list[tuple[str, bytes]]:
+    """(name, PNG bytes) of layer ``index``'s image and its droplet masks, in that order."""
+    entry, dpi = manifest["layers"][index], tuple(manifest["dpi"])
+    names = [Path(record["file"]).with_suffix(".png").name for record in [entry, *entry.get("channels", [])]]
+    if manifest["image"].get("mode", "1") in BILEVEL_MODES:
+        solid, masks = layer_bits(directory, manifest, index)
+        width = manifest["image"]["width"]
+        return [(name, bits_png_bytes(bits.rows, width, dpi)) for name, bits in zip(names, [solid, *masks])]
+    images = [read_layer_pixels(directory, manifest, index), *read_layer_channels(directory, manifest, index)]
+    return [(name, png_bytes(pixels, dpi)) for name, pixels in zip(names, images)]
+
+
 def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -> dict:
-    """Write ``layer_NNNNN.png`` (and ``layer_NNNNN_MATERIAL.png``) per layer and the manifest, bottom first."""
+    """Write ``layer_NNNNN.png`` (and ``layer_NNNNN_MATERIAL.png``) per layer and the manifest, bottom first;
+    the layers are read and encoded over the cores (:func:`heoslice.pipeline.parallel.ordered_map`)."""
     dpi = tuple(manifest["dpi"])
-    for entry in manifest["layers"]:
-        index = entry["index"]
-        pixels = read_layer_pixels(directory, manifest, index)
-        sink.add(Path(entry["file"]).with_suffix(".png").name, png_bytes(pixels, dpi))
-        for channel, mask in zip(entry.get("channels", []), read_layer_channels(directory, manifest, index)):
-            sink.add(Path(channel["file"]).with_suffix(".png").name, png_bytes(mask, dpi))
+    total = len(manifest["layers"])
+    for done, files in enumerate(ordered_map(lambda index: layer_pngs(directory, manifest, index), range(total)), 1):
+        for name, data in files:
+            sink.add(name, data)
+        sink.progress(done, total)
     sink.add(MANIFEST, resolve_inside(directory, MANIFEST).read_bytes())
     return {"layers": len(manifest["layers"]), "dpi": list(dpi), "layer_height_mm": manifest["layer_height_mm"]}
 

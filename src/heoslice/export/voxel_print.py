@@ -21,8 +21,9 @@ import numpy as np
 
 from heoslice.errors import InputError
 from heoslice.export.base import ExportFormat, ExportOptions, Sink
-from heoslice.stack import (MANIFEST, MAX_IMAGE_PIXELS, MAX_LAYERS, check_printable, read_layer_channels,
-                            read_layer_mask)
+from heoslice.pipeline.parallel import ordered_map
+from heoslice.stack import MANIFEST, MAX_IMAGE_PIXELS, MAX_LAYERS, check_printable
+from heoslice.stack.packed import layer_bits, unpack_bits
 
 #: The J750's Voxel Print resolution (dpi x, y) and layer pitch (mm).
 DEFAULT_DPI = (600.0, 300.0)
@@ -68,21 +69,40 @@ def sample_indices(count: int, step: float, new_step: float, new_count: int) -> 
     return np.clip(np.floor(centres / step).astype(np.int64), 0, count - 1)
 
 
-def layer_labels(directory: Path, manifest: dict, index: int) -> np.ndarray:
-    """(h, w) uint8 material label of each pixel of a stack layer: 0 empty, m + 1 material m."""
-    solid = read_layer_mask(directory, manifest, index)
+def layer_labels(directory: Path, manifest: dict, index: int, rows: np.ndarray | None = None,
+                 columns: np.ndarray | None = None) -> np.ndarray:
+    """(h, w) uint8 material label of each pixel of a stack layer: 0 empty, m + 1 material m; only the pixels
+    at ``rows`` x ``columns`` (index arrays, default all) when given. Each file is read once, as packed bits,
+    and only the sampled rows are unpacked."""
+    image = manifest["image"]
+    rows = np.arange(image["height"]) if rows is None else rows
+    columns = np.arange(image["width"]) if columns is None else columns
+    solid, masks = layer_bits(directory, manifest, index)
+
+    def sampled(bits) -> np.ndarray:
+        return unpack_bits(bits.rows[rows], image["width"])[:, columns]
+
     if not manifest["layers"][index].get("channels"):
-        return solid.astype(np.uint8)
-    labels = np.zeros(solid.shape, dtype=np.uint8)
-    for number, mask in enumerate(read_layer_channels(directory, manifest, index)):
-        labels[mask] = number + 1
+        return sampled(solid).astype(np.uint8)
+    labels = np.zeros((len(rows), len(columns)), dtype=np.uint8)
+    for number, mask in enumerate(masks):
+        labels[sampled(mask)] = number + 1
     return labels
+
+
+def slice_png(directory: Path, manifest: dict, index: int, rows: np.ndarray, columns: np.ndarray,
+              colours: np.ndarray, dpi: tuple[float, float]) -> bytes:
+    """The PNG of a Voxel Print slice taken from stack layer ``index`` (sampled at ``rows`` x ``columns``)."""
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(colours[layer_labels(directory, manifest, index, rows, columns)], "RGB").save(
+        buffer, format="PNG", dpi=(round(dpi[0]), round(dpi[1])))
+    return buffer.getvalue()
 
 
 def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -> dict:
     """Write the slices and ``voxelprint.json`` (materials, colours, resolution, pitch)."""
-    from PIL import Image
-
     dpi = options.dpi or DEFAULT_DPI
     pitch = options.pitch_mm or DEFAULT_PITCH_MM
     background = tuple(options.background or DEFAULT_BACKGROUND)
@@ -100,13 +120,15 @@ def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -
     rows = sample_indices(image["height"], py, new_py, height)
     sources = sample_indices(len(manifest["layers"]), h, pitch, slices)
     colours = np.array([background] + [colour for _, colour in materials], dtype=np.uint8)
-    cached = (None, None)
-    for number, source in enumerate(sources):
-        if cached[0] != source:
-            cached = (source, colours[layer_labels(directory, manifest, int(source))[np.ix_(rows, columns)]])
-        buffer = io.BytesIO()
-        Image.fromarray(cached[1], "RGB").save(buffer, format="PNG", dpi=(round(dpi[0]), round(dpi[1])))
-        sink.add(f"slice_{number:05d}.png", buffer.getvalue())
+    # consecutive slices often take the same stack layer: each run of them is encoded once, over the cores
+    starts = np.flatnonzero(np.diff(sources, prepend=-1) != 0)
+    stops = np.append(starts[1:], len(sources))
+    encoded = ordered_map(lambda layer: slice_png(directory, manifest, int(layer), rows, columns, colours, dpi),
+                          sources[starts].tolist())
+    for data, start, stop in zip(encoded, starts.tolist(), stops.tolist()):
+        for number in range(start, stop):
+            sink.add(f"slice_{number:05d}.png", data)
+        sink.progress(stop, slices)
     summary = {"format": "voxel-print", "slices": slices, "width": width, "height": height, "dpi": list(dpi),
                "pitch_mm": pitch, "background": list(background),
                "materials": [{"name": name, "color": list(colour)} for name, colour in materials],

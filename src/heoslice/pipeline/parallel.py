@@ -14,6 +14,10 @@ That fast path needs Linux with glibc (fork, prctl, mallopt). Elsewhere, or with
 cache only saves work); a worker ignores the same signals and watches its parent from a thread, ending itself
 within :data:`_PARENT_POLL_S` of the parent's end; no C library function is called.
 
+Work over the layers of a finished stack (verify, previews, exports, the print's dry run) goes through
+:func:`ordered_map`: the same forked, signal-ignoring, parent-bound workers, each handed a few items at a time,
+the results yielded in the items' order.
+
 Importing this module loads nothing but the standard library, so that the ``heoslice`` command can set its
 process's environment for numpy (:func:`command_environment`) before numpy loads; numpy and the pipeline's
 stages are imported by the functions that use them.
@@ -202,8 +206,9 @@ def _frozen_for_forks() -> Iterator[None]:
 
 def _serve(conn, context: RunContext, cache: PipelineCache) -> None:
     """A worker: slice the runs (start, stop) that arrive on ``conn`` until None (or the pipe's end), answering
-    each with ("done", RunResult) or ("failed", the exception, with the worker's traceback as a note).
-    ``cache`` is this worker's copy, by fork, of what the parent's first layer left to the next."""
+    each with ("done", RunResult) or ("failed", the exception, with the worker's traceback as a note), after
+    a ("layers", count) message as each layer is written. ``cache`` is this worker's copy, by fork, of what
+    the parent's first layer left to the next."""
     from heoslice.pipeline.runs import slice_run
 
     while True:
@@ -214,7 +219,7 @@ def _serve(conn, context: RunContext, cache: PipelineCache) -> None:
         if run is None:
             return
         try:
-            answer = ("done", slice_run(context, *run, cache))
+            answer = ("done", slice_run(context, *run, cache, lambda count: conn.send(("layers", count))))
         except Exception as err:  # noqa: BLE001 - the parent raises it
             err.add_note(f"in a slice worker:\n{traceback.format_exc()}")
             answer = ("failed", err)
@@ -225,10 +230,12 @@ def _serve(conn, context: RunContext, cache: PipelineCache) -> None:
 
 
 def _run_on_workers(context: RunContext, runs: list[tuple[int, int]], workers: int, cache: PipelineCache,
-                    on_done: Callable[[RunResult], None], spawned: bool = False) -> None:
+                    on_done: Callable[[RunResult], None], on_layers: Callable[[int], None] | None = None,
+                    spawned: bool = False) -> None:
     """Every run through ``workers`` forked (``spawned``: spawned, the portable path) :func:`_serve` processes,
     each given at most _RUNS_IN_FLIGHT runs at once (results arrive in any order; memory stays bounded); the
-    workers are ended on the way out, whatever happens, before any error goes on."""
+    workers' per-layer reports go to ``on_layers``; the workers are ended on the way out, whatever happens,
+    before any error goes on."""
     waiting = list(reversed(runs))
     pool = {}
     method, enter = ("spawn", _enter_portable_worker) if spawned else ("fork", _enter_worker)
@@ -250,6 +257,10 @@ def _run_on_workers(context: RunContext, runs: list[tuple[int, int]], workers: i
                 status, outcome = _answer(conn, process)
                 if status == "failed":
                     raise outcome
+                if status == "layers":
+                    if on_layers is not None:
+                        on_layers(outcome)
+                    break
                 given.pop(0)
                 on_done(outcome)
                 if waiting:
@@ -286,11 +297,13 @@ def _ended(process) -> RuntimeError:
     return RuntimeError(f"a slice worker ended unexpectedly (exit status {process.exitcode})")
 
 
-def run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], None]) -> None:
+def run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], None],
+            on_layers: Callable[[int], None] | None = None) -> None:
     """Every run of planes through :func:`heoslice.pipeline.runs.slice_run`: in this process, or (but for the
     first layer, rendered here) in ``workers`` forked processes, or on the portable path in ``workers`` spawned
-    ones (module docstring). ``on_done`` is called with
-    each run's result, in any order, in this process."""
+    ones (module docstring). ``on_done`` is called with each run's result, in any order, in this process;
+    ``on_layers(count)`` (when given) as layers are written, each worker reporting them over its pipe as it
+    writes them (for a progress bar)."""
     from heoslice.pipeline.layer_job import PipelineCache
     from heoslice.pipeline.runs import plane_runs, slice_run
 
@@ -298,15 +311,96 @@ def run_all(context: RunContext, workers: int, on_done: Callable[[RunResult], No
     if workers <= 1:
         cache = PipelineCache()
         for start, stop in runs:
-            on_done(slice_run(context, start, stop, cache))
+            on_done(slice_run(context, start, stop, cache, on_layers))
         return
     if portable():
-        _run_on_workers(context, runs, workers, PipelineCache(), on_done, spawned=True)
+        _run_on_workers(context, runs, workers, PipelineCache(), on_done, on_layers, spawned=True)
         return
     start, stop = runs[0]
     runs = ([(start + 1, stop)] if stop > start + 1 else []) + runs[1:]
     first = PipelineCache()
-    on_done(slice_run(context, start, start + 1, first))
+    on_done(slice_run(context, start, start + 1, first, on_layers))
     if runs:
         with _frozen_for_forks():
-            _run_on_workers(context, runs, workers, first, on_done)
+            _run_on_workers(context, runs, workers, first, on_done, on_layers)
+
+
+def default_workers() -> int:
+    """Worker processes for work over layers when the caller names none: one per core this process may run on."""
+    return usable_cores()
+
+
+def _serve_items(conn, function: Callable) -> None:
+    """A map worker: answer each item that arrives on ``conn`` with ("done", function(item)) or ("failed",
+    the exception with the worker's traceback as a note), until None (or the pipe's end)."""
+    while True:
+        try:
+            item = conn.recv()
+        except (EOFError, OSError):
+            return
+        if item is None:
+            return
+        try:
+            answer = ("done", function(item))
+        except Exception as err:  # noqa: BLE001 - the parent raises it
+            err.add_note(f"in a worker:\n{traceback.format_exc()}")
+            answer = ("failed", err)
+        try:
+            conn.send(answer)
+        except Exception as err:  # noqa: BLE001 - an exception or result that cannot be pickled
+            conn.send(("failed", RuntimeError(f"{type(answer[1]).__name__}: {answer[1]} ({err})")))
+
+
+def ordered_map(function: Callable, items, workers: int | None = None) -> Iterator:
+    """``function(item)`` for every item of ``items``, yielded in the items' order: computed in ``workers``
+    forked processes (default :func:`default_workers`), each given at most _RUNS_IN_FLIGHT items at once, or
+    in this process when there is one worker or one item. Results that arrive early wait for their turn (at
+    most _RUNS_IN_FLIGHT per worker), so memory is bounded by a few items' results whatever the count. A
+    worker's exception is raised here; the workers are ended on the way out, however the caller stops.
+
+    ``function`` reaches the workers by fork (a closure is fine); items and results travel pickled, so keep
+    them small (layer numbers in, counts or encoded files out). On the portable path (:func:`portable`: no
+    fork) the items are computed in this process, in order."""
+    items = list(items)
+    workers = default_workers() if workers is None else workers
+    if workers <= 1 or len(items) <= 1 or portable():
+        for item in items:
+            yield function(item)
+        return
+    waiting = list(reversed(list(enumerate(items))))
+    pool: dict = {}
+    arrived: dict[int, object] = {}
+    turn = 0
+    try:
+        with _frozen_for_forks():
+            for _ in range(min(workers, len(items))):
+                ours, theirs = get_context("fork").Pipe()
+                process = _start(_enter_worker, _serve_items, theirs, function)
+                theirs.close()
+                pool[ours] = (process, [])
+        for conn, (process, given) in pool.items():
+            while waiting and len(given) < _RUNS_IN_FLIGHT:
+                given.append(waiting.pop())
+                _give(conn, process, given[-1][1])
+        while turn < len(items):
+            while turn in arrived:
+                yield arrived.pop(turn)
+                turn += 1
+            if turn == len(items):
+                break
+            busy = {process.sentinel: conn for conn, (process, given) in pool.items() if given}
+            for ready in wait_for([*busy.values(), *busy]):
+                conn = busy.get(ready, ready)
+                process, given = pool[conn]
+                status, outcome = _answer(conn, process)
+                if status == "failed":
+                    raise outcome
+                number, _ = given.pop(0)
+                arrived[number] = outcome
+                if waiting:
+                    given.append(waiting.pop())
+                    _give(conn, process, given[-1][1])
+    finally:
+        for conn, (process, _) in pool.items():
+            conn.close()
+            _end(process)

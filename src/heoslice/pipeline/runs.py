@@ -7,6 +7,7 @@ not grow with the part), then its layers are rendered and written one by one.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -68,13 +69,15 @@ def run_contours(context: RunContext, start: int, stop: int) -> SlicedRun:
     return contours, sliced - began, time.perf_counter() - sliced
 
 
-def slice_run(context: RunContext, start: int, stop: int, cache: PipelineCache | None = None) -> RunResult:
+def slice_run(context: RunContext, start: int, stop: int, cache: PipelineCache | None = None,
+              on_layers: Callable[[int], None] | None = None) -> RunResult:
     """Slice, chain, render and write planes z[start:stop]: the whole pipeline for one run of layers.
 
     ``cache`` keeps what the last layer rendered leaves to the next (:class:`PipelineCache`); kept from run
     to run, it carries that over to the next run's first layer too, but for the error a diffused layer leaves
     to the next: dropped at the start of every run of :func:`plane_runs`, so that the stack is the same
-    however its runs were shared among processes.
+    however its runs were shared among processes. ``on_layers(count)`` is told of the layers written as they
+    are (one at a time; a multi-part run's all at once).
     """
     if cache is not None and context.spec.halftone == "error-diffusion" and start in context.run_starts:
         cache.carry = None
@@ -83,11 +86,17 @@ def slice_run(context: RunContext, start: int, stop: int, cache: PipelineCache |
         from heoslice.pipeline.parts import render_parts_run
 
         layers = render_parts_run(contours, context, start)
+        if on_layers is not None:
+            on_layers(len(layers))
     else:
         jobs = layer_jobs(contours, context.mesh, context.grid, context.spec, context.directory,
                           first_layer=start, vertex_mix=context.vertex_mix, field=context.field, z=context.z)
         cache = PipelineCache() if cache is None else cache
-        layers = [render_and_write(job, cache) for job in jobs]
+        layers = []
+        for job in jobs:
+            layers.append(render_and_write(job, cache))
+            if on_layers is not None:
+                on_layers(1)
     return RunResult(layers=layers, open_layers=start + contours.layer[contours.closed_by_join],
                      slice_s=slice_s, contours_s=contours_s)
 

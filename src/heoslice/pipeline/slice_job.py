@@ -92,7 +92,7 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
 
     ``scale``: the factor ``mesh``'s file coordinates were multiplied by (``--scale``), recorded in the
     manifest so that ``verify --mesh`` compares with the file as sliced. ``progress(done, total)`` is called
-    as layers finish. The manifest is written last; if anything fails before, the directory holds no
+    as each layer is written. The manifest is written last; if anything fails before, the directory holds no
     manifest. ``inputs`` (default: the mesh's file) are never written over (the output rule,
     :func:`heoslice.stack.check_stack_output`).
     """
@@ -136,12 +136,17 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
             open_layers[run.open_layers] = True
             times.slice += run.slice_s
             times.contours += run.contours_s
+
+        written = [0]
+
+        def on_layers(count: int) -> None:
+            written[0] += count
             if progress is not None:
-                progress(len(results), len(z))
+                progress(written[0], len(z))
 
         context = RunContext(mesh=mesh, z=z, face_range=face_z_range(mesh.vertices, mesh.faces), grid=grid,
                              spec=spec, directory=directory, vertex_mix=job.vertex_mix, field=job.field)
-        run_all(context, spec.worker_count(), on_done)
+        run_all(context, spec.worker_count(), on_done, on_layers)
         mode = _image_mode(spec)
         droplets = _droplet_materials(spec)
         manifest = build_manifest(

@@ -208,3 +208,16 @@ def layer_image(directory: Path, index: int, size: int | None = None, manifest: 
     longest = max(manifest["image"]["width"], manifest["image"]["height"])
     factor = max(1, longest // size)
     return fit(Image.fromarray(layer_display(Path(directory), manifest, index, factor)), size)
+
+
+def annotated_layer_image(directory: Path, index: int, size: int | None = None, manifest: dict | None = None):
+    """:func:`layer_image` with a footer (:func:`heoslice.preview.annotate.annotate`): the layer's number and z,
+    the legend of the stack's materials in their display colours and a scale bar in mm. The layer keeps its
+    place and size at the top left; the footer adds height (and width, below MIN_FOOTER_WIDTH px)."""
+    from heoslice.preview.annotate import annotate, legend_of
+
+    manifest = read_manifest(Path(directory)) if manifest is None else manifest
+    image = layer_image(directory, index, size, manifest)
+    px_per_mm = image.size[0] / (manifest["image"]["width"] * manifest["pixel_size_mm"][0])
+    count, z = len(manifest["layers"]), manifest["layers"][index]["z_mm"]
+    return annotate(image, f"layer {index} (of 0..{count - 1}), z {z:.3f} mm", legend_of(manifest, SOLID_GREY), px_per_mm)

@@ -4,13 +4,16 @@ colours, bottom layer at the bottom, drawn at the true aspect ratio (pixel size 
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from heoslice.errors import InputError
+from heoslice.errors import InputError, VerifyError
+from heoslice.pipeline.parallel import ordered_map
 from heoslice.preview.layer import MAX_PREVIEW_SIDE, _display, _planes, channel_colors, check_size
 from heoslice.stack import MANIFEST, layer_strips, read_manifest
+from heoslice.stack.packed import layer_bits, unpack_bits
 
 SECTION_PATTERN = re.compile(r"^\s*([xyXY])\s*=\s*([-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)\s*$")
 
@@ -40,6 +43,41 @@ def section_line(manifest: dict, axis: str, position_mm: float) -> int:
     return int(line)
 
 
+def _line_planes(directory: Path, manifest: dict, index: int, axis: str, line: int, kind: str) -> np.ndarray:
+    """(n, C) float32: the feature planes of :func:`heoslice.preview.layer._planes` along the section line of one
+    layer. A 1-bit layer is read as packed bits (:mod:`heoslice.stack.packed`), for a y cut only the strip
+    holding the line; other layers strip by strip."""
+    with_channels = kind == "channels"
+    if kind in ("bilevel", "channels") and manifest["image"].get("mode", "1") in ("1", "L"):
+        rows = (line, line + 1) if axis == "y" else None
+        solid, masks = layer_bits(directory, manifest, index, channels=with_channels, rows=rows)
+        if with_channels:  # over the rows decoded with a set bit: the others are zero in every file
+            first = min(bits.span[0] for bits in [solid, *masks])
+            stop = max(bits.span[1] for bits in [solid, *masks])
+            seen, doubled = np.zeros_like(solid.rows[first:stop]), np.zeros_like(solid.rows[first:stop])
+            for mask in masks:
+                doubled |= seen & mask.rows[first:stop]
+                seen |= mask.rows[first:stop]
+            if doubled.any() or not np.array_equal(seen, solid.rows[first:stop]):
+                raise VerifyError(f"layer {index}: the droplet masks do not cover exactly the layer's solid pixels "
+                                  "once each")
+        width = manifest["image"]["width"]
+        planes = masks if with_channels else [solid]
+        if axis == "y":
+            lines = [unpack_bits(bits.rows[line:line + 1], width)[0] for bits in planes]
+        else:
+            lines = [(bits.rows[:, line // 8] >> (7 - line % 8)) & 1 != 0 for bits in planes]
+        return np.stack(lines, axis=-1).astype(np.float32)
+    alpha = manifest["mask"] == "alpha"
+    parts = []
+    for row, pixels, strip_masks in layer_strips(directory, manifest, index, channels=with_channels):
+        if axis == "y" and not row <= line < row + len(pixels):
+            continue
+        planes = _planes(kind, pixels, strip_masks, index, alpha)
+        parts.append(np.stack([plane[line - row] if axis == "y" else plane[:, line] for plane in planes], axis=-1))
+    return np.concatenate(parts).astype(np.float32)
+
+
 def _layer_line(directory: Path, manifest: dict, index: int, axis: str, line: int, factor: int) -> np.ndarray:
     """(ceil(n / factor), 3) uint8: the display colours along the section line of one layer, box-reduced."""
     entry = manifest["layers"][index]
@@ -47,14 +85,7 @@ def _layer_line(directory: Path, manifest: dict, index: int, axis: str, line: in
     colors = channel_colors(manifest, index, Path(directory) / MANIFEST) if with_channels else None
     samples = {"1": "bilevel", "L": "bilevel", "RGB": "rgb", "RGBA": "rgba"}[manifest["image"].get("mode", "1")]
     kind = "channels" if with_channels else samples
-    alpha = manifest["mask"] == "alpha"
-    parts = []
-    for row, pixels, masks in layer_strips(directory, manifest, index, channels=with_channels):
-        if axis == "y" and not row <= line < row + len(pixels):
-            continue
-        planes = _planes(kind, pixels, masks, index, alpha)
-        parts.append(np.stack([plane[line - row] if axis == "y" else plane[:, line] for plane in planes], axis=-1))
-    features = np.concatenate(parts).astype(np.float32)
+    features = _line_planes(directory, manifest, index, axis, line, kind)
     starts = np.arange(0, len(features), factor)
     counts = np.diff(np.append(starts, len(features))).astype(np.float32)[:, None]
     means = np.add.reduceat(features, starts, axis=0) / counts
@@ -62,10 +93,11 @@ def _layer_line(directory: Path, manifest: dict, index: int, axis: str, line: in
 
 
 def section_image(directory: Path, axis: str, position_mm: float, size: int | None = None,
-                  manifest: dict | None = None):
+                  manifest: dict | None = None, progress: Callable[[int, int], None] | None = None):
     """PIL RGB image of the vertical section at ``axis`` = ``position_mm`` (mm): one row per layer, top layer at
     the top, stretched to the true aspect ratio (layer height against pixel size) and reduced so its longer
-    side is at most ``size`` (default MAX_PREVIEW_SIDE). Only the layers drawn are read, strip by strip."""
+    side is at most ``size`` (default MAX_PREVIEW_SIDE). Only the layers drawn are read, over the cores
+    (:func:`heoslice.pipeline.parallel.ordered_map`); ``progress(done, total)`` follows them."""
     from PIL import Image
 
     directory = Path(directory)
@@ -80,10 +112,33 @@ def section_image(directory: Path, axis: str, position_mm: float, size: int | No
     width_out, height_out = max(1, round(across * scale)), max(1, round(true_height * scale))
     factor = max(1, across // max(width_out, 1))
     sources = np.clip(np.floor((np.arange(height_out) + 0.5) / height_out * layers).astype(np.int64), 0, layers - 1)
-    lines = {int(index): _layer_line(directory, manifest, int(index), axis, line, factor)
-             for index in np.unique(sources)}
+    drawn = np.unique(sources).tolist()
+    lines = {}
+    for done, (index, pixels) in enumerate(ordered_map(
+            lambda index: (index, _layer_line(directory, manifest, index, axis, line, factor)), drawn), 1):
+        lines[index] = pixels
+        if progress is not None:
+            progress(done, len(drawn))
     rows = np.stack([lines[int(index)] for index in sources[::-1]])
     return Image.fromarray(rows).resize((width_out, height_out), Image.Resampling.BOX)
 
 
-__all__ = ["MAX_PREVIEW_SIDE", "parse_section", "section_image", "section_line"]
+def annotated_section_image(directory: Path, axis: str, position_mm: float, size: int | None = None,
+                            manifest: dict | None = None, progress: Callable[[int, int], None] | None = None):
+    """:func:`section_image` with a footer (:func:`heoslice.preview.annotate.annotate`): the cut's position and
+    the layers' z range, the legend of the stack's materials and a scale bar in mm (the section is drawn at
+    its true aspect ratio, so the bar holds up and across)."""
+    from heoslice.preview.annotate import annotate, legend_of
+    from heoslice.preview.layer import SOLID_GREY
+
+    manifest = read_manifest(Path(directory)) if manifest is None else manifest
+    image = section_image(directory, axis, position_mm, size, manifest, progress)
+    across_px, pixel = ((manifest["image"]["height"], manifest["pixel_size_mm"][1]) if axis == "x"
+                        else (manifest["image"]["width"], manifest["pixel_size_mm"][0]))
+    layers = manifest["layers"]
+    title = (f"section {axis} = {position_mm:g} mm; layers 0..{len(layers) - 1}, "
+             f"z {layers[0]['z_mm']:.2f}..{layers[-1]['z_mm']:.2f} mm")
+    return annotate(image, title, legend_of(manifest, SOLID_GREY), image.size[0] / (across_px * pixel))
+
+
+__all__ = ["MAX_PREVIEW_SIDE", "annotated_section_image", "parse_section", "section_image", "section_line"]

@@ -44,19 +44,23 @@ def pack_mask(mask: np.ndarray) -> bytes:
     return np.packbits(np.asarray(mask, dtype=bool), axis=1).tobytes()
 
 
-def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
+def stack_job(directory: Path, progress: Callable[[int, int], None] | None = None) -> tuple[JobSpec, LayerSource]:
     """Verify a stack (VerifyError if it fails), refuse one that cannot print (InputError:
     :func:`heoslice.stack.check_printable`) and return its job and layer source.
 
     Channel 0 is the solid mask; each droplet mask of a layer entry's ``"channels"`` list goes on the printer
     channel :func:`mask_channels` gives it, and channels no mask names (below the highest, or of a layer
     with fewer masks) carry empty masks. Each layer is checked against its sha256 again when it is read for
-    sending; a mismatch or a missing file raises StackChangedError (exit 19).
+    sending; a mismatch or a missing file raises StackChangedError (exit 19). ``progress(done, total)`` follows
+    the verification. A layer's masks are read as packed rows (:mod:`heoslice.stack.packed`), which are the
+    channel payloads as they are.
     """
-    from heoslice.stack import check_printable, decode_mask, load_verified, read_layer_mask, resolve_inside
+    from heoslice.pipeline.parallel import ordered_map
+    from heoslice.stack import check_printable, load_verified
+    from heoslice.stack.packed import layer_bits
 
     directory = Path(directory)
-    manifest = load_verified(directory)
+    manifest = load_verified(directory, progress, ordered_map)
     layers = manifest["layers"]
     if not layers:
         raise InputError(f"{directory}: the stack has no layers")
@@ -70,13 +74,12 @@ def stack_job(directory: Path) -> tuple[JobSpec, LayerSource]:
         names[target] = str(channel.get("material", f"channel {target}"))
     job_id = P.crc32(json.dumps(manifest, sort_keys=True).encode()) or 1
     job = JobSpec(job_id, len(layers), channels, width, height, tuple(names))
-    as_nonzero = {**manifest, "mask": "nonzero"}
 
     def read(index: int) -> list[bytes]:
-        out = [pack_mask(read_layer_mask(directory, manifest, index))] + [bytes(job.channel_bytes)] * (channels - 1)
-        for channel, target in zip(layers[index].get("channels") or [], targets):
-            out[target] = pack_mask(decode_mask(resolve_inside(directory, channel["file"]), as_nonzero,
-                                                sha256=channel["sha256"]))
+        solid, masks = layer_bits(directory, manifest, index)
+        out = [solid.rows.tobytes()] + [bytes(job.channel_bytes)] * (channels - 1)
+        for mask, target in zip(masks, targets):
+            out[target] = mask.rows.tobytes()
         return out
 
     def get_layer(index: int) -> list[bytes]:

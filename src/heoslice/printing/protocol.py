@@ -9,6 +9,7 @@ to and from payload bytes. Every decoder here raises only :class:`ProtocolError`
 
 from __future__ import annotations
 
+import functools
 import struct
 import zlib
 from dataclasses import dataclass, fields
@@ -533,7 +534,19 @@ def packbits_decode(data: bytes, size: int) -> bytes:
 
 
 def encode_chunk(raw: bytes, encodings: int) -> tuple[int, bytes]:
-    """(encoding, bytes) for ``raw``: the smallest of the encodings allowed by mask ``encodings``, raw if none is smaller."""
+    """(encoding, bytes) for ``raw``: the smallest of the encodings allowed by mask ``encodings``, raw if none is smaller.
+    A run of zero bytes (the empty rows of a mask, most of a droplet mask) is encoded once per length."""
+    if not raw.count(0) - len(raw):
+        return _encode_zeros(len(raw), encodings)
+    return _encode_chunk(bytes(raw), encodings)
+
+
+@functools.lru_cache(maxsize=256)
+def _encode_zeros(length: int, encodings: int) -> tuple[int, bytes]:
+    return _encode_chunk(bytes(length), encodings)
+
+
+def _encode_chunk(raw: bytes, encodings: int) -> tuple[int, bytes]:
     best_code, best = ENC_RAW, raw
     if encodings & (1 << ENC_ZLIB):
         packed = zlib.compress(raw, 6)

@@ -67,15 +67,18 @@ def job_messages(job: JobSpec, get_layer: LayerSource, start: int, payload: Call
 
 
 def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, max_payload: int = 1024,
-                  encodings: int = P.ALL_ENCODINGS, from_layer: int = 0) -> dict:
-    """Encode every frame of the job without a port: frames, wire bytes and the time at ``baud`` (8N1), s."""
+                  encodings: int = P.ALL_ENCODINGS, from_layer: int = 0, workers: int | None = None,
+                  progress: Callable[[int, int], None] | None = None) -> dict:
+    """Encode every frame of the job without a port: frames, wire bytes and the time at ``baud`` (8N1), s.
+    The layers are read and encoded in ``workers`` processes (:func:`heoslice.pipeline.parallel.ordered_map`;
+    default one per core); ``progress(done, total)`` follows them."""
+    from heoslice.pipeline.parallel import ordered_map
+
     check_from_layer(job, from_layer)
-    frames = wire = raw = 0
-    for index in range(from_layer, job.layer_count):
-        channels = list(get_layer(index))
-        frames += 3
-        wire += 3 * P.wire_size(13)
-        for number, data in enumerate(channels):
+
+    def layer_plan(index: int) -> tuple[int, int, int]:
+        frames, wire, raw = 3, 3 * P.wire_size(13), 0
+        for number, data in enumerate(get_layer(index)):
             raw += len(data)
             offset = 0
             while offset < len(data):
@@ -83,6 +86,14 @@ def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, m
                 frames += 1
                 wire += P.wire_size(len(P.pack_message(message)[1]))
                 offset += span
+        return frames, wire, raw
+
+    frames = wire = raw = 0
+    indices = range(from_layer, job.layer_count)
+    for done, (layer_frames, layer_wire, layer_raw) in enumerate(ordered_map(layer_plan, indices, workers), 1):
+        frames, wire, raw = frames + layer_frames, wire + layer_wire, raw + layer_raw
+        if progress is not None:
+            progress(done, len(indices))
     return {"layers": job.layer_count - from_layer, "channels": job.channels, "raw_bytes": raw,
             "frames": frames, "wire_bytes": wire, "seconds_at_baud": wire * 10.0 / baud}
 

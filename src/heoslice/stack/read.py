@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import io
 import os
+import re
 import stat
 from pathlib import Path
 
@@ -18,6 +19,8 @@ from heoslice.stack.tiff import checked_page, decode_solid, file_limit, open_tif
 #: Largest decoded strip a streaming reader accepts, bytes (heoslice writes strips of 64 or 256 rows:
 #: a 1 m wide layer at 600 dpi decodes to 6 MB per strip).
 MAX_STRIP_BYTES = 1 << 26
+#: A file name with no separator, no leading dot and nothing a path could read otherwise (layer files are).
+_PLAIN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]*\Z")
 
 def read_manifest(directory: Path) -> dict:
     """Parse and structurally check ``manifest.json``; raise VerifyError naming the first problem.
@@ -70,6 +73,13 @@ def resolve_inside(directory: Path, name: str) -> Path | None:
     if not isinstance(name, str) or not name or os.path.isabs(name) or "\\" in name or "\x00" in name:
         return None
     root = Path(directory).resolve()
+    if _PLAIN_NAME.match(name):  # a file of the folder itself: inside unless it is a link (resolved below)
+        candidate = root / name
+        try:
+            if not stat.S_ISLNK(os.lstat(candidate).st_mode):
+                return candidate
+        except OSError:  # absent: resolving it would give the same path
+            return candidate
     try:
         candidate = (root / name).resolve()
     except (OSError, RuntimeError):  # symlink loops

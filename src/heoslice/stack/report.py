@@ -162,26 +162,29 @@ class MaterialReport:
     bands: tuple[BandShare, ...] = ()
 
 
-def _first_set(packed: np.ndarray) -> PixelFault | None:
-    """How many bits of (h, ceil(w / 8)) packed rows are set, and the first (row, column), or None."""
+def _first_set(packed: np.ndarray, row_offset: int = 0) -> PixelFault | None:
+    """How many bits of (h, ceil(w / 8)) packed rows are set, and the first (row + ``row_offset``, column), or
+    None."""
     count = int(np.bitwise_count(packed).sum())
     if not count:
         return None
     flat = int(np.flatnonzero(packed)[0])
     row, byte = divmod(flat, packed.shape[1])
     bit = int(np.flatnonzero(np.unpackbits(packed[row, byte:byte + 1]))[0])
-    return PixelFault(count, (row, 8 * byte + bit))
+    return PixelFault(count, (row + row_offset, 8 * byte + bit))
 
 
-def mask_faults(solid: np.ndarray, masks: np.ndarray) -> MaskFaults:
+def mask_faults(solid: np.ndarray, masks, row_offset: int = 0) -> MaskFaults:
     """Faults of one layer's droplet masks against its solid mask, on packed bits: ``solid`` (h, ceil(w / 8))
-    uint8 and ``masks`` (K, h, ceil(w / 8)) uint8 (``np.packbits(..., axis=-1)``)."""
+    uint8 and ``masks`` (K, h, ceil(w / 8)) uint8 (``np.packbits(..., axis=-1)``); ``row_offset``: the layer
+    row of their first row (a band of rows holding every set bit)."""
     seen = np.zeros_like(solid)
     doubled = np.zeros_like(solid)
     for mask in masks:
         doubled |= seen & mask
         seen |= mask
-    return MaskFaults(_first_set(solid & ~seen), _first_set(doubled), _first_set(seen & ~solid))
+    return MaskFaults(_first_set(solid & ~seen, row_offset), _first_set(doubled, row_offset),
+                      _first_set(seen & ~solid, row_offset))
 
 
 def pixel_position(manifest: dict, pixel: tuple[int, int]) -> tuple[float, float]:

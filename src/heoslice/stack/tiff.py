@@ -274,7 +274,8 @@ def _checked_page_unsafe(tiff, name: str, file_size: int, manifest: dict, mode: 
         raise VerifyError(f"{name}: malformed resolution tags") from None
     unit = int(tags["ResolutionUnit"].value) if "ResolutionUnit" in tags else 2
     per_inch = {1: MM_PER_INCH, 2: 1.0, 3: 2.54}.get(unit)  # none (px/mm, as heoslice writes), inch, cm
-    if per_inch is None or not np.allclose(np.multiply(found, per_inch), dpi, rtol=1e-6):
+    if per_inch is None or not all(abs(value * per_inch - wanted) <= 1e-8 + 1e-6 * abs(wanted)  # np.allclose's rule
+                                   for value, wanted in zip(found, dpi)):
         shown = (f"{found[0] * per_inch:g} x {found[1] * per_inch:g} dpi" if per_inch is not None
                  else f"{found[0]:g} x {found[1]:g} per unit {unit}")
         raise VerifyError(f"{name}: resolution {shown}, manifest says {dpi[0]:g} x {dpi[1]:g} dpi")

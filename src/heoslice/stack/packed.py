@@ -1,0 +1,309 @@
+"""Layer files read as packed bits: each file read, hashed and parsed once, its strips inflated straight to
+packed rows (a 1-bit layer is never expanded to a byte per pixel), so that checks and outputs over a whole
+stack run at disk and decode speed. The layout checks are :func:`heoslice.stack.tiff.checked_page`'s, made
+before any strip is inflated; what is decoded is exactly what was hashed.
+
+Packed rows are (height, ceil(width / 8)) uint8, most significant bit first, a set bit a solid pixel (the
+value tifffile reads from a min-is-white 1-bit file), the padding bits of each row's last byte zero.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import io
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from heoslice.errors import VerifyError
+from heoslice.stack.read import open_regular, read_checked, resolve_inside
+from heoslice.stack.tiff import checked_page, decode_solid, file_limit, open_tiff
+
+#: TIFF compression code -> imagecodecs decoder names, the first it has taken, for the strips of 1-bit layers
+#: (1: stored as is). zlib-ng inflates a layer's strips several times faster than zlib (benchmarks/README.md).
+STRIP_DECODERS = {5: ("lzw_decode",), 8: ("zlibng_decode", "zlib_decode"), 32946: ("zlibng_decode", "zlib_decode"),
+                  32773: ("packbits_decode",)}
+
+
+@dataclass(frozen=True, slots=True)
+class StripPage:
+    """What reading a plain 1-bit layer needs of its TIFF page (the attributes of tifffile's TiffPage of the
+    same names), for a file whose layout matched one tifffile parsed and checked before (:class:`_Layout`)."""
+
+    imagelength: int
+    imagewidth: int
+    rowsperstrip: int
+    bitspersample: int
+    samplesperpixel: int
+    fillorder: int
+    predictor: int
+    compression: int
+    dataoffsets: tuple[int, ...]
+    databytecounts: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class LayerFile:
+    """One checked layer file: its bytes (as hashed) and its page (tifffile's, or a :class:`StripPage` of the
+    same layout), checked against ``manifest`` for ``mode``."""
+
+    name: str
+    data: bytes
+    page: object
+    manifest: dict
+    mode: str | None
+
+    def tiff_page(self):
+        """tifffile's page of the file, parsed and checked from its bytes."""
+        if not isinstance(self.page, StripPage):
+            return self.page
+        return checked_page(open_tiff(io.BytesIO(self.data), self.name), self.name, len(self.data), self.manifest,
+                            self.mode)
+
+
+@dataclass(frozen=True, slots=True)
+class _Layout:
+    """The layout of a plain 1-bit layer file that tifffile parsed and :func:`checked_page` passed: its bytes
+    before the first strip (``head``, holding the header, the one IFD and every tag value) with the
+    StripOffsets and StripByteCounts tables (uint32 little-endian, ``strips`` each, at ``offsets_at`` and
+    ``counts_at``) zeroed. Another file with the same head but for those tables is the same page with other
+    strips: its tables are read here and checked by the same rules, and tifffile is not asked again."""
+
+    head: bytes
+    offsets_at: int
+    counts_at: int
+    page: StripPage
+
+
+#: Layouts learned in this process, by what :func:`checked_page` checked them against (mode, width, height, dpi).
+_LAYOUTS: dict[tuple, _Layout] = {}
+
+
+def _learn_layout(page, data: bytes) -> _Layout | None:
+    """The :class:`_Layout` of a checked tifffile page of ``data``, or None when it is not a plain little-endian
+    1-bit page whose header, IFD and tag values all lie before its first strip."""
+    if (page.bitspersample, page.samplesperpixel, page.fillorder, page.predictor) != (1, 1, 1, 1):
+        return None
+    tiff = page.parent
+    offsets_tag, counts_tag = page.tags.get(273), page.tags.get(279)
+    if tiff.byteorder != "<" or tiff.is_bigtiff or offsets_tag is None or counts_tag is None:
+        return None
+    if offsets_tag.dtype != 4 or counts_tag.dtype != 4 or offsets_tag.count != counts_tag.count:
+        return None
+    strips = offsets_tag.count
+    head = min(page.dataoffsets)
+    ifd_end = page.offset + 2 + 12 * len(page.tags) + 4
+    if ifd_end > head or any(tag.valueoffset + tag.valuebytecount > head for tag in page.tags.values()):
+        return None
+    masked = bytearray(data[:head])
+    for at in (offsets_tag.valueoffset, counts_tag.valueoffset):
+        masked[at:at + 4 * strips] = bytes(4 * strips)
+    fields = StripPage(page.imagelength, page.imagewidth, _strip_rows(page), 1, 1, 1, 1, int(page.compression),
+                       (), ())
+    return _Layout(bytes(masked), offsets_tag.valueoffset, counts_tag.valueoffset, fields)
+
+
+def _known_page(data: bytes, layout: _Layout) -> StripPage | None:
+    """The page of ``data`` when its head is ``layout``'s and its strip tables pass :func:`checked_page`'s
+    rules (each strip non-empty, within the file, at most what its pixels can need); None otherwise."""
+    head, page = layout.head, layout.page
+    strips = -(-page.imagelength // page.rowsperstrip)
+    if len(data) < len(head):
+        return None
+    masked = bytearray(data[:len(head)])
+    offsets = np.frombuffer(masked, dtype="<u4", count=strips, offset=layout.offsets_at).astype(np.int64)
+    counts = np.frombuffer(masked, dtype="<u4", count=strips, offset=layout.counts_at).astype(np.int64)
+    for at in (layout.offsets_at, layout.counts_at):
+        masked[at:at + 4 * strips] = bytes(4 * strips)
+    if masked != head:
+        return None
+    raw = page.rowsperstrip * row_bytes(page.imagewidth)
+    if (counts > 2 * raw + 1024).any() or (counts == 0).any() or (offsets < 8).any() \
+            or (offsets + counts > len(data)).any():
+        return None
+    page = StripPage(*(getattr(page, name) for name in StripPage.__slots__[:8]),
+                     tuple(offsets.tolist()), tuple(counts.tolist()))
+    if len(data) > file_limit(page):
+        return None
+    return page
+
+
+def _checked(data: bytes, name: str, manifest: dict, mode: str | None):
+    """The checked page of a layer file's bytes: a :class:`StripPage` when its layout is one seen before,
+    else tifffile's page after :func:`checked_page` (and its layout learned)."""
+    image = manifest["image"]
+    key = (mode, image["width"], image["height"], tuple(manifest["dpi"]))
+    layout = _LAYOUTS.get(key)
+    if layout is not None:
+        page = _known_page(data, layout)
+        if page is not None:
+            return page
+    page = checked_page(open_tiff(io.BytesIO(data), name), name, len(data), manifest, mode)
+    if layout is None:
+        learned = _learn_layout(page, data)
+        if learned is not None:
+            _LAYOUTS[key] = learned
+    return page
+
+
+def row_bytes(width: int) -> int:
+    """Bytes of one packed row of ``width`` pixels."""
+    return -(-width // 8)
+
+
+def _fast_bound(manifest: dict) -> int:
+    """Most bytes a 1-bit layer file of the manifest's size can need (:func:`file_limit` of that layout with
+    one strip per row): a larger file is read the careful way (:func:`read_checked`), its header first."""
+    height = manifest["image"]["height"]
+    return 2 * height * row_bytes(manifest["image"]["width"]) + 1024 * height + (1 << 20)
+
+
+def read_layer_file(path: Path | None, name: str, sha256: str | None, manifest: dict,
+                    mode: str | None) -> LayerFile:
+    """The bytes and checked page of one layer file: inside the stack (``path`` None otherwise), a regular file,
+    its layout passing :func:`checked_page` (``mode`` a manifest image mode, or None for a droplet mask), at
+    most what that layout can need, and matching ``sha256`` when given; VerifyError naming ``name`` otherwise.
+    Memory: bounded by twice the raw 1-bit image (a larger file is bounded by its own checked layout)."""
+    if path is None:
+        raise VerifyError(f"{name}: lies outside the stack")
+    try:
+        with open_regular(path, name) as handle:
+            size = os.fstat(handle.fileno()).st_size
+            data = handle.read(size + 1) if size <= _fast_bound(manifest) else None
+    except OSError as err:
+        raise VerifyError(f"{name}: cannot read ({err.strerror})") from err
+    if data is None:
+        data = read_checked(path, name, sha256, manifest, mode)
+        sha256 = None
+    page = _checked(data, name, manifest, mode)
+    limit = file_limit(page)
+    if len(data) > limit:
+        raise VerifyError(f"{name}: file is {len(data)} bytes, more than its image can need ({limit})")
+    if sha256 is not None and hashlib.sha256(data).hexdigest() != sha256:
+        raise VerifyError(f"{name}: sha256 does not match the manifest (file altered)")
+    return LayerFile(name, data, page, manifest, mode)
+
+
+def _strip_rows(page) -> int:
+    return min(int(page.rowsperstrip or page.imagelength), page.imagelength)
+
+
+#: Compressed strips known to inflate to zeros (the blank strips off the part, the same bytes in every layer
+#: of a stack): skipped instead of inflated. Only short strips are remembered, at most this many.
+_BLANK_STRIPS: set[bytes] = set()
+_MAX_BLANK_STRIPS, _BLANK_STRIP_BYTES = 64, 4096
+
+
+def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, stop: int) -> tuple[int, int] | None:
+    """Inflate the strips of a plain 1-bit page holding rows first..stop-1 into ``flat`` (the packed rows of
+    the image, one spare byte after them, zero where nothing is inflated); return the rows (first, stop) that
+    may hold set bits (blank strips are known by their bytes and skipped). None (``flat`` partly written)
+    when the page or a strip is not laid out as heoslice writes it."""
+    page = layer.page
+    if (page.bitspersample, page.samplesperpixel) != (1, 1) or page.fillorder != 1 or page.predictor != 1:
+        return None
+    code = int(page.compression)
+    if code != 1 and code not in STRIP_DECODERS:
+        return None
+    decode = _strip_decoder(code)
+    rows = _strip_rows(page)
+    view = memoryview(layer.data)
+    span = [page.imagelength, 0]
+    for number, (offset, count) in enumerate(zip(page.dataoffsets, page.databytecounts)):
+        row = number * rows
+        if row + rows <= first or row >= stop:
+            continue
+        strip = view[offset:offset + count]
+        short = count <= _BLANK_STRIP_BYTES
+        if short and bytes(strip) in _BLANK_STRIPS:
+            continue
+        expected = min(rows, page.imagelength - row) * width
+        target = flat[row * width:row * width + expected + 1]
+        try:
+            if decode is None:
+                done = min(len(strip), expected + 1)
+                target[:done] = np.frombuffer(strip[:done], dtype=np.uint8)
+            else:
+                done = len(decode(strip, out=target))
+        except Exception:  # noqa: BLE001 - a corrupt strip: the generic decoder reports it
+            return None
+        if done != expected:
+            return None
+        target[expected] = 0  # the spare byte, which a decoder may have written: the next strip's, if decoded
+        if short and len(_BLANK_STRIPS) < _MAX_BLANK_STRIPS and not target[:expected].any():
+            _BLANK_STRIPS.add(bytes(strip))
+            continue
+        span = [min(span[0], row), max(span[1], row + expected // width)]
+    return (span[0], span[1]) if span[0] < span[1] else (0, 0)
+
+
+@functools.cache
+def _strip_decoder(code: int):
+    """imagecodecs' decoder of a strip compression code (None: stored as is)."""
+    import imagecodecs
+
+    if code == 1:
+        return None
+    return next(getattr(imagecodecs, name) for name in STRIP_DECODERS[code] if hasattr(imagecodecs, name))
+
+
+@dataclass(frozen=True, slots=True)
+class Bits:
+    """A layer file's solid pixels as packed rows (``rows``, module docstring) and the span of rows
+    (first, stop) outside which they are all zero."""
+
+    rows: np.ndarray
+    span: tuple[int, int]
+
+
+def solid_bits(layer: LayerFile, alpha: bool, rows: tuple[int, int] | None = None) -> Bits:
+    """The solid pixels of a checked layer file (:class:`Bits`): a set sample of a 1-bit or grey file, any
+    non-zero sample of a colour one (its alpha when ``alpha``). With ``rows`` (first, stop) only the strips
+    holding those rows are decoded; other rows are left zero."""
+    page = layer.page
+    height, width = page.imagelength, row_bytes(page.imagewidth)
+    first, stop = (0, height) if rows is None else rows
+    flat = np.zeros(height * width + 1, dtype=np.uint8)
+    out = flat[:-1].reshape(height, width)
+    span = _inflate_bits(layer, flat, width, first, stop)
+    if span is None:
+        mask = np.zeros((height, page.imagewidth), dtype=bool)
+        decode_solid(layer.tiff_page(), layer.name, alpha, out=mask)
+        return Bits(np.packbits(mask, axis=1), (0, height))
+    if page.imagewidth % 8:
+        out[span[0]:span[1], -1] &= np.uint8((0xFF << (8 - page.imagewidth % 8)) & 0xFF)
+    return Bits(out, span)
+
+
+def count_bits(bits: np.ndarray) -> int:
+    """Set bits of packed rows (solid pixels, the padding being zero)."""
+    flat = np.ascontiguousarray(bits).reshape(-1)
+    whole = len(flat) // 8 * 8
+    return (int(np.bitwise_count(flat[:whole].view(np.uint64)).sum(dtype=np.int64))
+            + int(np.bitwise_count(flat[whole:]).sum(dtype=np.int64)))
+
+
+def layer_bits(directory: Path, manifest: dict, index: int, channels: bool = True,
+               rows: tuple[int, int] | None = None) -> tuple[Bits, list[Bits]]:
+    """Layer ``index`` of a stack as packed rows: (its solid pixels, [each droplet mask's] in the order of its
+    ``channels`` list, empty unless ``channels``). Every file is checked (inside, layout, sha256) and read
+    once; with ``rows`` (first, stop) only the strips holding those rows are decoded."""
+    directory = Path(directory)
+    entry = manifest["layers"][index]
+    mode = manifest["image"].get("mode", "1")
+    alpha = manifest["mask"] == "alpha"
+    solid = solid_bits(read_layer_file(resolve_inside(directory, entry["file"]), f"layer {index}: {entry['file']}",
+                                       entry["sha256"], manifest, mode), alpha, rows)
+    masks = [solid_bits(read_layer_file(resolve_inside(directory, channel["file"]),
+                                        f"layer {index}: {channel['file']}", channel["sha256"], manifest, None),
+                        False, rows)
+             for channel in (entry.get("channels") or [] if channels else [])]
+    return solid, masks
+
+
+def unpack_bits(bits: np.ndarray, width: int) -> np.ndarray:
+    """(h, width) bool of packed rows."""
+    return np.unpackbits(bits, axis=1, count=width).astype(bool)
