@@ -83,6 +83,12 @@ NEVER_REACHED = {
     ("controller", "heoslice.printing.simulator.config"): "a bad option: the command says it as InputError (2)",
     ("controller", "heoslice.printing.ports"): "the host's port: the controller opens none",
     ("controller", "heoslice.printing.protocol"): "a bad frame from the host: the simulator logs it and goes on",
+    **{(command, f"heoslice.stack.{module}"): "--scale's range check (cli.options -> pipeline.spec, which imports "
+       "the stack package): info and color read no stack and write none"
+       for command in ("info", "color") for module in ("write", "manifest", "read", "tiff", "verify")},
+    **{(command, "heoslice.files"): "a volume's reader opens its input through files.open_regular (an input "
+       "error, 2); the output rule's OutputError is for writers"
+       for command in ("info", "verify")},
 }
 
 

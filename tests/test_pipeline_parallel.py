@@ -78,7 +78,9 @@ def test_graded_stacks_made_with_workers_are_the_serial_stack(tmp_path, halftone
 
 def test_parallel_slicing_leaves_the_garbage_collector_as_it_found_it(tmp_path):
     """What is frozen for the forks is unfrozen after (nothing left frozen), and a caller that froze its own
-    objects finds them frozen still, and no more."""
+    objects finds them frozen still, and no more. (Frozen objects the slice lets die, such as a cache's entry it
+    replaces, leave the permanent generation: the count may fall by those few, never rise, and an unfreeze of
+    the caller's objects would take it to the objects heoslice froze itself.)"""
     import gc
 
     mesh = load_mesh(write_mesh(procedural.shell_with_island(8.0, 5.0, 2.0, 3), tmp_path / "m.ply"))
@@ -90,7 +92,7 @@ def test_parallel_slicing_leaves_the_garbage_collector_as_it_found_it(tmp_path):
     try:
         frozen = gc.get_freeze_count()
         slice_to_stack(mesh, tmp_path / "b", spec)
-        assert gc.get_freeze_count() == frozen
+        assert frozen - 100 <= gc.get_freeze_count() <= frozen
     finally:
         gc.unfreeze()
 
