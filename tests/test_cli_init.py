@@ -85,7 +85,9 @@ NEVER_REACHED = {
     ("controller", "heoslice.printing.protocol"): "a bad frame from the host: the simulator logs it and goes on",
     **{(command, f"heoslice.stack.{module}"): "--scale's range check (cli.options -> pipeline.spec, which imports "
        "the stack package): info and color read no stack and write none"
-       for command in ("info", "color") for module in ("write", "manifest", "read", "tiff", "verify")},
+       for command in ("info", "color") for module in ("write", "manifest", "read", "tiff", "verify", "packed")},
+    ("slice", "heoslice.stack.packed"): "reading a stack's layers as packed bits: slice only writes one",
+    ("verify", "heoslice.stack.write"): "writing a stack (OutputError): verify only reads one",
     **{(command, "heoslice.files"): "a volume's reader opens its input through files.open_regular (an input "
        "error, 2); the output rule's OutputError is for writers"
        for command in ("info", "verify")},
