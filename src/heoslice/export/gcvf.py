@@ -24,9 +24,9 @@ from heoslice.export.voxel_print import (
     DEFAULT_PITCH_MM,
     layer_labels,
     palette,
-    sample_indices,
+    printer_grid,
 )
-from heoslice.stack import MANIFEST, MAX_IMAGE_PIXELS, MAX_LAYERS
+from heoslice.stack import MANIFEST, check_printable
 
 #: Most model materials one .gcvf carries (its ConfigFile's MaxNumberOfColors).
 MAX_MATERIALS = 6
@@ -86,21 +86,12 @@ def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -
         raise InputError("background: a .gcvf's empty voxels are black (its BackGroundMaterialRGBA)")
     dpi = options.dpi or DEFAULT_DPI
     pitch = options.pitch_mm or DEFAULT_PITCH_MM
+    check_printable(manifest, directory)
     materials = palette(manifest, BACKGROUND_RGBA[:3], Path(directory) / MANIFEST)
     if len(materials) > MAX_MATERIALS:
         raise InputError(f"format: a .gcvf carries at most {MAX_MATERIALS} materials; this stack has "
                          f"{len(materials)} ({', '.join(name for name, _ in materials)})")
-    image, (px, py), h = manifest["image"], manifest["pixel_size_mm"], manifest["layer_height_mm"]
-    new_px, new_py = 25.4 / dpi[0], 25.4 / dpi[1]
-    width, height = max(1, round(image["width"] * px / new_px)), max(1, round(image["height"] * py / new_py))
-    z_min, z_max = manifest["z_range_mm"]
-    slices = max(1, int(np.ceil((z_max - z_min) / pitch - 1e-9)))
-    if width * height > MAX_IMAGE_PIXELS or slices > 4 * MAX_LAYERS:
-        raise InputError(f"dpi: {slices} slices of {width} x {height} px at {dpi[0]:g} x {dpi[1]:g} dpi and "
-                         f"{pitch:g} mm is more than an export writes")
-    columns = sample_indices(image["width"], px, new_px, width)
-    rows = sample_indices(image["height"], py, new_py, height)
-    sources = sample_indices(len(manifest["layers"]), h, pitch, slices)
+    width, height, slices, columns, rows, sources = printer_grid(manifest, dpi, pitch)
     colours = np.array([BACKGROUND_RGBA] + [(*colour, 255) for _, colour in materials], dtype=np.uint8)
     counts = np.zeros(len(materials) + 1, dtype=np.int64)
     cached = (None, None, None)

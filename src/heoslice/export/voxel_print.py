@@ -101,13 +101,11 @@ def slice_png(directory: Path, manifest: dict, index: int, rows: np.ndarray, col
     return buffer.getvalue()
 
 
-def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -> dict:
-    """Write the slices and ``voxelprint.json`` (materials, colours, resolution, pitch)."""
-    dpi = options.dpi or DEFAULT_DPI
-    pitch = options.pitch_mm or DEFAULT_PITCH_MM
-    background = tuple(options.background or DEFAULT_BACKGROUND)
-    check_printable(manifest, directory)
-    materials = palette(manifest, background, Path(directory) / MANIFEST)
+def printer_grid(manifest: dict, dpi: tuple[float, float], pitch: float) -> tuple:
+    """The printer's grid over the stack: (width, height, slices, columns, rows, sources), the slice images'
+    size in px at ``dpi``, their count at ``pitch`` mm, and which stack column (width,), row (height,) and layer
+    (slices,) each of their pixels and slices samples (:func:`sample_indices`); InputError past the export's
+    bounds."""
     image, (px, py), h = manifest["image"], manifest["pixel_size_mm"], manifest["layer_height_mm"]
     new_px, new_py = 25.4 / dpi[0], 25.4 / dpi[1]
     width, height = max(1, round(image["width"] * px / new_px)), max(1, round(image["height"] * py / new_py))
@@ -116,9 +114,19 @@ def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -
     if width * height > MAX_IMAGE_PIXELS or slices > 4 * MAX_LAYERS:
         raise InputError(f"dpi: {slices} slices of {width} x {height} px at {dpi[0]:g} x {dpi[1]:g} dpi and "
                          f"{pitch:g} mm is more than an export writes")
-    columns = sample_indices(image["width"], px, new_px, width)
-    rows = sample_indices(image["height"], py, new_py, height)
-    sources = sample_indices(len(manifest["layers"]), h, pitch, slices)
+    return (width, height, slices, sample_indices(image["width"], px, new_px, width),
+            sample_indices(image["height"], py, new_py, height),
+            sample_indices(len(manifest["layers"]), h, pitch, slices))
+
+
+def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -> dict:
+    """Write the slices and ``voxelprint.json`` (materials, colours, resolution, pitch)."""
+    dpi = options.dpi or DEFAULT_DPI
+    pitch = options.pitch_mm or DEFAULT_PITCH_MM
+    background = tuple(options.background or DEFAULT_BACKGROUND)
+    check_printable(manifest, directory)
+    materials = palette(manifest, background, Path(directory) / MANIFEST)
+    width, height, slices, columns, rows, sources = printer_grid(manifest, dpi, pitch)
     colours = np.array([background] + [colour for _, colour in materials], dtype=np.uint8)
     # consecutive slices often take the same stack layer: each run of them is encoded once, over the cores
     starts = np.flatnonzero(np.diff(sources, prepend=-1) != 0)
@@ -132,7 +140,8 @@ def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -
     summary = {"format": "voxel-print", "slices": slices, "width": width, "height": height, "dpi": list(dpi),
                "pitch_mm": pitch, "background": list(background),
                "materials": [{"name": name, "color": list(colour)} for name, colour in materials],
-               "source": {"layers": len(manifest["layers"]), "layer_height_mm": h, "dpi": manifest["dpi"]}}
+               "source": {"layers": len(manifest["layers"]), "layer_height_mm": manifest["layer_height_mm"],
+                          "dpi": manifest["dpi"]}}
     sink.add(SUMMARY_FILE, (json.dumps(summary, indent=1) + "\n").encode())
     return summary
 

@@ -127,7 +127,6 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
     graded = job.graded
     from heoslice.grading import (  # loaded by graded slices only
         GradingCache,
-        droplet_counts,
         droplet_planes,
         render_graded,
     )
@@ -148,17 +147,7 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
                                 job.grid, graded.spec, job.index, point_material=graded.point_material,
                                 packed=packed, cache=grading_cache, method=graded.halftone,
                                 carry=None if cache is None else cache.carry)
-        rendered = time.perf_counter()
-        width, rows = job.grid.width, part_rows(job.points, job.grid)
-        level = deflate_level(True)
-        data = _solid_tiff(packed, solid, job, cache, level, rows)
-        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm,
-                                             level=level, rows=rows), count)
-                  for path, plane, count in zip(graded.channel_paths, planes, droplet_counts(planes, solid))]
-        encoded = time.perf_counter()
-        digest = write_file(job.path, data)
-        channels = tuple((path.name, write_file(path, blob), count) for path, blob, count in pieces)
-        return job.index, digest, solid, rendered - started, encoded - rendered, channels
+        return _write_masks(job, packed, solid, planes, cache, started)
     mask = np.unpackbits(packed, axis=1, count=job.grid.width).view(bool)
     layer = render_graded(job.points, job.offsets, graded.area, graded.parent, graded.loop_shell, mask, job.grid,
                           graded.spec, job.index,
@@ -170,12 +159,31 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
     return job.index, digest, layer.solid, rendered - started, encoded - rendered, ()
 
 
+def _write_masks(job: LayerJob, packed: np.ndarray, solid: int, planes: np.ndarray, cache: PipelineCache | None,
+                 started: float) -> tuple:
+    """Encode and write a layer's 1-bit solid mask (``packed``) and its droplet masks (``planes``, (K, h,
+    ceil(w / 8)) uint8, one per ``job.graded.channel_paths``); the layer's result tuple, its render time
+    measured from ``started``."""
+    from heoslice.grading import droplet_counts
+
+    rendered = time.perf_counter()
+    width, rows = job.grid.width, part_rows(job.points, job.grid)
+    level = deflate_level(True)
+    data = _solid_tiff(packed, solid, job, cache, level, rows)
+    pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm,
+                                         level=level, rows=rows), count)
+              for path, plane, count in zip(job.graded.channel_paths, planes, droplet_counts(planes, solid))]
+    encoded = time.perf_counter()
+    digest = write_file(job.path, data)
+    channels = tuple((path.name, write_file(path, blob), count) for path, blob, count in pieces)
+    return job.index, digest, solid, rendered - started, encoded - rendered, channels
+
+
 def _render_field_and_write(job: LayerJob, packed: np.ndarray, solid: int, cache: PipelineCache | None,
                             started: float) -> tuple:
     """The ``field`` interior's branch of :func:`render_and_write`: each solid pixel's share of the design's target,
     f(r) at the pixel centre's own 3-D r (:class:`heoslice.material.field.MaterialField`), as droplet masks beside
     the 1-bit solid layer (:func:`heoslice.grading.pixel_mix.fraction_planes`), or as an RGBA preview layer."""
-    from heoslice.grading import droplet_counts
     from heoslice.grading.pixel_mix import fraction_colors, fraction_planes
 
     graded = job.graded
@@ -185,17 +193,7 @@ def _render_field_and_write(job: LayerJob, packed: np.ndarray, solid: int, cache
         planes = fraction_planes(packed, box, f, job.grid, job.index, grade.channel_index(design.start),
                                  grade.channel_index(design.target), len(grade.channel_materials()),
                                  method=graded.halftone, carry=None if cache is None else cache.carry)
-        rendered = time.perf_counter()
-        width, part = job.grid.width, part_rows(job.points, job.grid)
-        level = deflate_level(True)
-        data = _solid_tiff(packed, solid, job, cache, level, part)
-        pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm,
-                                             level=level, rows=part), count)
-                  for path, plane, count in zip(graded.channel_paths, planes, droplet_counts(planes, solid))]
-        encoded = time.perf_counter()
-        digest = write_file(job.path, data)
-        channels = tuple((path.name, write_file(path, blob), count) for path, blob, count in pieces)
-        return job.index, digest, solid, rendered - started, encoded - rendered, channels
+        return _write_masks(job, packed, solid, planes, cache, started)
     image = np.zeros((job.grid.height, job.grid.width, 4), dtype=np.uint8)
     r0, r1, c0, c1 = box
     rows, cols = np.nonzero(np.unpackbits(packed[r0:r1], axis=1, count=job.grid.width)[:, c0:c1])
