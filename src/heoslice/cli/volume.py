@@ -129,7 +129,7 @@ def slice_ct_with_labels(model: Path, ct, labels, output: Path | None, spec: Sli
 
     table = materials.data.get("intensity")
     if not isinstance(table, dict) or not isinstance(table.get("within"), list) or not table["within"]:
-        raise InputError(f"--labels: the materials file needs an [intensity] table with a curve and 'within = "
+        raise InputError("--labels: the materials file needs an [intensity] table with a curve and 'within = "
                          "[LABEL, ...]' (the labels printed by the CT's values)")
     curve = read_curve(table, materials.materials, f"{materials.path}: [intensity]")
     settings = dict(materials.labels())

@@ -54,7 +54,7 @@ __all__ = [
     "COMPRESSIONS", "DEFAULT_COMPRESSION", "FORMAT_NAME", "FORMAT_VERSION", "IMAGE_MODES", "LAYER_PATTERN",
     "MANIFEST", "MAX_IMAGE_PIXELS", "MAX_LAYERS", "MAX_MANIFEST_BYTES", "MAX_MANIFEST_CONTAINERS", "ChannelRecord",
     "ImageRecord", "LayerRecord", "StackReport", "build_manifest", "check_stack_output", "is_stack_folder", "check_image_size", "check_input_path",
-    "decode_mask", "droplet_summary", "encode_bilevel_tiff", "encode_tiff", "expected_layer_count", "grading_summary",
+    "decode_mask", "droplet_summary", "incomplete_stack", "encode_bilevel_tiff", "encode_tiff", "expected_layer_count", "grading_summary",
     "layer_file_name", "layer_height_problems", "layer_strips", "load_verified", "manifest_problem", "mask_channels",
     "max_layer_count", "parse_manifest",
     "prepare_directory", "read_layer_channels", "read_layer_mask", "read_layer_pixels", "read_manifest",

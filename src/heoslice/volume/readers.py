@@ -22,7 +22,6 @@ from heoslice.errors import InputError
 from heoslice.files import check_regular, open_regular
 from heoslice.volume.model import (
     MAX_LABELS,
-    MAX_VOLUME_BYTES,
     Label,
     Volume,
     as_label_array,
