@@ -245,32 +245,41 @@ def _run_on_workers(context: RunContext, runs: list[tuple[int, int]], workers: i
             process = _start(enter, _serve, theirs, context, cache, method=method)
             theirs.close()
             pool[ours] = (process, [])
-        for conn, (process, given) in pool.items():
-            while waiting and len(given) < _RUNS_IN_FLIGHT:
-                given.append(waiting.pop())
-                _give(conn, process, given[-1])
+        _fill(pool, waiting, lambda run: run)
         while any(given for _, given in pool.values()):
-            busy = {process.sentinel: conn for conn, (process, given) in pool.items() if given}
-            for ready in wait_for([*busy.values(), *busy]):
-                conn = busy.get(ready, ready)
-                process, given = pool[conn]
-                status, outcome = _answer(conn, process)
-                if status == "failed":
-                    raise outcome
-                if status == "layers":
-                    if on_layers is not None:
-                        on_layers(outcome)
-                    break
-                given.pop(0)
-                on_done(outcome)
-                if waiting:
-                    given.append(waiting.pop())
-                    _give(conn, process, given[-1])
-                break
+            conn, status, outcome = _next_answer(pool)
+            if status == "layers":
+                if on_layers is not None:
+                    on_layers(outcome)
+                continue
+            pool[conn][1].pop(0)
+            on_done(outcome)
+            _fill(pool, waiting, lambda run: run)
     finally:
         for conn, (process, _) in pool.items():
             conn.close()
             _end(process)
+
+
+def _fill(pool: dict, waiting: list, payload: Callable) -> None:
+    """Give each worker of ``pool`` (conn -> (process, its items given)) items from the end of ``waiting`` until it
+    holds _RUNS_IN_FLIGHT; ``payload(item)`` is what is sent for an item."""
+    for conn, (process, given) in pool.items():
+        while waiting and len(given) < _RUNS_IN_FLIGHT:
+            given.append(waiting.pop())
+            _give(conn, process, payload(given[-1]))
+
+
+def _next_answer(pool: dict) -> tuple:
+    """Wait for one worker of ``pool`` that holds items to answer: (its conn, status, outcome); a worker's
+    failure is raised here, and RuntimeError when one ended without an answer."""
+    busy = {process.sentinel: conn for conn, (process, given) in pool.items() if given}
+    ready = wait_for([*busy.values(), *busy])[0]
+    conn = busy.get(ready, ready)
+    status, outcome = _answer(conn, pool[conn][0])
+    if status == "failed":
+        raise outcome
+    return conn, status, outcome
 
 
 def _give(conn, process, run: tuple[int, int]) -> None:
@@ -378,28 +387,17 @@ def ordered_map(function: Callable, items, workers: int | None = None) -> Iterat
                 process = _start(_enter_worker, _serve_items, theirs, function)
                 theirs.close()
                 pool[ours] = (process, [])
-        for conn, (process, given) in pool.items():
-            while waiting and len(given) < _RUNS_IN_FLIGHT:
-                given.append(waiting.pop())
-                _give(conn, process, given[-1][1])
+        _fill(pool, waiting, lambda numbered: numbered[1])
         while turn < len(items):
             while turn in arrived:
                 yield arrived.pop(turn)
                 turn += 1
             if turn == len(items):
                 break
-            busy = {process.sentinel: conn for conn, (process, given) in pool.items() if given}
-            for ready in wait_for([*busy.values(), *busy]):
-                conn = busy.get(ready, ready)
-                process, given = pool[conn]
-                status, outcome = _answer(conn, process)
-                if status == "failed":
-                    raise outcome
-                number, _ = given.pop(0)
-                arrived[number] = outcome
-                if waiting:
-                    given.append(waiting.pop())
-                    _give(conn, process, given[-1][1])
+            conn, _, outcome = _next_answer(pool)
+            number, _ = pool[conn][1].pop(0)
+            arrived[number] = outcome
+            _fill(pool, waiting, lambda numbered: numbered[1])
     finally:
         for conn, (process, _) in pool.items():
             conn.close()
