@@ -4,18 +4,19 @@ model, side by side (issue 44; README "The design travels with the model").
 Usage: python examples/interiors.py [OUT.png] [--dpi 200] [--layer 0.2] [--size 360]
 
 The model is a ball (heoslice.procedural.sphere, radius 10 mm) coloured by `heoslice color` with a sine of
-3 periods of the distance to its centre (--ref point), from M1 (light grey) to M2 (green). It is sliced as
+3 periods of the distance to its bottom pole (--ref point --at 0,0,-10), from M1 (light grey) to M2 (green). It is sliced as
 RGBA preview stacks (the materials' colours mixed per voxel, not halftoned) in four ways, and each stack is
 cut at x = 0 (heoslice.preview.section_image):
 
-  field               the default: every voxel gets f(r) of its own 3-D distance, spherical shells inside
+  field               the default: every voxel gets f(r) of its own 3-D distance: shells about the pole inside
   contour             --interior contour: each layer's contour material carried inward (the paper's
-                      layer-wise distribution): bands along z, the same across each layer
+                      layer-wise distribution): every contour point of a layer is equally far from the pole,
+                      so each layer is one material: flat bands along z
   graded (layer)      --grade linear --depth 4: eq. 8-10 sub-regions offset inward per layer (the paper's);
                       the top and bottom skins are thin
   graded (surface)    the same with --depth-from surface: the depth measured in 3D, every skin alike
 
-Writes OUT.png (default examples/interiors.png, git-ignored) and prints what each panel shows.
+Writes OUT.png (default examples/interiors.png, the picture in the README) and prints what each panel shows.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as work:
         work = Path(work)
         procedural.sphere(radius=10.0, subdivisions=4).export(work / "ball.ply")
-        heoslice("color", work / "ball.ply", "--ref", "point", "--at", "0,0,0", "--func", "sine", "--periods", "3",
+        heoslice("color", work / "ball.ply", "--ref", "point", "--at", "0,0,-10", "--func", "sine", "--periods", "3",
                  "-o", work / "ball_sine.ply")
         panels = []
         for title, extra in PANELS:
