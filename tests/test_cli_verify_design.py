@@ -78,8 +78,8 @@ def test_verify_compares_a_field_stack_with_its_recorded_design(sine_ball, run_c
 
 def test_a_stack_with_swapped_masks_fails_the_comparison(sine_ball, tmp_path, run_cli):
     """Swapping the M1 and M2 masks of one layer (their files, hashes and counts, so the stack still verifies)
-    is caught: the worst window is far off and verify warns that the delivered material differs from the
-    design."""
+    is caught: the worst window is far off, and verify fails (exit 4) saying the delivered material differs from
+    the design."""
     _, stack = sine_ball
     broken = tmp_path / "broken"
     shutil.copytree(stack, broken)
@@ -94,12 +94,13 @@ def test_a_stack_with_swapped_masks_fails_the_comparison(sine_ball, tmp_path, ru
     (broken / "manifest.json").write_text(json.dumps(manifest))
     code, out, err = run_cli("verify", broken, "--json")
     summary = json.loads(out)
-    assert summary["problems"] == [], summary
+    assert code == 4 and not summary["ok"], summary
     assert abs(summary["delivered"]["worst_window"]["difference"]) > 0.1
     assert summary["delivered"]["worst_window"]["layer"] == 6
-    assert any("differs from the design by more than 2 points" in line for line in summary["warnings"])
+    assert [line for line in summary["problems"] if "differs from the design by more than 2 points" in line] == \
+        summary["problems"] and len(summary["problems"]) == 1, summary
     code, out, err = run_cli("verify", broken)
-    assert "differs from the design by more than 2 points" in err
+    assert code == 4 and "differs from the design by more than 2 points" in out and "do not print" in err
 
 
 @pytest.mark.parametrize("change", ["missing", "changed"])

@@ -24,7 +24,7 @@ from heoslice.stack.recorded_design import R_BANDS, field_comparison
 #: Bands ``verify`` compares: of the designed target share with --design (10: 0-10 %, ..., 90-100 %), of r with a
 #: recorded design (the same count, :data:`heoslice.stack.recorded_design.R_BANDS`).
 SHARE_BANDS = R_BANDS
-#: A band's or window's delivered share further than this from the designed one is reported (a warning line).
+#: A band's or window's delivered share further than this from the designed one fails verify (a problem line).
 DESIGN_TOLERANCE = 0.02
 
 
@@ -76,11 +76,13 @@ class Comparison:
     target: int
 
 
-def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None, warnings: list[str]):
+def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None, warnings: list[str],
+            problems: list[str]):
     """The report of a verified stack and its parts against their design (None without): (report, parts,
     comparison). A field-interior stack is compared with the design its manifest records (bands of r) unless
     --design is given; when that design cannot be evaluated (its reference surface missing or changed) one line
-    is added to ``warnings`` and the design is not compared."""
+    is added to ``warnings`` and the design is not compared; a delivered material off its design is a line in
+    ``problems`` (what prints must be what was designed)."""
     comparison = None
     if preview is not None:
         design, bands = design_of_preview(stack, manifest, preview), share_bands(SHARE_BANDS)
@@ -99,7 +101,7 @@ def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None
     designed = designed_part_volumes(manifest, mesh)
     parts = None if designed is None else part_shares(manifest, report, designed)
     off = design_mismatch(report, comparison)
-    warnings += [f"{stack}: {off}"] if off else []
+    problems += [f"{stack}: {off}"] if off else []
     return report, parts, comparison
 
 

@@ -204,7 +204,7 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     layers = report.manifest.get("layers", []) if report.manifest else []
     delivered = None
     if report.ok and layers:
-        delivered = material_report.compute(stack, report.manifest, mesh, preview, warnings)
+        delivered = material_report.compute(stack, report.manifest, mesh, preview, warnings, problems)
     summary = {
         "stack": str(stack),
         "ok": not problems,
