@@ -266,6 +266,18 @@ def test_chunk_encoding_choice_and_raw_fallback():
     assert P.decode_chunk(code, packed, len(runs)) == runs
 
 
+def test_deflate_is_a_zlib_stream_with_either_encoder(monkeypatch):
+    """The chunk deflater's output is an RFC 1950 stream the standard library inflates to the input, with zlib-ng
+    (imagecodecs) and with the zlib fallback; with zlib allowed, chunks are zlib or raw (PackBits not tried)."""
+    rows = np.random.default_rng(3).random((64, 40)) < 0.2
+    data = bytes(300) + np.packbits(rows, axis=1).tobytes() + b"\xff" * 300
+    assert zlib.decompress(P.deflate(data)) == data
+    monkeypatch.setattr(P, "_deflater", lambda: lambda raw: zlib.compress(raw, level=6))
+    assert P.deflate(data) == zlib.compress(data, 6)
+    assert P.encode_chunk(b"\x07" * 300, P.ALL_ENCODINGS)[0] == P.ENC_ZLIB
+    assert P.encode_chunk(b"\x07" * 300, 1 << P.ENC_PACKBITS)[0] == P.ENC_PACKBITS
+
+
 def test_zlib_chunk_refuses_wrong_length():
     """A zlib chunk that inflates to more or fewer bytes than raw_len is refused."""
     packed = zlib.compress(bytes(100))
