@@ -208,14 +208,16 @@ def loaded_cpu():
 
 
 @pytest.mark.parametrize("load", [False, True], ids=["idle", "loaded"])
-def test_dead_link_detected_within_5_s(sim_factory, request, load):
-    """A controller that goes silent is reported as a dead link (exit 11) less than 5 s after it died, on an idle
-    machine and with every core busy; the silence meets timeouts and a re-split's HELLO on the way, and the
-    bound (2.5 s of silence + 1.5 s of HELLO after the last frame) holds through them."""
+@pytest.mark.parametrize("fault", ["dead_at_layer", "stop_reading_at_layer"])
+def test_dead_link_detected_within_5_s(sim_factory, request, load, fault):
+    """A controller that goes silent, or stops reading while its STATUS still arrives, is reported as a dead link
+    (exit 11) less than 5 s after it last answered, on an idle machine and with every core busy; the silence
+    meets timeouts and a re-split's HELLO on the way, and the bound (2.5 s without an answer + 1.5 s of HELLO)
+    holds through them (the re-split's HELLO alone waited 3 s, and the link was reported after 6.3 s)."""
     if load:
         request.getfixturevalue("loaded_cpu")
     job, get_layer = random_job(100, 16)  # 4 KiB layers: full-size frames in flight when it dies
-    sim = sim_factory(FaultSpec(dead_at_layer=30), layer_time_s=0.01)
+    sim = sim_factory(FaultSpec(**{fault: 30}), layer_time_s=0.01)
     with pytest.raises(LinkDeadError) as info:
         print_job("sim://", job, get_layer, connector=SimConnector(sim))
     detected = time.monotonic()

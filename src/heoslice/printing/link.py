@@ -295,7 +295,7 @@ class PrinterLink:
                                 "then rerun with --resume")
         self.log.write("reconnect", reason=reason, last_completed=self.last_completed)
         deadline = min(time.monotonic() + self.timing.reconnect_s, self._dead_by())
-        since = self.session.last_rx
+        since = self._heard()
         while True:
             self.session.close()
             try:
@@ -312,10 +312,16 @@ class PrinterLink:
         self._accept_hello(ack)
         self._continue_after(ack, "resume")
 
+    def _heard(self) -> float:
+        """When the controller last answered: its last frame, or with frames in flight their last acknowledgement
+        (a controller that stopped reading still sends STATUS)."""
+        heard = self.session.last_rx
+        return min(heard, self._acked_at) if self.window.in_flight else heard
+
     def _dead_by(self) -> float:
-        """When the link is dead unless a frame arrives: ``silence_s + reconnect_s`` after the last frame received
-        (the documented bound, whatever path the silence takes: timeouts, a re-split's HELLO, a reconnection)."""
-        return self.session.last_rx + self.timing.silence_s + self.timing.reconnect_s
+        """When the link is dead unless the controller answers: ``silence_s + reconnect_s`` after it last did (the
+        documented bound, whatever path the silence takes: timeouts, a re-split's HELLO, a reconnection)."""
+        return self._heard() + self.timing.silence_s + self.timing.reconnect_s
 
     def _continue_after(self, ack: P.HelloAck, event: str) -> None:
         """Restart the stream after a new session: at this run's resume point, or its first layer if never begun."""
@@ -333,15 +339,19 @@ class PrinterLink:
         self.log.write(event, layer=resume, boot_id=f"{ack.boot_id:08x}")
         self._restart_stream(resume)
 
-    def _resplit(self) -> None:
-        """A new session on the same port, so the frames still unacknowledged are made again at the smaller size."""
+    def _resplit(self, dead_by: float, heard: float) -> None:
+        """A new session on the same port, so the frames still unacknowledged are made again at the smaller size;
+        a HELLO unanswered until ``dead_by`` (the dead-link bound after the controller last answered, at
+        ``heard``) is a dead link."""
         self.counters.resplits += 1
         self.log.write("resplit", payload=self.sizer.budget(self._link_payload, self.window.sack, count=False),
                        last_queued=self.last_queued)
         try:
-            ack = self.session.handshake(min(time.monotonic() + 2 * self.timing.reconnect_s, self._dead_by()),
-                                         first=False, since=self.session.last_rx)
+            ack = self.session.handshake(min(time.monotonic() + 2 * self.timing.reconnect_s, dead_by), first=False,
+                                         since=heard)
         except LinkDeadError as err:
+            if time.monotonic() >= dead_by:
+                raise
             raise LinkLost(str(err)) from None
         self._accept_hello(ack)
         self.window.stuck = 0
@@ -412,12 +422,13 @@ class PrinterLink:
         window = self.window
         if window.head is not None:
             self.sizer.on_error(0.0 if window.sack else window.behind_head(), window.head.cost)
+        heard, dead_by = self._heard(), self._dead_by()
         stuck = window.go_back()
         head = window.head
         if head is not None and self.counters.resplits < self.timing.max_resplits \
                 and head.payload > self._resplit_ratio(head.sends, stuck) * self.sizer.budget(
                     self._link_payload, window.sack, count=False):
-            self._resplit()
+            self._resplit(dead_by, heard)
             return
         if stuck >= self.timing.retry_limit:
             paused = self.pause()

@@ -140,8 +140,8 @@ class Session:
     # -- handshake and out-of-band messages ---------------------------------------------
 
     def handshake(self, deadline: float, first: bool, since: float | None = None) -> P.HelloAck:
-        """HELLO until HELLO_ACK (new session); raise on silence (``since``: when the last frame came before),
-        echo or another protocol version."""
+        """HELLO until HELLO_ACK (new session); raise on silence (``since``: when the controller last answered
+        before), echo or another protocol version."""
         since = time.monotonic() if since is None else since
         self.id = int(self._rng.integers(1, 1 << 16))
         hello = P.encode_frame(P.message_frame(self.hello, self.id))
@@ -150,7 +150,7 @@ class Session:
             now = time.monotonic()
             if now >= deadline:
                 what = (f"no controller answered (no HELLO_ACK within {self.timing.hello_timeout_s:g} s)" if first
-                        else f"the controller stopped answering (nothing received for {now - since:.1f} s, "
+                        else f"the controller stopped answering (no answer for {now - since:.1f} s, "
                              "HELLO unanswered)")
                 raise LinkDeadError(f"{self.name}: {what}; check the port, cable, power and baud rate")
             if now >= next_hello:
