@@ -19,8 +19,8 @@ from heoslice.printing.ports import Connector, Port
 
 @dataclass(frozen=True)
 class LinkTiming:
-    """Host timing, seconds; the dead-link bound is ``silence_s + reconnect_s`` after the last frame received
-    (4 s by default), whatever the host was doing (PrinterLink._dead_by)."""
+    """Host timing, seconds; the dead-link bound is ``silence_s + reconnect_s`` after the controller last
+    answered (4 s by default), whatever the host was doing (PrinterLink._dead_by)."""
 
     hello_timeout_s: float = 3.0  # first handshake: give up (no controller) after this
     hello_interval_s: float = 0.25  # HELLO repeat period
