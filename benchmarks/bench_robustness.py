@@ -15,7 +15,8 @@ Prints:
   without z_range_mm) and of issue 47 (export/preview/print --log over the stack, a device
   node or a link; nested, bomb, encrypted, bzip2 and absurd-index 3MF; a 3MF flood of vertex
   elements; non-finite fractions; a deeply nested defaults file; non-ASCII --expr; info of
-  100,000 shells apart and piled; print --dry-run of 50,000 layers), each through the command
+  100,000 shells apart and piled; print --dry-run of 50,000 layers; a print of 20 layers at byte errors
+  1e-2 without SACK, and one to a controller that dies), each through the command
   line, and the worst wall time and peak RSS over them;
 - the strict PLY reader (``heoslice.mesh.read_ply``) against trimesh's PLY reader on the same
   binary and ASCII files (ratio = heoslice / trimesh);
@@ -193,7 +194,8 @@ def option_cases(work: Path) -> list[tuple[str, list[str]]]:
 def issue47_cases(work: Path, quick: bool) -> list[tuple[str, list[str]]]:
     """(name, heoslice arguments) of issue 47's cases: outputs that must not destroy (the stack, a device node or
     a link's target as -o), hostile 3MF archives, non-finite fractions, deep TOML, non-ASCII --expr, info of
-    100,000 shells and the dry run of a 50,000-layer stack (5,000 with --quick)."""
+    100,000 shells, the dry run of a 50,000-layer stack (5,000 with --quick), and prints of a 20-layer stack over a
+    link corrupting 1 byte in 100 without SACK and to a controller that dies mid-job (exit 11)."""
     import json
     import stat
     import zipfile
@@ -210,6 +212,10 @@ def issue47_cases(work: Path, quick: bool) -> list[tuple[str, list[str]]]:
     procedural.box((5.0, 5.0, 2.0)).export(box)
     stack = work / "stack47"
     slice_to_stack(load_mesh(box), stack, SliceSpec(layer_height_mm=0.5, dpi=(100.0, 100.0)))
+    plate = work / "plate47.ply"
+    procedural.box((20.0, 20.0, 2.0)).export(plate)
+    plates = work / "plates47"
+    slice_to_stack(load_mesh(plate), plates, SliceSpec(layer_height_mm=0.1, dpi=(300.0, 300.0)))
     node = work / "node47"
     if os.geteuid() == 0:
         os.mknod(node, 0o666 | stat.S_IFCHR, os.stat("/dev/null").st_rdev)
@@ -296,7 +302,12 @@ def issue47_cases(work: Path, quick: bool) -> list[tuple[str, list[str]]]:
             ("--expr with a fullwidth r", ["color", str(box), "--expr", "\uff52", "-o", str(work / "expr47.ply")]),
             ("info: 100,000 separate shells", ["info", str(work / "apart47.ply")]),
             ("info: 100,000 piled shells", ["info", str(work / "piled47.ply")]),
-            (f"print --dry-run of {layers} layers", ["print", str(tall), "--dry-run"])]
+            (f"print --dry-run of {layers} layers", ["print", str(tall), "--dry-run"]),
+            ("print at byte errors 1e-2, no SACK", ["print", str(plates), "--port",
+                                                    "sim://?byte_error_rate=0.01&features=0",
+                                                    "--log", str(work / "noisy47.jsonl")]),
+            ("print to a controller that dies", ["print", str(plates), "--port", "sim://?dead_at_layer=5",
+                                                 "--log", str(work / "dead47.jsonl")])]
 
 
 def _tiny(work: Path) -> Path:

@@ -244,3 +244,13 @@ def test_print_log_to_dev_full_is_refused(project, run_cli):
         pytest.skip("no /dev/full")
     assert_refused(run_cli("print", project / "stack", "--port", "sim://", "--log", "/dev/full"),
                    "character device")
+
+
+def test_print_log_that_is_another_file_is_refused_without_offering_force(project, run_cli, tmp_path):
+    """`print --log` naming a file that is not a print log: one line, exit 3, the file untouched, and the line
+    does not offer --force (print has none: it appends to its own logs and replaces nothing)."""
+    other = tmp_path / "notes.txt"
+    other.write_text("a lab's notes\n")
+    result = run_cli("print", project / "stack", "--port", "sim://", "--log", other)
+    assert_refused(result, "is not a print log", "--log")
+    assert "--force" not in result[2] and other.read_text() == "a lab's notes\n"

@@ -334,6 +334,19 @@ def test_ordered_map_keeps_the_items_order_over_workers():
     assert not multiprocessing.active_children()
 
 
+def test_ordered_map_in_batches_keeps_the_order_and_the_round_trips_few():
+    """With ``batch``, ordered_map yields the same results in the items' order (a batch that does not divide the
+    count too), each batch computed whole in one worker, and its workers are gone once it is done."""
+    from heoslice.pipeline.parallel import ordered_map
+
+    results = list(ordered_map(lambda item: (item * item, os.getpid()), range(103), workers=2, batch=10))
+    assert [value for value, _ in results] == [item * item for item in range(103)]
+    assert all(len({pid for _, pid in results[start:start + 10]}) == 1 for start in range(0, 103, 10))
+    assert os.getpid() not in {pid for _, pid in results}
+    assert list(ordered_map(lambda item: -item, range(3), workers=2, batch=10)) == [0, -1, -2]
+    assert not multiprocessing.active_children()
+
+
 def test_ordered_map_raises_a_workers_error_and_ends_the_workers():
     """An exception in a worker reaches the caller as itself, with the worker's traceback as a note."""
     from heoslice.pipeline.parallel import ordered_map

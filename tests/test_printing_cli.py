@@ -330,15 +330,19 @@ def dead_link_reported_within(log: Path) -> float:
     return seconds[1] - seconds[0]
 
 
-@pytest.mark.parametrize("fault, seed", [("byte_error_rate", 1), ("byte_error_rate", 2), ("byte_drop_rate", 3)])
-def test_a_1e_2_link_completes(tmp_path, controller, fault, seed):
-    """At 1e-2 byte errors or drops (incompressible layers, pty), the print completes, each layer exactly once."""
-    ctl = controller("--set", f"{fault}=1e-2", "--seed", str(seed))
+@pytest.mark.parametrize("fault, seed, features", [("byte_error_rate", 1, 1), ("byte_error_rate", 2, 1),
+                                                   ("byte_drop_rate", 3, 1), ("byte_error_rate", 4, 0)])
+def test_a_1e_2_link_completes(tmp_path, controller, fault, seed, features):
+    """At 1e-2 byte errors or drops (incompressible layers, pty), with selective acknowledgement and without it
+    (features=0: plain go-back-N), the print completes, each layer exactly once."""
+    ctl = controller("--set", f"{fault}=1e-2", "--set", f"features={features}", "--seed", str(seed))
     noise = [np.random.default_rng([seed, k]).random((32, 96)) < 0.5 for k in range(8)]
     stack = make_stack(tmp_path / "s", noise)
     result = run("print", stack, "--port", ctl.port, "--baud", 1000000)
     assert result.returncode == 0, result.stderr
-    assert ctl.executed(job_of(tmp_path / "s.print-log.jsonl")) == list(range(8))
+    log = tmp_path / "s.print-log.jsonl"
+    assert ctl.executed(job_of(log)) == list(range(8))
+    assert [r["sack"] for r in events(log) if r["event"] == "connected"] == [bool(features)]
 
 
 @pytest.mark.slow  # among the slowest (README "Development"): waits on a paced simulator

@@ -51,3 +51,16 @@ def test_each_mask_goes_on_the_channel_its_material_names(graded_stack):
     assert [e.crc for e in executed] == [P.crc32(data) for data in expected]
 
 
+
+
+def test_layer_map_runs_layers_in_order_in_batches_over_workers():
+    """layer_map yields function(layer) for every layer in order, whether the layers go one a task (few layers)
+    or in runs of up to BATCH_LAYERS (thousands), computed in workers."""
+    import os
+
+    from heoslice.printing.job import layer_map
+
+    for count in (5, 3000):
+        results = list(layer_map(lambda layer: (layer * 3, os.getpid()), range(count), workers=2))
+        assert [value for value, _ in results] == [3 * layer for layer in range(count)]
+        assert os.getpid() not in {pid for _, pid in results}

@@ -266,6 +266,27 @@ def test_chunk_encoding_choice_and_raw_fallback():
     assert P.decode_chunk(code, packed, len(runs)) == runs
 
 
+def test_deflate_is_a_zlib_stream_with_either_encoder(monkeypatch):
+    """The chunk deflater's output is an RFC 1950 stream the standard library inflates to the input, with zlib-ng
+    (imagecodecs) and with the zlib fallback; with zlib allowed, PackBits is tried beside it on small chunks only
+    (where zlib's 6 bytes of framing count), and wins there when it is smaller."""
+    rows = np.random.default_rng(3).random((64, 40)) < 0.2
+    data = bytes(300) + np.packbits(rows, axis=1).tobytes() + b"\xff" * 300
+    assert zlib.decompress(P.deflate(data)) == data
+    monkeypatch.setattr(P, "_deflater", lambda: lambda raw: zlib.compress(raw, level=6))
+    assert P.deflate(data) == zlib.compress(data, 6)
+    runs = b"\x07" * 300
+    assert len(P.packbits_encode(runs)) < len(P.deflate(runs))
+    assert P.encode_chunk(runs, P.ALL_ENCODINGS)[0] == P.ENC_PACKBITS
+    assert P.encode_chunk(runs, 1 << P.ENC_ZLIB)[0] == P.ENC_ZLIB
+    long_runs = bytes(range(1, 256)) * (P.PACKBITS_BESIDE_ZLIB // 255 + 1)
+    tried = []
+    monkeypatch.setattr(P, "packbits_encode", lambda raw: tried.append(len(raw)) or raw)
+    assert P.encode_chunk(long_runs, P.ALL_ENCODINGS)[0] == P.ENC_ZLIB and tried == []
+    P.encode_chunk(long_runs, 1 << P.ENC_PACKBITS)
+    assert tried == [len(long_runs)]
+
+
 def test_zlib_chunk_refuses_wrong_length():
     """A zlib chunk that inflates to more or fewer bytes than raw_len is refused."""
     packed = zlib.compress(bytes(100))

@@ -89,3 +89,29 @@ def test_no_host_module_imports_the_simulator():
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
             offenders += [(path.name, n) for n in names if "simulator" in n]
     assert offenders == []
+
+
+def test_go_back_n_sizing_counts_lost_frames_not_resends_and_weighs_the_waste():
+    """Without SACK the error rate comes from go-back rounds per frame tried: rounds of 1 in 3 frames of 60 bytes
+    give e = -ln(2/3)/60 (within the prior's pull) however many frames each round resent in vain, which inflate
+    a resend-based estimate (to its cap of one frame in two lost); the bytes sent in vain behind each loss make larger frames worth it,
+    and no size chosen loses more than MAX_FRAME_LOSS of its frames."""
+    import math
+
+    from heoslice.printing.window import MAX_FRAME_LOSS, optimal_frame_bytes
+
+    sizer = FrameSizer()
+    for _ in range(300):
+        sizer.on_acked(2, 120)
+        for _ in range(12):
+            sizer.on_sent(60, resent=True)  # a round resends the lost frame and 11 behind it
+        sizer.on_error(wasted_bytes=660, lost_bytes=60)
+    truth = -math.log(2 / 3) / 60
+    assert abs(sizer.error_rate(sack=False) - truth) < 0.1 * truth
+    assert sizer.error_rate(sack=True) > 1.5 * truth and sizer.waste_bytes() == 660
+    for rate in (3e-3, 1e-2, 3e-2):
+        plain = optimal_frame_bytes(rate, 18, 1040, waste=1.0)
+        wasteful = optimal_frame_bytes(rate, 18, 1040, waste=1.0, waste_bytes=600)
+        capped = optimal_frame_bytes(rate, 18, 1040, waste=1.0, waste_bytes=600, max_loss=MAX_FRAME_LOSS)
+        assert wasteful >= plain and capped <= wasteful
+        assert 1 - (1 - rate) ** capped <= MAX_FRAME_LOSS or capped == 18 + 16

@@ -360,7 +360,7 @@ def _serve_items(conn, function: Callable) -> None:
             conn.send(("failed", RuntimeError(f"{type(answer[1]).__name__}: {answer[1]} ({err})")))
 
 
-def ordered_map(function: Callable, items, workers: int | None = None) -> Iterator:
+def ordered_map(function: Callable, items, workers: int | None = None, batch: int = 1) -> Iterator:
     """``function(item)`` for every item of ``items``, yielded in the items' order: computed in ``workers``
     forked processes (default :func:`default_workers`), each given at most _RUNS_IN_FLIGHT items at once, or
     in this process when there is one worker or one item. Results that arrive early wait for their turn (at
@@ -369,8 +369,14 @@ def ordered_map(function: Callable, items, workers: int | None = None) -> Iterat
 
     ``function`` reaches the workers by fork (a closure is fine); items and results travel pickled, so keep
     them small (layer numbers in, counts or encoded files out). On the portable path (:func:`portable`: no
-    fork) the items are computed in this process, in order."""
+    fork) the items are computed in this process, in order. ``batch`` > 1 sends the items to the workers in runs
+    of that many (one pipe round trip per run): on thousands of tiny items the round trips, not the work, cost."""
     items = list(items)
+    if batch > 1 and len(items) > batch:
+        runs = [items[start:start + batch] for start in range(0, len(items), batch)]
+        for answers in ordered_map(lambda run: [function(item) for item in run], runs, workers):
+            yield from answers
+        return
     workers = default_workers() if workers is None else workers
     if workers <= 1 or len(items) <= 1 or portable():
         for item in items:

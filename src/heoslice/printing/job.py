@@ -8,7 +8,7 @@ Channel 0 of a layer is its solid mask, channels 1.. its droplet masks, each bit
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,12 +55,11 @@ def stack_job(directory: Path, progress: Callable[[int, int], None] | None = Non
     the verification. A layer's masks are read as packed rows (:mod:`heoslice.stack.packed`), which are the
     channel payloads as they are.
     """
-    from heoslice.pipeline.parallel import ordered_map
     from heoslice.stack import check_printable, load_verified
     from heoslice.stack.packed import layer_bits
 
     directory = Path(directory)
-    manifest = load_verified(directory, progress, ordered_map)
+    manifest = load_verified(directory, progress, layer_map)
     layers = manifest["layers"]
     if not layers:
         raise InputError(f"{directory}: the stack has no layers")
@@ -91,6 +90,21 @@ def stack_job(directory: Path, progress: Callable[[int, int], None] | None = Non
                                     f"{err}); ABORT sent; verify the stack and print it again") from None
 
     return job, get_layer
+
+
+#: Most layers one worker task carries (see :func:`layer_map`).
+BATCH_LAYERS = 64
+
+
+def layer_map(function: Callable, layers: Sequence[int], workers: int | None = None) -> Iterator:
+    """``function(layer)`` for each of ``layers`` in order, over the cores (pipeline.parallel.ordered_map) in runs
+    of up to BATCH_LAYERS layers, at least 16 runs a worker: one task a layer made the pipe's round trips, not
+    the work, the cost of a stack of thousands of small layers."""
+    from heoslice.pipeline.parallel import default_workers, ordered_map
+
+    layers = list(layers)
+    share = len(layers) // (16 * (default_workers() if workers is None else max(1, workers)))
+    return ordered_map(function, layers, workers, batch=max(1, min(share, BATCH_LAYERS)))
 
 
 def job_summary(job: JobSpec) -> str:

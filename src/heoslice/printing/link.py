@@ -27,6 +27,10 @@ from heoslice.printing.stream import CHUNK_HEADER, job_messages
 from heoslice.printing.window import MIN_CHUNK_PAYLOAD, FrameSizer, OutFrame, SendWindow
 
 
+#: Without SACK, writes run ahead of the wire by at most this many mean error-free runs (see PrinterLink._lead_s).
+LEAD_RUNS = 0.5
+
+
 @dataclass(frozen=True)
 class Progress:
     """Passed to ``on_progress`` after each executed layer."""
@@ -290,12 +294,13 @@ class PrinterLink:
                                 f"(last: {reason}); giving up after layer {self.last_completed}: check the cable, "
                                 "then rerun with --resume")
         self.log.write("reconnect", reason=reason, last_completed=self.last_completed)
-        deadline = time.monotonic() + self.timing.reconnect_s
+        deadline = min(time.monotonic() + self.timing.reconnect_s, self._dead_by())
+        since = self._heard()
         while True:
             self.session.close()
             try:
                 self.session.open()
-                ack = self.session.handshake(deadline, first=False)
+                ack = self.session.handshake(deadline, first=False, since=since)
                 break
             except (PortError, LinkLost):
                 if time.monotonic() >= deadline:
@@ -306,6 +311,17 @@ class PrinterLink:
                 time.sleep(0.05)
         self._accept_hello(ack)
         self._continue_after(ack, "resume")
+
+    def _heard(self) -> float:
+        """When the controller last answered: its last frame, or with frames in flight their last acknowledgement
+        (a controller that stopped reading still sends STATUS)."""
+        heard = self.session.last_rx
+        return min(heard, self._acked_at) if self.window.in_flight else heard
+
+    def _dead_by(self) -> float:
+        """When the link is dead unless the controller answers: ``silence_s + reconnect_s`` after it last did (the
+        documented bound, whatever path the silence takes: timeouts, a re-split's HELLO, a reconnection)."""
+        return self._heard() + self.timing.silence_s + self.timing.reconnect_s
 
     def _continue_after(self, ack: P.HelloAck, event: str) -> None:
         """Restart the stream after a new session: at this run's resume point, or its first layer if never begun."""
@@ -323,14 +339,19 @@ class PrinterLink:
         self.log.write(event, layer=resume, boot_id=f"{ack.boot_id:08x}")
         self._restart_stream(resume)
 
-    def _resplit(self) -> None:
-        """A new session on the same port, so the frames still unacknowledged are made again at the smaller size."""
+    def _resplit(self, dead_by: float, heard: float) -> None:
+        """A new session on the same port, so the frames still unacknowledged are made again at the smaller size;
+        a HELLO unanswered until ``dead_by`` (the dead-link bound after the controller last answered, at
+        ``heard``) is a dead link."""
         self.counters.resplits += 1
         self.log.write("resplit", payload=self.sizer.budget(self._link_payload, self.window.sack, count=False),
                        last_queued=self.last_queued)
         try:
-            ack = self.session.handshake(time.monotonic() + 2 * self.timing.reconnect_s, first=False)
+            ack = self.session.handshake(min(time.monotonic() + 2 * self.timing.reconnect_s, dead_by), first=False,
+                                         since=heard)
         except LinkDeadError as err:
+            if time.monotonic() >= dead_by:
+                raise
             raise LinkLost(str(err)) from None
         self._accept_hello(ack)
         self.window.stuck = 0
@@ -372,7 +393,7 @@ class PrinterLink:
             self.counters.skipped += skipped
             if out is None:
                 return None
-            wait = session.pacing_wait(now)
+            wait = session.pacing_wait(now, self._lead_s())
             if wait is not None:
                 return wait
             if out is window.head and out.sends == 0:
@@ -381,20 +402,33 @@ class PrinterLink:
             wire_end = session.send(wire, now)
             resent = window.mark_sent(out, wire_end)
             self.counters.on_sent(out, len(wire), resent)
-            self.sizer.on_sent(len(wire), resent, window.sack)
+            self.sizer.on_sent(len(wire), resent)
             if out.kind == P.Execute.TYPE:
                 self._sent_execute = max(self._sent_execute, out.layer)
+
+    def _lead_s(self) -> float:
+        """How far writes may run ahead of the wire, s: ``poll_s``, but without SACK no more than LEAD_RUNS mean
+        error-free runs (1 / byte error rate each) and at least one frame, since go-back-N resends everything
+        written behind a lost frame (at 1e-2 and 1 Mbaud, 5 ms of lead is ten lost frames' worth)."""
+        timing, rate = self.timing, self.session.rate
+        if self.window.sack or not rate:
+            return timing.poll_s
+        frame = P.wire_size(self.sizer.budget(self._link_payload, False, count=False) + CHUNK_HEADER)
+        return min(timing.poll_s, max(frame, LEAD_RUNS / self.sizer.error_rate(False)) / rate)
 
     def _go_back(self, reason: str) -> None:
         """Go-back-N: retransmit every unacknowledged frame not reported held; re-split oversize frames; pause
         after too many rounds."""
         window = self.window
+        if window.head is not None:
+            self.sizer.on_error(0.0 if window.sack else window.behind_head(), window.head.cost)
+        heard, dead_by = self._heard(), self._dead_by()
         stuck = window.go_back()
-        self.sizer.on_error()
         head = window.head
-        if head is not None and head.sends >= 3 and self.counters.resplits < self.timing.max_resplits \
-                and head.payload > 2 * self.sizer.budget(self._link_payload, window.sack, count=False):
-            self._resplit()
+        if head is not None and self.counters.resplits < self.timing.max_resplits \
+                and head.payload > self._resplit_ratio(head.sends, stuck) * self.sizer.budget(
+                    self._link_payload, window.sack, count=False):
+            self._resplit(dead_by, heard)
             return
         if stuck >= self.timing.retry_limit:
             paused = self.pause()
@@ -405,6 +439,14 @@ class PrinterLink:
                 f"(layer {head.layer if head else '?'}, last: {reason}); the job is "
                 f"{'paused' if paused else 'stopped'} on the controller after layer {self.last_completed}; "
                 "check the link, then rerun with --resume")
+
+    def _resplit_ratio(self, sends: int, stuck: int) -> float:
+        """How much larger than the size now chosen the oldest unacknowledged frame must be for a re-split:
+        twice once sent 3 times; any larger once it failed two thirds of the retry cap's rounds in a row (so
+        a frame made before the error estimate caught up is cut before the cap, not after)."""
+        if stuck >= 2 * self.timing.retry_limit // 3:
+            return 1.0
+        return 2.0 if sends >= 3 else float("inf")
 
     def _check_claim(self, last_queued: int, last_completed: int) -> None:
         """A progress claim beyond the job, or of layers this run never sent, is a protocol error (exit 12)."""
@@ -454,8 +496,17 @@ class PrinterLink:
         if status.state == P.STATE_ABORTED and self._own(status.job_id, status.run_id):
             raise ControllerFaultError(f"{self.name}: the controller aborted the job after layer "
                                        f"{status.last_completed}")
-        if self.window.on_ack(frame.ack, status.credit):
+        if self._on_ack(frame.ack, status.credit):
             self._advanced()
+
+    def _on_ack(self, ack_seq: int, credit: int, held: int | None = None) -> bool:
+        """The window's cumulative acknowledgement, the frames it acknowledged counted for the sizer."""
+        frames = self.window.frames
+        before, cost = len(frames), sum(out.cost for out in frames)
+        progressed = self.window.on_ack(ack_seq, credit, held)
+        if progressed:
+            self.sizer.on_acked(before - len(frames), cost - sum(out.cost for out in frames))
+        return progressed
 
     def _dispatch(self, frame: P.Frame) -> None:
         """Route one frame from the controller."""
@@ -471,12 +522,12 @@ class PrinterLink:
         if frame.session != self.session.id:
             return
         if isinstance(message, P.Ack):
-            if self.window.on_ack(frame.ack, message.credit, message.held):
+            if self._on_ack(frame.ack, message.credit, message.held):
                 self._advanced()
             if self._own(message.job_id, message.run_id):
                 self._note_progress(message.last_queued, message.last_completed)
         elif isinstance(message, P.Nak):
-            if self.window.on_ack(frame.ack, message.credit, message.held):
+            if self._on_ack(frame.ack, message.credit, message.held):
                 self._advanced()
             self.counters.naks += 1
             if self.window.nak_calls_for_go_back(frame.ack, message.tag):
@@ -507,7 +558,7 @@ class PrinterLink:
             try:
                 now = time.monotonic()
                 wait_until = self._try_send(now)
-                for frame in session.read_frames():
+                for frame in session.read_frames(block=wait_until is None):
                     self._dispatch(frame)
                 now = time.monotonic()
                 if self.window.timed_out(now, timing.ack_timeout_s, timing.max_backoff):

@@ -34,8 +34,12 @@ def is_print_log(path: Path) -> bool:
 
 def check_log_output(path: Path, inputs: tuple[Path, ...] = ()) -> None:
     """The output rule for a print log (:func:`heoslice.files.check_output`): a log is appended to, so an
-    existing file must be a print log; never a link, a device, the stack or a file inside it."""
-    check_output(path, "print log", force=True, made_here=is_print_log, inputs=inputs)
+    existing file must be a print log; never a link, a device, the stack or a file inside it. ``print`` has no
+    ``--force`` (it appends, replacing nothing), so its refusal of another file does not offer one."""
+    if check_output(path, "print log", force=True, made_here=lambda _: True, inputs=inputs) \
+            and not is_print_log(path):
+        raise OutputError(f"{path}: exists and is not a print log heoslice wrote; print appends only to its own "
+                          "logs (remove it yourself, or choose another --log)")
 
 
 class PrintLog:

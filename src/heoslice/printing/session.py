@@ -19,7 +19,8 @@ from heoslice.printing.ports import Connector, Port
 
 @dataclass(frozen=True)
 class LinkTiming:
-    """Host timing, seconds; the dead-link bound is ``silence_s + reconnect_s`` (< 5 s by default)."""
+    """Host timing, seconds; the dead-link bound is ``silence_s + reconnect_s`` after the controller last
+    answered (4 s by default), whatever the host was doing (PrinterLink._dead_by)."""
 
     hello_timeout_s: float = 3.0  # first handshake: give up (no controller) after this
     hello_interval_s: float = 0.25  # HELLO repeat period
@@ -100,12 +101,15 @@ class Session:
         except (serial.SerialException, OSError) as err:
             raise LinkLost(str(err)) from err
 
-    def read_frames(self) -> list[P.Frame]:
-        """Valid frames among the bytes waiting now (invalid ones are dropped; the sender retransmits)."""
+    def read_frames(self, block: bool = True) -> list[P.Frame]:
+        """Valid frames among the bytes waiting now (invalid ones are dropped; the sender retransmits); ``block``:
+        when nothing waits, wait for a byte up to the port's timeout."""
         import serial
 
         try:
             waiting = self.port.in_waiting
+            if not waiting and not block:
+                return []
             data = self.port.read(max(1, waiting))
         except (serial.SerialException, OSError) as err:
             raise LinkLost(str(err)) from err
@@ -118,10 +122,12 @@ class Session:
 
     # -- pacing ------------------------------------------------------------------------
 
-    def pacing_wait(self, now: float) -> float | None:
-        """When the next write may go (None: now): bytes written must leave the wire within ``poll_s``."""
-        if self.rate and self.wire_busy - now > self.timing.poll_s:
-            return self.wire_busy - self.timing.poll_s
+    def pacing_wait(self, now: float, lead_s: float | None = None) -> float | None:
+        """When the next write may go (None: now): bytes written must leave the wire within ``lead_s`` (default
+        ``poll_s``)."""
+        lead = self.timing.poll_s if lead_s is None else lead_s
+        if self.rate and self.wire_busy - now > lead:
+            return self.wire_busy - lead
         return None
 
     def send(self, wire: bytes, now: float) -> float:
@@ -133,18 +139,20 @@ class Session:
 
     # -- handshake and out-of-band messages ---------------------------------------------
 
-    def handshake(self, deadline: float, first: bool) -> P.HelloAck:
-        """HELLO until HELLO_ACK (new session); raise on silence, echo or another protocol version."""
+    def handshake(self, deadline: float, first: bool, since: float | None = None) -> P.HelloAck:
+        """HELLO until HELLO_ACK (new session); raise on silence (``since``: when the controller last answered
+        before), echo or another protocol version."""
+        since = time.monotonic() if since is None else since
         self.id = int(self._rng.integers(1, 1 << 16))
         hello = P.encode_frame(P.message_frame(self.hello, self.id))
         next_hello = 0.0
         while True:
             now = time.monotonic()
             if now >= deadline:
-                what = "no controller answered" if first else "the controller stopped answering"
-                raise LinkDeadError(f"{self.name}: {what} (no HELLO_ACK within "
-                                    f"{self.timing.hello_timeout_s if first else self.timing.reconnect_s:g} s); "
-                                    "check the port, cable, power and baud rate")
+                what = (f"no controller answered (no HELLO_ACK within {self.timing.hello_timeout_s:g} s)" if first
+                        else f"the controller stopped answering (no answer for {now - since:.1f} s, "
+                             "HELLO unanswered)")
+                raise LinkDeadError(f"{self.name}: {what}; check the port, cable, power and baud rate")
             if now >= next_hello:
                 self.write(hello)
                 next_hello = now + self.timing.hello_interval_s

@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterator
 
 from heoslice.errors import InputError
 from heoslice.printing import protocol as P
-from heoslice.printing.job import JobSpec, LayerSource
+from heoslice.printing.job import JobSpec, LayerSource, layer_map
 
 #: Bytes a CHUNK adds to the frame before its data (a DATA adds none).
 CHUNK_HEADER = 12
@@ -70,10 +70,8 @@ def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, m
                   encodings: int = P.ALL_ENCODINGS, from_layer: int = 0, workers: int | None = None,
                   progress: Callable[[int, int], None] | None = None) -> dict:
     """Encode every frame of the job without a port: frames, wire bytes and the time at ``baud`` (8N1), s.
-    The layers are read and encoded in ``workers`` processes (:func:`heoslice.pipeline.parallel.ordered_map`;
-    default one per core); ``progress(done, total)`` follows them."""
-    from heoslice.pipeline.parallel import ordered_map
-
+    The layers are read and encoded in ``workers`` processes (:func:`heoslice.printing.job.layer_map`; default
+    one per core); ``progress(done, total)`` follows them."""
     check_from_layer(job, from_layer)
 
     def layer_plan(index: int) -> tuple[int, int, int]:
@@ -90,7 +88,7 @@ def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, m
 
     frames = wire = raw = 0
     indices = range(from_layer, job.layer_count)
-    for done, (layer_frames, layer_wire, layer_raw) in enumerate(ordered_map(layer_plan, indices, workers), 1):
+    for done, (layer_frames, layer_wire, layer_raw) in enumerate(layer_map(layer_plan, indices, workers), 1):
         frames, wire, raw = frames + layer_frames, wire + layer_wire, raw + layer_raw
         if progress is not None:
             progress(done, len(indices))

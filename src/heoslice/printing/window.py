@@ -20,6 +20,9 @@ from heoslice.printing import protocol as P
 
 #: Smallest chunk payload the adaptive sizing goes down to, bytes (a 1e-2 link wants ~35).
 MIN_CHUNK_PAYLOAD = 16
+#: Largest share of frames a chosen frame size may lose: one frame failing the retry cap's 12 rounds in a
+#: row then happens about 3 times in a million frames (0.35^12), not once in a few thousand.
+MAX_FRAME_LOSS = 0.35
 #: Prior of the byte error estimate: one error in this many bytes until the link shows better (frames
 #: start near 250 bytes and reach the full payload after ~64 KiB sent cleanly).
 ERROR_PRIOR_BYTES = 4096
@@ -155,6 +158,11 @@ class SendWindow:
             self.credit = credit
         return progressed
 
+    def behind_head(self) -> int:
+        """Bytes of the frames sent in this pass after the oldest unacknowledged one (resent in vain by a go-back
+        without SACK)."""
+        return sum(out.cost for out in itertools.islice(self.frames, 1, self.send_idx))
+
     def go_back(self) -> int:
         """Rewind to the oldest unacknowledged frame; the count of consecutive rounds without progress."""
         self.send_idx = 0
@@ -182,72 +190,99 @@ class SendWindow:
 
 
 def optimal_frame_bytes(error_rate: float, overhead: int, largest: int, waste: float = 1.0,
-                        smallest_payload: int = MIN_CHUNK_PAYLOAD) -> int:
+                        smallest_payload: int = MIN_CHUNK_PAYLOAD, waste_bytes: float = 0.0,
+                        max_loss: float = 1.0) -> int:
     """Frame size L (wire bytes) maximising throughput at byte error rate ``e``, within [.., largest].
 
-    Efficiency = (1 - p) / (1 + waste p) * (L - overhead - L // 254) / L with frame error
-    rate p = 1 - (1 - e)^L, where ``waste`` frames are resent in vain after each error (about
-    1 for plain go-back-N, 0 when the controller holds what follows a gap) and L // 254 is COBS.
+    Efficiency = (1 - p) / (1 + w p) * (L - overhead - L // 254) / L with frame error rate
+    p = 1 - (1 - e)^L and w = ``waste`` + ``waste_bytes`` / L the frames resent in vain after each
+    error: ``waste`` frames (about 1 for plain go-back-N, 0 when the controller holds what follows a gap)
+    and ``waste_bytes`` bytes (what go-back-N had sent behind a lost frame when it learnt of the loss,
+    however it was cut into frames); L // 254 is COBS. Sizes losing more than ``max_loss`` of their
+    frames are left out (but the smallest).
     """
     smallest = overhead + smallest_payload
     if error_rate <= 0 or largest <= smallest:
         return max(largest, smallest)
     sizes = np.arange(smallest, largest + 1, dtype=float)
     good = np.exp(sizes * math.log1p(-min(error_rate, 0.5)))
-    efficiency = good / (1 + waste * (1 - good)) * (sizes - overhead - sizes // 254) / sizes
+    vain = waste + waste_bytes / sizes
+    efficiency = good / (1 + vain * (1 - good)) * (sizes - overhead - sizes // 254) / sizes
+    efficiency[1:][good[1:] < 1 - max_loss] = -1.0
     return int(sizes[int(np.argmax(efficiency))])
 
 
 class FrameSizer:
     """The payload size of new data frames, from the byte error rate the retransmissions reveal.
 
-    The rate is estimated from retransmissions per byte sent (each resend means an earlier copy
-    was lost; with the prior of one in ``ERROR_PRIOR_BYTES``) as e = -ln(1 - p) / L, p the
-    resends per frame of mean size L; the frame size is then chosen by :func:`optimal_frame_bytes`.
-    Re-estimated every 32 chunks and after every retransmission round.
+    With SACK every resend means an earlier copy was lost: the rate is resends per byte sent (with the
+    prior of one in ``ERROR_PRIOR_BYTES``), e = -ln(1 - p) / L, p the resends per frame of mean size L.
+    Plain go-back-N also resends the frames behind a loss, in vain, so there the losses are the
+    go-back rounds and p = rounds / (rounds + frames acknowledged), L the mean size of those frames and
+    of the lost ones; the bytes it had sent behind each
+    loss (measured per round) are the waste :func:`optimal_frame_bytes` weighs. Re-estimated every 32
+    chunks and after every retransmission round.
     """
 
     def __init__(self) -> None:
         self.events = 0.0
         self.bytes = 0.0
         self.frames = 0.0
+        self.rounds = 0.0
+        self.acked = 0.0
+        self.tried_bytes = 0.0  # bytes of the frames acknowledged and of the lost frames a go-back resent from
+        self.wasted = 0.0
         self._budget: int | None = None
         self._age = 0
 
-    def on_sent(self, wire_bytes: int, resent: bool = False, sack: bool = True) -> None:
-        """A frame of ``wire_bytes`` was written (``resent``: again, so an earlier copy was lost).
-
-        Without SACK about half the resends follow a loss in vain (the frame behind the lost one), so a
-        resend counts half an error there.
-        """
+    def on_sent(self, wire_bytes: int, resent: bool = False) -> None:
+        """A frame of ``wire_bytes`` was written (``resent``: again, so an earlier copy was lost with SACK)."""
         self.bytes += wire_bytes
         self.frames += 1
-        self.events += resent * (1.0 if sack else 0.5)
+        self.events += resent
 
-    def on_error(self) -> None:
-        """A retransmission round: estimate again; old evidence is halved past 256 KiB."""
+    def on_acked(self, frames: int, frame_bytes: int) -> None:
+        """``frames`` data frames of ``frame_bytes`` in all were acknowledged (each once)."""
+        self.acked += frames
+        self.tried_bytes += frame_bytes
+
+    def on_error(self, wasted_bytes: float = 0.0, lost_bytes: float = 0.0) -> None:
+        """A retransmission round from a lost frame of ``lost_bytes``, ``wasted_bytes`` sent behind it: estimate
+        again; old evidence is halved past 256 KiB."""
         self._budget = None
+        self.rounds += 1
+        self.wasted += wasted_bytes
+        self.tried_bytes += lost_bytes
         if self.bytes > 1 << 18:
-            self.bytes /= 2
-            self.events /= 2
-            self.frames /= 2
+            for name in ("bytes", "events", "frames", "rounds", "acked", "tried_bytes", "wasted"):
+                setattr(self, name, getattr(self, name) / 2)
 
     def invalidate(self) -> None:
         """Recompute at the next call (the link's payload limit changed)."""
         self._budget = None
 
-    def error_rate(self) -> float:
+    def error_rate(self, sack: bool = True) -> float:
         """Estimated byte error rate."""
-        per_byte = (self.events + 1) / (self.bytes + ERROR_PRIOR_BYTES)
-        mean = self.bytes / self.frames if self.frames else 1.0
-        return -math.log1p(-min(per_byte * mean, 0.5)) / mean
+        if sack:
+            mean = self.bytes / self.frames if self.frames else 1.0
+            per_frame = (self.events + 1) / (self.bytes + ERROR_PRIOR_BYTES) * mean
+        else:
+            tries = self.rounds + self.acked
+            mean = self.tried_bytes / tries if tries else 1.0
+            per_frame = (self.rounds + 1) / (tries + ERROR_PRIOR_BYTES / mean)
+        return -math.log1p(-min(per_frame, 0.5)) / mean
+
+    def waste_bytes(self) -> float:
+        """Mean bytes go-back-N had sent behind a lost frame when it went back (prior: none)."""
+        return self.wasted / self.rounds if self.rounds else 0.0
 
     def budget(self, link_payload: int, sack: bool, count: bool = True) -> int:
         """Payload bytes for the next data frame, at most ``link_payload`` (``count`` False: only look)."""
         self._age += count
         if self._budget is None or self._age >= 32:
-            frame = optimal_frame_bytes(self.error_rate(), P.WIRE_OVERHEAD, P.wire_size(link_payload),
-                                        waste=0.0 if sack else 1.0)
+            frame = optimal_frame_bytes(self.error_rate(sack), P.WIRE_OVERHEAD, P.wire_size(link_payload),
+                                        waste=0.0 if sack else 1.0, waste_bytes=0.0 if sack else self.waste_bytes(),
+                                        max_loss=MAX_FRAME_LOSS)
             self._budget = max(MIN_CHUNK_PAYLOAD, frame - P.WIRE_OVERHEAD - frame // 254)
             self._age = 0
         return min(self._budget, link_payload)
