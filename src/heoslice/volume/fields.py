@@ -8,8 +8,11 @@ follows the label's thickness (:func:`label_smooth`): a wide blur averages away 
 large structure, a narrow one keeps a thin structure's shape. Its zero level is then moved so that the
 region the field marks inside, trilinearly interpolated, holds exactly the label's voxel volume: the
 blur's shrinking of curved surfaces is undone and a label of one voxel keeps one voxel's volume, centred
-on its voxel. Fields are computed once per label on the label's bounding box (padded by the blur's reach),
-so their memory follows the labels' sizes, not the volume's.
+on its voxel. Last, the field is held within BAND voxels of the voxels' own signed distance (that of the
+surface between a label's voxel centres and its neighbours', where marching cubes puts it): the smooth
+surface never strays more than BAND voxels from the voxels, even at the sharp edges a scan's field of view
+cuts (where a wide blur would round them off). Fields are computed once per label on the label's bounding box
+(padded by the blur's reach), so their memory follows the labels' sizes, not the volume's.
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ REACH_SIGMAS = 3.0
 CLIP = 1e-6
 #: The value of a label's field beyond its box: farther outside than any computed value.
 FAR_OUTSIDE = -1e3
+#: Voxels: the most the smooth surface may depart from the surface between the voxels (see the module's note).
+BAND = 0.3
 #: Samples inside a label wanted to settle its zero level (the supersampling per axis adapts, 2 to 4).
 LEVEL_SAMPLES_INSIDE = 20_000
 
@@ -135,19 +140,33 @@ def curvature_shift(values: np.ndarray, smooth: float) -> np.ndarray:
     return np.clip(-0.5 * smooth * smooth * divergence, -smooth, smooth).astype(np.float32)
 
 
+def voxel_distance(mask: np.ndarray) -> np.ndarray:
+    """(nz, ny, nx) float32, voxels: the signed distance of each voxel centre of a 0/1 ``mask`` to the surface
+    half-way between the label's voxels and the others (positive inside: a voxel with a face neighbour outside
+    is 0.5 inside), from Euclidean distance transforms of the mask and of its complement."""
+    from scipy import ndimage
+
+    inside = ndimage.distance_transform_edt(mask) - 0.5
+    outside = ndimage.distance_transform_edt(~mask) - 0.5
+    return np.where(mask, inside, -outside).astype(np.float32)
+
+
 def smooth_field(mask: np.ndarray, voxels: int, smooth: float) -> np.ndarray:
     """(nz, ny, nx) float32 field of a padded 0/1 ``mask`` of ``voxels`` voxels: sigma * probit of the blurred
-    mask, less its volume-preserving level (:func:`level_offset`)."""
+    mask, less its volume-preserving level (:func:`level_offset`), held within BAND of :func:`voxel_distance`
+    (``smooth`` 0: the voxels as blocks, +-0.5)."""
     from scipy import ndimage, special
 
-    if smooth > 0:
-        blurred = ndimage.gaussian_filter(mask.astype(np.float32), smooth, mode="constant", truncate=REACH_SIGMAS)
-        values = (special.ndtri(np.clip(blurred, CLIP, 1 - CLIP)) * smooth).astype(np.float32)
-        values += curvature_shift(values, smooth)
-    else:
+    if smooth <= 0:
         values = np.where(mask, 0.5, -0.5).astype(np.float32)
+        return values - np.float32(level_offset(values, voxels))
+    blurred = ndimage.gaussian_filter(mask.astype(np.float32), smooth, mode="constant", truncate=REACH_SIGMAS)
+    values = (special.ndtri(np.clip(blurred, CLIP, 1 - CLIP)) * smooth).astype(np.float32)
+    values += curvature_shift(values, smooth)
     values -= np.float32(level_offset(values, voxels))
-    return values
+    distance = voxel_distance(mask.astype(bool))
+    values = np.clip(values, distance - np.float32(BAND), distance + np.float32(BAND))
+    return values - np.float32(level_offset(values, voxels))
 
 
 def label_smooth(mask: np.ndarray) -> float:
