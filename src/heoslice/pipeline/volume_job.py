@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping
-from contextlib import ExitStack
+from contextlib import ExitStack, closing
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -132,12 +132,34 @@ def _check_layers(spec: SliceSpec, bounds: np.ndarray, masks: tuple[Material, ..
                          f"volume's {float(bounds[1, 2] - bounds[0, 2]):g} mm (the most one stack's manifest holds)")
 
 
+def _layer_files(directory: Path, spec: SliceSpec, grid, masks: tuple[Material, ...], level: int,
+                 render: Callable[[int, float], tuple[np.ndarray, np.ndarray]], index: int, height: float
+                 ) -> tuple[LayerRecord, float, float]:
+    """Render, encode and write layer ``index`` at ``height`` mm: its record, and the CPU seconds of its render
+    and of its encoding and writing."""
+    began = time.process_time()
+    planes, counts = render(index, height)
+    rendered = time.process_time()
+    encoded = [encode_bilevel_tiff(plane, grid.width, spec.dpi, spec.compression, spec.layer_height_mm,
+                                   level=level) for plane in planes[:1 + len(masks)]]
+    digest = write_file(directory / layer_file_name(index), encoded[0])
+    channels = None if not masks else tuple(
+        ChannelRecord(material.name, layer_file_name(index, channel_name(material)),
+                      write_file(directory / layer_file_name(index, channel_name(material)), data), int(count))
+        for material, data, count in zip(masks, encoded[1:], counts[1:]))
+    return LayerRecord(float(height), digest, int(counts[0]), False, channels), rendered - began, \
+        time.process_time() - rendered
+
+
 def _write_stack(directory: Path, spec: SliceSpec, grid, bounds: np.ndarray, masks: tuple[Material, ...],
                  render: Callable[[int, float], tuple[np.ndarray, np.ndarray]], manifest_fields: dict, times: StageTimes,
                  force: bool, progress: Callable[[int, int], None] | None) -> dict:
-    """Write a volume's stack layer by layer as the mesh route writes one: ``render(index, z)`` gives a layer's
-    packed planes ((1 + len(masks), H, ceil(W / 8)) uint8: the solid mask, then one droplet mask per material of
-    ``masks``, none for a one-material stack) and their set pixels; the manifest last. Returns it."""
+    """Write a volume's stack as the mesh route writes one: ``render(index, z)`` gives a layer's packed planes
+    ((1 + len(masks), H, ceil(W / 8)) uint8: the solid mask, then one droplet mask per material of ``masks``,
+    none for a one-material stack) and their set pixels; the layers are rendered, encoded and written over
+    ``spec``'s worker processes (:func:`heoslice.pipeline.parallel.ordered_map`), the manifest last. Returns it."""
+    from heoslice.pipeline.parallel import ordered_map
+
     level = deflate_level(bool(masks))
     with ExitStack() as held:
         existed = directory.is_dir()
@@ -148,24 +170,15 @@ def _write_stack(directory: Path, spec: SliceSpec, grid, bounds: np.ndarray, mas
             held.enter_context(hold_stack(directory, "slicing into it"))
         z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
         layers = []
-        for index, height in enumerate(z):
-            began = time.perf_counter()
-            planes, counts = render(index, float(height))
-            rendered = time.perf_counter()
-            encoded = [encode_bilevel_tiff(plane, grid.width, spec.dpi, spec.compression, spec.layer_height_mm,
-                                           level=level) for plane in planes[:1 + len(masks)]]
-            written = time.perf_counter()
-            digest = write_file(directory / layer_file_name(index), encoded[0])
-            channels = None if not masks else tuple(
-                ChannelRecord(material.name, layer_file_name(index, channel_name(material)),
-                              write_file(directory / layer_file_name(index, channel_name(material)), data),
-                              int(count))
-                for material, data, count in zip(masks, encoded[1:], counts[1:]))
-            layers.append(LayerRecord(float(height), digest, int(counts[0]), False, channels))
-            times.raster += rendered - began
-            times.encode += written - rendered
+        done = held.enter_context(closing(ordered_map(
+            lambda index: _layer_files(directory, spec, grid, masks, level, render, index, float(z[index])),
+            range(len(z)), spec.worker_count())))
+        for record, raster, encode in done:
+            layers.append(record)
+            times.raster += raster
+            times.encode += encode
             if progress is not None:
-                progress(index + 1, len(z))
+                progress(len(layers), len(z))
         manifest = build_manifest(
             layer_height_mm=spec.layer_height_mm, dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
             image=ImageRecord(grid.width, grid.height, (grid.x_left, grid.y_top), "1", spec.compression),
