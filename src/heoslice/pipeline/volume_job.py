@@ -24,6 +24,7 @@ from heoslice.locks import hold_stack
 from heoslice.material import Material, PartSetting, check_one_per_channel, table_material
 from heoslice.pipeline.parts import MAX_PART_MATERIALS, part_order
 from heoslice.pipeline.spec import SliceSpec, StageTimes, channel_name
+from heoslice.pipeline.volume_grading import GradeSetting, grade_field, resolve_grades
 from heoslice.stack import (
     ChannelRecord,
     ImageRecord,
@@ -194,31 +195,87 @@ def _grid(spec: SliceSpec, bounds: np.ndarray):
     return grid
 
 
+def _mask_order(materials: list[Material]) -> tuple[Material, ...]:
+    """The droplet masks' materials: ``materials`` once each (by name), ordered by printer channel (those without
+    one last, in their first order)."""
+    used = {m.name: m for m in materials}
+    rank = {name: position for position, name in enumerate(used)}
+    return tuple(sorted(used.values(), key=lambda m: (m.channel is None, m.channel or 0, rank[m.name])))
+
+
 def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan: LabelPlan, *, up: str = "S",
                           smooth: float | None = None, force: bool = False,
-                          progress: Callable[[int, int], None] | None = None) -> tuple[dict, StageTimes]:
+                          progress: Callable[[int, int], None] | None = None,
+                          grades: tuple[GradeSetting, ...] = ()) -> tuple[dict, StageTimes]:
     """Slice the label map ``volume`` into a stack in ``directory`` as ``plan`` says, printer +z the
-    anatomical direction ``up``; the manifest (written last) and stage timings."""
+    anatomical direction ``up``; the manifest (written last) and stage timings. ``grades`` ([grade]) grade
+    labels inside by distance (:mod:`heoslice.pipeline.volume_grading`): each graded label's pixels get its own
+    code, and its share f(r) of M2 at each of them is halftoned into M1's and M2's droplet masks."""
     times = StageTimes()
     started = time.perf_counter()
     placement = place(volume, up)
-    prepared = label_print(volume, placement, [(label, material + 1) for label, material in
-                                               zip(plan.labels, plan.label_material)], smooth,
+    starts = [plan.materials[material] for material in plan.label_material]
+    graded = resolve_grades(grades, volume, plan.labels, starts)
+    masks = _mask_order([*plan.materials, *(grade.target for grade in graded)]) if plan.channels or graded else ()
+    if graded:
+        check_one_per_channel(masks, "the labels and their grading")
+        if len(masks) > MAX_PART_MATERIALS:
+            raise InputError(f"labels: {len(masks)} materials, more than the {MAX_PART_MATERIALS} a layer can carry")
+    position = {material.name: index for index, material in enumerate(masks)}
+    codes = [position[material.name] + 1 if masks else 1 for material in starts]
+    for number, grade in enumerate(graded):
+        codes[grade.index] = len(masks) + 1 + number
+    prepared = label_print(volume, placement, list(zip(plan.labels, codes)), smooth,
                            None if plan.ranks is None else list(plan.ranks))
+    fields = [_grade_field(volume, placement, prepared, plan, grade, smooth) for grade in graded]
     times.slice = time.perf_counter() - started
     bounds = prepared.bounds_mm()
     grid = _grid(spec, bounds)
-    masks = plan.materials if plan.channels else ()
     _check_layers(spec, bounds, masks)
+    kinds = max(len(masks), 1)
+
+    def render(index: int, z: float) -> tuple[np.ndarray, np.ndarray]:
+        from heoslice.grading.pixel_mix import fraction_planes
+
+        packed, counts = layer_masks(prepared, z, grid, kinds + len(graded))
+        if not graded:
+            return packed, counts
+        planes = packed[:1 + kinds]
+        for number, (grade, field) in enumerate(zip(graded, fields)):
+            own = packed[1 + kinds + number]
+            if own.any():
+                box, f = field.layer_fraction(own, grid, z)
+                planes[1:] |= fraction_planes(own, box, f, grid, index, position[grade.start.name],
+                                              position[grade.target.name], kinds, spec.halftone)
+        return planes, np.bitwise_count(planes).reshape(len(planes), -1).sum(axis=1, dtype=np.int64)
+
+    records = plan.records()
+    for grade in graded:
+        records[grade.index]["grading"] = {**grade.setting.record(), "toward": grade.reference.describe(),
+                                           "range_mm": list(fields[graded.index(grade)].design.r_range)}
     manifest = _write_stack(
-        Path(directory), spec, grid, bounds, masks,
-        lambda index, z: layer_masks(prepared, z, grid, len(plan.materials)),
+        Path(directory), spec, grid, bounds, masks, render,
         {"source_file": volume.source.name, "source_sha256": volume.sha256,
          "warnings": [*volume.warnings, *plan.warnings],
          "placement": placement.record(volume.space, (grid.x_left, grid.y_top, float(bounds[0, 2]))),
-         "labels": plan.records()}, times, force, progress)
+         "labels": records}, times, force, progress)
     times.total = time.perf_counter() - started
     return manifest, times
+
+
+def _grade_field(volume: Volume, placement, prepared, plan: LabelPlan, grade, smooth: float | None):
+    """A graded label's material field: its reference label's reconstructed surface (the printed label's own
+    field, or the reference label's computed alike) and the graded label's voxel centres (printer mm)."""
+    from heoslice.volume.surface import label_surface
+
+    if grade.reference in plan.labels:
+        reference = prepared.fields[plan.labels.index(grade.reference)]
+    else:
+        reference = label_print(volume, placement, [(grade.reference, 1)], smooth).fields[0]
+    label = plan.labels[grade.index]
+    voxels = np.argwhere(placement.orient(volume.layer(label.layer)) == label.value)
+    centres = (prepared.origin + voxels * prepared.spacing)[:, ::-1]
+    return grade_field(grade, *label_surface(reference, prepared.origin, prepared.spacing), centres)
 
 
 def _packed(masks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
