@@ -17,7 +17,7 @@ PER_CELL, TIE = 9, 1e-4
 def reference(fields, boost, codes, crack, rows, columns):
     """The rule per pixel: the fields bilinear at each pixel ((L, H, W) float64), the winner by score (field,
     plus boost where positive), solid where a field is positive or the two highest come within ``crack``.
-    Returns (code per pixel, 0 where not solid; a (H, W) bool of pixels within TIE of a decision's edge)."""
+    Returns (code per pixel, -1 where not solid; a (H, W) bool of pixels within TIE of a decision's edge)."""
     cy, fy = rows
     cx, fx = columns
     f = fields.astype(np.float64)
@@ -30,7 +30,7 @@ def reference(fields, boost, codes, crack, rows, columns):
     top = ordered[-1]
     second = ordered[-2] if len(values) > 1 else np.full_like(top, -np.inf)
     solid = (top > 0) | (second > -crack)
-    code = np.where(solid, codes[winner], 0)
+    code = np.where(solid, codes[winner].astype(np.int64), -1)
     gaps = np.abs(values[:, None] - values[None, :]) + np.eye(len(values))[:, :, None, None]
     gaps[np.maximum(values[:, None], values[None, :]) < -crack - TIE] = np.inf  # neither can win nor make solid
     tie = (np.abs(values).min(axis=0) < TIE) | (np.abs(values + crack).min(axis=0) < TIE) | \
@@ -55,7 +55,7 @@ def test_label_codes_match_the_rule_per_pixel(seed, count, boosted):
         outside[y0:y1, x0:x1] = False
         fields[label][outside] = -1e3
     boost = np.where(rng.random(count) < 0.4, 1e4, 0.0).astype(np.float32) if boosted else np.zeros(count, np.float32)
-    codes = rng.integers(1, 4, count).astype(np.uint8)
+    codes = rng.integers(0, 4, count).astype(np.uint8)  # 0: the solid mask only
     steps = ((np.arange(PER_CELL) + 0.5) / PER_CELL).astype(np.float32)
     row_cell = np.repeat(np.arange(rows_n - 1), PER_CELL).astype(np.int64)
     row_frac = np.tile(steps, rows_n - 1)
@@ -70,7 +70,7 @@ def test_label_codes_match_the_rule_per_pixel(seed, count, boosted):
     want, tie = reference(fields, boost, codes, crack, (row_cell, row_frac), (col_cell, col_frac))
     assert tie.mean() < 0.02
     settled = ~tie
-    assert np.array_equal(got[0][settled], (want > 0)[settled])
+    assert np.array_equal(got[0][settled], (want >= 0)[settled])
     for code in (1, 2, 3):
         assert np.array_equal(got[code][settled], (want == code)[settled])
     assert np.array_equal(counts, got.reshape(4, -1).sum(axis=1))

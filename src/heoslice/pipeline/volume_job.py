@@ -222,7 +222,7 @@ def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan
         if len(masks) > MAX_PART_MATERIALS:
             raise InputError(f"labels: {len(masks)} materials, more than the {MAX_PART_MATERIALS} a layer can carry")
     position = {material.name: index for index, material in enumerate(masks)}
-    codes = [position[material.name] + 1 if masks else 1 for material in starts]
+    codes = [position[material.name] + 1 if masks else 0 for material in starts]  # 0: the solid mask only
     for number, grade in enumerate(graded):
         codes[grade.index] = len(masks) + 1 + number
     prepared = label_print(volume, placement, list(zip(plan.labels, codes)), smooth,
@@ -232,7 +232,7 @@ def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan
     bounds = prepared.bounds_mm()
     grid = _grid(spec, bounds)
     _check_layers(spec, bounds, masks)
-    kinds = max(len(masks), 1)
+    kinds = len(masks)
 
     def render(index: int, z: float) -> tuple[np.ndarray, np.ndarray]:
         from heoslice.grading.pixel_mix import fraction_planes

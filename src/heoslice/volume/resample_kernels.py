@@ -73,12 +73,14 @@ def _piece_winner(ends, labels, count, boost, crack, t):
 
 @helper(JIT)
 def _set_run(planes, counts, row, first, stop, code):
-    """Set pixels [first, stop) of ``row`` in the solid plane and in material code ``code``'s (none for 0)."""
-    if code > 0 and stop > first:
+    """Set pixels [first, stop) of ``row`` in the solid plane and in material code ``code``'s (code 0: the
+    solid plane only; -1: none)."""
+    if code >= 0 and stop > first:
         _fill_span(planes[0], row, first, stop)
-        _fill_span(planes[code], row, first, stop)
         counts[0] += stop - first
-        counts[code] += stop - first
+        if code > 0:
+            _fill_span(planes[code], row, first, stop)
+            counts[code] += stop - first
 
 
 @helper(JIT)
@@ -127,7 +129,7 @@ def _label_codes(fields, boost, codes, boxes, crack, row_cell, row_frac, cell_st
     plane 0 the solid mask, plane m the pixels of material code m; ``counts`` ((K + 1,) int64) their set pixels.
 
     fields: (L, NY, NX) float32, each label's field at the layer's voxel nodes (voxels, positive inside);
-    boost: (L,) float32; codes: (L,) uint8 (1..K); boxes: (L, 4) int64, the node ranges [y0, y1) and [x0, x1)
+    boost: (L,) float32; codes: (L,) uint8 (1..K; 0: in the solid mask only, a one-material stack); boxes: (L, 4) int64, the node ranges [y0, y1) and [x0, x1)
     where a label's field is given (elsewhere it is far outside); crack: voxels, the seam two labels' fields
     may leave between them and still be one solid; row_cell, row_frac: (H,) each pixel row's node row below it
     and its fraction towards the next (cell -1: off the grid); cell_start: (NX,) int64, the first pixel column
@@ -147,7 +149,7 @@ def _label_codes(fields, boost, codes, boxes, crack, row_cell, row_frac, cell_st
         if cy < 0 or cy > rows_n - 2:
             continue
         fy = row_frac[row]
-        run_code, run_start = 0, 0
+        run_code, run_start = -1, 0
         for cx in range(columns_n - 1):
             first, stop = cell_start[cx], cell_start[cx + 1]
             cell = cy * (columns_n - 1) + cx
@@ -171,11 +173,12 @@ def _label_codes(fields, boost, codes, boxes, crack, row_cell, row_frac, cell_st
                 high = breaks[piece] if piece < found else 1.0
                 end = stop if high >= 1.0 else _first_at_or_above(col_frac, column, stop, high)
                 if end > column:
-                    code = 0
+                    code = -1
                     if inside or near >= 2:
                         winner = _piece_winner(ends, labels, near, boost, crack,
                                                0.5 * (max(low, 0.0) + min(high, 1.0)))
-                        code = codes[labels[winner]] if winner >= 0 else 0
+                        if winner >= 0:
+                            code = np.int64(codes[labels[winner]])
                     if code != run_code:
                         _set_run(planes, counts, row, run_start, column, run_code)
                         run_code, run_start = code, column
