@@ -9,10 +9,12 @@ large structure, a narrow one keeps a thin structure's shape. Its zero level is 
 region the field marks inside, trilinearly interpolated, holds exactly the label's voxel volume: the
 blur's shrinking of curved surfaces is undone and a label of one voxel keeps one voxel's volume, centred
 on its voxel. Last, the field is held within BAND voxels of the voxels' own signed distance (that of the
-surface between a label's voxel centres and its neighbours', where marching cubes puts it): the smooth
-surface never strays more than BAND voxels from the voxels, even at the sharp edges a scan's field of view
-cuts (where a wide blur would round them off). Fields are computed once per label on the label's bounding box
-(padded by the blur's reach), so their memory follows the labels' sizes, not the volume's.
+surface half-way between a label's voxel centres and its neighbours', where marching cubes puts it), so the
+smooth surface keeps to the voxels even at thin parts and at the sharp edges a scan's field of view cuts
+(where a wide blur would round them off or lose them), and its volume-preserving level is set again (which
+may move it a little further where the band held it: tests/test_volume_mesh_route.py measures the result
+against marching cubes). Fields are computed once per label on the label's bounding box (padded by the
+blur's reach), so their memory follows the labels' sizes, not the volume's.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ REACH_SIGMAS = 3.0
 CLIP = 1e-6
 #: The value of a label's field beyond its box: farther outside than any computed value.
 FAR_OUTSIDE = -1e3
-#: Voxels: the most the smooth surface may depart from the surface between the voxels (see the module's note).
+#: Voxels: how far the smooth field may depart from the voxels' own signed distance (see the module's note).
 BAND = 0.3
 #: Samples inside a label wanted to settle its zero level (the supersampling per axis adapts, 2 to 4).
 LEVEL_SAMPLES_INSIDE = 20_000
