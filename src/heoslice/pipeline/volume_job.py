@@ -343,9 +343,7 @@ def slice_ct_with_labels_to_stack(ct: Volume, labels: Volume, directory: Path, s
     origin, spacing = ct_placement.oriented_origin(ct.shape), ct_placement.spacing
     label_materials = [plan.materials[material] for index, material in enumerate(plan.label_material)
                        if index not in curve_labels]
-    used = {m.name: m for m in [*label_materials, *curve.materials]}
-    rank = {name: position for position, name in enumerate(used)}
-    masks = tuple(sorted(used.values(), key=lambda m: (m.channel is None, m.channel or 0, rank[m.name])))
+    masks = _mask_order([*label_materials, *curve.materials])
     position = {m.name: index for index, m in enumerate(masks)}
     curve_code = len(masks) + 1
     codes = [curve_code if index in curve_labels else position[plan.materials[material].name] + 1
