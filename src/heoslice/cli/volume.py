@@ -133,7 +133,8 @@ def slice_ct_with_labels(model: Path, ct, labels, output: Path | None, spec: Sli
     """One job of a CT and its label map: [labels] print as labels, the [intensity] table's ``within`` labels by
     the CT's values through its curve."""
     from heoslice.material import PartSetting
-    from heoslice.pipeline.volume_job import _matches, plan_labels, slice_ct_with_labels_to_stack
+    from heoslice.pipeline.volume_job import plan_labels, slice_ct_with_labels_to_stack
+    from heoslice.volume.model import labels_named
     from heoslice.volume.intensity import read_curve
 
     table = materials.data.get("intensity")
@@ -148,7 +149,7 @@ def slice_ct_with_labels(model: Path, ct, labels, output: Path | None, spec: Sli
             raise InputError(f"{materials.path}: label {key} is in both [labels] and [intensity] within")
         settings[key] = PartSetting(curve.materials[0].name)
     plan = plan_labels(labels, materials.materials, settings, True)
-    chosen = {index for key in within for index in _matches(key, plan.labels)}
+    chosen = {index for key in within for index in labels_named(key, plan.labels)}
     directory = output if output is not None else Path.cwd() / f"{volume_stem(model)}_stack"
     with progress_bar("slicing", unit="layer") as update:
         manifest, times = slice_ct_with_labels_to_stack(ct, labels, directory, spec, plan, curve, frozenset(chosen),

@@ -26,6 +26,7 @@ from heoslice.material.design import Design, ReferenceRecord
 from heoslice.material.field import MaterialField
 from heoslice.material.functions import make_function
 from heoslice.volume import Label, Volume
+from heoslice.volume.model import labels_named
 
 #: The keys a [grade] entry may have.
 GRADE_KEYS = {"to", "toward", "function", "alpha", "beta", "lam", "periods", "expression", "range"}
@@ -94,18 +95,16 @@ def resolve_grades(settings: tuple[GradeSetting, ...], volume: Volume, printed: 
                    start_of: list[Material]) -> tuple[LabelGrade, ...]:
     """Each [grade] entry's label among the ``printed`` labels (with materials ``start_of``) and its reference
     label among the volume's; InputError for a key naming no label, a label not printed or graded twice."""
-    from heoslice.pipeline.volume_job import _matches
-
     out, seen = [], set()
     for setting in settings:
-        found = _matches(setting.label, printed)
+        found = labels_named(setting.label, printed)
         if not found:
-            known = _matches(setting.label, volume.labels)
+            known = labels_named(setting.label, volume.labels)
             raise InputError(f"{volume.source}: [grade] {setting.label}: " + (
                 "the label is not printed (list it in [labels])" if known else "no such label in the file"))
         reference = printed[found[0]]
         if setting.toward is not None:
-            named = _matches(setting.toward, volume.labels)
+            named = labels_named(setting.toward, volume.labels)
             if not named:
                 raise InputError(f"{volume.source}: [grade] {setting.label}: toward {setting.toward}: no such label "
                                  "in the file")

@@ -42,6 +42,7 @@ from heoslice.stack import (
 from heoslice.stack.tiff import deflate_level
 from heoslice.volume import Label, Volume
 from heoslice.volume.info import label_counts
+from heoslice.volume.model import labels_named
 from heoslice.volume.placement import place
 from heoslice.volume.resample import label_print, layer_masks
 
@@ -67,15 +68,6 @@ class LabelPlan:
                 for label, material, voxels in zip(self.labels, self.label_material, self.voxels)]
 
 
-def _matches(key: str, labels: tuple[Label, ...]) -> list[int]:
-    """Indices of the labels a [labels] key names: a whole number is a label value, anything else a segment
-    or structure name (case ignored)."""
-    text = str(key).strip()
-    if text.lstrip("-").isdigit():
-        return [index for index, label in enumerate(labels) if label.value == int(text)]
-    return [index for index, label in enumerate(labels) if label.name and label.name.lower() == text.lower()]
-
-
 def plan_labels(volume: Volume, table: dict[str, Material], settings: Mapping[str, PartSetting] | None,
                 channels: bool = False) -> LabelPlan:
     """The :class:`LabelPlan` of ``volume`` with the materials ``table`` and the [labels] ``settings``.
@@ -91,7 +83,7 @@ def plan_labels(volume: Volume, table: dict[str, Material], settings: Mapping[st
         chosen = {index: PartSetting(first) for index in range(len(volume.labels))}
     else:
         for key, setting in settings.items():
-            found = _matches(key, volume.labels)
+            found = labels_named(key, volume.labels)
             if not found:
                 known = ", ".join(label.describe() for label in volume.labels[:12])
                 more = " ..." if len(volume.labels) > 12 else ""
