@@ -24,7 +24,7 @@ from heoslice.errors import InputError
 from heoslice.material import Material, table_material
 from heoslice.material.design import Design, ReferenceRecord
 from heoslice.material.field import MaterialField
-from heoslice.material.functions import make_function
+from heoslice.material.functions import DistributionFunction, make_function
 from heoslice.volume import Label, Volume
 from heoslice.volume.model import labels_named
 
@@ -40,7 +40,7 @@ class GradeSetting:
     label: str
     target: Material
     toward: str | None
-    function: object
+    function: DistributionFunction
     r_range: tuple[float, float] | None
 
     def record(self) -> dict:
@@ -75,7 +75,8 @@ def read_grades(data: dict, table: dict[str, Material], where: str) -> tuple[Gra
                     and np.isfinite(r_range).all() and r_range[1] > r_range[0] >= 0):
                 raise InputError(f"{name}: range must be [R0, R1] mm with 0 <= R0 < R1, got {r_range!r}")
             r_range = (float(r_range[0]), float(r_range[1]))
-        out.append(GradeSetting(str(key), table_material(entry["to"], table), None if toward is None else str(toward), function, r_range))
+        out.append(GradeSetting(str(key), table_material(entry["to"], table), None if toward is None else str(toward),
+                                function, r_range))
     return tuple(out)
 
 
@@ -130,6 +131,6 @@ def grade_field(grade: LabelGrade, vertices: np.ndarray, faces: np.ndarray, voxe
     if r_range is None:
         farthest = float(reference_distance(reference, voxel_mm).max()) if len(voxel_mm) else 0.0
         r_range, range_from = (0.0, max(farthest, 1e-3)), "max"
-    design = Design(grade.start, grade.target, ReferenceRecord("surface", surface=f"label {grade.reference.describe()}"),
-                    setting.function, r_range, range_from)
+    recorded = ReferenceRecord("surface", surface=f"label {grade.reference.describe()}")
+    design = Design(grade.start, grade.target, recorded, setting.function, r_range, range_from)
     return MaterialField(design, reference)
