@@ -2,14 +2,15 @@
 
     python benchmarks/bench_volume.py                          # 0.1 mm layers, 600 dpi (the issue's settings)
     python benchmarks/bench_volume.py --layer 0.5 --dpi 300    # a shorter run
-    python benchmarks/bench_volume.py --repeats 2 --jobs 1
+    python benchmarks/bench_volume.py --repeats 2 --jobs 1    # both routes in one process
 
 Volume route: ``heoslice slice example_seg.nii.gz`` (every label, one material). Mesh route: scikit-image's
 marching cubes of each label (level 0.5 of its 0/1 mask, in RAS mm by the file's affine), each written as a
 PLY, then ``heoslice slice *.ply --parts`` (one multi-part stack, every part one material): meshing time
-included. Each route runs as its own process, alternating, ``--repeats`` times; reported: each route's best
-wall time, CPU time (user + system: steadier than wall time on a shared machine) and peak RSS (ru_maxrss,
-from wait4), and their ratios (mesh / volume).
+included. Both slices run on ``--jobs`` worker processes (default 0: one per core). Each route runs as its own
+process, alternating, ``--repeats`` times; reported: each route's best wall time, CPU time (user + system of
+the route and its workers: steadier than wall time on a shared machine) and peak RSS (ru_maxrss from wait4: the
+largest of the route's processes), their ratios (mesh / volume) and the load average.
 """
 
 from __future__ import annotations
@@ -72,15 +73,14 @@ def main() -> None:
     parser.add_argument("--layer", default="0.1")
     parser.add_argument("--dpi", default="600")
     parser.add_argument("--repeats", type=int, default=1)
-    parser.add_argument("--jobs", default="1", help="worker processes of the mesh route's slice (the volume route "
-                                                    "runs in one process)")
+    parser.add_argument("--jobs", default="0", help="worker processes of both routes' slices (0: one per core)")
     args = parser.parse_args()
     if not DATA.is_file():
         raise SystemExit(f"{DATA}: not found (set HEOSLICE_SHARED_DATA)")
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
         volume_cmd = [sys.executable, "-m", "heoslice", "--no-config", "slice", str(DATA), "--layer", args.layer,
-                      "--dpi", args.dpi, "-o", str(folder / "volume_stack"), "--force"]
+                      "--dpi", args.dpi, "-j", args.jobs, "-o", str(folder / "volume_stack"), "--force"]
         mesh_cmd = [sys.executable, "-c", MESH_ROUTE, str(DATA), str(folder), args.layer, args.dpi, args.jobs]
         results = {"volume": [], "mesh": []}
         for repeat in range(args.repeats):
@@ -95,7 +95,7 @@ def main() -> None:
     print(f"layer {args.layer} mm, {args.dpi} dpi, best of {args.repeats}: volume route {volume[0]:.1f} s wall "
           f"{volume[2]:.1f} s CPU {volume[1]:.0f} MiB; mesh route {mesh[0]:.1f} s wall {mesh[2]:.1f} s CPU "
           f"{mesh[1]:.0f} MiB; mesh / volume: wall x{mesh[0] / volume[0]:.2f}, CPU x{mesh[2] / volume[2]:.2f}, "
-          f"RSS x{mesh[1] / volume[1]:.2f}")
+          f"RSS x{mesh[1] / volume[1]:.2f}; load average {', '.join(f'{v:.1f}' for v in os.getloadavg())}")
 
 
 if __name__ == "__main__":

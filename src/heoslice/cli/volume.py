@@ -54,6 +54,13 @@ def slice_volume(model: Path, output: Path | None, spec: SliceSpec, force: bool,
     if smooth is not None and not 0 <= smooth <= 10:
         raise InputError(f"--smooth: must be from 0 to 10 voxels, got {smooth:g}")
     volume = load_volume(model, kind)
+    grades = ()
+    if "grade" in materials.data:
+        from heoslice.pipeline.volume_grading import read_grades
+
+        if label_map is not None or volume.kind != "labels":
+            raise InputError(f"{materials.path}: [grade] grades labels of a label map; slice the label map itself")
+        grades = read_grades(materials.data["grade"], materials.materials, f"{materials.path}: [grade]")
     if label_map is not None:
         if volume.kind != "intensity":
             raise InputError(f"--labels: {model} is a label map; --labels goes with a CT (an intensity volume)")
@@ -70,18 +77,20 @@ def slice_volume(model: Path, output: Path | None, spec: SliceSpec, force: bool,
         echo_warnings(model, [*volume.warnings, *plan.warnings])
     with progress_bar("slicing", unit="layer") as update:
         manifest, times = slice_volume_to_stack(volume, directory, spec, plan, up=up, smooth=smooth, force=force,
-                                                progress=update)
-    names = [material.name for material in plan.materials]
+                                                progress=update, grades=grades)
+    names = [entry["name"] for entry in manifest["grading"]["materials"]] if manifest.get("grading") else \
+        [material.name for material in plan.materials]
     summary = {"model": str(model), "ok": True, "stack": str(directory), "layers": len(manifest["layers"]),
                "image": [manifest["image"]["width"], manifest["image"]["height"]], "dpi": manifest["dpi"],
-               "volume_mm3": stack_volume_mm3(manifest), "materials": names, "droplet_masks": plan.channels,
-               "labels": manifest["labels"], "placement": manifest["placement"],
+               "volume_mm3": stack_volume_mm3(manifest), "materials": names,
+               "droplet_masks": bool(manifest.get("grading")), "labels": manifest["labels"],
+               "placement": manifest["placement"],
                "warnings": list(manifest["warnings"]), "seconds": {"fields": times.slice, "raster_cpu": times.raster,
                                                                   "encode_cpu": times.encode, "total": times.total}}
     if as_json:
         echo_json(summary)
         return
-    masks = f"a solid mask and {plural(len(names), 'droplet mask')} per layer" if plan.channels else \
+    masks = f"a solid mask and {plural(len(names), 'droplet mask')} per layer" if summary["droplet_masks"] else \
         "one material: a solid mask per layer"
     click.echo(f"{directory}: {plural(summary['layers'], 'layer')} of {summary['image'][0]} x {summary['image'][1]} px "
                f"at {manifest['dpi'][0]:g} x {manifest['dpi'][1]:g} dpi, volume {summary['volume_mm3']:.1f} mm^3, "
@@ -124,7 +133,8 @@ def slice_ct_with_labels(model: Path, ct, labels, output: Path | None, spec: Sli
     """One job of a CT and its label map: [labels] print as labels, the [intensity] table's ``within`` labels by
     the CT's values through its curve."""
     from heoslice.material import PartSetting
-    from heoslice.pipeline.volume_job import _matches, plan_labels, slice_ct_with_labels_to_stack
+    from heoslice.pipeline.volume_job import plan_labels, slice_ct_with_labels_to_stack
+    from heoslice.volume.model import labels_named
     from heoslice.volume.intensity import read_curve
 
     table = materials.data.get("intensity")
@@ -139,7 +149,7 @@ def slice_ct_with_labels(model: Path, ct, labels, output: Path | None, spec: Sli
             raise InputError(f"{materials.path}: label {key} is in both [labels] and [intensity] within")
         settings[key] = PartSetting(curve.materials[0].name)
     plan = plan_labels(labels, materials.materials, settings, True)
-    chosen = {index for key in within for index in _matches(key, plan.labels)}
+    chosen = {index for key in within for index in labels_named(key, plan.labels)}
     directory = output if output is not None else Path.cwd() / f"{volume_stem(model)}_stack"
     with progress_bar("slicing", unit="layer") as update:
         manifest, times = slice_ct_with_labels_to_stack(ct, labels, directory, spec, plan, curve, frozenset(chosen),

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping
-from contextlib import ExitStack
+from contextlib import ExitStack, closing
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +24,7 @@ from heoslice.locks import hold_stack
 from heoslice.material import Material, PartSetting, check_one_per_channel, table_material
 from heoslice.pipeline.parts import MAX_PART_MATERIALS, part_order
 from heoslice.pipeline.spec import SliceSpec, StageTimes, channel_name
+from heoslice.pipeline.volume_grading import GradeSetting, grade_field, resolve_grades
 from heoslice.stack import (
     ChannelRecord,
     ImageRecord,
@@ -41,6 +42,7 @@ from heoslice.stack import (
 from heoslice.stack.tiff import deflate_level
 from heoslice.volume import Label, Volume
 from heoslice.volume.info import label_counts
+from heoslice.volume.model import labels_named
 from heoslice.volume.placement import place
 from heoslice.volume.resample import label_print, layer_masks
 
@@ -66,15 +68,6 @@ class LabelPlan:
                 for label, material, voxels in zip(self.labels, self.label_material, self.voxels)]
 
 
-def _matches(key: str, labels: tuple[Label, ...]) -> list[int]:
-    """Indices of the labels a [labels] key names: a whole number is a label value, anything else a segment
-    or structure name (case ignored)."""
-    text = str(key).strip()
-    if text.lstrip("-").isdigit():
-        return [index for index, label in enumerate(labels) if label.value == int(text)]
-    return [index for index, label in enumerate(labels) if label.name and label.name.lower() == text.lower()]
-
-
 def plan_labels(volume: Volume, table: dict[str, Material], settings: Mapping[str, PartSetting] | None,
                 channels: bool = False) -> LabelPlan:
     """The :class:`LabelPlan` of ``volume`` with the materials ``table`` and the [labels] ``settings``.
@@ -90,7 +83,7 @@ def plan_labels(volume: Volume, table: dict[str, Material], settings: Mapping[st
         chosen = {index: PartSetting(first) for index in range(len(volume.labels))}
     else:
         for key, setting in settings.items():
-            found = _matches(key, volume.labels)
+            found = labels_named(key, volume.labels)
             if not found:
                 known = ", ".join(label.describe() for label in volume.labels[:12])
                 more = " ..." if len(volume.labels) > 12 else ""
@@ -132,12 +125,34 @@ def _check_layers(spec: SliceSpec, bounds: np.ndarray, masks: tuple[Material, ..
                          f"volume's {float(bounds[1, 2] - bounds[0, 2]):g} mm (the most one stack's manifest holds)")
 
 
+def _layer_files(directory: Path, spec: SliceSpec, grid, masks: tuple[Material, ...], level: int,
+                 render: Callable[[int, float], tuple[np.ndarray, np.ndarray]], index: int, height: float
+                 ) -> tuple[LayerRecord, float, float]:
+    """Render, encode and write layer ``index`` at ``height`` mm: its record, and the CPU seconds of its render
+    and of its encoding and writing."""
+    began = time.process_time()
+    planes, counts = render(index, height)
+    rendered = time.process_time()
+    encoded = [encode_bilevel_tiff(plane, grid.width, spec.dpi, spec.compression, spec.layer_height_mm,
+                                   level=level) for plane in planes[:1 + len(masks)]]
+    digest = write_file(directory / layer_file_name(index), encoded[0])
+    channels = None if not masks else tuple(
+        ChannelRecord(material.name, layer_file_name(index, channel_name(material)),
+                      write_file(directory / layer_file_name(index, channel_name(material)), data), int(count))
+        for material, data, count in zip(masks, encoded[1:], counts[1:]))
+    return LayerRecord(float(height), digest, int(counts[0]), False, channels), rendered - began, \
+        time.process_time() - rendered
+
+
 def _write_stack(directory: Path, spec: SliceSpec, grid, bounds: np.ndarray, masks: tuple[Material, ...],
                  render: Callable[[int, float], tuple[np.ndarray, np.ndarray]], manifest_fields: dict, times: StageTimes,
                  force: bool, progress: Callable[[int, int], None] | None) -> dict:
-    """Write a volume's stack layer by layer as the mesh route writes one: ``render(index, z)`` gives a layer's
-    packed planes ((1 + len(masks), H, ceil(W / 8)) uint8: the solid mask, then one droplet mask per material of
-    ``masks``, none for a one-material stack) and their set pixels; the manifest last. Returns it."""
+    """Write a volume's stack as the mesh route writes one: ``render(index, z)`` gives a layer's packed planes
+    ((1 + len(masks), H, ceil(W / 8)) uint8: the solid mask, then one droplet mask per material of ``masks``,
+    none for a one-material stack) and their set pixels; the layers are rendered, encoded and written over
+    ``spec``'s worker processes (:func:`heoslice.pipeline.parallel.ordered_map`), the manifest last. Returns it."""
+    from heoslice.pipeline.parallel import ordered_map
+
     level = deflate_level(bool(masks))
     with ExitStack() as held:
         existed = directory.is_dir()
@@ -148,24 +163,15 @@ def _write_stack(directory: Path, spec: SliceSpec, grid, bounds: np.ndarray, mas
             held.enter_context(hold_stack(directory, "slicing into it"))
         z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
         layers = []
-        for index, height in enumerate(z):
-            began = time.perf_counter()
-            planes, counts = render(index, float(height))
-            rendered = time.perf_counter()
-            encoded = [encode_bilevel_tiff(plane, grid.width, spec.dpi, spec.compression, spec.layer_height_mm,
-                                           level=level) for plane in planes[:1 + len(masks)]]
-            written = time.perf_counter()
-            digest = write_file(directory / layer_file_name(index), encoded[0])
-            channels = None if not masks else tuple(
-                ChannelRecord(material.name, layer_file_name(index, channel_name(material)),
-                              write_file(directory / layer_file_name(index, channel_name(material)), data),
-                              int(count))
-                for material, data, count in zip(masks, encoded[1:], counts[1:]))
-            layers.append(LayerRecord(float(height), digest, int(counts[0]), False, channels))
-            times.raster += rendered - began
-            times.encode += written - rendered
+        done = held.enter_context(closing(ordered_map(
+            lambda index: _layer_files(directory, spec, grid, masks, level, render, index, float(z[index])),
+            range(len(z)), spec.worker_count())))
+        for record, raster, encode in done:
+            layers.append(record)
+            times.raster += raster
+            times.encode += encode
             if progress is not None:
-                progress(index + 1, len(z))
+                progress(len(layers), len(z))
         manifest = build_manifest(
             layer_height_mm=spec.layer_height_mm, dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
             image=ImageRecord(grid.width, grid.height, (grid.x_left, grid.y_top), "1", spec.compression),
@@ -181,31 +187,87 @@ def _grid(spec: SliceSpec, bounds: np.ndarray):
     return grid
 
 
+def _mask_order(materials: list[Material]) -> tuple[Material, ...]:
+    """The droplet masks' materials: ``materials`` once each (by name), ordered by printer channel (those without
+    one last, in their first order)."""
+    used = {m.name: m for m in materials}
+    rank = {name: position for position, name in enumerate(used)}
+    return tuple(sorted(used.values(), key=lambda m: (m.channel is None, m.channel or 0, rank[m.name])))
+
+
 def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan: LabelPlan, *, up: str = "S",
                           smooth: float | None = None, force: bool = False,
-                          progress: Callable[[int, int], None] | None = None) -> tuple[dict, StageTimes]:
+                          progress: Callable[[int, int], None] | None = None,
+                          grades: tuple[GradeSetting, ...] = ()) -> tuple[dict, StageTimes]:
     """Slice the label map ``volume`` into a stack in ``directory`` as ``plan`` says, printer +z the
-    anatomical direction ``up``; the manifest (written last) and stage timings."""
+    anatomical direction ``up``; the manifest (written last) and stage timings. ``grades`` ([grade]) grade
+    labels inside by distance (:mod:`heoslice.pipeline.volume_grading`): each graded label's pixels get its own
+    code, and its share f(r) of M2 at each of them is halftoned into M1's and M2's droplet masks."""
     times = StageTimes()
     started = time.perf_counter()
     placement = place(volume, up)
-    prepared = label_print(volume, placement, [(label, material + 1) for label, material in
-                                               zip(plan.labels, plan.label_material)], smooth,
+    starts = [plan.materials[material] for material in plan.label_material]
+    graded = resolve_grades(grades, volume, plan.labels, starts)
+    masks = _mask_order([*plan.materials, *(grade.target for grade in graded)]) if plan.channels or graded else ()
+    if graded:
+        check_one_per_channel(masks, "the labels and their grading")
+        if len(masks) > MAX_PART_MATERIALS:
+            raise InputError(f"labels: {len(masks)} materials, more than the {MAX_PART_MATERIALS} a layer can carry")
+    position = {material.name: index for index, material in enumerate(masks)}
+    codes = [position[material.name] + 1 if masks else 0 for material in starts]  # 0: the solid mask only
+    for number, grade in enumerate(graded):
+        codes[grade.index] = len(masks) + 1 + number
+    prepared = label_print(volume, placement, list(zip(plan.labels, codes)), smooth,
                            None if plan.ranks is None else list(plan.ranks))
+    fields = [_grade_field(volume, placement, prepared, plan, grade, smooth) for grade in graded]
     times.slice = time.perf_counter() - started
     bounds = prepared.bounds_mm()
     grid = _grid(spec, bounds)
-    masks = plan.materials if plan.channels else ()
     _check_layers(spec, bounds, masks)
+    kinds = len(masks)
+
+    def render(index: int, z: float) -> tuple[np.ndarray, np.ndarray]:
+        from heoslice.grading.pixel_mix import fraction_planes
+
+        packed, counts = layer_masks(prepared, z, grid, kinds + len(graded))
+        if not graded:
+            return packed, counts
+        planes = packed[:1 + kinds]
+        for number, (grade, field) in enumerate(zip(graded, fields)):
+            own = packed[1 + kinds + number]
+            if own.any():
+                box, f = field.layer_fraction(own, grid, z)
+                planes[1:] |= fraction_planes(own, box, f, grid, index, position[grade.start.name],
+                                              position[grade.target.name], kinds, spec.halftone)
+        return planes, np.bitwise_count(planes).reshape(len(planes), -1).sum(axis=1, dtype=np.int64)
+
+    records = plan.records()
+    for grade in graded:
+        records[grade.index]["grading"] = {**grade.setting.record(), "toward": grade.reference.describe(),
+                                           "range_mm": list(fields[graded.index(grade)].design.r_range)}
     manifest = _write_stack(
-        Path(directory), spec, grid, bounds, masks,
-        lambda index, z: layer_masks(prepared, z, grid, len(plan.materials)),
+        Path(directory), spec, grid, bounds, masks, render,
         {"source_file": volume.source.name, "source_sha256": volume.sha256,
          "warnings": [*volume.warnings, *plan.warnings],
          "placement": placement.record(volume.space, (grid.x_left, grid.y_top, float(bounds[0, 2]))),
-         "labels": plan.records()}, times, force, progress)
+         "labels": records}, times, force, progress)
     times.total = time.perf_counter() - started
     return manifest, times
+
+
+def _grade_field(volume: Volume, placement, prepared, plan: LabelPlan, grade, smooth: float | None):
+    """A graded label's material field: its reference label's reconstructed surface (the printed label's own
+    field, or the reference label's computed alike) and the graded label's voxel centres (printer mm)."""
+    from heoslice.volume.surface import label_surface
+
+    if grade.reference in plan.labels:
+        reference = prepared.fields[plan.labels.index(grade.reference)]
+    else:
+        reference = label_print(volume, placement, [(grade.reference, 1)], smooth).fields[0]
+    label = plan.labels[grade.index]
+    voxels = np.argwhere(placement.orient(volume.layer(label.layer)) == label.value)
+    centres = (prepared.origin + voxels * prepared.spacing)[:, ::-1]
+    return grade_field(grade, *label_surface(reference, prepared.origin, prepared.spacing), centres)
 
 
 def _packed(masks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -273,9 +335,7 @@ def slice_ct_with_labels_to_stack(ct: Volume, labels: Volume, directory: Path, s
     origin, spacing = ct_placement.oriented_origin(ct.shape), ct_placement.spacing
     label_materials = [plan.materials[material] for index, material in enumerate(plan.label_material)
                        if index not in curve_labels]
-    used = {m.name: m for m in [*label_materials, *curve.materials]}
-    rank = {name: position for position, name in enumerate(used)}
-    masks = tuple(sorted(used.values(), key=lambda m: (m.channel is None, m.channel or 0, rank[m.name])))
+    masks = _mask_order([*label_materials, *curve.materials])
     position = {m.name: index for index, m in enumerate(masks)}
     curve_code = len(masks) + 1
     codes = [curve_code if index in curve_labels else position[plan.materials[material].name] + 1

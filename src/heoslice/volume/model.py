@@ -173,3 +173,12 @@ def as_label_array(path: Path, data: np.ndarray) -> np.ndarray:
     if data.dtype.kind == "f" and np.all(data == np.round(data)) and np.abs(data).max(initial=0) < 2**31:
         return data.astype(np.int32)
     raise InputError(f"{path}: voxels are not whole numbers, so not a label map (an intensity volume: say --intensity)")
+
+
+def labels_named(key: str, labels: tuple[Label, ...]) -> list[int]:
+    """Indices of the labels a [labels] key names: a whole number is a label value, anything else a segment
+    or structure name (case ignored)."""
+    text = str(key).strip()
+    if text.lstrip("-").isdigit():
+        return [index for index, label in enumerate(labels) if label.value == int(text)]
+    return [index for index, label in enumerate(labels) if label.name and label.name.lower() == text.lower()]

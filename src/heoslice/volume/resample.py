@@ -109,7 +109,8 @@ def _cells(centres: np.ndarray, origin: float, spacing: float, first: int, nodes
 
 def layer_masks(plan: LabelPrint, z_mm: float, grid: Grid, materials: int) -> tuple[np.ndarray, np.ndarray]:
     """One layer's packed masks ((materials + 1, H, ceil(W / 8)) uint8: the solid mask, then one per material
-    code) and their set pixels ((materials + 1,) int64) at printer height ``z_mm``."""
+    code 1..materials; a label of code 0 is in the solid mask only) and their set pixels ((materials + 1,) int64)
+    at printer height ``z_mm``."""
     planes = np.zeros((materials + 1, grid.height, -(-grid.width // 8)), dtype=np.uint8)
     counts = np.zeros(materials + 1, dtype=np.int64)
     k = (z_mm - plan.origin[0]) / plan.spacing[0]
