@@ -52,7 +52,7 @@ def test_error_names_the_stack_once(tmp_path):
         assert done.returncode != 0 and "full: full:" not in done.stderr and "full: no manifest.json" in done.stderr
 
 
-def test_a_section_through_masks_that_do_not_cover_the_solid_once_is_refused(tmp_path):
+def test_a_section_through_a_pixel_in_two_droplet_masks_is_refused(tmp_path):
     """A graded stack whose layer 4 has its second droplet mask replaced by its first (hashes updated, so only the
     pixels object): a section through the part draws nothing and says so in one line (exit 4); a section of
     the clean stack is drawn."""
@@ -72,5 +72,5 @@ def test_a_section_through_masks_that_do_not_cover_the_solid_once_is_refused(tmp
     second.update(sha256=hashlib.sha256(data).hexdigest(), solid_pixels=first["solid_pixels"])
     (stack / "manifest.json").write_text(json.dumps(manifest))
     done = heoslice("preview", stack, "--section", f"x={x_middle:.4f}", "-o", tmp_path / "faulty.png")
-    assert done.returncode == 4 and "layer 4: the droplet masks do not cover exactly" in done.stderr, done.stderr
+    assert done.returncode == 4 and "layer 4: a pixel of the section is in two droplet masks" in done.stderr, done.stderr
     assert done.stderr.count("\n") == 1 and not (tmp_path / "faulty.png").exists()
