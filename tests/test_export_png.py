@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from heoslice.export.png import png_bytes
-from heoslice.export.pngfile import bilevel_png
+from heoslice.pngfile import bilevel_png
 
 
 def test_png_from_packed_bits_is_the_png_from_pixels():

@@ -18,7 +18,7 @@ import numpy as np
 
 from heoslice.errors import InputError
 from heoslice.export.base import ExportFormat, ExportOptions, Sink
-from heoslice.export.pngfile import labels_png
+from heoslice.pngfile import labels_png
 from heoslice.export.voxel_print import (
     DEFAULT_DPI,
     DEFAULT_PITCH_MM,

@@ -1,9 +1,9 @@
-"""The export formats' one PNG writer: scanlines to a PNG file (signature, IHDR, pHYs, IDAT, IEND), every row
-unfiltered and the image data deflated by zlib-ng.
+"""heoslice's one PNG writer (exports and previews): scanlines to a PNG file (signature, IHDR, pHYs, tEXt,
+IDAT, IEND), every row unfiltered and the image data deflated by zlib-ng.
 
 Why not Pillow's encoder: it chooses a filter per row by trying each, then deflates with zlib at level 6,
 several times the cost of zlib-ng on the raw rows; imagecodecs' libpng encoder takes no 1-bit images.
-A PNG file is four chunks (the PNG specification, ISO/IEC 15948), so it is written here, and the tests
+A PNG file is a few chunks (the PNG specification, ISO/IEC 15948), so it is written here, and the tests
 decode it with Pillow and libpng. Unfiltered rows suit heoslice's images: 1-bit masks (PNG never filters
 below a byte per pixel to any gain) and a few flat colours. Figures in benchmarks/README.md.
 """
@@ -42,10 +42,12 @@ def _chunk(kind: bytes, data: bytes) -> bytes:
     return b"".join([struct.pack(">I", len(data)), kind, data, struct.pack(">I", zlib.crc32(data, zlib.crc32(kind)))])
 
 
-def png_file(rows: np.ndarray, width: int, samples: int, bit_depth: int, dpi: tuple[float, float]) -> bytes:
+def png_file(rows: np.ndarray, width: int, samples: int, bit_depth: int, dpi: tuple[float, float] | None,
+             text: tuple[tuple[str, str], ...] = ()) -> bytes:
     """PNG of the scanlines ``rows`` ((height, ceil(width * samples * bit_depth / 8)) uint8, top row first,
     samples interleaved, pixels most significant bit first below a byte): ``samples`` 1 (grey), 3 (RGB) or
-    4 (RGBA) of ``bit_depth`` 1 or 8 bits, ``dpi`` (x, y) in the pHYs chunk as Pillow writes it."""
+    4 (RGBA) of ``bit_depth`` 1 or 8 bits; ``dpi`` (x, y) in a pHYs chunk as Pillow writes it (none when None);
+    each (keyword, Latin-1 text) of ``text`` in a tEXt chunk before the image data."""
     height, stride = rows.shape
     if stride != -(-width * samples * bit_depth // 8) or samples not in COLOUR_TYPES or bit_depth not in (1, 8):
         raise ValueError(f"png_file: rows of {stride} bytes do not hold {width} px of {samples} x {bit_depth} bits")
@@ -54,10 +56,22 @@ def png_file(rows: np.ndarray, width: int, samples: int, bit_depth: int, dpi: tu
     scanlines[:, 1:] = rows
     data = _deflate()(scanlines)
     header = struct.pack(">IIBBBBB", width, height, bit_depth, COLOUR_TYPES[samples], 0, 0, 0)
-    density = struct.pack(">IIB", *(int(value / METRES_PER_INCH + 0.5) for value in dpi), 1)
-    return b"".join([SIGNATURE, _chunk(b"IHDR", header), _chunk(b"pHYs", density),
+    extra = [] if dpi is None else [
+        _chunk(b"pHYs", struct.pack(">IIB", *(int(value / METRES_PER_INCH + 0.5) for value in dpi), 1))]
+    extra += [_chunk(b"tEXt", f"{keyword}\x00{value}".encode("latin-1")) for keyword, value in text]
+    return b"".join([SIGNATURE, _chunk(b"IHDR", header), *extra,
                      *(_chunk(b"IDAT", data[at:at + MAX_CHUNK]) for at in range(0, len(data), MAX_CHUNK)),
                      _chunk(b"IEND", b"")])
+
+
+def image_png(image, text: tuple[tuple[str, str], ...] = ()) -> bytes:
+    """PNG of a PIL image (grey, RGB or RGBA as it is; any other mode as RGB), without a resolution."""
+    samples = {"L": 1, "RGB": 3, "RGBA": 4}.get(image.mode)
+    if samples is None:
+        image, samples = image.convert("RGB"), 3
+    width, height = image.size
+    rows = np.frombuffer(image.tobytes(), dtype=np.uint8).reshape(height, width * samples)
+    return png_file(rows, width, samples, 8, None, text)
 
 
 def bilevel_png(bits: np.ndarray, width: int, dpi: tuple[float, float]) -> bytes:

@@ -1,4 +1,4 @@
-"""heoslice.export.pngfile: the PNGs it writes decode, with Pillow and with libpng (imagecodecs), to the pixels
+"""heoslice.pngfile: the PNGs it writes decode, with Pillow and with libpng (imagecodecs), to the pixels
 and resolution of the PNG Pillow's own encoder writes of the same image (the export's encoder before)."""
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from heoslice.export import pngfile
-from heoslice.export.pngfile import bilevel_png, labels_png, png_file
+from heoslice import pngfile
+from heoslice.pngfile import bilevel_png, image_png, labels_png, png_file
 
 DPI = (600.0, 300.0)
 
@@ -98,3 +98,18 @@ def test_rows_that_do_not_fit_the_width_are_refused():
     """Scanlines of the wrong length for the width, samples and bit depth: ValueError, not a corrupt file."""
     with pytest.raises(ValueError, match="do not hold"):
         png_file(np.zeros((4, 5), dtype=np.uint8), 41, 1, 1, DPI)
+
+
+@pytest.mark.parametrize("mode", ["L", "RGB", "RGBA", "P"])
+def test_a_pil_image_becomes_a_png_of_its_pixels_with_its_text_and_no_resolution(mode):
+    """image_png (the previews): grey, RGB and RGBA kept as they are, another mode as RGB; the text chunks
+    read back by Pillow; no pHYs chunk (a preview has no print resolution)."""
+    rng = np.random.default_rng(len(mode))
+    image = Image.fromarray(rng.integers(0, 256, (23, 31, 3)).astype(np.uint8), "RGB").convert(mode)
+    data = image_png(image, (("Software", "heoslice preview"),))
+    decoded_image = Image.open(io.BytesIO(data))
+    expected = image if mode != "P" else image.convert("RGB")
+    assert decoded_image.mode == expected.mode and decoded_image.text == {"Software": "heoslice preview"}
+    assert np.array_equal(np.asarray(decoded_image), np.asarray(expected))
+    assert "dpi" not in decoded_image.info and b"pHYs" not in chunks(data)
+    assert np.array_equal(imagecodecs.png_decode(data).reshape(np.asarray(expected).shape), np.asarray(expected))
