@@ -347,3 +347,29 @@ def test_ordered_map_raises_a_workers_error_and_ends_the_workers():
         list(ordered_map(fail_on_three, range(8), workers=2))
     assert any("in a worker" in note for note in raised.value.__notes__)
     assert not multiprocessing.active_children()
+
+
+def test_ordered_map_batches_keep_the_order_and_stay_small():
+    """Items travel in batches (batch_size: at least 16 a worker, at most 8 items each): over 300 items whose
+    results arrive out of order, every result comes back once, in order, from the workers; a failure in the
+    middle of a batch is raised as itself."""
+    from heoslice.pipeline.parallel import batch_size, ordered_map
+
+    assert batch_size(300, 2) == 8 and batch_size(200, 2) == 6 and batch_size(20, 2) == 1
+    assert all(1 <= batch_size(n, w) <= 8 and (batch_size(n, w) == 1 or n // batch_size(n, w) >= 16 * w)
+               for n in range(1, 2000, 37) for w in (1, 2, 3, 8))
+
+    def uneven(item: int) -> tuple[int, int]:
+        import time
+
+        time.sleep(0.002 * ((7 * item) % 3))
+        if item == 205:
+            raise KeyError("item 205")
+        return item, os.getpid()
+
+    results = list(ordered_map(uneven, range(200), workers=2))
+    assert [item for item, _ in results] == list(range(200))
+    assert os.getpid() not in {pid for _, pid in results}
+    with pytest.raises(KeyError, match="item 205"):
+        list(ordered_map(uneven, range(300), workers=2))
+    assert not multiprocessing.active_children()
