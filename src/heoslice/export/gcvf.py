@@ -18,7 +18,6 @@ import numpy as np
 
 from heoslice.errors import InputError
 from heoslice.export.base import ExportFormat, ExportOptions, Sink
-from heoslice.pngfile import labels_png
 from heoslice.export.voxel_print import (
     DEFAULT_DPI,
     DEFAULT_PITCH_MM,
@@ -28,6 +27,7 @@ from heoslice.export.voxel_print import (
     source_runs,
 )
 from heoslice.pipeline.parallel import ordered_map
+from heoslice.pngfile import labels_png
 from heoslice.stack import MANIFEST, check_printable
 
 #: Most model materials one .gcvf carries (its ConfigFile's MaxNumberOfColors).

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.export.base import ExportFormat, ExportOptions, Sink
-from heoslice.pngfile import bilevel_png, png_file
 from heoslice.pipeline.parallel import ordered_map
+from heoslice.pngfile import bilevel_png, png_file
 from heoslice.stack import MANIFEST, read_layer_channels, read_layer_pixels, resolve_inside
 from heoslice.stack.packed import layer_bits
 

@@ -20,8 +20,8 @@ import numpy as np
 
 from heoslice.errors import InputError
 from heoslice.export.base import ExportFormat, ExportOptions, Sink
-from heoslice.pngfile import labels_png
 from heoslice.pipeline.parallel import ordered_map
+from heoslice.pngfile import labels_png
 from heoslice.stack import MANIFEST, MAX_IMAGE_PIXELS, MAX_LAYERS, check_printable
 from heoslice.stack.packed import layer_bits
 
