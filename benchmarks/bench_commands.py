@@ -6,7 +6,8 @@ inside it, ``--parts``), at 0.1 mm and 600 dpi: slice it, then run ``verify``, `
 (through the part's middle), ``export --format png``, ``export --format voxel-print`` and ``print
 --dry-run`` on it, each once per repeat, in that order, the repeats alternating. Reports each command's
 wall time as a ratio to the slice's of the same repeat (median over repeats), its CPU time and the
-peak RSS of its largest process (GNU time, as bench_prusa.py measures), against the targets of issue
+peak RSS of its largest process (GNU time, as bench_prusa.py measures) and the load average around the
+stack's runs, against the targets of issue
 46: verify <= 0.3, preview --section <= 0.1, export png and voxel-print <= 1, print --dry-run <= 0.2.
 Outputs go to a temporary folder (``--workdir`` keeps them) and are deleted at the end.
 
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import statistics
 import sys
@@ -83,7 +85,8 @@ def command_args(name: str, stack: Path, output: Path) -> list[str]:
         manifest = json.loads((stack / "manifest.json").read_text())
         x_left = manifest["image"]["origin_mm"][0]
         middle = x_left + manifest["image"]["width"] * manifest["pixel_size_mm"][0] / 2
-        return ["preview", str(stack), "--section", f"x={middle:.3f}", "-o", str(output.with_suffix(".png"))]
+        return ["preview", str(stack), "--section", f"x={middle:.3f}", "-o", str(output.with_suffix(".png")),
+                "--force"]
     args, _ = COMMANDS[name]
     if args[0] == "export":
         return ["export", str(stack), *args[1:], "-o", str(output), "--force"]
@@ -103,6 +106,7 @@ def main(argv: list[str] | None = None) -> None:
             folder.mkdir(exist_ok=True)
             meshes, extra = write_meshes(name, args.quick, folder)
             rows: dict[str, list] = {"slice": []}
+            load_before = os.getloadavg()[0]
             for repeat in range(args.repeats):
                 stack = folder / "stack"
                 sliced = run_measured([*base, "slice", *map(str, meshes), "--layer", "0.1", "--dpi", "600", *extra,
@@ -122,6 +126,7 @@ def main(argv: list[str] | None = None) -> None:
             manifest = json.loads((folder / "stack" / "manifest.json").read_text())
             image = manifest["image"]
             results[name] = {"layers": len(manifest["layers"]), "image": [image["width"], image["height"]],
+                             "load_average": [round(load_before, 2), round(os.getloadavg()[0], 2)],
                              **{command: {"wall_s": statistics.median(r[0] for r in runs),
                                           "cpu_s": statistics.median(r[1] for r in runs),
                                           "max_rss_mb": max(r[2] for r in runs),
@@ -137,7 +142,8 @@ def main(argv: list[str] | None = None) -> None:
 
 def report(name: str, result: dict) -> None:
     """One stack's table: each command's wall, CPU, peak RSS and ratio to the slice, against its target."""
-    print(f"\n{name}: {result['layers']} layers of {result['image'][0]} x {result['image'][1]} px")
+    print(f"\n{name}: {result['layers']} layers of {result['image'][0]} x {result['image'][1]} px "
+          f"(1-minute load average {result['load_average'][0]:g} before, {result['load_average'][1]:g} after)")
     print(f"  {'command':<20} {'wall s':>8} {'CPU s':>8} {'RSS MB':>8} {'x slice':>8} {'target':>7}")
     for command, figures in result.items():
         if not isinstance(figures, dict):

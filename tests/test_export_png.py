@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from heoslice.export.png import bits_png_bytes, png_bytes
+from heoslice.export.png import png_bytes
+from heoslice.pngfile import bilevel_png
 
 
 def test_png_from_packed_bits_is_the_png_from_pixels():
@@ -17,4 +18,4 @@ def test_png_from_packed_bits_is_the_png_from_pixels():
         bits = np.packbits(mask, axis=1)
         if width % 8:
             bits[:, -1] |= np.uint8(0xFF >> (width % 8))  # padding bits are not pixels
-        assert bits_png_bytes(bits, width, (600.0, 300.0)) == png_bytes(mask, (600.0, 300.0))
+        assert bilevel_png(bits, width, (600.0, 300.0)) == png_bytes(mask, (600.0, 300.0))

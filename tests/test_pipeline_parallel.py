@@ -334,16 +334,19 @@ def test_ordered_map_keeps_the_items_order_over_workers():
     assert not multiprocessing.active_children()
 
 
-def test_ordered_map_in_batches_keeps_the_order_and_the_round_trips_few():
-    """With ``batch``, ordered_map yields the same results in the items' order (a batch that does not divide the
-    count too), each batch computed whole in one worker, and its workers are gone once it is done."""
-    from heoslice.pipeline.parallel import ordered_map
+def test_ordered_map_in_larger_batches_keeps_the_order_and_the_round_trips_few():
+    """With ``most_batched``, ordered_map yields the same results in the items' order (a batch that does not divide
+    the count too), each batch computed whole in one worker, and its workers are gone once it is done."""
+    from heoslice.pipeline.parallel import batch_size, ordered_map
 
-    results = list(ordered_map(lambda item: (item * item, os.getpid()), range(103), workers=2, batch=10))
-    assert [value for value, _ in results] == [item * item for item in range(103)]
-    assert all(len({pid for _, pid in results[start:start + 10]}) == 1 for start in range(0, 103, 10))
+    count = 2000
+    size = batch_size(count, 2, 40)
+    assert size == 40
+    results = list(ordered_map(lambda item: (item * item, os.getpid()), range(count), workers=2, most_batched=40))
+    assert [value for value, _ in results] == [item * item for item in range(count)]
+    assert all(len({pid for _, pid in results[start:start + size]}) == 1 for start in range(0, count, size))
     assert os.getpid() not in {pid for _, pid in results}
-    assert list(ordered_map(lambda item: -item, range(3), workers=2, batch=10)) == [0, -1, -2]
+    assert list(ordered_map(lambda item: -item, range(3), workers=2, most_batched=10)) == [0, -1, -2]
     assert not multiprocessing.active_children()
 
 
@@ -359,4 +362,30 @@ def test_ordered_map_raises_a_workers_error_and_ends_the_workers():
     with pytest.raises(ValueError, match="item three") as raised:
         list(ordered_map(fail_on_three, range(8), workers=2))
     assert any("in a worker" in note for note in raised.value.__notes__)
+    assert not multiprocessing.active_children()
+
+
+def test_ordered_map_batches_keep_the_order_and_stay_small():
+    """Items travel in batches (batch_size: at least 16 a worker, at most 8 items each): over 300 items whose
+    results arrive out of order, every result comes back once, in order, from the workers; a failure in the
+    middle of a batch is raised as itself."""
+    from heoslice.pipeline.parallel import batch_size, ordered_map
+
+    assert batch_size(300, 2) == 8 and batch_size(200, 2) == 6 and batch_size(20, 2) == 1
+    assert all(1 <= batch_size(n, w) <= 8 and (batch_size(n, w) == 1 or n // batch_size(n, w) >= 16 * w)
+               for n in range(1, 2000, 37) for w in (1, 2, 3, 8))
+
+    def uneven(item: int) -> tuple[int, int]:
+        import time
+
+        time.sleep(0.002 * ((7 * item) % 3))
+        if item == 205:
+            raise KeyError("item 205")
+        return item, os.getpid()
+
+    results = list(ordered_map(uneven, range(200), workers=2))
+    assert [item for item, _ in results] == list(range(200))
+    assert os.getpid() not in {pid for _, pid in results}
+    with pytest.raises(KeyError, match="item 205"):
+        list(ordered_map(uneven, range(300), workers=2))
     assert not multiprocessing.active_children()

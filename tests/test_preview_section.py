@@ -50,3 +50,27 @@ def test_error_names_the_stack_once(tmp_path):
         done = subprocess.run([sys.executable, "-m", "heoslice", *args], capture_output=True, text=True,
                               cwd=tmp_path)
         assert done.returncode != 0 and "full: full:" not in done.stderr and "full: no manifest.json" in done.stderr
+
+
+def test_a_section_through_a_pixel_in_two_droplet_masks_is_refused(tmp_path):
+    """A graded stack whose layer 4 has its second droplet mask replaced by its first (hashes updated, so only the
+    pixels object): a section through the part draws nothing and says so in one line (exit 4); a section of
+    the clean stack is drawn."""
+    import hashlib
+
+    procedural.vase(rings_outer=10, rings_inner=8, sections=24).export(tmp_path / "vase.ply")
+    stack = tmp_path / "graded"
+    assert in_process("slice", tmp_path / "vase.ply", "-o", stack, "--layer", "5", "--dpi", "100", "--grade",
+                      "linear", "--channels") == 0
+    manifest = json.loads((stack / "manifest.json").read_text())
+    x_middle = manifest["image"]["origin_mm"][0] + manifest["image"]["width"] * manifest["pixel_size_mm"][0] / 2
+    done = heoslice("preview", stack, "--section", f"x={x_middle:.4f}", "-o", tmp_path / "clean.png")
+    assert done.returncode == 0, done.stderr
+    first, second = manifest["layers"][4]["channels"][:2]
+    data = (stack / first["file"]).read_bytes()
+    (stack / second["file"]).write_bytes(data)
+    second.update(sha256=hashlib.sha256(data).hexdigest(), solid_pixels=first["solid_pixels"])
+    (stack / "manifest.json").write_text(json.dumps(manifest))
+    done = heoslice("preview", stack, "--section", f"x={x_middle:.4f}", "-o", tmp_path / "faulty.png")
+    assert done.returncode == 4 and "layer 4: a pixel of the section is in two droplet masks" in done.stderr, done.stderr
+    assert done.stderr.count("\n") == 1 and not (tmp_path / "faulty.png").exists()

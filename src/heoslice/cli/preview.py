@@ -12,6 +12,7 @@ import numpy as np
 from heoslice.cli.common import echo_warnings, progress_bar
 from heoslice.errors import InputError
 from heoslice.files import check_output, write_output
+from heoslice.pipeline.parallel import ordered_map
 from heoslice.preview.png import is_preview, png_bytes
 from heoslice.preview.layer import MAX_PREVIEW_SIDE, MIN_PREVIEW_SIDE
 from heoslice.preview.sheet import MAX_SHEET_LAYERS, MAX_TILE, MIN_TILE
@@ -74,7 +75,7 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
     check_input_path(stack)
     # verify's own check (every file present, of its layout, mode and sha256): a stack it refuses is not drawn;
     # pixels are decoded, and checked, for what is drawn
-    manifest = load_verified(stack, check_pixels=False)
+    manifest = load_verified(stack, check_pixels=False, layer_map=ordered_map)
     count = len(manifest["layers"])
     if count == 0:
         raise InputError(f"{stack}: the stack has no layers")

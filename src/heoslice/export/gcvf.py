@@ -11,7 +11,6 @@ public builders listed in ``docs/export-formats.md``. At most :data:`MAX_MATERIA
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 from xml.sax.saxutils import escape
 
@@ -25,7 +24,10 @@ from heoslice.export.voxel_print import (
     layer_labels,
     palette,
     printer_grid,
+    source_runs,
 )
+from heoslice.pipeline.parallel import ordered_map
+from heoslice.pngfile import labels_png
 from heoslice.stack import MANIFEST, check_printable
 
 #: Most model materials one .gcvf carries (its ConfigFile's MaxNumberOfColors).
@@ -78,8 +80,6 @@ def config_xml(materials: list[tuple[str, tuple[int, int, int]]], counts: list[i
 
 def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -> dict:
     """Write the layers and ``ConfigFile.xml`` into the .gcvf zip."""
-    from PIL import Image
-
     if not sink.is_zip:
         raise InputError(f"format: a .gcvf is one zip file; name the output {sink.target.name}.gcvf")
     if options.background is not None:
@@ -93,16 +93,18 @@ def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -
                          f"{len(materials)} ({', '.join(name for name, _ in materials)})")
     width, height, slices, columns, rows, sources = printer_grid(manifest, dpi, pitch)
     colours = np.array([BACKGROUND_RGBA] + [(*colour, 255) for _, colour in materials], dtype=np.uint8)
+
+    def encoded(source: int) -> tuple[bytes, np.ndarray]:
+        labels = layer_labels(directory, manifest, source, rows, columns)
+        return labels_png(labels, colours, dpi), np.bincount(labels.ravel(), minlength=len(colours))
+
     counts = np.zeros(len(materials) + 1, dtype=np.int64)
-    cached = (None, None, None)
-    for number, source in enumerate(sources):
-        if cached[0] != source:
-            labels = layer_labels(directory, manifest, int(source))[np.ix_(rows, columns)]
-            buffer = io.BytesIO()
-            Image.fromarray(colours[labels], "RGBA").save(buffer, format="PNG", dpi=(round(dpi[0]), round(dpi[1])))
-            cached = (source, buffer.getvalue(), np.bincount(labels.ravel(), minlength=len(colours)))
-        sink.add(f"layer_{number}.png", cached[1])
-        counts += cached[2]
+    runs = source_runs(sources)
+    for (data, found), (_, start, stop) in zip(ordered_map(encoded, [layer for layer, _, _ in runs]), runs):
+        for number in range(start, stop):
+            sink.add(f"layer_{number}.png", data)
+        counts += found * (stop - start)
+        sink.progress(stop, slices)
     sink.add(CONFIG_FILE, config_xml(materials, counts[1:].tolist(), dpi, pitch, (width, height), slices))
     return {"format": "gcvf", "slices": slices, "width": width, "height": height, "dpi": list(dpi), "pitch_mm": pitch,
             "materials": [{"name": name, "rgba": [*colour, 255], "voxels": int(count)}

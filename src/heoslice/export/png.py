@@ -3,13 +3,13 @@
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
 
 from heoslice.export.base import ExportFormat, ExportOptions, Sink
 from heoslice.pipeline.parallel import ordered_map
+from heoslice.pngfile import bilevel_png, png_file
 from heoslice.stack import MANIFEST, read_layer_channels, read_layer_pixels, resolve_inside
 from heoslice.stack.packed import layer_bits
 
@@ -19,24 +19,12 @@ BILEVEL_MODES = ("1", "L")
 
 def png_bytes(pixels: np.ndarray, dpi: tuple[float, float]) -> bytes:
     """PNG of stored layer pixels: (h, w) bool as 1-bit with solid black on white (as the TIFFs show and
-    ``preview`` draws them), (h, w, 4) uint8 as RGBA; the dpi in the pHYs chunk."""
-    from PIL import Image
-
-    image = Image.fromarray(~pixels.astype(bool)) if pixels.ndim == 2 else Image.fromarray(pixels, "RGBA")
-    buffer = io.BytesIO()
-    image.save(buffer, format="PNG", dpi=(round(dpi[0]), round(dpi[1])))
-    return buffer.getvalue()
-
-
-def bits_png_bytes(bits: np.ndarray, width: int, dpi: tuple[float, float]) -> bytes:
-    """:func:`png_bytes` of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, a set bit solid):
-    the same file, made without a byte per pixel."""
-    from PIL import Image
-
-    image = Image.frombytes("1", (width, len(bits)), np.invert(bits).tobytes())
-    buffer = io.BytesIO()
-    image.save(buffer, format="PNG", dpi=(round(dpi[0]), round(dpi[1])))
-    return buffer.getvalue()
+    ``preview`` draws them), (h, w, 3 or 4) uint8 as RGB or RGBA; the dpi in the pHYs chunk."""
+    if pixels.ndim == 2:
+        return bilevel_png(np.packbits(pixels.astype(bool), axis=1), pixels.shape[1], dpi)
+    height, width, samples = pixels.shape
+    return png_file(np.ascontiguousarray(pixels, dtype=np.uint8).reshape(height, width * samples), width, samples,
+                    8, dpi)
 
 
 def layer_pngs(directory: Path, manifest: dict, index: int) -> list[tuple[str, bytes]]:
@@ -46,7 +34,7 @@ def layer_pngs(directory: Path, manifest: dict, index: int) -> list[tuple[str, b
     if manifest["image"].get("mode", "1") in BILEVEL_MODES:
         solid, masks = layer_bits(directory, manifest, index)
         width = manifest["image"]["width"]
-        return [(name, bits_png_bytes(bits.rows, width, dpi)) for name, bits in zip(names, [solid, *masks])]
+        return [(name, bilevel_png(bits.rows, width, dpi)) for name, bits in zip(names, [solid, *masks])]
     images = [read_layer_pixels(directory, manifest, index), *read_layer_channels(directory, manifest, index)]
     return [(name, png_bytes(pixels, dpi)) for name, pixels in zip(names, images)]
 

@@ -13,7 +13,6 @@ the background's.
 
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
@@ -22,8 +21,9 @@ import numpy as np
 from heoslice.errors import InputError
 from heoslice.export.base import ExportFormat, ExportOptions, Sink
 from heoslice.pipeline.parallel import ordered_map
+from heoslice.pngfile import labels_png
 from heoslice.stack import MANIFEST, MAX_IMAGE_PIXELS, MAX_LAYERS, check_printable
-from heoslice.stack.packed import layer_bits, unpack_bits
+from heoslice.stack.packed import layer_bits
 
 #: The J750's Voxel Print resolution (dpi x, y) and layer pitch (mm).
 DEFAULT_DPI = (600.0, 300.0)
@@ -71,34 +71,28 @@ def sample_indices(count: int, step: float, new_step: float, new_count: int) -> 
 
 def layer_labels(directory: Path, manifest: dict, index: int, rows: np.ndarray | None = None,
                  columns: np.ndarray | None = None) -> np.ndarray:
-    """(h, w) uint8 material label of each pixel of a stack layer: 0 empty, m + 1 material m; only the pixels
-    at ``rows`` x ``columns`` (index arrays, default all) when given. Each file is read once, as packed bits,
-    and only the sampled rows are unpacked."""
+    """(h, w) uint8 material label of each pixel of a stack layer: 0 empty, m + 1 material m (the last mask
+    holding a pixel, were two to hold it); only the pixels at ``rows`` x ``columns`` (index arrays, default
+    all) when given. Each file is read once, as packed bits, and only the sampled rows are unpacked."""
     image = manifest["image"]
-    rows = np.arange(image["height"]) if rows is None else rows
-    columns = np.arange(image["width"]) if columns is None else columns
-    solid, masks = layer_bits(directory, manifest, index)
-
-    def sampled(bits) -> np.ndarray:
-        return unpack_bits(bits.rows[rows], image["width"])[:, columns]
-
-    if not manifest["layers"][index].get("channels"):
-        return sampled(solid).astype(np.uint8)
-    labels = np.zeros((len(rows), len(columns)), dtype=np.uint8)
-    for number, mask in enumerate(masks):
-        labels[sampled(mask)] = number + 1
-    return labels
+    with_masks = bool(manifest["layers"][index].get("channels"))
+    solid, masks = layer_bits(directory, manifest, index, solid=not with_masks)
+    labels = None
+    for number, bits in enumerate(masks if with_masks else [solid], 1):
+        packed = bits.rows if rows is None else np.take(bits.rows, rows, axis=0)
+        plane = np.unpackbits(packed, axis=1, count=image["width"])
+        if number > 1:
+            plane *= np.uint8(number)
+        labels = plane if labels is None else np.maximum(labels, plane, out=labels)
+    if columns is None or np.array_equal(columns, np.arange(image["width"])):
+        return labels
+    return np.take(labels, columns, axis=1)
 
 
 def slice_png(directory: Path, manifest: dict, index: int, rows: np.ndarray, columns: np.ndarray,
               colours: np.ndarray, dpi: tuple[float, float]) -> bytes:
     """The PNG of a Voxel Print slice taken from stack layer ``index`` (sampled at ``rows`` x ``columns``)."""
-    from PIL import Image
-
-    buffer = io.BytesIO()
-    Image.fromarray(colours[layer_labels(directory, manifest, index, rows, columns)], "RGB").save(
-        buffer, format="PNG", dpi=(round(dpi[0]), round(dpi[1])))
-    return buffer.getvalue()
+    return labels_png(layer_labels(directory, manifest, index, rows, columns), colours, dpi)
 
 
 def printer_grid(manifest: dict, dpi: tuple[float, float], pitch: float) -> tuple:
@@ -119,6 +113,15 @@ def printer_grid(manifest: dict, dpi: tuple[float, float], pitch: float) -> tupl
             sample_indices(len(manifest["layers"]), h, pitch, slices))
 
 
+def source_runs(sources: np.ndarray) -> list[tuple[int, int, int]]:
+    """(stack layer, first slice, stop slice) of each run of consecutive slices sampling the same stack layer
+    (``sources`` from :func:`printer_grid`): a layer coarser than the pitch gives several identical slices,
+    each run encoded once."""
+    starts = np.flatnonzero(np.diff(sources, prepend=-1) != 0)
+    stops = np.append(starts[1:], len(sources))
+    return list(zip(sources[starts].tolist(), starts.tolist(), stops.tolist()))
+
+
 def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -> dict:
     """Write the slices and ``voxelprint.json`` (materials, colours, resolution, pitch)."""
     dpi = options.dpi or DEFAULT_DPI
@@ -128,12 +131,10 @@ def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -
     materials = palette(manifest, background, Path(directory) / MANIFEST)
     width, height, slices, columns, rows, sources = printer_grid(manifest, dpi, pitch)
     colours = np.array([background] + [colour for _, colour in materials], dtype=np.uint8)
-    # consecutive slices often take the same stack layer: each run of them is encoded once, over the cores
-    starts = np.flatnonzero(np.diff(sources, prepend=-1) != 0)
-    stops = np.append(starts[1:], len(sources))
-    encoded = ordered_map(lambda layer: slice_png(directory, manifest, int(layer), rows, columns, colours, dpi),
-                          sources[starts].tolist())
-    for data, start, stop in zip(encoded, starts.tolist(), stops.tolist()):
+    runs = source_runs(sources)
+    encoded = ordered_map(lambda layer: slice_png(directory, manifest, layer, rows, columns, colours, dpi),
+                          [layer for layer, _, _ in runs])
+    for data, (_, start, stop) in zip(encoded, runs):
         for number in range(start, stop):
             sink.add(f"slice_{number:05d}.png", data)
         sink.progress(stop, slices)

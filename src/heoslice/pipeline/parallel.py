@@ -44,6 +44,9 @@ if TYPE_CHECKING:
 ENDING_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 #: Runs handed to one worker at a time: the next is waiting when it finishes one.
 _RUNS_IN_FLIGHT = 2
+#: ordered_map's batches: at least this many per worker, of at most this many items (:func:`batch_size`); what a
+#: message and its answer cost, against an item one by one, is in benchmarks/README.md.
+_BATCHES_PER_WORKER, _MOST_BATCHED = 16, 8
 #: prctl(2) option: the signal this process gets when its parent ends (linux/prctl.h).
 _PR_SET_PDEATHSIG = 1
 #: glibc's mallopt parameters (malloc.h) and the values a worker sets: blocks below 32 MB (glibc's largest
@@ -339,6 +342,12 @@ def default_workers() -> int:
     return usable_cores()
 
 
+def batch_size(count: int, workers: int, most: int = _MOST_BATCHED) -> int:
+    """Items of one :func:`ordered_map` batch: at least _BATCHES_PER_WORKER batches per worker (progress shown
+    per batch still moves), at most ``most`` items (results in flight stay a few layers' worth)."""
+    return max(1, min(most, count // (workers * _BATCHES_PER_WORKER)))
+
+
 def _serve_items(conn, function: Callable) -> None:
     """A map worker: answer each item that arrives on ``conn`` with ("done", function(item)) or ("failed",
     the exception with the worker's traceback as a note), until None (or the pipe's end)."""
@@ -360,45 +369,44 @@ def _serve_items(conn, function: Callable) -> None:
             conn.send(("failed", RuntimeError(f"{type(answer[1]).__name__}: {answer[1]} ({err})")))
 
 
-def ordered_map(function: Callable, items, workers: int | None = None, batch: int = 1) -> Iterator:
+def ordered_map(function: Callable, items, workers: int | None = None,
+                most_batched: int = _MOST_BATCHED) -> Iterator:
     """``function(item)`` for every item of ``items``, yielded in the items' order: computed in ``workers``
-    forked processes (default :func:`default_workers`), each given at most _RUNS_IN_FLIGHT items at once, or
-    in this process when there is one worker or one item. Results that arrive early wait for their turn (at
-    most _RUNS_IN_FLIGHT per worker), so memory is bounded by a few items' results whatever the count. A
-    worker's exception is raised here; the workers are ended on the way out, however the caller stops.
+    forked processes (default :func:`default_workers`), or in this process when there is one worker or one item.
+    The items travel in batches of consecutive items (:func:`batch_size`: a message and an answer per batch,
+    not per item), each worker given at most _RUNS_IN_FLIGHT batches at once; results that arrive early wait
+    for their turn, so memory is bounded by a few batches' results whatever the count. A worker's exception is
+    raised here; the workers are ended on the way out, however the caller stops.
 
     ``function`` reaches the workers by fork (a closure is fine); items and results travel pickled, so keep
     them small (layer numbers in, counts or encoded files out). On the portable path (:func:`portable`: no
-    fork) the items are computed in this process, in order. ``batch`` > 1 sends the items to the workers in runs
-    of that many (one pipe round trip per run): on thousands of tiny items the round trips, not the work, cost."""
+    fork) the items are computed in this process, in order. ``most_batched`` caps a batch: higher where tens of
+    thousands of tiny items make the round trips, not the work, the cost and their results are small."""
     items = list(items)
-    if batch > 1 and len(items) > batch:
-        runs = [items[start:start + batch] for start in range(0, len(items), batch)]
-        for answers in ordered_map(lambda run: [function(item) for item in run], runs, workers):
-            yield from answers
-        return
     workers = default_workers() if workers is None else workers
     if workers <= 1 or len(items) <= 1 or portable():
         for item in items:
             yield function(item)
         return
-    waiting = list(reversed(list(enumerate(items))))
+    size = batch_size(len(items), workers, most_batched)
+    batches = [items[at:at + size] for at in range(0, len(items), size)]
+    waiting = list(reversed(list(enumerate(batches))))
     pool: dict = {}
-    arrived: dict[int, object] = {}
+    arrived: dict[int, list] = {}
     turn = 0
     try:
         with _frozen_for_forks():
-            for _ in range(min(workers, len(items))):
+            for _ in range(min(workers, len(batches))):
                 ours, theirs = get_context("fork").Pipe()
-                process = _start(_enter_worker, _serve_items, theirs, function)
+                process = _start(_enter_worker, _serve_items, theirs, lambda batch: [function(i) for i in batch])
                 theirs.close()
                 pool[ours] = (process, [])
         _fill(pool, waiting, lambda numbered: numbered[1])
-        while turn < len(items):
+        while turn < len(batches):
             while turn in arrived:
-                yield arrived.pop(turn)
+                yield from arrived.pop(turn)
                 turn += 1
-            if turn == len(items):
+            if turn == len(batches):
                 break
             conn, _, outcome = _next_answer(pool)
             number, _ = pool[conn][1].pop(0)

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 from heoslice.files import head_bytes
+from heoslice.pngfile import image_png
 
 #: The PNG text chunk every preview carries (tEXt, before the image data).
 SOFTWARE = "heoslice preview"
@@ -14,14 +14,8 @@ _SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def png_bytes(image) -> bytes:
-    """The PIL ``image`` encoded as PNG with the Software text chunk naming heoslice."""
-    from PIL import PngImagePlugin
-
-    info = PngImagePlugin.PngInfo()
-    info.add_text("Software", SOFTWARE)
-    out = io.BytesIO()
-    image.save(out, format="PNG", pnginfo=info)
-    return out.getvalue()
+    """The PIL ``image`` encoded as PNG with the Software text chunk naming heoslice (:mod:`heoslice.pngfile`)."""
+    return image_png(image, (("Software", SOFTWARE),))
 
 
 def is_preview(path: Path) -> bool:

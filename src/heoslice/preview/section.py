@@ -46,27 +46,20 @@ def section_line(manifest: dict, axis: str, position_mm: float) -> int:
 def _line_planes(directory: Path, manifest: dict, index: int, axis: str, line: int, kind: str) -> np.ndarray:
     """(n, C) float32: the feature planes of :func:`heoslice.preview.layer._planes` along the section line of one
     layer. A 1-bit layer is read as packed bits (:mod:`heoslice.stack.packed`), for a y cut only the strip
-    holding the line; other layers strip by strip."""
+    holding the line; a layer with droplet masks as its masks alone (what is drawn), checked to hold each pixel
+    of the line at most once; other layers strip by strip."""
     with_channels = kind == "channels"
     if kind in ("bilevel", "channels") and manifest["image"].get("mode", "1") in ("1", "L"):
         rows = (line, line + 1) if axis == "y" else None
-        solid, masks = layer_bits(directory, manifest, index, channels=with_channels, rows=rows)
-        if with_channels:  # over the rows decoded with a set bit: the others are zero in every file
-            first = min(bits.span[0] for bits in [solid, *masks])
-            stop = max(bits.span[1] for bits in [solid, *masks])
-            seen, doubled = np.zeros_like(solid.rows[first:stop]), np.zeros_like(solid.rows[first:stop])
-            for mask in masks:
-                doubled |= seen & mask.rows[first:stop]
-                seen |= mask.rows[first:stop]
-            if doubled.any() or not np.array_equal(seen, solid.rows[first:stop]):
-                raise VerifyError(f"layer {index}: the droplet masks do not cover exactly the layer's solid pixels "
-                                  "once each")
+        solid, masks = layer_bits(directory, manifest, index, channels=with_channels, rows=rows,
+                                  solid=not with_channels)
         width = manifest["image"]["width"]
-        planes = masks if with_channels else [solid]
         if axis == "y":
-            lines = [unpack_bits(bits.rows[line:line + 1], width)[0] for bits in planes]
+            lines = [unpack_bits(bits.rows[line:line + 1], width)[0] for bits in masks or [solid]]
         else:
-            lines = [(bits.rows[:, line // 8] >> (7 - line % 8)) & 1 != 0 for bits in planes]
+            lines = [(bits.rows[:, line // 8] >> (7 - line % 8)) & 1 != 0 for bits in masks or [solid]]
+        if with_channels and np.sum(lines, axis=0, dtype=np.uint8).max(initial=0) > 1:
+            raise VerifyError(f"layer {index}: a pixel of the section is in two droplet masks")
         return np.stack(lines, axis=-1).astype(np.float32)
     alpha = manifest["mask"] == "alpha"
     parts = []

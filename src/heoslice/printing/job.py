@@ -98,13 +98,11 @@ BATCH_LAYERS = 64
 
 def layer_map(function: Callable, layers: Sequence[int], workers: int | None = None) -> Iterator:
     """``function(layer)`` for each of ``layers`` in order, over the cores (pipeline.parallel.ordered_map) in runs
-    of up to BATCH_LAYERS layers, at least 16 runs a worker: one task a layer made the pipe's round trips, not
-    the work, the cost of a stack of thousands of small layers."""
-    from heoslice.pipeline.parallel import default_workers, ordered_map
+    of up to BATCH_LAYERS layers: one small task a layer made the pipe's round trips, not the work, the cost of
+    a dry run of tens of thousands of small layers."""
+    from heoslice.pipeline.parallel import ordered_map
 
-    layers = list(layers)
-    share = len(layers) // (16 * (default_workers() if workers is None else max(1, workers)))
-    return ordered_map(function, layers, workers, batch=max(1, min(share, BATCH_LAYERS)))
+    return ordered_map(function, layers, workers, most_batched=BATCH_LAYERS)
 
 
 def job_summary(job: JobSpec) -> str:

@@ -287,21 +287,23 @@ def count_bits(bits: np.ndarray) -> int:
 
 
 def layer_bits(directory: Path, manifest: dict, index: int, channels: bool = True,
-               rows: tuple[int, int] | None = None) -> tuple[Bits, list[Bits]]:
+               rows: tuple[int, int] | None = None, solid: bool = True) -> tuple[Bits | None, list[Bits]]:
     """Layer ``index`` of a stack as packed rows: (its solid pixels, [each droplet mask's] in the order of its
     ``channels`` list, empty unless ``channels``). Every file is checked (inside, layout, sha256) and read
-    once; with ``rows`` (first, stop) only the strips holding those rows are decoded."""
-    directory = Path(directory)
+    once; with ``rows`` (first, stop) only the strips holding those rows are decoded; with ``solid`` False the
+    layer's own file is not read (None in its place: a verified stack's masks hold its solid pixels)."""
+    root = Path(directory).resolve()
     entry = manifest["layers"][index]
     mode = manifest["image"].get("mode", "1")
     alpha = manifest["mask"] == "alpha"
-    solid = solid_bits(read_layer_file(resolve_inside(directory, entry["file"]), f"layer {index}: {entry['file']}",
-                                       entry["sha256"], manifest, mode), alpha, rows)
-    masks = [solid_bits(read_layer_file(resolve_inside(directory, channel["file"]),
+    layer = (solid_bits(read_layer_file(resolve_inside(root, entry["file"], resolved=True),
+                                        f"layer {index}: {entry['file']}", entry["sha256"], manifest, mode), alpha, rows)
+             if solid else None)
+    masks = [solid_bits(read_layer_file(resolve_inside(root, channel["file"], resolved=True),
                                         f"layer {index}: {channel['file']}", channel["sha256"], manifest, None),
                         False, rows)
              for channel in (entry.get("channels") or [] if channels else [])]
-    return solid, masks
+    return layer, masks
 
 
 def unpack_bits(bits: np.ndarray, width: int) -> np.ndarray:

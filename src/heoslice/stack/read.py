@@ -68,11 +68,12 @@ def _holds_layer_files(directory: Path) -> bool:
         return False
 
 
-def resolve_inside(directory: Path, name: str) -> Path | None:
-    """``directory / name`` if it stays inside ``directory`` (no absolute paths, '..', or links out)."""
+def resolve_inside(directory: Path, name: str, resolved: bool = False) -> Path | None:
+    """``directory / name`` if it stays inside ``directory`` (no absolute paths, '..', or links out);
+    ``resolved``: ``directory`` is already its resolved path (a caller checking many names resolves it once)."""
     if not isinstance(name, str) or not name or os.path.isabs(name) or "\\" in name or "\x00" in name:
         return None
-    root = Path(directory).resolve()
+    root = Path(directory) if resolved else Path(directory).resolve()
     if _PLAIN_NAME.match(name):  # a file of the folder itself: inside unless it is a link (resolved below)
         candidate = root / name
         try:

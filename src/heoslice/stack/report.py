@@ -165,9 +165,9 @@ class MaterialReport:
 def _first_set(packed: np.ndarray, row_offset: int = 0) -> PixelFault | None:
     """How many bits of (h, ceil(w / 8)) packed rows are set, and the first (row + ``row_offset``, column), or
     None."""
-    count = int(np.bitwise_count(packed).sum())
-    if not count:
+    if not np.count_nonzero(packed):  # the common case, a byte test far cheaper than counting bits
         return None
+    count = int(np.bitwise_count(packed).sum())
     flat = int(np.flatnonzero(packed)[0])
     row, byte = divmod(flat, packed.shape[1])
     bit = int(np.flatnonzero(np.unpackbits(packed[row, byte:byte + 1]))[0])

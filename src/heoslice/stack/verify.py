@@ -4,6 +4,7 @@ files."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -102,6 +103,7 @@ def verify_stack(directory: Path, *, check_pixels: bool = True, layer_map: Layer
     problems: list[str] = []
     listed: dict[Path, str] = {}
     mode = manifest["image"].get("mode", "1")
+    root = directory.resolve()
     plans = []
     for entry in manifest["layers"]:
         index = entry["index"]
@@ -110,7 +112,7 @@ def verify_stack(directory: Path, *, check_pixels: bool = True, layer_map: Layer
                   for channel in entry.get("channels", [])]
         plan: list = []
         for name, digest, solid, file_mode in files:
-            path = resolve_inside(directory, name)
+            path = resolve_inside(root, name, resolved=True)
             if path is None:
                 plan.append(f"layer {index}: file {name!r} lies outside the stack")
                 continue
@@ -136,11 +138,10 @@ def verify_stack(directory: Path, *, check_pixels: bool = True, layer_map: Layer
         problems.append(str(err))
     z_min, z_max = manifest["z_range_mm"]
     problems += layer_height_problems(manifest, z_min, z_max, "the manifest's")
-    root = directory.resolve()
     names = {path.name for path in listed if path.parent == root}
-    for entry in sorted(directory.iterdir()):
-        if LAYER_PATTERN.match(entry.name) and entry.name not in names:
-            problems.append(f"{entry.name}: layer file not listed in the manifest")
+    for entry in sorted(os.listdir(directory)):
+        if LAYER_PATTERN.match(entry) and entry not in names:
+            problems.append(f"{entry}: layer file not listed in the manifest")
     return StackReport(directory, tuple(problems), manifest)
 
 
