@@ -39,6 +39,11 @@ LAYER_SHARE = 0.02
 #: blue-noise halftone's choice, times the weight missing: without it a material of small share would start
 #: only rows into its region.
 TOP_SHARE = 1.0
+#: The steady error of a material of share s inside a region of constant mix, as a multiple of 1/2 - s (two
+#: materials; K: 1/2 - s - (K/2 - 1)/K): the diffusion of a constant s measured 0.41, 0.37, 0.32, 0.25 and 0.16
+#: after each pixel for s = 2, 5, 10, 20 and 30 %, within 0.03 of 0.8 (1/2 - s). A region's first rows and sides
+#: start from it (else a 5 % material starts rows into its region), and the error carried to the next layer is
+#: taken less it (else the layers trade material where their mixes differ).
 CHARGE = 0.8
 
 

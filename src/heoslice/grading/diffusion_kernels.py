@@ -66,9 +66,9 @@ def _row_mixes(line, row, c0, lo, hi, solid, mixing, base_channel, sums, out):  
 def _diffuse_row(mixrow, span, place, errors, spread, state, settings, planes):  # pragma: no cover - compiled
     """Diffuse one row of the box (see :func:`_diffuse`): ``mixrow`` ((cols, K) float32) at box columns span =
     (lo, hi), place = (box row r, layer row, layer column of box column 0); ``errors`` the ring of the error
-    reaching rows r, r + 1, r + 2 ((3, K + 1, cols + 2 * PAD) float32, row r at r % 3; channel K the weight of error
-    that reached the pixel), ``spread`` = (this row's outgoing errors ((K + 1, cols + 2 * PAD) float32, zero), each
-    ring row's columns holding anything ((3, 2) int64)); the ring row r is left zero for row r + 3."""
+    reaching rows r, r + 1, r + 2 ((3, K + 1, cols + 2 PAD) float32, row r at r % 3; channel K the weight of
+    error that reached the pixel), ``spread`` = (this row's outgoing errors ((K + 1, cols + 2 PAD) float32,
+    zero), each ring row's columns holding anything ((3, 2) int64)); the ring row r is left zero for row r + 3."""
     lo, hi = span
     r, row, c0 = place
     carry_in, dr, dc, fresh, carry_out = state
@@ -193,8 +193,8 @@ def _spread_below(left, errors, dirty, span, forward, weights, written):  # prag
 def _diffuse_pair_row(mixrow, span, place, errors, spread, state, settings, planes):  # pragma: no cover - compiled
     """:func:`_diffuse_row` of two materials, on material 0's error alone (the other's is its negative: every error
     passed on, carried or added sums to 0 over the two, where a pixel holds both): the same choices, half the
-    arithmetic; ``errors`` (3, 2, cols + 2 * PAD) and ``left`` (2, cols + 2 * PAD) hold that error and the weight, the carried
-    errors (rows, cols, 1)."""
+    arithmetic; ``errors`` (3, 2, cols + 2 PAD) and ``left`` (2, cols + 2 PAD) hold that error and the weight,
+    the carried errors are (rows, cols, 1); the error and weight of the two pixels ahead stay in registers."""
     lo, hi = span
     r, row, c0 = place
     carry_in, dr, dc, fresh, carry_out = state
@@ -264,20 +264,21 @@ def _diffuse(mix, origin, state, settings, planes):  # pragma: no cover - compil
     ``origin`` (row, col).
 
     Each solid pixel takes, among the materials its own mix holds (> 0), the one whose share plus the error
-    arriving at it is largest: the error from the pixels before it in the layer, and from the layer before,
-    ``state`` = (its carried error (rows', cols', K) float32, the offset (rows, cols) of this box in it, fresh,
-    this layer's carried error (rows, cols, K) float32, zero, written)): where ``fresh`` is 1, a stand-in for
-    the layer before's, ``settings[1][0]`` times the threshold mask's choice less the mix. The difference
-    between the share plus error and the material taken goes to the pixels after it by settings = (weights
-    ((3, 5) float32: this row and the two below, columns -2 .. 2 along the row's direction, summing to 1),
-    shares, the threshold mask ((n, n) float32 thresholds, n a power of two, anchored at the layer's pixel
-    (0, 0)), flip) times 1 - shares[0], and shares[0] of it to the same pixel of the next layer. Error
-    reaching a pixel that does not hold its material, or an empty pixel, is dropped; a pixel of one material
-    takes it and passes none on, so a region of one material stays pure. Where less than the full weight of
-    error reached a pixel (a region's first rows and sides), shares[1] times the weight missing times the
-    threshold mask's choice less the mix is added to the decision only (not to the error passed on), so a
-    region starts as the mask would print it, and the error stays exact. Rows run left to right when (layer
-    row + flip) is even, else right to left."""
+    arriving at it is largest: the error of the pixels before it in the layer, and of the layer before, from
+    ``state`` = (its carried error (rows', cols', n) float32 (n = 1 for K = 2: material 0's), this box's
+    offset (row, col) in it, fresh, this layer's carried error (rows, cols, n) float32, zero, written). The
+    difference between the share plus error and the material taken goes to the pixels after it by the
+    weights of ``settings`` = (weights ((3, 5) float32: this row and the two below, columns -2 .. 2 along the
+    row's direction, summing to 1), shares (layer share, top share, charge), the threshold mask ((n, n)
+    float32, n a power of two, anchored at the layer's pixel (0, 0)), flip) times 1 - layer share; the layer
+    share of it, less its steady part S_m = charge (1/2 - s_m - (K/2 - 1)/K), to the same pixel of the next
+    layer, which adds layer share times S_m back (so layers of different mixes trade no material); a fresh
+    layer adds instead layer share times (s_m + S_m less the mask's choice). Error reaching a pixel that does
+    not hold its material, or an empty pixel, is dropped; a pixel of one material passes none on, so a region
+    of one material stays pure. Where a weight w < 1 of error reached a pixel (a region's first rows and
+    sides), (1 - w) S_m is added to its error (the steady error it would hold inside the region) and
+    min(1, top share (1 - w)) times the mask's choice less the mix to its decision only, so a region starts as
+    the mask would print it. Rows run left to right when (layer row + flip) is even, else right to left."""
     rows, cols, channels = mix.shape
     pair = channels == 2
     errors = np.zeros((3, 2 if pair else channels + 1, cols + 2 * PAD), dtype=np.float32)
