@@ -11,8 +11,9 @@ window (2 mm for ordered), for the mixes 30/70, 50/50, 20/35/45 and 5/95; the po
 mix below 2 cycles/mm (Hann-windowed periodogram of a 256 x 256 window, layers 1..9 of a run of 10),
 as a ratio to ordered's; and over 10 consecutive layers of a constant 30 % (and 70 %) mix the share
 of pixels whose material is the same in all 10 (independent layers: 0.3^10 + 0.7^10 = 0.028), the
-worst over every window of 10 of the first 1033 layers (ordered, blue noise; error diffusion: of a
-run of 42, its error carried), beside the ordered dither's before issue 48 (its figure of 0.137).
+worst over every window of 10 of the first 1033 layers (ordered, blue noise; error diffusion: of 42
+layers, its error carried and started afresh every 8 as a slice's runs of planes do), beside the
+ordered dither's before issue 48 (its figure of 0.137).
 
 Speed: ``heoslice slice SCAN --grade linear --to 0,255,0 --nozzle 0.2 --channels --halftone METHOD``
 (bench_prusa's graded arguments) on each benchmark scan (prusa_meshes.SCANS, from ../shared/data), the

@@ -20,6 +20,7 @@ from heoslice.grading.halftone import (
     halftone,
     layer_tile,
 )
+from heoslice.pipeline.runs import RUN_LAYERS
 
 PX_MM = 25.4 / 600
 #: 1 cm^2 (a square of 1 cm at 600 dpi), 1 mm and 2 mm, in pixels.
@@ -154,9 +155,12 @@ def columns_of_one_material(stack: np.ndarray, span: int = 10) -> np.ndarray:
 def stacked_material(method: str, share: float) -> np.ndarray:
     """(layers, rows, cols) bool: material 0 of a constant mix (share, 1 - share) on many consecutive layers: the
     first 1033 layers on 64 x 64 pixels (ordered and blue noise repeat over their tile; so do their patterns),
-    error diffusion a run of 42 layers of 128 x 128, its error carried."""
+    error diffusion 42 layers of 128 x 128, its error carried from layer to layer and started afresh every
+    RUN_LAYERS layers, as a slice's runs of planes do."""
     if method == "error-diffusion":
-        return layers_of(constant_mix((share, 1 - share), 128, 128), method, 42)[:, 0]
+        mix, run = constant_mix((share, 1 - share), 128, 128), RUN_LAYERS[method]
+        return np.concatenate([layers_of(mix, method, min(run, 42 - first), first)[:, 0]
+                               for first in range(0, 42, run)])
     return np.stack([halftone(constant_mix((share, 1 - share), 64, 64), layer, method)[0] for layer in range(1033)])
 
 
