@@ -191,7 +191,7 @@ def test_droplet_bits_follows_a_dither_tile_of_any_size(size):
 
 
 def test_droplet_bits_takes_every_layers_tile_through_one_compiled_signature():
-    """Tiles of layers under every symmetry (transposed ones are Fortran-ordered) reach the kernel as the same
+    """Tiles of any layout (a layer's, and one transposed: Fortran-ordered) reach the kernel as the same
     C-ordered argument types: the compiled kernel (which checks its arguments in the tests) takes them all;
     compiled just in time, numba makes one version, not one per layout."""
     from heoslice.grading.droplets_kernels import _droplet_bits
@@ -200,11 +200,12 @@ def test_droplet_bits_takes_every_layers_tile_through_one_compiled_signature():
 
     label = np.ones((4, 16), np.uint16)
     table = np.ones((2, 256), np.int8)
-    for layer in range(8):
+    tiles = [layer_tile(layer) for layer in range(4)] + [layer_tile(5).T]
+    for tile in tiles:
         halftone_bits(label, (0, 0), np.full((4, 2), 255, np.uint8), np.zeros(2, np.int64), np.zeros(2),
-                     np.zeros((1, 5), np.int64), np.zeros(2), np.zeros(2), layer_tile(layer), 0,
+                     np.zeros((1, 5), np.int64), np.zeros(2), np.zeros(2), tile, 0,
                      np.zeros((2, 4, 2), np.uint8), table)
-    assert {layer_tile(layer).flags.f_contiguous for layer in range(8)} == {True, False}
+    assert {tile.flags.c_contiguous for tile in tiles} == {True, False}
     if compiled_module() is not None:
         assert os.environ.get(CHECK_VARIABLE) == "1"  # so each call above checked its arrays were C-ordered
     else:

@@ -71,6 +71,20 @@ def test_layers_are_decorrelated():
     assert len({layer_tile(layer).tobytes() for layer in range(20)}) > 15
 
 
+def test_every_layers_tile_holds_every_level_and_each_pixel_runs_through_the_quarters():
+    """Each layer's ordered tile holds each of the 256 levels once (its shares exact over every aligned tile), and
+    over any 4 consecutive layers each pixel's threshold lies once in each quarter of [0, 1), halves alternating
+    (so a material of 1/4 or more reaches every pixel at least once every 4 layers)."""
+    tiles = np.stack([layer_tile(layer) for layer in range(300)])
+    levels = np.rint(tiles * 256 - 0.5).astype(int)
+    assert all(sorted(tile.ravel().tolist()) == list(range(256)) for tile in levels)
+    quarters = levels // 64
+    for first in range(len(tiles) - 3):
+        assert (np.sort(quarters[first:first + 4], axis=0) == np.arange(4)[:, None, None]).all(), first
+    halves = levels // 128
+    assert (halves[1:] != halves[:-1]).all()
+
+
 def test_threshold_tile_is_anchored_to_the_layer():
     """A box's thresholds are the layer's thresholds at the same pixels, whatever the box's origin."""
     full = thresholds((40, 50), layer=11)

@@ -20,6 +20,7 @@ from heoslice.grading.halftone import (
     halftone,
     layer_tile,
 )
+from heoslice.pipeline.runs import RUN_LAYERS
 
 PX_MM = 25.4 / 600
 #: 1 cm^2 (a square of 1 cm at 600 dpi), 1 mm and 2 mm, in pixels.
@@ -74,13 +75,10 @@ def test_every_solid_pixel_gets_exactly_one_material_it_holds(method, count, lay
 
 @pytest.mark.parametrize("method", list(METHODS))
 @pytest.mark.parametrize("shares", [(0.3, 0.7), (0.5, 0.5), (0.2, 0.35, 0.45), (0.05, 0.95)])
-def test_shares_within_one_percent_over_a_square_centimetre_and_two_over_every_window(method, shares, request):
-    """Over a region of constant mix of 1 cm^2 (in a larger layer, on 3 consecutive layers) each material's share is
-    within 1 % of its fraction, and within 2 % over every 1 mm x 1 mm window of it (ordered: 2 mm x 2 mm)."""
-    if method == "error-diffusion" and min(shares) < 0.1:
-        # measured: a 5 % material starts a few rows into its region and bunches at its sides, 2.7 % off in
-        # the 1 mm windows there (the whole region within 1 %): a known shortfall, kept visible
-        request.applymarker(pytest.mark.xfail(strict=True, reason="error diffusion of a 5 % share: 2.7 % over 1 mm"))
+def test_shares_within_one_percent_over_a_square_centimetre_and_two_over_every_window(method, shares):
+    """Over a region of constant mix of 1 cm^2 (in a larger layer, on 3 consecutive layers, the first without a
+    layer before's error) each material's share is within 1 % of its fraction, and within 2 % over every 1 mm x
+    1 mm window of it (ordered: 2 mm x 2 mm), its first rows and sides too."""
     margin = 20
     mix = np.zeros((CENTIMETRE + 2 * margin, CENTIMETRE + 2 * margin, len(shares)))
     mix[..., 0] = 1.0  # one material around the region
@@ -147,13 +145,54 @@ def test_blue_noise_shifts_cover_the_tile():
                           (np.roll(blue_noise_ranks(), blue_noise_shift(7), axis=(0, 1)) // 16 + 0.5) / 256)
 
 
-@pytest.mark.parametrize("method", ["blue-noise", "error-diffusion"])
-def test_ten_layers_of_a_constant_mix_do_not_stack_in_columns(method):
-    """Over 10 layers of a constant 30 % mix the share of pixels whose material is the same in all 10 is at most
-    1.5 x what independent layers give (0.3^10 + 0.7^10 = 0.028)."""
-    masks = layers_of(constant_mix((0.3, 0.7), 256, 256), method, 10, first=3)[:, 0]
-    same = (masks.all(axis=0) | (~masks).all(axis=0)).mean()
-    assert same <= 1.5 * (0.3 ** 10 + 0.7 ** 10)
+def columns_of_one_material(stack: np.ndarray, span: int = 10) -> np.ndarray:
+    """Per window of ``span`` consecutive layers of a (layers, rows, cols) mask of one material, the share of pixels
+    whose material is the same in all of them (the mask set in all, or in none): issue 48's 3D measure."""
+    windows = np.lib.stride_tricks.sliding_window_view(stack, span, axis=0)
+    return (windows.all(axis=-1) | ~windows.any(axis=-1)).mean(axis=(1, 2))
+
+
+def stacked_material(method: str, share: float) -> np.ndarray:
+    """(layers, rows, cols) bool: material 0 of a constant mix (share, 1 - share) on many consecutive layers: the
+    first 1033 layers on 64 x 64 pixels (ordered and blue noise repeat over their tile; so do their patterns),
+    error diffusion 42 layers of 128 x 128, its error carried from layer to layer and started afresh every
+    RUN_LAYERS layers, as a slice's runs of planes do."""
+    if method == "error-diffusion":
+        mix, run = constant_mix((share, 1 - share), 128, 128), RUN_LAYERS[method]
+        return np.concatenate([layers_of(mix, method, min(run, 42 - first), first)[:, 0]
+                               for first in range(0, 42, run)])
+    return np.stack([halftone(constant_mix((share, 1 - share), 64, 64), layer, method)[0] for layer in range(1033)])
+
+
+def hashed_ordered_tile(layer: int) -> np.ndarray:
+    """The ordered dither's tile before issue 48's 3D criterion (a reference kept here to show what the measure
+    catches): the Bayer matrix transposed, rotated and shifted by a multiplicative hash of the layer number."""
+    mix = (int(layer) * 0x9E3779B1 + 0x7F4A7C15) & 0xFFFFFFFF
+    tile = bayer_matrix(16)
+    if mix & 1:
+        tile = tile.T
+    tile = np.roll(np.rot90(tile, (mix >> 1) & 3), ((mix >> 3) % 16, (mix >> 11) % 16), axis=(0, 1))
+    return (tile + 0.5) / 256
+
+
+@pytest.mark.parametrize("method", list(METHODS))
+@pytest.mark.parametrize("share", [0.3, 0.7])
+def test_ten_layers_of_a_constant_mix_do_not_stack_in_columns(method, share):
+    """Over any 10 consecutive layers of a constant 30 % (or 70 %) mix the share of pixels whose material is the
+    same in all 10 is at most 1.5 x what independent layers give (0.3^10 + 0.7^10 = 0.028): every window of
+    consecutive layers, since a pattern that repeats from layer to layer does so only in some of them."""
+    worst = columns_of_one_material(stacked_material(method, share)).max()
+    assert worst <= 1.5 * (share ** 10 + (1 - share) ** 10), worst
+
+
+def test_the_measure_finds_the_columns_issue_48_reported():
+    """The measure finds what issue 48 measured on the previous ordered dither (0.137 of the pixels the same in
+    10 layers of a 30 % mix: columns of M2 where a run of layers never put M1), in its layers 7..16, though its
+    layers 0..9 show none; the ordered dither of today has none in any window."""
+    stack = np.stack([hashed_ordered_tile(layer) < 0.3 for layer in range(1033)])
+    same = columns_of_one_material(stack)
+    assert same[0] == 0.0 and abs(same[7] - 0.137) < 0.001 and same.max() == same[7]
+    assert columns_of_one_material(stacked_material("ordered", 0.3)).max() == 0.0
 
 
 def test_a_diffused_layer_depends_on_the_error_the_layer_before_left():

@@ -13,6 +13,7 @@ from printing_jobs import disc_masks, make_stack
 
 from heoslice import procedural
 from heoslice.errors import EXIT_VERIFY
+from heoslice.grading.halftone import DEFAULT_METHOD, METHODS
 from heoslice.stack import read_layer_channels, read_manifest
 from heoslice.stack.report import (
     band_table,
@@ -116,7 +117,9 @@ def graded_vase(tmp_path_factory):
     folder = tmp_path_factory.mktemp("report")
     procedural.vase().export(folder / "vase.ply")
     for name, extra in (("masks", ["--grade", "linear"]), ("design", ["--grade", "linear", "--rgba"]),
-                        ("other", ["--grade", "quadratic", "--alpha", "1", "--rgba"])):
+                        ("other", ["--grade", "quadratic", "--alpha", "1", "--rgba"]),
+                        *((f"masks-{method}", ["--grade", "linear", "--halftone", method])
+                          for method in METHODS if method != DEFAULT_METHOD)):
         assert in_process("slice", folder / "vase.ply", "--layer", "5", "--dpi", "600", "-j", "1",
                           "-o", folder / name, *extra) == 0
     return folder
@@ -145,6 +148,24 @@ def test_the_graded_vase_delivers_its_design_in_every_2_mm_window(graded_vase, r
     assert code == 4 and abs(json.loads(out)["delivered"]["worst_window"]["difference"]) > 0.1
     code, out, _ = run_cli("verify", folder / "masks", "--design", folder / "design")
     assert code == 0 and any(line.startswith("  worst 2 mm window: layer ") for line in out.splitlines())
+
+
+@pytest.mark.parametrize("method", list(METHODS))
+def test_every_halftone_delivers_the_design_within_the_bounds_verify_reports(graded_vase, run_cli, method):
+    """verify --design of the graded vase halftoned by each method: every 2 mm x 2 mm window within 2 points of the
+    design, every band of designed share of 1 cm^2 or more (over its layers) within 1 point, as issue 48 bounds
+    every method; the manifest records the method."""
+    folder = graded_vase
+    stack = folder / ("masks" if method == DEFAULT_METHOD else f"masks-{method}")
+    code, out, err = run_cli("verify", stack, "--design", folder / "design", "--json")
+    assert code == 0, out + err
+    delivered = json.loads(out)["delivered"]
+    assert abs(delivered["worst_window"]["difference"]) <= 0.02, delivered["worst_window"]
+    manifest = read_manifest(stack)
+    pixel_mm2 = manifest["pixel_size_mm"][0] * manifest["pixel_size_mm"][1]
+    large = [band for band in delivered["bands"] if band["voxels"] * pixel_mm2 >= 100.0]
+    assert large and all(abs(band["difference"]) <= 0.01 for band in large), delivered["bands"]
+    assert manifest["grading"].get("halftone", DEFAULT_METHOD) == method
 
 
 def test_a_parts_job_delivers_each_parts_designed_share(tmp_path, run_cli):

@@ -28,6 +28,7 @@ from heoslice.grading import (
     edges_kernels,
     field_kernels,
     fit_kernels,
+    halftone_kernels,
     labels_kernels,
     lattice_kernels,
     materials_kernels,
@@ -63,6 +64,8 @@ CELL_FIELD = types.NamedTuple((f8_2, f8_3, b_2, b_2, b_2), refine_kernels.CellFi
 FIT_TEST = types.NamedUniTuple(f8, 5, refine_kernels.FitTest)
 VERTICES = types.NamedTuple((i8_1, f8_1, f8_1, f8_1, f8, f8), refine_kernels.RingVertices)
 ONE_RING_FIT = types.NamedUniTuple(f8, 10, fit_kernels.OneRingFit)
+DIFFUSION_STATE = types.Tuple((f4_3, i8, i8, i8, f4_3))
+DIFFUSION_SETTINGS = types.Tuple((f4_2, f4_1, f4_2, i8))
 HIERARCHY = types.NamedTuple((f8_2, f8_2, i8_1, i8_1, i8_1, i8_1, f8_3, f8_2, f8_1), surface_kernels.Hierarchy)
 
 
@@ -92,9 +95,9 @@ def _layer(bits: int) -> types.Type:
 #: width (bits) for the kernels that take labels.
 ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     contours_kernels._chain_loops: (i8_1, i8_1),
-    diffusion_kernels._pixel_mixes: lambda bits: (
-        _layer(bits), types.Tuple((i8_1, f4_1, i8_2, f4_1, f4_1)), i8, f4_3),
-    diffusion_kernels._diffuse: (f4_3, f4_3, f4_2, f4_1, f4_2, i8, u1_3, i8, i8),
+    diffusion_kernels._diffuse: (f4_3, types.UniTuple(i8, 2), DIFFUSION_STATE, DIFFUSION_SETTINGS, u1_3),
+    diffusion_kernels._diffuse_labelled: lambda bits: (
+        _layer(bits), types.Tuple((i8_1, f4_1, i8_2, f4_1, f4_1)), i8, DIFFUSION_STATE, DIFFUSION_SETTINGS, u1_3),
     droplets_kernels._agreed_choices: (f4_2, f4_1, f4_1, f4_1),
     droplets_kernels._droplet_bits: lambda bits: (
         _layer(bits), types.Tuple((i8_1, f4_1, i8_2, f4_1, f4_1)), types.Tuple((f4_2, i8_2, i1_2, i8)), u1_3),
@@ -102,6 +105,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     edges_kernels._convex_rings: (f8_1, f8_1, f8_1, i8_1, f8),
     edges_kernels._kept_edges: (f8_2, i8_1, i8_1, types.boolean[::1], i8_1),
     field_kernels._band_field: (f8_3, f8_4, f8),
+    halftone_kernels._void_and_cluster: (b_2, f8_2, f8_2),
     field_kernels._cell_classes: (f8_2, f8_2, f8_2, f8_3, f8, f8),
     field_kernels._curved_cells: (f8_3, b_2, b_2),
     field_kernels._expand_planes: lambda bits: (f8_2, f8_3, b_2, b_2, i8, PIXELS, f8, _target(bits)),

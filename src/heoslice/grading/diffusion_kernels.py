@@ -1,41 +1,43 @@
-"""Compiled loops of :mod:`heoslice.grading.diffusion`: a labelled layer's per-pixel mix, and the serpentine
-vector error diffusion of a mix into bit-packed droplet masks."""
+"""Compiled loops of :mod:`heoslice.grading.diffusion`: serpentine vector error diffusion into bit-packed droplet
+masks, row by row over the solid pixels only, of a given per-pixel mix or of a labelled layer's mix made on the
+fly (one pass: no per-pixel mix array for the layer)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from heoslice.grading.droplets_kernels import _moved_sums
+from heoslice.grading.droplets_kernels import _moved_sums, _solid_span
 from heoslice.jit import EXACT, helper, kernel
 
+#: Columns of padding on either side of the error rows: a pixel's error reaches two columns either way, and
+#: the rows below gather from two columns either way of those.
+PAD = 4
 
-@kernel(EXACT, label_arg=0)
-def _pixel_mixes(layer, mixing, base_channel, out):  # pragma: no cover - compiled
-    """Each pixel's mix ((rows, cols, K) float32 into ``out``, summing to 1) over a labelled layer's box: a
-    labelled pixel's family start mix at its lattice cell moved by its label's fraction towards the target
-    (eq. 1, in :func:`heoslice.grading.droplets_kernels._moved_sums`' float32 arithmetic), a solid pixel
-    without a label (or whose moved mix has no positive total) all ``base_channel``, an empty pixel all 0."""
-    label, r0, c0, packed, rows = layer
+
+@helper(EXACT)
+def _row_mixes(line, row, c0, lo, hi, solid, mixing, base_channel, sums, out):  # pragma: no cover - compiled
+    """Each pixel's mix of box columns lo .. hi - 1 of one row into ``out`` ((cols, K) float32, summing to 1):
+    a labelled solid pixel's family start mix at its lattice cell moved by its label's fraction towards the
+    target (eq. 1, in :func:`heoslice.grading.droplets_kernels._moved_sums`' float32 arithmetic), a solid
+    pixel without a label (or whose moved mix has no positive total) all ``base_channel``, an empty one all 0.
+    ``line`` holds the row's labels from box column 0 (layer column ``c0``), ``solid`` the layer's packed row."""
     family_of_label, fraction, layout, mixes, target = mixing
-    channels = out.shape[2]
-    cols = label.shape[1]
-    repeated = label.shape[0] == 1
-    sums = np.empty(channels, dtype=np.float32)
-    for r in range(rows):
-        line = label[0 if repeated else r]
-        row = r0 + r
-        mixed_label, cell_from, cell_to = -1, 0, 0
-        scale = np.float32(1.0)
-        positive = True
-        for c in range(cols):
-            col = c0 + c
-            if not (packed[row, col >> 3] >> (7 - (col & 7))) & 1:
-                continue
-            number = line[c]
+    channels = out.shape[1]
+    mixed_label, cell_from, cell_to = -1, 0, 0
+    cell_mix = np.zeros(channels, dtype=np.float32)  # the mix of the cell last met
+    for c in range(lo, hi):
+        col = c0 + c
+        if not (solid[col >> 3] >> (7 - (col & 7))) & 1:
+            for m in range(channels):
+                out[c, m] = np.float32(0.0)
+            continue
+        number = line[c]
+        if number != mixed_label or not cell_from <= col < cell_to:
+            cell_mix[:] = np.float32(0.0)
             if number == 0:
-                out[r, c, base_channel] = 1.0
-                continue
-            if number != mixed_label or not cell_from <= col < cell_to:
+                cell_mix[base_channel] = 1.0
+                mixed_label, cell_from, cell_to = 0, col, col + 1
+            else:
                 family = family_of_label[number]
                 cell = layout[family, 2]
                 j = (col - layout[family, 1]) // cell
@@ -48,157 +50,281 @@ def _pixel_mixes(layer, mixing, base_channel, out):  # pragma: no cover - compil
                     total = sums[channels - 2] + (mixes[start + channels - 1] + fraction[number]
                                                   * (target[channels - 1] - mixes[start + channels - 1]))
                     positive = total > np.float32(0.0)
-            if not positive:
-                out[r, c, base_channel] = 1.0
-                continue
-            below = np.float32(0.0)
+                if not positive:
+                    cell_mix[base_channel] = 1.0
+                else:
+                    below = np.float32(0.0)
+                    for m in range(channels - 1):
+                        cell_mix[m] = (sums[m] - below) / scale
+                        below = sums[m]
+                    cell_mix[channels - 1] = max(np.float32(1.0) - below / scale, np.float32(0.0))
+        for m in range(channels):
+            out[c, m] = cell_mix[m]
+
+
+@helper(EXACT, inline=False)
+def _diffuse_row(mixrow, span, place, errors, spread, state, settings, planes):  # pragma: no cover - compiled
+    """Diffuse one row of the box (see :func:`_diffuse`): ``mixrow`` ((cols, K) float32) at box columns span =
+    (lo, hi), place = (box row r, layer row, layer column of box column 0); ``errors`` the ring of the error
+    reaching rows r, r + 1, r + 2 ((3, K + 1, cols + 2 PAD) float32, row r at r % 3; channel K the weight of
+    error that reached the pixel), ``spread`` = (this row's outgoing errors ((K + 1, cols + 2 PAD) float32,
+    zero), each ring row's columns holding anything ((3, 2) int64)); the ring row r is left zero for row r + 3."""
+    lo, hi = span
+    r, row, c0 = place
+    carry_in, dr, dc, fresh, carry_out = state
+    weights, shares, start, flip = settings
+    left, dirty = spread
+    channels = mixrow.shape[1]
+    cur = errors[r % 3]
+    layer_share, top_share, charge = np.float32(shares[0]), np.float32(shares[1]), np.float32(shares[2])
+    balance = np.float32(0.5) - np.float32(0.5 * channels - 1.0) / np.float32(channels)
+    kept = np.float32(1.0) - layer_share
+    forward = ((row + flip) & 1) == 0
+    step = 1 if forward else -1
+    ahead_1, ahead_2 = weights[0, 3], weights[0, 4]
+    wrap = start.shape[0] - 1
+    thresholds = start[row & wrap]
+    cr = r + dr
+    carried = fresh == 0 and 0 <= cr < carry_in.shape[0]
+    carried_cols = carry_in.shape[1]
+    written = False
+    for k in range(hi - lo):
+        c = lo + k if forward else hi - 1 - k
+        held = 0
+        only = 0
+        for m in range(channels):
+            if mixrow[c, m] > np.float32(0.0):
+                held += 1
+                only = m
+        if held == 0:
+            continue
+        col = c0 + c
+        if held == 1:  # one material: taken as it is, no error passed on
+            planes[only, row, col >> 3] |= np.uint8(0x80 >> (col & 7))
+            continue
+        written = True
+        fed = cur[channels, c + PAD]
+        bias = min(top_share * (np.float32(1.0) - fed), np.float32(1.0)) if fed < np.float32(0.99) else np.float32(0.0)
+        chosen = -1
+        if bias > np.float32(0.0) or fresh:  # the threshold mask's choice (a region's start, a run's first layer)
+            threshold = thresholds[col & wrap]
+            total = np.float32(0.0)
+            for m in range(channels):
+                total += mixrow[c, m]
+            threshold *= total
+            running = np.float32(0.0)
+            chosen = channels - 1
             for m in range(channels - 1):
-                out[r, c, m] = (sums[m] - below) / scale
-                below = sums[m]
-            out[r, c, channels - 1] = max(np.float32(1.0) - below / scale, np.float32(0.0))
-    return out
+                running += mixrow[c, m]
+                if threshold < running:
+                    chosen = m
+                    break
+        inside = carried and 0 <= c + dc < carried_cols
+        missing = max(np.float32(1.0) - fed, np.float32(0.0)) * charge
+        pick = 0
+        best = -np.inf
+        for m in range(channels):
+            share_m = mixrow[c, m]
+            if share_m > np.float32(0.0):
+                value = share_m + cur[m, c + PAD]
+                if missing > np.float32(0.0):
+                    value += missing * (balance - share_m)
+                jetted = np.float32(1.0) if m == chosen else np.float32(0.0)
+                steady = charge * (balance - share_m)
+                if fresh:
+                    value += layer_share * (share_m - jetted + steady)
+                else:
+                    value += layer_share * steady
+                    if inside:
+                        value += carry_in[cr, c + dc, m]
+                left[m, c + PAD] = value
+                decided = value + bias * (jetted - share_m)
+                if decided > best:
+                    best, pick = decided, m
+        left[pick, c + PAD] -= np.float32(1.0)
+        for m in range(channels):
+            error = left[m, c + PAD]
+            if mixrow[c, m] > np.float32(0.0):
+                carry_out[r, c, m] = (error - charge * (balance - mixrow[c, m])) * layer_share
+                error *= kept
+                left[m, c + PAD] = error
+                cur[m, c + PAD + step] += error * ahead_1
+                cur[m, c + PAD + 2 * step] += error * ahead_2
+        left[channels, c + PAD] = np.float32(1.0)
+        cur[channels, c + PAD + step] += ahead_1
+        cur[channels, c + PAD + 2 * step] += ahead_2
+        planes[pick, row, col >> 3] |= np.uint8(0x80 >> (col & 7))
+    _spread_below(left, errors, dirty, (r, lo, hi, channels + 1), forward, weights, written)
 
 
 @helper(EXACT)
-def _held_signature(mix, r, c, channels):  # pragma: no cover - compiled
-    """The materials pixel (r, c) mixes, as bits (bit m: it holds material m), when it holds two or more; 0 for
-    a pixel of one material or none; -1 for a mix of more than 62 materials (no bit set for them)."""
-    bits = np.int64(0)
-    held = 0
-    for m in range(channels):
-        if mix[r, c, m] > np.float32(0.0):
-            held += 1
-            if m < 62:
-                bits |= np.int64(1) << m
-    if held < 2:
-        return np.int64(0)
-    return bits if channels <= 62 else np.int64(-1)
+def _spread_below(left, errors, dirty, span, forward, weights, written):  # pragma: no cover - compiled
+    """After box row r (span = (r, lo, hi, n)): when the row ``written`` errors, the rows below take each pixel's
+    first n channels of ``left`` by their weights (mirrored on a row run right to left), and ``left`` is zeroed;
+    the ring row r is zeroed for row r + 3 (over the columns ``dirty`` says it holds anything)."""
+    r, lo, hi, count = span
+    if written:
+        for below in range(1, 3):
+            slot = (r + below) % 3
+            target_row = errors[slot]
+            dirty[slot, 0] = min(dirty[slot, 0], lo + PAD - 2)
+            dirty[slot, 1] = max(dirty[slot, 1], hi + PAD + 2)
+            # pixel c takes from the pixels c - 2 .. c + 2 of this row by the weights, reversed on a forward row
+            taps = weights[below, ::-1] if forward else weights[below]
+            w_0, w_1, w_2, w_3, w_4 = taps[0], taps[1], taps[2], taps[3], taps[4]
+            for m in range(count):
+                target, source = target_row[m], left[m]
+                for c in range(lo + PAD - 2, hi + PAD + 2):
+                    u = np.uint64(c)  # unsigned: no negative-index wrap to test (the loop vectorises)
+                    target[u] += (source[u - np.uint64(2)] * w_0 + source[u - np.uint64(1)] * w_1 + source[u] * w_2
+                                  + source[u + np.uint64(1)] * w_3 + source[u + np.uint64(2)] * w_4)
+        for m in range(count):
+            left[m, lo + PAD:hi + PAD] = np.float32(0.0)
+    slot = r % 3
+    dirty[slot, 0] = min(dirty[slot, 0], lo + PAD - 2)
+    dirty[slot, 1] = max(dirty[slot, 1], hi + PAD + 2)
+    cur = errors[slot]
+    for m in range(count):
+        cur[m, dirty[slot, 0]:dirty[slot, 1]] = np.float32(0.0)
+    dirty[slot, 0], dirty[slot, 1] = cur.shape[1], 0
+
+
+@helper(EXACT, inline=False)
+def _diffuse_pair_row(mixrow, span, place, errors, spread, state, settings, planes):  # pragma: no cover - compiled
+    """:func:`_diffuse_row` of two materials, on material 0's error alone (the other's is its negative: every error
+    passed on, carried or added sums to 0 over the two, where a pixel holds both): the same choices, half the
+    arithmetic; ``errors`` (3, 2, cols + 2 PAD) and ``left`` (2, cols + 2 PAD) hold that error and the weight,
+    the carried errors are (rows, cols, 1); the error and weight of the two pixels ahead stay in registers."""
+    lo, hi = span
+    r, row, c0 = place
+    carry_in, dr, dc, fresh, carry_out = state
+    weights, shares, start, flip = settings
+    left, dirty = spread
+    cur = errors[r % 3]
+    layer_share, top_share, charge = np.float32(shares[0]), np.float32(shares[1]), np.float32(shares[2])
+    kept = np.float32(1.0) - layer_share
+    forward = ((row + flip) & 1) == 0
+    step = 1 if forward else -1
+    ahead_1, ahead_2 = weights[0, 3], weights[0, 4]
+    wrap = start.shape[0] - 1
+    thresholds = start[row & wrap]
+    cr = r + dr
+    carried = fresh == 0 and 0 <= cr < carry_in.shape[0]
+    carried_cols = carry_in.shape[1]
+    half = np.float32(0.5)
+    written = False
+    error_1 = error_2 = np.float32(0.0)  # the error of the pixel one and two before along the row (0: none)
+    fed_1 = fed_2 = np.float32(0.0)
+    for k in range(hi - lo):
+        c = lo + k if forward else hi - 1 - k
+        share_0, share_1 = mixrow[c, 0], mixrow[c, 1]
+        col = c0 + c
+        if not (share_0 > np.float32(0.0) and share_1 > np.float32(0.0)):
+            if share_0 > np.float32(0.0):
+                planes[0, row, col >> 3] |= np.uint8(0x80 >> (col & 7))
+            elif share_1 > np.float32(0.0):
+                planes[1, row, col >> 3] |= np.uint8(0x80 >> (col & 7))
+            error_2, error_1, fed_2, fed_1 = error_1, np.float32(0.0), fed_1, np.float32(0.0)
+            continue
+        written = True
+        total = share_0 + share_1
+        value = share_0 + (cur[0, c + PAD] + error_1 * ahead_1 + error_2 * ahead_2)
+        fed = cur[1, c + PAD] + fed_1 * ahead_1 + fed_2 * ahead_2
+        bias = np.float32(0.0)
+        jetted = np.float32(0.0)
+        if fed < np.float32(0.99) or fresh:
+            if thresholds[col & wrap] * total < share_0:
+                jetted = np.float32(1.0)
+            if fed < np.float32(0.99):
+                missing = max(np.float32(1.0) - fed, np.float32(0.0))
+                bias = min(top_share * missing, np.float32(1.0))
+                value += missing * charge * (half - share_0)
+        steady = charge * (half - share_0)
+        if fresh:
+            value += layer_share * (share_0 - jetted + steady)
+        else:
+            value += layer_share * steady
+            if carried and 0 <= c + dc < carried_cols:
+                value += carry_in[cr, c + dc, 0]
+        pick = 0 if value + bias * (jetted - share_0) >= half * total else 1
+        error = value - np.float32(1.0) if pick == 0 else value
+        carry_out[r, c, 0] = (error - steady) * layer_share
+        error *= kept
+        left[0, c + PAD] = error
+        left[1, c + PAD] = np.float32(1.0)
+        error_2, error_1, fed_2, fed_1 = error_1, error, fed_1, np.float32(1.0)
+        planes[pick, row, col >> 3] |= np.uint8(0x80 >> (col & 7))
+    _spread_below(left, errors, dirty, (r, lo, hi, 2), forward, weights, written)
 
 
 @kernel(EXACT)
-def _diffuse(mix, carry, weights, shares, start, flip, planes, r0, c0):  # pragma: no cover - compiled
+def _diffuse(mix, origin, state, settings, planes):  # pragma: no cover - compiled
     """Serpentine vector error diffusion of ``mix`` ((rows, cols, K) float32, all 0 at empty pixels) into the
-    bit-packed ``planes`` ((K, h, ceil(w / 8)) uint8, the box's pixel (0, 0) at (r0, c0); bits only set).
+    bit-packed ``planes`` ((K, h, ceil(w / 8)) uint8, bits only set), the box's pixel (0, 0) at layer pixel
+    ``origin`` (row, col).
 
     Each solid pixel takes, among the materials its own mix holds (> 0), the one whose share plus the error
-    arriving at it (from the pixels before it in the layer, and ``carry``: the layer before's, (rows, cols,
-    K) float32) is largest. The difference between the corrected mix and the material taken goes to the
-    pixels after it by ``weights`` ((3, 5) float32: this row and the two below, columns -2 .. 2 along the
-    row's direction, summing to 1) times 1 - ``shares[0]``, and ``shares[0]`` of it to the same pixel of the
-    next layer (written in place into ``carry``; 0 at empty pixels). A material's error goes only to the
-    pixels after it that mix the material with others, its weights scaled up to make up for those that do not
-    (so the error stays in its region and the region's total is kept); a pixel of one material takes it and
-    passes no error on, so a region of one material stays pure. Where a material's mixed region starts from
-    above (no error comes from the rows above), ``shares[1]`` times the choice of the threshold mask
-    ``start`` ((n, n) float32 thresholds, n a power of two, anchored at the layer's pixel (0, 0)) less the mix
-    is added to what arrives. Rows run left to right when (row + flip) is even, else right to left."""
+    arriving at it is largest: the error of the pixels before it in the layer, and of the layer before, from
+    ``state`` = (its carried error (rows', cols', n) float32 (n = 1 for K = 2: material 0's), this box's
+    offset (row, col) in it, fresh, this layer's carried error (rows, cols, n) float32, zero, written). The
+    difference between the share plus error and the material taken goes to the pixels after it by the
+    weights of ``settings`` = (weights ((3, 5) float32: this row and the two below, columns -2 .. 2 along the
+    row's direction, summing to 1), shares (layer share, top share, charge), the threshold mask ((n, n)
+    float32, n a power of two, anchored at the layer's pixel (0, 0)), flip) times 1 - layer share; the layer
+    share of it, less its steady part S_m = charge (1/2 - s_m - (K/2 - 1)/K), to the same pixel of the next
+    layer, which adds layer share times S_m back (so layers of different mixes trade no material); a fresh
+    layer adds instead layer share times (s_m + S_m less the mask's choice). Error reaching a pixel that does
+    not hold its material, or an empty pixel, is dropped; a pixel of one material passes none on, so a region
+    of one material stays pure. Where a weight w < 1 of error reached a pixel (a region's first rows and
+    sides), (1 - w) S_m is added to its error (the steady error it would hold inside the region) and
+    min(1, top share (1 - w)) times the mask's choice less the mix to its decision only, so a region starts as
+    the mask would print it. Rows run left to right when (layer row + flip) is even, else right to left."""
     rows, cols, channels = mix.shape
-    layer_share, top_share = np.float32(shares[0]), np.float32(shares[1])
-    wrap = start.shape[0] - 1
-    signature = np.empty((rows, cols), dtype=np.int64)
+    pair = channels == 2
+    errors = np.zeros((3, 2 if pair else channels + 1, cols + 2 * PAD), dtype=np.float32)
+    left = np.zeros((2 if pair else channels + 1, cols + 2 * PAD), dtype=np.float32)
+    dirty = np.zeros((3, 2), dtype=np.int64)
+    dirty[:, 0] = cols + 2 * PAD
     for r in range(rows):
-        for c in range(cols):
-            signature[r, c] = _held_signature(mix, r, c, channels)
-    # pixels whose 3 x 5 neighbourhood (this row and the two below, two columns either side) all mix as they do:
-    # their error reaches every weight, whichever way their row runs
-    level = np.zeros((rows, cols), dtype=np.bool_)  # the pixel and the two on either side mix alike
+        if pair:
+            _diffuse_pair_row(mix[r], (0, cols), (r, origin[0] + r, origin[1]), errors, (left, dirty), state,
+                              settings, planes)
+        else:
+            _diffuse_row(mix[r], (0, cols), (r, origin[0] + r, origin[1]), errors, (left, dirty), state, settings,
+                         planes)
+    return planes
+
+
+@kernel(EXACT, label_arg=0)
+def _diffuse_labelled(layer, mixing, base_channel, state, settings, planes):  # pragma: no cover - compiled
+    """:func:`_diffuse` of a labelled layer's mix (as :func:`heoslice.grading.droplets_kernels.droplet_bits`
+    reads it: ``layer`` = (labels of the box, its first row and column, the packed solid mask, its rows),
+    ``mixing`` its families' mixes), each row's made on the fly over its solid span only
+    (:func:`_row_mixes`); solid pixels outside the box are left to the caller."""
+    label, r0, c0, packed, rows = layer
+    cols = label.shape[1]
+    channels = planes.shape[0]
+    repeated = label.shape[0] == 1
+    width = packed.shape[1]
+    pair = channels == 2
+    mixrow = np.zeros((cols, channels), dtype=np.float32)
+    sums = np.empty(channels, dtype=np.float32)
+    errors = np.zeros((3, 2 if pair else channels + 1, cols + 2 * PAD), dtype=np.float32)
+    left = np.zeros((2 if pair else channels + 1, cols + 2 * PAD), dtype=np.float32)
+    dirty = np.zeros((3, 2), dtype=np.int64)
+    dirty[:, 0] = cols + 2 * PAD
     for r in range(rows):
-        for c in range(2, cols - 2):
-            own = signature[r, c]
-            level[r, c] = (own != 0 and own != -1 and signature[r, c - 2] == own and signature[r, c - 1] == own
-                           and signature[r, c + 1] == own and signature[r, c + 2] == own)
-    interior = np.zeros((rows, cols), dtype=np.bool_)
-    for r in range(rows - 2):
-        for c in range(cols):
-            own = signature[r, c]
-            interior[r, c] = (level[r, c] and level[r + 1, c] and level[r + 2, c] and signature[r + 1, c] == own
-                              and signature[r + 2, c] == own)
-    errors = np.zeros((3, channels, cols + 4), dtype=np.float32)
-    taps = 0  # the nonzero weights: rows below, columns along the row's direction, weight
-    tap_row = np.empty(15, dtype=np.int64)
-    tap_col = np.empty(15, dtype=np.int64)
-    tap_weight = np.empty(15, dtype=np.float32)
-    for dr in range(3):
-        for dc in range(5):
-            if weights[dr, dc] != np.float32(0.0):
-                tap_row[taps], tap_col[taps], tap_weight[taps] = dr, dc - 2, weights[dr, dc]
-                taps += 1
-    ahead_1, ahead_2 = weights[0, 3], weights[0, 4]
-    kept = np.float32(1.0) - layer_share
-    left = np.zeros((channels, cols + 4), dtype=np.float32)  # each pixel's error, for the rows below
-    for r in range(rows):
-        errors[0, :, :] = errors[1]
-        errors[1, :, :] = errors[2]
-        errors[2, :, :] = 0.0
-        left[:, :] = 0.0
-        forward = ((r + flip) & 1) == 0
-        step = 1 if forward else -1
         row = r0 + r
-        for k in range(cols):
-            c = k if forward else cols - 1 - k
-            own = signature[r, c]
-            col = c0 + c
-            if own == 0:  # empty, or one material: taken as it is, no error passed on
-                pick = -1
-                for m in range(channels):
-                    carry[r, c, m] = np.float32(0.0)
-                    if pick < 0 and mix[r, c, m] > np.float32(0.0):
-                        pick = m
-                if pick >= 0:
-                    planes[pick, row, col >> 3] |= np.uint8(0x80 >> (col & 7))
-                continue
-            above = signature[r - 1, c] if r > 0 else np.int64(0)
-            starts = own != above or own == -1
-            chosen = channels - 1
-            if starts:  # the threshold mask's choice where a region starts from above
-                threshold = start[row & wrap, col & wrap]
-                running = np.float32(0.0)
-                for m in range(channels - 1):
-                    running += mix[r, c, m]
-                    if threshold < running:
-                        chosen = m
-                        break
-            pick = 0
-            best = -np.inf
-            for m in range(channels):
-                share_m = mix[r, c, m]
-                if share_m > np.float32(0.0):
-                    value = share_m + errors[0, m, c + 2] + carry[r, c, m]
-                    if starts and (r == 0 or mix[r - 1, c, m] <= np.float32(0.0) or above == 0):
-                        value += top_share * ((np.float32(1.0) if m == chosen else np.float32(0.0)) - share_m)
-                    left[m, c + 2] = value
-                    if value > best:
-                        best, pick = value, m
-            left[pick, c + 2] -= np.float32(1.0)
-            # the pixels after it that mix as this one does take its error by their weights as they are
-            same = interior[r, c]
-            for m in range(channels):
-                if mix[r, c, m] <= np.float32(0.0):
-                    carry[r, c, m] = np.float32(0.0)
-                    continue
-                reach = np.float32(1.0)
-                if not same:
-                    reach = np.float32(0.0)
-                    for t in range(taps):
-                        rr, cc = r + tap_row[t], c + step * tap_col[t]
-                        if rr < rows and 0 <= cc < cols and signature[rr, cc] != 0 and mix[rr, cc, m] > 0.0:
-                            reach += tap_weight[t]
-                error = left[m, c + 2]
-                carry[r, c, m] = error * layer_share
-                error = error * kept / reach if reach > np.float32(0.0) else np.float32(0.0)
-                left[m, c + 2] = error
-                errors[0, m, c + 2 + step] += error * ahead_1
-                errors[0, m, c + 2 + 2 * step] += error * ahead_2
-            planes[pick, row, col >> 3] |= np.uint8(0x80 >> (col & 7))
-        # the rows below take each pixel's error by their weights, mirrored on a row run right to left
-        for below in range(1, 3):
-            for dc in range(5):
-                w = weights[below, dc if forward else 4 - dc]
-                if w == np.float32(0.0):
-                    continue
-                shift = dc - 2
-                for m in range(channels):
-                    target, source = errors[below, m], left[m]
-                    for c in range(max(0, -shift), min(cols, cols - shift)):
-                        target[c + 2 + shift] += source[c + 2] * w
+        solid = packed[row]
+        first, last = _solid_span(solid, width)
+        lo = max(first * 8 - c0, 0)
+        hi = min(last * 8 + 8 - c0, cols)
+        if lo < hi:
+            _row_mixes(label[0 if repeated else r], row, c0, lo, hi, solid, mixing, base_channel, sums, mixrow)
+        else:
+            lo = hi = 0
+        if pair:
+            _diffuse_pair_row(mixrow, (lo, hi), (r, row, c0), errors, (left, dirty), state, settings, planes)
+        else:
+            _diffuse_row(mixrow, (lo, hi), (r, row, c0), errors, (left, dirty), state, settings, planes)
     return planes

@@ -322,7 +322,7 @@ def droplet_bits(layer: LabelledLayer, mixing: LayerMixes, dither: Dither, plane
     """
     tile, table, base_channel = dither
     count = table.shape[1]  # the levels: n^2 for a tile of every level once, fewer for a tile that repeats them
-    # C order whichever symmetry the layer's tile has (a transposed one is Fortran-ordered): one compiled signature
+    # C order whatever the tile's layout (a transposed one is Fortran-ordered): one compiled signature
     level = np.ascontiguousarray(np.rint(np.asarray(tile, dtype=np.float64) * count - 0.5).astype(np.int64))
     label = layer.label
     rows = label.shape[0]

@@ -8,8 +8,9 @@ one. Three methods (:data:`METHODS`), each exact in expectation:
   (Bayer 16 x 16: every aligned 16 x 16 tile holds each of the 256 thresholds once, so over
   an area of constant mix each material's share is its fraction to within 1/256 plus the
   partial tiles at the border) with the running sum of the fractions: the pixel takes the
-  first material whose cumulative fraction exceeds t. Layers are decorrelated by a
-  per-layer shift and one of the 8 symmetries of the matrix.
+  first material whose cumulative fraction exceeds t. Layers are decorrelated by flipping
+  the matrix's rows and columns per layer so that each pixel's threshold runs through
+  [0, 1) evenly from layer to layer (:func:`ordered_flips`).
 - ``blue-noise``: the same comparison with the thresholds of a 64 x 64 void-and-cluster
   mask (Ulichney 1993, :func:`blue_noise_ranks`: each of the 4096 levels once, without a
   lattice of its own), made by this module deterministically once per process, shifted
@@ -45,6 +46,9 @@ LEVELS = TILE * TILE
 #: Side of the blue-noise threshold mask (4096 levels), and the void-and-cluster filter's sigma (pixels).
 BLUE_TILE = 64
 _BLUE_SIGMA = 1.5
+#: The (row, column) flips of one bit of the position, by base-4 digit of the layer number: each pixel's digit of
+#: the Bayer value then steps 0, 2, 1, 3 (or a rotation of it) over 4 layers: halves alternate, then quarters.
+_FLIPS = ((0, 0), (0, 1), (1, 1), (1, 0))
 #: Step of the blue-noise shift along the tile's 4096 offsets: odd (so 4096 layers take every offset once) and
 #: near 4096 / golden ratio (so consecutive layers' offsets lie far apart in both directions).
 _BLUE_STEP = 2531
@@ -81,63 +85,37 @@ def _hashed_unit(count: int, seed: int) -> np.ndarray:
     return (z >> np.uint64(11)).astype(np.float64) / float(1 << 53)
 
 
+def _wrapped_gaussian(values: np.ndarray, sigma: float) -> np.ndarray:
+    """(n, n) float64: ``values`` filtered by a Gaussian of ``sigma`` pixels wrapped around the tile, separably (rows,
+    then columns), the kernel cut at 4 sigma and summing to 1 (scipy.ndimage.gaussian_filter's, without loading
+    scipy: its import cost each process of a slice most of a second)."""
+    radius = int(4.0 * sigma + 0.5)
+    offsets = np.arange(-radius, radius + 1)
+    weights = np.exp(-0.5 * (offsets / sigma) ** 2)
+    weights /= weights.sum()
+    for axis in (0, 1):
+        values = sum(weight * np.roll(values, -offset, axis=axis) for offset, weight in zip(offsets, weights))
+    return values
+
+
 @functools.cache
 def blue_noise_ranks(size: int = BLUE_TILE, sigma: float = _BLUE_SIGMA) -> np.ndarray:
     """The (size, size) void-and-cluster rank matrix (0 .. size^2 - 1, Ulichney 1993), read-only; made once per
-    process (in well under a second for 64 x 64).
+    process (compiled: :func:`heoslice.grading.halftone_kernels._void_and_cluster`).
 
     The energy of a pattern is its Gaussian filtering (``sigma`` pixels, wrapped around the tile), kept up to
     date by adding or removing one wrapped impulse response per pixel. A hashed 10 % initial pattern is
     relaxed (its tightest cluster moved to its largest void until that is the same pixel); its pixels are
     ranked by removing the tightest cluster one at a time, and the rest by filling the largest void one at a
     time (ties: the first in row-major order)."""
-    from scipy.ndimage import gaussian_filter
+    from heoslice.grading.halftone_kernels import _void_and_cluster  # compiled: loaded by the methods that need it
 
-    count = size * size
     impulse = np.zeros((size, size))
     impulse[0, 0] = 1.0
-    tiled = np.tile(gaussian_filter(impulse, sigma, mode="wrap"), (2, 2))
-
-    def spread(pixel: int) -> np.ndarray:
-        """The wrapped impulse response centred on ``pixel``: a view of the tiled response, no copy."""
-        row, col = divmod(pixel, size)
-        return tiled[size - row:2 * size - row, size - col:2 * size - col]
-
-    ones = (_hashed_unit(count, 1) < 0.1).reshape(size, size)
-    energy = gaussian_filter(ones.astype(np.float64), sigma, mode="wrap")
-    # the energy seen by the tightest-cluster search (of the ones) and by the largest-void search (of the zeros)
-    cluster_energy, void_energy = np.where(ones, energy, -np.inf), np.where(ones, np.inf, energy)
-
-    def move(pixel: int, sign: float) -> None:
-        """Set (sign 1) or clear (sign -1) ``pixel`` and update the energies."""
-        response = spread(pixel)
-        energy[...] += sign * response
-        cluster_energy[...] += sign * response
-        void_energy[...] += sign * response
-        row, col = divmod(pixel, size)
-        ones[row, col] = sign > 0
-        cluster_energy[row, col] = energy[row, col] if sign > 0 else -np.inf
-        void_energy[row, col] = np.inf if sign > 0 else energy[row, col]
-
-    for _ in range(count):  # relaxation: far fewer steps in practice
-        cluster = int(np.argmax(cluster_energy))
-        move(cluster, -1.0)
-        void = int(np.argmin(void_energy))
-        move(void, 1.0)
-        if void == cluster:
-            break
-    kept = ones.copy(), energy.copy(), cluster_energy.copy(), void_energy.copy()
-    ranks = np.zeros((size, size), dtype=np.int64)
-    placed = int(ones.sum())
-    for rank in range(placed - 1, -1, -1):
-        cluster = int(np.argmax(cluster_energy))
-        move(cluster, -1.0)
-        ranks[divmod(cluster, size)] = rank
-    ones[...], energy[...], cluster_energy[...], void_energy[...] = kept
-    for rank in range(placed, count):
-        void = int(np.argmin(void_energy))
-        move(void, 1.0)
-        ranks[divmod(void, size)] = rank
+    tiled = np.tile(_wrapped_gaussian(impulse, sigma), (2, 2))
+    ones = (_hashed_unit(size * size, 1) < 0.1).reshape(size, size)
+    energy = _wrapped_gaussian(ones.astype(np.float64), sigma)
+    ranks = _void_and_cluster(ones, energy, tiled)
     ranks.setflags(write=False)
     return ranks
 
@@ -157,8 +135,8 @@ def blue_noise_thresholds(layer: int) -> np.ndarray:
 
 def layer_tile(layer: int, method: str = DEFAULT_METHOD) -> np.ndarray:
     """The (n, n) thresholds in (0, 1) of one layer (n = TILE for ordered, BLUE_TILE for blue noise), at the
-    LEVELS levels (k + 1/2) / LEVELS: ordered, the Bayer matrix under a symmetry and shift chosen from the layer
-    number (a fixed pseudo-random sequence); blue noise, the void-and-cluster mask under the layer's shift, its
+    LEVELS levels (k + 1/2) / LEVELS: ordered, the Bayer matrix with its rows and columns flipped by the layer's
+    :func:`ordered_flips`; blue noise, the void-and-cluster mask under the layer's shift, its
     ranks taken 16 to a level (each level on 16 pixels of the tile: the shares as fine as ordered dither's, and
     the compiled halftone's table of choices per level as small)."""
     if check_method(method) == "blue-noise":
@@ -166,13 +144,27 @@ def layer_tile(layer: int, method: str = DEFAULT_METHOD) -> np.ndarray:
         return (ranks // (BLUE_TILE * BLUE_TILE // LEVELS) + 0.5) / LEVELS
     if method != "ordered":
         raise ValueError(f"halftone: {method} has no threshold tile")
-    mix = (int(layer) * 0x9E3779B1 + 0x7F4A7C15) & 0xFFFFFFFF
-    tile = bayer_matrix(TILE)
-    if mix & 1:
-        tile = tile.T
-    tile = np.rot90(tile, (mix >> 1) & 3)
-    tile = np.roll(tile, ((mix >> 3) % TILE, (mix >> 11) % TILE), axis=(0, 1))
-    return (tile + 0.5) / (TILE * TILE)
+    flip_rows, flip_cols = ordered_flips(layer)
+    index = np.arange(TILE)
+    return (bayer_matrix(TILE)[np.ix_(index ^ flip_rows, index ^ flip_cols)] + 0.5) / (TILE * TILE)
+
+
+def ordered_flips(layer: int) -> tuple[int, int]:
+    """The (row, column) masks whose XOR with a pixel's position in the tile reads the Bayer matrix in ``layer``.
+
+    The Bayer matrix's value at (r, c) is, from its most significant base-4 digit down, the 2 x 2 matrix
+    [[0, 2], [3, 1]] at bit 0 of r and c, then at bit 1, and so on; flipping bit j of the position permutes
+    digit j of every pixel's value. Bit j's flips follow base-4 digit j of the layer number through
+    :data:`_FLIPS`, so every pixel's threshold steps through the four quarters of [0, 1) every 4 layers
+    (0, 1/2, 1/4, 3/4 or a rotation of it), its next digit every 16, and so on (a van der Corput sequence per
+    pixel): over any 4 consecutive layers every pixel jets a material of share 1/4 or more at least once
+    (columns that never change material, issue 48's 3D criterion). The tiles repeat every 256 layers."""
+    rows = cols = 0
+    for bit in range(TILE.bit_length() - 1):
+        row_flip, col_flip = _FLIPS[(int(layer) >> (2 * bit)) & 3]
+        rows |= row_flip << bit
+        cols |= col_flip << bit
+    return rows, cols
 
 
 def thresholds(shape: tuple[int, int], layer: int, origin: tuple[int, int] = (0, 0),

@@ -21,6 +21,9 @@ from heoslice.mesh import Mesh
 from heoslice.pipeline.layer_job import PipelineCache, layer_jobs, render_and_write
 from heoslice.pipeline.spec import SliceSpec
 
+#: Most planes in a run, by halftone (None: any other): error diffusion's runs are short, so that its layers (the
+#: costliest to render) spread over the workers evenly; its error starts afresh at each run.
+RUN_LAYERS = {None: 32, "error-diffusion": 8}
 #: A run's contours with the seconds spent slicing and chaining them: (contours, slice s, chain s).
 SlicedRun = tuple[Contours, float, float]
 
@@ -101,8 +104,11 @@ def slice_run(context: RunContext, start: int, stop: int, cache: PipelineCache |
                      slice_s=slice_s, contours_s=contours_s)
 
 
-def plane_runs(context: RunContext, max_layers: int = 32) -> list[tuple[int, int]]:
-    """Runs of at most ``spec.max_segments`` segments and ``max_layers`` planes (memory and load balance)."""
+def plane_runs(context: RunContext, max_layers: int | None = None) -> list[tuple[int, int]]:
+    """Runs of at most ``spec.max_segments`` segments and ``max_layers`` planes (memory and load balance; by
+    default :data:`RUN_LAYERS` of the spec's halftone)."""
+    if max_layers is None:
+        max_layers = RUN_LAYERS.get(context.spec.halftone, RUN_LAYERS[None])
     runs = []
     for start, stop in plane_chunks(context.mesh.vertices, context.mesh.faces, context.z,
                                     context.spec.max_segments, context.face_range):
