@@ -6,7 +6,7 @@ The layer is a 600 dpi strip graded linearly from M1 (left) to M2 (right), as eq
 sub-region's mix towards the target; each method's droplet masks
 (:func:`heoslice.grading.halftone.halftone`, layer 5, error diffusion after layers 0..4 so that it
 carries their error) are drawn in the materials' display colours, one strip per method, each pixel
-shown ``--scale`` x ``--scale``. Writes examples/halftones.png by default (git-ignored).
+shown ``--scale`` x ``--scale``. Writes examples/halftones.png by default (the picture in the README).
 """
 
 from __future__ import annotations
