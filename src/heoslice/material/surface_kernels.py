@@ -284,7 +284,7 @@ def _triangles_near(px, py, pz, reach, tree, stack, found):  # pragma: no cover 
 
 #: Side (pixels) at or below which a cell the bounds leave unsettled is measured pixel by pixel against the
 #: triangles that can be nearest anywhere in it; and how many of those it may hold.
-NEAR_CELL = 8
+NEAR_CELL = 4
 NEAR_TRIANGLES = 48
 
 
@@ -305,9 +305,10 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
     - Second order: on the cell d >= m = min d_k - h > 0; each triangle's distance is convex with Hessian
       <= 1 / m there, so d - |x|^2 / 2m (a minimum of concave functions) is concave and, with the bilinear
       weights w_k(x) (>= 0, reproducing x), d(x) >= B(x) - (a^2 t(1 - t) + b^2 s(1 - s)) / 2m, B = sum w_k d_k,
-      (t, s) the pixel's place in the cell; by convexity d(x) <= d_T(x) <= sum w_k d_T(x_k) <= B(x) + e_T,
-      e_T = max_k (d_T(x_k) - d_k), for each T among the T_k. Settled where (a^2 + b^2) / 8m + min e_T is at most
-      ``tolerance`` (r1 - r0): each pixel's r is the midpoint of its interval.
+      (t, s) the pixel's place in the cell, so d(x) >= B(x) - (a^2 + b^2) / 8m; by convexity
+      d(x) <= d_T(x) <= sum w_k d_T(x_k) <= B(x) + e_T, e_T = max_k (d_T(x_k) - d_k), for each T among the T_k.
+      Settled where (a^2 + b^2) / 8m + min e_T is at most ``tolerance`` (r1 - r0): each pixel's r is that
+      interval's midpoint, clipped (clipping moves it no farther from the true r).
     - Near: a cell of at most NEAR_CELL pixels a side is measured exactly pixel by pixel against the triangles
       within max d_k + 2h of its centre (any pixel's nearest triangle is: d(x) <= max d_k + h and |x - c| <= h),
       when there are at most NEAR_TRIANGLES of them; a cell of at most 2 x 2 pixels by the hierarchy search.
@@ -387,27 +388,24 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
                             e = max(e, np.sqrt(triangle_distance2(cx[q], cy[q], frame.z, tree.corners[ct[k]])) - cd[q])
                         above = min(above, e)
                     above += slack
-                    curve = 0.5 / m
-                    if (a * a + b * b) * 0.25 * curve + above <= tolerance * width:
+                    below = (a * a + b * b) / (8.0 * m) + slack
+                    if below + above <= tolerance * width:
+                        # r = the clipped midpoint of [B - below, B + above] (clipping keeps it within half the width)
+                        scale = 1.0 / width
+                        offset = 0.5 * (above - below) - r0
                         for i in range(i0, min(i1, rows)):
                             s = (i - i0) / (i1 - i0)
-                            left = (1.0 - s) * cd[0] + s * cd[2]
-                            right = (1.0 - s) * cd[1] + s * cd[3]
-                            rise = b * b * s * (1.0 - s)
+                            left = (1.0 - s) * cd[0] + s * cd[2] + offset
+                            slope = ((1.0 - s) * (cd[1] - cd[0]) + s * (cd[3] - cd[2])) / (j1 - j0)
                             for j in range(j0, min(j1, cols)):
                                 if solid[i, j]:
-                                    t = (j - j0) / (j1 - j0)
-                                    d = (1.0 - t) * left + t * right
-                                    below = (a * a * t * (1.0 - t) + rise) * curve + slack
-                                    lo = _normalised(d - below, r0, r1)
-                                    hi = _normalised(d + above, r0, r1)
-                                    value = 0.5 * (lo + hi)
+                                    value = min(max((left + (j - j0) * slope) * scale, 0.0), 1.0)
                                     if coded:
                                         codes[i, j] = table[int(value * steps + 0.5)]
                                     else:
                                         r[i, j] = value
                                     if keep:
-                                        spread[i, j] = 0.5 * (hi - lo)
+                                        spread[i, j] = 0.5 * (above + below) * scale
                         continue
                 count = -1
                 if i1 - i0 <= NEAR_CELL and j1 - j0 <= NEAR_CELL:

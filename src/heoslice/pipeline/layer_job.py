@@ -183,7 +183,9 @@ def _render_field_and_write(job: LayerJob, packed: np.ndarray, solid: int, cache
                             started: float) -> tuple:
     """The ``field`` interior's branch of :func:`render_and_write`: each solid pixel's share of the design's target,
     f(r) at the pixel centre's own 3-D r (:class:`heoslice.material.field.MaterialField`), as droplet masks beside
-    the 1-bit solid layer (:func:`heoslice.grading.pixel_mix.fraction_planes`), or as an RGBA preview layer."""
+    the 1-bit solid layer (:func:`heoslice.grading.pixel_mix.fraction_planes`; by the ordered dither, each pixel's
+    label read from the table of f's dither levels at r's step, :meth:`MaterialField.layer_codes`), or as an RGBA
+    preview layer."""
     from heoslice.grading.halftone import DEFAULT_METHOD
     from heoslice.grading.pixel_mix import fraction_colors, fraction_planes, label_planes, level_labels
 
