@@ -295,10 +295,10 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
     """r (h, w) at each solid pixel centre of ``solid`` (h, w) bool, normalised from the exact distance to ``tree``
     over (r0, r1) mm, each within spread[i, j] <= tolerance / 2 of its true r (``spread`` (h, w) written too,
     or (0, 0) to skip it); or, where ``codes`` (h, w) is not (0, 0), instead of r its code from ``table`` (n,)
-    at r rounded to the nearest step 1 / (n - 1). Cells of ``top`` x ``top`` pixels are halved until a bound settles them. A cell of
-    pixel rows i0:i1, columns j0:j1 has its corners at the pixel centres (i0, j0), (i0, j1), (i1, j0), (i1, j1)
-    (shared with its neighbours), where d is measured exactly (d_k, nearest triangle T_k); a = (j1 - j0) px,
-    b = (i1 - i0) py, h = sqrt(a^2 + b^2) / 2 (every point of the cell is within h of a corner):
+    at r rounded to the nearest step 1 / (n - 1). Cells of ``top`` x ``top`` pixels are halved until a bound settles
+    them. A cell of pixel rows i0:i1, columns j0:j1 has its corners at the pixel centres (i0, j0), (i0, j1),
+    (i1, j0), (i1, j1) (shared with its neighbours), where d is measured exactly (d_k, nearest triangle T_k);
+    a = (j1 - j0) px, b = (i1 - i0) py, h = sqrt(a^2 + b^2) / 2 (every point of the cell is within h of a corner):
 
     - Lipschitz: d is 1-Lipschitz, so d lies in [min d_k - h, max d_k + h]; settled where that maps to r less
       than ``tolerance`` apart (their midpoint).
