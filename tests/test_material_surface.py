@@ -299,8 +299,11 @@ def test_layer_r_is_within_its_proven_bound_of_the_brute_force_r(corners, z, pit
     """Random triangles, layers, pixel pitches, ranges and cell sizes: at every solid pixel the true r (brute force)
     lies within the bound layer_r reports for it, and that bound is at most tolerance / 2. A bound that claimed
     more than the Lipschitz, second-order or nearby-triangle argument proves fails here (the second-order bound is
-    nearly tight for a cell far from a triangle's corner)."""
+    nearly tight for a cell far from a triangle's corner). Triangles of real area: trimesh's closest point, the
+    reference, is not exact on degenerate ones."""
     triangles = corners.reshape(-1, 3, 3)
+    assume((np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]), axis=1)
+            > 1e-3).all())
     index = build_surface_index(corners, np.arange(len(corners)).reshape(-1, 3))
     rng = np.random.default_rng(seed)
     solid = rng.random((24, 40)) < 0.8
