@@ -178,3 +178,48 @@ def test_layer_fraction_over_the_grid_is_f_of_each_pixels_r(kind, at, direction)
         d = np.linalg.norm(np.cross(o, np.array(unit)), axis=1)
     r = np.clip((d - 0.5) / 6.5, 0, 1)
     assert np.abs(f[rows - r0, cols - c0] - np.clip(0.5 * np.sin(4 * np.pi * r) + 0.5, 0, 1)).max() < 2e-6
+
+
+@pytest.mark.parametrize("kind", ["point", "plane", "axis"])
+def test_layer_codes_of_a_closed_form_reference_read_the_exact_r(kind, tmp_path):
+    """A layer's codes through the identity table are each solid pixel's r rounded to k / R_STEPS: within
+    1 / (2 R_STEPS) (and rounding) of the closed-form distance's r, for a tilted plane and axis too."""
+    from dataclasses import replace
+
+    from heoslice.material.field import R_STEPS, MaterialField
+    from heoslice.material.references import Reference
+
+    geometry = {"point": Reference("point", (0.3, -0.2, 0.1)),
+                "plane": Reference("plane", (0.3, -0.2, 0.1), tuple(np.array([1.0, 2.0, 2.0]) / 3.0)),
+                "axis": Reference("axis", (0.3, -0.2, 0.1), tuple(np.array([2.0, -1.0, 2.0]) / 3.0))}[kind]
+    design = Design.from_header(load_mesh(colored_file(procedural.sphere(radius=1.0, subdivisions=1), tmp_path,
+                                                       "b", ColorSpec(make_function("linear")))).comments)
+    field = MaterialField(replace(design, r_range=(0.5, 9.0)), geometry)
+    grid = grid_over(-6.0, 6.0, 0.1)
+    solid = np.random.default_rng(5).random((grid.height, grid.width)) < 0.6
+    packed = np.packbits(solid, axis=1)
+    (r0, r1, c0, c1), codes = field.layer_codes(packed, grid, 1.7, np.arange(R_STEPS + 1, dtype=np.uint16))
+    rows, cols = np.nonzero(solid[r0:r1, c0:c1])
+    x = grid.x_left + (cols + c0 + 0.5) * grid.px
+    y = grid.y_top - (rows + r0 + 0.5) * grid.py
+    truth = field.r_at(np.column_stack([x, y, np.full(len(x), 1.7)]))
+    assert np.abs(codes[rows, cols] / R_STEPS - truth).max() <= 0.5 / R_STEPS + 1e-9
+
+
+def test_layer_codes_of_a_surface_are_within_the_tolerance(organ):
+    """The lesion's codes through the identity table: each solid pixel's r within R_TOLERANCE / 2 + 1 / (2 R_STEPS)
+    of the brute-force r."""
+    from heoslice.material.field import R_STEPS
+
+    path, design, lesion = organ
+    field = material_field(design, path)
+    centre = lesion.vertices.mean(axis=0)
+    grid = Grid(240, 240, centre[0] - 6.0, centre[1] + 6.0, 0.05, 0.05)
+    solid = np.random.default_rng(6).random((240, 240)) < 0.05
+    (r0, r1, c0, c1), codes = field.layer_codes(np.packbits(solid, axis=1), grid, centre[2] + 0.8,
+                                                np.arange(R_STEPS + 1, dtype=np.uint16))
+    rows, cols = np.nonzero(solid[r0:r1, c0:c1])
+    x = grid.x_left + (cols + c0 + 0.5) * grid.px
+    y = grid.y_top - (rows + r0 + 0.5) * grid.py
+    truth = np.clip(lesion_distance(lesion, np.column_stack([x, y, np.full(len(x), centre[2] + 0.8)])) / 4.0, 0, 1)
+    assert np.abs(codes[rows, cols] / R_STEPS - truth).max() <= R_TOLERANCE / 2 + 0.5 / R_STEPS + 1e-12

@@ -45,7 +45,7 @@ from heoslice.jit import (
     source_digest,
 )
 from heoslice.layers import contours_kernels, rasterising_kernels, slicing_kernels
-from heoslice.material import surface_kernels
+from heoslice.material import references_kernels, surface_kernels
 from heoslice.mesh import topology_kernels, weld_kernels
 from heoslice.volume import resample_kernels
 
@@ -67,6 +67,7 @@ ONE_RING_FIT = types.NamedUniTuple(f8, 10, fit_kernels.OneRingFit)
 DIFFUSION_STATE = types.Tuple((f4_3, i8, i8, i8, f4_3))
 DIFFUSION_SETTINGS = types.Tuple((f4_2, f4_1, f4_2, i8))
 HIERARCHY = types.NamedTuple((f8_2, f8_2, i8_1, i8_1, i8_1, i8_1, f8_3, f8_2, f8_1), surface_kernels.Hierarchy)
+LAYER_FRAME = types.NamedUniTuple(f8, 5, surface_kernels.LayerFrame)
 
 
 #: The kernels' modules whose exports go into the second extension module (COMPILED_MODULES[1]); every other
@@ -134,8 +135,12 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     search_kernels._tree_boxes: (f8_1, f8_1, f8_1, f8_1, i8_1),
     search_kernels._chunk_capsules: (f8_1, f8_1, f8_1, f8_1),
     slicing_kernels._layer_segments: (f8_2, i8_2, f8_1, i8_1, i8_1),
+    references_kernels.quadratic_codes: (b_2, types.UniTuple(f8, 4), types.UniTuple(f8, 6), f8, f8,
+                                         types.uint16[::1], types.uint16[:, ::1]),
     surface_kernels.build_nodes: (f8_2, f8_2, f8_2, i8),
     surface_kernels.nearest_distances: (f8_2, HIERARCHY, f8_1),
+    surface_kernels.layer_r: (b_2, LAYER_FRAME, HIERARCHY, f8, f8, f8, i8, f8_2, f8_2, types.uint16[::1],
+                              types.uint16[:, ::1]),
     topology_kernels._edge_runs: (i8_2, i8),
     topology_kernels._lowest_connected: (i8_1, i8_1, i8),
     weld_kernels._first_rows: (u8_1, u4_2),

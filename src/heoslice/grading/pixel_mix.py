@@ -53,7 +53,23 @@ def fraction_planes(packed: np.ndarray, box: tuple[int, int, int, int], f: np.nd
         masks[:, :, col0:col1] = halftone(mix, layer, method, carry, origin=(row0, col0))
         planes[:, row0:row1] = np.packbits(masks, axis=2)
         return planes
-    label = np.broadcast_to((levels_below(f) + 1).astype(np.uint16), (row1 - row0, col1 - col0))
+    return label_planes(packed, box, level_labels(f), grid, layer, start, target, channels)
+
+
+def level_labels(f: np.ndarray) -> np.ndarray:
+    """The dither label (uint16, f's shape) of each f in [0, 1]: q + 1, q = :func:`levels_below` (the module's rule)."""
+    return (levels_below(f) + 1).astype(np.uint16)
+
+
+def label_planes(packed: np.ndarray, box: tuple[int, int, int, int], labels: np.ndarray, grid: Grid, layer: int,
+                 start: int, target: int, channels: int) -> np.ndarray:
+    """The droplet masks of :func:`fraction_planes` by the ordered dither, from each solid pixel's label
+    (:func:`level_labels` of its f; uint16, broadcasting to ``box``) instead of f."""
+    planes = np.zeros((channels, grid.height, -(-grid.width // 8)), dtype=np.uint8)
+    row0, row1, col0, col1 = box
+    if row1 <= row0 or col1 <= col0:
+        return planes
+    label = np.broadcast_to(np.asarray(labels, dtype=np.uint16), (row1 - row0, col1 - col0))
     table = np.full((LEVELS + 2, LEVELS), start, dtype=np.int8)
     table[1:] = np.where(np.arange(LEVELS)[None, :] < np.arange(LEVELS + 1)[:, None], target, start)
     labels = LEVELS + 2

@@ -3,17 +3,17 @@ reference (issue 44), the ``field`` interior of ``heoslice slice``.
 
 r is the design's normalisation of the exact 3-D distance (:func:`heoslice.material.references.normalise`
 with the range ``color`` recorded), so a voxel on the surface gets the r its vertex got. Plane, point and axis
-distances are closed-form and vectorised. A surface reference is measured exactly
-(:func:`heoslice.material.surface.surface_distance`) on a lattice of :data:`CELL` x :data:`CELL`-pixel cells
-first: the distance is 1-Lipschitz, so every pixel centre of a cell lies within d(c) +- h of the cell centre's
-distance d(c) (h: the farthest pixel centre from c), and where that interval maps to r values less than
-:data:`R_TOLERANCE` apart (clipped at 0 or 1, or a range wide against the cell) their midpoint is within
-R_TOLERANCE / 2 of every pixel's true r; the other cells' pixels are measured one by one.
+distances are closed-form and vectorised. A surface reference is measured exactly at the corners of cells of a
+layer (:func:`heoslice.material.surface.layer_r`), and a cell's pixels take r from proven bounds on the distance
+between those corners (its 1-Lipschitz bound, and a second-order one: the interpolated distance is off by at
+most a^2 / 8m over a cell of side a at least m away), within :data:`R_TOLERANCE` / 2 of every pixel's true r;
+cells the bounds cannot settle are halved, down to pixels measured one by one.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -21,13 +21,21 @@ import numpy as np
 from heoslice.errors import InputError
 from heoslice.material.design import INTERIORS, Design, surface_path
 from heoslice.material.functions import evaluate
-from heoslice.material.references import REFERENCES, Reference, grid_distance, normalise, reference_distance
+from heoslice.material.references import (
+    REFERENCES,
+    Reference,
+    grid_distance,
+    grid_square,
+    normalise,
+    reference_distance,
+)
 
-__all__ = ["CELL", "INTERIORS", "R_TOLERANCE", "MaterialField", "depth_field", "material_field", "solid_box"]
-#: Side of a lattice cell, pixels (:func:`MaterialField.layer_r` for a surface reference).
-CELL = 16
-#: Largest error of a voxel's r where the lattice settles it (twice the bound the midpoint keeps).
+__all__ = ["INTERIORS", "R_STEPS", "R_TOLERANCE", "MaterialField", "depth_field", "material_field", "solid_box"]
+#: Twice the largest error of a voxel's r where a surface reference's bounds settle it.
 R_TOLERANCE = 1e-3
+#: Steps of r in a table of codes read per voxel (:meth:`MaterialField.layer_codes`): a voxel's r is rounded to
+#: the nearest k / R_STEPS, which adds at most 1 / (2 R_STEPS) = 7.6e-6 to its error; k fits uint16.
+R_STEPS = 65535
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +71,37 @@ class MaterialField:
         # f to the halftone's 1/256 needs no more than single precision: r (in [0, 1]) rounds by 6e-8
         return box, self.fraction(r.astype(np.float32))
 
+    @cached_property
+    def fraction_table(self) -> np.ndarray:
+        """f(r) clipped to [0, 1] (R_STEPS + 1,) float32 at r = k / R_STEPS (:meth:`layer_codes`' steps)."""
+        return self.fraction(np.arange(R_STEPS + 1, dtype=np.float32) / np.float32(R_STEPS))
+
+    def layer_codes(self, packed: np.ndarray, grid, z: float,
+                    table: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
+        """The box of a layer's solid pixels (as :meth:`layer_fraction`) and, at each of them, table[k] (uint16
+        (rows, cols); anything elsewhere in the box) for its r rounded to k / R_STEPS (table: (R_STEPS + 1,)
+        uint16, e.g. a halftone's level of each f in :attr:`fraction_table`): f read from one table per layer,
+        in one compiled pass, instead of evaluated at every voxel."""
+        r0, r1, c0, c1 = solid_box(packed, grid.width)
+        solid = np.unpackbits(packed[r0:r1], axis=1, count=grid.width)[:, c0:c1].view(bool)
+        table = np.ascontiguousarray(table, dtype=np.uint16)
+        if len(table) != R_STEPS + 1:
+            raise ValueError(f"a table of codes has R_STEPS + 1 = {R_STEPS + 1} entries, not {len(table)}")
+        x0, y0 = grid.x_left + (c0 + 0.5) * grid.px, grid.y_top - (r0 + 0.5) * grid.py
+        if self.reference.kind == "surface":
+            from heoslice.material.surface import layer_r
+
+            codes = layer_r(solid, (x0, grid.px, y0, -grid.py, z), self.reference.surface, self.design.r_range,
+                            R_TOLERANCE, table=table)
+            return (r0, r1, c0, c1), codes
+        from heoslice.material.references_kernels import quadratic_codes
+
+        codes = np.zeros(solid.shape, np.uint16)
+        point = self.reference.point
+        quadratic_codes(np.ascontiguousarray(solid), (x0 - point[0], grid.px, y0 - point[1], -grid.py),
+                        grid_square(self.reference, z), *map(float, self.design.r_range), table, codes)
+        return (r0, r1, c0, c1), codes
+
     def layer_distance(self, packed: np.ndarray, grid, z: float) -> tuple[tuple[int, int, int, int], np.ndarray]:
         """r over the box of a layer's solid pixels, as :meth:`layer_fraction` gives f(r) (the box, and r
         broadcasting to it; 0 at a surface reference's pixels outside the solid)."""
@@ -73,35 +112,31 @@ class MaterialField:
             r = normalise(grid_distance(self.reference, x, y, z), self.design.r_range)
         else:
             solid = np.unpackbits(packed[r0:r1], axis=1, count=grid.width)[:, c0:c1].view(bool)
-            rows, cols = np.nonzero(solid)
-            r = np.zeros(solid.shape)
-            r[rows, cols] = self.layer_r(rows + r0, cols + c0, grid, z)
+            r = self._surface_r(solid, (x[0] if len(x) else 0.0, grid.px, y[0] if len(y) else 0.0, -grid.py, z))
         return (r0, r1, c0, c1), r
 
     def layer_r(self, rows: np.ndarray, cols: np.ndarray, grid, z: float) -> np.ndarray:
         """r (n,) at the centres of pixels (rows (n,), cols (n,) int) of a layer cut at height z (mm) on
         ``grid`` (:class:`heoslice.layers.rasterising.Grid`); within R_TOLERANCE / 2 of each pixel's exact r
-        for a surface reference (the module's lattice), exact otherwise."""
+        for a surface reference, exact otherwise."""
         x = grid.x_left + (cols + 0.5) * grid.px
         y = grid.y_top - (rows + 0.5) * grid.py
         if self.reference.kind != "surface":
             return self.r_at(np.column_stack([x, y, np.full(len(x), float(z))]))
-        cell_of = (rows // CELL).astype(np.int64) * (int(grid.width) // CELL + 1) + cols // CELL
-        cells, inverse = np.unique(cell_of, return_inverse=True)
-        per_row = int(grid.width) // CELL + 1
-        ci, cj = cells // per_row, cells % per_row
-        cx = grid.x_left + (cj * CELL + CELL / 2) * grid.px
-        cy = grid.y_top - (ci * CELL + CELL / 2) * grid.py
-        reach = np.hypot((CELL - 1) / 2 * grid.px, (CELL - 1) / 2 * grid.py) * (1 + 1e-12)
-        centre = reference_distance(self.reference, np.column_stack([cx, cy, np.full(len(cx), float(z))]))
-        low = normalise(centre - reach, self.design.r_range)
-        high = normalise(centre + reach, self.design.r_range)
-        settled = (high - low) <= R_TOLERANCE
-        r = ((low + high) / 2)[inverse]
-        measure = ~settled[inverse]
-        if measure.any():
-            r[measure] = self.r_at(np.column_stack([x[measure], y[measure], np.full(int(measure.sum()), float(z))]))
-        return r
+        if not len(rows):
+            return np.zeros(0)
+        r0, c0 = int(rows.min()), int(cols.min())
+        solid = np.zeros((int(rows.max()) + 1 - r0, int(cols.max()) + 1 - c0), dtype=bool)
+        solid[rows - r0, cols - c0] = True
+        frame = (grid.x_left + (c0 + 0.5) * grid.px, grid.px, grid.y_top - (r0 + 0.5) * grid.py, -grid.py, z)
+        return self._surface_r(solid, frame)[rows - r0, cols - c0]
+
+    def _surface_r(self, solid: np.ndarray, frame: tuple) -> np.ndarray:
+        """r (h, w) at the solid pixels (h, w) of a layer whose pixel centres ``frame`` places
+        (:func:`heoslice.material.surface.layer_r`), 0 elsewhere."""
+        from heoslice.material.surface import layer_r
+
+        return layer_r(solid, frame, self.reference.surface, self.design.r_range, R_TOLERANCE)
 
 
 def depth_field(vertices: np.ndarray, faces: np.ndarray, design: Design, bands: int | None) -> MaterialField:

@@ -125,6 +125,28 @@ def _axis_at(reference: Reference, x, y, z) -> np.ndarray:
     return np.sqrt(ax * ax + ay * ay + az * az)
 
 
+def _plane_square(reference: Reference, z: float) -> tuple[float, ...]:
+    """The squared distance to a plane at height z as (A, B, C, D, E, F) of :func:`grid_square`: (n . o)^2."""
+    nx, ny, nz = reference.direction
+    w = nz * (z - reference.point[2])
+    return nx * nx, 2 * nx * ny, ny * ny, 2 * nx * w, 2 * ny * w, w * w
+
+
+def _point_square(reference: Reference, z: float) -> tuple[float, ...]:
+    """The squared distance to a point at height z as (A, B, C, D, E, F) of :func:`grid_square`: |o|^2."""
+    w = z - reference.point[2]
+    return 1.0, 0.0, 1.0, 0.0, 0.0, w * w
+
+
+def _axis_square(reference: Reference, z: float) -> tuple[float, ...]:
+    """The squared distance to an axis at height z as (A, B, C, D, E, F) of :func:`grid_square`:
+    |o|^2 - (o . u)^2."""
+    ux, uy, uz = reference.direction
+    oz = z - reference.point[2]
+    w = uz * oz
+    return 1 - ux * ux, -2 * ux * uy, 1 - uy * uy, -2 * ux * w, -2 * uy * w, oz * oz - w * w
+
+
 def _columns(at: Callable) -> Callable:
     """A closed-form distance at (x, y, z) arrays as a distance at points (n, 3)."""
     return lambda reference, points, progress: at(reference, points[:, 0], points[:, 1], points[:, 2])
@@ -142,7 +164,8 @@ class ReferenceKind:
     faces, at, normal, direction, surface) -> Reference with the defaults filled in;
     distance(reference, points (n, 3), progress) -> (n,) mm; written(reference) -> text;
     closed_form(reference, x, y, z) -> the distance at coordinate arrays that broadcast together (None for
-    a surface, which is searched).
+    a surface, which is searched); square(reference, z) -> the squared distance over a layer as
+    :func:`grid_square` gives it.
     """
 
     options: tuple[str, ...]
@@ -150,6 +173,7 @@ class ReferenceKind:
     distance: Callable[[Reference, np.ndarray, Callable | None], np.ndarray]
     written: Callable[[Reference], str]
     closed_form: Callable | None = None
+    square: Callable[[Reference, float], tuple[float, ...]] | None = None
 
 
 #: The kinds of reference feature, by name. Defaults: plane = normal +Z through the model's
@@ -159,11 +183,12 @@ class ReferenceKind:
 REFERENCES: dict[str, ReferenceKind] = {
     "plane": ReferenceKind(("at", "normal"), _resolve_plane, _columns(_plane_at),
                            lambda ref: f"plane through {_text(ref.point)} with normal {_text(ref.direction)}",
-                           _plane_at),
+                           _plane_at, _plane_square),
     "point": ReferenceKind(("at",), _resolve_point, _columns(_point_at),
-                           lambda ref: f"point {_text(ref.point)}", _point_at),
+                           lambda ref: f"point {_text(ref.point)}", _point_at, _point_square),
     "axis": ReferenceKind(("at", "direction"), _resolve_axis, _columns(_axis_at),
-                          lambda ref: f"axis through {_text(ref.point)} along {_text(ref.direction)}", _axis_at),
+                          lambda ref: f"axis through {_text(ref.point)} along {_text(ref.direction)}", _axis_at,
+                          _axis_square),
     "surface": ReferenceKind(("surface",), _resolve_surface, _surface_distance,
                              lambda ref: f"surface of {len(ref.surface.faces)} triangles"),
 }
@@ -215,6 +240,16 @@ def grid_distance(reference: Reference, x: np.ndarray, y: np.ndarray, z: float) 
     y = np.asarray(y, dtype=np.float64)[:, None]
     distance = np.asarray(at(reference, x, y, float(z)), dtype=np.float64)
     return distance.reshape(np.broadcast_shapes(distance.shape, (1, 1)))
+
+
+def grid_square(reference: Reference, z: float) -> tuple[float, ...]:
+    """The squared distance from a plane, point or axis over the layer at height z (mm) as (A, B, C, D, E, F):
+    A u^2 + B u v + C v^2 + D u + E v + F, u and v a point's offsets (mm) from the reference's point along x and
+    y. Raises ValueError for a surface."""
+    square = REFERENCES[reference.kind].square
+    if square is None:
+        raise ValueError(f"a {reference.kind} reference has no closed-form distance")
+    return tuple(float(c) for c in square(reference, float(z)))
 
 
 def normalise(distance: np.ndarray, r_range: tuple[float, float] | None = None) -> np.ndarray:

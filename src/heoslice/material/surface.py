@@ -125,3 +125,30 @@ def surface_distance(points: np.ndarray, index: SurfaceIndex, chunk: int = 65536
             if progress is not None:
                 progress(stop, len(points))
     return out
+
+
+#: Side (pixels) of the cells :func:`layer_r` starts from before halving them.
+TOP_CELL = 64
+
+
+def layer_r(solid: np.ndarray, frame: tuple[float, float, float, float, float], index: SurfaceIndex,
+            r_range: tuple[float, float], tolerance: float, top: int = TOP_CELL, with_spread: bool = False,
+            table: np.ndarray | None = None) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """r (h, w) float64 at the solid pixel centres of a layer (solid (h, w) bool; 0 elsewhere): the exact distance
+    to the surface normalised over r_range (R0, R1) mm and clipped to [0, 1], each within tolerance / 2 of its
+    true r (:func:`heoslice.material.surface_kernels.layer_r`'s bounds settle cells of up to ``top`` pixels a side,
+    the rest is measured pixel by pixel). frame: (x of column 0's centre, x step per column, y of row 0's centre,
+    y step per row, z), mm. With ``table`` (n,) uint16: each pixel's table[round(r (n - 1))] (h, w) uint16
+    instead of r. ``with_spread`` also returns each pixel's proven bound on its r's error (h, w)."""
+    from heoslice.material.surface_kernels import LayerFrame
+    from heoslice.material.surface_kernels import layer_r as kernel
+
+    solid = np.ascontiguousarray(solid, dtype=bool)
+    coded = table is not None
+    r = np.zeros((0, 0) if coded else solid.shape)
+    codes = np.zeros(solid.shape if coded else (0, 0), np.uint16)
+    spread = np.zeros(solid.shape if with_spread else (0, 0))
+    kernel(solid, LayerFrame(*map(float, frame)), index.tree, float(r_range[0]), float(r_range[1]),
+           float(tolerance), int(top), r, spread, np.ascontiguousarray(table if coded else [0], np.uint16), codes)
+    out = codes if coded else r
+    return (out, spread) if with_spread else out

@@ -166,54 +166,299 @@ def triangle_distance2(px, py, pz, tri):  # pragma: no cover - compiled
     return gx * gx + gy * gy + gz * gz
 
 
-@kernel(EXACT)
-def nearest_distances(points: np.ndarray, tree: Hierarchy, out: np.ndarray) -> np.ndarray:  # pragma: no cover
-    """Exact distance (n,) mm from each point (n, 3) to the nearest triangle of ``tree``, into ``out`` (returned).
+@helper(EXACT, inline=False)
+def nearest_triangle(px, py, pz, tree, start, stack, bound):  # pragma: no cover - compiled
+    """(squared distance, index) of the triangle of ``tree`` nearest the point, searched from triangle
+    ``start`` (its distance the first bound; ``stack``, ``bound``: STACK_DEPTH scratch arrays).
 
     Depth first, the nearer child first; a node is skipped when its box is no nearer than
     the best triangle so far (the box bound), so every triangle not measured is no nearer.
-    The search starts from the distance to the previous point's nearest triangle (an upper
-    bound that is tight when neighbouring points come one after the other). In a leaf, a
-    triangle whose sphere is no nearer than the best (|p - centre| - radius >= best) is not
-    measured: the sphere holds the triangle, so that is a lower bound too.
+    In a leaf, a triangle whose sphere is no nearer than the best (|p - centre| - radius >= best)
+    is not measured: the sphere holds the triangle, so that is a lower bound too.
     """
+    nearest = start
+    best = triangle_distance2(px, py, pz, tree.corners[nearest])
+    reach = np.sqrt(best)
+    stack[0] = 0
+    bound[0] = _box_distance2(px, py, pz, tree.low, tree.high, 0)
+    top = 1
+    while top > 0:
+        top -= 1
+        node = stack[top]
+        if bound[top] >= best:
+            continue
+        a = tree.left[node]
+        if a < 0:
+            for j in range(tree.first[node], tree.first[node] + tree.count[node]):
+                cx, cy, cz = px - tree.centre[j, 0], py - tree.centre[j, 1], pz - tree.centre[j, 2]
+                outside = reach + tree.radius[j]
+                if cx * cx + cy * cy + cz * cz >= outside * outside:
+                    continue
+                d = triangle_distance2(px, py, pz, tree.corners[j])
+                if d < best:
+                    best, nearest = d, j
+                    reach = np.sqrt(best)
+            continue
+        b = tree.right[node]
+        da = _box_distance2(px, py, pz, tree.low, tree.high, a)
+        db = _box_distance2(px, py, pz, tree.low, tree.high, b)
+        if da > db:
+            a, b, da, db = b, a, db, da
+        if db < best:
+            stack[top], bound[top] = b, db
+            top += 1
+        if da < best:
+            stack[top], bound[top] = a, da
+            top += 1
+    return best, nearest
+
+
+@kernel(EXACT)
+def nearest_distances(points: np.ndarray, tree: Hierarchy, out: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """Exact distance (n,) mm from each point (n, 3) to the nearest triangle of ``tree`` (:func:`nearest_triangle`),
+    into ``out`` (returned). Each search starts from the previous point's nearest triangle, an upper bound that is
+    tight when neighbouring points come one after the other."""
     stack = np.empty(STACK_DEPTH, np.int64)
     bound = np.empty(STACK_DEPTH)
     nearest = 0
     for i in range(points.shape[0]):
-        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-        best = triangle_distance2(px, py, pz, tree.corners[nearest])
-        reach = np.sqrt(best)
-        stack[0] = 0
-        bound[0] = _box_distance2(px, py, pz, tree.low, tree.high, 0)
-        top = 1
-        while top > 0:
-            top -= 1
-            node = stack[top]
-            if bound[top] >= best:
-                continue
-            a = tree.left[node]
-            if a < 0:
-                for j in range(tree.first[node], tree.first[node] + tree.count[node]):
-                    cx, cy, cz = px - tree.centre[j, 0], py - tree.centre[j, 1], pz - tree.centre[j, 2]
-                    outside = reach + tree.radius[j]
-                    if cx * cx + cy * cy + cz * cz >= outside * outside:
-                        continue
-                    d = triangle_distance2(px, py, pz, tree.corners[j])
-                    if d < best:
-                        best, nearest = d, j
-                        reach = np.sqrt(best)
-                continue
-            b = tree.right[node]
-            da = _box_distance2(px, py, pz, tree.low, tree.high, a)
-            db = _box_distance2(px, py, pz, tree.low, tree.high, b)
-            if da > db:
-                a, b, da, db = b, a, db, da
-            if db < best:
-                stack[top], bound[top] = b, db
-                top += 1
-            if da < best:
-                stack[top], bound[top] = a, da
-                top += 1
+        best, nearest = nearest_triangle(points[i, 0], points[i, 1], points[i, 2], tree, nearest, stack, bound)
         out[i] = np.sqrt(best)
     return out
+
+
+class LayerFrame(NamedTuple):
+    """Where a layer's pixel centres are: x (mm) of column 0 and its step per column, y of row 0 and its step per
+    row (signed), and the layer's height z (mm)."""
+
+    x0: float
+    dx: float
+    y0: float
+    dy: float
+    z: float
+
+
+@helper(EXACT)
+def _normalised(d, r0, r1):  # pragma: no cover - compiled
+    """r = (d - r0) / (r1 - r0) clipped to [0, 1] (heoslice.material.references.normalise)."""
+    return min(max((d - r0) / (r1 - r0), 0.0), 1.0)
+
+
+@helper(EXACT)
+def _any_solid(solid, i0, i1, j0, j1):  # pragma: no cover - compiled
+    """Whether the cell rows i0:i1, columns j0:j1 of ``solid`` (clipped to it) holds a solid pixel."""
+    for i in range(i0, min(i1, solid.shape[0])):
+        for j in range(j0, min(j1, solid.shape[1])):
+            if solid[i, j]:
+                return True
+    return False
+
+
+@helper(EXACT, inline=False)
+def _triangles_near(px, py, pz, reach, tree, stack, found):  # pragma: no cover - compiled
+    """How many triangles of ``tree`` lie within ``reach`` of the point (their indices into found[:count]), or -1
+    when more than len(found) do."""
+    count = 0
+    stack[0] = 0
+    top = 1
+    reach2 = reach * reach
+    while top > 0:
+        top -= 1
+        node = stack[top]
+        if _box_distance2(px, py, pz, tree.low, tree.high, node) > reach2:
+            continue
+        a = tree.left[node]
+        if a >= 0:
+            stack[top] = a
+            stack[top + 1] = tree.right[node]
+            top += 2
+            continue
+        for j in range(tree.first[node], tree.first[node] + tree.count[node]):
+            if triangle_distance2(px, py, pz, tree.corners[j]) <= reach2:
+                if count == found.shape[0]:
+                    return -1
+                found[count] = j
+                count += 1
+    return count
+
+
+#: Side (pixels) at or below which a cell the bounds leave unsettled is measured pixel by pixel against the
+#: triangles that can be nearest anywhere in it; and how many of those it may hold.
+NEAR_CELL = 4
+NEAR_TRIANGLES = 48
+
+
+@kernel(EXACT)
+def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1: float, tolerance: float,
+            top: int, r: np.ndarray, spread: np.ndarray, table: np.ndarray,
+            codes: np.ndarray) -> None:  # pragma: no cover - compiled
+    """r (h, w) at each solid pixel centre of ``solid`` (h, w) bool, normalised from the exact distance to ``tree``
+    over (r0, r1) mm, each within spread[i, j] <= tolerance / 2 of its true r (``spread`` (h, w) written too,
+    or (0, 0) to skip it); or, where ``codes`` (h, w) is not (0, 0), instead of r its code from ``table`` (n,)
+    at r rounded to the nearest step 1 / (n - 1). Cells of ``top`` x ``top`` pixels are halved until a bound settles
+    them. A cell of pixel rows i0:i1, columns j0:j1 has its corners at the pixel centres (i0, j0), (i0, j1),
+    (i1, j0), (i1, j1) (shared with its neighbours), where d is measured exactly (d_k, nearest triangle T_k);
+    a = (j1 - j0) px, b = (i1 - i0) py, h = sqrt(a^2 + b^2) / 2 (every point of the cell is within h of a corner):
+
+    - Lipschitz: d is 1-Lipschitz, so d lies in [min d_k - h, max d_k + h]; settled where that maps to r less
+      than ``tolerance`` apart (their midpoint).
+    - Second order: on the cell d >= m = min d_k - h > 0; each triangle's distance is convex with Hessian
+      <= 1 / m there, so d - |x|^2 / 2m (a minimum of concave functions) is concave and, with the bilinear
+      weights w_k(x) (>= 0, reproducing x), d(x) >= B(x) - (a^2 t(1 - t) + b^2 s(1 - s)) / 2m, B = sum w_k d_k,
+      (t, s) the pixel's place in the cell, so d(x) >= B(x) - (a^2 + b^2) / 8m; by convexity
+      d(x) <= d_T(x) <= sum w_k d_T(x_k) <= B(x) + e_T, e_T = max_k (d_T(x_k) - d_k), for each T among the T_k.
+      Settled where (a^2 + b^2) / 8m + min e_T is at most ``tolerance`` (r1 - r0): each pixel's r is that
+      interval's midpoint, clipped (clipping moves it no farther from the true r).
+    - Near: a cell of at most NEAR_CELL pixels a side is measured exactly pixel by pixel against the triangles
+      within max d_k + 2h of its centre (any pixel's nearest triangle is: d(x) <= max d_k + h and |x - c| <= h),
+      when there are at most NEAR_TRIANGLES of them; a cell of at most 2 x 2 pixels by the hierarchy search.
+    """
+    rows, cols = solid.shape
+    coded, keep, steps = codes.shape[0] > 0, spread.shape[0] > 0, table.shape[0] - 1
+    stack = np.empty(STACK_DEPTH, np.int64)
+    bound = np.empty(STACK_DEPTH)
+    found = np.empty(NEAR_TRIANGLES, np.int64)
+    cells = np.empty((256, 4), np.int64)
+    cell_d = np.empty((256, 4))
+    cell_t = np.empty((256, 4), np.int64)
+    cd, cx, cy = np.empty(4), np.empty(4), np.empty(4)
+    ct = np.empty(4, np.int64)
+    grid_d = np.empty((3, 3))
+    grid_t = np.empty((3, 3), np.int64)
+    width = r1 - r0
+    pitch_x, pitch_y = abs(frame.dx), abs(frame.dy)
+    nearest = 0
+    # the top cells' corners, measured where a solid pixel needs them
+    lattice_rows, lattice_cols = (rows + top - 1) // top + 1, (cols + top - 1) // top + 1
+    needed = np.zeros((lattice_rows, lattice_cols), np.bool_)
+    for ti in range(lattice_rows - 1):
+        for tj in range(lattice_cols - 1):
+            if _any_solid(solid, ti * top, ti * top + top, tj * top, tj * top + top):
+                needed[ti, tj] = needed[ti + 1, tj] = needed[ti, tj + 1] = needed[ti + 1, tj + 1] = True
+    lattice_d = np.zeros((lattice_rows, lattice_cols))
+    lattice_t = np.zeros((lattice_rows, lattice_cols), np.int64)
+    for ti in range(lattice_rows):
+        for tj in range(lattice_cols):
+            if needed[ti, tj]:
+                best, nearest = nearest_triangle(frame.x0 + tj * top * frame.dx, frame.y0 + ti * top * frame.dy,
+                                                 frame.z, tree, nearest, stack, bound)
+                lattice_d[ti, tj], lattice_t[ti, tj] = np.sqrt(best), nearest
+    for ti in range(lattice_rows - 1):
+        for tj in range(lattice_cols - 1):
+            if not (needed[ti, tj] and needed[ti + 1, tj + 1]):
+                continue
+            cells[0, 0], cells[0, 1], cells[0, 2], cells[0, 3] = ti * top, ti * top + top, tj * top, tj * top + top
+            for k in range(4):
+                cell_d[0, k] = lattice_d[ti + k // 2, tj + k % 2]
+                cell_t[0, k] = lattice_t[ti + k // 2, tj + k % 2]
+            pending = 1
+            while pending > 0:
+                pending -= 1
+                i0, i1, j0, j1 = cells[pending, 0], cells[pending, 1], cells[pending, 2], cells[pending, 3]
+                if not _any_solid(solid, i0, i1, j0, j1):
+                    continue
+                for k in range(4):
+                    cd[k], ct[k] = cell_d[pending, k], cell_t[pending, k]
+                    cx[k] = frame.x0 + (j0 if k % 2 == 0 else j1) * frame.dx
+                    cy[k] = frame.y0 + (i0 if k < 2 else i1) * frame.dy
+                a, b = (j1 - j0) * pitch_x, (i1 - i0) * pitch_y
+                half = 0.5 * np.sqrt(a * a + b * b)
+                low, high = cd.min(), cd.max()
+                slack = 1e-12 * (1.0 + high + abs(r0) + abs(r1))  # rounding of the measured distances
+                lo = _normalised(low - half - slack, r0, r1)
+                hi = _normalised(high + half + slack, r0, r1)
+                if hi - lo <= tolerance:
+                    for i in range(i0, min(i1, rows)):
+                        for j in range(j0, min(j1, cols)):
+                            if solid[i, j]:
+                                value = 0.5 * (lo + hi)
+                                if coded:
+                                    codes[i, j] = table[int(value * steps + 0.5)]
+                                else:
+                                    r[i, j] = value
+                                if keep:
+                                    spread[i, j] = 0.5 * (hi - lo)
+                    continue
+                m = low - half - slack
+                if m > 0.0:
+                    above = np.inf
+                    for k in range(4):
+                        e = 0.0
+                        for q in range(4):
+                            e = max(e, np.sqrt(triangle_distance2(cx[q], cy[q], frame.z, tree.corners[ct[k]])) - cd[q])
+                        above = min(above, e)
+                    above += slack
+                    below = (a * a + b * b) / (8.0 * m) + slack
+                    if below + above <= tolerance * width:
+                        # r = the clipped midpoint of [B - below, B + above] (clipping keeps it within half the width)
+                        scale = 1.0 / width
+                        offset = 0.5 * (above - below) - r0
+                        for i in range(i0, min(i1, rows)):
+                            s = (i - i0) / (i1 - i0)
+                            left = (1.0 - s) * cd[0] + s * cd[2] + offset
+                            slope = ((1.0 - s) * (cd[1] - cd[0]) + s * (cd[3] - cd[2])) / (j1 - j0)
+                            for j in range(j0, min(j1, cols)):
+                                if solid[i, j]:
+                                    value = min(max((left + (j - j0) * slope) * scale, 0.0), 1.0)
+                                    if coded:
+                                        codes[i, j] = table[int(value * steps + 0.5)]
+                                    else:
+                                        r[i, j] = value
+                                    if keep:
+                                        spread[i, j] = 0.5 * (above + below) * scale
+                        continue
+                count = -1
+                if i1 - i0 <= NEAR_CELL and j1 - j0 <= NEAR_CELL:
+                    count = _triangles_near(0.5 * (cx[0] + cx[3]), 0.5 * (cy[0] + cy[3]), frame.z,
+                                            high + 2.0 * half + slack, tree, stack, found)
+                if count >= 0 or (i1 - i0 <= 2 and j1 - j0 <= 2):
+                    for i in range(i0, min(i1, rows)):
+                        for j in range(j0, min(j1, cols)):
+                            if solid[i, j]:
+                                px, py = frame.x0 + j * frame.dx, frame.y0 + i * frame.dy
+                                if count >= 0:
+                                    best = np.inf
+                                    for q in range(count):
+                                        best = min(best, triangle_distance2(px, py, frame.z, tree.corners[found[q]]))
+                                else:
+                                    best, nearest = nearest_triangle(px, py, frame.z, tree, nearest, stack, bound)
+                                value = _normalised(np.sqrt(best), r0, r1)
+                                if coded:
+                                    codes[i, j] = table[int(value * steps + 0.5)]
+                                else:
+                                    r[i, j] = value
+                                if keep:
+                                    spread[i, j] = 0.0
+                    continue
+                # halve: the new corners at the middles of the sides and the centre, 3 x 3 in all
+                im = (i0 + i1) // 2 if i1 - i0 >= 2 else i1
+                jm = (j0 + j1) // 2 if j1 - j0 >= 2 else j1
+                along_i = (i0, im, i1)
+                along_j = (j0, jm, j1)
+                for gi in range(3):
+                    for gj in range(3):
+                        if (gi == 0 or gi == 2) and (gj == 0 or gj == 2):
+                            k = (gi // 2) * 2 + gj // 2
+                            grid_d[gi, gj], grid_t[gi, gj] = cd[k], ct[k]
+                        elif (gi == 1 and im == i1) or (gj == 1 and jm == j1):
+                            continue
+                        else:
+                            best, nearest = nearest_triangle(frame.x0 + along_j[gj] * frame.dx,
+                                                             frame.y0 + along_i[gi] * frame.dy, frame.z, tree,
+                                                             nearest, stack, bound)
+                            grid_d[gi, gj], grid_t[gi, gj] = np.sqrt(best), nearest
+                for u in range(2):
+                    for v in range(2):
+                        ci0, ci1 = along_i[u], along_i[u + 1]
+                        cj0, cj1 = along_j[v], along_j[v + 1]
+                        if ci1 <= ci0 or cj1 <= cj0:
+                            continue
+                        gi0, gj0 = u, v
+                        gi1 = 2 if im == i1 else u + 1
+                        gj1 = 2 if jm == j1 else v + 1
+                        cells[pending, 0], cells[pending, 1], cells[pending, 2], cells[pending, 3] = ci0, ci1, cj0, cj1
+                        cell_d[pending, 0], cell_t[pending, 0] = grid_d[gi0, gj0], grid_t[gi0, gj0]
+                        cell_d[pending, 1], cell_t[pending, 1] = grid_d[gi0, gj1], grid_t[gi0, gj1]
+                        cell_d[pending, 2], cell_t[pending, 2] = grid_d[gi1, gj0], grid_t[gi1, gj0]
+                        cell_d[pending, 3], cell_t[pending, 3] = grid_d[gi1, gj1], grid_t[gi1, gj1]
+                        pending += 1
