@@ -16,7 +16,7 @@ STAGES = ("base", "mesh", "material", "layers", "grading", "volume", "build", "s
 #: The stage of each first name under heoslice (a package, or a base module that every stage may use).
 STAGE_OF = {
     "__init__": "base", "errors": "base", "files": "base", "jit": "base", "lazy": "base", "locks": "base", "signals": "base",
-    "pngfile": "base",
+    "pngfile": "base", "deflate": "base",
     "mesh": "mesh", "procedural": "mesh",
     "material": "material", "layers": "layers", "grading": "grading", "volume": "volume", "kernel_exports": "build", "stack": "stack",
     "pipeline": "pipeline",

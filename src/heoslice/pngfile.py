@@ -1,8 +1,8 @@
 """heoslice's one PNG writer (exports and previews): scanlines to a PNG file (signature, IHDR, pHYs, tEXt,
-IDAT, IEND), every row unfiltered and the image data deflated by zlib-ng.
+IDAT, IEND), every row unfiltered and the image data deflated by zlib-ng (:func:`heoslice.deflate.deflater`).
 
 Why not Pillow's encoder: it chooses a filter per row by trying each, then deflates with zlib at level 6,
-several times the cost of zlib-ng on the raw rows; imagecodecs' libpng encoder takes no 1-bit images.
+which costs far more than zlib-ng on the raw rows; imagecodecs' libpng encoder takes no 1-bit images.
 A PNG file is a few chunks (the PNG specification, ISO/IEC 15948), so it is written here, and the tests
 decode it with Pillow and libpng. Unfiltered rows suit heoslice's images: 1-bit masks (PNG never filters
 below a byte per pixel to any gain) and a few flat colours. Figures in benchmarks/README.md.
@@ -10,11 +10,12 @@ below a byte per pixel to any gain) and a few flat colours. Figures in benchmark
 
 from __future__ import annotations
 
-import functools
 import struct
 import zlib
 
 import numpy as np
+
+from heoslice.deflate import deflater
 
 SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: zlib level of the image data: level 2 finds the short repeats of a halftone's dither pattern that level 1
@@ -25,16 +26,6 @@ COLOUR_TYPES = {1: 0, 3: 2, 4: 6}
 #: Largest data of one chunk (the format allows 2**31 - 1 bytes); longer image data takes several IDAT chunks.
 MAX_CHUNK = 1 << 30
 METRES_PER_INCH = 0.0254
-
-
-@functools.cache
-def _deflate():
-    """bytes -> zlib stream at DEFLATE_LEVEL: zlib-ng's (imagecodecs) where it has one, else zlib's."""
-    try:
-        from imagecodecs import zlibng_encode
-    except ImportError:
-        return lambda data: zlib.compress(data, DEFLATE_LEVEL)
-    return lambda data: zlibng_encode(data, level=DEFLATE_LEVEL)
 
 
 def _chunk(kind: bytes, data: bytes) -> bytes:
@@ -54,7 +45,7 @@ def png_file(rows: np.ndarray, width: int, samples: int, bit_depth: int, dpi: tu
     scanlines = np.empty((height, stride + 1), dtype=np.uint8)
     scanlines[:, 0] = 0  # filter type None
     scanlines[:, 1:] = rows
-    data = _deflate()(scanlines)
+    data = deflater(DEFLATE_LEVEL)(scanlines)
     header = struct.pack(">IIBBBBB", width, height, bit_depth, COLOUR_TYPES[samples], 0, 0, 0)
     extra = [] if dpi is None else [
         _chunk(b"pHYs", struct.pack(">IIB", *(int(value / METRES_PER_INCH + 0.5) for value in dpi), 1))]

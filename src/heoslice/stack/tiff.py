@@ -12,6 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from heoslice import __version__
+from heoslice.deflate import deflater
 from heoslice.errors import VerifyError
 from heoslice.stack.manifest import IMAGE_MODES
 
@@ -73,22 +74,14 @@ def encode_tiff(image: np.ndarray, dpi: tuple[float, float], compression: str,
 def _strip_codec(compression: str, level: int = 1):
     """bytes -> compressed bytes for one TIFF strip.
 
-    Deflate uses zlib-ng at ``level`` (1 unless told) when imagecodecs has it: the same zlib stream
-    format, faster than zlib (figures in benchmarks/README.md). Other codecs are tifffile's own.
+    Deflate is :func:`heoslice.deflate.deflater` at ``level`` (1 unless told): zlib-ng where imagecodecs has it,
+    the same zlib stream format as zlib's. Other codecs are tifffile's own.
     """
     import tifffile
 
     if compression == "deflate":
-        try:
-            from imagecodecs import zlibng_encode
-        except ImportError:
-            zlibng_encode = None
-        if zlibng_encode is not None:
-            return lambda data: zlibng_encode(data, level=level)
-    codec = tifffile.TIFF.COMPRESSORS[tifffile.COMPRESSION[COMPRESSIONS[compression].upper()].value]
-    if compression == "deflate":
-        return lambda data: codec(data, level=level)
-    return codec
+        return deflater(level)
+    return tifffile.TIFF.COMPRESSORS[tifffile.COMPRESSION[COMPRESSIONS[compression].upper()].value]
 
 
 @functools.lru_cache(maxsize=32)
