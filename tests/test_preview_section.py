@@ -8,10 +8,12 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 from helpers import heoslice, in_process
 from PIL import Image
 
 from heoslice import procedural
+from heoslice.stack.tiff import encode_bilevel_tiff
 
 
 def test_section_of_a_z_graded_box_shows_the_gradient_at_true_aspect(tmp_path):
@@ -52,10 +54,12 @@ def test_error_names_the_stack_once(tmp_path):
         assert done.returncode != 0 and "full: full:" not in done.stderr and "full: no manifest.json" in done.stderr
 
 
-def test_a_section_through_a_pixel_in_two_droplet_masks_is_refused(tmp_path):
-    """A graded stack whose layer 4 has its second droplet mask replaced by its first (hashes updated, so only the
-    pixels object): a section through the part draws nothing and says so in one line (exit 4); a section of
-    the clean stack is drawn."""
+@pytest.mark.parametrize("fault", ["two", "none"])
+def test_a_section_through_a_pixel_in_two_droplet_masks_or_none_is_refused(tmp_path, fault):
+    """A graded stack whose layer 4 has its second droplet mask replaced by its first ("two": its pixels in two
+    masks) or by an empty mask ("none": solid pixels in no mask), hashes updated so only the pixels object: a
+    section through the part draws nothing and says so in one line (exit 4); a section of the clean stack is
+    drawn."""
     import hashlib
 
     procedural.vase(rings_outer=10, rings_inner=8, sections=24).export(tmp_path / "vase.ply")
@@ -67,10 +71,16 @@ def test_a_section_through_a_pixel_in_two_droplet_masks_is_refused(tmp_path):
     done = heoslice("preview", stack, "--section", f"x={x_middle:.4f}", "-o", tmp_path / "clean.png")
     assert done.returncode == 0, done.stderr
     first, second = manifest["layers"][4]["channels"][:2]
-    data = (stack / first["file"]).read_bytes()
+    if fault == "two":
+        data, count = (stack / first["file"]).read_bytes(), first["solid_pixels"]
+    else:
+        height, width = manifest["image"]["height"], manifest["image"]["width"]
+        data, count = encode_bilevel_tiff(np.zeros((height, -(-width // 8)), np.uint8), width,
+                                          (100.0, 100.0), "deflate"), 0
     (stack / second["file"]).write_bytes(data)
-    second.update(sha256=hashlib.sha256(data).hexdigest(), solid_pixels=first["solid_pixels"])
+    second.update(sha256=hashlib.sha256(data).hexdigest(), solid_pixels=count)
     (stack / "manifest.json").write_text(json.dumps(manifest))
     done = heoslice("preview", stack, "--section", f"x={x_middle:.4f}", "-o", tmp_path / "faulty.png")
-    assert done.returncode == 4 and "layer 4: a pixel of the section is in two droplet masks" in done.stderr, done.stderr
+    said = {"two": "in two droplet masks", "none": "in no droplet mask"}[fault]
+    assert done.returncode == 4 and f"layer 4: a pixel of the section is {said}" in done.stderr, done.stderr
     assert done.stderr.count("\n") == 1 and not (tmp_path / "faulty.png").exists()

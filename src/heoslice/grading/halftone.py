@@ -88,7 +88,7 @@ def _hashed_unit(count: int, seed: int) -> np.ndarray:
 def _wrapped_gaussian(values: np.ndarray, sigma: float) -> np.ndarray:
     """(n, n) float64: ``values`` filtered by a Gaussian of ``sigma`` pixels wrapped around the tile, separably (rows,
     then columns), the kernel cut at 4 sigma and summing to 1 (scipy.ndimage.gaussian_filter's, without loading
-    scipy: its import cost each process of a slice most of a second)."""
+    scipy, whose import is a large share of a slice process's start-up: benchmarks/README.md)."""
     radius = int(4.0 * sigma + 0.5)
     offsets = np.arange(-radius, radius + 1)
     weights = np.exp(-0.5 * (offsets / sigma) ** 2)

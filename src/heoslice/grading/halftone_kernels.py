@@ -1,6 +1,6 @@
 """Compiled loop of :mod:`heoslice.grading.halftone`: the void-and-cluster ranking of the blue-noise mask (every
-process of a blue-noise or error-diffusion slice makes the mask once; in Python its 8000-odd steps over the
-tile's energy cost a third of a second)."""
+process of a blue-noise or error-diffusion slice makes the mask once, in its 8000-odd steps over the tile's
+energy: too slow a loop for Python; figures in benchmarks/README.md)."""
 
 from __future__ import annotations
 

@@ -5,8 +5,9 @@ r is the design's normalisation of the exact 3-D distance (:func:`heoslice.mater
 with the range ``color`` recorded), so a voxel on the surface gets the r its vertex got. Plane, point and axis
 distances are closed-form and vectorised. A surface reference is measured exactly at the corners of cells of a
 layer (:func:`heoslice.material.surface.layer_r`), and a cell's pixels take r from proven bounds on the distance
-between those corners (its 1-Lipschitz bound, and a second-order one: the interpolated distance is off by at
-most a^2 / 8m over a cell of side a at least m away), within :data:`R_TOLERANCE` / 2 of every pixel's true r;
+between those corners (its 1-Lipschitz bound, and a second-order one: over a cell of sides a, b at least m away
+the bilinear interpolant of the corners' distances is at most (a^2 + b^2) / 8m above the distance, and below it
+by at most what the corners' own nearest triangles spread), within :data:`R_TOLERANCE` / 2 of every pixel's true r;
 cells the bounds cannot settle are halved, down to pixels measured one by one.
 """
 

@@ -186,12 +186,11 @@ def _render_field_and_write(job: LayerJob, packed: np.ndarray, solid: int, cache
     the 1-bit solid layer (:func:`heoslice.grading.pixel_mix.fraction_planes`; by the ordered dither, each pixel's
     label read from the table of f's dither levels at r's step, :meth:`MaterialField.layer_codes`), or as an RGBA
     preview layer."""
-    from heoslice.grading.halftone import DEFAULT_METHOD
     from heoslice.grading.pixel_mix import fraction_colors, fraction_planes, label_planes, level_labels
 
     graded = job.graded
     grade, design = graded.spec, graded.field.design
-    if graded.channel_paths is not None and graded.halftone == DEFAULT_METHOD:
+    if graded.channel_paths is not None and graded.halftone == "ordered":
         box, labels = graded.field.layer_codes(packed, job.grid, graded.z, level_labels(graded.field.fraction_table))
         planes = label_planes(packed, box, labels, job.grid, job.index, grade.channel_index(design.start),
                               grade.channel_index(design.target), len(grade.channel_materials()))

@@ -46,20 +46,28 @@ def section_line(manifest: dict, axis: str, position_mm: float) -> int:
 def _line_planes(directory: Path, manifest: dict, index: int, axis: str, line: int, kind: str) -> np.ndarray:
     """(n, C) float32: the feature planes of :func:`heoslice.preview.layer._planes` along the section line of one
     layer. A 1-bit layer is read as packed bits (:mod:`heoslice.stack.packed`), for a y cut only the strip
-    holding the line; a layer with droplet masks as its masks alone (what is drawn), checked to hold each pixel
-    of the line at most once; other layers strip by strip."""
+    holding the line; a layer with droplet masks is drawn from its masks, checked on the line against its solid
+    layer (each solid pixel in exactly one mask, no mask pixel outside the solid: verify's rule, where the
+    preview draws); other layers strip by strip."""
     with_channels = kind == "channels"
     if kind in ("bilevel", "channels") and manifest["image"].get("mode", "1") in ("1", "L"):
         rows = (line, line + 1) if axis == "y" else None
-        solid, masks = layer_bits(directory, manifest, index, channels=with_channels, rows=rows,
-                                  solid=not with_channels)
+        solid, masks = layer_bits(directory, manifest, index, channels=with_channels, rows=rows)
         width = manifest["image"]["width"]
-        if axis == "y":
-            lines = [unpack_bits(bits.rows[line:line + 1], width)[0] for bits in masks or [solid]]
-        else:
-            lines = [(bits.rows[:, line // 8] >> (7 - line % 8)) & 1 != 0 for bits in masks or [solid]]
-        if with_channels and np.sum(lines, axis=0, dtype=np.uint8).max(initial=0) > 1:
-            raise VerifyError(f"layer {index}: a pixel of the section is in two droplet masks")
+
+        def on_line(bits) -> np.ndarray:
+            if axis == "y":
+                return unpack_bits(bits.rows[line:line + 1], width)[0]
+            return (bits.rows[:, line // 8] >> (7 - line % 8)) & 1 != 0
+
+        lines = [on_line(bits) for bits in masks or [solid]]
+        if with_channels:
+            held = np.sum(lines, axis=0, dtype=np.uint8)
+            wrong = np.flatnonzero(held != on_line(solid))
+            if len(wrong):
+                where = "in two droplet masks" if held[wrong[0]] > 1 else (
+                    "in no droplet mask" if held[wrong[0]] == 0 else "in a droplet mask outside the solid")
+                raise VerifyError(f"layer {index}: a pixel of the section is {where}")
         return np.stack(lines, axis=-1).astype(np.float32)
     alpha = manifest["mask"] == "alpha"
     parts = []

@@ -541,10 +541,9 @@ PACKBITS_BESIDE_ZLIB = 2048
 def encode_chunk(raw: bytes, encodings: int) -> tuple[int, bytes]:
     """(encoding, bytes) for ``raw``: the smallest of the encodings the mask ``encodings`` allows, raw if none is
     smaller; PackBits is tried beside zlib only on chunks of at most PACKBITS_BESIDE_ZLIB bytes (the small
-    frames of a noisy link, where zlib's 6 bytes of framing count: 28 % fewer wire bytes on the graded vase
-    at 48-byte payloads): on the 16 KiB chunks of a clean link it won 4 of 1,664 by 31 bytes in all, and
-    cost as much time as zlib. A run of zero bytes (the empty rows of a mask, most of a droplet mask) is
-    encoded once per length."""
+    frames of a noisy link, where zlib's 6 bytes of framing count; on a clean link's large chunks it almost
+    never wins and costs as much time as zlib: benchmarks/README.md). A run of zero bytes (the empty rows of a
+    mask, most of a droplet mask) is encoded once per length."""
     if not raw.count(0) - len(raw):
         return _encode_zeros(len(raw), encodings)
     return _encode_chunk(bytes(raw), encodings)
