@@ -12,7 +12,7 @@ from helpers import in_process
 from volume_phantoms import FLIP_XY, grid_affine, write_nifti, write_nrrd
 
 from heoslice.errors import InputError
-from heoslice.material import DEFAULT_MATERIALS, read_materials_file
+from heoslice.material import DEFAULT_MATERIALS, Material, PartSetting, read_materials_file
 from heoslice.pipeline import SliceSpec
 from heoslice.pipeline.volume_job import plan_labels, slice_volume_to_stack
 from heoslice.stack import read_layer_channels, read_layer_mask, verify_stack
@@ -196,3 +196,18 @@ def test_verify_against_the_label_map(tmp_path, capsys):
     assert in_process("verify", tmp_path / "out", "--mesh", smaller, "--json") == 4
     summary = json.loads(capsys.readouterr().out)
     assert summary["warnings"] and summary["problems"]
+
+
+def test_droplet_masks_follow_channel_then_table_order(tmp_path):
+    """The droplet masks' order is the one rule of ``_mask_order``: by printer channel, materials without one
+    (a table not read from a file, whose reader gives each a free channel) last, ties by the table's order,
+    whatever order [labels] names them in."""
+    table = {name: Material(name, color, channel) for name, color, channel in (
+        ("gel", (240, 240, 240), None), ("wax", (160, 160, 160), None), ("cells", (0, 255, 0), 2))}
+    settings = {"4": PartSetting("wax"), "7": PartSetting("gel"), "9": PartSetting("cells")}  # wax seen first
+    volume = load_volume(write_nifti(tmp_path / "m.nii.gz", organ_map(), grid_affine(2.0, [0, 0, 0])))
+    plan = plan_labels(volume, table, settings)
+    assert [material.name for material in plan.materials] == ["cells", "gel", "wax"]
+    assert [plan.materials[index].name for index in plan.label_material] == ["wax", "gel", "cells"]  # labels 4, 7, 9
+    manifest, _ = slice_volume_to_stack(volume, tmp_path / "stack", SliceSpec(layer_height_mm=1.0, dpi=(50, 50)), plan)
+    assert [entry["name"] for entry in manifest["grading"]["materials"]] == ["cells", "gel", "wax"]

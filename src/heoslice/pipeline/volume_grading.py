@@ -6,6 +6,7 @@ table, and each graded label's 3D material field.
     [grade.liver]                # a printed label (value or name, as in [labels]); its [labels] material is M1
     to = "cells"                 # M2 of eq. 1: f(r) is its share
     toward = "liver_tumor"       # r measured from this label's surface; omitted: from the label's own boundary
+                                 # (a key naming several labels: each from its own)
     function = "linear"          # f(r): heoslice color's functions (alpha, beta, lam, periods, expression)
     range = [0.0, 20.0]          # mm mapped to r = 0 and r = 1; omitted: 0 .. the label's farthest voxel
 
@@ -94,8 +95,11 @@ class LabelGrade:
 
 def resolve_grades(settings: tuple[GradeSetting, ...], volume: Volume, printed: tuple[Label, ...],
                    start_of: list[Material]) -> tuple[LabelGrade, ...]:
-    """Each [grade] entry's label among the ``printed`` labels (with materials ``start_of``) and its reference
-    label among the volume's; InputError for a key naming no label, a label not printed or graded twice."""
+    """Each [grade] entry's labels among the ``printed`` labels (with materials ``start_of``) and their reference
+    label among the volume's. A key may name several labels (a name shared by segments, a value on several
+    layers): each is graded from its own boundary, or from the one label ``toward`` names. InputError for a key
+    naming no label, a label not printed or graded twice, and a ``toward`` naming no label or several (r needs
+    one surface)."""
     out, seen = [], set()
     for setting in settings:
         found = labels_named(setting.label, printed)
@@ -103,18 +107,21 @@ def resolve_grades(settings: tuple[GradeSetting, ...], volume: Volume, printed: 
             known = labels_named(setting.label, volume.labels)
             raise InputError(f"{volume.source}: [grade] {setting.label}: " + (
                 "the label is not printed (list it in [labels])" if known else "no such label in the file"))
-        reference = printed[found[0]]
+        toward = None
         if setting.toward is not None:
             named = labels_named(setting.toward, volume.labels)
-            if not named:
-                raise InputError(f"{volume.source}: [grade] {setting.label}: toward {setting.toward}: no such label "
-                                 "in the file")
-            reference = volume.labels[named[0]]
+            if len(named) != 1:
+                several = ", ".join(volume.labels[index].describe() for index in named)
+                raise InputError(f"{volume.source}: [grade] {setting.label}: toward {setting.toward}: " + (
+                    f"names {len(named)} labels ({several}); name one (by value or name)" if named else
+                    "no such label in the file"))
+            toward = volume.labels[named[0]]
         for index in found:
             if index in seen:
                 raise InputError(f"{volume.source}: [grade]: label {printed[index].describe()} is graded twice")
             seen.add(index)
-            out.append(LabelGrade(index, reference, start_of[index], setting.target, setting))
+            out.append(LabelGrade(index, printed[index] if toward is None else toward, start_of[index],
+                                  setting.target, setting))
     return tuple(out)
 
 

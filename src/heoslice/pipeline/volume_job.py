@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import InputError
+from heoslice.grading.halftone import DEFAULT_METHOD
 from heoslice.layers.planes import layer_count, plane_heights
 from heoslice.layers.rasterising import grid_for
 from heoslice.locks import hold_stack
@@ -99,12 +100,7 @@ def plan_labels(volume: Volume, table: dict[str, Material], settings: Mapping[st
     if not printed:
         raise InputError(f"{volume.source}: no label to print (the [labels] table lists none with voxels)")
     materials_of = [table_material(chosen[index].material, table) for index in printed]
-    rank = {material.name: position for position, material in enumerate(table.values())}
-    used = sorted({material.name: material for material in materials_of}.values(),
-                  key=lambda m: (m.channel is None, m.channel or 0, rank.get(m.name, len(rank))))
-    if len(used) > MAX_PART_MATERIALS:
-        raise InputError(f"labels: {len(used)} materials, more than the {MAX_PART_MATERIALS} a layer can carry")
-    check_one_per_channel(used, "the labels")
+    used = _mask_order(materials_of, "the labels", tuple(table))
     position = {material.name: index for index, material in enumerate(used)}
     voxels = tuple(counts[index] for index in printed)
     ranks = None
@@ -146,11 +142,15 @@ def _layer_files(directory: Path, spec: SliceSpec, grid, masks: tuple[Material, 
 
 def _write_stack(directory: Path, spec: SliceSpec, grid, bounds: np.ndarray, masks: tuple[Material, ...],
                  render: Callable[[int, float], tuple[np.ndarray, np.ndarray]], manifest_fields: dict, times: StageTimes,
-                 force: bool, progress: Callable[[int, int], None] | None) -> dict:
+                 force: bool, progress: Callable[[int, int], None] | None, halftone: str | None = None
+                 ) -> dict:
     """Write a volume's stack as the mesh route writes one: ``render(index, z)`` gives a layer's packed planes
     ((1 + len(masks), H, ceil(W / 8)) uint8: the solid mask, then one droplet mask per material of ``masks``,
     none for a one-material stack) and their set pixels; the layers are rendered, encoded and written over
-    ``spec``'s worker processes (:func:`heoslice.pipeline.parallel.ordered_map`), the manifest last. Returns it."""
+    ``spec``'s worker processes (:func:`heoslice.pipeline.parallel.ordered_map`), the manifest last. Returns it.
+    ``halftone`` is the method that made the droplet masks (None: nothing was halftoned, each pixel is one
+    label's material): recorded as the manifest's ``grading.halftone`` as the mesh route records it (omitted for
+    ordered dither), so that a stack says how its mixes became droplets."""
     from heoslice.pipeline.parallel import ordered_map
 
     level = deflate_level(bool(masks))
@@ -176,9 +176,18 @@ def _write_stack(directory: Path, spec: SliceSpec, grid, bounds: np.ndarray, mas
             layer_height_mm=spec.layer_height_mm, dpi=spec.dpi, pixel_size_mm=(grid.px, grid.py),
             image=ImageRecord(grid.width, grid.height, (grid.x_left, grid.y_top), "1", spec.compression),
             z_range_mm=(float(bounds[0, 2]), float(bounds[1, 2])), layers=layers,
-            grading=droplet_summary(masks) if masks else None, **manifest_fields)
+            grading=_droplet_grading(masks, halftone), **manifest_fields)
         write_manifest(directory, manifest)
     return manifest
+
+
+def _droplet_grading(masks: tuple[Material, ...], halftone: str | None) -> dict | None:
+    """The manifest's ``grading`` of a volume's stack: None without droplet masks, else their materials
+    (:func:`heoslice.stack.droplet_summary`) and the ``halftone`` method, omitted when None or ordered dither
+    (the default a stack without the field is read as, :func:`heoslice.stack.grading_summary`'s rule)."""
+    if not masks:
+        return None
+    return {**({} if halftone in (None, DEFAULT_METHOD) else {"halftone": halftone}), **droplet_summary(masks)}
 
 
 def _grid(spec: SliceSpec, bounds: np.ndarray):
@@ -187,12 +196,21 @@ def _grid(spec: SliceSpec, bounds: np.ndarray):
     return grid
 
 
-def _mask_order(materials: list[Material]) -> tuple[Material, ...]:
-    """The droplet masks' materials: ``materials`` once each (by name), ordered by printer channel (those without
-    one last, in their first order)."""
+def _mask_order(materials: list[Material], needing: str, table_order: tuple[str, ...] = ()) -> tuple[Material, ...]:
+    """The droplet masks' materials, the one rule every volume job orders and checks them by: ``materials`` once
+    each (by name), ordered by printer channel (those without one last); ties by their place in ``table_order``
+    (the materials table's names, when the order comes from it), then by first appearance. Refused
+    (InputError, ``needing`` saying who needs the masks): more than :data:`MAX_PART_MATERIALS` materials, or
+    two on one printer channel."""
     used = {m.name: m for m in materials}
-    rank = {name: position for position, name in enumerate(used)}
-    return tuple(sorted(used.values(), key=lambda m: (m.channel is None, m.channel or 0, rank[m.name])))
+    first = {name: position for position, name in enumerate(used)}
+    listed = {name: position for position, name in enumerate(table_order)}
+    masks = tuple(sorted(used.values(), key=lambda m: (m.channel is None, m.channel or 0,
+                                                       listed.get(m.name, len(listed)), first[m.name])))
+    if len(masks) > MAX_PART_MATERIALS:
+        raise InputError(f"labels: {len(masks)} materials, more than the {MAX_PART_MATERIALS} a layer can carry")
+    check_one_per_channel(masks, needing)
+    return masks
 
 
 def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan: LabelPlan, *, up: str = "S",
@@ -208,11 +226,8 @@ def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan
     placement = place(volume, up)
     starts = [plan.materials[material] for material in plan.label_material]
     graded = resolve_grades(grades, volume, plan.labels, starts)
-    masks = _mask_order([*plan.materials, *(grade.target for grade in graded)]) if plan.channels or graded else ()
-    if graded:
-        check_one_per_channel(masks, "the labels and their grading")
-        if len(masks) > MAX_PART_MATERIALS:
-            raise InputError(f"labels: {len(masks)} materials, more than the {MAX_PART_MATERIALS} a layer can carry")
+    masks = _mask_order([*plan.materials, *(grade.target for grade in graded)], "the labels and their grading") \
+        if graded else plan.materials if plan.channels else ()  # plan.materials: ordered and checked by plan_labels
     position = {material.name: index for index, material in enumerate(masks)}
     codes = [position[material.name] + 1 if masks else 0 for material in starts]  # 0: the solid mask only
     for number, grade in enumerate(graded):
@@ -250,7 +265,7 @@ def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan
         {"source_file": volume.source.name, "source_sha256": volume.sha256,
          "warnings": [*volume.warnings, *plan.warnings],
          "placement": placement.record(volume.space, (grid.x_left, grid.y_top, float(bounds[0, 2]))),
-         "labels": records}, times, force, progress)
+         "labels": records}, times, force, progress, spec.halftone if graded else None)
     times.total = time.perf_counter() - started
     return manifest, times
 
@@ -309,7 +324,7 @@ def slice_intensity_to_stack(volume: Volume, directory: Path, spec: SliceSpec, c
         Path(directory), spec, grid, bounds, curve.materials, render,
         {"source_file": volume.source.name, "source_sha256": volume.sha256, "warnings": list(volume.warnings),
          "placement": placement.record(volume.space, (grid.x_left, grid.y_top, float(bounds[0, 2])))},
-        times, force, progress)
+        times, force, progress, spec.halftone)
     times.total = time.perf_counter() - started
     return manifest, times
 
@@ -335,7 +350,7 @@ def slice_ct_with_labels_to_stack(ct: Volume, labels: Volume, directory: Path, s
     origin, spacing = ct_placement.oriented_origin(ct.shape), ct_placement.spacing
     label_materials = [plan.materials[material] for index, material in enumerate(plan.label_material)
                        if index not in curve_labels]
-    masks = _mask_order([*label_materials, *curve.materials])
+    masks = _mask_order([*label_materials, *curve.materials], "the labels and the intensity curve")
     position = {m.name: index for index, m in enumerate(masks)}
     curve_code = len(masks) + 1
     codes = [curve_code if index in curve_labels else position[plan.materials[material].name] + 1
@@ -367,6 +382,6 @@ def slice_ct_with_labels_to_stack(ct: Volume, labels: Volume, directory: Path, s
         {"source_file": labels.source.name, "source_sha256": labels.sha256,
          "warnings": [*ct.warnings, *labels.warnings, *plan.warnings],
          "placement": placement.record(labels.space, (grid.x_left, grid.y_top, float(bounds[0, 2]))),
-         "labels": records}, times, force, progress)
+         "labels": records}, times, force, progress, spec.halftone if curve_labels else None)
     times.total = time.perf_counter() - started
     return manifest, times
