@@ -18,7 +18,6 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import InputError
-from heoslice.grading.halftone import DEFAULT_METHOD
 from heoslice.layers.planes import layer_count, plane_heights
 from heoslice.layers.rasterising import grid_for
 from heoslice.locks import hold_stack
@@ -182,12 +181,11 @@ def _write_stack(directory: Path, spec: SliceSpec, grid, bounds: np.ndarray, mas
 
 
 def _droplet_grading(masks: tuple[Material, ...], halftone: str | None) -> dict | None:
-    """The manifest's ``grading`` of a volume's stack: None without droplet masks, else their materials
-    (:func:`heoslice.stack.droplet_summary`) and the ``halftone`` method, omitted when None or ordered dither
-    (the default a stack without the field is read as, :func:`heoslice.stack.grading_summary`'s rule)."""
+    """The manifest's ``grading`` of a volume's stack: None without droplet masks, else their materials and the
+    ``halftone`` method (:func:`heoslice.stack.droplet_summary`)."""
     if not masks:
         return None
-    return {**({} if halftone in (None, DEFAULT_METHOD) else {"halftone": halftone}), **droplet_summary(masks)}
+    return droplet_summary(masks, halftone)
 
 
 def _grid(spec: SliceSpec, bounds: np.ndarray):

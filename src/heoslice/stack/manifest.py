@@ -161,9 +161,7 @@ def grading_summary(grade, halftone: str | None = None, interior: str | None = N
                     design: dict | None = None) -> dict:
     """The manifest's ``grading`` object of a grading specification (``GradeSpec``): what the interiors
     were graded with, the materials of the droplet masks in the order of the layers' masks, and, for a stack
-    with droplet masks, the ``halftone`` method that made them (:data:`heoslice.grading.halftone.METHODS`)
-    unless it is ordered dither: without the field a stack is ordered, as every stack made before there was a
-    choice (and an ordered stack stays byte for byte what it was); ``interior`` (``field``, ``contour`` or
+    with droplet masks, the ``halftone`` method that made them (:func:`halftone_record`); ``interior`` (``field``, ``contour`` or
     ``graded``: what a coloured model's solid got) and ``design`` (the model's recorded design,
     :meth:`heoslice.material.design.Design.record`) when given."""
     regions = grade.regions
@@ -171,9 +169,7 @@ def grading_summary(grade, halftone: str | None = None, interior: str | None = N
     extra = {key: value for key, value in (("interior", interior), ("design", design)) if value is not None}
     if getattr(regions, "depth_from", "layer") != "layer":
         extra["depth_from"] = regions.depth_from
-    if halftone not in (None, DEFAULT_HALFTONE):
-        extra["halftone"] = halftone
-    return {**extra,
+    return {**extra, **halftone_record(halftone),
         "function": None if grade.function is None else grade.function.describe(),
         "target": material(grade.target),
         "from": material(grade.start),
@@ -185,11 +181,19 @@ def grading_summary(grade, halftone: str | None = None, interior: str | None = N
     }
 
 
-def droplet_summary(materials) -> dict:
-    """The manifest's ``grading`` object of an ungraded stack with droplet masks (a multi-part job): the fields
-    of :func:`grading_summary`, without a function or sub-region layout (null), and the droplet masks'
-    materials in the order of the layers' masks."""
-    return {"function": None, "target": None, "from": None, "nozzle_mm": None, "depth_mm": None, "direction": None,
+def halftone_record(halftone: str | None) -> dict:
+    """The ``grading.halftone`` field of a stack with droplet masks: the method, left out for ordered dither (or
+    None): without the field a stack is ordered, as every stack made before there was a choice, and an ordered
+    stack stays byte for byte what it was."""
+    return {} if halftone in (None, DEFAULT_HALFTONE) else {"halftone": halftone}
+
+
+def droplet_summary(materials, halftone: str | None = None) -> dict:
+    """The manifest's ``grading`` object of an ungraded stack with droplet masks (a multi-part job, a volume's
+    labels or curve): the fields of :func:`grading_summary`, without a function or sub-region layout (null), the
+    ``halftone`` that made the masks (:func:`halftone_record`) and the droplet masks' materials in the order of
+    the layers' masks."""
+    return {**halftone_record(halftone), "function": None, "target": None, "from": None, "nozzle_mm": None, "depth_mm": None, "direction": None,
             "offsets": None, "materials": [_material_record(m) for m in materials]}
 
 
