@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers import in_process
+from helpers import heoslice, in_process
 from volume_phantoms import FLIP_XY, grid_affine, write_nifti, write_nrrd
 
 from heoslice.errors import InputError
@@ -211,3 +211,32 @@ def test_droplet_masks_follow_channel_then_table_order(tmp_path):
     assert [plan.materials[index].name for index in plan.label_material] == ["wax", "gel", "cells"]  # labels 4, 7, 9
     manifest, _ = slice_volume_to_stack(volume, tmp_path / "stack", SliceSpec(layer_height_mm=1.0, dpi=(50, 50)), plan)
     assert [entry["name"] for entry in manifest["grading"]["materials"]] == ["cells", "gel", "wax"]
+
+
+def test_a_printer_preset_pads_a_label_maps_stack_and_limits_its_materials(tmp_path):
+    """``slice MAP --printer connex-30um``: the volume route's stack is on the preset's grid (600 x 300 dpi, 0.03 mm
+    layers, width a multiple of 16 px where the map's own width is not), and a table of more materials than the
+    preset jets (Connex3: 3) is one line, exit 2."""
+    path = write_nifti(tmp_path / "m.nii.gz", organ_map(), grid_affine(2.0, [0, 0, 0]))
+    (tmp_path / "mats.toml").write_text(MATERIALS.format(labels='4 = "gel"\n9 = "cells"'))
+    assert in_process("slice", path, "--materials", tmp_path / "mats.toml", "--printer", "connex-30um",
+                      "-o", tmp_path / "preset") == 0
+    assert in_process("slice", path, "--materials", tmp_path / "mats.toml", "--layer", "0.03", "--dpi", "600x300",
+                      "-o", tmp_path / "plain") == 0
+    preset, plain = (json.loads((tmp_path / name / "manifest.json").read_text()) for name in ("preset", "plain"))
+    assert preset["dpi"] == [600.0, 300.0] and preset["layer_height_mm"] == 0.03
+    assert plain["image"]["width"] % 16 != 0
+    assert preset["image"]["width"] == -(-plain["image"]["width"] // 16) * 16
+    four = MATERIALS.format(labels='4 = "gel"\n7 = "cells"\n9 = "bone"\n11 = "fat"') + """
+[materials.bone]
+color = "#ffffff"
+channel = 3
+[materials.fat]
+color = "#ffff00"
+channel = 4
+"""
+    (tmp_path / "four.toml").write_text(four)
+    done = heoslice("slice", path, "--materials", tmp_path / "four.toml", "--printer", "connex-30um",
+                    "-o", tmp_path / "four")
+    assert done.returncode == 2 and "connex-30um jets at most 3" in done.stderr, done.stderr
+    assert done.stderr.count("\n") == 1 and not (tmp_path / "four").exists()

@@ -308,7 +308,7 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
         try:
             spec = SliceSpec(layer_height_mm=layer_height, dpi=parse_dpi(dpi), margin_mm=margin,
                              canvas_mm=parse_canvas(canvas), compression=compression, jobs=jobs,
-                             halftone=halftone)  # the [grade] labels' and [intensity] curve's mixes
+                             halftone=halftone, printer=preset)  # halftone: [grade] labels', [intensity] mixes
         except InputError as err:
             raise flag_error(err) from None
         slice_volume(models[0], output, spec, force, as_json, materials, bool(channels), up, smooth, volume_kind,

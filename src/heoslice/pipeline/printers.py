@@ -7,7 +7,7 @@ in ``docs/export-formats.md`` ("Printer presets").
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from heoslice.errors import InputError
 
@@ -52,3 +52,19 @@ def presets_table() -> list[str]:
         lines.append(f"{preset.name:<12} {dpi:<12} {preset.layer_mm * 1000:g} um{'':<3} {preset.pad_x_px:<6} "
                      f"{preset.max_materials:<10} {preset.printer}")
     return lines
+
+
+def printer_grid(grid, preset: PrinterPreset | None):
+    """The layer grid (:class:`heoslice.layers.rasterising.Grid`) as the preset's printer takes it: its width padded
+    to a multiple of the preset's ``pad_x_px`` (the image grows to the right); unchanged without a preset."""
+    if preset is None:
+        return grid
+    return replace(grid, width=-(-grid.width // preset.pad_x_px) * preset.pad_x_px)
+
+
+def check_printer_materials(preset: PrinterPreset | None, count: int) -> None:
+    """Refuse (InputError) a job of ``count`` droplet-mask materials (0: one material) beyond the most the preset's
+    printer jets in one job; nothing to check without a preset."""
+    if preset is not None and max(count, 1) > preset.max_materials:
+        raise InputError(f"printer: {preset.name} jets at most {preset.max_materials} model materials in one job; "
+                         f"this slice has {count}")

@@ -10,7 +10,6 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from contextlib import ExitStack, contextmanager
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +23,7 @@ from heoslice.mesh import Mesh, ranked_part_volumes_mm3
 from heoslice.pipeline.materials import colour_collapse, material_job
 from heoslice.pipeline.parallel import run_all
 from heoslice.pipeline.parts import parts_records
+from heoslice.pipeline.printers import check_printer_materials, printer_grid
 from heoslice.pipeline.runs import RunContext, RunResult
 from heoslice.pipeline.spec import (
     MAX_COORDINATE_MM,
@@ -105,9 +105,8 @@ def slice_to_stack(mesh: Mesh, directory: Path, spec: SliceSpec, *, force: bool 
     job = material_job(mesh, spec)
     spec = job.spec
     grid = grid_for(mesh.bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
-    if spec.printer is not None:
-        _check_printer_materials(spec)
-        grid = replace(grid, width=-(-grid.width // spec.printer.pad_x_px) * spec.printer.pad_x_px)
+    check_printer_materials(spec.printer, len(_droplet_materials(spec) or ()))
+    grid = printer_grid(grid, spec.printer)
     check_image_size(grid.width, grid.height)
     bounds = mesh.bounds
     limit = layer_limit(spec)
@@ -173,14 +172,6 @@ def _incomplete_if_interrupted(directory: Path):
     except KeyboardInterrupt as interrupt:
         interrupt.__notes__ = [*getattr(interrupt, "__notes__", ()), incomplete_stack(directory)]
         raise
-
-
-def _check_printer_materials(spec: SliceSpec) -> None:
-    """Refuse a slice with more droplet-mask materials than its printer preset jets in one job."""
-    count = len(_droplet_materials(spec) or ()) or 1
-    if count > spec.printer.max_materials:
-        raise InputError(f"printer: {spec.printer.name} jets at most {spec.printer.max_materials} model materials "
-                         f"in one job; this slice has {count}")
 
 
 def _image_mode(spec: SliceSpec) -> str:

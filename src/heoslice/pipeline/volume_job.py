@@ -23,6 +23,7 @@ from heoslice.layers.rasterising import grid_for
 from heoslice.locks import hold_stack
 from heoslice.material import Material, PartSetting, check_one_per_channel, table_material
 from heoslice.pipeline.parts import MAX_PART_MATERIALS, part_order
+from heoslice.pipeline.printers import check_printer_materials, printer_grid
 from heoslice.pipeline.spec import SliceSpec, StageTimes, channel_name
 from heoslice.pipeline.volume_grading import GradeSetting, grade_field, resolve_grades
 from heoslice.stack import (
@@ -152,6 +153,7 @@ def _write_stack(directory: Path, spec: SliceSpec, grid, bounds: np.ndarray, mas
     ordered dither), so that a stack says how its mixes became droplets."""
     from heoslice.pipeline.parallel import ordered_map
 
+    check_printer_materials(spec.printer, len(masks))
     level = deflate_level(bool(masks))
     with ExitStack() as held:
         existed = directory.is_dir()
@@ -189,7 +191,9 @@ def _droplet_grading(masks: tuple[Material, ...], halftone: str | None) -> dict 
 
 
 def _grid(spec: SliceSpec, bounds: np.ndarray):
-    grid = grid_for(bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm)
+    """The layer grid over ``bounds`` ((2, 3) mm), padded as ``spec``'s printer preset takes it, within the size
+    limit."""
+    grid = printer_grid(grid_for(bounds[:, :2], spec.dpi, spec.margin_mm, spec.canvas_mm), spec.printer)
     check_image_size(grid.width, grid.height)
     return grid
 
