@@ -36,6 +36,17 @@ def curve(tmp_path):
     return read_curve(table.data["intensity"], table.materials)
 
 
+
+def middle_layer(stack):
+    """(manifest, solid (H, W) bool, masks (K, H, W) bool) of the stack's middle layer, after checking that every
+    solid pixel is in exactly one droplet mask there."""
+    manifest = json.loads((stack / "manifest.json").read_text())
+    middle = len(manifest["layers"]) // 2
+    solid = read_layer_mask(stack, manifest, middle).astype(bool)
+    masks = read_layer_channels(stack, manifest, middle).astype(bool)
+    assert np.array_equal(masks.sum(axis=0), solid.astype(int))
+    return manifest, solid, masks
+
 def test_curve_blends_linearly_and_holds_its_ends(tmp_path):
     """Bone fraction (value - 100) / 800 between the points, 0 below, 1 above; fractions sum to 1."""
     blend = curve(tmp_path)
@@ -83,11 +94,7 @@ def test_ct_sliced_by_its_curve(tmp_path, capsys):
                       tmp_path / "out", "--json") == 0
     out = json.loads(capsys.readouterr().out)
     assert out["materials"] == ["tissue", "bone"]
-    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
-    middle = len(manifest["layers"]) // 2
-    solid = read_layer_mask(tmp_path / "out", manifest, middle).astype(bool)
-    masks = read_layer_channels(tmp_path / "out", manifest, middle).astype(bool)
-    assert np.array_equal(masks.sum(axis=0), solid.astype(int))
+    manifest, solid, masks = middle_layer(tmp_path / "out")
     left, top = manifest["image"]["origin_mm"]
     px = manifest["pixel_size_mm"][0]
     for x_mm, share in ((8.0, 0.25), (28.0, 0.75)):  # slab centres: x 4..20 mm at 300 HU, 20..36 mm at 700 HU
@@ -116,11 +123,7 @@ def test_ct_bone_by_its_curve_and_labelled_soft_tissue_in_one_job(tmp_path, caps
                       "600", "-o", tmp_path / "out", "--json") == 0
     out = json.loads(capsys.readouterr().out)
     assert out["materials"] == ["tissue", "bone"]
-    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
-    middle = len(manifest["layers"]) // 2
-    solid = read_layer_mask(tmp_path / "out", manifest, middle).astype(bool)
-    masks = read_layer_channels(tmp_path / "out", manifest, middle).astype(bool)
-    assert np.array_equal(masks.sum(axis=0), solid.astype(int))
+    manifest, solid, masks = middle_layer(tmp_path / "out")
     left, top = manifest["image"]["origin_mm"]
     px = manifest["pixel_size_mm"][0]
     row = int((top - 16.0) / px)
