@@ -180,10 +180,12 @@ def test_layer_fraction_over_the_grid_is_f_of_each_pixels_r(kind, at, direction)
     assert np.abs(f[rows - r0, cols - c0] - np.clip(0.5 * np.sin(4 * np.pi * r) + 0.5, 0, 1)).max() < 2e-6
 
 
-@pytest.mark.parametrize("kind", ["point", "plane", "axis"])
-def test_layer_codes_of_a_closed_form_reference_read_the_exact_r(kind, tmp_path):
+@pytest.mark.parametrize("kind, high, cut", [("point", 6.0, 0), ("plane", 6.0, 0), ("axis", 6.0, 0),
+                                              ("point", 6.03, 19), ("axis", 6.03, 19)])
+def test_layer_codes_of_a_closed_form_reference_read_the_exact_r(kind, high, cut, tmp_path):
     """A layer's codes through the identity table are each solid pixel's r rounded to k / R_STEPS: within
-    1 / (2 R_STEPS) (and rounding) of the closed-form distance's r, for a tilted plane and axis too."""
+    1 / (2 R_STEPS) (and rounding) of the closed-form distance's r, for a tilted plane and axis too; also
+    where the solid starts ``cut`` columns in (a box not at column 0) on a grid whose width is not whole bytes."""
     from dataclasses import replace
 
     from heoslice.material.field import R_STEPS, MaterialField
@@ -195,10 +197,12 @@ def test_layer_codes_of_a_closed_form_reference_read_the_exact_r(kind, tmp_path)
     design = Design.from_header(load_mesh(colored_file(procedural.sphere(radius=1.0, subdivisions=1), tmp_path,
                                                        "b", ColorSpec(make_function("linear")))).comments)
     field = MaterialField(replace(design, r_range=(0.5, 9.0)), geometry)
-    grid = grid_over(-6.0, 6.0, 0.1)
+    grid = grid_over(-6.0, high, 0.1)
     solid = np.random.default_rng(5).random((grid.height, grid.width)) < 0.6
+    solid[:, :cut] = False
     packed = np.packbits(solid, axis=1)
     (r0, r1, c0, c1), codes = field.layer_codes(packed, grid, 1.7, np.arange(R_STEPS + 1, dtype=np.uint16))
+    assert c0 == cut // 8 * 8 and c1 == grid.width and grid.width % 8 == (1 if cut else 0)
     rows, cols = np.nonzero(solid[r0:r1, c0:c1])
     x = grid.x_left + (cols + c0 + 0.5) * grid.px
     y = grid.y_top - (rows + r0 + 0.5) * grid.py

@@ -135,7 +135,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     search_kernels._tree_boxes: (f8_1, f8_1, f8_1, f8_1, i8_1),
     search_kernels._chunk_capsules: (f8_1, f8_1, f8_1, f8_1),
     slicing_kernels._layer_segments: (f8_2, i8_2, f8_1, i8_1, i8_1),
-    references_kernels.quadratic_codes: (b_2, types.UniTuple(f8, 4), types.UniTuple(f8, 6), f8, f8,
+    references_kernels.quadratic_codes: (u1_2, i8, types.UniTuple(f8, 4), types.UniTuple(f8, 6), f8, f8,
                                          types.uint16[::1], types.uint16[:, ::1]),
     surface_kernels.build_nodes: (f8_2, f8_2, f8_2, i8),
     surface_kernels.nearest_distances: (f8_2, HIERARCHY, f8_1),

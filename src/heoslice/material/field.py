@@ -84,7 +84,6 @@ class MaterialField:
         uint16, e.g. a halftone's level of each f in :attr:`fraction_table`): f read from one table per layer,
         in one compiled pass, instead of evaluated at every voxel."""
         r0, r1, c0, c1 = solid_box(packed, grid.width)
-        solid = np.unpackbits(packed[r0:r1], axis=1, count=grid.width)[:, c0:c1].view(bool)
         table = np.ascontiguousarray(table, dtype=np.uint16)
         if len(table) != R_STEPS + 1:
             raise ValueError(f"a table of codes has R_STEPS + 1 = {R_STEPS + 1} entries, not {len(table)}")
@@ -92,14 +91,15 @@ class MaterialField:
         if self.reference.kind == "surface":
             from heoslice.material.surface import layer_r
 
+            solid = np.unpackbits(packed[r0:r1], axis=1, count=grid.width)[:, c0:c1].view(bool)
             codes = layer_r(solid, (x0, grid.px, y0, -grid.py, z), self.reference.surface, self.design.r_range,
                             R_TOLERANCE, table=table)
             return (r0, r1, c0, c1), codes
         from heoslice.material.references_kernels import quadratic_codes
 
-        codes = np.zeros(solid.shape, np.uint16)
+        codes = np.zeros((r1 - r0, c1 - c0), np.uint16)
         point = self.reference.point
-        quadratic_codes(np.ascontiguousarray(solid), (x0 - point[0], grid.px, y0 - point[1], -grid.py),
+        quadratic_codes(np.ascontiguousarray(packed[r0:r1]), c0, (x0 - point[0], grid.px, y0 - point[1], -grid.py),
                         grid_square(self.reference, z), *map(float, self.design.r_range), table, codes)
         return (r0, r1, c0, c1), codes
 
