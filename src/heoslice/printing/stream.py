@@ -108,8 +108,11 @@ def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, m
     says whether the rest is estimated (``estimated``) and from how many layers (``layers_encoded``)."""
     check_from_layer(job, from_layer)
 
+    framing = sum(P.wire_size(len(P.pack_message(message)[1]))
+                  for message in (P.LayerBegin(0, job.channels, job.channel_bytes, 0), P.LayerEnd(0), P.Execute(0)))
+
     def layer_plan(index: int) -> tuple[int, int, int]:
-        frames, wire, raw = 3, 3 * P.wire_size(13), 0
+        frames, wire, raw = 3, framing, 0
         for number, data in enumerate(get_layer(index)):
             raw += len(data)
             offset = 0
