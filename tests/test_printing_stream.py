@@ -112,7 +112,8 @@ def test_sampled_plan_is_within_its_bound_of_the_exact_one(ball_stack, from_laye
 
 def test_dry_run_says_its_figures_are_estimated_and_exact_encodes_every_layer(ball_stack, run_cli):
     """`print --dry-run` says it estimated from 32 of 160 layers (text and JSON); with --exact the JSON gives the
-    exact plan's figures; --exact without --dry-run is a usage error (exit 2, one line)."""
+    exact plan's figures; --exact without --dry-run is a usage error (exit 2, one line); the help states the
+    sample and the bound the tests hold the estimate to."""
     code, out, err = run_cli("print", ball_stack, "--dry-run")
     assert code == 0 and f"(estimated from {SAMPLE_LAYERS} of 160 layers; --exact encodes every layer)" in out
     code, out, _ = run_cli("print", ball_stack, "--dry-run", "--json")
@@ -126,3 +127,6 @@ def test_dry_run_says_its_figures_are_estimated_and_exact_encodes_every_layer(ba
     assert {key: summary[key] for key in exact} == exact
     code, out, err = run_cli("print", ball_stack, "--exact")
     assert code == 2 and "--exact" in err and err.count("\n") == 1 and out == ""
+    code, out, _ = run_cli("print", "--help")
+    assert code == 0 and f"{SAMPLE_LAYERS} layers" in " ".join(out.split())
+    assert f"within {100 * ESTIMATE_BOUND:g} % of --exact" in " ".join(out.split())

@@ -48,9 +48,9 @@ Examples:
 @click.option("--restart", is_flag=True, help="Abort the controller's unfinished job and print from layer 0.")
 @click.option("--dry-run", is_flag=True,
               help="Verify every layer as a print would and size the transfer; open no port. The frames and wire "
-                   "bytes are estimated from {SAMPLE_LAYERS} layers spread evenly over the stack (every layer of a "
-                   "smaller one), scaled by each layer's stored bytes: within 1 %% of --exact on the benchmark "
-                   "stacks; the raw bytes are exact.")
+                   f"bytes are estimated from {SAMPLE_LAYERS} layers spread evenly over the stack (every layer of a "
+                   "smaller one), scaled by the bytes each layer's files take: within 1 % of --exact on the "
+                   "benchmark stacks and in the tests; the raw bytes are exact.")
 @click.option("--exact", is_flag=True,
               help="With --dry-run: encode every layer as the print would, for the exact frames and wire bytes "
                    "(deflating every chunk: about as long as slicing the stack took).")
