@@ -16,7 +16,7 @@ from heoslice.printing.stream import (CHUNK_HEADER, SAMPLE_LAYERS, check_from_la
                                       plan_transfer)
 from heoslice.printing.window import FrameSizer, SendWindow, optimal_frame_bytes
 
-__all__ = ["JobSpec", "LayerSource", "job_summary", "pack_mask", "stack_job", "PrinterLink",
-           "PrintResult", "Progress", "print_job", "PrintLog", "check_log_output", "default_log_path", "Connector", "Port",
-           "SerialConnector", "connector_for", "LinkTiming", "Session", "CHUNK_HEADER", "SAMPLE_LAYERS", "check_from_layer", "job_messages",
-           "next_chunk", "plan_transfer", "FrameSizer", "SendWindow", "optimal_frame_bytes"]
+__all__ = ["JobSpec", "LayerSource", "job_summary", "pack_mask", "stack_job", "PrinterLink", "PrintResult", "Progress",
+           "print_job", "PrintLog", "check_log_output", "default_log_path", "Connector", "Port", "SerialConnector",
+           "connector_for", "LinkTiming", "Session", "CHUNK_HEADER", "SAMPLE_LAYERS", "check_from_layer",
+           "job_messages", "next_chunk", "plan_transfer", "FrameSizer", "SendWindow", "optimal_frame_bytes"]
