@@ -85,7 +85,7 @@ def sample_layers(first: int, stop: int, count: int) -> list[int]:
 
 def regression_total(values: Sequence[float], sampled: Sequence[float], every: Sequence[float]) -> float:
     """The sum over every layer of a figure known on a sample of them (``values``), by the regression estimator
-    N ybar + b (X - N xbar) (Cochran, Sampling Techniques, 3rd ed., section 7.1): x is an auxiliary known for
+    N ybar + b (X - N xbar) (Cochran, Sampling Techniques, 3rd ed., chapter 7): x is an auxiliary known for
     every layer (``every``; ``sampled`` its sampled layers' values), b the least-squares slope of the figure on x
     over the sample, 0 when x does not vary there (the estimate is then N ybar). Exact for a figure linear in x."""
     y, x, known = (np.asarray(a, dtype=float) for a in (values, sampled, every))
@@ -104,8 +104,9 @@ def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, m
     Every layer is encoded when ``sample`` is None or the job has no more layers to send; else ``sample``
     layers spread evenly (:func:`sample_layers`), and the frames and wire bytes of the whole are estimated by
     :func:`regression_total` on the bytes each layer's files take in the stack (``job.stored_bytes``: the same
-    masks, compressed, so a layer's encoded size follows them). The raw bytes are exact either way; the result
-    says whether the rest is estimated (``estimated``) and from how many layers (``layers_encoded``)."""
+    masks, compressed, so a layer's encoded size follows them; without them, by the sample's mean per layer).
+    The raw bytes are exact either way; the result says whether the rest is estimated (``estimated``) and from
+    how many layers (``layers_encoded``)."""
     check_from_layer(job, from_layer)
 
     framing = sum(P.wire_size(len(P.pack_message(message)[1]))
