@@ -266,6 +266,21 @@ def test_chunk_encoding_choice_and_raw_fallback():
     assert P.decode_chunk(code, packed, len(runs)) == runs
 
 
+@settings(max_examples=60)
+@given(st.integers(0, 20_000), st.integers(0, 20_000), st.integers(1, 255), st.booleans())
+def test_a_chunk_is_encoded_the_same_whether_or_not_it_is_all_zeros(length, at, value, zeros):
+    """A run of zero bytes (encoded once per length and remembered) gets what encoding it afresh gives; a chunk
+    with one non-zero byte anywhere, first and last included, is encoded as itself, never as the zero run."""
+    raw = bytearray(length)
+    if not zeros and length:
+        raw[at % length] = value
+    raw = bytes(raw)
+    for encodings in (P.ALL_ENCODINGS, 1 << P.ENC_RAW | 1 << P.ENC_PACKBITS):
+        code, encoded = P.encode_chunk(raw, encodings)
+        assert (code, encoded) == P._encode_chunk(raw, encodings)
+        assert P.decode_chunk(code, encoded, length) == raw
+
+
 def test_deflate_is_a_zlib_stream_with_either_encoder(monkeypatch):
     """The chunk deflater's output is an RFC 1950 stream the standard library inflates to the input, with zlib-ng
     (imagecodecs) and with the zlib fallback; with zlib allowed, PackBits is tried beside it on small chunks only

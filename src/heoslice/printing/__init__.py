@@ -12,10 +12,11 @@ from heoslice.printing.link import PrinterLink, PrintResult, Progress, print_job
 from heoslice.printing.log import PrintLog, check_log_output, default_log_path
 from heoslice.printing.ports import Connector, Port, SerialConnector, connector_for
 from heoslice.printing.session import LinkTiming, Session
-from heoslice.printing.stream import CHUNK_HEADER, check_from_layer, job_messages, next_chunk, plan_transfer
+from heoslice.printing.stream import (CHUNK_HEADER, SAMPLE_LAYERS, check_from_layer, job_messages, next_chunk,
+                                      plan_transfer)
 from heoslice.printing.window import FrameSizer, SendWindow, optimal_frame_bytes
 
-__all__ = ["JobSpec", "LayerSource", "job_summary", "pack_mask", "stack_job", "PrinterLink",
-           "PrintResult", "Progress", "print_job", "PrintLog", "check_log_output", "default_log_path", "Connector", "Port",
-           "SerialConnector", "connector_for", "LinkTiming", "Session", "CHUNK_HEADER", "check_from_layer", "job_messages",
-           "next_chunk", "plan_transfer", "FrameSizer", "SendWindow", "optimal_frame_bytes"]
+__all__ = ["JobSpec", "LayerSource", "job_summary", "pack_mask", "stack_job", "PrinterLink", "PrintResult", "Progress",
+           "print_job", "PrintLog", "check_log_output", "default_log_path", "Connector", "Port", "SerialConnector",
+           "connector_for", "LinkTiming", "Session", "CHUNK_HEADER", "SAMPLE_LAYERS", "check_from_layer",
+           "job_messages", "next_chunk", "plan_transfer", "FrameSizer", "SendWindow", "optimal_frame_bytes"]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +24,9 @@ LayerSource = Callable[[int], Sequence[bytes]]
 @dataclass(frozen=True)
 class JobSpec:
     """A print job: ``layer_count`` layers of ``channels`` bit-packed masks of ``width`` x ``height`` pixels;
-    ``names``: what each channel carries ('solid', then the droplet masks' materials), when known."""
+    ``names``: what each channel carries ('solid', then the droplet masks' materials), when known;
+    ``stored_bytes``: bytes each layer's files take in the stack (its masks compressed), when known, which a
+    sampled dry run scales its figures by (:func:`heoslice.printing.stream.plan_transfer`)."""
 
     job_id: int
     layer_count: int
@@ -32,6 +34,7 @@ class JobSpec:
     width: int
     height: int
     names: tuple[str, ...] = ()
+    stored_bytes: tuple[int, ...] = field(default=(), repr=False, compare=False)
 
     @property
     def channel_bytes(self) -> int:
@@ -72,7 +75,7 @@ def stack_job(directory: Path, progress: Callable[[int, int], None] | None = Non
     for channel, target in zip(widest, targets):
         names[target] = str(channel.get("material", f"channel {target}"))
     job_id = P.crc32(json.dumps(manifest, sort_keys=True).encode()) or 1
-    job = JobSpec(job_id, len(layers), channels, width, height, tuple(names))
+    job = JobSpec(job_id, len(layers), channels, width, height, tuple(names), stored_layer_bytes(directory, layers))
 
     def read(index: int) -> list[bytes]:
         solid, masks = layer_bits(directory, manifest, index)
@@ -90,6 +93,18 @@ def stack_job(directory: Path, progress: Callable[[int, int], None] | None = Non
                                     f"{err}); ABORT sent; verify the stack and print it again") from None
 
     return job, get_layer
+
+
+def stored_layer_bytes(directory: Path, layers: list[dict]) -> tuple[int, ...]:
+    """Bytes of each layer's files (its own and its droplet masks') in a verified stack, from the file system;
+    StackChangedError when one went missing since it was verified."""
+    try:
+        return tuple(sum((directory / name).stat().st_size
+                         for name in [entry["file"], *(channel["file"] for channel in entry.get("channels") or [])])
+                     for entry in layers)
+    except OSError as err:
+        raise StackChangedError(f"{directory}: the stack changed after it was verified ({err.filename}: "
+                                f"{err.strerror}); verify it again") from None
 
 
 #: Most layers one worker task carries (see :func:`layer_map`).

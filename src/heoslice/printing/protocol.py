@@ -544,7 +544,7 @@ def encode_chunk(raw: bytes, encodings: int) -> tuple[int, bytes]:
     frames of a noisy link, where zlib's 6 bytes of framing count; on a clean link's large chunks it almost
     never wins and costs as much time as zlib: benchmarks/README.md). A run of zero bytes (the empty rows of a
     mask, most of a droplet mask) is encoded once per length."""
-    if not raw.count(0) - len(raw):
+    if raw == bytes(len(raw)):
         return _encode_zeros(len(raw), encodings)
     return _encode_chunk(bytes(raw), encodings)
 

@@ -2,12 +2,15 @@
 
 :func:`next_chunk` picks DATA (raw, address implicit) or an encoded CHUNK for each piece of a layer
 (docs/protocol.md section 4); :func:`job_messages` yields the messages with chunk sizes chosen by
-the caller at the moment each chunk is made, so they follow the link's error rate.
+the caller at the moment each chunk is made, so they follow the link's error rate; :func:`plan_transfer`
+sizes the stream without a port (a dry run), from every layer or from an even sample of them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
+
+import numpy as np
 
 from heoslice.errors import InputError
 from heoslice.printing import protocol as P
@@ -66,16 +69,51 @@ def job_messages(job: JobSpec, get_layer: LayerSource, start: int, payload: Call
     yield P.JobEnd(job.job_id), job.layer_count - 1, 0
 
 
+#: Layers a dry run encodes to estimate the transfer of a larger stack (:func:`plan_transfer`'s ``sample``);
+#: the estimate's error against encoding every layer is measured in benchmarks/README.md.
+SAMPLE_LAYERS = 32
+
+
+def sample_layers(first: int, stop: int, count: int) -> list[int]:
+    """``count`` layers of first..stop-1 spread evenly, the middle one of each of ``count`` equal runs; every
+    layer when there are no more than ``count``. Deterministic: the same stack gives the same sample."""
+    total = stop - first
+    if total <= count:
+        return list(range(first, stop))
+    return [first + (2 * run + 1) * total // (2 * count) for run in range(count)]
+
+
+def regression_total(values: Sequence[float], sampled: Sequence[float], every: Sequence[float]) -> float:
+    """The sum over every layer of a figure known on a sample of them (``values``), by the regression estimator
+    N ybar + b (X - N xbar) (Cochran, Sampling Techniques, 3rd ed., chapter 7): x is an auxiliary known for
+    every layer (``every``; ``sampled`` its sampled layers' values), b the least-squares slope of the figure on x
+    over the sample, 0 when x does not vary there (the estimate is then N ybar). Exact for a figure linear in x."""
+    y, x, known = (np.asarray(a, dtype=float) for a in (values, sampled, every))
+    spread = x - x.mean()
+    slope = float(spread @ (y - y.mean()) / (spread @ spread)) if spread.any() else 0.0
+    return len(known) * y.mean() + slope * (known.sum() - len(known) * x.mean())
+
+
 def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, max_payload: int = 1024,
-                  encodings: int = P.ALL_ENCODINGS, from_layer: int = 0, workers: int | None = None,
-                  progress: Callable[[int, int], None] | None = None) -> dict:
-    """Encode every frame of the job without a port: frames, wire bytes and the time at ``baud`` (8N1), s.
-    The layers are read and encoded in ``workers`` processes (:func:`heoslice.printing.job.layer_map`; default
-    one per core); ``progress(done, total)`` follows them."""
+                  encodings: int = P.ALL_ENCODINGS, from_layer: int = 0, sample: int | None = None,
+                  workers: int | None = None, progress: Callable[[int, int], None] | None = None) -> dict:
+    """Encode the frames of the job as a print would, without a port: frames, wire bytes and the time at
+    ``baud`` (8N1), s. The layers are read and encoded in ``workers`` processes
+    (:func:`heoslice.printing.job.layer_map`; default one per core); ``progress(done, total)`` follows them.
+
+    Every layer is encoded when ``sample`` is None or the job has no more layers to send; else ``sample``
+    layers spread evenly (:func:`sample_layers`), and the frames and wire bytes of the whole are estimated by
+    :func:`regression_total` on the bytes each layer's files take in the stack (``job.stored_bytes``: the same
+    masks, compressed, so a layer's encoded size follows them; without them, by the sample's mean per layer).
+    The raw bytes are exact either way; the result says whether the rest is estimated (``estimated``) and from
+    how many layers (``layers_encoded``)."""
     check_from_layer(job, from_layer)
 
+    framing = sum(P.wire_size(len(P.pack_message(message)[1]))
+                  for message in (P.LayerBegin(0, job.channels, job.channel_bytes, 0), P.LayerEnd(0), P.Execute(0)))
+
     def layer_plan(index: int) -> tuple[int, int, int]:
-        frames, wire, raw = 3, 3 * P.wire_size(13), 0
+        frames, wire, raw = 3, framing, 0
         for number, data in enumerate(get_layer(index)):
             raw += len(data)
             offset = 0
@@ -86,14 +124,25 @@ def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, m
                 offset += span
         return frames, wire, raw
 
-    frames = wire = raw = 0
-    indices = range(from_layer, job.layer_count)
-    for done, (layer_frames, layer_wire, layer_raw) in enumerate(layer_map(layer_plan, indices, workers), 1):
-        frames, wire, raw = frames + layer_frames, wire + layer_wire, raw + layer_raw
+    layers = job.layer_count - from_layer
+    chosen = sample_layers(from_layer, job.layer_count, layers if sample is None else sample)
+    planned = []
+    for done, figures in enumerate(layer_map(layer_plan, chosen, workers), 1):
+        planned.append(figures)
         if progress is not None:
-            progress(done, len(indices))
-    return {"layers": job.layer_count - from_layer, "channels": job.channels, "raw_bytes": raw,
-            "frames": frames, "wire_bytes": wire, "seconds_at_baud": wire * 10.0 / baud}
+            progress(done, len(chosen))
+    frames, wire, raw = np.array(planned, dtype=np.int64).reshape(-1, 3).T
+    estimated = len(chosen) < layers
+    if estimated:
+        stored = job.stored_bytes[from_layer:] if job.stored_bytes else (0,) * layers
+        sampled = [stored[index - from_layer] for index in chosen]
+        totals = [max(round(regression_total(values, sampled, stored)), 0) for values in (frames, wire)]
+        totals.append(layers * job.channels * job.channel_bytes)
+    else:
+        totals = [int(values.sum()) for values in (frames, wire, raw)]
+    return {"layers": layers, "channels": job.channels, "raw_bytes": totals[2], "frames": totals[0],
+            "wire_bytes": totals[1], "seconds_at_baud": totals[1] * 10.0 / baud, "estimated": estimated,
+            "layers_encoded": len(chosen)}
 
 
 def check_from_layer(job: JobSpec, from_layer: int) -> None:

@@ -1,0 +1,132 @@
+"""Tests of printing/stream.py's sizing of a transfer (plan_transfer): exact, it counts the frames and wire bytes
+of the print's own message stream; sampled, it is within the bound the help text states of the exact figures."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import in_process
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from printing_jobs import synthetic_job
+
+from heoslice import procedural
+from heoslice.printing import SAMPLE_LAYERS, job_messages, plan_transfer, stack_job
+from heoslice.printing import protocol as P
+from heoslice.printing.stream import regression_total, sample_layers
+
+#: The estimate's bound the --dry-run help states (relative to --exact).
+ESTIMATE_BOUND = 0.01
+
+
+@given(st.integers(0, 1000), st.integers(1, 3000), st.integers(1, 100))
+def test_sample_layers_takes_one_layer_of_each_equal_run(first, total, count):
+    """The sample holds min(count, total) distinct layers of first..first+total-1 in order, the k-th (as the span
+    [layer, layer + 1)) meeting the k-th of ``count`` equal runs of the stack's height (so it spreads over the
+    whole stack), and is the same when asked again."""
+    chosen = sample_layers(first, first + total, count)
+    assert chosen == sample_layers(first, first + total, count)
+    if total <= count:
+        assert chosen == list(range(first, first + total))
+        return
+    assert len(chosen) == count and chosen == sorted(set(chosen))
+    for run, layer in enumerate(chosen):
+        assert (layer - first) * count < (run + 1) * total and (layer - first + 1) * count > run * total
+
+
+@settings(max_examples=50)
+@given(st.integers(2, 500), st.integers(0, 2**32 - 1), st.floats(-50, 50), st.floats(0, 100))
+def test_regression_total_is_exact_for_a_figure_linear_in_the_auxiliary(layers, seed, intercept, slope):
+    """y = a + b x on every layer: the estimate from any sample of two or more distinct x is the true sum; with x
+    the same on every sampled layer it is N times the sample's mean."""
+    rng = np.random.default_rng(seed)
+    x = rng.integers(0, 10**6, layers).astype(float)
+    y = intercept + slope * x
+    chosen = rng.choice(layers, size=min(layers, 8), replace=False)
+    if np.ptp(x[chosen]) > 0:
+        assert regression_total(y[chosen], x[chosen], x) == pytest.approx(y.sum(), rel=1e-9, abs=1e-6)
+    flat = np.full(layers, 7.0)
+    assert regression_total(y[chosen], flat[chosen], flat) == pytest.approx(layers * y[chosen].mean())
+
+
+def stream_figures(job, get_layer, from_layer: int, max_payload: int) -> tuple[int, int]:
+    """(frames, wire bytes) of the layers' messages in the print's stream (job_messages), JOB_BEGIN/END aside."""
+    messages = [message for message, layer, _ in job_messages(job, get_layer, from_layer, lambda: max_payload,
+                                                              P.ALL_ENCODINGS)
+                if not isinstance(message, (P.JobBegin, P.JobEnd))]
+    return len(messages), sum(P.wire_size(len(P.pack_message(message)[1])) for message in messages)
+
+
+@pytest.mark.parametrize("from_layer, max_payload", [(0, 1024), (3, 200)])
+def test_exact_plan_counts_the_frames_a_print_sends(from_layer, max_payload):
+    """Without a sample every layer is encoded: frames and wire bytes are those of the print's message stream at
+    that payload, the raw bytes every channel's, and the result says it is not estimated."""
+    job, get_layer = synthetic_job(9, width=300, height=40, channels=2)
+    plan = plan_transfer(job, get_layer, max_payload=max_payload, from_layer=from_layer, workers=1)
+    assert (plan["frames"], plan["wire_bytes"]) == stream_figures(job, get_layer, from_layer, max_payload)
+    assert plan["raw_bytes"] == (9 - from_layer) * 2 * job.channel_bytes
+    assert plan["estimated"] is False and plan["layers_encoded"] == plan["layers"] == 9 - from_layer
+
+
+def test_a_sample_as_large_as_the_stack_is_exact():
+    """A stack of no more layers than the sample is encoded whole: the same figures as without a sample."""
+    job, get_layer = synthetic_job(SAMPLE_LAYERS, width=200, height=20)
+    assert plan_transfer(job, get_layer, sample=SAMPLE_LAYERS, workers=1) == plan_transfer(job, get_layer, workers=1)
+
+
+@pytest.fixture(scope="module")
+def ball_stack(tmp_path_factory) -> Path:
+    """A graded ball of 8 mm radius with droplet masks, 160 layers of 284 x 284 px: layers of every size."""
+    folder = tmp_path_factory.mktemp("ball")
+    model = folder / "ball.ply"
+    model.write_bytes(procedural.sphere(8.0, 3).export(file_type="ply", encoding="binary"))
+    assert in_process("slice", model, "--layer", "0.1", "--dpi", "400", "--grade", "linear", "--to", "0,255,0",
+                      "--nozzle", "0.2", "--channels", "-o", folder / "stack") == 0
+    return folder / "stack"
+
+
+def test_stored_bytes_are_each_layers_files(ball_stack):
+    """The job carries the bytes each layer's files (its own and its masks') take in the stack."""
+    job, _ = stack_job(ball_stack)
+    manifest = json.loads((ball_stack / "manifest.json").read_text())
+    assert job.stored_bytes == tuple(
+        sum((ball_stack / name).stat().st_size for name in [entry["file"], *(c["file"] for c in entry["channels"])])
+        for entry in manifest["layers"])
+
+
+@pytest.mark.parametrize("from_layer", [0, 17])
+def test_sampled_plan_is_within_its_bound_of_the_exact_one(ball_stack, from_layer):
+    """From SAMPLE_LAYERS of the ball's 160 layers (or of those from layer 17) the frames and wire bytes are
+    within ESTIMATE_BOUND of encoding every layer, the raw bytes exact, and the result says it is estimated."""
+    job, get_layer = stack_job(ball_stack)
+    exact = plan_transfer(job, get_layer, from_layer=from_layer)
+    estimate = plan_transfer(job, get_layer, from_layer=from_layer, sample=SAMPLE_LAYERS)
+    assert estimate["estimated"] is True and estimate["layers_encoded"] == SAMPLE_LAYERS
+    assert estimate["raw_bytes"] == exact["raw_bytes"] and estimate["layers"] == exact["layers"]
+    for key in ("frames", "wire_bytes"):
+        assert abs(estimate[key] / exact[key] - 1) <= ESTIMATE_BOUND, (key, estimate[key], exact[key])
+
+
+def test_dry_run_says_its_figures_are_estimated_and_exact_encodes_every_layer(ball_stack, run_cli):
+    """`print --dry-run` says it estimated from 32 of 160 layers (text and JSON); with --exact the JSON gives the
+    exact plan's figures; --exact without --dry-run is a usage error (exit 2, one line); the help states the
+    sample and the bound the tests hold the estimate to."""
+    code, out, err = run_cli("print", ball_stack, "--dry-run")
+    assert code == 0 and f"(estimated from {SAMPLE_LAYERS} of 160 layers; --exact encodes every layer)" in out
+    code, out, _ = run_cli("print", ball_stack, "--dry-run", "--json")
+    summary = json.loads(out)
+    assert code == 0 and summary["estimated"] is True and summary["layers_encoded"] == SAMPLE_LAYERS
+    code, out, _ = run_cli("print", ball_stack, "--dry-run", "--exact", "--json")
+    job, get_layer = stack_job(ball_stack)
+    exact = plan_transfer(job, get_layer)
+    summary = json.loads(out)
+    assert code == 0 and summary["estimated"] is False and summary["layers_encoded"] == 160
+    assert {key: summary[key] for key in exact} == exact
+    code, out, err = run_cli("print", ball_stack, "--exact")
+    assert code == 2 and "--exact" in err and err.count("\n") == 1 and out == ""
+    code, out, _ = run_cli("print", "--help")
+    assert code == 0 and f"{SAMPLE_LAYERS} layers" in " ".join(out.split())
+    assert f"within {100 * ESTIMATE_BOUND:g} % of --exact" in " ".join(out.split())
