@@ -28,18 +28,26 @@ def test_a_layer_takes_the_last_layers_tiff_only_for_the_same_solid_bits():
 
 
 def test_multi_material_layers_are_deflated_harder_than_one_material_ones(tmp_path):
-    """Every 1-bit file of a droplet-mask stack (solid layers and masks) holds its pixels deflated at
-    deflate_level(True); a one-material stack's layers at deflate_level(False), level 1 (its fastest)."""
+    """Every 1-bit solid layer of a droplet-mask stack holds its pixels deflated at deflate_level(True), and its
+    masks at the level of the halftone that made them (mask_deflate_level: ordered dither's at level 2, the
+    noise-like blue noise's and error diffusion's at level 1); a one-material stack's layers at deflate_level(False),
+    level 1 (its fastest). Each file is the bytes encode_bilevel_tiff writes at that level, and not at the other."""
     from helpers import in_process
 
     from heoslice import procedural
+    from heoslice.grading.halftone import METHODS
     from heoslice.stack import encode_bilevel_tiff
-    from heoslice.stack.tiff import deflate_level
+    from heoslice.stack.tiff import MASK_DEFLATE_LEVELS, deflate_level, mask_deflate_level
 
     procedural.sphere(6.0, subdivisions=3).export(tmp_path / "ball.ply")
     assert deflate_level(False) == 1 < deflate_level(True)
-    for name, extra, level in (("plain", (), deflate_level(False)),
-                               ("graded", ("--grade", "linear", "--to", "0,255,0", "--channels"), deflate_level(True))):
+    assert set(MASK_DEFLATE_LEVELS) == {None, *METHODS}
+    assert mask_deflate_level(None) == mask_deflate_level("ordered") == deflate_level(True)
+    assert mask_deflate_level("blue-noise") == mask_deflate_level("error-diffusion") == 1
+    graded = ("--grade", "linear", "--to", "0,255,0", "--channels", "--halftone")
+    cases = [("plain", (), deflate_level(False), deflate_level(False))]
+    cases += [(method, (*graded, method), deflate_level(True), mask_deflate_level(method)) for method in METHODS]
+    for name, extra, solid_level, mask_level in cases:
         assert in_process("slice", tmp_path / "ball.ply", "--layer", "2", "--dpi", "300", "-o", tmp_path / name,
                           *extra) == 0
         files = sorted((tmp_path / name).glob("layer_*.tif"))
@@ -48,6 +56,9 @@ def test_multi_material_layers_are_deflated_harder_than_one_material_ones(tmp_pa
             with tifffile.TiffFile(path) as tiff:
                 page = tiff.pages.first
                 pixels, spacing = page.asarray(), tiff.imagej_metadata["spacing"]
-            again = encode_bilevel_tiff(np.packbits(pixels, axis=1), pixels.shape[1], (300.0, 300.0), "deflate",
-                                        spacing, level=level)
-            assert path.read_bytes() == again, path.name
+            level = mask_level if "_M" in path.name else solid_level
+            encoded = {other: encode_bilevel_tiff(np.packbits(pixels, axis=1), pixels.shape[1], (300.0, 300.0),
+                                                  "deflate", spacing, level=other) for other in (1, 2)}
+            assert path.read_bytes() == encoded[level], path.name
+            if pixels.any():
+                assert encoded[1] != encoded[2], path.name

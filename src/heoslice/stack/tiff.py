@@ -22,18 +22,31 @@ DEFAULT_COMPRESSION = "deflate"
 MM_PER_INCH = 25.4
 #: TIFF compression codes a layer may use: none, LZW, deflate (Adobe and old code), PackBits.
 TIFF_COMPRESSIONS = (1, 5, 8, 32946, 32773)
-#: zlib level of every 1-bit layer of a multi-material stack (solid layers and droplet masks): a
-#: halftone's dither patterns repeat at a short distance, which level 1's matcher misses and level 2's
+#: zlib level of a multi-material stack's solid layers, and of its droplet masks where :data:`MASK_DEFLATE_LEVELS`
+#: says so: ordered dither's patterns repeat at a short distance, which level 1's matcher misses and level 2's
 #: finds, and the solid layers shrink too, for a small part of a graded layer's cost (sizes and times in
 #: benchmarks/README.md).
 MULTI_MATERIAL_DEFLATE_LEVEL = 2
 #: zlib level of a one-material stack's layers: its fastest.
 ONE_MATERIAL_DEFLATE_LEVEL = 1
+#: zlib level of a multi-material stack's droplet masks, by the halftoning method that made them (None: none did,
+#: each pixel is one part's or label's material). Blue noise and error diffusion leave masks like noise, with few
+#: repeats for level 2 to find: it takes 1.7x level 1's time for a file 20-22 % smaller, the largest share of their
+#: graded slice's cost over ordered dither's, so they take level 1 (one table of sizes and times in
+#: benchmarks/README.md).
+MASK_DEFLATE_LEVELS = {None: MULTI_MATERIAL_DEFLATE_LEVEL, "ordered": MULTI_MATERIAL_DEFLATE_LEVEL,
+                       "blue-noise": 1, "error-diffusion": 1}
 
 
 def deflate_level(multi_material: bool) -> int:
-    """The zlib level of every 1-bit file of a stack, with droplet masks (``multi_material``) or without."""
+    """The zlib level of a stack's 1-bit solid layers, with droplet masks (``multi_material``) or without."""
     return MULTI_MATERIAL_DEFLATE_LEVEL if multi_material else ONE_MATERIAL_DEFLATE_LEVEL
+
+
+def mask_deflate_level(halftone: str | None) -> int:
+    """The zlib level of a stack's droplet masks made by the halftoning method ``halftone`` (None: not
+    halftoned), :data:`MASK_DEFLATE_LEVELS`."""
+    return MASK_DEFLATE_LEVELS[halftone]
 
 
 def calibration(dpi: tuple[float, float], spacing_mm: float | None) -> dict:
