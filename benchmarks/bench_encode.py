@@ -2,8 +2,8 @@
 out from its recalled layout against tifffile writing it (the figures behind stack/tiff.py's choices).
 
 Reads every ``--every``-th layer of STACK (its solid layers and, per material, its droplet masks),
-re-encodes each at zlib levels 1-5 with :func:`heoslice.stack.encode_bilevel_tiff` (best of
-``--repeats``) and prints the mean size and time per file; then times one solid layer through
+re-encodes each at zlib levels 1-5 (of each of ``--encoders``) with :func:`heoslice.stack.encode_bilevel_tiff`
+(best of ``--repeats``) and prints the mean size and time per file; then times one solid layer through
 tifffile.imwrite from the same strips against the recalled layout, alternating. ``--codecs`` adds, per
 kind of file (solid, each material's masks), whole-file sizes under other lossless codecs (imagecodecs'),
 to see how small any codec gets a dithered mask, and the smallest a layer gets with each file in its best
@@ -15,6 +15,7 @@ Examples:
   heoslice slice liver.ply --grade linear --to 0,255,0 --channels -o liver_stack
   python benchmarks/bench_encode.py liver_stack
   python benchmarks/bench_encode.py liver_stack --every 10 --levels 1,2,6
+  python benchmarks/bench_encode.py liver_stack --every 1 --levels 1,2 --encoders zlib-ng,isa-l --cpu
   python benchmarks/bench_encode.py liver_stack --every 50 --codecs --sl1 liver.sl1
   python benchmarks/bench_encode.py liver_stack --every 50 --codecs --sl1 liver.sl1 --labels liver.ply
 """
@@ -34,13 +35,13 @@ from heoslice.stack import encode_bilevel_tiff, read_manifest
 from heoslice.stack.tiff import COMPRESSIONS, _strip_codec, calibration
 
 
-def best_of(repeats: int, work) -> float:
-    """The fastest of ``repeats`` runs of ``work()``, s."""
+def best_of(repeats: int, work, clock=time.perf_counter) -> float:
+    """The fastest of ``repeats`` runs of ``work()``, s by ``clock`` (wall time unless told)."""
     times = []
     for _ in range(repeats):
-        started = time.perf_counter()
+        started = clock()
         work()
-        times.append(time.perf_counter() - started)
+        times.append(clock() - started)
     return min(times)
 
 
@@ -155,7 +156,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("stack", type=Path)
     parser.add_argument("--every", type=int, default=25, help="take every N-th layer [25]")
     parser.add_argument("--levels", default="1,2,3,4,5", help="zlib levels [1,2,3,4,5]")
+    parser.add_argument("--encoders", default="zlib-ng",
+                        help="comma-separated deflate encoders, each at every level (heoslice.deflate.ENCODERS: "
+                             "zlib-ng, isa-l; isa-l's levels are 0-3) [zlib-ng]")
     parser.add_argument("--repeats", type=int, default=3, help="runs per figure, best taken [3]")
+    parser.add_argument("--cpu", action="store_true",
+                        help="time the levels in CPU seconds of this process, which other work on the machine "
+                             "inflates less than wall time")
     parser.add_argument("--codecs", action="store_true", help="also whole-file sizes under other codecs")
     parser.add_argument("--sl1", type=Path, default=None,
                         help="with --codecs: a PrusaSlicer .sl1 of the same job, to compare a layer's best size with")
@@ -172,13 +179,17 @@ def main(argv: list[str] | None = None) -> int:
             bits = tifffile.imread(args.stack / name).astype(bool)
             kinds.setdefault(kind, []).append(np.packbits(bits, axis=1))
     print(f"{args.stack}: {width} px wide, every {args.every}th layer")
+    ways = [(encoder, int(level)) for encoder in args.encoders.split(",") for level in args.levels.split(",")]
     for kind, layers in kinds.items():
-        for level in (int(v) for v in args.levels.split(",")):
-            size = np.mean([len(encode_bilevel_tiff(p, width, dpi, "deflate", spacing, level=level))
+        for encoder, level in ways:
+            size = np.mean([len(encode_bilevel_tiff(p, width, dpi, "deflate", spacing, level=level, encoder=encoder))
                             for p in layers])
             seconds = best_of(args.repeats, lambda: [encode_bilevel_tiff(p, width, dpi, "deflate", spacing,
-                                                                         level=level) for p in layers])
-            print(f"  {kind:8s} level {level}: {size / 1024:6.1f} KB  {seconds / len(layers) * 1e3:6.3f} ms a file")
+                                                                         level=level, encoder=encoder) for p in layers],
+                              time.process_time if args.cpu else time.perf_counter)
+            print(f"  {kind:8s} {encoder:7s} level {level}: {size / 1024:6.1f} KB  "
+                  f"{seconds / len(layers) * 1e3:6.3f} ms a file{' (CPU)' if args.cpu else ''}, "
+                  f"{size * len(layers) / 1e6:6.2f} MB and {seconds:.3f} s in all {len(layers)}")
     solid = kinds["solid"][len(kinds["solid"]) // 2]
     pair = {"tifffile.imwrite": lambda: by_tifffile(solid, width, dpi, spacing),
             "recalled layout": lambda: encode_bilevel_tiff(solid, width, dpi, "deflate", spacing)}

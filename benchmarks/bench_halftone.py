@@ -18,12 +18,15 @@ ordered dither's before issue 48 (its figure of 0.137).
 Speed: ``heoslice slice SCAN --grade linear --to 0,255,0 --nozzle 0.2 --channels --halftone METHOD``
 (bench_prusa's graded arguments) on each benchmark scan (prusa_meshes.SCANS, from ../shared/data), the
 methods alternating in every round (after one untimed run of each), wall time of the whole command; the
-median per method and its ratio to ordered's in the same run.
+median per method and its ratio to ordered's in the same run; beside it the command's CPU time (user + system,
+all its processes), which other work on the machine inflates less than the wall time; the load average last.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -108,11 +111,12 @@ def speed(quick: bool, repeats: int, layer_mm: float, wanted: list[str] | None =
     with tempfile.TemporaryDirectory() as work:
         work = Path(work)
         print(f"speed: graded slice ({' '.join(GRADED_ARGS)} --layer {layer_mm:g}), wall s, "
-              f"median of {repeats}, methods alternating")
+              f"median of {repeats}, methods alternating; load average {os.getloadavg()[0]:.2f}")
         for name in scans:
             model = work / f"{name}.ply"
             prusa_meshes.scan(name, quick).export(model)
             times = {method: [] for method in methods}
+            cpu = {method: [] for method in methods}
             for method in methods:  # untimed: kernels compiled or loaded, caches warm
                 subprocess.run([sys.executable, "-m", "heoslice", "--no-config", "slice", str(model), "-o",
                                 str(work / f"warm_{name}_{method}"), "--layer", str(4 * layer_mm), "--halftone", method,
@@ -121,15 +125,25 @@ def speed(quick: bool, repeats: int, layer_mm: float, wanted: list[str] | None =
                 order = methods if round_number % 2 == 0 else methods[::-1]
                 for method in order:
                     out = work / f"{name}_{method}_{round_number}"
-                    started = time.perf_counter()
+                    before, started = children_cpu(), time.perf_counter()
                     subprocess.run([sys.executable, "-m", "heoslice", "--no-config", "slice", str(model), "-o",
                                     str(out), "--layer", str(layer_mm), "--halftone", method, *GRADED_ARGS],
                                    check=True, capture_output=True)
                     times[method].append(time.perf_counter() - started)
-            base = statistics.median(times["ordered"])
-            line = "  ".join(f"{method} {statistics.median(t):.2f} s ({statistics.median(t) / base:.2f}x)"
-                             for method, t in times.items())
+                    cpu[method].append(children_cpu() - before)
+            base, cpu_base = statistics.median(times["ordered"]), statistics.median(cpu["ordered"])
+            line = "  ".join(f"{method} {statistics.median(t):.2f} s ({statistics.median(t) / base:.2f}x; "
+                             f"CPU {statistics.median(cpu[method]):.2f} s, "
+                             f"{statistics.median(cpu[method]) / cpu_base:.2f}x)" for method, t in times.items())
             print(f"  {name:<11} {line}", flush=True)
+        print(f"  load average {' '.join(f'{value:.2f}' for value in os.getloadavg())} on {os.cpu_count()} cores")
+
+
+def children_cpu() -> float:
+    """User + system CPU seconds of this process's finished children (the commands timed): a measure that other
+    work on the machine inflates less than wall time."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def main() -> None:

@@ -1,5 +1,6 @@
-"""The one zlib encoder (heoslice.deflate): a stream any inflater reads, by zlib-ng where imagecodecs has it, and
-by zlib where the build lacks it: imagecodecs then hands out a placeholder that fails only when called."""
+"""The zlib encoders (heoslice.deflate): a stream any inflater reads, by zlib-ng where imagecodecs has it, and
+by zlib where the build lacks it (imagecodecs then hands out a placeholder that fails only when called); by ISA-L
+where isal is installed, and by zlib-ng where it is not."""
 
 from __future__ import annotations
 
@@ -12,10 +13,31 @@ import pytest
 from heoslice import deflate
 
 
-@pytest.mark.parametrize("level", [1, 2, 6])
-def test_the_stream_inflates_to_its_bytes(level):
+@pytest.mark.parametrize(("level", "encoder"), [(1, "zlib-ng"), (2, "zlib-ng"), (6, "zlib-ng"), (0, "isa-l"),
+                                               (2, "isa-l"), (3, "isa-l")])
+def test_the_stream_inflates_to_its_bytes(level, encoder):
     data = np.random.default_rng(level).integers(0, 2, 100_000, dtype=np.uint8).tobytes() + bytes(50_000)
-    assert zlib.decompress(deflate.deflater(level)(data)) == data
+    assert zlib.decompress(deflate.deflater(level, encoder)(data)) == data
+
+
+def test_isa_l_is_its_own_encoder_and_falls_back_to_zlib_ng(monkeypatch):
+    """With isal installed, ISA-L's stream is isal's (not zlib-ng's at the same level); without it (its import
+    failing), zlib-ng's at the same level. A level the encoder lacks, or an unknown encoder, is refused."""
+    import sys
+
+    from isal import isal_zlib
+
+    data = np.packbits(np.random.default_rng(3).random((256, 800)) < 0.3, axis=1).tobytes()
+    assert deflate.deflater(2, "isa-l")(data) == isal_zlib.compress(data, 2) != deflate.deflater(2)(data)
+    monkeypatch.setitem(sys.modules, "isal", None)
+    deflate.deflater.cache_clear()
+    try:
+        assert deflate.deflater(2, "isa-l")(data) == deflate.deflater(2)(data)
+    finally:
+        deflate.deflater.cache_clear()
+    for level, encoder in ((4, "isa-l"), (10, "zlib-ng"), (1, "brotli")):
+        with pytest.raises(ValueError, match="no level"):
+            deflate.deflater(level, encoder)
 
 
 def test_a_build_without_zlib_ng_falls_back_to_zlib(monkeypatch):

@@ -12,8 +12,11 @@ from hypothesis import strategies as st
 
 from heoslice.grading.diffusion import DiffusionCarry
 from heoslice.grading.halftone import (
+    _BLUE_SIGMA,
     BLUE_TILE,
     METHODS,
+    _hashed_unit,
+    _wrapped_gaussian,
     bayer_matrix,
     blue_noise_ranks,
     blue_noise_shift,
@@ -130,6 +133,66 @@ def test_the_blue_noise_mask_is_made_the_same_way_every_time():
     kept = blue_noise_ranks()
     blue_noise_ranks.cache_clear()
     assert np.array_equal(blue_noise_ranks(), kept)
+
+
+def literal_void_and_cluster(ones: np.ndarray, sigma: float) -> np.ndarray:
+    """Ulichney's void-and-cluster ranks written out plainly (test-only reference): the energy is the pattern
+    filtered by the wrapped Gaussian, every update adds or removes a whole tile's impulse response, and every
+    choice is np.argmax / np.argmin over the whole tile (ties: the first in row-major order)."""
+    size = ones.shape[0]
+    impulse = np.zeros((size, size))
+    impulse[0, 0] = 1.0
+    response = _wrapped_gaussian(impulse, sigma)
+    ones = ones.copy()
+    energy = _wrapped_gaussian(ones.astype(np.float64), sigma)
+
+    def move(pixel: int, sign: float) -> None:
+        row, col = divmod(pixel, size)
+        energy[:] += sign * np.roll(response, (row, col), axis=(0, 1))
+        ones[row, col] = sign > 0
+
+    def tightest() -> int:
+        return int(np.argmax(np.where(ones, energy, -np.inf)))
+
+    def largest_void() -> int:
+        return int(np.argmin(np.where(ones, np.inf, energy)))
+
+    for _ in range(size * size):
+        cluster = tightest()
+        move(cluster, -1.0)
+        void = largest_void()
+        move(void, 1.0)
+        if void == cluster:
+            break
+    relaxed, relaxed_energy = ones.copy(), energy.copy()
+    ranks = np.zeros(size * size, dtype=np.int64)
+    placed = int(ones.sum())
+    for rank in range(placed - 1, -1, -1):
+        cluster = tightest()
+        move(cluster, -1.0)
+        ranks[cluster] = rank
+    ones[:], energy[:] = relaxed, relaxed_energy
+    for rank in range(placed, size * size):
+        void = largest_void()
+        move(void, 1.0)
+        ranks[void] = rank
+    return ranks.reshape(size, size)
+
+
+def test_the_blue_noise_mask_is_the_literal_void_and_cluster_ranking():
+    """The compiled ranking (each update and search kept to the pixels the impulse response reaches) gives the
+    ranks of the literal algorithm, whole-tile updates and searches, on the mask's own initial pattern and on a
+    smaller tile with a wider filter (its response reaching past half the tile, wrapping onto itself)."""
+    from heoslice.grading.halftone_kernels import _void_and_cluster
+
+    ones = (_hashed_unit(BLUE_TILE * BLUE_TILE, 1) < 0.1).reshape(BLUE_TILE, BLUE_TILE)
+    assert np.array_equal(blue_noise_ranks(), literal_void_and_cluster(ones, _BLUE_SIGMA))
+    small = (_hashed_unit(16 * 16, 5) < 0.2).reshape(16, 16)
+    impulse = np.zeros((16, 16))
+    impulse[0, 0] = 1.0
+    tiled = np.tile(_wrapped_gaussian(impulse, 2.5), (2, 2))
+    got = _void_and_cluster(small.copy(), _wrapped_gaussian(small.astype(np.float64), 2.5), tiled)
+    assert np.array_equal(got, literal_void_and_cluster(small, 2.5))
 
 
 def test_blue_noise_shifts_cover_the_tile():

@@ -28,18 +28,30 @@ def test_a_layer_takes_the_last_layers_tiff_only_for_the_same_solid_bits():
 
 
 def test_multi_material_layers_are_deflated_harder_than_one_material_ones(tmp_path):
-    """Every 1-bit file of a droplet-mask stack (solid layers and masks) holds its pixels deflated at
-    deflate_level(True); a one-material stack's layers at deflate_level(False), level 1 (its fastest)."""
+    """Every 1-bit solid layer of a droplet-mask stack holds its pixels deflated by zlib-ng at deflate_level(True),
+    and its masks as the halftone that made them says (mask_deflation: ordered dither's by zlib-ng at level 2, the
+    noise-like blue noise's and error diffusion's by ISA-L at level 2); a one-material stack's layers at
+    deflate_level(False), level 1 (its fastest). Each file is the bytes encode_bilevel_tiff writes so, and not
+    another way."""
     from helpers import in_process
 
     from heoslice import procedural
+    from heoslice.grading.halftone import METHODS
     from heoslice.stack import encode_bilevel_tiff
-    from heoslice.stack.tiff import deflate_level
+    from heoslice.stack.tiff import MASK_DEFLATION, Deflation, deflate_level, mask_deflation
 
     procedural.sphere(6.0, subdivisions=3).export(tmp_path / "ball.ply")
     assert deflate_level(False) == 1 < deflate_level(True)
-    for name, extra, level in (("plain", (), deflate_level(False)),
-                               ("graded", ("--grade", "linear", "--to", "0,255,0", "--channels"), deflate_level(True))):
+    assert set(MASK_DEFLATION) == {None, *METHODS}
+    assert mask_deflation(None) == mask_deflation("ordered") == Deflation("zlib-ng", deflate_level(True))
+    assert mask_deflation("blue-noise") == mask_deflation("error-diffusion") == Deflation("isa-l", 2)
+    graded = ("--grade", "linear", "--to", "0,255,0", "--channels", "--halftone")
+    plain = Deflation("zlib-ng", deflate_level(False))
+    cases = [("plain", (), plain, plain)]
+    cases += [(method, (*graded, method), Deflation("zlib-ng", deflate_level(True)), mask_deflation(method))
+              for method in METHODS]
+    ways = {Deflation("zlib-ng", 1), Deflation("zlib-ng", 2), Deflation("isa-l", 2)}
+    for name, extra, solid_way, mask_way in cases:
         assert in_process("slice", tmp_path / "ball.ply", "--layer", "2", "--dpi", "300", "-o", tmp_path / name,
                           *extra) == 0
         files = sorted((tmp_path / name).glob("layer_*.tif"))
@@ -48,6 +60,10 @@ def test_multi_material_layers_are_deflated_harder_than_one_material_ones(tmp_pa
             with tifffile.TiffFile(path) as tiff:
                 page = tiff.pages.first
                 pixels, spacing = page.asarray(), tiff.imagej_metadata["spacing"]
-            again = encode_bilevel_tiff(np.packbits(pixels, axis=1), pixels.shape[1], (300.0, 300.0), "deflate",
-                                        spacing, level=level)
-            assert path.read_bytes() == again, path.name
+            way = mask_way if "_M" in path.name else solid_way
+            encoded = {other: encode_bilevel_tiff(np.packbits(pixels, axis=1), pixels.shape[1], (300.0, 300.0),
+                                                  "deflate", spacing, level=other.level, encoder=other.encoder)
+                       for other in ways}
+            assert path.read_bytes() == encoded[way], path.name
+            if pixels.any():
+                assert len(set(encoded.values())) == len(ways), path.name

@@ -11,6 +11,7 @@ import json
 
 import numpy as np
 import pytest
+import tifffile
 from helpers import in_process
 from volume_phantoms import FLIP_XY, grid_affine, voxel_centres, write_nifti, write_nrrd
 
@@ -19,7 +20,8 @@ from heoslice.material import read_materials_file
 from heoslice.pipeline import SliceSpec
 from heoslice.pipeline.volume_grading import read_grades, resolve_grades
 from heoslice.pipeline.volume_job import plan_labels, slice_volume_to_stack
-from heoslice.stack import read_layer_channels, read_layer_mask
+from heoslice.stack import encode_bilevel_tiff, read_layer_channels, read_layer_mask
+from heoslice.stack.tiff import Deflation, deflate_level, mask_deflation
 from heoslice.volume import load_volume
 
 CENTRE, TUMOUR_CENTRE, RADIUS, TUMOUR_RADIUS = np.array([0.3, -0.2, 40.1]), np.array([5.2, 3.1, 42.0]), 20.0, 6.0
@@ -189,6 +191,16 @@ def test_halftone_option_halftones_graded_labels_and_is_recorded(tmp_path, capsy
     assert [layer["sha256"] for layer in ordered["layers"]] == [layer["sha256"] for layer in blue["layers"]]
     droplets = lambda manifest: [[c["sha256"] for c in layer["channels"]] for layer in manifest["layers"]]  # noqa: E731
     assert droplets(ordered) != droplets(blue)
+    for method, manifest in manifests.items():  # the masks deflated as their halftone says, as the mesh route's
+        for layer in manifest["layers"]:
+            for name, way in ((layer["file"], Deflation("zlib-ng", deflate_level(True))),
+                              *((c["file"], mask_deflation(method)) for c in layer["channels"])):
+                path = tmp_path / method / name
+                with tifffile.TiffFile(path) as tiff:
+                    pixels, spacing = tiff.pages.first.asarray(), tiff.imagej_metadata["spacing"]
+                assert path.read_bytes() == encode_bilevel_tiff(np.packbits(pixels, axis=1), pixels.shape[1],
+                                                                tuple(manifest["dpi"]), "deflate", spacing,
+                                                                level=way.level, encoder=way.encoder), path.name
 
 
 def test_slice_cli_grades_a_label_and_verify_passes(tmp_path, capsys):

@@ -16,7 +16,7 @@ from heoslice.layers.slicing import interpolate_at
 from heoslice.mesh import Mesh
 from heoslice.pipeline.spec import SliceSpec, channel_name
 from heoslice.stack import encode_bilevel_tiff, encode_tiff, layer_file_name, write_file
-from heoslice.stack.tiff import deflate_level
+from heoslice.stack.tiff import deflate_level, mask_deflation
 
 if TYPE_CHECKING:  # the grading package loads its kernels and shapely: a one-material slice never imports it
     from heoslice.grading import GradeSpec, GradingCache
@@ -162,16 +162,17 @@ def _render_graded_and_write(job: LayerJob, cache: PipelineCache | None) -> tupl
 def _write_masks(job: LayerJob, packed: np.ndarray, solid: int, planes: np.ndarray, cache: PipelineCache | None,
                  started: float) -> tuple:
     """Encode and write a layer's 1-bit solid mask (``packed``) and its droplet masks (``planes``, (K, h,
-    ceil(w / 8)) uint8, one per ``job.graded.channel_paths``); the layer's result tuple, its render time
-    measured from ``started``."""
+    ceil(w / 8)) uint8, one per ``job.graded.channel_paths``; deflated as the halftone that made them says,
+    :func:`heoslice.stack.tiff.mask_deflation`); the layer's result tuple, its render time measured from
+    ``started``."""
     from heoslice.grading import droplet_counts
 
     rendered = time.perf_counter()
     width, rows = job.grid.width, part_rows(job.points, job.grid)
-    level = deflate_level(True)
-    data = _solid_tiff(packed, solid, job, cache, level, rows)
+    data = _solid_tiff(packed, solid, job, cache, deflate_level(True), rows)
+    encoder, level = mask_deflation(job.graded.halftone)
     pieces = [(path, encode_bilevel_tiff(plane, width, job.dpi, job.compression, job.layer_height_mm,
-                                         level=level, rows=rows), count)
+                                         level=level, rows=rows, encoder=encoder), count)
               for path, plane, count in zip(job.graded.channel_paths, planes, droplet_counts(planes, solid))]
     encoded = time.perf_counter()
     digest = write_file(job.path, data)

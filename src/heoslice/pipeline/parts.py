@@ -27,7 +27,7 @@ from heoslice.layers.rasterising import Grid, count_solid, packed_mask
 from heoslice.material import Material, PartSetting, check_one_per_channel, nearest_materials, table_material
 from heoslice.pipeline.spec import channel_name
 from heoslice.stack import encode_bilevel_tiff, layer_file_name, write_file
-from heoslice.stack.tiff import deflate_level
+from heoslice.stack.tiff import deflate_level, mask_deflation
 
 if TYPE_CHECKING:
     from heoslice.layers.contours import Contours
@@ -172,7 +172,7 @@ def render_parts_run(contours: Contours, context: RunContext, first_layer: int) 
         data = encode_bilevel_tiff(solid, grid.width, spec.dpi, spec.compression, spec.layer_height_mm, level=level)
         pieces = [(layer_file_name(index, channel_name(material)),
                    encode_bilevel_tiff(plane, grid.width, spec.dpi, spec.compression, spec.layer_height_mm,
-                                       level=level),
+                                       level=mask_deflation(None).level, encoder=mask_deflation(None).encoder),
                    count_solid(plane))
                   for material, plane in zip(plan.channel_materials(), planes)]
         encoded = time.perf_counter()

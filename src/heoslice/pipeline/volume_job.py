@@ -40,7 +40,7 @@ from heoslice.stack import (
     write_file,
     write_manifest,
 )
-from heoslice.stack.tiff import deflate_level
+from heoslice.stack.tiff import Deflation, deflate_level, mask_deflation
 from heoslice.volume import Label, Volume
 from heoslice.volume.info import label_counts
 from heoslice.volume.model import labels_named
@@ -121,16 +121,17 @@ def _check_layers(spec: SliceSpec, bounds: np.ndarray, masks: tuple[Material, ..
                          f"volume's {float(bounds[1, 2] - bounds[0, 2]):g} mm (the most one stack's manifest holds)")
 
 
-def _layer_files(directory: Path, spec: SliceSpec, grid, masks: tuple[Material, ...], level: int,
-                 render: Callable[[int, float], tuple[np.ndarray, np.ndarray]], index: int, height: float
-                 ) -> tuple[LayerRecord, float, float]:
-    """Render, encode and write layer ``index`` at ``height`` mm: its record, and the CPU seconds of its render
-    and of its encoding and writing."""
+def _layer_files(directory: Path, spec: SliceSpec, grid, masks: tuple[Material, ...],
+                 deflations: tuple[Deflation, Deflation], render: Callable[[int, float], tuple[np.ndarray, np.ndarray]],
+                 index: int, height: float) -> tuple[LayerRecord, float, float]:
+    """Render, encode and write layer ``index`` at ``height`` mm (``deflations``: how its solid mask and its droplet
+    masks are deflated): its record, and the CPU seconds of its render and of its encoding and writing."""
     began = time.process_time()
     planes, counts = render(index, height)
     rendered = time.process_time()
     encoded = [encode_bilevel_tiff(plane, grid.width, spec.dpi, spec.compression, spec.layer_height_mm,
-                                   level=level) for plane in planes[:1 + len(masks)]]
+                                   level=deflations[number > 0].level, encoder=deflations[number > 0].encoder)
+               for number, plane in enumerate(planes[:1 + len(masks)])]
     digest = write_file(directory / layer_file_name(index), encoded[0])
     channels = None if not masks else tuple(
         ChannelRecord(material.name, layer_file_name(index, channel_name(material)),
@@ -154,7 +155,7 @@ def _write_stack(directory: Path, spec: SliceSpec, grid, bounds: np.ndarray, mas
     from heoslice.pipeline.parallel import ordered_map
 
     check_printer_materials(spec.printer, len(masks))
-    level = deflate_level(bool(masks))
+    deflations = (Deflation("zlib-ng", deflate_level(bool(masks))), mask_deflation(halftone))
     with ExitStack() as held:
         existed = directory.is_dir()
         if existed:
@@ -165,7 +166,7 @@ def _write_stack(directory: Path, spec: SliceSpec, grid, bounds: np.ndarray, mas
         z = plane_heights(bounds[0, 2], bounds[1, 2], spec.layer_height_mm)
         layers = []
         done = held.enter_context(closing(ordered_map(
-            lambda index: _layer_files(directory, spec, grid, masks, level, render, index, float(z[index])),
+            lambda index: _layer_files(directory, spec, grid, masks, deflations, render, index, float(z[index])),
             range(len(z)), spec.worker_count())))
         for record, raster, encode in done:
             layers.append(record)

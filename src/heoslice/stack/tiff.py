@@ -22,8 +22,8 @@ DEFAULT_COMPRESSION = "deflate"
 MM_PER_INCH = 25.4
 #: TIFF compression codes a layer may use: none, LZW, deflate (Adobe and old code), PackBits.
 TIFF_COMPRESSIONS = (1, 5, 8, 32946, 32773)
-#: zlib level of every 1-bit layer of a multi-material stack (solid layers and droplet masks): a
-#: halftone's dither patterns repeat at a short distance, which level 1's matcher misses and level 2's
+#: zlib level of a multi-material stack's solid layers, and of its droplet masks where :data:`MASK_DEFLATION`
+#: says so: ordered dither's patterns repeat at a short distance, which level 1's matcher misses and level 2's
 #: finds, and the solid layers shrink too, for a small part of a graded layer's cost (sizes and times in
 #: benchmarks/README.md).
 MULTI_MATERIAL_DEFLATE_LEVEL = 2
@@ -31,9 +31,33 @@ MULTI_MATERIAL_DEFLATE_LEVEL = 2
 ONE_MATERIAL_DEFLATE_LEVEL = 1
 
 
+class Deflation(NamedTuple):
+    """How a 1-bit file's strips are deflated: the encoder (:data:`heoslice.deflate.ENCODERS`) and its level."""
+
+    encoder: str
+    level: int
+
+
+#: How a multi-material stack's droplet masks are deflated, by the halftoning method that made them (None: none did,
+#: each pixel is one part's or label's material). Blue noise and error diffusion leave masks like noise, with few
+#: repeats to find: ISA-L's level 2 makes them as small as zlib-ng's level 2 in 0.3-0.4x its time (zlib-ng's level
+#: 1: files 27 % larger, still slower); on ordered dither's masks it misses the short repeats (files 11 % larger).
+#: One table of sizes and times in benchmarks/README.md.
+MASK_DEFLATION = {None: Deflation("zlib-ng", MULTI_MATERIAL_DEFLATE_LEVEL),
+                  "ordered": Deflation("zlib-ng", MULTI_MATERIAL_DEFLATE_LEVEL),
+                  "blue-noise": Deflation("isa-l", 2),
+                  "error-diffusion": Deflation("isa-l", 2)}
+
+
 def deflate_level(multi_material: bool) -> int:
-    """The zlib level of every 1-bit file of a stack, with droplet masks (``multi_material``) or without."""
+    """The zlib-ng level of a stack's 1-bit solid layers, with droplet masks (``multi_material``) or without."""
     return MULTI_MATERIAL_DEFLATE_LEVEL if multi_material else ONE_MATERIAL_DEFLATE_LEVEL
+
+
+def mask_deflation(halftone: str | None) -> Deflation:
+    """How a stack's droplet masks made by the halftoning method ``halftone`` (None: not halftoned) are deflated,
+    :data:`MASK_DEFLATION`."""
+    return MASK_DEFLATION[halftone]
 
 
 def calibration(dpi: tuple[float, float], spacing_mm: float | None) -> dict:
@@ -71,24 +95,24 @@ def encode_tiff(image: np.ndarray, dpi: tuple[float, float], compression: str,
     return buffer.getvalue()
 
 
-def _strip_codec(compression: str, level: int = 1):
+def _strip_codec(compression: str, level: int = 1, encoder: str = "zlib-ng"):
     """bytes -> compressed bytes for one TIFF strip.
 
-    Deflate is :func:`heoslice.deflate.deflater` at ``level`` (1 unless told): zlib-ng where imagecodecs has it,
-    the same zlib stream format as zlib's. Other codecs are tifffile's own.
+    Deflate is :func:`heoslice.deflate.deflater` at ``level`` (1 unless told) of ``encoder`` (zlib-ng unless
+    told), a zlib stream whichever encodes it. Other codecs are tifffile's own.
     """
     import tifffile
 
     if compression == "deflate":
-        return deflater(level)
+        return deflater(level, encoder)
     return tifffile.TIFF.COMPRESSORS[tifffile.COMPRESSION[COMPRESSIONS[compression].upper()].value]
 
 
 @functools.lru_cache(maxsize=32)
-def _blank_strip(compression: str, level: int, size: int) -> bytes:
+def _blank_strip(compression: str, level: int, size: int, encoder: str = "zlib-ng") -> bytes:
     """A strip of ``size`` zero bytes, compressed once: the same bytes every time, for the strips of rows off
     the part (a cross-section spans fewer rows than the image)."""
-    return _strip_codec(compression, level)(bytes(size))
+    return _strip_codec(compression, level, encoder)(bytes(size))
 
 
 class BilevelForm(NamedTuple):
@@ -117,11 +141,12 @@ class BilevelLayout:
 
 def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float], compression: str,
                         spacing_mm: float | None = None, rows_per_strip: int = 256,
-                        level: int = ONE_MATERIAL_DEFLATE_LEVEL, rows: tuple[int, int] | None = None) -> bytes:
+                        level: int = ONE_MATERIAL_DEFLATE_LEVEL, rows: tuple[int, int] | None = None,
+                        encoder: str = "zlib-ng") -> bytes:
     """TIFF bytes of a 1-bit layer given as packed rows ((h, ceil(width / 8)) uint8, MSB first).
 
-    ``level`` is deflate's (:func:`deflate_level` says which a stack uses; other codecs
-    ignore it). ``rows`` (first, stop): the only rows that may hold set bits, when the caller knows
+    ``level`` and ``encoder`` are deflate's (:func:`deflate_level` and :func:`mask_deflation` say which a stack
+    uses; other codecs ignore them). ``rows`` (first, stop): the only rows that may hold set bits, when the caller knows
     (:func:`heoslice.layers.rasterising.part_rows`); a strip wholly outside them is taken as blank.
 
     The strips are compressed here, straight from the packed bits (the mask is never expanded to
@@ -134,12 +159,12 @@ def encode_bilevel_tiff(packed: np.ndarray, width: int, dpi: tuple[float, float]
     form = BilevelForm(height, width, (float(dpi[0]), float(dpi[1])), compression, spacing_mm, rows_per_strip)
     if COMPRESSIONS[compression] is None:
         return _tifffile_bilevel(packed, form, None)
-    codec = _strip_codec(compression, level)
+    codec = _strip_codec(compression, level, encoder)
     first, stop = (0, height) if rows is None else rows
     packed = np.ascontiguousarray(packed)  # each strip's rows are then one run of bytes, compressed where they are
     strips = [codec(memoryview(packed[row:row + rows_per_strip]).cast("B"))
               if first < row + rows_per_strip and row < stop
-              else _blank_strip(compression, level, packed[row:row + rows_per_strip].nbytes)
+              else _blank_strip(compression, level, packed[row:row + rows_per_strip].nbytes, encoder)
               for row in range(0, height, rows_per_strip)]
     layout = bilevel_layout(form)
     if layout is None:
