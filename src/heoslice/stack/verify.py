@@ -194,8 +194,9 @@ def open_verified(directory: Path) -> StackPlan:
     """The :class:`StackPlan` of a stack for reading it while checking it layer by layer
     (:func:`verified_layer`); VerifyError (:func:`refusal`) when it has a problem as a whole."""
     plan = plan_stack(directory)
-    if plan.problems:
-        raise refusal(Path(directory), plan.problems)
+    if plan.problems:  # the layers' problems found without reading a file first, as verify lists them
+        listed = [line for plan_of in plan.plans for line in plan_of if isinstance(line, str)]
+        raise refusal(Path(directory), listed + list(plan.problems))
     return plan
 
 
@@ -207,6 +208,21 @@ def verified_layer(plan: StackPlan, index: int) -> tuple[Bits, list[Bits]]:
     if problems:
         raise refusal(plan.directory, problems)
     return bits[0], bits[1:]
+
+
+def check_unread_layers(plan: StackPlan, read: Iterable[int], layer_map: LayerMap = map) -> None:
+    """Refuse (VerifyError, :func:`refusal`) a stack opened by :func:`open_verified` that a reader of only the
+    layers ``read`` (which it reads with their checks: inside, layout, sha256) must not draw: a file problem
+    :func:`plan_stack` found in any layer, or of any other layer's files, checked without decoding (present,
+    regular, inside, layout and mode, sha256), through ``layer_map``."""
+    read = set(read)
+    unread = [index for index in range(len(plan.plans)) if index not in read]
+    found = {index: [line for line in plan.plans[index] if isinstance(line, str)] for index in read}
+    found.update(zip(unread, layer_map(lambda index: layer_problems(index, plan.plans[index], plan.manifest, False),
+                                       unread)))
+    problems = [line for index in sorted(found) for line in found[index]]
+    if problems:
+        raise refusal(plan.directory, problems)
 
 
 def load_verified(directory: Path, progress: Callable[[int, int], None] | None = None,
