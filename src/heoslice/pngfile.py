@@ -76,10 +76,12 @@ def image_png(image, text: tuple[tuple[str, str], ...] = ()) -> bytes:
 def bilevel_png(bits: np.ndarray, width: int, dpi: tuple[float, float]) -> bytes:
     """1-bit PNG of packed rows ((h, ceil(width / 8)) uint8, a set bit solid) showing solid black on white (as
     the layer TIFFs display); the padding bits of each row's last byte are not read."""
-    rows = np.invert(bits)
+    scanlines = np.empty((bits.shape[0], bits.shape[1] + 1), dtype=np.uint8)
+    scanlines[:, 0] = 0  # filter type None
+    np.invert(bits, out=scanlines[:, 1:])
     if width % 8:
-        rows[:, -1] &= np.uint8((0xFF << (8 - width % 8)) & 0xFF)
-    return png_file(rows, width, 1, 1, dpi)
+        scanlines[:, -1] &= np.uint8((0xFF << (8 - width % 8)) & 0xFF)
+    return scanlines_png(scanlines, width, 1, 1, dpi)
 
 
 def labels_png(labels: np.ndarray, colours: np.ndarray, dpi: tuple[float, float]) -> bytes:
