@@ -47,12 +47,14 @@ def export(stack: Path, format_name: str, output: Path, pitch: float | None, dpi
     """Write STACK in another printer's format to OUTPUT, checking it as verify does while it is read
     (a stack with a problem is refused and nothing is written)."""
     from heoslice.export import ExportOptions, export_stack
-    from heoslice.cli.slice import parse_dpi
     from heoslice.stack import check_input_path
 
     check_input_path(stack)
-    options = ExportOptions(pitch_mm=pitch, dpi=None if dpi is None else tuple(parse_dpi(dpi)),
-                            background=_colour(background))
+    if dpi is not None:  # slice's parser of --dpi; its module loads the slicing stages, so only when asked
+        from heoslice.cli.slice import parse_dpi
+
+        dpi = tuple(parse_dpi(dpi))
+    options = ExportOptions(pitch_mm=pitch, dpi=dpi, background=_colour(background))
     try:
         with progress_bar(f"exporting {format_name}", enabled=not as_json) as writing:
             summary = export_stack(stack, format_name, output, options, force=force, writing=writing)
