@@ -1,6 +1,7 @@
 """Verifying a stack: the manifest, every listed file (inside, present, sha256, layout, solid pixels),
 droplet masks against their layer and their printer channels, layer heights, and no unlisted layer
-files."""
+files. The same checks serve a reader in one pass: the stack as a whole first (:func:`open_verified`), then
+each layer as it is read (:func:`verified_layer`; :func:`check_unread_layers` for the layers it skips)."""
 
 from __future__ import annotations
 
