@@ -9,12 +9,17 @@ wall time as a ratio to the slice's of the same repeat (median over repeats), it
 peak RSS of its largest process (GNU time, as bench_prusa.py measures) and the load average around the
 stack's runs, against the targets of issue
 46: verify <= 0.3, preview --section <= 0.1, export png and voxel-print <= 1, print --dry-run <= 0.2.
-Outputs go to a temporary folder (``--workdir`` keeps them) and are deleted at the end.
+Outputs go to a temporary folder (``--workdir`` keeps them) and are deleted at the end. With ``--baseline SRC``
+(a folder holding an earlier ``heoslice`` package, e.g. ``git archive`` of a commit's ``src``) each command
+is also run by that code, right before this code's run of it on the same stack, so that both ratios come
+from one run; ``--commands`` picks the commands.
 
 Examples:
   python benchmarks/bench_commands.py --quick                     # the scans at 40 mm: a smoke test
   python benchmarks/bench_commands.py                             # the scans at their set sizes, 1 repeat
   python benchmarks/bench_commands.py --stacks dragon,parts --repeats 2 --json results.json
+  git archive main src | tar -x -C /tmp/base && cp src/heoslice/_compiled*.so /tmp/base/src/heoslice/
+  python benchmarks/bench_commands.py --stacks parts --baseline /tmp/base/src --commands verify,"export png"
 """
 
 from __future__ import annotations
@@ -59,6 +64,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--repeats", type=int, default=1, help="slices and command runs per stack [1]")
     parser.add_argument("--workdir", type=Path, default=None, help="where meshes and outputs go [a temp dir]")
     parser.add_argument("--json", default=None, metavar="PATH", help="also write the results as JSON to PATH")
+    parser.add_argument("--baseline", type=Path, default=None, metavar="SRC",
+                        help="also run each command with the heoslice package in SRC (on PYTHONPATH), alternating")
+    parser.add_argument("--commands", default=None,
+                        help=f"comma-separated, from {','.join(COMMANDS)} [default: all]")
     return parser.parse_args(argv)
 
 
@@ -99,6 +108,14 @@ def main(argv: list[str] | None = None) -> None:
     work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_commands_"))
     work.mkdir(parents=True, exist_ok=True)
     base = heoslice_base()
+    commands = args.commands.split(",") if args.commands else list(COMMANDS)
+    unknown = sorted(set(commands) - set(COMMANDS))
+    if unknown:
+        raise SystemExit(f"--commands: unknown {', '.join(unknown)}; choose from {', '.join(COMMANDS)}")
+    runners = [("", base, None)]
+    if args.baseline is not None:
+        environment = {**os.environ, "PYTHONPATH": str(args.baseline.resolve())}
+        runners.insert(0, ("baseline ", [sys.executable, "-m", "heoslice"], environment))
     results = {}
     try:
         for name in names:
@@ -114,15 +131,17 @@ def main(argv: list[str] | None = None) -> None:
                 if sliced.returncode:
                     raise SystemExit(f"{name}: slice failed, see {sliced.log}")
                 rows["slice"].append((sliced.wall_s, sliced.cpu_s, sliced.max_rss_mb, 1.0))
-                for command in COMMANDS:
-                    output = folder / f"out_{command.replace(' ', '_').replace('-', '')}"
-                    done = run_measured([*base, *command_args(command, stack, output)],
-                                        folder / f"{command.replace(' ', '_')}{repeat}.log")
-                    if done.returncode:
-                        raise SystemExit(f"{name}: {command} failed, see {done.log}")
-                    rows.setdefault(command, []).append((done.wall_s, done.cpu_s, done.max_rss_mb,
-                                                         done.wall_s / sliced.wall_s))
-                    shutil.rmtree(output, ignore_errors=True)
+                for command in commands:
+                    for label, runner, environment in runners:
+                        output = folder / f"out_{command.replace(' ', '_').replace('-', '')}"
+                        done = run_measured([*runner, *command_args(command, stack, output)],
+                                            folder / f"{label.strip()}{command.replace(' ', '_')}{repeat}.log",
+                                            env=environment)
+                        if done.returncode:
+                            raise SystemExit(f"{name}: {label}{command} failed, see {done.log}")
+                        rows.setdefault(label + command, []).append((done.wall_s, done.cpu_s, done.max_rss_mb,
+                                                                     done.wall_s / sliced.wall_s))
+                        shutil.rmtree(output, ignore_errors=True)
             manifest = json.loads((folder / "stack" / "manifest.json").read_text())
             image = manifest["image"]
             results[name] = {"layers": len(manifest["layers"]), "image": [image["width"], image["height"]],
@@ -144,13 +163,13 @@ def report(name: str, result: dict) -> None:
     """One stack's table: each command's wall, CPU, peak RSS and ratio to the slice, against its target."""
     print(f"\n{name}: {result['layers']} layers of {result['image'][0]} x {result['image'][1]} px "
           f"(1-minute load average {result['load_average'][0]:g} before, {result['load_average'][1]:g} after)")
-    print(f"  {'command':<20} {'wall s':>8} {'CPU s':>8} {'RSS MB':>8} {'x slice':>8} {'target':>7}")
+    print(f"  {'command':<29} {'wall s':>8} {'CPU s':>8} {'RSS MB':>8} {'x slice':>8} {'target':>7}")
     for command, figures in result.items():
         if not isinstance(figures, dict):
             continue
-        target = COMMANDS.get(command, (None, None))[1]
+        target = COMMANDS.get(command.removeprefix("baseline "), (None, None))[1]
         verdict = "" if target is None else (" ok" if figures["ratio"] <= target else " OVER")
-        print(f"  {command:<20} {figures['wall_s']:8.2f} {figures['cpu_s']:8.2f} {figures['max_rss_mb']:8.0f} "
+        print(f"  {command:<29} {figures['wall_s']:8.2f} {figures['cpu_s']:8.2f} {figures['max_rss_mb']:8.0f} "
               f"{figures['ratio']:8.2f} {'' if target is None else f'{target:7.2f}'}{verdict}")
     sys.stdout.flush()
 

@@ -178,3 +178,15 @@ def test_an_8_bit_droplet_mask_is_refused(two_part_stack, run_cli):
         code, out, err = run_cli(*command)
         assert code == EXIT_VERIFY and err.count("\n") == 1 and mask_file.name in err, (command, err)
     assert sorted(p.name for p in two_part_stack.iterdir()) == before
+
+
+def test_verify_starts_without_the_slicing_stages():
+    """Loading the verify command (and the stack reader it runs) does not load the mesh or layers stages, whose
+    imports (kernels, trimesh) would double a plain verify's start-up."""
+    import subprocess
+    import sys
+
+    code = ("import sys, heoslice.cli.verify, heoslice.stack.verify; "
+            "print(sorted(m for m in sys.modules if m.startswith(('heoslice.mesh', 'heoslice.layers'))))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]", done.stdout

@@ -121,3 +121,56 @@ def test_sampled_labels_are_the_whole_layers_labels_sampled(stacks):
             whole[mask] = number + 1
         assert np.array_equal(layer_labels(stack, manifest, index, rows, columns), whole[np.ix_(rows, columns)])
         assert np.array_equal(layer_labels(stack, manifest, index), whole)
+
+
+@pytest.mark.parametrize("planes_count, samples", [(1, 3), (2, 3), (2, 4), (3, 3)])
+def test_slice_scanlines_colour_each_sampled_pixel_by_its_label(planes_count, samples):
+    """slice_scanlines (a table per packed byte for up to two planes, labels otherwise; background rows off the
+    planes' span) gives, after a zero filter byte, colours[label] of each sampled pixel, the label the last
+    plane holding it, on random planes of a width that is not a multiple of 8 with blank rows around them."""
+    from heoslice.export.voxel_print import slice_scanlines
+    from heoslice.stack.packed import Bits
+
+    rng = np.random.default_rng(planes_count * 10 + samples)
+    height, width = 40, 61
+    masks = rng.random((planes_count, height, width)) < 0.4
+    masks[:, :7] = masks[:, 31:] = False
+    planes = [Bits(np.packbits(mask, axis=1), (7, 31)) for mask in masks]
+    colours = rng.integers(0, 256, (planes_count + 1, samples), dtype=np.uint8)
+    labels = np.zeros((height, width), dtype=np.uint8)
+    for number, mask in enumerate(masks, 1):
+        labels[mask] = number
+    rows = np.array([0, 3, 7, 8, 8, 20, 30, 31, 39])
+    for columns in (np.arange(width), np.array([0, 5, 5, 60])):
+        out = slice_scanlines(planes, width, rows, columns, colours)
+        assert (out[:, 0] == 0).all()
+        assert np.array_equal(out[:, 1:].reshape(len(rows), len(columns), samples), colours[labels[np.ix_(rows, columns)]])
+
+
+def test_export_refuses_a_stack_with_a_bad_layer_and_writes_nothing(tmp_path):
+    """An export checks every layer as it reads it: a layer file altered after slicing (its sha256 no longer the
+    manifest's), even one no slice samples (layers 0.3 mm, pitch 1 mm), stops voxel-print and png with exit 4
+    and one line naming the file; no output appears and an earlier export given with --force is kept as it was."""
+    procedural.sphere(3.0, subdivisions=2).export(tmp_path / "ball.ply")
+    stack = tmp_path / "stack"
+    assert in_process("slice", tmp_path / "ball.ply", "--layer", "0.3", "--dpi", "100", "-o", stack) == 0
+    done = heoslice("export", stack, "--format", "voxel-print", "--pitch", "1", "-o", tmp_path / "old")
+    assert done.returncode == 0, done.stderr
+    before = sorted((p.name, p.read_bytes()) for p in (tmp_path / "old").iterdir())
+    manifest = read_manifest(stack)
+    from heoslice.export.voxel_print import printer_grid
+
+    sources = printer_grid(manifest, (600.0, 300.0), 1.0)[-1]
+    unsampled = sorted(set(range(len(manifest["layers"]))) - set(sources.tolist()))
+    assert unsampled
+    victim = stack / manifest["layers"][unsampled[len(unsampled) // 2]]["file"]
+    data = bytearray(victim.read_bytes())
+    data[-1] ^= 0xFF
+    victim.write_bytes(bytes(data))
+    for output, extra in ((tmp_path / "old", ["--format", "voxel-print", "--pitch", "1", "--force"]),
+                          (tmp_path / "new", ["--format", "voxel-print", "--pitch", "1"]),
+                          (tmp_path / "png.zip", ["--format", "png"])):
+        done = heoslice("export", stack, *extra, "-o", output)
+        assert done.returncode == 4 and done.stderr.count("\n") == 1 and victim.name in done.stderr, done.stderr
+    assert sorted((p.name, p.read_bytes()) for p in (tmp_path / "old").iterdir()) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ball.ply", "old", "stack"]

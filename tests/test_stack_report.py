@@ -19,6 +19,7 @@ from heoslice.stack.report import (
     band_table,
     layer_tally,
     mask_faults,
+    masks_partition,
     material_report,
     pixel_position,
     preview_design,
@@ -52,6 +53,28 @@ def test_faults_and_counts_match_a_brute_force_reference(h, w, k, seed):
     for fault, reference in ((faults.uncovered, solid & (jets == 0)), (faults.doubled, jets > 1),
                              (faults.outside, (jets > 0) & ~solid)):
         assert (None if fault is None else (fault.count, fault.first)) == first_pixel(reference)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(1, 20), st.integers(1, 70), st.integers(1, 3), st.integers(0, 3), st.integers(0, 2**32 - 1))
+def test_partition_test_matches_the_literal_rule(h, w, k, flips, seed):
+    """masks_partition (whole words, any byte length) is the literal rule: every solid pixel in exactly one
+    mask and no mask pixel outside the solid, on masks that partition the solid but for ``flips`` random
+    pixels flipped in a random mask or the solid; and mask_faults finds no fault exactly when it holds."""
+    rng = np.random.default_rng(seed)
+    solid = rng.random((h, w)) < 0.6
+    owner = rng.integers(0, k, (h, w))
+    masks = np.stack([solid & (owner == m) for m in range(k)])
+    for _ in range(flips):
+        row, column, which = rng.integers(0, h), rng.integers(0, w), rng.integers(-1, k)
+        target = solid if which < 0 else masks[which]
+        target[row, column] = ~target[row, column]
+    literal = bool(((masks.sum(axis=0) == 1) == solid).all() and not (masks & ~solid).any())
+    packed_solid, packed = np.packbits(solid, axis=-1), np.packbits(masks, axis=-1)
+    assert masks_partition(packed_solid, packed) == literal
+    assert masks_partition(packed_solid[:, ::-1], packed[:, :, ::-1]) == literal  # not contiguous: the slow path
+    faults = mask_faults(packed_solid, packed, clean_checked=True)
+    assert (faults.uncovered is None and faults.doubled is None and faults.outside is None) == literal
 
 
 def test_worst_window_against_a_literal_loop():

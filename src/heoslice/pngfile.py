@@ -40,12 +40,20 @@ def png_file(rows: np.ndarray, width: int, samples: int, bit_depth: int, dpi: tu
     4 (RGBA) of ``bit_depth`` 1 or 8 bits; ``dpi`` (x, y) in a pHYs chunk as Pillow writes it (none when None);
     each (keyword, Latin-1 text) of ``text`` in a tEXt chunk before the image data."""
     height, stride = rows.shape
-    if stride != -(-width * samples * bit_depth // 8) or samples not in COLOUR_TYPES or bit_depth not in (1, 8):
-        raise ValueError(f"png_file: rows of {stride} bytes do not hold {width} px of {samples} x {bit_depth} bits")
     scanlines = np.empty((height, stride + 1), dtype=np.uint8)
     scanlines[:, 0] = 0  # filter type None
     scanlines[:, 1:] = rows
-    data = deflater(DEFLATE_LEVEL)(scanlines)
+    return scanlines_png(scanlines, width, samples, bit_depth, dpi, text)
+
+
+def scanlines_png(scanlines: np.ndarray, width: int, samples: int, bit_depth: int, dpi: tuple[float, float] | None,
+                  text: tuple[tuple[str, str], ...] = ()) -> bytes:
+    """:func:`png_file` of rows already laid out as PNG scanlines: (height, 1 + the row's bytes) uint8, C order,
+    each row's first byte its filter type (0) (a caller building large images there saves a copy)."""
+    height, stride = scanlines.shape[0], scanlines.shape[1] - 1
+    if stride != -(-width * samples * bit_depth // 8) or samples not in COLOUR_TYPES or bit_depth not in (1, 8):
+        raise ValueError(f"png_file: rows of {stride} bytes do not hold {width} px of {samples} x {bit_depth} bits")
+    data = deflater(DEFLATE_LEVEL)(np.ascontiguousarray(scanlines))
     header = struct.pack(">IIBBBBB", width, height, bit_depth, COLOUR_TYPES[samples], 0, 0, 0)
     extra = [] if dpi is None else [
         _chunk(b"pHYs", struct.pack(">IIB", *(int(value / METRES_PER_INCH + 0.5) for value in dpi), 1))]
@@ -68,10 +76,12 @@ def image_png(image, text: tuple[tuple[str, str], ...] = ()) -> bytes:
 def bilevel_png(bits: np.ndarray, width: int, dpi: tuple[float, float]) -> bytes:
     """1-bit PNG of packed rows ((h, ceil(width / 8)) uint8, a set bit solid) showing solid black on white (as
     the layer TIFFs display); the padding bits of each row's last byte are not read."""
-    rows = np.invert(bits)
+    scanlines = np.empty((bits.shape[0], bits.shape[1] + 1), dtype=np.uint8)
+    scanlines[:, 0] = 0  # filter type None
+    np.invert(bits, out=scanlines[:, 1:])
     if width % 8:
-        rows[:, -1] &= np.uint8((0xFF << (8 - width % 8)) & 0xFF)
-    return png_file(rows, width, 1, 1, dpi)
+        scanlines[:, -1] &= np.uint8((0xFF << (8 - width % 8)) & 0xFF)
+    return scanlines_png(scanlines, width, 1, 1, dpi)
 
 
 def labels_png(labels: np.ndarray, colours: np.ndarray, dpi: tuple[float, float]) -> bytes:

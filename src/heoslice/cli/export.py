@@ -44,19 +44,20 @@ Examples:
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def export(stack: Path, format_name: str, output: Path, pitch: float | None, dpi: str | None, background: str | None,
            force: bool, as_json: bool) -> None:
-    """Write STACK (verified first) in another printer's format to OUTPUT."""
+    """Write STACK in another printer's format to OUTPUT, checking it as verify does while it is read
+    (a stack with a problem is refused and nothing is written)."""
     from heoslice.export import ExportOptions, export_stack
-    from heoslice.cli.slice import parse_dpi
     from heoslice.stack import check_input_path
 
     check_input_path(stack)
-    options = ExportOptions(pitch_mm=pitch, dpi=None if dpi is None else tuple(parse_dpi(dpi)),
-                            background=_colour(background))
+    if dpi is not None:  # slice's parser of --dpi; its module loads the slicing stages, so only when asked
+        from heoslice.cli.slice import parse_dpi
+
+        dpi = tuple(parse_dpi(dpi))
+    options = ExportOptions(pitch_mm=pitch, dpi=dpi, background=_colour(background))
     try:
-        with progress_bar("verifying", enabled=not as_json) as verifying, \
-                progress_bar(f"exporting {format_name}", enabled=not as_json) as writing:
-            summary = export_stack(stack, format_name, output, options, force=force, verifying=verifying,
-                                   writing=writing)
+        with progress_bar(f"exporting {format_name}", enabled=not as_json) as writing:
+            summary = export_stack(stack, format_name, output, options, force=force, writing=writing)
     except InputError as err:
         name, _, rest = str(err).partition(": ")
         if name in FLAGS:

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from heoslice.errors import InputError, VerifyError
-from heoslice.mesh import Mesh, ranked_part_volumes_mm3
 from heoslice.stack import read_manifest
 from heoslice.stack.report import (
     MaterialReport,
@@ -20,6 +20,9 @@ from heoslice.stack.report import (
     window_pixels,
 )
 from heoslice.stack.recorded_design import R_BANDS, field_comparison
+
+if TYPE_CHECKING:  # the mesh stage loads only for a mesh's parts: a plain verify starts quicker
+    from heoslice.mesh import Mesh
 
 #: Bands ``verify`` compares: of the designed target share with --design (10: 0-10 %, ..., 90-100 %), of r with a
 #: recorded design (the same count, :data:`heoslice.stack.recorded_design.R_BANDS`).
@@ -37,6 +40,8 @@ def designed_part_volumes(manifest: dict, mesh: Mesh | None) -> list[float] | No
         return None
     volumes = None
     if mesh is not None and len(mesh.parts) == len(parts):
+        from heoslice.mesh import ranked_part_volumes_mm3
+
         volumes = ranked_part_volumes_mm3(mesh, sorted(range(len(parts)), key=lambda label: parts[label]["rank"]))
     if volumes is None:
         volumes = [part.get("volume_mm3") for part in parts]

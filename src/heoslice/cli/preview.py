@@ -10,13 +10,14 @@ import click
 import numpy as np
 
 from heoslice.cli.common import echo_warnings, progress_bar
-from heoslice.errors import InputError
+from heoslice.errors import InputError, VerifyError
 from heoslice.files import check_output, write_output
 from heoslice.pipeline.parallel import ordered_map
 from heoslice.preview.png import is_preview, png_bytes
 from heoslice.preview.layer import MAX_PREVIEW_SIDE, MIN_PREVIEW_SIDE
 from heoslice.preview.sheet import MAX_SHEET_LAYERS, MAX_TILE, MIN_TILE
-from heoslice.stack import check_input_path, load_verified
+from heoslice.stack import check_input_path
+from heoslice.stack.verify import check_unread_layers, open_verified, refusal
 
 #: Library parameter names -> the options that set them, for error messages.
 FLAGS = {"section": "--section", "size": "--size", "tile": "--tile", "columns": "--columns", "layers": "--layers",
@@ -74,18 +75,23 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
     """
     check_input_path(stack)
     # verify's own check (every file present, of its layout, mode and sha256): a stack it refuses is not drawn;
-    # pixels are decoded, and checked, for what is drawn
-    manifest = load_verified(stack, check_pixels=False, layer_map=ordered_map)
+    # the layers drawn are checked as they are read (and their pixels where drawn), the others without decoding
+    opened = open_verified(stack)
+    manifest = opened.manifest
     count = len(manifest["layers"])
     if count == 0:
         raise InputError(f"{stack}: the stack has no layers")
     with flags_named():
-        target, draw = _plan(stack, manifest, layer, sheet, layers, size, tile, columns, section, output)
+        target, drawn, draw = _plan(stack, manifest, layer, sheet, layers, size, tile, columns, section, output)
         check_output(target, "preview PNG", force=force, made_here=is_preview, inputs=(stack,))
         if target.suffix.lower() != ".png":
             raise InputError(f"{target}: the preview is a PNG; give a file name ending in .png")
+        check_unread_layers(opened, drawn, ordered_map)
         with progress_bar("drawing", enabled=not as_json) as progress:
-            image = draw(progress)
+            try:
+                image = draw(progress)
+            except VerifyError as err:
+                raise refusal(stack, [str(err)]) from err
     write_output(target, png_bytes(image))
     if as_json:
         click.echo(json.dumps({"stack": str(stack), "ok": True, "output": str(target), "width": image.size[0],
@@ -96,7 +102,8 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
 
 def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: str | None, size: int | None,
           tile: int, columns: int | None, section: str | None, output: Path | None):
-    """(target PNG path, function drawing the PIL image) of the requested preview, options checked."""
+    """(target PNG path, the layers it draws, function drawing the PIL image) of the requested preview, options
+    checked."""
     from heoslice.preview import (
         annotated_layer_image,
         annotated_section_image,
@@ -105,7 +112,7 @@ def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: s
         parse_section,
         sheet_size,
     )
-    from heoslice.preview.section import section_line
+    from heoslice.preview.section import section_grid, section_line
     from heoslice.preview.sheet import layer_aspect
 
     count = len(manifest["layers"])
@@ -116,6 +123,7 @@ def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: s
         axis, position = parse_section(section)
         section_line(manifest, axis, position)
         return (output or Path.cwd() / f"{name}_section_{axis}{position:g}.png",
+                np.unique(section_grid(manifest, axis, size)[2]).tolist(),
                 lambda progress: annotated_section_image(stack, axis, position, size, manifest, progress))
     if sheet:
         if layer is not None:
@@ -123,7 +131,7 @@ def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: s
         chosen = parse_layers(layers, count, lambda text: echo_warnings(stack, [text])) if layers else sorted(set(np.linspace(0, count - 1, min(16, count))
                                                                        .round().astype(int).tolist()))
         sheet_size(len(chosen), tile, columns, layer_aspect(manifest))
-        return (output or Path.cwd() / f"{name}_sheet.png",
+        return (output or Path.cwd() / f"{name}_sheet.png", chosen,
                 lambda progress: contact_sheet(stack, chosen, tile=tile, columns=columns, manifest=manifest,
                                                progress=progress))
     if layers is not None:
@@ -131,5 +139,5 @@ def _plan(stack: Path, manifest: dict, layer: int | None, sheet: bool, layers: s
     index = count // 2 if layer is None else layer
     if not 0 <= index < count:
         raise InputError(f"--layer: layer {index} does not exist (the stack has layers 0..{count - 1})")
-    return (output or Path.cwd() / f"{name}_layer_{index:05d}.png",
+    return (output or Path.cwd() / f"{name}_layer_{index:05d}.png", [index],
             lambda progress: annotated_layer_image(stack, index, size, manifest))

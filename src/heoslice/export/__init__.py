@@ -11,8 +11,7 @@ from pathlib import Path
 
 from heoslice.errors import InputError
 from heoslice.export.base import ExportFormat, ExportOptions, Sink, check_options
-from heoslice.pipeline.parallel import ordered_map
-from heoslice.stack import load_verified
+from heoslice.stack.verify import open_verified
 
 
 def formats() -> dict[str, ExportFormat]:
@@ -27,20 +26,21 @@ def formats() -> dict[str, ExportFormat]:
 
 
 def export_stack(directory: Path, format_name: str, output: Path, options: ExportOptions = ExportOptions(),
-                 force: bool = False, verifying: Callable[[int, int], None] | None = None,
-                 writing: Callable[[int, int], None] | None = None) -> dict:
-    """Verify the stack in ``directory``, then write it as ``format_name`` to ``output`` (a folder, or a zip
-    when it ends in .zip); return the format's summary with the files written. ``verifying(done, total)`` and
-    ``writing(done, total)`` follow the two (for progress bars)."""
+                 force: bool = False, writing: Callable[[int, int], None] | None = None) -> dict:
+    """Write the stack in ``directory`` as ``format_name`` to ``output`` (a folder, or a zip when it ends in
+    .zip), checking it as :func:`heoslice.stack.verify_stack` does while it is read, in one pass: the stack as
+    a whole before anything is written, each layer as the format reads it (every layer is read). A problem
+    stops the export and removes what was written, leaving ``output`` as it was. Return the format's summary
+    with the files written; ``writing(done, total)`` follows the layers (for a progress bar)."""
     known = formats()
     if format_name not in known:
         raise InputError(f"format: unknown export format {format_name!r}; choose from {', '.join(known)}")
     check_options(options)
-    manifest = load_verified(Path(directory), verifying, ordered_map)
+    stack = open_verified(Path(directory))
     sink = Sink(output, force=force, inputs=(Path(directory),))
     sink.on_progress = writing
     try:
-        summary = known[format_name].write(Path(directory), manifest, sink, options)
+        summary = known[format_name].write(stack, sink, options)
     except BaseException:
         sink.discard()
         raise

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from heoslice.errors import InputError, OutputError
 from heoslice.files import check_output, discard_partial, head_bytes, move_into_place, partial_path, write_problem
+from heoslice.stack.verify import StackPlan
 
 #: Output names written as one zip file rather than a folder (a GrabCAD Voxel Print File is a zip).
 ZIP_SUFFIXES = (".zip", ".gcvf")
@@ -32,12 +33,14 @@ class ExportOptions:
 
 @dataclass(frozen=True, slots=True)
 class ExportFormat:
-    """One export format: its name (``--format``), a line of help, and
-    ``write(stack directory, verified manifest, sink, options) -> summary dict``."""
+    """One export format: its name (``--format``), a line of help, and ``write(stack, sink, options) -> summary
+    dict``, ``stack`` a :class:`heoslice.stack.verify.StackPlan` checked as a whole, whose every layer ``write``
+    reads through :func:`heoslice.stack.verify.verified_layer`, which checks it."""
 
     name: str
     summary: str
-    write: Callable[[Path, dict, "Sink", ExportOptions], dict]
+    write: Callable[[StackPlan, "Sink", ExportOptions], dict]
+
 
 
 #: Marks an export heoslice wrote (the only kind ``export --force`` replaces): a hidden file in a folder

@@ -21,7 +21,8 @@ from heoslice.export.base import ExportFormat, ExportOptions, Sink
 from heoslice.export.voxel_print import (
     DEFAULT_DPI,
     DEFAULT_PITCH_MM,
-    layer_labels,
+    label_planes,
+    labels_of,
     palette,
     printer_grid,
     source_runs,
@@ -29,6 +30,7 @@ from heoslice.export.voxel_print import (
 from heoslice.pipeline.parallel import ordered_map
 from heoslice.pngfile import labels_png
 from heoslice.stack import MANIFEST, check_printable
+from heoslice.stack.verify import StackPlan, verified_layer
 
 #: Most model materials one .gcvf carries (its ConfigFile's MaxNumberOfColors).
 MAX_MATERIALS = 6
@@ -78,8 +80,10 @@ def config_xml(materials: list[tuple[str, tuple[int, int, int]]], counts: list[i
     return text.encode("utf-8")
 
 
-def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -> dict:
-    """Write the layers and ``ConfigFile.xml`` into the .gcvf zip."""
+def write(stack: StackPlan, sink: Sink, options: ExportOptions) -> dict:
+    """Write the layers and ``ConfigFile.xml`` into the .gcvf zip; every layer is checked as it is read
+    (:func:`heoslice.stack.verify.verified_layer`), over the cores, each run of slices sampling it encoded once."""
+    directory, manifest = stack.directory, stack.manifest
     if not sink.is_zip:
         raise InputError(f"format: a .gcvf is one zip file; name the output {sink.target.name}.gcvf")
     if options.background is not None:
@@ -94,17 +98,26 @@ def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -
     width, height, slices, columns, rows, sources = printer_grid(manifest, dpi, pitch)
     colours = np.array([BACKGROUND_RGBA] + [(*colour, 255) for _, colour in materials], dtype=np.uint8)
 
-    def encoded(source: int) -> tuple[bytes, np.ndarray]:
-        labels = layer_labels(directory, manifest, source, rows, columns)
+    runs = {layer: (start, stop) for layer, start, stop in source_runs(sources)}
+    image_width = manifest["image"]["width"]
+
+    def encoded(index: int) -> tuple[bytes, np.ndarray] | None:
+        planes = label_planes(*verified_layer(stack, index))
+        if index not in runs:
+            return None
+        labels = labels_of(planes, image_width, rows, columns)
         return labels_png(labels, colours, dpi), np.bincount(labels.ravel(), minlength=len(colours))
 
     counts = np.zeros(len(materials) + 1, dtype=np.int64)
-    runs = source_runs(sources)
-    for (data, found), (_, start, stop) in zip(ordered_map(encoded, [layer for layer, _, _ in runs]), runs):
-        for number in range(start, stop):
-            sink.add(f"layer_{number}.png", data)
-        counts += found * (stop - start)
-        sink.progress(stop, slices)
+    total = len(manifest["layers"])
+    for index, done in enumerate(ordered_map(encoded, range(total))):
+        if done is not None:
+            data, found = done
+            start, stop = runs[index]
+            for number in range(start, stop):
+                sink.add(f"layer_{number}.png", data)
+            counts += found * (stop - start)
+        sink.progress(index + 1, total)
     sink.add(CONFIG_FILE, config_xml(materials, counts[1:].tolist(), dpi, pitch, (width, height), slices))
     return {"format": "gcvf", "slices": slices, "width": width, "height": height, "dpi": list(dpi), "pitch_mm": pitch,
             "materials": [{"name": name, "rgba": [*colour, 255], "voxels": int(count)}

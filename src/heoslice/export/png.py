@@ -11,7 +11,7 @@ from heoslice.export.base import ExportFormat, ExportOptions, Sink
 from heoslice.pipeline.parallel import ordered_map
 from heoslice.pngfile import bilevel_png, png_file
 from heoslice.stack import MANIFEST, read_layer_channels, read_layer_pixels, resolve_inside
-from heoslice.stack.packed import layer_bits
+from heoslice.stack.verify import StackPlan, verified_layer
 
 #: Image modes whose layers a PNG shows as 1-bit (solid or not), written from packed bits.
 BILEVEL_MODES = ("1", "L")
@@ -27,28 +27,31 @@ def png_bytes(pixels: np.ndarray, dpi: tuple[float, float]) -> bytes:
                     8, dpi)
 
 
-def layer_pngs(directory: Path, manifest: dict, index: int) -> list[tuple[str, bytes]]:
-    """(name, PNG bytes) of layer ``index``'s image and its droplet masks, in that order."""
+def layer_pngs(stack: StackPlan, index: int) -> list[tuple[str, bytes]]:
+    """(name, PNG bytes) of layer ``index``'s image and its droplet masks, in that order, the layer checked as it
+    is read (:func:`heoslice.stack.verify.verified_layer`): 1-bit layers from the bits that check decoded."""
+    directory, manifest = stack.directory, stack.manifest
     entry, dpi = manifest["layers"][index], tuple(manifest["dpi"])
     names = [Path(record["file"]).with_suffix(".png").name for record in [entry, *entry.get("channels", [])]]
+    solid, masks = verified_layer(stack, index)
     if manifest["image"].get("mode", "1") in BILEVEL_MODES:
-        solid, masks = layer_bits(directory, manifest, index)
         width = manifest["image"]["width"]
         return [(name, bilevel_png(bits.rows, width, dpi)) for name, bits in zip(names, [solid, *masks])]
     images = [read_layer_pixels(directory, manifest, index), *read_layer_channels(directory, manifest, index)]
     return [(name, png_bytes(pixels, dpi)) for name, pixels in zip(names, images)]
 
 
-def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -> dict:
+def write(stack: StackPlan, sink: Sink, options: ExportOptions) -> dict:
     """Write ``layer_NNNNN.png`` (and ``layer_NNNNN_MATERIAL.png``) per layer and the manifest, bottom first;
-    the layers are read and encoded over the cores (:func:`heoslice.pipeline.parallel.ordered_map`)."""
+    the layers are checked, read and encoded over the cores (:func:`heoslice.pipeline.parallel.ordered_map`)."""
+    manifest = stack.manifest
     dpi = tuple(manifest["dpi"])
     total = len(manifest["layers"])
-    for done, files in enumerate(ordered_map(lambda index: layer_pngs(directory, manifest, index), range(total)), 1):
+    for done, files in enumerate(ordered_map(lambda index: layer_pngs(stack, index), range(total)), 1):
         for name, data in files:
             sink.add(name, data)
         sink.progress(done, total)
-    sink.add(MANIFEST, resolve_inside(directory, MANIFEST).read_bytes())
+    sink.add(MANIFEST, resolve_inside(stack.directory, MANIFEST).read_bytes())
     return {"layers": len(manifest["layers"]), "dpi": list(dpi), "layer_height_mm": manifest["layer_height_mm"]}
 
 

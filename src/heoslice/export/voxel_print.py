@@ -13,6 +13,7 @@ the background's.
 
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 
@@ -21,9 +22,10 @@ import numpy as np
 from heoslice.errors import InputError
 from heoslice.export.base import ExportFormat, ExportOptions, Sink
 from heoslice.pipeline.parallel import ordered_map
-from heoslice.pngfile import labels_png
+from heoslice.pngfile import scanlines_png
 from heoslice.stack import MANIFEST, MAX_IMAGE_PIXELS, MAX_LAYERS, check_printable
-from heoslice.stack.packed import layer_bits
+from heoslice.stack.packed import Bits, layer_bits
+from heoslice.stack.verify import StackPlan, verified_layer
 
 #: The J750's Voxel Print resolution (dpi x, y) and layer pitch (mm).
 DEFAULT_DPI = (600.0, 300.0)
@@ -69,30 +71,86 @@ def sample_indices(count: int, step: float, new_step: float, new_count: int) -> 
     return np.clip(np.floor(centres / step).astype(np.int64), 0, count - 1)
 
 
-def layer_labels(directory: Path, manifest: dict, index: int, rows: np.ndarray | None = None,
-                 columns: np.ndarray | None = None) -> np.ndarray:
-    """(h, w) uint8 material label of each pixel of a stack layer: 0 empty, m + 1 material m (the last mask
-    holding a pixel, were two to hold it); only the pixels at ``rows`` x ``columns`` (index arrays, default
-    all) when given. Each file is read once, as packed bits, and only the sampled rows are unpacked."""
-    image = manifest["image"]
-    with_masks = bool(manifest["layers"][index].get("channels"))
-    solid, masks = layer_bits(directory, manifest, index, solid=not with_masks)
+def labels_of(planes: list[Bits], width: int, rows: np.ndarray | None = None,
+              columns: np.ndarray | None = None) -> np.ndarray:
+    """(h, w) uint8 material label of each pixel of a layer given as the packed rows of its label ``planes``
+    (its droplet masks, or its solid pixels alone): 0 empty, m + 1 plane m (the last plane holding a pixel,
+    were two to hold it); only the pixels at ``rows`` x ``columns`` (index arrays, default all) when given,
+    only the sampled rows unpacked."""
     labels = None
-    for number, bits in enumerate(masks if with_masks else [solid], 1):
+    for number, bits in enumerate(planes, 1):
         packed = bits.rows if rows is None else np.take(bits.rows, rows, axis=0)
-        plane = np.unpackbits(packed, axis=1, count=image["width"])
+        plane = np.unpackbits(packed, axis=1, count=width)
         if number > 1:
             plane *= np.uint8(number)
         labels = plane if labels is None else np.maximum(labels, plane, out=labels)
-    if columns is None or np.array_equal(columns, np.arange(image["width"])):
+    if columns is None or np.array_equal(columns, np.arange(width)):
         return labels
     return np.take(labels, columns, axis=1)
 
 
-def slice_png(directory: Path, manifest: dict, index: int, rows: np.ndarray, columns: np.ndarray,
-              colours: np.ndarray, dpi: tuple[float, float]) -> bytes:
-    """The PNG of a Voxel Print slice taken from stack layer ``index`` (sampled at ``rows`` x ``columns``)."""
-    return labels_png(layer_labels(directory, manifest, index, rows, columns), colours, dpi)
+def label_planes(solid: Bits, masks: list[Bits]) -> list[Bits]:
+    """The planes a layer's labels come from: its droplet masks, or its solid pixels without them."""
+    return masks or [solid]
+
+
+def layer_labels(directory: Path, manifest: dict, index: int, rows: np.ndarray | None = None,
+                 columns: np.ndarray | None = None) -> np.ndarray:
+    """:func:`labels_of` stack layer ``index`` (each file read once, as packed bits; its sha256 checked)."""
+    with_masks = bool(manifest["layers"][index].get("channels"))
+    solid, masks = layer_bits(directory, manifest, index, solid=not with_masks)
+    return labels_of(label_planes(solid, masks), manifest["image"]["width"], rows, columns)
+
+
+#: Most label planes :func:`slice_scanlines` colours a packed byte of at once: a table of 256 ** planes entries of
+#: 8 pixels each (2 planes: 65,536 x 24 bytes in RGB).
+MOST_TABLE_PLANES = 2
+
+
+@functools.lru_cache(maxsize=4)
+def _byte_colours(colours: bytes, samples: int, planes: int) -> np.ndarray:
+    """(256 ** planes,) table of the colours of the 8 pixels of one packed byte of each of ``planes`` label
+    planes (key: plane m's byte << 8 m), each entry 8 x ``samples`` bytes; the labels are :func:`labels_of`'s."""
+    keys = np.arange(256 ** planes)
+    labels = np.zeros((len(keys), 8), dtype=np.uint8)
+    for number in range(planes):
+        bits = np.unpackbits((keys >> (8 * number)).astype(np.uint8)[:, None], axis=1)
+        labels = np.where(bits == 1, np.uint8(number + 1), labels)
+    table = np.frombuffer(colours, dtype=np.uint8).reshape(-1, samples)[labels]
+    return np.ascontiguousarray(table.reshape(len(keys), 8 * samples)).view(f"V{8 * samples}").ravel()
+
+
+def slice_scanlines(planes: list[Bits], width: int, rows: np.ndarray, columns: np.ndarray,
+                    colours: np.ndarray) -> np.ndarray:
+    """(len(rows), 1 + len(columns) x samples) uint8 PNG scanlines (:func:`heoslice.pngfile.scanlines_png`,
+    filter byte 0): the colour (``colours`` (n, samples), label k in row k) of each sampled pixel of a layer's
+    label ``planes`` (:func:`labels_of`'s labels). Where the columns are the layer's own and there are at
+    most MOST_TABLE_PLANES planes, each packed byte is coloured at once through a table
+    (:func:`_byte_colours`), and the rows off the part are the background's."""
+    samples = colours.shape[1]
+    out = np.empty((len(rows), 1 + len(columns) * samples), dtype=np.uint8)
+    out[:, 0] = 0
+    if len(planes) > MOST_TABLE_PLANES or not np.array_equal(columns, np.arange(width)):
+        out[:, 1:] = colours[labels_of(planes, width, rows, columns)].reshape(len(rows), -1)
+        return out
+    first, stop = min(bits.span[0] for bits in planes), max(bits.span[1] for bits in planes)
+    inside = (rows >= first) & (rows < stop)
+    out[~inside, 1:] = np.broadcast_to(colours[0], (width, samples)).reshape(-1)
+    if inside.any():
+        sampled = rows[inside]
+        keys = np.take(planes[0].rows, sampled, axis=0).astype(np.uint16 if len(planes) > 1 else np.uint8)
+        for number, bits in enumerate(planes[1:], 1):
+            keys |= np.take(bits.rows, sampled, axis=0).astype(np.uint16) << np.uint16(8 * number)
+        table = _byte_colours(np.ascontiguousarray(colours, dtype=np.uint8).tobytes(), samples, len(planes))
+        out[inside, 1:] = np.take(table, keys).view(np.uint8).reshape(len(sampled), -1)[:, :width * samples]
+    return out
+
+
+def slice_png(planes: list[Bits], width: int, rows: np.ndarray, columns: np.ndarray, colours: np.ndarray,
+              dpi: tuple[float, float]) -> bytes:
+    """The PNG of a Voxel Print slice taken from a layer's label ``planes`` (sampled at ``rows`` x ``columns``)."""
+    return scanlines_png(slice_scanlines(planes, width, rows, columns, colours), len(columns), colours.shape[1], 8,
+                         dpi)
 
 
 def printer_grid(manifest: dict, dpi: tuple[float, float], pitch: float) -> tuple:
@@ -122,8 +180,11 @@ def source_runs(sources: np.ndarray) -> list[tuple[int, int, int]]:
     return list(zip(sources[starts].tolist(), starts.tolist(), stops.tolist()))
 
 
-def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -> dict:
-    """Write the slices and ``voxelprint.json`` (materials, colours, resolution, pitch)."""
+def write(stack: StackPlan, sink: Sink, options: ExportOptions) -> dict:
+    """Write the slices and ``voxelprint.json`` (materials, colours, resolution, pitch). Every layer is checked
+    as it is read (:func:`heoslice.stack.verify.verified_layer`), over the cores; each run of slices sampling one
+    layer is encoded once."""
+    directory, manifest = stack.directory, stack.manifest
     dpi = options.dpi or DEFAULT_DPI
     pitch = options.pitch_mm or DEFAULT_PITCH_MM
     background = tuple(options.background or DEFAULT_BACKGROUND)
@@ -131,13 +192,19 @@ def write(directory: Path, manifest: dict, sink: Sink, options: ExportOptions) -
     materials = palette(manifest, background, Path(directory) / MANIFEST)
     width, height, slices, columns, rows, sources = printer_grid(manifest, dpi, pitch)
     colours = np.array([background] + [colour for _, colour in materials], dtype=np.uint8)
-    runs = source_runs(sources)
-    encoded = ordered_map(lambda layer: slice_png(directory, manifest, layer, rows, columns, colours, dpi),
-                          [layer for layer, _, _ in runs])
-    for data, (_, start, stop) in zip(encoded, runs):
-        for number in range(start, stop):
-            sink.add(f"slice_{number:05d}.png", data)
-        sink.progress(stop, slices)
+    runs = {layer: (start, stop) for layer, start, stop in source_runs(sources)}
+    image_width = manifest["image"]["width"]
+
+    def encoded(index: int) -> bytes | None:
+        planes = label_planes(*verified_layer(stack, index))
+        return slice_png(planes, image_width, rows, columns, colours, dpi) if index in runs else None
+
+    total = len(manifest["layers"])
+    for index, data in enumerate(ordered_map(encoded, range(total))):
+        if data is not None:
+            for number in range(*runs[index]):
+                sink.add(f"slice_{number:05d}.png", data)
+        sink.progress(index + 1, total)
     summary = {"format": "voxel-print", "slices": slices, "width": width, "height": height, "dpi": list(dpi),
                "pitch_mm": pitch, "background": list(background),
                "materials": [{"name": name, "color": list(colour)} for name, colour in materials],

@@ -93,6 +93,23 @@ def _layer_line(directory: Path, manifest: dict, index: int, axis: str, line: in
     return _display(kind, colors)(means[None])[0]
 
 
+def section_grid(manifest: dict, axis: str, size: int | None = None) -> tuple[tuple[int, int], int, np.ndarray]:
+    """How a section across ``axis`` is drawn: its (width, height) px at the true aspect ratio (layer height
+    against pixel size), its longer side at most ``size`` (default MAX_PREVIEW_SIDE); the box factor its line is
+    reduced by; and the stack layer each of its rows shows, (height,) from the bottom row up (the layers it
+    reads)."""
+    size = check_size(size)
+    image, (px, py), h = manifest["image"], manifest["pixel_size_mm"], manifest["layer_height_mm"]
+    across, pixel = (image["height"], py) if axis == "x" else (image["width"], px)
+    layers = len(manifest["layers"])
+    true_height = layers * h / pixel
+    scale = min(1.0, size / max(across, true_height))
+    width_out, height_out = max(1, round(across * scale)), max(1, round(true_height * scale))
+    factor = max(1, across // max(width_out, 1))
+    sources = np.clip(np.floor((np.arange(height_out) + 0.5) / height_out * layers).astype(np.int64), 0, layers - 1)
+    return (width_out, height_out), factor, sources
+
+
 def section_image(directory: Path, axis: str, position_mm: float, size: int | None = None,
                   manifest: dict | None = None, progress: Callable[[int, int], None] | None = None):
     """PIL RGB image of the vertical section at ``axis`` = ``position_mm`` (mm): one row per layer, top layer at
@@ -102,17 +119,9 @@ def section_image(directory: Path, axis: str, position_mm: float, size: int | No
     from PIL import Image
 
     directory = Path(directory)
-    size = check_size(size)
     manifest = read_manifest(directory) if manifest is None else manifest
     line = section_line(manifest, axis, position_mm)
-    image, (px, py), h = manifest["image"], manifest["pixel_size_mm"], manifest["layer_height_mm"]
-    across, pixel = (image["height"], py) if axis == "x" else (image["width"], px)
-    layers = len(manifest["layers"])
-    true_height = layers * h / pixel
-    scale = min(1.0, size / max(across, true_height))
-    width_out, height_out = max(1, round(across * scale)), max(1, round(true_height * scale))
-    factor = max(1, across // max(width_out, 1))
-    sources = np.clip(np.floor((np.arange(height_out) + 0.5) / height_out * layers).astype(np.int64), 0, layers - 1)
+    (width_out, height_out), factor, sources = section_grid(manifest, axis, size)
     drawn = np.unique(sources).tolist()
     lines = {}
     for done, (index, pixels) in enumerate(ordered_map(

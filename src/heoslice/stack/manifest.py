@@ -19,7 +19,6 @@ from heoslice import __version__
 from heoslice.errors import InputError, VerifyError
 from heoslice.grading.halftone import DEFAULT_METHOD as DEFAULT_HALFTONE
 from heoslice.grading.halftone import METHODS as HALFTONE_METHODS
-from heoslice.layers.planes import layer_count
 from heoslice.material import MAX_CHANNEL, is_channel, shared_channel
 
 FORMAT_NAME = "heoslice-stack"
@@ -428,7 +427,10 @@ def mask_channels(manifest: dict, label: object = "stack") -> tuple[int, ...]:
 
 
 def expected_layer_count(z_min: float, z_max: float, layer_height: float) -> int:
-    """Layers a stack of this z-range needs: :func:`heoslice.layers.planes.layer_count`, as slicing cuts them."""
+    """Layers a stack of this z-range needs: :func:`heoslice.layers.planes.layer_count`, as slicing cuts them
+    (imported here: the layers package loads the slicing stage, which a reader of a stack does not need)."""
+    from heoslice.layers.planes import layer_count
+
     return layer_count(z_min, z_max, layer_height)
 
 

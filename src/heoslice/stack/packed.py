@@ -192,16 +192,19 @@ def _strip_rows(page) -> int:
 
 
 #: Compressed strips known to inflate to zeros (the blank strips off the part, the same bytes in every layer
-#: of a stack): skipped instead of inflated. Only short strips are remembered, at most this many.
+#: of a stack): skipped instead of inflated. Only short strips are remembered, at most this many: strips of
+#: at most _BLANK_STRIP_BYTES, and at most 1 / _BLANK_RATIO (+ 64 bytes) of what they inflate to (zeros
+#: deflate about 1000:1; a strip holding part of the layer is rarely that short, and is not searched for a set
+#: bit each time it is read).
 _BLANK_STRIPS: set[bytes] = set()
-_MAX_BLANK_STRIPS, _BLANK_STRIP_BYTES = 64, 4096
+_MAX_BLANK_STRIPS, _BLANK_STRIP_BYTES, _BLANK_RATIO = 64, 4096, 256
 
 
 def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, stop: int) -> tuple[int, int] | None:
     """Inflate the strips of a plain 1-bit page holding rows first..stop-1 into ``flat`` (the packed rows of
-    the image, one spare byte after them, zero where nothing is inflated); return the rows (first, stop) that
-    may hold set bits (blank strips are known by their bytes and skipped). None (``flat`` partly written)
-    when the page or a strip is not laid out as heoslice writes it."""
+    the image, one spare byte after them; the rows of every other strip are zeroed); return the rows (first,
+    stop) that may hold set bits (blank strips are known by their bytes and zeroed, not inflated). None
+    (``flat`` partly written) when the page or a strip is not laid out as heoslice writes it."""
     page = layer.page
     if (page.bitspersample, page.samplesperpixel) != (1, 1) or page.fillorder != 1 or page.predictor != 1:
         return None
@@ -214,14 +217,16 @@ def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, st
     span = [page.imagelength, 0]
     for number, (offset, count) in enumerate(zip(page.dataoffsets, page.databytecounts)):
         row = number * rows
-        if row + rows <= first or row >= stop:
-            continue
-        strip = view[offset:offset + count]
-        short = count <= _BLANK_STRIP_BYTES
-        if short and bytes(strip) in _BLANK_STRIPS:
-            continue
         expected = min(rows, page.imagelength - row) * width
         target = flat[row * width:row * width + expected + 1]
+        if row + rows <= first or row >= stop:
+            target[:expected] = 0
+            continue
+        strip = view[offset:offset + count]
+        short = count <= min(_BLANK_STRIP_BYTES, expected // _BLANK_RATIO + 64)
+        if short and bytes(strip) in _BLANK_STRIPS:
+            target[:expected] = 0
+            continue
         try:
             if decode is None:
                 done = min(len(strip), expected + 1)
@@ -266,7 +271,8 @@ def solid_bits(layer: LayerFile, alpha: bool, rows: tuple[int, int] | None = Non
     page = layer.page
     height, width = page.imagelength, row_bytes(page.imagewidth)
     first, stop = (0, height) if rows is None else rows
-    flat = np.zeros(height * width + 1, dtype=np.uint8)
+    flat = np.empty(height * width + 1, dtype=np.uint8)  # _inflate_bits writes or zeroes every row
+    flat[-1] = 0
     out = flat[:-1].reshape(height, width)
     span = _inflate_bits(layer, flat, width, first, stop)
     if span is None:

@@ -1,6 +1,7 @@
 """Verifying a stack: the manifest, every listed file (inside, present, sha256, layout, solid pixels),
 droplet masks against their layer and their printer channels, layer heights, and no unlisted layer
-files."""
+files. The same checks serve a reader in one pass: the stack as a whole first (:func:`open_verified`), then
+each layer as it is read (:func:`verified_layer`; :func:`check_unread_layers` for the layers it skips)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from heoslice.errors import VerifyError
 from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST, MASK_MODE, layer_height_problems, mask_channels
 from heoslice.stack.packed import Bits, count_bits, read_layer_file, solid_bits
 from heoslice.stack.read import read_manifest, resolve_inside
-from heoslice.stack.report import fault_lines, mask_faults
+from heoslice.stack.report import fault_lines, mask_faults, masks_partition
 
 
 @dataclass(frozen=True)
@@ -35,50 +36,67 @@ class StackReport:
 FileCheck = tuple[Path, str, str, int | None, str | None]
 
 
-def _file_problem(check: FileCheck, manifest: dict, check_pixels: bool) -> tuple[str | None, Bits | None]:
-    """(problem of one listed image file or None, its solid pixels as packed rows when decoded): layout, size,
-    hash, and the solid pixel count (the file read and decoded once)."""
-    path, name, digest, solid, mode = check
+def _file_bits(check: FileCheck, manifest: dict, check_pixels: bool) -> tuple[str | None, Bits | None]:
+    """(problem of one listed image file or None, its solid pixels as packed rows when decoded): layout, size
+    and hash checked, the file read and decoded once."""
+    path, name, digest, _, mode = check
     try:
         layer = read_layer_file(path, name, digest, manifest, mode)
         if not check_pixels:
             return None, None
-        bits = solid_bits(layer, manifest["mask"] == "alpha" and mode is not None)
-        found = count_bits(bits.rows[bits.span[0]:bits.span[1]])
-        if solid is not None and found != solid:
-            return f"{name}: has {found} solid pixels, manifest says {solid}", bits
-        return None, bits
+        return None, solid_bits(layer, manifest["mask"] == "alpha" and mode is not None)
     except VerifyError as err:
         return str(err), None
 
 
-def _coverage_problems(index: int, solid: Bits, masks: list[Bits], manifest: dict) -> list[str]:
-    """Droplet masks against their layer: every solid pixel in exactly one mask, empty pixels in none, over the
-    rows where any of them has a set bit; a line per kind of fault naming its first pixel
-    (:func:`heoslice.stack.report.mask_faults`)."""
-    first = min(bits.span[0] for bits in [solid, *masks])
-    stop = max(bits.span[1] for bits in [solid, *masks])
-    faults = mask_faults(solid.rows[first:stop], [mask.rows[first:stop] for mask in masks], row_offset=first)
-    return fault_lines(index, faults, manifest)
+def _rows_of(bits: list[Bits]) -> tuple[int, int]:
+    """The rows (first, stop) holding every set bit of a layer's files."""
+    return min(b.span[0] for b in bits), max(b.span[1] for b in bits)
+
+
+def layer_check(index: int, plan: list, manifest: dict, check_pixels: bool) -> tuple[list[str], list[Bits | None]]:
+    """(problems of layer ``index``, one line each; each listed file's :class:`Bits`, None where not decoded):
+    ``plan`` lists its files in order, each a problem line already found (str) or a :data:`FileCheck`. Each
+    file is read, hashed and decoded once; its solid pixels are counted against the manifest, and the
+    droplet masks checked against the layer when every file passed (a solid pixel in exactly one mask, none
+    outside). When the masks partition the layer the layer's own count is the sum of theirs."""
+    found: list[tuple[str | None, FileCheck | None, Bits | None]] = []  # per listed file: problem, check, bits
+    for item in plan:
+        if isinstance(item, str):
+            found.append((item, None, None))
+            continue
+        problem, decoded = _file_bits(item, manifest, check_pixels)
+        found.append((f"layer {index}: {problem}" if problem else None, item, decoded))
+    bits = [decoded for _, check, decoded in found if check is not None]
+    decoded = [b for b in bits if b is not None]
+    channels = manifest["layers"][index].get("channels")
+    partitioned = False
+    if channels and check_pixels and len(decoded) == len(plan) > 1:
+        first, stop = _rows_of(decoded)
+        partitioned = masks_partition(decoded[0].rows[first:stop], [b.rows[first:stop] for b in decoded[1:]])
+    counts = [None if partitioned and not number else count_bits(b.rows[b.span[0]:b.span[1]])
+              for number, b in enumerate(decoded)]
+    if partitioned:
+        counts[0] = sum(counts[1:])
+    counted = iter(counts)
+    lines: list[str] = []
+    for problem, check, decoded_bits in found:
+        count = next(counted) if decoded_bits is not None else None
+        if problem:
+            lines.append(problem)
+        elif count is not None and check[3] is not None and count != check[3]:
+            lines.append(f"layer {index}: {check[1]}: has {count} solid pixels, manifest says {check[3]}")
+    if channels and check_pixels and not lines and not partitioned:
+        first, stop = _rows_of(decoded)
+        faults = mask_faults(decoded[0].rows[first:stop], [b.rows[first:stop] for b in decoded[1:]],
+                             row_offset=first, clean_checked=True)
+        lines += fault_lines(index, faults, manifest)
+    return lines, bits
 
 
 def layer_problems(index: int, plan: list, manifest: dict, check_pixels: bool) -> list[str]:
-    """Problems of layer ``index``, one line each: ``plan`` lists its files in order, each a problem line
-    already found (str) or a :data:`FileCheck`; the droplet masks are checked against the layer when every
-    file passed. Each file is read, hashed and decoded once."""
-    problems, bits = [], []
-    for item in plan:
-        if isinstance(item, str):
-            problems.append(item)
-            continue
-        problem, decoded = _file_problem(item, manifest, check_pixels)
-        if problem:
-            problems.append(f"layer {index}: {problem}")
-        bits.append(decoded)
-    channels = manifest["layers"][index].get("channels")
-    if channels and check_pixels and not problems:
-        problems += _coverage_problems(index, bits[0], bits[1:], manifest)
-    return problems
+    """Problems of layer ``index``, one line each (:func:`layer_check`)."""
+    return layer_check(index, plan, manifest, check_pixels)[0]
 
 
 #: ``layer_map(function, items)``: function(item) for each item, yielded in order. The builtin map checks
@@ -87,20 +105,22 @@ def layer_problems(index: int, plan: list, manifest: dict, check_pixels: bool) -
 LayerMap = Callable[[Callable, Iterable], Iterable]
 
 
-def verify_stack(directory: Path, *, check_pixels: bool = True, layer_map: LayerMap = map,
-                 progress: Callable[[int, int], None] | None = None) -> StackReport:
-    """Check a stack: manifest, every listed file (inside, present, sha256, size, dpi, solid pixels), extras.
+@dataclass(frozen=True)
+class StackPlan:
+    """A stack read for checking: its manifest, per layer the :func:`layer_check` plan of its files, and the
+    problems of the stack as a whole (masks' channels, layer heights, unlisted layer files), one line each."""
 
-    Returns a report listing every problem found, one line each. The layers are checked through
-    ``layer_map`` (:data:`LayerMap`), each file read and decoded once; ``progress(done, total)`` is called
-    as each layer's check is done.
-    """
+    directory: Path
+    manifest: dict
+    plans: tuple[list, ...]
+    problems: tuple[str, ...]
+
+
+def plan_stack(directory: Path) -> StackPlan:
+    """The :class:`StackPlan` of the stack in ``directory``: manifest parsed and bounded (VerifyError when it
+    cannot be read), each listed file resolved inside the stack and listed once."""
     directory = Path(directory)
-    try:
-        manifest = read_manifest(directory)
-    except VerifyError as err:
-        return StackReport(directory, (str(err),))
-    problems: list[str] = []
+    manifest = read_manifest(directory)
     listed: dict[Path, str] = {}
     mode = manifest["image"].get("mode", "1")
     root = directory.resolve()
@@ -125,13 +145,7 @@ def verify_stack(directory: Path, *, check_pixels: bool = True, layer_map: Layer
                 continue
             plan.append((path, name, digest, solid, file_mode))
         plans.append(plan)
-    total = len(plans)
-    for done, found in enumerate(layer_map(lambda index: layer_problems(index, plans[index], manifest,
-                                                                        check_pixels),
-                                           range(total)), start=1):
-        problems += found
-        if progress is not None:
-            progress(done, total)
+    problems: list[str] = []
     try:
         mask_channels(manifest, MANIFEST)
     except VerifyError as err:
@@ -142,7 +156,74 @@ def verify_stack(directory: Path, *, check_pixels: bool = True, layer_map: Layer
     for entry in sorted(os.listdir(directory)):
         if LAYER_PATTERN.match(entry) and entry not in names:
             problems.append(f"{entry}: layer file not listed in the manifest")
-    return StackReport(directory, tuple(problems), manifest)
+    return StackPlan(directory, manifest, tuple(plans), tuple(problems))
+
+
+def verify_stack(directory: Path, *, check_pixels: bool = True, layer_map: LayerMap = map,
+                 progress: Callable[[int, int], None] | None = None) -> StackReport:
+    """Check a stack: manifest, every listed file (inside, present, sha256, size, dpi, solid pixels), extras.
+
+    Returns a report listing every problem found, one line each. The layers are checked through
+    ``layer_map`` (:data:`LayerMap`), each file read and decoded once; ``progress(done, total)`` is called
+    as each layer's check is done.
+    """
+    directory = Path(directory)
+    try:
+        plan = plan_stack(directory)
+    except VerifyError as err:
+        return StackReport(directory, (str(err),))
+    problems: list[str] = []
+    total = len(plan.plans)
+    for done, found in enumerate(layer_map(lambda index: layer_problems(index, plan.plans[index], plan.manifest,
+                                                                        check_pixels),
+                                           range(total)), start=1):
+        problems += found
+        if progress is not None:
+            progress(done, total)
+    return StackReport(directory, tuple(problems) + plan.problems, plan.manifest)
+
+
+def refusal(directory: Path, problems: tuple[str, ...] | list[str]) -> VerifyError:
+    """The one-line error of a stack with ``problems``: the first, named by the stack, and how many more."""
+    more = f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else ""
+    first = problems[0]
+    named = first if first.startswith((f"{directory}:", f"{directory}/")) else f"{directory}: {first}"
+    return VerifyError(f"{named}{more}")
+
+
+def open_verified(directory: Path) -> StackPlan:
+    """The :class:`StackPlan` of a stack for reading it while checking it layer by layer
+    (:func:`verified_layer`); VerifyError (:func:`refusal`) when it has a problem as a whole."""
+    plan = plan_stack(directory)
+    if plan.problems:  # the layers' problems found without reading a file first, as verify lists them
+        listed = [line for plan_of in plan.plans for line in plan_of if isinstance(line, str)]
+        raise refusal(Path(directory), listed + list(plan.problems))
+    return plan
+
+
+def verified_layer(plan: StackPlan, index: int) -> tuple[Bits, list[Bits]]:
+    """Layer ``index`` of a stack opened by :func:`open_verified`, checked as :func:`verify_stack` checks it
+    (VerifyError, :func:`refusal`, on a problem): (its solid pixels, its droplet masks' in manifest order),
+    each file read and decoded once. An export that writes as it checks calls it for every layer."""
+    problems, bits = layer_check(index, plan.plans[index], plan.manifest, True)
+    if problems:
+        raise refusal(plan.directory, problems)
+    return bits[0], bits[1:]
+
+
+def check_unread_layers(plan: StackPlan, read: Iterable[int], layer_map: LayerMap = map) -> None:
+    """Refuse (VerifyError, :func:`refusal`) a stack opened by :func:`open_verified` that a reader of only the
+    layers ``read`` (which it reads with their checks: inside, layout, sha256) must not draw: a file problem
+    :func:`plan_stack` found in any layer, or of any other layer's files, checked without decoding (present,
+    regular, inside, layout and mode, sha256), through ``layer_map``."""
+    read = set(read)
+    unread = [index for index in range(len(plan.plans)) if index not in read]
+    found = {index: [line for line in plan.plans[index] if isinstance(line, str)] for index in read}
+    found.update(zip(unread, layer_map(lambda index: layer_problems(index, plan.plans[index], plan.manifest, False),
+                                       unread)))
+    problems = [line for index in sorted(found) for line in found[index]]
+    if problems:
+        raise refusal(plan.directory, problems)
 
 
 def load_verified(directory: Path, progress: Callable[[int, int], None] | None = None,
@@ -154,10 +235,7 @@ def load_verified(directory: Path, progress: Callable[[int, int], None] | None =
     present, regular, inside, of the manifest's layout and mode, and of its sha256."""
     report = verify_stack(directory, progress=progress, layer_map=layer_map, check_pixels=check_pixels)
     if not report.ok:
-        more = f" (and {len(report.problems) - 1} more problem(s))" if len(report.problems) > 1 else ""
-        first = report.problems[0]
-        named = first if first.startswith((f"{directory}:", f"{directory}/")) else f"{directory}: {first}"
-        raise VerifyError(f"{named}{more}")
+        raise refusal(Path(directory), report.problems)
     return report.manifest
 
 
