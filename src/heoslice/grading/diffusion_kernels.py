@@ -303,8 +303,9 @@ def _diffuse_pair_row(mixing, span, place, errors, spread, state, settings, plan
     # the box columns whose pixel the layer before's error covers (none on a fresh layer or outside its rows)
     from_col, to_col = (max(lo, -dc), min(hi, carry_in.shape[1] - dc)) \
         if fresh == 0 and 0 <= cr < carry_in.shape[0] else (0, 0)
-    incoming = carry_in[min(max(cr, 0), max(carry_in.shape[0] - 1, 0))]
-    outgoing = carry_out[r]
+    incoming = carry_in[min(max(cr, 0), max(carry_in.shape[0] - 1, 0))].reshape(carry_in.shape[1])
+    outgoing = carry_out[r].reshape(carry_out.shape[1])
+    shares_of = table.reshape(2 * table.shape[0])  # one dimension: no stride to multiply per pixel
     half = np.float32(0.5)
     written = False
     # the pixel before's value times kept_1 and the part of kept_1 to take off (kept_1 where it took material 0), and
@@ -312,14 +313,16 @@ def _diffuse_pair_row(mixing, span, place, errors, spread, state, settings, plan
     ahead_value = ahead_taken = error_1 = error_2 = np.float32(0.0)
     fed_1 = fed_2 = np.float32(0.0)
     held_byte, bits_0, bits_1 = -1, np.uint8(0), np.uint8(0)  # the packed byte being gathered, each plane's bits
+    first, step = (lo, 1) if forward else (hi - 1, -1)
     for k in range(hi - lo):
-        c = lo + k if forward else hi - 1 - k
-        u = np.uint64(c)
+        c = first + step * k
+        u = np.uint64(c)  # unsigned indices: no negative-index wrap to test
         p = np.uint64(c + PAD)
         col = c0 + c
-        number = line[u]
-        on = np.float32((solid[col >> 3] >> (7 - (col & 7))) & 1)
-        share_0, share_1 = table[number, 0] * on, table[number, 1] * on
+        at = np.uint64(col)
+        number = np.uint64(line[u]) << np.uint64(1)
+        on = np.float32((solid[at >> np.uint64(3)] >> (np.uint64(7) - (at & np.uint64(7)))) & np.uint64(1))
+        share_0, share_1 = shares_of[number] * on, shares_of[number + np.uint64(1)] * on
         if not (share_0 > np.float32(0.0) and share_1 > np.float32(0.0)):
             if share_0 > np.float32(0.0) or share_1 > np.float32(0.0):
                 if col >> 3 != held_byte:
@@ -341,7 +344,7 @@ def _diffuse_pair_row(mixing, span, place, errors, spread, state, settings, plan
         fed = cur_fed[p] + fed_1 * ahead_1 + fed_2 * ahead_2
         threshold = half * total
         if fed < np.float32(0.99) or fresh:
-            jetted = np.float32(1.0) if thresholds[col & wrap] * total < share_0 else np.float32(0.0)
+            jetted = np.float32(1.0) if thresholds[at & np.uint64(wrap)] * total < share_0 else np.float32(0.0)
             if fed < np.float32(0.99):
                 missing = max(np.float32(1.0) - fed, np.float32(0.0))
                 threshold -= min(top_share * missing, np.float32(1.0)) * (jetted - share_0)
@@ -351,13 +354,13 @@ def _diffuse_pair_row(mixing, span, place, errors, spread, state, settings, plan
         if not fresh:
             base += layer_share * steady
             if from_col <= c < to_col:
-                base += incoming[np.uint64(c + dc), 0]
+                base += incoming[np.uint64(c + dc)]
         value = (base + ahead_value) - ahead_taken
         take = value >= threshold
         ahead_value = value * kept_1
         ahead_taken = kept_1 * np.float32(take)
         error = value - (np.float32(1.0) if take else np.float32(0.0))
-        outgoing[u, 0] = (error - steady) * layer_share
+        outgoing[u] = (error - steady) * layer_share
         left_error[p] = error * kept
         left_fed[p] = np.float32(1.0)
         error_2, error_1, fed_2, fed_1 = error_1, error, fed_1, np.float32(1.0)
