@@ -1,6 +1,7 @@
 """Compiled loops of :mod:`heoslice.grading.diffusion`: serpentine vector error diffusion into bit-packed droplet
 masks, row by row over the solid pixels only, of a given per-pixel mix or of a labelled layer's mix made on the
-fly (one pass: no per-pixel mix array for the layer)."""
+fly (one pass: no per-pixel mix array for the layer): read from a table of each label's mix where every family's
+cells hold one start mix (a grade from one colour), else made per row where a pixel's label changed."""
 
 from __future__ import annotations
 
@@ -422,8 +423,9 @@ def _diffuse(mix, origin, state, settings, planes):  # pragma: no cover - compil
 def _diffuse_labelled(layer, mixing, base_channel, state, settings, planes):  # pragma: no cover - compiled
     """:func:`_diffuse` of a labelled layer's mix (as :func:`heoslice.grading.droplets_kernels.droplet_bits`
     reads it: ``layer`` = (labels of the box, its first row and column, the packed solid mask, its rows),
-    ``mixing`` its families' mixes), each row's made on the fly over its solid span only
-    (:func:`_row_mixes`); solid pixels outside the box are left to the caller."""
+    ``mixing`` its families' mixes), each row's read from each label's mix (:func:`_label_mixes`) where every
+    family's cells hold one start mix, else made over its solid span only where a pixel's label changed from the
+    row before (:func:`_kept_row_mixes`); solid pixels outside the box are left to the caller."""
     label, r0, c0, packed, rows = layer
     cols = label.shape[1]
     channels = planes.shape[0]
