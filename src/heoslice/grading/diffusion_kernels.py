@@ -119,7 +119,8 @@ def _row_mixes(line, row, c0, lo, hi, solid, mixing, base_channel, scratch, out)
 
 
 @helper(EXACT)
-def _kept_row_mixes(line, row, c0, lo, hi, solid, mixing, base_channel, scratch, out, keys, renew):  # pragma: no cover - compiled
+def _kept_row_mixes(line, row, c0, lo, hi, solid, mixing, base_channel, scratch, out, keys,
+                    renew):  # pragma: no cover - compiled
     """:func:`_row_mixes` of box columns lo .. hi - 1 of one row into ``out``, remaking only the pixels whose key
     changed from the row before: a pixel's mix depends on its label, its column and its family's row of lattice
     cells alone, so ``keys`` ((cols,) int64) holds the label each pixel of ``out`` was made for (-1 empty, -2
