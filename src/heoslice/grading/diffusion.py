@@ -13,8 +13,8 @@ one run of planes of a slice (consecutive layers rendered by one process,
 depend on how many processes made it; a layer without the layer before's error starts from
 :data:`LAYER_SHARE` of the error the blue-noise halftone would leave, and a region's first rows and sides
 (where less error reaches a pixel) lean towards the blue-noise halftone's choice (:data:`TOP_SHARE`).
-One compiled pass per layer over the solid pixels (:mod:`.diffusion_kernels`), a labelled layer's mix made
-row by row on the fly.
+One compiled pass per layer over the solid pixels (:mod:`.diffusion_kernels`), a labelled layer's mix read
+from a table of each label's mix (or made row by row where its families' cells differ).
 """
 
 from __future__ import annotations
@@ -111,7 +111,7 @@ def diffuse_mix(mix: np.ndarray, layer: int, carry: DiffusionCarry | None = None
 def diffused_planes(layer: LabelledLayer, mixing: LayerMixes, base_channel: int, index: int,
                     planes: np.ndarray, carry: DiffusionCarry | None) -> np.ndarray:
     """The droplet masks of a labelled layer (``index``) by error diffusion, into ``planes`` ((K, h, ceil(w/8))
-    uint8, zero): the label box's mix made row by row and diffused in one compiled pass
+    uint8, zero): the label box's mix read per label (or made row by row) and diffused in one compiled pass
     (:func:`heoslice.grading.diffusion_kernels._diffuse_labelled`), every solid pixel outside the box on
     ``base_channel``."""
     label = layer.label
