@@ -20,15 +20,13 @@ def deflater(level: int, encoder: str = "zlib-ng") -> Callable[[bytes], bytes]:
 
     zlib-ng falls back to zlib where imagecodecs lacks it: imagecodecs answers an import of a codec it was built
     without with a placeholder that fails only when called, so zlib-ng's availability is asked, never inferred
-    from an import. ISA-L falls back to zlib-ng at the same level where isal is not installed (a platform
-    without its wheels): the same pixels, another stream."""
+    from an import. ISA-L has no fallback: isal is a dependency, and a silent change of encoder would change
+    a stack's bytes and hashes."""
     if level not in ENCODERS.get(encoder, ()):
         raise ValueError(f"deflate: no level {level} for encoder {encoder!r} (encoders: {', '.join(ENCODERS)})")
     if encoder == "isa-l":
-        try:
-            from isal import isal_zlib
-        except ImportError:
-            return deflater(level)
+        from isal import isal_zlib
+
         return functools.partial(isal_zlib.compress, level=level)
     try:
         import imagecodecs

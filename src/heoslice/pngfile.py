@@ -52,7 +52,8 @@ def scanlines_png(scanlines: np.ndarray, width: int, samples: int, bit_depth: in
     each row's first byte its filter type (0) (a caller building large images there saves a copy)."""
     height, stride = scanlines.shape[0], scanlines.shape[1] - 1
     if stride != -(-width * samples * bit_depth // 8) or samples not in COLOUR_TYPES or bit_depth not in (1, 8):
-        raise ValueError(f"png_file: rows of {stride} bytes do not hold {width} px of {samples} x {bit_depth} bits")
+        raise ValueError(f"scanlines_png: rows of {stride} bytes do not hold {width} px of {samples} x {bit_depth} "
+                         "bits")
     data = deflater(DEFLATE_LEVEL)(np.ascontiguousarray(scanlines))
     header = struct.pack(">IIBBBBB", width, height, bit_depth, COLOUR_TYPES[samples], 0, 0, 0)
     extra = [] if dpi is None else [

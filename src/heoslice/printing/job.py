@@ -26,7 +26,8 @@ class JobSpec:
     """A print job: ``layer_count`` layers of ``channels`` bit-packed masks of ``width`` x ``height`` pixels;
     ``names``: what each channel carries ('solid', then the droplet masks' materials), when known;
     ``stored_bytes``: bytes each layer's files take in the stack (its masks compressed), when known, which a
-    sampled dry run scales its figures by (:func:`heoslice.printing.stream.plan_transfer`)."""
+    sampled dry run scales its figures by, and ``blank``: whether each layer has no solid pixel (every channel
+    zero), when known, which it sizes exactly (:func:`heoslice.printing.stream.plan_transfer`)."""
 
     job_id: int
     layer_count: int
@@ -35,6 +36,7 @@ class JobSpec:
     height: int
     names: tuple[str, ...] = ()
     stored_bytes: tuple[int, ...] = field(default=(), repr=False, compare=False)
+    blank: tuple[bool, ...] = field(default=(), repr=False, compare=False)
 
     @property
     def channel_bytes(self) -> int:
@@ -75,7 +77,8 @@ def stack_job(directory: Path, progress: Callable[[int, int], None] | None = Non
     for channel, target in zip(widest, targets):
         names[target] = str(channel.get("material", f"channel {target}"))
     job_id = P.crc32(json.dumps(manifest, sort_keys=True).encode()) or 1
-    job = JobSpec(job_id, len(layers), channels, width, height, tuple(names), stored_layer_bytes(directory, layers))
+    job = JobSpec(job_id, len(layers), channels, width, height, tuple(names), stored_layer_bytes(directory, layers),
+                  tuple(entry["solid_pixels"] == 0 for entry in layers))
 
     def read(index: int) -> list[bytes]:
         solid, masks = layer_bits(directory, manifest, index)

@@ -101,10 +101,12 @@ def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, m
     ``baud`` (8N1), s. The layers are read and encoded in ``workers`` processes
     (:func:`heoslice.printing.job.layer_map`; default one per core); ``progress(done, total)`` follows them.
 
-    Every layer is encoded when ``sample`` is None or the job has no more layers to send; else ``sample``
-    layers spread evenly (:func:`sample_layers`), and the frames and wire bytes of the whole are estimated by
-    :func:`regression_total` on the bytes each layer's files take in the stack (``job.stored_bytes``: the same
-    masks, compressed, so a layer's encoded size follows them; without them, by the sample's mean per layer).
+    Every layer is encoded when ``sample`` is None or the job has no more layers with solid pixels to send;
+    else ``sample`` of those spread evenly (:func:`sample_layers`) and the first blank layer (``job.blank``: every
+    blank layer encodes alike, so they are counted exactly), and the frames and wire bytes of the layers with
+    solid pixels are estimated by :func:`regression_total` on the bytes each layer's files take in the stack
+    (``job.stored_bytes``: the same masks, compressed, so a layer's encoded size follows them; without them, by
+    the sample's mean per layer), at least the frames and framing bytes every layer sends.
     The raw bytes are exact either way; the result says whether the rest is estimated (``estimated``) and from
     how many layers (``layers_encoded``)."""
     check_from_layer(job, from_layer)
@@ -124,22 +126,31 @@ def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, m
                 offset += span
         return frames, wire, raw
 
-    layers = job.layer_count - from_layer
-    chosen = sample_layers(from_layer, job.layer_count, layers if sample is None else sample)
-    planned = []
-    for done, figures in enumerate(layer_map(layer_plan, chosen, workers), 1):
-        planned.append(figures)
+    if sample is not None and sample < 1:
+        raise ValueError(f"a dry run's sample is at least one layer, not {sample}")
+    indices = range(from_layer, job.layer_count)
+    blank = [index for index in indices if job.blank and job.blank[index]]
+    filled = [index for index in indices if not (job.blank and job.blank[index])]
+    estimated = sample is not None and len(filled) > sample
+    chosen = [filled[k] for k in sample_layers(0, len(filled), sample)] + blank[:1] if estimated else list(indices)
+    planned = {}
+    for done, (index, figures) in enumerate(zip(chosen, layer_map(layer_plan, chosen, workers)), 1):
+        planned[index] = figures
         if progress is not None:
             progress(done, len(chosen))
-    frames, wire, raw = np.array(planned, dtype=np.int64).reshape(-1, 3).T
-    estimated = len(chosen) < layers
+    layers = len(indices)
     if estimated:
-        stored = job.stored_bytes[from_layer:] if job.stored_bytes else (0,) * layers
-        sampled = [stored[index - from_layer] for index in chosen]
-        totals = [max(round(regression_total(values, sampled, stored)), 0) for values in (frames, wire)]
+        stored = {index: job.stored_bytes[index] if job.stored_bytes else 0 for index in filled}
+        sampled = chosen[:len(chosen) - len(blank[:1])]
+        blank_figures = planned[blank[0]] if blank else (0, 0, 0)
+        totals = []
+        for k, least in ((0, 3 * len(filled)), (1, framing * len(filled))):  # frames, wire bytes; at least framing
+            estimate = regression_total([planned[index][k] for index in sampled], [stored[index] for index in sampled],
+                                        list(stored.values()))
+            totals.append(max(round(estimate), least) + len(blank) * blank_figures[k])
         totals.append(layers * job.channels * job.channel_bytes)
     else:
-        totals = [int(values.sum()) for values in (frames, wire, raw)]
+        totals = [sum(figures[k] for figures in planned.values()) for k in range(3)]
     return {"layers": layers, "channels": job.channels, "raw_bytes": totals[2], "frames": totals[0],
             "wire_bytes": totals[1], "seconds_at_baud": totals[1] * 10.0 / baud, "estimated": estimated,
             "layers_encoded": len(chosen)}

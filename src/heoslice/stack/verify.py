@@ -231,8 +231,8 @@ def load_verified(directory: Path, progress: Callable[[int, int], None] | None =
     """The manifest of a stack that passes :func:`verify_stack` (``progress`` and ``layer_map`` passed on);
     raise VerifyError with its problems otherwise.
 
-    ``check_pixels`` False (preview, which decodes what it draws) skips decoding: every file is still checked
-    present, regular, inside, of the manifest's layout and mode, and of its sha256."""
+    ``check_pixels`` False skips decoding: every file is still checked present, regular, inside, of the
+    manifest's layout and mode, and of its sha256."""
     report = verify_stack(directory, progress=progress, layer_map=layer_map, check_pixels=check_pixels)
     if not report.ok:
         raise refusal(Path(directory), report.problems)
