@@ -69,3 +69,18 @@ def test_a_labelled_layer_diffuses_as_its_per_pixel_mix_does(uniform, seed):
         expected = diffuse_mix(mix, index, mix_carry)
         assert np.array_equal(masks, expected)
         assert np.array_equal(masks.sum(axis=0), solid)  # every solid pixel one material, none elsewhere
+
+
+def test_a_span_widening_again_after_a_new_row_of_cells_takes_that_rows_mixes():
+    """A labelled layer whose solid narrows to 8 columns across the boundary between two rows of lattice cells
+    (each cell its own start mix) and widens again below it: the widened pixels take the mix of their new row of
+    cells, not the one their columns were last given above the boundary (the masks equal the per-pixel mix's)."""
+    _, _, mixing, mixes = labelled_layer(3, uniform=False)
+    label = np.full((2 * CELL, COLS), 2, dtype=np.uint8)
+    solid = np.ones(label.shape, dtype=bool)
+    solid[CELL - 1:CELL + 2, 8:] = False
+    packed = np.packbits(solid, axis=1)
+    planes = np.zeros((2, label.shape[0], packed.shape[1]), dtype=np.uint8)
+    diffused = diffused_planes(LabelledLayer(label, 0, 0, packed), mixing, BASE, 4, planes, None)
+    masks = np.unpackbits(diffused, axis=2, count=COLS).view(bool)
+    assert np.array_equal(masks, diffuse_mix(per_pixel_mix(label, solid, mixing, mixes), 4))

@@ -154,3 +154,22 @@ def test_blank_layers_the_sample_misses_are_counted_exactly(tmp_path):
         assert abs(estimate[key] / exact[key] - 1) <= ESTIMATE_BOUND, (key, estimate[key], exact[key])
     with pytest.raises(ValueError, match="at least one layer"):
         plan_transfer(job, get_layer, sample=0)
+
+
+def test_few_layers_with_solid_pixels_and_many_blank_ones_are_sized_exactly_from_one_blank_layer():
+    """A job of 5 layers with solid pixels among 200 blank ones (nothing to sample): the blank layers are counted
+    from one of them and the others encoded, 6 layers in all, with the exact plan's figures."""
+    from dataclasses import replace
+
+    job, get_layer = synthetic_job(205, width=120, height=30, channels=2)
+    filled = {0, 50, 100, 150, 204}
+
+    def layer(index: int) -> list[bytes]:
+        return get_layer(index) if index in filled else [bytes(job.channel_bytes)] * job.channels
+
+    job = replace(job, blank=tuple(index not in filled for index in range(205)))
+    estimate = plan_transfer(job, layer, sample=SAMPLE_LAYERS, workers=1)
+    assert estimate["layers_encoded"] == 6 and estimate["estimated"] is False
+    assert {key: estimate[key] for key in ("frames", "wire_bytes", "raw_bytes")} == {
+        key: value for key, value in plan_transfer(job, layer, workers=1).items()
+        if key in ("frames", "wire_bytes", "raw_bytes")}

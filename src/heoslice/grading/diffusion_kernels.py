@@ -124,8 +124,10 @@ def _kept_row_mixes(line, row, c0, lo, hi, solid, mixing, base_channel, scratch,
     """:func:`_row_mixes` of box columns lo .. hi - 1 of one row into ``out``, remaking only the pixels whose key
     changed from the row before: a pixel's mix depends on its label, its column and its family's row of lattice
     cells alone, so ``keys`` ((cols,) int64) holds the label each pixel of ``out`` was made for (-1 empty, -2
-    none) and ``renew`` (a family's row of cells changed) remakes the whole span."""
+    none) and ``renew`` (a family's row of cells changed) remakes the whole span and forgets every other
+    column's key (made for the cells before: a span widening again later in these cells remakes them)."""
     if renew:
+        keys[:] = -2
         _row_mixes(line, row, c0, lo, hi, solid, mixing, base_channel, scratch, out)
     c = lo
     while c < hi:

@@ -101,13 +101,13 @@ def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, m
     ``baud`` (8N1), s. The layers are read and encoded in ``workers`` processes
     (:func:`heoslice.printing.job.layer_map`; default one per core); ``progress(done, total)`` follows them.
 
-    Every layer is encoded when ``sample`` is None or the job has no more layers with solid pixels to send;
-    else ``sample`` of those spread evenly (:func:`sample_layers`) and the first blank layer (``job.blank``: every
-    blank layer encodes alike, so they are counted exactly), and the frames and wire bytes of the layers with
-    solid pixels are estimated by :func:`regression_total` on the bytes each layer's files take in the stack
-    (``job.stored_bytes``: the same masks, compressed, so a layer's encoded size follows them; without them, by
-    the sample's mean per layer), at least the frames and framing bytes every layer sends.
-    The raw bytes are exact either way; the result says whether the rest is estimated (``estimated``) and from
+    Every layer is encoded when ``sample`` is None. Else one blank layer (``job.blank``) is encoded for all of
+    them (every blank layer encodes alike, so they are counted exactly), the layers with solid pixels are all
+    encoded when there are no more than ``sample``, and otherwise ``sample`` of them spread evenly
+    (:func:`sample_layers`), their frames and wire bytes then estimated by :func:`regression_total` on the bytes
+    each layer's files take in the stack (``job.stored_bytes``: the same masks, compressed, so a layer's encoded
+    size follows them; without them, by the sample's mean per layer), at least the frames (framing and one data
+    frame a channel) and framing bytes every such layer sends. The raw bytes are exact either way; the result says whether the rest is estimated (``estimated``) and from
     how many layers (``layers_encoded``)."""
     check_from_layer(job, from_layer)
 
@@ -129,28 +129,30 @@ def plan_transfer(job: JobSpec, get_layer: LayerSource, *, baud: int = 115200, m
     if sample is not None and sample < 1:
         raise ValueError(f"a dry run's sample is at least one layer, not {sample}")
     indices = range(from_layer, job.layer_count)
-    blank = [index for index in indices if job.blank and job.blank[index]]
-    filled = [index for index in indices if not (job.blank and job.blank[index])]
-    estimated = sample is not None and len(filled) > sample
-    chosen = [filled[k] for k in sample_layers(0, len(filled), sample)] + blank[:1] if estimated else list(indices)
+    if sample is None:  # every layer encoded
+        blank, filled, estimated, chosen = [], list(indices), False, list(indices)
+    else:  # one blank layer encoded for all of them (they encode alike), the others sampled when there are more
+        blank = [index for index in indices if job.blank and job.blank[index]]
+        filled = [index for index in indices if not (job.blank and job.blank[index])]
+        estimated = len(filled) > sample
+        chosen = [filled[k] for k in sample_layers(0, len(filled), sample)] + blank[:1]
     planned = {}
     for done, (index, figures) in enumerate(zip(chosen, layer_map(layer_plan, chosen, workers)), 1):
         planned[index] = figures
         if progress is not None:
             progress(done, len(chosen))
-    layers = len(indices)
+    blank_figures = planned[blank[0]] if blank else (0, 0, 0)
+    totals = [sum(planned[index][k] for index in filled if index in planned) + len(blank) * blank_figures[k]
+              for k in range(3)]
     if estimated:
         stored = {index: job.stored_bytes[index] if job.stored_bytes else 0 for index in filled}
         sampled = chosen[:len(chosen) - len(blank[:1])]
-        blank_figures = planned[blank[0]] if blank else (0, 0, 0)
-        totals = []
-        for k, least in ((0, 3 * len(filled)), (1, framing * len(filled))):  # frames, wire bytes; at least framing
+        for k, least in ((0, (3 + job.channels) * len(filled)), (1, framing * len(filled))):  # at least framing
             estimate = regression_total([planned[index][k] for index in sampled], [stored[index] for index in sampled],
                                         list(stored.values()))
-            totals.append(max(round(estimate), least) + len(blank) * blank_figures[k])
-        totals.append(layers * job.channels * job.channel_bytes)
-    else:
-        totals = [sum(figures[k] for figures in planned.values()) for k in range(3)]
+            totals[k] = max(round(estimate), least) + len(blank) * blank_figures[k]
+        totals[2] = len(indices) * job.channels * job.channel_bytes
+    layers = len(indices)
     return {"layers": layers, "channels": job.channels, "raw_bytes": totals[2], "frames": totals[0],
             "wire_bytes": totals[1], "seconds_at_baud": totals[1] * 10.0 / baud, "estimated": estimated,
             "layers_encoded": len(chosen)}
