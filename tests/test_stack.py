@@ -194,6 +194,17 @@ def test_missing_layer_file(stack):
     assert problems(stack) == ("layer 4: layer_00004.tif is missing",)
 
 
+def test_a_reader_is_refused_a_missing_file_before_it_reads_a_layer(stack, monkeypatch):
+    """open_verified refuses a stack whose last layer's file is gone, naming it, before any layer is read (an
+    export writes nothing it would have to remove)."""
+    import heoslice.stack.verify as verify
+
+    (stack / layer_file_name(4)).unlink()
+    monkeypatch.setattr(verify, "layer_check", lambda *args: pytest.fail("a layer was read"))
+    with pytest.raises(VerifyError, match="layer 4: layer_00004.tif is missing"):
+        verify.open_verified(stack)
+
+
 def test_extra_layer_file(stack):
     """A layer file not in the manifest is reported."""
     (stack / layer_file_name(10)).write_bytes((stack / layer_file_name(0)).read_bytes())

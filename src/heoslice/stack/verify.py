@@ -193,10 +193,11 @@ def refusal(directory: Path, problems: tuple[str, ...] | list[str]) -> VerifyErr
 
 def open_verified(directory: Path) -> StackPlan:
     """The :class:`StackPlan` of a stack for reading it while checking it layer by layer
-    (:func:`verified_layer`); VerifyError (:func:`refusal`) when it has a problem as a whole."""
+    (:func:`verified_layer`); VerifyError (:func:`refusal`) when it has a problem as a whole or a listed file
+    is known bad without reading it (missing, outside the stack, listed twice), before anything is written."""
     plan = plan_stack(directory)
-    if plan.problems:  # the layers' problems found without reading a file first, as verify lists them
-        listed = [line for plan_of in plan.plans for line in plan_of if isinstance(line, str)]
+    listed = [line for plan_of in plan.plans for line in plan_of if isinstance(line, str)]
+    if listed or plan.problems:  # the layers' problems first, as verify lists them
         raise refusal(Path(directory), listed + list(plan.problems))
     return plan
 
