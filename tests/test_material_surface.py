@@ -293,20 +293,23 @@ def _brute_r(triangles: np.ndarray, points: np.ndarray, r_range: tuple[float, fl
                                                            elements=st.floats(-3, 3, allow_nan=False, width=32))),
        z=st.floats(-4, 4), pitch=st.floats(0.02, 0.4), start=st.floats(0.0, 2.0), span=st.floats(0.02, 6.0),
        top=st.sampled_from([2, 3, 8, 16, 64]), tolerance=st.sampled_from([1e-3, 1e-2, 0.1]),
-       seed=st.integers(0, 2 ** 32 - 1))
+       seed=st.integers(0, 2 ** 32 - 1), density=st.sampled_from([0.8, 0.3, 0.05]))
 def test_layer_r_is_within_its_proven_bound_of_the_brute_force_r(corners, z, pitch, start, span, top, tolerance,
-                                                                 seed):
+                                                                 seed, density):
     """Random triangles, layers, pixel pitches, ranges and cell sizes: at every solid pixel the true r (brute force)
     lies within the bound layer_r reports for it, and that bound is at most tolerance / 2. A bound that claimed
     more than the Lipschitz, second-order or nearby-triangle argument proves fails here (the second-order bound is
     nearly tight for a cell far from a triangle's corner). Triangles of real area: trimesh's closest point, the
-    reference, is not exact on degenerate ones."""
+    reference, is not exact on degenerate ones. Sparse layers with an empty band of columns: cells inside a row's
+    solid span that hold no solid pixel, which the cells' emptiness test must tell from ones that do."""
     triangles = corners.reshape(-1, 3, 3)
     assume((np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]), axis=1)
             > 1e-3).all())
     index = build_surface_index(corners, np.arange(len(corners)).reshape(-1, 3))
     rng = np.random.default_rng(seed)
-    solid = rng.random((24, 40)) < 0.8
+    solid = rng.random((24, 40)) < density
+    gap = rng.integers(0, 40)
+    solid[:, gap:gap + rng.integers(0, 20)] = False
     frame = (-4.0 + pitch / 2, pitch, 4.0 - pitch / 2, -pitch, z)
     r_range = (start, start + span)
     r, spread = layer_r(solid, frame, index, r_range, tolerance, top=top, with_spread=True)

@@ -245,10 +245,34 @@ def _normalised(d, r0, r1):  # pragma: no cover - compiled
 
 
 @helper(EXACT)
-def _any_solid(solid, i0, i1, j0, j1):  # pragma: no cover - compiled
-    """Whether the cell rows i0:i1, columns j0:j1 of ``solid`` (clipped to it) holds a solid pixel."""
+def _row_spans(solid, spans):  # pragma: no cover - compiled
+    """Each row's first and last solid column of ``solid`` (h, w) bool into ``spans`` ((h, 2) int64; (w, -1) for a
+    row without one), reading each row only up to its first and from its last solid pixel."""
+    rows, cols = solid.shape
+    for i in range(rows):
+        spans[i, 0], spans[i, 1] = cols, -1
+        for j in range(cols):
+            if solid[i, j]:
+                spans[i, 0] = j
+                break
+        for j in range(cols - 1, spans[i, 0] - 1, -1):
+            if solid[i, j]:
+                spans[i, 1] = j
+                break
+
+
+@helper(EXACT)
+def _any_solid(solid, spans, i0, i1, j0, j1):  # pragma: no cover - compiled
+    """Whether the cell rows i0:i1, columns j0:j1 of ``solid`` (clipped to it) holds a solid pixel: from each row's
+    span (:func:`_row_spans`) where it misses the cell or ends inside it, by the row's pixels only where the
+    cell lies inside the span."""
     for i in range(i0, min(i1, solid.shape[0])):
-        for j in range(j0, min(j1, solid.shape[1])):
+        first, last = spans[i, 0], spans[i, 1]
+        if last < j0 or first >= j1:
+            continue
+        if first >= j0 or last < j1:
+            return True
+        for j in range(j0, j1):
             if solid[i, j]:
                 return True
     return False
@@ -328,12 +352,14 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
     width = r1 - r0
     pitch_x, pitch_y = abs(frame.dx), abs(frame.dy)
     nearest = 0
+    spans = np.empty((rows, 2), np.int64)
+    _row_spans(solid, spans)
     # the top cells' corners, measured where a solid pixel needs them
     lattice_rows, lattice_cols = (rows + top - 1) // top + 1, (cols + top - 1) // top + 1
     needed = np.zeros((lattice_rows, lattice_cols), np.bool_)
     for ti in range(lattice_rows - 1):
         for tj in range(lattice_cols - 1):
-            if _any_solid(solid, ti * top, ti * top + top, tj * top, tj * top + top):
+            if _any_solid(solid, spans, ti * top, ti * top + top, tj * top, tj * top + top):
                 needed[ti, tj] = needed[ti + 1, tj] = needed[ti, tj + 1] = needed[ti + 1, tj + 1] = True
     lattice_d = np.zeros((lattice_rows, lattice_cols))
     lattice_t = np.zeros((lattice_rows, lattice_cols), np.int64)
@@ -355,7 +381,7 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
             while pending > 0:
                 pending -= 1
                 i0, i1, j0, j1 = cells[pending, 0], cells[pending, 1], cells[pending, 2], cells[pending, 3]
-                if not _any_solid(solid, i0, i1, j0, j1):
+                if not _any_solid(solid, spans, i0, i1, j0, j1):
                     continue
                 for k in range(4):
                     cd[k], ct[k] = cell_d[pending, k], cell_t[pending, k]
