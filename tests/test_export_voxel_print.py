@@ -106,9 +106,15 @@ def test_png_zip_holds_every_layer_and_the_manifest(stacks, tmp_path):
 
 
 def test_sampled_labels_are_the_whole_layers_labels_sampled(stacks):
-    """layer_labels reading packed bits and unpacking only the sampled rows gives, at every sampled pixel, the
-    label of the whole decoded layer (tifffile's masks through read_layer_mask / read_layer_channels)."""
-    from heoslice.export.voxel_print import layer_labels, sample_indices
+    """labels_of a layer's packed label planes (as the exports read them), unpacking only the sampled rows, gives
+    at every sampled pixel the label of the whole decoded layer (tifffile's masks through read_layer_mask /
+    read_layer_channels)."""
+    from heoslice.export.voxel_print import label_planes, labels_of, sample_indices
+    from heoslice.stack.packed import layer_bits
+
+    def layer_labels(stack, manifest, index, rows=None, columns=None):
+        planes = label_planes(*layer_bits(stack, manifest, index, solid=not manifest["layers"][index]["channels"]))
+        return labels_of(planes, manifest["image"]["width"], rows, columns)
 
     stack = stacks / "masks"
     manifest = read_manifest(stack)

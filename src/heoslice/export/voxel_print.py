@@ -94,14 +94,6 @@ def label_planes(solid: Bits, masks: list[Bits]) -> list[Bits]:
     return masks or [solid]
 
 
-def layer_labels(directory: Path, manifest: dict, index: int, rows: np.ndarray | None = None,
-                 columns: np.ndarray | None = None) -> np.ndarray:
-    """:func:`labels_of` stack layer ``index`` (each file read once, as packed bits; its sha256 checked)."""
-    with_masks = bool(manifest["layers"][index].get("channels"))
-    solid, masks = layer_bits(directory, manifest, index, solid=not with_masks)
-    return labels_of(label_planes(solid, masks), manifest["image"]["width"], rows, columns)
-
-
 #: Most label planes :func:`slice_scanlines` colours a packed byte of at once: a table of 256 ** planes entries of
 #: 8 pixels each (2 planes: 65,536 x 24 bytes in RGB).
 MOST_TABLE_PLANES = 2

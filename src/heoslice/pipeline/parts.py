@@ -159,6 +159,7 @@ def render_parts_run(contours: Contours, context: RunContext, first_layer: int) 
     shape = (grid.height, -(-grid.width // 8))
     # a stack with droplet masks is a multi-material stack; one part material gives a one-material stack
     level = deflate_level(bool(plan.channel_materials()))
+    masks_encoder, masks_level = mask_deflation(None)  # part masks: no halftone made them
     done = []
     for local in range(len(contours.layer_offsets) - 1):
         index = first_layer + local
@@ -172,7 +173,7 @@ def render_parts_run(contours: Contours, context: RunContext, first_layer: int) 
         data = encode_bilevel_tiff(solid, grid.width, spec.dpi, spec.compression, spec.layer_height_mm, level=level)
         pieces = [(layer_file_name(index, channel_name(material)),
                    encode_bilevel_tiff(plane, grid.width, spec.dpi, spec.compression, spec.layer_height_mm,
-                                       level=mask_deflation(None).level, encoder=mask_deflation(None).encoder),
+                                       level=masks_level, encoder=masks_encoder),
                    count_solid(plane))
                   for material, plane in zip(plan.channel_materials(), planes)]
         encoded = time.perf_counter()
