@@ -190,3 +190,16 @@ def test_verify_starts_without_the_slicing_stages():
             "print(sorted(m for m in sys.modules if m.startswith(('heoslice.mesh', 'heoslice.layers'))))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.strip() == "[]", done.stdout
+
+
+def test_verifying_a_stack_loads_no_slicing_stage(two_part_stack):
+    """Running verify over a stack (its manifest's layer count included) loads only the layers stage's plane
+    heights and packed-bit kernel, not its slicing, chaining or rasterising modules nor the mesh stage."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom heoslice.stack import verify_stack\n"
+            f"assert verify_stack({str(two_part_stack / 'stack')!r}).ok\n"
+            "print(sorted(m for m in sys.modules if m.startswith(('heoslice.mesh', 'heoslice.layers'))))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == str(["heoslice.layers", "heoslice.layers.packed_kernels", "heoslice.layers.planes"])

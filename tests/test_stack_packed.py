@@ -9,6 +9,8 @@ import shutil
 import numpy as np
 import pytest
 import tifffile
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from heoslice import procedural
 from heoslice.errors import VerifyError
@@ -106,3 +108,52 @@ def test_a_corrupt_strip_is_one_error_line(channels_stack, tmp_path):
     entry["sha256"] = hashlib.sha256(bytes(data)).hexdigest()
     with pytest.raises(VerifyError, match=entry["file"]):
         layer_bits(copy, manifest, entry["index"], channels=False)
+
+
+def _reference_partition(layer: np.ndarray, masks: list[np.ndarray]) -> tuple[list[int], bool]:
+    """partition_counts written out on unpacked bools: each file's set pixels, and whether the masks are
+    pairwise disjoint and their union is the layer."""
+    counts = [int(layer.sum()), *(int(mask.sum()) for mask in masks)]
+    held = np.sum(masks, axis=0)
+    return counts, bool(np.all(held <= 1) and np.array_equal(held > 0, layer))
+
+
+def _bits(pixels: np.ndarray) -> packed.Bits:
+    """Packed rows of (h, w) bool with the span of rows holding set pixels (as solid_bits gives them)."""
+    rows = np.flatnonzero(pixels.any(axis=1))
+    return packed.Bits(np.packbits(pixels, axis=1), (int(rows[0]), int(rows[-1]) + 1) if len(rows) else (0, 0))
+
+
+@settings(max_examples=150, deadline=None)
+@given(height=st.integers(1, 9), width=st.integers(1, 70), count=st.integers(1, 3), seed=st.integers(0, 2**32 - 1),
+       fault=st.sampled_from(["none", "doubled", "uncovered", "outside"]))
+def test_partition_counts_agree_with_the_masks_written_out(height, width, count, seed, fault):
+    """Counts and the partition verdict equal the plain numpy reference for any size (rows not a whole number of
+    64-bit words, the last word short), any number of masks and each kind of fault, wherever it lies."""
+    rng = np.random.default_rng(seed)
+    layer = rng.random((height, width)) < 0.6
+    owner = rng.integers(0, count, (height, width))
+    masks = [layer & (owner == k) for k in range(count)]
+    row, column = rng.integers(0, height), rng.integers(0, width)
+    if fault == "doubled" and count > 1:
+        layer[row, column] = True
+        masks[0][row, column] = masks[1][row, column] = True
+    elif fault == "uncovered":
+        layer[row, column] = True
+        for mask in masks:
+            mask[row, column] = False
+    elif fault == "outside":
+        layer[row, column] = False
+        masks[-1][row, column] = True
+    counts, partitioned = packed.partition_counts(_bits(layer), [_bits(mask) for mask in masks])
+    assert (counts, partitioned) == _reference_partition(layer, masks)
+
+
+def test_partition_counts_see_a_fault_in_the_last_bytes():
+    """A pixel in two masks in the bytes after the last whole 64-bit word is found (the tail's own pass)."""
+    layer = np.zeros((3, 40), dtype=bool)  # 5 bytes a row, 15 in all: one word and 7 bytes after it
+    layer[2, 39] = True
+    masks = [layer.copy(), layer.copy()]
+    assert packed.partition_counts(_bits(layer), [_bits(mask) for mask in masks]) == ([1, 1, 1], False)
+    masks[1][2, 39] = False
+    assert packed.partition_counts(_bits(layer), [_bits(mask) for mask in masks]) == ([1, 1, 0], True)

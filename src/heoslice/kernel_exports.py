@@ -44,7 +44,7 @@ from heoslice.jit import (
     export_name,
     source_digest,
 )
-from heoslice.layers import contours_kernels, rasterising_kernels, slicing_kernels
+from heoslice.layers import contours_kernels, packed_kernels, rasterising_kernels, slicing_kernels
 from heoslice.material import references_kernels, surface_kernels
 from heoslice.mesh import topology_kernels, weld_kernels
 from heoslice.volume import resample_kernels
@@ -121,6 +121,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     lattice_kernels._block_passes: (EDGES, f8_1, TREE, FRAME, i8, i8, b1),
     lattice_kernels._block_edges: (i8_2, f8_2, b_2, FRAME, i8, i8, EDGES, TREE),
     materials_kernels._values_at_points: (f8_1, f8_1, i8_1, EDGES, i8_1, i8_1, f8_1, f8_2),
+    packed_kernels.fold_words: (u8_1, u8_1, i8, i8, i8, i8_1),
     rasterising_kernels._packed_mask: (f8_2, i8_1, i8, i8, f8, f8, f8, f8, u1_2),
     refine_kernels._refine_flags: (CELL_FIELD, types.UniTuple(f8_2, 3), FIT_TEST, VERTICES),
     refine_kernels._hessian_of: (f8_3, f8, f8),

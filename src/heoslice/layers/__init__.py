@@ -2,35 +2,23 @@
 
 planes -> slicing (triangle-plane intersections, paper section IV.A-B) -> contours (segments chained
 into oriented loops and profile families) -> rasterising (loops -> solid pixels, layer images).
+
+The names below are loaded on first use (PEP 562), not when the package is imported: a command that reads a
+stack asks only :func:`~heoslice.layers.planes.layer_count`, not the slicing kernels.
 """
 
-from heoslice.layers.contours import Contours, build_contours
-from heoslice.layers.planes import LAYER_COUNT_TOLERANCE, layer_count, plane_heights
-from heoslice.layers.rasterising import (
-    MM_PER_INCH,
-    Grid,
-    contour_pixels,
-    count_solid,
-    grid_for,
-    packed_mask,
-    packed_mask_and_count,
-    paint_contour,
-    render_layer,
-    solid_mask,
-)
-from heoslice.layers.slicing import (
-    Sections,
-    face_z_range,
-    interpolate_at,
-    plane_chunks,
-    segments_per_plane,
-    slice_mesh,
-    slice_planes,
-)
+from __future__ import annotations
 
-__all__ = [
-    "LAYER_COUNT_TOLERANCE", "MM_PER_INCH", "Contours", "Grid", "Sections", "build_contours", "contour_pixels",
-    "count_solid", "face_z_range", "grid_for", "interpolate_at", "layer_count", "packed_mask", "packed_mask_and_count",
-    "paint_contour", "plane_chunks", "plane_heights", "render_layer", "segments_per_plane", "slice_mesh",
-    "slice_planes", "solid_mask",
-]
+from heoslice.lazy import lazy_exports
+
+#: Each module of this package -> the public names it defines.
+_MODULES = {
+    "planes": ("LAYER_COUNT_TOLERANCE", "layer_count", "plane_heights"),
+    "slicing": ("Sections", "face_z_range", "interpolate_at", "plane_chunks", "segments_per_plane", "slice_mesh",
+                "slice_planes"),
+    "contours": ("Contours", "build_contours"),
+    "rasterising": ("MM_PER_INCH", "Grid", "contour_pixels", "count_solid", "grid_for", "packed_mask",
+                    "packed_mask_and_count", "paint_contour", "render_layer", "solid_mask"),
+}
+
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _MODULES)

@@ -241,6 +241,10 @@ def _show(value) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
+#: A sha256 digest as the manifest writes it: 64 lower-case hex digits.
+_SHA256_HEX = re.compile(r"[0-9a-f]{64}")
+
+
 def _is_int(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
@@ -254,7 +258,7 @@ def _file_entry_problem(entry, what: str, pixels: int) -> str | None:
     if not isinstance(entry.get("file"), str) or not entry["file"]:
         return f"{what}: missing or malformed 'file'"
     digest = entry.get("sha256")
-    if not (isinstance(digest, str) and len(digest) == 64 and all(c in "0123456789abcdef" for c in digest)):
+    if not (isinstance(digest, str) and _SHA256_HEX.fullmatch(digest)):
         return f"{what}: 'sha256' must be 64 lower-case hex digits"
     solid = entry.get("solid_pixels")
     if solid is not None and not (_is_int(solid) and 0 <= solid <= pixels):

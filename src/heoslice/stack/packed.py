@@ -284,6 +284,33 @@ def solid_bits(layer: LayerFile, alpha: bool, rows: tuple[int, int] | None = Non
     return Bits(out, span)
 
 
+def partition_counts(layer: Bits, masks: list[Bits]) -> tuple[list[int], bool]:
+    """Set bits of a layer's solid pixels and of each of its droplet masks ([layer's, each mask's]), and whether
+    the masks partition the layer (no pixel in two masks, their union exactly the layer's solid pixels): one
+    compiled pass per file over the rows holding set bits (:func:`heoslice.layers.packed_kernels.fold_words`)."""
+    from heoslice.layers.packed_kernels import COMPARE, JOIN, START, fold_words
+
+    files = [*masks, layer]
+    first, stop = min(b.span[0] for b in files), max(b.span[1] for b in files)
+    out = np.zeros((len(files), 2), dtype=np.int64)
+    if first < stop:
+        width = layer.rows.shape[1]
+        flats = [np.ascontiguousarray(b.rows).reshape(-1) for b in files]
+        whole = len(flats[0]) // 8
+        low, high = first * width // 8, min(whole, -(-stop * width // 8))
+        tail = len(flats[0]) - 8 * whole  # the last bytes, short of a word: one zero-padded word of their own
+        union, union_tail = np.empty(whole, dtype=np.uint64), np.empty(1, dtype=np.uint64)
+        for number, flat in enumerate(flats):
+            mode = COMPARE if number == len(masks) else START if number == 0 else JOIN
+            fold_words(union, flat[:8 * whole].view(np.uint64), low, high, mode, out[number])
+            if tail and stop * width > 8 * whole:
+                padded = np.zeros(8, dtype=np.uint8)
+                padded[:tail] = flat[8 * whole:]
+                fold_words(union_tail, padded.view(np.uint64), 0, 1, mode, out[number])
+    counts = [int(count) for count in out[:, 0]]
+    return [counts[-1], *counts[:-1]], not out[:, 1].any()
+
+
 def count_bits(bits: np.ndarray) -> int:
     """Set bits of packed rows (solid pixels, the padding being zero)."""
     flat = np.ascontiguousarray(bits).reshape(-1)

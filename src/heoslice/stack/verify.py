@@ -13,9 +13,9 @@ from pathlib import Path
 
 from heoslice.errors import VerifyError
 from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST, MASK_MODE, layer_height_problems, mask_channels
-from heoslice.stack.packed import Bits, count_bits, read_layer_file, solid_bits
-from heoslice.stack.read import read_manifest, resolve_inside
-from heoslice.stack.report import fault_lines, mask_faults, masks_partition
+from heoslice.stack.packed import Bits, count_bits, partition_counts, read_layer_file, solid_bits
+from heoslice.stack.read import read_manifest, regular_files, resolve_inside
+from heoslice.stack.report import fault_lines, mask_faults
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,7 @@ def layer_check(index: int, plan: list, manifest: dict, check_pixels: bool) -> t
     ``plan`` lists its files in order, each a problem line already found (str) or a :data:`FileCheck`. Each
     file is read, hashed and decoded once; its solid pixels are counted against the manifest, and the
     droplet masks checked against the layer when every file passed (a solid pixel in exactly one mask, none
-    outside). When the masks partition the layer the layer's own count is the sum of theirs."""
+    outside), counted and checked in one pass per file (:func:`heoslice.stack.packed.partition_counts`)."""
     found: list[tuple[str | None, FileCheck | None, Bits | None]] = []  # per listed file: problem, check, bits
     for item in plan:
         if isinstance(item, str):
@@ -72,12 +72,9 @@ def layer_check(index: int, plan: list, manifest: dict, check_pixels: bool) -> t
     channels = manifest["layers"][index].get("channels")
     partitioned = False
     if channels and check_pixels and len(decoded) == len(plan) > 1:
-        first, stop = _rows_of(decoded)
-        partitioned = masks_partition(decoded[0].rows[first:stop], [b.rows[first:stop] for b in decoded[1:]])
-    counts = [None if partitioned and not number else count_bits(b.rows[b.span[0]:b.span[1]])
-              for number, b in enumerate(decoded)]
-    if partitioned:
-        counts[0] = sum(counts[1:])
+        counts, partitioned = partition_counts(decoded[0], decoded[1:])
+    else:
+        counts = [count_bits(b.rows[b.span[0]:b.span[1]]) for b in decoded]
     counted = iter(counts)
     lines: list[str] = []
     for problem, check, decoded_bits in found:
@@ -124,6 +121,7 @@ def plan_stack(directory: Path) -> StackPlan:
     listed: dict[Path, str] = {}
     mode = manifest["image"].get("mode", "1")
     root = directory.resolve()
+    regular = regular_files(root)
     plans = []
     for entry in manifest["layers"]:
         index = entry["index"]
@@ -132,7 +130,8 @@ def plan_stack(directory: Path) -> StackPlan:
                   for channel in entry.get("channels", [])]
         plan: list = []
         for name, digest, solid, file_mode in files:
-            path = resolve_inside(root, name, resolved=True)
+            plain = isinstance(name, str) and name in regular  # a regular file of the folder: no stat needed
+            path = root / name if plain else resolve_inside(root, name, resolved=True)
             if path is None:
                 plan.append(f"layer {index}: file {name!r} lies outside the stack")
                 continue
@@ -140,7 +139,7 @@ def plan_stack(directory: Path) -> StackPlan:
                 plan.append(f"layer {index}: {name} is listed twice (also by {listed[path]})")
                 continue
             listed[path] = f"layer {index}"
-            if not path.is_file():
+            if not plain and not path.is_file():
                 plan.append(f"layer {index}: {name} is {'not a regular file' if path.exists() else 'missing'}")
                 continue
             plan.append((path, name, digest, solid, file_mode))
