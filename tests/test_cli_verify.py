@@ -203,3 +203,19 @@ def test_verifying_a_stack_loads_no_slicing_stage(two_part_stack):
             "print(sorted(m for m in sys.modules if m.startswith(('heoslice.mesh', 'heoslice.layers'))))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.strip() == str(["heoslice.layers", "heoslice.layers.packed_kernels", "heoslice.layers.planes"])
+
+
+def test_a_listed_name_with_a_backslash_is_outside_the_stack(two_part_stack):
+    """A regular file whose name holds a backslash, listed by the manifest, is refused as every reader refuses
+    it ("lies outside the stack"), although the folder's listing holds it (verify's one-listing path)."""
+    from heoslice.stack import verify_stack
+
+    stack = two_part_stack / "stack"
+    manifest = json.loads((stack / "manifest.json").read_text())
+    channel = manifest["layers"][1]["channels"][0]
+    renamed = "sub\\" + channel["file"]
+    (stack / channel["file"]).rename(stack / renamed)
+    channel["file"] = renamed
+    (stack / "manifest.json").write_text(json.dumps(manifest))
+    problems = verify_stack(stack).problems
+    assert any("lies outside the stack" in line and "sub\\\\" in line for line in problems), problems

@@ -290,6 +290,8 @@ def partition_counts(layer: Bits, masks: list[Bits]) -> tuple[list[int], bool]:
     compiled pass per file over the rows holding set bits (:func:`heoslice.layers.packed_kernels.fold_words`)."""
     from heoslice.layers.packed_kernels import COMPARE, JOIN, START, fold_words
 
+    if not masks:
+        raise ValueError("partition_counts: a layer without droplet masks has nothing to partition it")
     files = [*masks, layer]
     first, stop = min(b.span[0] for b in files), max(b.span[1] for b in files)
     out = np.zeros((len(files), 2), dtype=np.int64)

@@ -92,11 +92,13 @@ def resolve_inside(directory: Path, name: str, resolved: bool = False) -> Path |
 
 
 def regular_files(directory: Path) -> set[str]:
-    """Names of the regular files (not links) directly in ``directory``, from one listing: each is inside it
-    and a file, as :func:`resolve_inside` and a stat would find, without a system call per name."""
+    """Names of the regular files (not links) directly in ``directory`` that :func:`resolve_inside` takes as
+    plain names, from one listing: each is inside it and a file, as resolve_inside and a stat would find,
+    without a system call per name."""
     try:
         with os.scandir(directory) as entries:
-            return {entry.name for entry in entries if entry.is_file(follow_symlinks=False)}
+            return {entry.name for entry in entries
+                    if _PLAIN_NAME.match(entry.name) and entry.is_file(follow_symlinks=False)}
     except OSError:
         return set()
 
