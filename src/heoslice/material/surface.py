@@ -150,5 +150,8 @@ def layer_r(solid: np.ndarray, frame: tuple[float, float, float, float, float], 
     spread = np.zeros(solid.shape if with_spread else (0, 0))
     kernel(solid, LayerFrame(*map(float, frame)), index.tree, float(r_range[0]), float(r_range[1]),
            float(tolerance), int(top), r, spread, np.ascontiguousarray(table if coded else [0], np.uint16), codes)
+    # the kernel fills settled cells' rows between their first and last solid pixel: r is 0 off the solid
+    for written in ((r,) if not coded else ()) + ((spread,) if with_spread else ()):
+        written[~solid] = 0.0
     out = codes if coded else r
     return (out, spread) if with_spread else out

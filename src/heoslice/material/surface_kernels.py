@@ -353,6 +353,7 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
     pitch_x, pitch_y = abs(frame.dx), abs(frame.dy)
     nearest = 0
     spans = np.empty((rows, 2), np.int64)
+    index = np.empty(cols + 1, np.int32)
     _row_spans(solid, spans)
     # the top cells' corners, measured where a solid pixel needs them
     lattice_rows, lattice_cols = (rows + top - 1) // top + 1, (cols + top - 1) // top + 1
@@ -394,16 +395,16 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
                 lo = _normalised(low - half - slack, r0, r1)
                 hi = _normalised(high + half + slack, r0, r1)
                 if hi - lo <= tolerance:
+                    value = 0.5 * (lo + hi)
+                    code = table[int(value * steps + 0.5)]
                     for i in range(i0, min(i1, rows)):
-                        for j in range(j0, min(j1, cols)):
-                            if solid[i, j]:
-                                value = 0.5 * (lo + hi)
-                                if coded:
-                                    codes[i, j] = table[int(value * steps + 0.5)]
-                                else:
-                                    r[i, j] = value
-                                if keep:
-                                    spread[i, j] = 0.5 * (hi - lo)
+                        for j in range(max(j0, spans[i, 0]), min(j1, spans[i, 1] + 1)):
+                            if coded:
+                                codes[i, j] = code
+                            else:
+                                r[i, j] = value
+                            if keep:
+                                spread[i, j] = 0.5 * (hi - lo)
                     continue
                 m = low - half - slack
                 if m > 0.0:
@@ -411,7 +412,9 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
                     for k in range(4):
                         e = 0.0
                         for q in range(4):
-                            e = max(e, np.sqrt(triangle_distance2(cx[q], cy[q], frame.z, tree.corners[ct[k]])) - cd[q])
+                            if ct[q] != ct[k]:  # at its own corner a triangle's distance is the measured one
+                                e = max(e, np.sqrt(triangle_distance2(cx[q], cy[q], frame.z,
+                                                                      tree.corners[ct[k]])) - cd[q])
                         above = min(above, e)
                     above += slack
                     below = (a * a + b * b) / (8.0 * m) + slack
@@ -423,15 +426,19 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
                             s = (i - i0) / (i1 - i0)
                             left = (1.0 - s) * cd[0] + s * cd[2] + offset
                             slope = ((1.0 - s) * (cd[1] - cd[0]) + s * (cd[3] - cd[2])) / (j1 - j0)
-                            for j in range(j0, min(j1, cols)):
-                                if solid[i, j]:
-                                    value = min(max((left + (j - j0) * slope) * scale, 0.0), 1.0)
-                                    if coded:
-                                        codes[i, j] = table[int(value * steps + 0.5)]
-                                    else:
-                                        r[i, j] = value
-                                    if keep:
-                                        spread[i, j] = 0.5 * (above + below) * scale
+                            lo_j, hi_j = max(j0, spans[i, 0]), min(j1, spans[i, 1] + 1)
+                            if coded:
+                                for j in range(lo_j, hi_j):
+                                    index[j] = int(min(max((left + (j - j0) * slope) * scale, 0.0), 1.0) * steps
+                                                   + 0.5)
+                                for j in range(lo_j, hi_j):
+                                    codes[i, j] = table[index[j]]
+                            else:
+                                for j in range(lo_j, hi_j):
+                                    r[i, j] = min(max((left + (j - j0) * slope) * scale, 0.0), 1.0)
+                            if keep:
+                                for j in range(lo_j, hi_j):
+                                    spread[i, j] = 0.5 * (above + below) * scale
                         continue
                 count = -1
                 if i1 - i0 <= NEAR_CELL and j1 - j0 <= NEAR_CELL:
