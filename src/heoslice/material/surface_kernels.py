@@ -108,31 +108,47 @@ def _box_distance2(px, py, pz, low, high, node):  # pragma: no cover - compiled
 
 
 @helper(EXACT)
-def _segment_distance2(px, py, pz, ax, ay, az, bx, by, bz):  # pragma: no cover - compiled
-    """Squared distance from a point to the segment a-b (a point when a == b)."""
+def _segment_offset(px, py, pz, ax, ay, az, bx, by, bz):  # pragma: no cover - compiled
+    """The point minus its nearest point on the segment a-b (a point when a == b): (gx, gy, gz)."""
     ex, ey, ez = bx - ax, by - ay, bz - az
     length2 = ex * ex + ey * ey + ez * ez
     t = 0.0
     if length2 > 0.0:
         t = ((px - ax) * ex + (py - ay) * ey + (pz - az) * ez) / length2
         t = min(max(t, 0.0), 1.0)
-    gx, gy, gz = px - (ax + t * ex), py - (ay + t * ey), pz - (az + t * ez)
-    return gx * gx + gy * gy + gz * gz
+    return px - (ax + t * ex), py - (ay + t * ey), pz - (az + t * ez)
+
+
+@helper(EXACT)
+def _nearer(best, gx, gy, gz):  # pragma: no cover - compiled
+    """Of two offsets (best: (gx, gy, gz)), the shorter (the first on a tie)."""
+    if gx * gx + gy * gy + gz * gz < best[0] * best[0] + best[1] * best[1] + best[2] * best[2]:
+        return gx, gy, gz
+    return best
 
 
 @helper(EXACT, inline=False)
 def triangle_distance2(px, py, pz, tri):  # pragma: no cover - compiled
-    """Squared distance from a point to a triangle (3, 3): Ericson's region test (Real-Time Collision
-    Detection, 5.1.5); a degenerate triangle is measured as its three edges."""
+    """Squared distance from a point to a triangle (3, 3) (:func:`triangle_offset`)."""
+    gx, gy, gz = triangle_offset(px, py, pz, tri)
+    return gx * gx + gy * gy + gz * gz
+
+
+@helper(EXACT)
+def triangle_offset(px, py, pz, tri):  # pragma: no cover - compiled
+    """The point minus its nearest point on a triangle (3, 3), (gx, gy, gz): Ericson's region test (Real-Time
+    Collision Detection, 5.1.5); a degenerate triangle is measured as its three edges."""
     ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
     abx, aby, abz = tri[1, 0] - ax, tri[1, 1] - ay, tri[1, 2] - az
     acx, acy, acz = tri[2, 0] - ax, tri[2, 1] - ay, tri[2, 2] - az
     nx, ny, nz = aby * acz - abz * acy, abz * acx - abx * acz, abx * acy - aby * acx
     scale = (abx * abx + aby * aby + abz * abz) * (acx * acx + acy * acy + acz * acz)
     if not (nx * nx + ny * ny + nz * nz) > 1e-24 * scale:
-        d = _segment_distance2(px, py, pz, ax, ay, az, tri[1, 0], tri[1, 1], tri[1, 2])
-        d = min(d, _segment_distance2(px, py, pz, tri[1, 0], tri[1, 1], tri[1, 2], tri[2, 0], tri[2, 1], tri[2, 2]))
-        return min(d, _segment_distance2(px, py, pz, tri[2, 0], tri[2, 1], tri[2, 2], ax, ay, az))
+        best = _segment_offset(px, py, pz, ax, ay, az, tri[1, 0], tri[1, 1], tri[1, 2])
+        gx, gy, gz = _segment_offset(px, py, pz, tri[1, 0], tri[1, 1], tri[1, 2], tri[2, 0], tri[2, 1], tri[2, 2])
+        best = _nearer(best, gx, gy, gz)
+        gx, gy, gz = _segment_offset(px, py, pz, tri[2, 0], tri[2, 1], tri[2, 2], ax, ay, az)
+        return _nearer(best, gx, gy, gz)
     apx, apy, apz = px - ax, py - ay, pz - az
     d1 = abx * apx + aby * apy + abz * apz
     d2 = acx * apx + acy * apy + acz * apz
@@ -160,10 +176,7 @@ def triangle_distance2(px, py, pz, tri):  # pragma: no cover - compiled
         else:
             denominator = va + vb + vc
             s, t = vb / denominator, vc / denominator
-    gx = apx - s * abx - t * acx
-    gy = apy - s * aby - t * acy
-    gz = apz - s * abz - t * acz
-    return gx * gx + gy * gy + gz * gz
+    return apx - s * abx - t * acx, apy - s * aby - t * acy, apz - s * abz - t * acz
 
 
 @helper(EXACT, inline=False)
@@ -306,10 +319,47 @@ def _triangles_near(px, py, pz, reach, tree, stack, found):  # pragma: no cover 
     return count
 
 
+@helper(EXACT)
+def _corners_above(cx, cy, cd, ct, z, tree):  # pragma: no cover - compiled
+    """min over the corners' nearest triangles T of max over the corners k of d_T(x_k) - d_k: by convexity d <= d_T
+    <= B + that over the cell (B the bilinear interpolant of the corners' distances cd (4,) at cx, cy (4,), z)."""
+    above = np.inf
+    for k in range(4):
+        e = 0.0
+        for q in range(4):
+            if ct[q] != ct[k]:  # at its own corner a triangle's distance is the measured one
+                e = max(e, np.sqrt(triangle_distance2(cx[q], cy[q], z, tree.corners[ct[k]])) - cd[q])
+        above = min(above, e)
+    return above
+
+
+@helper(EXACT)
+def _tangent_below(xc, yc, z, cx, cy, cd, tree, found, count, limit):  # pragma: no cover - compiled
+    """max(0, max over the triangles found[:count] T and the corners k of d_k - L_T(x_k)), L_T the tangent plane of
+    d_T at the cell's centre (xc, yc, z) (0 where d_T is 0 there): each d_T is convex, so d >= min_T L_T over the
+    cell when found holds every triangle nearest somewhere in it, and B - L_T is bilinear, largest at a corner; so
+    d >= B - that. Stops once it exceeds ``limit``."""
+    below = 0.0
+    for q in range(count):
+        gx, gy, gz = triangle_offset(xc, yc, z, tree.corners[found[q]])
+        dc = np.sqrt(gx * gx + gy * gy + gz * gz)
+        for k in range(4):
+            tangent = 0.0
+            if dc > 0.0:
+                tangent = dc + (gx * (cx[k] - xc) + gy * (cy[k] - yc)) / dc
+            below = max(below, cd[k] - tangent)
+        if below > limit:
+            break
+    return below
+
+
 #: Side (pixels) at or below which a cell the bounds leave unsettled is measured pixel by pixel against the
 #: triangles that can be nearest anywhere in it; and how many of those it may hold.
 NEAR_CELL = 4
 NEAR_TRIANGLES = 48
+#: Side (pixels) at or below which a cell the second-order bound leaves is tried by the tangent planes of the
+#: triangles within reach (:func:`_tangent_below`).
+TANGENT_CELL = 16
 
 
 @kernel(EXACT)
@@ -333,6 +383,11 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
       d(x) <= d_T(x) <= sum w_k d_T(x_k) <= B(x) + e_T, e_T = max_k (d_T(x_k) - d_k), for each T among the T_k.
       Settled where (a^2 + b^2) / 8m + min e_T is at most ``tolerance`` (r1 - r0): each pixel's r is that
       interval's midpoint, clipped (clipping moves it no farther from the true r).
+    - Tangent planes: where that lower bound fails (m small or <= 0: near the surface, where d is nearly a plane's
+      distance), a cell of at most TANGENT_CELL pixels a side whose upper bound min e_T is below ``tolerance``
+      (r1 - r0): d = min over the triangles within max d_k + 2h of its centre c (the set of the Near bullet) of
+      d_T >= the tangent plane L_T of d_T at c (convexity), and B - L_T is bilinear, so d(x) >= B(x) - max_{T, k}
+      (d_k - L_T(x_k)) (:func:`_tangent_below`); settled and filled as the second-order bound's cells.
     - Near: a cell of at most NEAR_CELL pixels a side is measured exactly pixel by pixel against the triangles
       within max d_k + 2h of its centre (any pixel's nearest triangle is: d(x) <= max d_k + h and |x - c| <= h),
       when there are at most NEAR_TRIANGLES of them; a cell of at most 2 x 2 pixels by the hierarchy search.
@@ -407,43 +462,44 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
                                 spread[i, j] = 0.5 * (hi - lo)
                     continue
                 m = low - half - slack
-                if m > 0.0:
-                    above = np.inf
-                    for k in range(4):
-                        e = 0.0
-                        for q in range(4):
-                            if ct[q] != ct[k]:  # at its own corner a triangle's distance is the measured one
-                                e = max(e, np.sqrt(triangle_distance2(cx[q], cy[q], frame.z,
-                                                                      tree.corners[ct[k]])) - cd[q])
-                        above = min(above, e)
-                    above += slack
-                    below = (a * a + b * b) / (8.0 * m) + slack
-                    if below + above <= tolerance * width:
-                        # r = the clipped midpoint of [B - below, B + above] (clipping keeps it within half the width)
-                        scale = 1.0 / width
-                        offset = 0.5 * (above - below) - r0
-                        for i in range(i0, min(i1, rows)):
-                            s = (i - i0) / (i1 - i0)
-                            left = (1.0 - s) * cd[0] + s * cd[2] + offset
-                            slope = ((1.0 - s) * (cd[1] - cd[0]) + s * (cd[3] - cd[2])) / (j1 - j0)
-                            lo_j, hi_j = max(j0, spans[i, 0]), min(j1, spans[i, 1] + 1)
-                            if coded:
-                                for j in range(lo_j, hi_j):
-                                    index[j] = int(min(max((left + (j - j0) * slope) * scale, 0.0), 1.0) * steps
-                                                   + 0.5)
-                                for j in range(lo_j, hi_j):
-                                    codes[i, j] = table[index[j]]
-                            else:
-                                for j in range(lo_j, hi_j):
-                                    r[i, j] = min(max((left + (j - j0) * slope) * scale, 0.0), 1.0)
-                            if keep:
-                                for j in range(lo_j, hi_j):
-                                    spread[i, j] = 0.5 * (above + below) * scale
-                        continue
+                small = i1 - i0 <= NEAR_CELL and j1 - j0 <= NEAR_CELL
                 count = -1
-                if i1 - i0 <= NEAR_CELL and j1 - j0 <= NEAR_CELL:
-                    count = _triangles_near(0.5 * (cx[0] + cx[3]), 0.5 * (cy[0] + cy[3]), frame.z,
-                                            high + 2.0 * half + slack, tree, stack, found)
+                above, below = np.inf, np.inf
+                if m > 0.0 or (i1 - i0 <= TANGENT_CELL and j1 - j0 <= TANGENT_CELL):
+                    above = _corners_above(cx, cy, cd, ct, frame.z, tree) + slack
+                if m > 0.0:
+                    below = (a * a + b * b) / (8.0 * m) + slack
+                if below + above > tolerance * width and (small or (above < tolerance * width and (
+                        i1 - i0 <= TANGENT_CELL and j1 - j0 <= TANGENT_CELL))):
+                    xc, yc = 0.5 * (cx[0] + cx[3]), 0.5 * (cy[0] + cy[3])
+                    count = _triangles_near(xc, yc, frame.z, high + 2.0 * half + slack, tree, stack, found)
+                    if count >= 0 and above < tolerance * width:
+                        below = _tangent_below(xc, yc, frame.z, cx, cy, cd, tree, found, count,
+                                               tolerance * width - above) + slack + 1e-12 * (
+                                                   abs(xc) + abs(yc) + abs(frame.z))
+                if below + above <= tolerance * width:
+                    # r = the clipped midpoint of [B - below, B + above] (clipping keeps it within half the width)
+                    scale = 1.0 / width
+                    offset = 0.5 * (above - below) - r0
+                    for i in range(i0, min(i1, rows)):
+                        s = (i - i0) / (i1 - i0)
+                        left = (1.0 - s) * cd[0] + s * cd[2] + offset
+                        slope = ((1.0 - s) * (cd[1] - cd[0]) + s * (cd[3] - cd[2])) / (j1 - j0)
+                        lo_j, hi_j = max(j0, spans[i, 0]), min(j1, spans[i, 1] + 1)
+                        if coded:
+                            for j in range(lo_j, hi_j):
+                                index[j] = int(min(max((left + (j - j0) * slope) * scale, 0.0), 1.0) * steps + 0.5)
+                            for j in range(lo_j, hi_j):
+                                codes[i, j] = table[index[j]]
+                        else:
+                            for j in range(lo_j, hi_j):
+                                r[i, j] = min(max((left + (j - j0) * slope) * scale, 0.0), 1.0)
+                        if keep:
+                            for j in range(lo_j, hi_j):
+                                spread[i, j] = 0.5 * (above + below) * scale
+                    continue
+                if not small:
+                    count = -1
                 if count >= 0 or (i1 - i0 <= 2 and j1 - j0 <= 2):
                     for i in range(i0, min(i1, rows)):
                         for j in range(j0, min(j1, cols)):
