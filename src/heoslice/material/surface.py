@@ -138,13 +138,15 @@ def layer_r(solid: np.ndarray, frame: tuple[float, float, float, float, float], 
     to the surface normalised over r_range (R0, R1) mm and clipped to [0, 1], each within tolerance / 2 of its
     true r (:func:`heoslice.material.surface_kernels.layer_r`'s bounds settle cells of up to ``top`` pixels a side,
     the rest is measured pixel by pixel). frame: (x of column 0's centre, x step per column, y of row 0's centre,
-    y step per row, z), mm. With ``table`` (n,) uint16: each pixel's table[round(r (n - 1))] (h, w) uint16
+    y step per row, z), mm. With ``table`` (n,) uint16 (n <= 65536): each pixel's table[round(r (n - 1))] (h, w) uint16
     instead of r. ``with_spread`` also returns each pixel's proven bound on its r's error (h, w)."""
     from heoslice.material.surface_kernels import LayerFrame
     from heoslice.material.surface_kernels import layer_r as kernel
 
     solid = np.ascontiguousarray(solid, dtype=bool)
     coded = table is not None
+    if coded and not 0 < len(table) <= 1 << 16:
+        raise ValueError(f"a table of codes has 1 to 65536 entries (the kernel indexes it by uint16), not {len(table)}")
     r = np.zeros((0, 0) if coded else solid.shape)
     codes = np.zeros(solid.shape if coded else (0, 0), np.uint16)
     spread = np.zeros(solid.shape if with_spread else (0, 0))
