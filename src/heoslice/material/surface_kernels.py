@@ -418,6 +418,10 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
         for tj in range(lattice_cols - 1):
             if _any_solid(solid, spans, ti * top, ti * top + top, tj * top, tj * top + top):
                 needed[ti, tj] = needed[ti + 1, tj] = needed[ti, tj + 1] = needed[ti + 1, tj + 1] = True
+    # the distances measured inside the top cell at hand, by pixel from its first corner (tagged by the cell)
+    memo_tag = np.zeros((top + 1, top + 1), np.int64)
+    memo_d = np.empty((top + 1, top + 1))
+    memo_t = np.empty((top + 1, top + 1), np.int64)
     lattice_d = np.zeros((lattice_rows, lattice_cols))
     lattice_t = np.zeros((lattice_rows, lattice_cols), np.int64)
     for ti in range(lattice_rows):
@@ -430,6 +434,7 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
         for tj in range(lattice_cols - 1):
             if not (needed[ti, tj] and needed[ti + 1, tj + 1]):
                 continue
+            tag = ti * lattice_cols + tj + 1
             cells[0, 0], cells[0, 1], cells[0, 2], cells[0, 3] = ti * top, ti * top + top, tj * top, tj * top + top
             for k in range(4):
                 cell_d[0, k] = lattice_d[ti + k // 2, tj + k % 2]
@@ -535,10 +540,13 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
                         elif (gi == 1 and im == i1) or (gj == 1 and jm == j1):
                             continue
                         else:
-                            best, nearest = nearest_triangle(frame.x0 + along_j[gj] * frame.dx,
-                                                             frame.y0 + along_i[gi] * frame.dy, frame.z, tree,
-                                                             nearest, stack, bound)
-                            grid_d[gi, gj], grid_t[gi, gj] = np.sqrt(best), nearest
+                            li, lj = along_i[gi] - ti * top, along_j[gj] - tj * top
+                            if memo_tag[li, lj] != tag:  # a side's middle is its two cells' corner
+                                best, nearest = nearest_triangle(frame.x0 + along_j[gj] * frame.dx,
+                                                                 frame.y0 + along_i[gi] * frame.dy, frame.z, tree,
+                                                                 nearest, stack, bound)
+                                memo_tag[li, lj], memo_d[li, lj], memo_t[li, lj] = tag, np.sqrt(best), nearest
+                            grid_d[gi, gj], grid_t[gi, gj] = memo_d[li, lj], memo_t[li, lj]
                 for u in range(2):
                     for v in range(2):
                         ci0, ci1 = along_i[u], along_i[u + 1]
