@@ -25,7 +25,7 @@ from heoslice.material import (
     point_triangle_distance,
     surface_distance,
 )
-from heoslice.material.surface import layer_r
+from heoslice.material.surface import layer_r, packed_layer_codes
 
 # --- surface distance -----------------------------------------------------------------------
 
@@ -368,3 +368,26 @@ def test_layer_r_codes_read_the_table_at_the_rounded_r():
     codes = layer_r(solid, frame, index, (0.0, 3.0), 1e-3, table=table)
     assert codes.dtype == np.uint16
     assert np.array_equal(codes[solid], table[np.floor(r[solid] * 65535 + 0.5).astype(int)])
+
+
+def test_packed_layer_codes_read_the_bits_as_layer_r_reads_the_layer():
+    """Codes from packed rows, the layer's columns starting at byte 2 of each row and ending inside a byte (a width
+    not a multiple of 8, bits set past it), are layer_r's codes of the same pixels at every solid pixel; rows with
+    a solid pixel only in their first or last column or none at all included."""
+    corners = procedural.sphere(radius=2.0, subdivisions=2)
+    index = build_surface_index(corners.vertices, corners.faces)
+    rng = np.random.default_rng(8)
+    layer = rng.random((70, 83)) < 0.4
+    layer[5] = False
+    layer[6], layer[7] = False, False
+    layer[6, 0] = layer[7, 82] = True
+    wide = np.zeros((70, 16 + 88), dtype=bool)
+    wide[:, 16:16 + 83] = layer
+    wide[:, 16 + 83:] = True  # past the layer's last column: never read as its pixels
+    wide[:, :16] = True
+    frame = (-3.0, 0.08, 2.5, -0.08, 0.3)
+    table = (np.arange(65536) * 11 % 65536).astype(np.uint16)
+    expected = layer_r(layer, frame, index, (0.0, 3.0), 1e-3, table=table)
+    codes = packed_layer_codes(np.packbits(wide, axis=1), 16, 83, frame, index, (0.0, 3.0), 1e-3, table)
+    assert codes.shape == layer.shape
+    assert np.array_equal(codes[layer], expected[layer])

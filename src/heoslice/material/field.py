@@ -89,11 +89,10 @@ class MaterialField:
             raise ValueError(f"a table of codes has R_STEPS + 1 = {R_STEPS + 1} entries, not {len(table)}")
         x0, y0 = grid.x_left + (c0 + 0.5) * grid.px, grid.y_top - (r0 + 0.5) * grid.py
         if self.reference.kind == "surface":
-            from heoslice.material.surface import layer_r
+            from heoslice.material.surface import packed_layer_codes
 
-            solid = np.unpackbits(packed[r0:r1], axis=1, count=grid.width)[:, c0:c1].view(bool)
-            codes = layer_r(solid, (x0, grid.px, y0, -grid.py, z), self.reference.surface, self.design.r_range,
-                            R_TOLERANCE, table=table)
+            codes = packed_layer_codes(packed[r0:r1], c0, c1 - c0, (x0, grid.px, y0, -grid.py, z),
+                                       self.reference.surface, self.design.r_range, R_TOLERANCE, table)
             return (r0, r1, c0, c1), codes
         from heoslice.material.references_kernels import quadratic_codes
 

@@ -258,36 +258,60 @@ def _normalised(d, r0, r1):  # pragma: no cover - compiled
 
 
 @helper(EXACT)
-def _row_spans(solid, spans):  # pragma: no cover - compiled
-    """Each row's first and last solid column of ``solid`` (h, w) bool into ``spans`` ((h, 2) int64; (w, -1) for a
-    row without one), reading each row only up to its first and from its last solid pixel."""
-    rows, cols = solid.shape
-    for i in range(rows):
-        spans[i, 0], spans[i, 1] = cols, -1
-        for j in range(cols):
-            if solid[i, j]:
-                spans[i, 0] = j
-                break
-        for j in range(cols - 1, spans[i, 0] - 1, -1):
-            if solid[i, j]:
-                spans[i, 1] = j
-                break
+def _solid_at(packed, first, i, j):  # pragma: no cover - compiled
+    """Whether pixel (i, j) is solid: bit 7 - j % 8 of packed[i, first + j // 8] (rows packed MSB first)."""
+    return ((packed[i, first + (j >> 3)] >> (7 - (j & 7))) & 1) != 0
 
 
 @helper(EXACT)
-def _any_solid(solid, spans, i0, i1, j0, j1):  # pragma: no cover - compiled
-    """Whether the cell rows i0:i1, columns j0:j1 of ``solid`` (clipped to it) holds a solid pixel: from each row's
-    span (:func:`_row_spans`) where it misses the cell or ends inside it, by the row's pixels only where the
-    cell lies inside the span."""
-    for i in range(i0, min(i1, solid.shape[0])):
-        first, last = spans[i, 0], spans[i, 1]
-        if last < j0 or first >= j1:
+def _row_spans(packed, first, cols, spans):  # pragma: no cover - compiled
+    """Each row's first and last solid column of the layer whose columns 0:cols are the bits of ``packed`` (h, bytes)
+    uint8 from byte ``first`` on, into ``spans`` ((h, 2) int64; (cols, -1) for a row without one), reading each row
+    a byte at a time only up to its first and from its last solid pixel."""
+    end = min(first + ((cols + 7) >> 3), packed.shape[1])
+    for i in range(packed.shape[0]):
+        spans[i, 0], spans[i, 1] = cols, -1
+        b = first
+        while b < end and packed[i, b] == 0:
+            b += 1
+        if b == end:
             continue
-        if first >= j0 or last < j1:
+        e = end - 1
+        while packed[i, e] == 0:
+            e -= 1
+        k = 0
+        while ((packed[i, b] >> (7 - k)) & 1) == 0:
+            k += 1
+        start = (b - first) * 8 + k
+        k = 7
+        while ((packed[i, e] >> (7 - k)) & 1) == 0:
+            k -= 1
+        stop = min((e - first) * 8 + k, cols - 1)
+        if start <= stop:
+            spans[i, 0], spans[i, 1] = start, stop
+
+
+@helper(EXACT)
+def _any_solid(packed, first, spans, i0, i1, j0, j1):  # pragma: no cover - compiled
+    """Whether the cell rows i0:i1, columns j0:j1 (clipped to the layer) holds a solid pixel: from each row's span
+    (:func:`_row_spans`) where it misses the cell or ends inside it, by the row's bits (a byte at a time where it
+    can) only where the cell lies inside the span."""
+    for i in range(i0, min(i1, packed.shape[0])):
+        start, stop = spans[i, 0], spans[i, 1]
+        if stop < j0 or start >= j1:
+            continue
+        if start >= j0 or stop < j1:
             return True
-        for j in range(j0, j1):
-            if solid[i, j]:
-                return True
+        j = j0
+        while j < j1:
+            if (j & 7) == 0 and j + 8 <= j1:
+                if packed[i, first + (j >> 3)] != 0:
+                    return True
+                j += 8
+            else:
+                if _solid_at(packed, first, i, j):
+                    return True
+                j += 1
     return False
 
 
@@ -364,10 +388,11 @@ TANGENT_CELL = 64
 
 
 @kernel(EXACT)
-def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1: float, tolerance: float,
-            top: int, r: np.ndarray, spread: np.ndarray, table: np.ndarray,
+def layer_r(packed: np.ndarray, first: int, cols: int, frame: LayerFrame, tree: Hierarchy, r0: float, r1: float,
+            tolerance: float, top: int, r: np.ndarray, spread: np.ndarray, table: np.ndarray,
             codes: np.ndarray) -> None:  # pragma: no cover - compiled
-    """r (h, w) at each solid pixel centre of ``solid`` (h, w) bool, normalised from the exact distance to ``tree``
+    """r (h, w) at each solid pixel centre of a layer of h rows, w = ``cols`` columns (its pixels the bits of
+    ``packed`` (h, bytes) uint8 from byte ``first`` on, MSB first), normalised from the exact distance to ``tree``
     over (r0, r1) mm, each within spread[i, j] <= tolerance / 2 of its true r (``spread`` (h, w) written too,
     or (0, 0) to skip it); or, where ``codes`` (h, w) is not (0, 0), instead of r its code from ``table`` (n,)
     at r rounded to the nearest step 1 / (n - 1). Cells of ``top`` x ``top`` pixels are halved until a bound settles
@@ -393,7 +418,7 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
       within max d_k + 2h of its centre (any pixel's nearest triangle is: d(x) <= max d_k + h and |x - c| <= h),
       when there are at most NEAR_TRIANGLES of them; a cell of at most 2 x 2 pixels by the hierarchy search.
     """
-    rows, cols = solid.shape
+    rows = packed.shape[0]
     coded, keep, steps = codes.shape[0] > 0, spread.shape[0] > 0, table.shape[0] - 1
     stack = np.empty(STACK_DEPTH, np.int64)
     bound = np.empty(STACK_DEPTH)
@@ -410,13 +435,13 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
     nearest = 0
     spans = np.empty((rows, 2), np.int64)
     index = np.empty(cols + 1, np.uint16)
-    _row_spans(solid, spans)
+    _row_spans(packed, first, cols, spans)
     # the top cells' corners, measured where a solid pixel needs them
     lattice_rows, lattice_cols = (rows + top - 1) // top + 1, (cols + top - 1) // top + 1
     needed = np.zeros((lattice_rows, lattice_cols), np.bool_)
     for ti in range(lattice_rows - 1):
         for tj in range(lattice_cols - 1):
-            if _any_solid(solid, spans, ti * top, ti * top + top, tj * top, tj * top + top):
+            if _any_solid(packed, first, spans, ti * top, ti * top + top, tj * top, tj * top + top):
                 needed[ti, tj] = needed[ti + 1, tj] = needed[ti, tj + 1] = needed[ti + 1, tj + 1] = True
     # the distances measured inside the top cell at hand, by pixel from its first corner (tagged by the cell)
     memo_tag = np.zeros((top + 1, top + 1), np.int64)
@@ -443,7 +468,7 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
             while pending > 0:
                 pending -= 1
                 i0, i1, j0, j1 = cells[pending, 0], cells[pending, 1], cells[pending, 2], cells[pending, 3]
-                if not _any_solid(solid, spans, i0, i1, j0, j1):
+                if not _any_solid(packed, first, spans, i0, i1, j0, j1):
                     continue
                 for k in range(4):
                     cd[k], ct[k] = cell_d[pending, k], cell_t[pending, k]
@@ -511,7 +536,7 @@ def layer_r(solid: np.ndarray, frame: LayerFrame, tree: Hierarchy, r0: float, r1
                 if count >= 0 or (i1 - i0 <= 2 and j1 - j0 <= 2):
                     for i in range(i0, min(i1, rows)):
                         for j in range(j0, min(j1, cols)):
-                            if solid[i, j]:
+                            if _solid_at(packed, first, i, j):
                                 px, py = frame.x0 + j * frame.dx, frame.y0 + i * frame.dy
                                 if count >= 0:
                                     best = np.inf
