@@ -7,7 +7,9 @@ distances are closed-form and vectorised. A surface reference is measured exactl
 layer (:func:`heoslice.material.surface.layer_r`), and a cell's pixels take r from proven bounds on the distance
 between those corners (its 1-Lipschitz bound, and a second-order one: over a cell of sides a, b at least m away
 the bilinear interpolant of the corners' distances is at most (a^2 + b^2) / 8m above the distance, and below it
-by at most what the corners' own nearest triangles spread), within :data:`R_TOLERANCE` / 2 of every pixel's true r;
+by at most what the corners' own nearest triangles spread; near the surface, above it by at most its largest excess
+at a corner over the tangent planes of the distances to the triangles within reach), within :data:`R_TOLERANCE` / 2
+of every pixel's true r;
 cells the bounds cannot settle are halved, down to pixels measured one by one.
 """
 
