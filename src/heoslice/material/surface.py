@@ -141,12 +141,11 @@ def layer_r(solid: np.ndarray, frame: tuple[float, float, float, float, float], 
     y step per row, z), mm. With ``table`` (n,) uint16 (n <= 65536): each pixel's table[round(r (n - 1))] (h, w) uint16
     instead of r. ``with_spread`` also returns each pixel's proven bound on its r's error (h, w)."""
     solid = np.ascontiguousarray(solid, dtype=bool)
-    coded = table is not None
     out, spread = _layer_r(np.packbits(solid, axis=1), 0, solid.shape[1], frame, index, r_range, tolerance, top,
                            with_spread, table)
-    # the kernel fills settled cells' rows between their first and last solid pixel: r is 0 off the solid
-    for written in ((out,) if not coded else ()) + ((spread,) if with_spread else ()):
-        written[~solid] = 0.0
+    outside = ~solid  # the kernel writes anything there
+    for written in (out, spread) if with_spread else (out,):
+        written[outside] = 0
     return (out, spread) if with_spread else out
 
 
@@ -165,7 +164,7 @@ def _layer_r(packed: np.ndarray, first: int, cols: int, frame: tuple, index: Sur
              r_range: tuple[float, float], tolerance: float, top: int, with_spread: bool,
              table: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """(r or, with ``table``, codes; the bounds or (0, 0)) of the layer of columns 0:cols that are the bits of
-    ``packed`` from byte ``first`` on (:func:`heoslice.material.surface_kernels.layer_r`)."""
+    ``packed`` from byte ``first`` on (:func:`heoslice.material.surface_kernels.layer_r`); anything off the solid."""
     from heoslice.material.surface_kernels import LayerFrame
     from heoslice.material.surface_kernels import layer_r as kernel
 
@@ -173,9 +172,10 @@ def _layer_r(packed: np.ndarray, first: int, cols: int, frame: tuple, index: Sur
     if coded and not 0 < len(table) <= 1 << 16:
         raise ValueError(f"a table of codes has 1 to 65536 entries (the kernel indexes it by uint16), not {len(table)}")
     shape = (packed.shape[0], int(cols))
-    r = np.zeros((0, 0) if coded else shape)
-    codes = np.zeros(shape if coded else (0, 0), np.uint16)
-    spread = np.zeros(shape if with_spread else (0, 0))
+    # written at every solid pixel; off the solid, anything
+    r = np.empty((0, 0) if coded else shape)
+    codes = np.empty(shape if coded else (0, 0), np.uint16)
+    spread = np.empty(shape if with_spread else (0, 0))
     kernel(packed, int(first), int(cols), LayerFrame(*map(float, frame)), index.tree, float(r_range[0]),
            float(r_range[1]), float(tolerance), int(top), r, spread,
            np.ascontiguousarray(table if coded else [0], np.uint16), codes)
