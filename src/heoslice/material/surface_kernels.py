@@ -569,7 +569,7 @@ def layer_r(packed: np.ndarray, first: int, cols: int, frame: LayerFrame, tree: 
                             if memo_tag[li, lj] != tag:  # a side's middle is its two cells' corner
                                 best, nearest = nearest_triangle(frame.x0 + along_j[gj] * frame.dx,
                                                                  frame.y0 + along_i[gi] * frame.dy, frame.z, tree,
-                                                                 nearest, stack, bound)
+                                                                 ct[(gi // 2) * 2 + gj // 2], stack, bound)
                                 memo_tag[li, lj], memo_d[li, lj], memo_t[li, lj] = tag, np.sqrt(best), nearest
                             grid_d[gi, gj], grid_t[gi, gj] = memo_d[li, lj], memo_t[li, lj]
                 for u in range(2):
