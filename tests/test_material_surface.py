@@ -25,7 +25,7 @@ from heoslice.material import (
     point_triangle_distance,
     surface_distance,
 )
-from heoslice.material.surface import layer_r
+from heoslice.material.surface import layer_r, packed_layer_codes
 
 # --- surface distance -----------------------------------------------------------------------
 
@@ -338,6 +338,25 @@ def test_layer_r_settles_far_cells_by_the_second_order_bound():
     assert np.abs(r[rows, cols] - truth).max() <= 5e-4
 
 
+def test_layer_r_settles_cells_near_a_flat_surface_by_its_tangent_planes():
+    """A layer 0.16-0.27 mm over a large tilted triangle, 0.02 mm pixels, r over 0 .. 1 mm at 1e-3: the
+    second-order bound cannot settle even a 2-pixel cell there ((a^2 + b^2) / 8m is at least 2.5e-3 mm), but d is
+    a plane's distance, which its tangent planes give exactly: every pixel is settled by a bound (none measured:
+    every reported bound is positive) and within it of the brute-force r."""
+    vertices = np.array([[-5.0, -5.0, -0.2], [5.0, -5.0, 0.3], [5.0, 5.0, 0.3], [-5.0, 5.0, -0.2]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    index = build_surface_index(vertices, faces)
+    solid = np.ones((96, 112), dtype=bool)
+    solid[40:50, 30:90] = False
+    frame = (1.5, 0.02, -0.5, -0.02, 0.4)
+    r, spread = layer_r(solid, frame, index, (0.0, 1.0), 1e-3, top=64, with_spread=True)
+    rows, cols = np.nonzero(solid)
+    points = np.column_stack([frame[0] + cols * 0.02, frame[2] - rows * 0.02, np.full(len(rows), 0.4)])
+    truth = _brute_r(vertices[faces], points, (0.0, 1.0))
+    assert (spread[rows, cols] > 0).all() and spread.max() <= 5e-4 + 1e-12
+    assert (np.abs(r[rows, cols] - truth) <= spread[rows, cols] + 1e-9).all()
+
+
 def test_layer_r_codes_read_the_table_at_the_rounded_r():
     """With a table, each solid pixel gets table[round(r (n - 1))] of the r it gets without one."""
     corners = procedural.sphere(radius=2.0, subdivisions=2)
@@ -349,3 +368,26 @@ def test_layer_r_codes_read_the_table_at_the_rounded_r():
     codes = layer_r(solid, frame, index, (0.0, 3.0), 1e-3, table=table)
     assert codes.dtype == np.uint16
     assert np.array_equal(codes[solid], table[np.floor(r[solid] * 65535 + 0.5).astype(int)])
+
+
+def test_packed_layer_codes_read_the_bits_as_layer_r_reads_the_layer():
+    """Codes from packed rows, the layer's columns starting at byte 2 of each row and ending inside a byte (a width
+    not a multiple of 8, bits set past it), are layer_r's codes of the same pixels at every solid pixel; rows with
+    a solid pixel only in their first or last column or none at all included."""
+    corners = procedural.sphere(radius=2.0, subdivisions=2)
+    index = build_surface_index(corners.vertices, corners.faces)
+    rng = np.random.default_rng(8)
+    layer = rng.random((70, 83)) < 0.4
+    layer[5] = False
+    layer[6], layer[7] = False, False
+    layer[6, 0] = layer[7, 82] = True
+    wide = np.zeros((70, 16 + 88), dtype=bool)
+    wide[:, 16:16 + 83] = layer
+    wide[:, 16 + 83:] = True  # past the layer's last column: never read as its pixels
+    wide[:, :16] = True
+    frame = (-3.0, 0.08, 2.5, -0.08, 0.3)
+    table = (np.arange(65536) * 11 % 65536).astype(np.uint16)
+    expected = layer_r(layer, frame, index, (0.0, 3.0), 1e-3, table=table)
+    codes = packed_layer_codes(np.packbits(wide, axis=1), 16, 83, frame, index, (0.0, 3.0), 1e-3, table)
+    assert codes.shape == layer.shape
+    assert np.array_equal(codes[layer], expected[layer])

@@ -140,7 +140,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
                                          types.uint16[::1], types.uint16[:, ::1]),
     surface_kernels.build_nodes: (f8_2, f8_2, f8_2, i8),
     surface_kernels.nearest_distances: (f8_2, HIERARCHY, f8_1),
-    surface_kernels.layer_r: (b_2, LAYER_FRAME, HIERARCHY, f8, f8, f8, i8, f8_2, f8_2, types.uint16[::1],
+    surface_kernels.layer_r: (u1_2, i8, i8, LAYER_FRAME, HIERARCHY, f8, f8, f8, i8, f8_2, f8_2, types.uint16[::1],
                               types.uint16[:, ::1]),
     topology_kernels._edge_runs: (i8_2, i8),
     topology_kernels._lowest_connected: (i8_1, i8_1, i8),

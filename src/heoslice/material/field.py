@@ -7,7 +7,9 @@ distances are closed-form and vectorised. A surface reference is measured exactl
 layer (:func:`heoslice.material.surface.layer_r`), and a cell's pixels take r from proven bounds on the distance
 between those corners (its 1-Lipschitz bound, and a second-order one: over a cell of sides a, b at least m away
 the bilinear interpolant of the corners' distances is at most (a^2 + b^2) / 8m above the distance, and below it
-by at most what the corners' own nearest triangles spread), within :data:`R_TOLERANCE` / 2 of every pixel's true r;
+by at most what the corners' own nearest triangles spread; near the surface, above it by at most its largest excess
+at a corner over the tangent planes of the distances to the triangles within reach), within :data:`R_TOLERANCE` / 2
+of every pixel's true r;
 cells the bounds cannot settle are halved, down to pixels measured one by one.
 """
 
@@ -89,11 +91,10 @@ class MaterialField:
             raise ValueError(f"a table of codes has R_STEPS + 1 = {R_STEPS + 1} entries, not {len(table)}")
         x0, y0 = grid.x_left + (c0 + 0.5) * grid.px, grid.y_top - (r0 + 0.5) * grid.py
         if self.reference.kind == "surface":
-            from heoslice.material.surface import layer_r
+            from heoslice.material.surface import packed_layer_codes
 
-            solid = np.unpackbits(packed[r0:r1], axis=1, count=grid.width)[:, c0:c1].view(bool)
-            codes = layer_r(solid, (x0, grid.px, y0, -grid.py, z), self.reference.surface, self.design.r_range,
-                            R_TOLERANCE, table=table)
+            codes = packed_layer_codes(packed[r0:r1], c0, c1 - c0, (x0, grid.px, y0, -grid.py, z),
+                                       self.reference.surface, self.design.r_range, R_TOLERANCE, table)
             return (r0, r1, c0, c1), codes
         from heoslice.material.references_kernels import quadratic_codes
 
