@@ -25,6 +25,7 @@ from heoslice.material import (
     point_triangle_distance,
     surface_distance,
 )
+from heoslice.material.field import R_STEPS, R_TOLERANCE
 from heoslice.material.surface import layer_r, packed_layer_codes
 
 # --- surface distance -----------------------------------------------------------------------
@@ -391,3 +392,21 @@ def test_packed_layer_codes_read_the_bits_as_layer_r_reads_the_layer():
     codes = packed_layer_codes(np.packbits(wide, axis=1), 16, 83, frame, index, (0.0, 3.0), 1e-3, table)
     assert codes.shape == layer.shape
     assert np.array_equal(codes[layer], expected[layer])
+
+
+def test_packed_layer_codes_off_the_solid_are_table_entries_or_zero():
+    """Off the solid every code is 0 or an entry of the table, even where memory freed just before held other
+    values: the droplet kernels look up each pixel of a run of 16 in a table as long as the labels before they
+    mask the solid, so a code past it would be read out of bounds (review of f98f22b)."""
+    sphere = procedural.sphere(3.0, subdivisions=2)
+    index = build_surface_index(np.asarray(sphere.vertices, float), np.asarray(sphere.faces))
+    rows, columns = np.mgrid[:120, :256]
+    square = (rows - 60) ** 2 + (columns - 128) ** 2
+    solid = (square < 55 ** 2) & (square >= 20 ** 2)  # a ring: a hole and corners no settled row reaches
+    table = np.arange(1, R_STEPS + 2, dtype=np.int64).clip(1, 257).astype(np.uint16)
+    junk = np.full(solid.size, 0xFFFF, np.uint16)
+    del junk  # freed: the codes' allocation of the same size may take this memory
+    codes = packed_layer_codes(np.packbits(solid, axis=1), 0, 256, (-6.0, 0.05, 3.0, -0.05, 0.3), index, (0.0, 3.0),
+                               R_TOLERANCE, table)
+    off = codes[~solid]
+    assert np.all((off == 0) | np.isin(off, table)), np.unique(off[~np.isin(off, table)])[:5]

@@ -82,7 +82,7 @@ class MaterialField:
     def layer_codes(self, packed: np.ndarray, grid, z: float,
                     table: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
         """The box of a layer's solid pixels (as :meth:`layer_fraction`) and, at each of them, table[k] (uint16
-        (rows, cols); anything elsewhere in the box) for its r rounded to k / R_STEPS (table: (R_STEPS + 1,)
+        (rows, cols); elsewhere in the box an entry of ``table`` or 0, which a halftone may look up) for its r rounded to k / R_STEPS (table: (R_STEPS + 1,)
         uint16, e.g. a halftone's level of each f in :attr:`fraction_table`): f read from one table per layer,
         in one compiled pass, instead of evaluated at every voxel."""
         r0, r1, c0, c1 = solid_box(packed, grid.width)

@@ -152,7 +152,7 @@ def layer_r(solid: np.ndarray, frame: tuple[float, float, float, float, float], 
 def packed_layer_codes(packed: np.ndarray, c0: int, cols: int, frame: tuple[float, float, float, float, float],
                        index: SurfaceIndex, r_range: tuple[float, float], tolerance: float,
                        table: np.ndarray) -> np.ndarray:
-    """:func:`layer_r`'s codes (h, cols) uint16 (anything off the solid) of the layer whose pixels are columns
+    """:func:`layer_r`'s codes (h, cols) uint16 (off the solid, an entry of ``table`` or 0) of the layer whose pixels are columns
     c0:c0 + cols (c0 a multiple of 8) of ``packed`` ((h, bytes) uint8 rows, MSB first), read as they are."""
     if c0 % 8:
         raise ValueError(f"a layer's first column is a multiple of 8, not {c0}")
@@ -172,9 +172,10 @@ def _layer_r(packed: np.ndarray, first: int, cols: int, frame: tuple, index: Sur
     if coded and not 0 < len(table) <= 1 << 16:
         raise ValueError(f"a table of codes has 1 to 65536 entries (the kernel indexes it by uint16), not {len(table)}")
     shape = (packed.shape[0], int(cols))
-    # written at every solid pixel; off the solid, anything
+    # r written at every solid pixel, anything off it; codes zero off it, since the droplet kernels look up
+    # every pixel of a run of 16 in a table of 258 labels before they mask the solid
     r = np.empty((0, 0) if coded else shape)
-    codes = np.empty(shape if coded else (0, 0), np.uint16)
+    codes = np.zeros(shape if coded else (0, 0), np.uint16)
     spread = np.empty(shape if with_spread else (0, 0))
     kernel(packed, int(first), int(cols), LayerFrame(*map(float, frame)), index.tree, float(r_range[0]),
            float(r_range[1]), float(tolerance), int(top), r, spread,

@@ -368,8 +368,8 @@ def _tangent_below(xc, yc, z, cx, cy, cd, tree, found, count, limit):  # pragma:
         gx, gy, gz = triangle_offset(xc, yc, z, tree.corners[found[q]])
         dc = np.sqrt(gx * gx + gy * gy + gz * gz)
         for k in range(4):
-            tangent = 0.0
-            if dc > 0.0:
+            tangent = 0.0  # d_T >= 0: the bound when the centre lies (to rounding) on T, whose gradient is noise
+            if dc > 1e-9 * (1.0 + abs(xc) + abs(yc) + abs(z)):
                 tangent = dc + (gx * (cx[k] - xc) + gy * (cy[k] - yc)) / dc
             below = max(below, cd[k] - tangent)
         if below > limit:
