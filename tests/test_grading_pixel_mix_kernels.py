@@ -59,7 +59,8 @@ def kernel_masks(solid: np.ndarray, reference: Reference, z: float, px: float, l
 @pytest.mark.parametrize("kind", sorted(REFERENCES))
 @pytest.mark.parametrize("start, target, channels", [(0, 1, 2), (1, 0, 2), (2, 0, 3)])
 def test_masks_are_the_numpy_rule_bit_for_bit(kind, start, target, channels):
-    """Random solid pixels (gaps inside rows, a box from row 7 and column 19 on a 121-pixel-wide grid) and a
+    """Random solid pixels (gaps of zero bytes inside rows, short and long, an empty row, a box from row 7 and
+    column 19 on a 121-pixel-wide grid) and a
     table of levels that is not monotone in r: the kernel's masks equal the rule's; every solid pixel jets one
     of the two channels, no other pixel any."""
     rng = np.random.default_rng(len(kind) + 10 * start)
@@ -67,7 +68,9 @@ def test_masks_are_the_numpy_rule_bit_for_bit(kind, start, target, channels):
     solid[:7] = False
     solid[:, :19] = False
     solid[40:44, 50:90] = False  # whole zero bytes between runs
-    below = rng.integers(0, LEVELS + 1, 65536).astype(np.int32)
+    solid[60:66, 24:88] = False  # eight of them, then a solid byte
+    solid[70] = False
+    below = rng.integers(0, LEVELS + 1, 65536).astype(np.uint16)
     got, expected = kernel_masks(solid, REFERENCES[kind], 1.7, 0.1, 5, below, (0.5, 9.0), start, target,
                                  channels)
     assert np.array_equal(got, expected)
@@ -80,7 +83,7 @@ def test_the_dither_phase_follows_the_absolute_row_and_column(layer):
     flips) read at the pixel's absolute row and column, as the rule and the layer's other dithers read it."""
     solid = np.zeros((70, 203), dtype=bool)
     solid[5:63, 9:200] = True
-    below = np.minimum(np.arange(65536) // 200, LEVELS).astype(np.int32)
+    below = np.minimum(np.arange(65536) // 200, LEVELS).astype(np.uint16)
     got, expected = kernel_masks(solid, REFERENCES["plane"], 0.4, 0.05, layer, below, (0.0, 12.0), 0, 1, 2)
     assert np.array_equal(got, expected)
 
@@ -89,7 +92,7 @@ def test_a_reference_outside_the_range_clips_r():
     """A point at the layer's centre with R0 above the nearest pixels' distance and R1 below the farthest: r
     clips to 0 inside R0 and to 1 beyond R1 (the table's first and last entries), bit for bit."""
     solid = np.ones((64, 64), dtype=bool)
-    below = np.full(65536, 100, dtype=np.int32)
+    below = np.full(65536, 100, dtype=np.uint16)
     below[0], below[-1] = 0, LEVELS
     got, expected = kernel_masks(solid, Reference("point", (-4.4, 4.4, 0.0)), 0.0, 0.1, 3, below, (1.0, 3.0),
                                  0, 1, 2)

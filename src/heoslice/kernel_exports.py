@@ -131,7 +131,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     refine_kernels._measured_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, types.UniTuple(f8, 4), f8_1,
                                                  f4_1, f4_1, TREE, EDGES, f8, f8),
     pixel_mix_kernels.quadratic_planes: (u1_2, i8, i8, types.UniTuple(f8, 4), types.UniTuple(f8, 6), f8, f8,
-                                         types.int32[::1], types.int32[:, ::1], i8, i8, u1_3),
+                                         types.uint16[::1], types.int32[:, ::1], i8, i8, u1_3),
     search_kernels._candidates: (f8_1, f8_1, f8_1, f8_2, i8_1),
     search_kernels._nearest_in_batches: (f8_1, f8_1, f8_1, f4_1, f4_1, TREE, EDGES, b1),
     search_kernels._chunks_apart: (i8_1, i8_1, f8_2, f8_2, f8_2, f8_2, f8),

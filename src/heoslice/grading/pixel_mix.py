@@ -107,9 +107,9 @@ def field_planes(field, packed: np.ndarray, grid: Grid, z: float, layer: int, st
 
 @functools.lru_cache(maxsize=4)
 def _levels_table(field) -> np.ndarray:
-    """q (int32, one per entry of the field's :attr:`fraction_table`): the dither levels below f at each of r's
+    """q (uint16, one per entry of the field's :attr:`fraction_table`): the dither levels below f at each of r's
     steps, made once per field (a process slices one design)."""
-    return levels_below(field.fraction_table).astype(np.int32)
+    return levels_below(field.fraction_table).astype(np.uint16)
 
 
 def fraction_colors(f: np.ndarray, start_color, target_color) -> np.ndarray:

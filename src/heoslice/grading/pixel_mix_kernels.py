@@ -16,13 +16,13 @@ def quadratic_planes(packed: np.ndarray, row0: int, c0: int, frame: tuple, squar
     """The ordered dither of rows row0 .. row0 + len(packed) of a layer into ``planes`` ((K, h, bytes) uint8, MSB
     first, zero there on entry): each solid pixel (row0 + i, c) of ``packed`` ((rows, bytes) uint8; c0 a multiple of
     8 at or left of the first solid column) jets ``target`` where level[(row0 + i) % n, c % n] < below[k], else
-    ``start``. ``level`` (n, n) int32, n a power of two from 8: the dither's level at each tile position; ``below``:
-    (m,) int32, the levels under f at r = k / (m - 1); k = round(r (m - 1)), r = (d - r0) / (r1 - r0) clipped to [0, 1],
-    d = sqrt(max(Q, 0)), Q = A u^2 + B u v + C v^2 + D u + E v + F (``square``: (A, B, C, D, E, F)), u and v the
-    pixel centre's offsets (mm) from the reference's point along x and y; frame: (u of column c0, u step per
-    column, v of row i = 0, v step per row). Each run of nonzero bytes of a row takes its table indices in one
-    branch-free loop (it vectorises), then its bytes their eight comparisons each; bytes off the solid pixels
-    are not written."""
+    ``start``. ``level`` (n, n) int32, n a power of two from 8: the dither's level at each tile position;
+    ``below`` (m,) uint16 (half the cache lines of int32): the levels under f at r = k / (m - 1); k = round(r (m -
+    1)), r = (d - r0) / (r1 - r0) clipped to [0, 1], d = sqrt(max(Q, 0)), Q = A u^2 + B u v + C v^2 + D u + E v + F
+    (``square``: (A, B, C, D, E, F)), u and v the pixel centre's offsets (mm) from the reference's point along x and
+    y; frame: (u of column c0, u step per column, v of row i = 0, v step per row). Each run of nonzero bytes of a
+    row takes its table indices in one branch-free loop (it vectorises), then its bytes their eight comparisons
+    each; bytes off the solid pixels are not written."""
     a, b, c, d, e, f = square
     steps = below.shape[0] - 1
     scale = 1.0 / (r1 - r0)
@@ -37,6 +37,11 @@ def quadratic_planes(packed: np.ndarray, row0: int, c0: int, frame: tuple, squar
         levels = level[(row0 + i) & wrap]
         k = c0 >> 3
         while k < width:
+            while k + 8 <= width and (row[k] | row[k + 1] | row[k + 2] | row[k + 3] | row[k + 4] | row[k + 5]
+                                      | row[k + 6] | row[k + 7]) == 0:
+                k += 8  # an empty stretch, eight bytes at a time
+            if k >= width:
+                break
             if row[k] == 0:
                 k += 1
                 continue
