@@ -102,3 +102,18 @@ def test_a_closed_form_fields_masks_follow_f_of_each_pixels_exact_r(kind):
     assert ((got == jets[1]) | (got == jets[0]) | (got == jets[2])).all()
     assert (got == jets[1]).mean() > 0.999
     assert abs(got.mean() - np.clip(0.5 * np.sin(6 * np.pi * r) + 0.5, 0, 1).mean()) <= 0.01
+
+
+def test_a_closed_form_fields_empty_layer_has_empty_masks():
+    """field_planes of a layer without solid pixels: every mask empty, of the layer's shape."""
+    from heoslice.grading.pixel_mix import field_planes
+    from heoslice.material import make_function
+    from heoslice.material.design import Design, ReferenceRecord
+    from heoslice.material.field import material_field
+    from heoslice.material.materials import Material
+
+    design = Design(Material("a", (0, 0, 0), 1), Material("b", (255, 255, 255), 2),
+                    ReferenceRecord("point", (0.0, 0.0, 0.0), None), make_function("linear"), (0.0, 5.0))
+    grid = Grid(45, 30, -2.0, 2.0, 0.1, 0.1)
+    planes = field_planes(material_field(design), np.zeros((30, 6), np.uint8), grid, 0.0, 2, 0, 1, 2)
+    assert planes.shape == (2, 30, 6) and not planes.any()
