@@ -63,3 +63,57 @@ def test_other_halftone_methods_keep_one_material_per_pixel_and_the_share(method
     masks = np.unpackbits(planes, axis=2, count=grid.width).astype(bool)
     assert (masks.sum(axis=0) == solid).all()
     assert abs(masks[1][solid].mean() - share) <= 0.01
+
+
+@pytest.mark.parametrize("kind", ["point", "axis"])
+def test_a_closed_form_fields_masks_follow_f_of_each_pixels_exact_r(kind):
+    """field_planes of a point- or axis-referenced sine (the field interior's ordered dither): each solid pixel
+    jets the target exactly where its threshold is below f at its own r (from the closed-form distance written
+    out here, rounded to the field's steps; a pixel whose r lies within rounding of a step's edge may take
+    either neighbour's f), and over the layer the target's share is the mean of f within 1 %."""
+    from heoslice.grading.pixel_mix import field_planes
+    from heoslice.material import make_function
+    from heoslice.material.design import Design, ReferenceRecord
+    from heoslice.material.field import R_STEPS, material_field
+    from heoslice.material.materials import Material
+
+    at, unit = (0.4, -0.3, 0.2), (0.0, 0.6, 0.8)
+    design = Design(Material("a", (0, 0, 0), 1), Material("b", (255, 255, 255), 2),
+                    ReferenceRecord(kind, at, unit if kind == "axis" else None),
+                    make_function("sine", periods=3), (0.0, 5.0))
+    field = material_field(design)
+    grid = Grid(203, 180, -5.0, 4.0, 0.05, 0.05)
+    solid = np.random.default_rng(9).random((grid.height, grid.width)) < 0.9
+    solid[:11] = False
+    solid[:, :13] = False
+    z = 0.7
+    planes = field_planes(field, np.packbits(solid, axis=1), grid, z, 6, 1, 0, 3)
+    masks = np.unpackbits(planes, axis=2, count=grid.width).astype(bool)
+    assert (masks[:2].sum(axis=0) == solid).all() and not masks[2].any()
+    rows, cols = np.nonzero(solid)
+    o = np.column_stack([grid.x_left + (cols + 0.5) * grid.px, grid.y_top - (rows + 0.5) * grid.py,
+                         np.full(len(rows), z)]) - np.array(at)
+    d = np.linalg.norm(o, axis=1) if kind == "point" else np.linalg.norm(np.cross(o, np.array(unit)), axis=1)
+    r = np.clip(d / 5.0, 0.0, 1.0)
+    t = thresholds((grid.height, grid.width), 6)[rows, cols]
+    f = field.fraction_table
+    jets = [t < f[np.clip(np.rint(r * R_STEPS).astype(np.int64) + step, 0, R_STEPS)] for step in (-1, 0, 1)]
+    got = masks[0][rows, cols]
+    assert ((got == jets[1]) | (got == jets[0]) | (got == jets[2])).all()
+    assert (got == jets[1]).mean() > 0.999
+    assert abs(got.mean() - np.clip(0.5 * np.sin(6 * np.pi * r) + 0.5, 0, 1).mean()) <= 0.01
+
+
+def test_a_closed_form_fields_empty_layer_has_empty_masks():
+    """field_planes of a layer without solid pixels: every mask empty, of the layer's shape."""
+    from heoslice.grading.pixel_mix import field_planes
+    from heoslice.material import make_function
+    from heoslice.material.design import Design, ReferenceRecord
+    from heoslice.material.field import material_field
+    from heoslice.material.materials import Material
+
+    design = Design(Material("a", (0, 0, 0), 1), Material("b", (255, 255, 255), 2),
+                    ReferenceRecord("point", (0.0, 0.0, 0.0), None), make_function("linear"), (0.0, 5.0))
+    grid = Grid(45, 30, -2.0, 2.0, 0.1, 0.1)
+    planes = field_planes(material_field(design), np.zeros((30, 6), np.uint8), grid, 0.0, 2, 0, 1, 2)
+    assert planes.shape == (2, 30, 6) and not planes.any()

@@ -182,13 +182,13 @@ def test_layer_fraction_over_the_grid_is_f_of_each_pixels_r(kind, at, direction)
 
 @pytest.mark.parametrize("kind, high, cut", [("point", 6.0, 0), ("plane", 6.0, 0), ("axis", 6.0, 0),
                                               ("point", 6.03, 19), ("axis", 6.03, 19)])
-def test_layer_codes_of_a_closed_form_reference_read_the_exact_r(kind, high, cut, tmp_path):
-    """A layer's codes through the identity table are each solid pixel's r rounded to k / R_STEPS: within
-    1 / (2 R_STEPS) (and rounding) of the closed-form distance's r, for a tilted plane and axis too; also
-    where the solid starts ``cut`` columns in (a box not at column 0) on a grid whose width is not whole bytes."""
+def test_layer_square_of_a_closed_form_reference_gives_the_exact_r(kind, high, cut, tmp_path):
+    """A layer's squared distance in its frame gives each solid pixel's r to rounding of the closed-form
+    distance's r, for a tilted plane and axis too; also where the solid starts ``cut`` columns in (a box not at
+    column 0) on a grid whose width is not whole bytes. A closed form has no table of codes (layer_codes)."""
     from dataclasses import replace
 
-    from heoslice.material.field import R_STEPS, MaterialField
+    from heoslice.material.field import MaterialField
     from heoslice.material.references import Reference
 
     geometry = {"point": Reference("point", (0.3, -0.2, 0.1)),
@@ -201,13 +201,22 @@ def test_layer_codes_of_a_closed_form_reference_read_the_exact_r(kind, high, cut
     solid = np.random.default_rng(5).random((grid.height, grid.width)) < 0.6
     solid[:, :cut] = False
     packed = np.packbits(solid, axis=1)
-    (r0, r1, c0, c1), codes = field.layer_codes(packed, grid, 1.7, np.arange(R_STEPS + 1, dtype=np.uint16))
+    square = field.layer_square(packed, grid, 1.7)
+    r0, r1, c0, c1 = square.box
     assert c0 == cut // 8 * 8 and c1 == grid.width and grid.width % 8 == (1 if cut else 0)
     rows, cols = np.nonzero(solid[r0:r1, c0:c1])
+    a, b, c, d, e, f = square.square
+    u = square.frame[0] + cols * square.frame[1]
+    v = square.frame[2] + rows * square.frame[3]
+    low, high = square.r_range
+    r = np.clip((np.sqrt(np.maximum(a * u * u + b * u * v + c * v * v + d * u + e * v + f, 0.0)) - low)
+                / (high - low), 0.0, 1.0)
     x = grid.x_left + (cols + c0 + 0.5) * grid.px
     y = grid.y_top - (rows + r0 + 0.5) * grid.py
     truth = field.r_at(np.column_stack([x, y, np.full(len(x), 1.7)]))
-    assert np.abs(codes[rows, cols] / R_STEPS - truth).max() <= 0.5 / R_STEPS + 1e-9
+    assert np.abs(r - truth).max() <= 1e-9
+    with pytest.raises(ValueError, match="layer_square"):
+        field.layer_codes(packed, grid, 1.7, np.zeros(65536, np.uint16))
 
 
 def test_layer_codes_of_a_surface_are_within_the_tolerance(organ):

@@ -32,6 +32,7 @@ from heoslice.grading import (
     labels_kernels,
     lattice_kernels,
     materials_kernels,
+    pixel_mix_kernels,
     refine_kernels,
     search_kernels,
 )
@@ -45,7 +46,7 @@ from heoslice.jit import (
     source_digest,
 )
 from heoslice.layers import contours_kernels, packed_kernels, rasterising_kernels, slicing_kernels
-from heoslice.material import references_kernels, surface_kernels
+from heoslice.material import surface_kernels
 from heoslice.mesh import topology_kernels, weld_kernels
 from heoslice.volume import resample_kernels
 
@@ -130,14 +131,14 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     refine_kernels._band_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, f8_3, f4_2, i8_2, f8, f8),
     refine_kernels._measured_cells: lambda bits: (_target(bits), i8_1, i8_1, PIXELS, types.UniTuple(f8, 4), f8_1,
                                                  f4_1, f4_1, TREE, EDGES, f8, f8),
+    pixel_mix_kernels.quadratic_planes: (u1_2, i8, i8, types.UniTuple(f8, 4), types.UniTuple(f8, 6), f8, f8,
+                                         types.uint16[::1], types.int32[:, ::1], i8, i8, u1_3),
     search_kernels._candidates: (f8_1, f8_1, f8_1, f8_2, i8_1),
     search_kernels._nearest_in_batches: (f8_1, f8_1, f8_1, f4_1, f4_1, TREE, EDGES, b1),
     search_kernels._chunks_apart: (i8_1, i8_1, f8_2, f8_2, f8_2, f8_2, f8),
     search_kernels._tree_boxes: (f8_1, f8_1, f8_1, f8_1, i8_1),
     search_kernels._chunk_capsules: (f8_1, f8_1, f8_1, f8_1),
     slicing_kernels._layer_segments: (f8_2, i8_2, f8_1, i8_1, i8_1),
-    references_kernels.quadratic_codes: (u1_2, i8, types.UniTuple(f8, 4), types.UniTuple(f8, 6), f8, f8,
-                                         types.uint16[::1], types.uint16[:, ::1]),
     surface_kernels.build_nodes: (f8_2, f8_2, f8_2, i8),
     surface_kernels.nearest_distances: (f8_2, HIERARCHY, f8_1),
     surface_kernels.layer_r: (u1_2, i8, i8, LAYER_FRAME, HIERARCHY, f8, f8, f8, i8, f8_2, f8_2, types.uint16[::1],

@@ -6,10 +6,14 @@ with one label per dither level: a pixel jets the target where its threshold t (
 (k + 1/2) / 256 of :mod:`heoslice.grading.halftone`) is below f, so every f between two levels decides alike,
 and a pixel's label is q + 1, q = the number of levels below its f; the table of choices per label and level
 is then the whole halftone (no per-pixel arithmetic in the kernel). Over each aligned 16 x 16 tile of one f the
-target's share is q / 256, within 1/512 of f.
+target's share is q / 256, within 1/512 of f. A design's field (:func:`field_planes`) reads q from a table of f's
+levels at r's steps; for a plane, point or axis the pixel's r, its q and its comparison with the threshold are made
+in one compiled pass (:func:`heoslice.grading.pixel_mix_kernels.quadratic_planes`), the same rule.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 
@@ -77,6 +81,35 @@ def label_planes(packed: np.ndarray, box: tuple[int, int, int, int], labels: np.
                         np.zeros(channels), np.zeros(channels))
     return droplet_bits(LabelledLayer(label, row0, col0, packed), mixing, Dither(layer_tile(layer), table, start),
                         planes)
+
+
+def field_planes(field, packed: np.ndarray, grid: Grid, z: float, layer: int, start: int, target: int,
+                 channels: int) -> np.ndarray:
+    """The ordered dither's droplet masks ((channels, h, ceil(w / 8)) uint8, bit-packed) of a layer cut at height z
+    (mm) whose solid pixels (``packed``) jet the ``target`` channel in the share f(r) of a design's ``field``
+    (:class:`heoslice.material.field.MaterialField`) at each pixel's own r, rounded to the field's steps, and the
+    ``start`` channel otherwise: the module's rule, with q read from one table of f's levels per field."""
+    below = _levels_table(field)
+    square = field.layer_square(packed, grid, z)
+    if square is None:
+        box, labels = field.layer_codes(packed, grid, z, (below + 1).astype(np.uint16))
+        return label_planes(packed, box, labels, grid, layer, start, target, channels)
+    from heoslice.grading.pixel_mix_kernels import quadratic_planes
+
+    planes = np.zeros((channels, grid.height, -(-grid.width // 8)), dtype=np.uint8)
+    row0, row1, col0, _ = square.box
+    if row1 > row0:
+        level = np.ascontiguousarray(np.rint(layer_tile(layer) * LEVELS - 0.5), dtype=np.int32)  # 0 .. 255
+        quadratic_planes(np.ascontiguousarray(packed[row0:row1]), row0, col0, square.frame, square.square,
+                         *square.r_range, below, level, start, target, planes)
+    return planes
+
+
+@functools.lru_cache(maxsize=4)
+def _levels_table(field) -> np.ndarray:
+    """q (uint16, one per entry of the field's :attr:`fraction_table`): the dither levels below f at each of r's
+    steps, made once per field (a process slices one design)."""
+    return levels_below(field.fraction_table).astype(np.uint16)
 
 
 def fraction_colors(f: np.ndarray, start_color, target_color) -> np.ndarray:

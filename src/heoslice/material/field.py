@@ -33,12 +33,28 @@ from heoslice.material.references import (
     reference_distance,
 )
 
-__all__ = ["INTERIORS", "R_STEPS", "R_TOLERANCE", "MaterialField", "depth_field", "material_field", "solid_box"]
+__all__ = [
+    "INTERIORS", "R_STEPS", "R_TOLERANCE", "LayerSquare", "MaterialField", "depth_field", "material_field", "solid_box",
+]
 #: Twice the largest error of a voxel's r where a surface reference's bounds settle it.
 R_TOLERANCE = 1e-3
 #: Steps of r in a table of codes read per voxel (:meth:`MaterialField.layer_codes`): a voxel's r is rounded to
 #: the nearest k / R_STEPS, which adds at most 1 / (2 R_STEPS) = 7.6e-6 to its error; k fits uint16.
 R_STEPS = 65535
+
+
+@dataclass(frozen=True)
+class LayerSquare:
+    """A plane's, point's or axis's squared distance over a layer's solid pixels: their ``box`` (as
+    :func:`solid_box`), the ``frame`` of its pixel centres (u of the box's first column, u step per column, v of
+    its first row, v step per row: mm from the reference's point along x and y), the squared distance in u and v
+    (``square``: (A, B, C, D, E, F) of :func:`heoslice.material.references.grid_square`) and the design's
+    ``r_range`` (R0, R1) mm: r = (sqrt(max(Q, 0)) - R0) / (R1 - R0) clipped to [0, 1] at each pixel."""
+
+    box: tuple[int, int, int, int]
+    frame: tuple[float, float, float, float]
+    square: tuple[float, ...]
+    r_range: tuple[float, float]
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,29 +95,35 @@ class MaterialField:
         """f(r) clipped to [0, 1] (R_STEPS + 1,) float32 at r = k / R_STEPS (:meth:`layer_codes`' steps)."""
         return self.fraction(np.arange(R_STEPS + 1, dtype=np.float32) / np.float32(R_STEPS))
 
+    def layer_square(self, packed: np.ndarray, grid, z: float) -> LayerSquare | None:
+        """A plane's, point's or axis's squared distance over the solid pixels of a layer (``packed``: (h, ceil(w /
+        8)) uint8, MSB first) cut at height z (mm) on ``grid``, as :class:`LayerSquare`; None for a surface."""
+        if REFERENCES[self.reference.kind].closed_form is None:
+            return None
+        box = solid_box(packed, grid.width)
+        point = self.reference.point
+        frame = (grid.x_left + (box[2] + 0.5) * grid.px - point[0], grid.px,
+                 grid.y_top - (box[0] + 0.5) * grid.py - point[1], -grid.py)
+        return LayerSquare(box, frame, grid_square(self.reference, z), tuple(map(float, self.design.r_range)))
+
     def layer_codes(self, packed: np.ndarray, grid, z: float,
                     table: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
         """The box of a layer's solid pixels (as :meth:`layer_fraction`) and, at each of them, table[k] (uint16
-        (rows, cols); elsewhere in the box an entry of ``table`` or 0, which a halftone may look up) for its r rounded to k / R_STEPS (table: (R_STEPS + 1,)
-        uint16, e.g. a halftone's level of each f in :attr:`fraction_table`): f read from one table per layer,
-        in one compiled pass, instead of evaluated at every voxel."""
+        (rows, cols); elsewhere in the box an entry of ``table`` or 0, which a halftone may look up) for its r to a
+        surface reference rounded to k / R_STEPS (table: (R_STEPS + 1,) uint16, e.g. a halftone's level of each f
+        in :attr:`fraction_table`): f read from one table per layer, in one compiled pass, instead of evaluated at
+        every voxel. A plane, point or axis gives its r as :meth:`layer_square` (ValueError here)."""
+        if self.reference.kind != "surface":
+            raise ValueError(f"a {self.reference.kind} reference's r over a layer is its layer_square")
         r0, r1, c0, c1 = solid_box(packed, grid.width)
         table = np.ascontiguousarray(table, dtype=np.uint16)
         if len(table) != R_STEPS + 1:
             raise ValueError(f"a table of codes has R_STEPS + 1 = {R_STEPS + 1} entries, not {len(table)}")
+        from heoslice.material.surface import packed_layer_codes
+
         x0, y0 = grid.x_left + (c0 + 0.5) * grid.px, grid.y_top - (r0 + 0.5) * grid.py
-        if self.reference.kind == "surface":
-            from heoslice.material.surface import packed_layer_codes
-
-            codes = packed_layer_codes(packed[r0:r1], c0, c1 - c0, (x0, grid.px, y0, -grid.py, z),
-                                       self.reference.surface, self.design.r_range, R_TOLERANCE, table)
-            return (r0, r1, c0, c1), codes
-        from heoslice.material.references_kernels import quadratic_codes
-
-        codes = np.zeros((r1 - r0, c1 - c0), np.uint16)
-        point = self.reference.point
-        quadratic_codes(np.ascontiguousarray(packed[r0:r1]), c0, (x0 - point[0], grid.px, y0 - point[1], -grid.py),
-                        grid_square(self.reference, z), *map(float, self.design.r_range), table, codes)
+        codes = packed_layer_codes(packed[r0:r1], c0, c1 - c0, (x0, grid.px, y0, -grid.py, z), self.reference.surface,
+                                   self.design.r_range, R_TOLERANCE, table)
         return (r0, r1, c0, c1), codes
 
     def layer_distance(self, packed: np.ndarray, grid, z: float) -> tuple[tuple[int, int, int, int], np.ndarray]:

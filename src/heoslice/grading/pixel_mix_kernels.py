@@ -1,0 +1,74 @@
+"""Compiled kernel of :mod:`heoslice.grading.pixel_mix`: the droplet masks of a layer whose every solid pixel's
+share of the target is a table's value at the pixel's r, r from a closed-form reference's squared distance, in one
+pass over the packed solid rows (no per-pixel array of r, codes or labels written and read back)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from heoslice.jit import EXACT, kernel
+
+
+@kernel(EXACT)
+def quadratic_planes(packed: np.ndarray, row0: int, c0: int, frame: tuple, square: tuple, r0: float, r1: float,
+                     below: np.ndarray, level: np.ndarray, start: int, target: int,
+                     planes: np.ndarray) -> None:  # pragma: no cover - compiled
+    """The ordered dither of rows row0 .. row0 + len(packed) of a layer into ``planes`` ((K, h, bytes) uint8, MSB
+    first, zero there on entry): each solid pixel (row0 + i, c) of ``packed`` ((rows, bytes) uint8; c0 a multiple of
+    8 at or left of the first solid column) jets ``target`` where level[(row0 + i) % n, c % n] < below[k], else
+    ``start``. ``level`` (n, n) int32, n a power of two from 8: the dither's level at each tile position;
+    ``below`` (m,) uint16 (half the cache lines of int32): the levels under f at r = k / (m - 1); k = round(r (m -
+    1)), r = (d - r0) / (r1 - r0) clipped to [0, 1], d = sqrt(max(Q, 0)), Q = A u^2 + B u v + C v^2 + D u + E v + F
+    (``square``: (A, B, C, D, E, F)), u and v the pixel centre's offsets (mm) from the reference's point along x and
+    y; frame: (u of column c0, u step per column, v of row i = 0, v step per row). Each run of nonzero bytes of a
+    row takes its table indices in one branch-free loop (it vectorises), then each of its pixels the bit of a
+    byte made once per tile row, byte of the tile and count of levels (0 .. 256, ``below`` <= 256): the byte's
+    pixels whose level is below that count; bytes off the solid pixels are not written."""
+    a, b, c, d, e, f = square
+    steps = below.shape[0] - 1
+    scale = 1.0 / (r1 - r0)
+    width = packed.shape[1]
+    size = level.shape[0]
+    wrap = size - 1
+    masks = np.zeros((size, size // 8, 257), dtype=np.uint8)
+    for tile_row in range(size):
+        for part in range(size // 8):
+            for count in range(257):
+                bits = 0
+                for t in range(8):
+                    bits |= (1 if level[tile_row, 8 * part + t] < count else 0) << (7 - t)
+                masks[tile_row, part, count] = bits
+    index = np.empty(8 * width, dtype=np.uint32)  # a run's table indices (unsigned: read without a sign test)
+    for i in range(packed.shape[0]):
+        v = frame[2] + i * frame[3]
+        linear = b * v + d
+        constant = (c * v + e) * v + f
+        row = packed[i]
+        row_masks = masks[(row0 + i) & wrap]
+        k = c0 >> 3
+        while k < width:
+            while k + 8 <= width and (row[k] | row[k + 1] | row[k + 2] | row[k + 3] | row[k + 4] | row[k + 5]
+                                      | row[k + 6] | row[k + 7]) == 0:
+                k += 8  # an empty stretch, eight bytes at a time
+            if k >= width:
+                break
+            if row[k] == 0:
+                k += 1
+                continue
+            begin = k
+            while k < width and row[k] != 0:
+                k += 1
+            offset = 8 * begin - c0
+            for t in range(8 * (k - begin)):
+                u = frame[0] + (offset + t) * frame[1]
+                q = (a * u + linear) * u + constant
+                index[t] = int(min(max((np.sqrt(max(q, 0.0)) - r0) * scale, 0.0), 1.0) * steps + 0.5)
+            for byte in range(begin, k):
+                byte_masks = row_masks[byte & (size // 8 - 1)]
+                at = (byte - begin) * 8
+                bits = 0
+                for t in range(8):
+                    bits |= byte_masks[below[index[at + t]]] & (128 >> t)
+                solid = row[byte]
+                planes[start, row0 + i, byte] = solid & ~bits
+                planes[target, row0 + i, byte] |= solid & bits
