@@ -113,7 +113,7 @@ class MaterialField:
         surface reference rounded to k / R_STEPS (table: (R_STEPS + 1,) uint16, e.g. a halftone's level of each f
         in :attr:`fraction_table`): f read from one table per layer, in one compiled pass, instead of evaluated at
         every voxel. A plane, point or axis gives its r as :meth:`layer_square` (ValueError here)."""
-        if self.reference.kind != "surface":
+        if REFERENCES[self.reference.kind].closed_form is not None:  # the rule layer_square applies
             raise ValueError(f"a {self.reference.kind} reference's r over a layer is its layer_square")
         r0, r1, c0, c1 = solid_box(packed, grid.width)
         table = np.ascontiguousarray(table, dtype=np.uint16)
