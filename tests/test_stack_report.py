@@ -72,7 +72,7 @@ def test_partition_test_matches_the_literal_rule(h, w, k, flips, seed):
     literal = bool(((masks.sum(axis=0) == 1) == solid).all() and not (masks & ~solid).any())
     packed_solid, packed = np.packbits(solid, axis=-1), np.packbits(masks, axis=-1)
     assert masks_partition(packed_solid, packed) == literal
-    assert masks_partition(packed_solid[:, ::-1], packed[:, :, ::-1]) == literal  # not contiguous: the slow path
+    assert masks_partition(packed_solid[:, ::-1], packed[:, :, ::-1]) == literal  # rows not contiguous
     faults = mask_faults(packed_solid, packed, clean_checked=True)
     assert (faults.uncovered is None and faults.doubled is None and faults.outside is None) == literal
 

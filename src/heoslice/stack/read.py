@@ -90,7 +90,6 @@ def resolve_inside(directory: Path, name: str, resolved: bool = False) -> Path |
     return candidate
 
 
-
 def regular_files(directory: Path) -> set[str]:
     """Names of the regular files (not links) directly in ``directory`` that :func:`resolve_inside` takes as
     plain names, from one listing: each is inside it and a file, as resolve_inside and a stat would find,

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.stack.manifest import widest_masks
+from heoslice.stack.packed import Bits, partition_counts
 from heoslice.stack.read import read_layer_channels, read_layer_mask, read_layer_pixels
 
 #: Side of the windows the design is checked over, mm.
@@ -174,38 +175,15 @@ def _first_set(packed: np.ndarray, row_offset: int = 0) -> PixelFault | None:
     return PixelFault(count, (row + row_offset, 8 * byte + bit))
 
 
-def _words(packed: np.ndarray) -> list[np.ndarray]:
-    """The bytes of C-contiguous packed rows as [uint64 words, the uint8 bytes after the last whole word]: the
-    same bits, for bitwise tests eight bytes at a time."""
-    flat = packed.reshape(-1)
-    whole = len(flat) // 8 * 8
-    return [flat[:whole].view(np.uint64), flat[whole:]]
-
-
 def masks_partition(solid: np.ndarray, masks) -> bool:
     """Whether the droplet masks partition the solid: no bit in two masks, their union exactly ``solid``
-    (packed rows as :func:`mask_faults` takes them). A test of whole words with no temporaries kept, for
-    the common clean layer; :func:`mask_faults` says where a layer that fails it is wrong."""
+    (packed rows as :func:`mask_faults` takes them), by :func:`heoslice.stack.packed.partition_counts`' one
+    compiled pass per file; :func:`mask_faults` says where a layer that fails it is wrong."""
     masks = list(masks)
-    if not all(array.flags.c_contiguous for array in [solid, *masks]):
-        return not any(getattr(mask_faults(solid, masks, clean_checked=True), field)
-                       for field in ("uncovered", "doubled", "outside"))
-    parts = [_words(array) for array in [solid, *masks]]
-    for number, solid_part in enumerate(parts[0]):
-        layers = [part[number] for part in parts[1:]]
-        if not layers:
-            if solid_part.any():
-                return False
-            continue
-        seen = layers[0].copy()
-        both = np.empty_like(seen)
-        for mask in layers[1:]:
-            if np.bitwise_and(seen, mask, out=both).any():
-                return False
-            seen |= mask
-        if not np.array_equal(seen, solid_part):
-            return False
-    return True
+    if not masks:
+        return not solid.any()
+    every_row = (0, solid.shape[0])
+    return partition_counts(Bits(solid, every_row), [Bits(mask, every_row) for mask in masks])[1]
 
 
 def mask_faults(solid: np.ndarray, masks, row_offset: int = 0, clean_checked: bool = False) -> MaskFaults:
