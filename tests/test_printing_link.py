@@ -155,6 +155,21 @@ def test_byte_errors_of_1e_2_without_sack_finish_every_layer_once_with_bounded_w
     assert result.bytes_sent < 60 * clean.bytes_sent
 
 
+def test_chunks_failing_within_a_lagging_size_estimate_are_remade_smaller(sim_factory, monkeypatch):
+    """With the size estimate stuck at 1e-4 on a 1e-2 link (chunks near the full payload, lost nearly every time)
+    and plain go-back-N, the print still finishes, every layer once with the host's CRC: a chunk that fails two
+    thirds of the retry cap's rounds within the chosen size is remade at half its size (before, the retry cap
+    stopped the print at layer 0, whatever the seed)."""
+    from heoslice.printing.window import FrameSizer
+
+    monkeypatch.setattr(FrameSizer, "error_rate", lambda self, sack=True: 1e-4)
+    job, get_layer = random_job(2, 4, seed=1)
+    sim = sim_factory(FaultSpec(byte_error_rate=1e-2), seed=3, features=0)
+    result = print_job("sim://", job, get_layer, connector=SimConnector(sim), features=0)
+    assert_exactly_once(sim, job, get_layer)
+    assert result.resplits >= 1
+
+
 @pytest.mark.parametrize("features", [P.FEATURE_SACK, 0])
 def test_incompressible_layers_under_faults_as_data_frames(sim_factory, features):
     """Incompressible layers go as address-implicit DATA frames (no 12-byte CHUNK header: the payload sent is the

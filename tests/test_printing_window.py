@@ -80,6 +80,43 @@ def test_frame_sizer_shrinks_with_errors():
     assert clean > 900 and sizer.budget(1024, sack=True) < clean / 2
 
 
+def test_go_back_n_estimate_reaches_the_link_rate_once_the_prior_fades():
+    """Rounds of 2 in 5 frames of 60 bytes, each with 10 frames resent in vain behind it (so the old evidence is
+    halved again and again), give e = -ln(3/5)/60 within 2 %: the prior is halved with the evidence (at a fixed
+    weight it held the estimate at 0.85 of the link's rate, and a 1e-2 link's at about 0.55)."""
+    import math
+
+    sizer = FrameSizer()
+    for index in range(4000):
+        if index % 5 in (1, 3):
+            for _ in range(11):
+                sizer.on_sent(60)
+            sizer.on_error(wasted_bytes=600, lost_bytes=60)
+        else:
+            sizer.on_sent(60)
+            sizer.on_acked(1, 60)
+    truth = -math.log(3 / 5) / 60
+    assert abs(sizer.error_rate(sack=False) - truth) < 0.02 * truth
+
+
+def test_a_cap_bounds_the_chunk_size_until_enough_frames_are_acknowledged():
+    """cap(n) makes chunks of at most n bytes (never under MIN_CHUNK_PAYLOAD), on a clean link too, until
+    CEILING_FRAMES frames are acknowledged; then the estimate's size returns."""
+    from heoslice.printing.window import CEILING_FRAMES, MIN_CHUNK_PAYLOAD
+
+    sizer = FrameSizer()
+    sizer.on_acked(400, 400 * 1040)
+    clean = sizer.budget(1024, sack=False)
+    sizer.cap(100)
+    assert clean > 500 and sizer.budget(1024, sack=False) == 100
+    sizer.on_acked(CEILING_FRAMES - 1, 100 * (CEILING_FRAMES - 1))
+    assert sizer.budget(1024, sack=False) == 100
+    sizer.on_acked(1, 100)
+    assert sizer.budget(1024, sack=False) > 500
+    sizer.cap(3)
+    assert sizer.budget(1024, sack=False) == MIN_CHUNK_PAYLOAD
+
+
 def test_no_host_module_imports_the_simulator():
     """The host reaches the simulator only through pyserial's URL handler: no module outside simulator/ imports it."""
     offenders = []

@@ -425,9 +425,7 @@ class PrinterLink:
         heard, dead_by = self._heard(), self._dead_by()
         stuck = window.go_back()
         head = window.head
-        if head is not None and self.counters.resplits < self.timing.max_resplits \
-                and head.payload > self._resplit_ratio(head.sends, stuck) * self.sizer.budget(
-                    self._link_payload, window.sack, count=False):
+        if head is not None and self.counters.resplits < self.timing.max_resplits and self._remake_smaller(head, stuck):
             self._resplit(dead_by, heard)
             return
         if stuck >= self.timing.retry_limit:
@@ -440,13 +438,17 @@ class PrinterLink:
                 f"{'paused' if paused else 'stopped'} on the controller after layer {self.last_completed}; "
                 "check the link, then rerun with --resume")
 
-    def _resplit_ratio(self, sends: int, stuck: int) -> float:
-        """How much larger than the size now chosen the oldest unacknowledged frame must be for a re-split:
-        twice once sent 3 times; any larger once it failed two thirds of the retry cap's rounds in a row (so
-        a frame made before the error estimate caught up is cut before the cap, not after)."""
-        if stuck >= 2 * self.timing.retry_limit // 3:
-            return 1.0
-        return 2.0 if sends >= 3 else float("inf")
+    def _remake_smaller(self, head: OutFrame, stuck: int) -> bool:
+        """Whether to re-split: the oldest unacknowledged frame is twice the size now chosen once sent 3 times, or
+        any larger once it failed two thirds of the retry cap's rounds in a row (a frame made before the error
+        estimate caught up); a chunk failing that often within the chosen size caps the size at half its own
+        (the estimate is behind a link that got worse), so only the smallest chunks meet the retry cap."""
+        late = stuck >= 2 * self.timing.retry_limit // 3
+        if late and head.raw and head.payload > MIN_CHUNK_PAYLOAD:
+            self.sizer.cap(head.payload // 2)
+            return True
+        ratio = 1.0 if late else 2.0 if head.sends >= 3 else float("inf")
+        return head.payload > ratio * self.sizer.budget(self._link_payload, self.window.sack, count=False)
 
     def _check_claim(self, last_queued: int, last_completed: int) -> None:
         """A progress claim beyond the job, or of layers this run never sent, is a protocol error (exit 12)."""

@@ -26,6 +26,8 @@ MAX_FRAME_LOSS = 0.35
 #: Prior of the byte error estimate: one error in this many bytes until the link shows better (frames
 #: start near 250 bytes and reach the full payload after ~64 KiB sent cleanly).
 ERROR_PRIOR_BYTES = 4096
+#: Frames acknowledged before a size cap set after repeated failures (FrameSizer.cap) is lifted.
+CEILING_FRAMES = 32
 
 
 @dataclass
@@ -215,12 +217,12 @@ def optimal_frame_bytes(error_rate: float, overhead: int, largest: int, waste: f
 class FrameSizer:
     """The payload size of new data frames, from the byte error rate the retransmissions reveal.
 
-    With SACK every resend means an earlier copy was lost: the rate is resends per byte sent (with the
-    prior of one in ``ERROR_PRIOR_BYTES``), e = -ln(1 - p) / L, p the resends per frame of mean size L.
-    Plain go-back-N also resends the frames behind a loss, in vain, so there the losses are the
-    go-back rounds and p = rounds / (rounds + frames acknowledged), L the mean size of those frames and
-    of the lost ones; the bytes it had sent behind each
-    loss (measured per round) are the waste :func:`optimal_frame_bytes` weighs. Re-estimated every 32
+    With SACK every resend means an earlier copy was lost: the rate is resends per byte sent, e = -ln(1 - p) / L,
+    p the resends per frame of mean size L. Plain go-back-N also resends the frames behind a loss, in vain, so
+    there the losses are the go-back rounds and p = rounds / (rounds + frames acknowledged), L the mean size of
+    those frames and of the lost ones; the bytes it had sent behind each loss (measured per round) are the waste
+    :func:`optimal_frame_bytes` weighs. Both start from a prior of one error in ``ERROR_PRIOR_BYTES``, halved with
+    the old evidence (a prior of fixed weight held the estimate at half a 1e-2 link's rate). Re-estimated every 32
     chunks and after every retransmission round.
     """
 
@@ -232,6 +234,9 @@ class FrameSizer:
         self.acked = 0.0
         self.tried_bytes = 0.0  # bytes of the frames acknowledged and of the lost frames a go-back resent from
         self.wasted = 0.0
+        self.prior = 1.0  # weight of the ERROR_PRIOR_BYTES prior, halved with the evidence
+        self.ceiling: int | None = None  # payload cap after a chunk kept failing (see cap), bytes
+        self._acked_since_cap = 0
         self._budget: int | None = None
         self._age = 0
 
@@ -245,6 +250,17 @@ class FrameSizer:
         """``frames`` data frames of ``frame_bytes`` in all were acknowledged (each once)."""
         self.acked += frames
         self.tried_bytes += frame_bytes
+        if self.ceiling is not None:
+            self._acked_since_cap += frames
+            if self._acked_since_cap >= CEILING_FRAMES:
+                self.ceiling = None
+
+    def cap(self, payload: int) -> None:
+        """Make chunks of at most ``payload`` bytes (not below MIN_CHUNK_PAYLOAD) until CEILING_FRAMES frames
+        are acknowledged: a chunk within the budget that keeps failing shows a link worse than the estimate,
+        which lags it by many rounds."""
+        self.ceiling = max(MIN_CHUNK_PAYLOAD, payload)
+        self._acked_since_cap = 0
 
     def on_error(self, wasted_bytes: float = 0.0, lost_bytes: float = 0.0) -> None:
         """A retransmission round from a lost frame of ``lost_bytes``, ``wasted_bytes`` sent behind it: estimate
@@ -254,7 +270,7 @@ class FrameSizer:
         self.wasted += wasted_bytes
         self.tried_bytes += lost_bytes
         if self.bytes > 1 << 18:
-            for name in ("bytes", "events", "frames", "rounds", "acked", "tried_bytes", "wasted"):
+            for name in ("bytes", "events", "frames", "rounds", "acked", "tried_bytes", "wasted", "prior"):
                 setattr(self, name, getattr(self, name) / 2)
 
     def invalidate(self) -> None:
@@ -265,11 +281,11 @@ class FrameSizer:
         """Estimated byte error rate."""
         if sack:
             mean = self.bytes / self.frames if self.frames else 1.0
-            per_frame = (self.events + 1) / (self.bytes + ERROR_PRIOR_BYTES) * mean
+            per_frame = (self.events + self.prior) / (self.bytes + self.prior * ERROR_PRIOR_BYTES) * mean
         else:
             tries = self.rounds + self.acked
             mean = self.tried_bytes / tries if tries else 1.0
-            per_frame = (self.rounds + 1) / (tries + ERROR_PRIOR_BYTES / mean)
+            per_frame = (self.rounds + self.prior) / (tries + self.prior * ERROR_PRIOR_BYTES / mean)
         return -math.log1p(-min(per_frame, 0.5)) / mean
 
     def waste_bytes(self) -> float:
@@ -285,4 +301,4 @@ class FrameSizer:
                                         max_loss=MAX_FRAME_LOSS)
             self._budget = max(MIN_CHUNK_PAYLOAD, frame - P.WIRE_OVERHEAD - frame // 254)
             self._age = 0
-        return min(self._budget, link_payload)
+        return min(self._budget, link_payload, self.ceiling or link_payload)
