@@ -2,7 +2,8 @@
 are bit for bit those of the rule written out in numpy (each solid pixel's r from the squared distance, its table
 index, the table's levels under f, the comparison with the pixel's dither level), for point, tilted plane and axis
 references, boxes that start inside the layer, grids whose width is not whole bytes, runs of solid bytes with gaps,
-and any order of the start and target channels."""
+and any order of the start and target channels; and of a surface reference's steps per pixel (step_planes), the
+same rule from the steps given."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 
 from heoslice.grading.halftone import LEVELS, layer_tile
-from heoslice.grading.pixel_mix_kernels import quadratic_planes
+from heoslice.grading.pixel_mix_kernels import quadratic_planes, step_planes
 from heoslice.material.field import solid_box
 from heoslice.material.references import Reference, grid_square
 
@@ -98,3 +99,43 @@ def test_a_reference_outside_the_range_clips_r():
                                  0, 1, 2)
     assert np.array_equal(got, expected)
     assert not got[1][13:19, 13:19].any() and got[1][60:, 60:].all()
+
+
+def numpy_step_planes(solid: np.ndarray, steps: np.ndarray, row0: int, c0: int, below, level, start, target,
+                      channels) -> np.ndarray:
+    """step_planes' rule pixel by pixel: each solid pixel (row, col) jets ``target`` where its dither level is
+    under below[steps[row - row0, col - c0]], else ``start``; unpacked masks (channels, h, w) bool."""
+    rows, cols = np.nonzero(solid)
+    jets = level[rows % level.shape[0], cols % level.shape[0]] < below[steps[rows - row0, cols - c0]]
+    masks = np.zeros((channels, *solid.shape), dtype=bool)
+    masks[start, rows, cols] = ~jets
+    masks[target, rows, cols] |= jets
+    return masks
+
+
+@pytest.mark.parametrize("start, target, channels, table", [(0, 1, 2, 65536), (1, 0, 2, 1001), (2, 0, 3, 65536)])
+def test_step_planes_are_the_numpy_rule_with_anything_off_the_solid(start, target, channels, table):
+    """Random solid pixels in a box from row 7 and column 24 (gaps of whole zero bytes, an empty row, a last solid
+    column inside a byte), steps below the table's length at solid pixels and anything up to 65535 elsewhere in
+    the box (the kernel reads them before it masks the solid; past a short table they are clipped, not read out
+    of bounds): the masks equal the rule's, and every solid pixel jets one of the two channels, no other pixel
+    any."""
+    rng = np.random.default_rng(start + 7 * target + table)
+    solid = rng.random((90, 123)) < 0.7
+    solid[:7] = False
+    solid[:, :24] = False
+    solid[:, 118:] = False
+    solid[40:44, 50:90] = False
+    solid[70] = False
+    packed = np.packbits(solid, axis=1)
+    row0, row1, c0, c1 = solid_box(packed, solid.shape[1])
+    steps = rng.integers(0, 65536, (row1 - row0, c1 - c0)).astype(np.uint16)
+    inside = solid[row0:row1, c0:c1]
+    steps[inside] = rng.integers(0, table, int(inside.sum()))
+    below = rng.integers(0, LEVELS + 1, table).astype(np.uint16)
+    level = np.ascontiguousarray(np.rint(layer_tile(3) * LEVELS - 0.5), dtype=np.int32)
+    planes = np.zeros((channels, *packed.shape), dtype=np.uint8)
+    step_planes(np.ascontiguousarray(packed[row0:row1]), row0, c0, steps, below, level, start, target, planes)
+    got = np.unpackbits(planes, axis=2, count=solid.shape[1]).astype(bool)
+    assert np.array_equal(got, numpy_step_planes(solid, steps, row0, c0, below, level, start, target, channels))
+    assert (got.sum(axis=0) == solid).all()

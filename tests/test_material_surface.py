@@ -26,7 +26,7 @@ from heoslice.material import (
     surface_distance,
 )
 from heoslice.material.field import R_STEPS, R_TOLERANCE
-from heoslice.material.surface import layer_r, packed_layer_codes
+from heoslice.material.surface import layer_r, packed_layer_steps
 
 # --- surface distance -----------------------------------------------------------------------
 
@@ -358,22 +358,22 @@ def test_layer_r_settles_cells_near_a_flat_surface_by_its_tangent_planes():
     assert (np.abs(r[rows, cols] - truth) <= spread[rows, cols] + 1e-9).all()
 
 
-def test_layer_r_codes_read_the_table_at_the_rounded_r():
-    """With a table, each solid pixel gets table[round(r (n - 1))] of the r it gets without one."""
+@pytest.mark.parametrize("steps", [65535, 1000, 1])
+def test_layer_r_steps_are_the_rounded_r(steps):
+    """With ``steps``, each solid pixel gets round(r steps) (uint16) of the r it gets without them."""
     corners = procedural.sphere(radius=2.0, subdivisions=2)
     index = build_surface_index(corners.vertices, corners.faces)
     solid = np.random.default_rng(3).random((50, 60)) < 0.7
     frame = (-3.0, 0.1, 2.5, -0.1, 0.4)
     r = layer_r(solid, frame, index, (0.0, 3.0), 1e-3)
-    table = (np.arange(65536) * 7 % 65536).astype(np.uint16)
-    codes = layer_r(solid, frame, index, (0.0, 3.0), 1e-3, table=table)
+    codes = layer_r(solid, frame, index, (0.0, 3.0), 1e-3, steps=steps)
     assert codes.dtype == np.uint16
-    assert np.array_equal(codes[solid], table[np.floor(r[solid] * 65535 + 0.5).astype(int)])
+    assert np.array_equal(codes[solid], np.floor(r[solid] * steps + 0.5).astype(int))
 
 
-def test_packed_layer_codes_read_the_bits_as_layer_r_reads_the_layer():
-    """Codes from packed rows, the layer's columns starting at byte 2 of each row and ending inside a byte (a width
-    not a multiple of 8, bits set past it), are layer_r's codes of the same pixels at every solid pixel; rows with
+def test_packed_layer_steps_read_the_bits_as_layer_r_reads_the_layer():
+    """Steps from packed rows, the layer's columns starting at byte 2 of each row and ending inside a byte (a width
+    not a multiple of 8, bits set past it), are layer_r's steps of the same pixels at every solid pixel; rows with
     a solid pixel only in their first or last column or none at all included."""
     corners = procedural.sphere(radius=2.0, subdivisions=2)
     index = build_surface_index(corners.vertices, corners.faces)
@@ -387,26 +387,16 @@ def test_packed_layer_codes_read_the_bits_as_layer_r_reads_the_layer():
     wide[:, 16 + 83:] = True  # past the layer's last column: never read as its pixels
     wide[:, :16] = True
     frame = (-3.0, 0.08, 2.5, -0.08, 0.3)
-    table = (np.arange(65536) * 11 % 65536).astype(np.uint16)
-    expected = layer_r(layer, frame, index, (0.0, 3.0), 1e-3, table=table)
-    codes = packed_layer_codes(np.packbits(wide, axis=1), 16, 83, frame, index, (0.0, 3.0), 1e-3, table)
+    expected = layer_r(layer, frame, index, (0.0, 3.0), 1e-3, steps=R_STEPS)
+    codes = packed_layer_steps(np.packbits(wide, axis=1), 16, 83, frame, index, (0.0, 3.0), 1e-3, R_STEPS)
     assert codes.shape == layer.shape
     assert np.array_equal(codes[layer], expected[layer])
 
 
-def test_packed_layer_codes_off_the_solid_are_table_entries_or_zero():
-    """Off the solid every code is 0 or an entry of the table, even where memory freed just before held other
-    values: the droplet kernels look up each pixel of a run of 16 in a table as long as the labels before they
-    mask the solid, so a code past it would be read out of bounds (review of f98f22b)."""
-    sphere = procedural.sphere(3.0, subdivisions=2)
-    index = build_surface_index(np.asarray(sphere.vertices, float), np.asarray(sphere.faces))
-    rows, columns = np.mgrid[:120, :256]
-    square = (rows - 60) ** 2 + (columns - 128) ** 2
-    solid = (square < 55 ** 2) & (square >= 20 ** 2)  # a ring: a hole and corners no settled row reaches
-    table = np.arange(1, R_STEPS + 2, dtype=np.int64).clip(1, 257).astype(np.uint16)
-    junk = np.full(solid.size, 0xFFFF, np.uint16)
-    del junk  # freed: the codes' allocation of the same size may take this memory
-    codes = packed_layer_codes(np.packbits(solid, axis=1), 0, 256, (-6.0, 0.05, 3.0, -0.05, 0.3), index, (0.0, 3.0),
-                               R_TOLERANCE, table)
-    off = codes[~solid]
-    assert np.all((off == 0) | np.isin(off, table)), np.unique(off[~np.isin(off, table)])[:5]
+@pytest.mark.parametrize("steps", [0, 65536])
+def test_steps_beyond_uint16_are_refused(steps):
+    """r's steps are written as uint16: 0 or more than 65535 steps is a ValueError, not a wrapped code."""
+    corners = procedural.sphere(radius=2.0, subdivisions=1)
+    index = build_surface_index(corners.vertices, corners.faces)
+    with pytest.raises(ValueError, match="steps"):
+        layer_r(np.ones((4, 4), bool), (-3.0, 0.1, 2.5, -0.1, 0.4), index, (0.0, 3.0), 1e-3, steps=steps)

@@ -91,17 +91,20 @@ def field_planes(field, packed: np.ndarray, grid: Grid, z: float, layer: int, st
     ``start`` channel otherwise: the module's rule, with q read from one table of f's levels per field."""
     below = _levels_table(field)
     square = field.layer_square(packed, grid, z)
-    if square is None:
-        box, labels = field.layer_codes(packed, grid, z, (below + 1).astype(np.uint16))
-        return label_planes(packed, box, labels, grid, layer, start, target, channels)
-    from heoslice.grading.pixel_mix_kernels import quadratic_planes
-
     planes = np.zeros((channels, grid.height, -(-grid.width // 8)), dtype=np.uint8)
-    row0, row1, col0, _ = square.box
-    if row1 > row0:
-        level = np.ascontiguousarray(np.rint(layer_tile(layer) * LEVELS - 0.5), dtype=np.int32)  # 0 .. 255
-        quadratic_planes(np.ascontiguousarray(packed[row0:row1]), row0, col0, square.frame, square.square,
-                         *square.r_range, below, level, start, target, planes)
+    box, steps = field.layer_steps(packed, grid, z) if square is None else (square.box, None)
+    row0, row1, col0, _ = box
+    if row1 <= row0:
+        return planes
+    from heoslice.grading.pixel_mix_kernels import quadratic_planes, step_planes
+
+    level = np.ascontiguousarray(np.rint(layer_tile(layer) * LEVELS - 0.5), dtype=np.int32)  # 0 .. 255
+    rows = np.ascontiguousarray(packed[row0:row1])
+    if steps is not None:
+        step_planes(rows, row0, col0, steps, below, level, start, target, planes)
+    else:
+        quadratic_planes(rows, row0, col0, square.frame, square.square, *square.r_range, below, level, start, target,
+                         planes)
     return planes
 
 

@@ -1,12 +1,68 @@
-"""Compiled kernel of :mod:`heoslice.grading.pixel_mix`: the droplet masks of a layer whose every solid pixel's
-share of the target is a table's value at the pixel's r, r from a closed-form reference's squared distance, in one
-pass over the packed solid rows (no per-pixel array of r, codes or labels written and read back)."""
+"""Compiled kernels of :mod:`heoslice.grading.pixel_mix`: the droplet masks of a layer whose every solid pixel's
+share of the target is a table's value at the pixel's r, in one pass over the packed solid rows: r from a
+closed-form reference's squared distance (no per-pixel array of r, codes or labels written and read back), or
+r's step per pixel as a surface reference's bounds gave it."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from heoslice.jit import EXACT, kernel
+from heoslice.jit import EXACT, helper, kernel
+
+
+@helper(EXACT)
+def _dither_masks(level):  # pragma: no cover - compiled
+    """masks (n, n / 8, 257) uint8: for each tile row, byte of the tile and count of levels c (0 .. 256), the byte
+    whose bit 7 - t is set where level[row, 8 byte + t] < c (``level`` (n, n) int32, the dither's level per tile
+    position)."""
+    size = level.shape[0]
+    masks = np.zeros((size, size // 8, 257), dtype=np.uint8)
+    for tile_row in range(size):
+        for part in range(size // 8):
+            for count in range(257):
+                bits = 0
+                for t in range(8):
+                    bits |= (1 if level[tile_row, 8 * part + t] < count else 0) << (7 - t)
+                masks[tile_row, part, count] = bits
+    return masks
+
+
+@helper(EXACT)
+def _run_bits(row, begin, end, index, below, row_masks, planes, start, target, out):  # pragma: no cover - compiled
+    """Bytes begin:end of a packed solid ``row``, whose pixels' table indices are index[0:8 (end - begin)], into row
+    ``out`` of the start and target planes: each pixel jets the target where its tile position's level is below
+    below[index] (``row_masks`` the tile row's :func:`_dither_masks`), else the start; bytes off the solid are not
+    written."""
+    parts = row_masks.shape[0] - 1
+    for byte in range(begin, end):
+        byte_masks = row_masks[byte & parts]
+        at = (byte - begin) * 8
+        bits = 0
+        for t in range(8):
+            bits |= byte_masks[below[index[at + t]]] & (128 >> t)
+        solid = row[byte]
+        planes[start, out, byte] = solid & ~bits
+        planes[target, out, byte] |= solid & bits
+
+
+@helper(EXACT)
+def _next_run(row, k):  # pragma: no cover - compiled
+    """(begin, end) of the first run of nonzero bytes of ``row`` at or after byte k ((len, len) when none)."""
+    width = row.shape[0]
+    while k < width:
+        while k + 8 <= width and (row[k] | row[k + 1] | row[k + 2] | row[k + 3] | row[k + 4] | row[k + 5]
+                                  | row[k + 6] | row[k + 7]) == 0:
+            k += 8  # an empty stretch, eight bytes at a time
+        if k >= width:
+            break
+        if row[k] == 0:
+            k += 1
+            continue
+        begin = k
+        while k < width and row[k] != 0:
+            k += 1
+        return begin, k
+    return width, width
 
 
 @kernel(EXACT)
@@ -30,14 +86,7 @@ def quadratic_planes(packed: np.ndarray, row0: int, c0: int, frame: tuple, squar
     width = packed.shape[1]
     size = level.shape[0]
     wrap = size - 1
-    masks = np.zeros((size, size // 8, 257), dtype=np.uint8)
-    for tile_row in range(size):
-        for part in range(size // 8):
-            for count in range(257):
-                bits = 0
-                for t in range(8):
-                    bits |= (1 if level[tile_row, 8 * part + t] < count else 0) << (7 - t)
-                masks[tile_row, part, count] = bits
+    masks = _dither_masks(level)
     index = np.empty(8 * width, dtype=np.uint32)  # a run's table indices (unsigned: read without a sign test)
     for i in range(packed.shape[0]):
         v = frame[2] + i * frame[3]
@@ -45,30 +94,38 @@ def quadratic_planes(packed: np.ndarray, row0: int, c0: int, frame: tuple, squar
         constant = (c * v + e) * v + f
         row = packed[i]
         row_masks = masks[(row0 + i) & wrap]
-        k = c0 >> 3
-        while k < width:
-            while k + 8 <= width and (row[k] | row[k + 1] | row[k + 2] | row[k + 3] | row[k + 4] | row[k + 5]
-                                      | row[k + 6] | row[k + 7]) == 0:
-                k += 8  # an empty stretch, eight bytes at a time
-            if k >= width:
-                break
-            if row[k] == 0:
-                k += 1
-                continue
-            begin = k
-            while k < width and row[k] != 0:
-                k += 1
+        begin, end = _next_run(row, c0 >> 3)
+        while begin < width:
             offset = 8 * begin - c0
-            for t in range(8 * (k - begin)):
+            for t in range(8 * (end - begin)):
                 u = frame[0] + (offset + t) * frame[1]
                 q = (a * u + linear) * u + constant
                 index[t] = int(min(max((np.sqrt(max(q, 0.0)) - r0) * scale, 0.0), 1.0) * steps + 0.5)
-            for byte in range(begin, k):
-                byte_masks = row_masks[byte & (size // 8 - 1)]
-                at = (byte - begin) * 8
-                bits = 0
-                for t in range(8):
-                    bits |= byte_masks[below[index[at + t]]] & (128 >> t)
-                solid = row[byte]
-                planes[start, row0 + i, byte] = solid & ~bits
-                planes[target, row0 + i, byte] |= solid & bits
+            _run_bits(row, begin, end, index, below, row_masks, planes, start, target, row0 + i)
+            begin, end = _next_run(row, end)
+
+
+@kernel(EXACT)
+def step_planes(packed: np.ndarray, row0: int, c0: int, steps: np.ndarray, below: np.ndarray, level: np.ndarray,
+                start: int, target: int, planes: np.ndarray) -> None:  # pragma: no cover - compiled
+    """:func:`quadratic_planes`' dither with each solid pixel's table index given: the pixel (row0 + i, c0 + j) of
+    ``packed`` (rows, bytes) takes below[steps[i, j]] (``steps`` (rows, cols) uint16, r's step as a surface
+    reference's bounds gave it, cols reaching the last solid column; anything off the solid, read clipped to the
+    table)."""
+    width = packed.shape[1]
+    wrap = level.shape[0] - 1
+    last_step = below.shape[0] - 1
+    last_col = steps.shape[1] - 1
+    masks = _dither_masks(level)
+    index = np.empty(8 * width, dtype=np.uint32)
+    for i in range(packed.shape[0]):
+        row = packed[i]
+        row_masks = masks[(row0 + i) & wrap]
+        given = steps[i]
+        begin, end = _next_run(row, c0 >> 3)
+        while begin < width:
+            offset = 8 * begin - c0
+            for t in range(8 * (end - begin)):  # the last byte may reach past the last solid column
+                index[t] = min(given[min(offset + t, last_col)], last_step)
+            _run_bits(row, begin, end, index, below, row_masks, planes, start, target, row0 + i)
+            begin, end = _next_run(row, end)

@@ -34,13 +34,17 @@ from heoslice.material.references import (
 )
 
 __all__ = [
-    "INTERIORS", "R_STEPS", "R_TOLERANCE", "LayerSquare", "MaterialField", "depth_field", "material_field", "solid_box",
+    "INTERIORS", "R_ERROR", "R_STEPS", "R_TOLERANCE", "LayerSquare", "MaterialField", "depth_field", "material_field",
+    "solid_box",
 ]
-#: Twice the largest error of a voxel's r where a surface reference's bounds settle it.
-R_TOLERANCE = 1e-3
-#: Steps of r in a table of codes read per voxel (:meth:`MaterialField.layer_codes`): a voxel's r is rounded to
+#: Steps of r in a table of codes read per voxel (:meth:`MaterialField.layer_steps`): a voxel's r is rounded to
 #: the nearest k / R_STEPS, which adds at most 1 / (2 R_STEPS) = 7.6e-6 to its error; k fits uint16.
 R_STEPS = 65535
+#: The largest error of a voxel's r to a surface reference, its bounds' and the rounding to r's steps together.
+R_ERROR = 1e-3
+#: Twice the largest error of a voxel's r where a surface reference's bounds settle it (the bounds' interval
+#: width): R_ERROR less the rounding to r's steps, on either side of the interval's midpoint.
+R_TOLERANCE = 2 * (R_ERROR - 0.5 / R_STEPS)
 
 
 @dataclass(frozen=True)
@@ -92,7 +96,7 @@ class MaterialField:
 
     @cached_property
     def fraction_table(self) -> np.ndarray:
-        """f(r) clipped to [0, 1] (R_STEPS + 1,) float32 at r = k / R_STEPS (:meth:`layer_codes`' steps)."""
+        """f(r) clipped to [0, 1] (R_STEPS + 1,) float32 at r = k / R_STEPS (:meth:`layer_steps`)."""
         return self.fraction(np.arange(R_STEPS + 1, dtype=np.float32) / np.float32(R_STEPS))
 
     def layer_square(self, packed: np.ndarray, grid, z: float) -> LayerSquare | None:
@@ -106,25 +110,21 @@ class MaterialField:
                  grid.y_top - (box[0] + 0.5) * grid.py - point[1], -grid.py)
         return LayerSquare(box, frame, grid_square(self.reference, z), tuple(map(float, self.design.r_range)))
 
-    def layer_codes(self, packed: np.ndarray, grid, z: float,
-                    table: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
-        """The box of a layer's solid pixels (as :meth:`layer_fraction`) and, at each of them, table[k] (uint16
-        (rows, cols); elsewhere in the box an entry of ``table`` or 0, which a halftone may look up) for its r to a
-        surface reference rounded to k / R_STEPS (table: (R_STEPS + 1,) uint16, e.g. a halftone's level of each f
-        in :attr:`fraction_table`): f read from one table per layer, in one compiled pass, instead of evaluated at
-        every voxel. A plane, point or axis gives its r as :meth:`layer_square` (ValueError here)."""
+    def layer_steps(self, packed: np.ndarray, grid, z: float) -> tuple[tuple[int, int, int, int], np.ndarray]:
+        """The box of a layer's solid pixels (as :meth:`layer_fraction`) and, at each of them, its r to a surface
+        reference as the step k of r = k / R_STEPS nearest it (uint16 (rows, cols); anything up to R_STEPS
+        elsewhere in the box, which a halftone may read before it masks the solid): f then read from
+        :attr:`fraction_table` per voxel, in one compiled pass, instead of evaluated at every voxel. A plane,
+        point or axis gives its r as :meth:`layer_square` (ValueError here)."""
         if REFERENCES[self.reference.kind].closed_form is not None:  # the rule layer_square applies
             raise ValueError(f"a {self.reference.kind} reference's r over a layer is its layer_square")
         r0, r1, c0, c1 = solid_box(packed, grid.width)
-        table = np.ascontiguousarray(table, dtype=np.uint16)
-        if len(table) != R_STEPS + 1:
-            raise ValueError(f"a table of codes has R_STEPS + 1 = {R_STEPS + 1} entries, not {len(table)}")
-        from heoslice.material.surface import packed_layer_codes
+        from heoslice.material.surface import packed_layer_steps
 
         x0, y0 = grid.x_left + (c0 + 0.5) * grid.px, grid.y_top - (r0 + 0.5) * grid.py
-        codes = packed_layer_codes(packed[r0:r1], c0, c1 - c0, (x0, grid.px, y0, -grid.py, z), self.reference.surface,
-                                   self.design.r_range, R_TOLERANCE, table)
-        return (r0, r1, c0, c1), codes
+        steps = packed_layer_steps(packed[r0:r1], c0, c1 - c0, (x0, grid.px, y0, -grid.py, z), self.reference.surface,
+                                   self.design.r_range, R_TOLERANCE, R_STEPS)
+        return (r0, r1, c0, c1), steps
 
     def layer_distance(self, packed: np.ndarray, grid, z: float) -> tuple[tuple[int, int, int, int], np.ndarray]:
         """r over the box of a layer's solid pixels, as :meth:`layer_fraction` gives f(r) (the box, and r

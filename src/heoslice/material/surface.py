@@ -133,51 +133,48 @@ TOP_CELL = 64
 
 def layer_r(solid: np.ndarray, frame: tuple[float, float, float, float, float], index: SurfaceIndex,
             r_range: tuple[float, float], tolerance: float, top: int = TOP_CELL, with_spread: bool = False,
-            table: np.ndarray | None = None) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+            steps: int | None = None) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """r (h, w) float64 at the solid pixel centres of a layer (solid (h, w) bool; 0 elsewhere): the exact distance
     to the surface normalised over r_range (R0, R1) mm and clipped to [0, 1], each within tolerance / 2 of its
     true r (:func:`heoslice.material.surface_kernels.layer_r`'s bounds settle cells of up to ``top`` pixels a side,
     the rest is measured pixel by pixel). frame: (x of column 0's centre, x step per column, y of row 0's centre,
-    y step per row, z), mm. With ``table`` (n,) uint16 (n <= 65536): each pixel's table[round(r (n - 1))] (h, w) uint16
-    instead of r. ``with_spread`` also returns each pixel's proven bound on its r's error (h, w)."""
+    y step per row, z), mm. With ``steps`` (< 65536): each pixel's step round(r steps) (h, w) uint16 instead of r.
+    ``with_spread`` also returns each pixel's proven bound on its r's error (h, w)."""
     solid = np.ascontiguousarray(solid, dtype=bool)
     out, spread = _layer_r(np.packbits(solid, axis=1), 0, solid.shape[1], frame, index, r_range, tolerance, top,
-                           with_spread, table)
+                           with_spread, steps)
     outside = ~solid  # the kernel writes anything there
     for written in (out, spread) if with_spread else (out,):
         written[outside] = 0
     return (out, spread) if with_spread else out
 
 
-def packed_layer_codes(packed: np.ndarray, c0: int, cols: int, frame: tuple[float, float, float, float, float],
-                       index: SurfaceIndex, r_range: tuple[float, float], tolerance: float,
-                       table: np.ndarray) -> np.ndarray:
-    """:func:`layer_r`'s codes (h, cols) uint16 (off the solid, an entry of ``table`` or 0) of the layer whose pixels are columns
-    c0:c0 + cols (c0 a multiple of 8) of ``packed`` ((h, bytes) uint8 rows, MSB first), read as they are."""
+def packed_layer_steps(packed: np.ndarray, c0: int, cols: int, frame: tuple[float, float, float, float, float],
+                       index: SurfaceIndex, r_range: tuple[float, float], tolerance: float, steps: int) -> np.ndarray:
+    """:func:`layer_r`'s steps round(r steps) (h, cols) uint16 (off the solid, anything up to 65535) of the layer whose
+    pixels are columns c0:c0 + cols (c0 a multiple of 8) of ``packed`` ((h, bytes) uint8 rows, MSB first), read as
+    they are."""
     if c0 % 8:
         raise ValueError(f"a layer's first column is a multiple of 8, not {c0}")
     return _layer_r(np.ascontiguousarray(packed, dtype=np.uint8), c0 // 8, cols, frame, index, r_range, tolerance,
-                    TOP_CELL, False, table)[0]
+                    TOP_CELL, False, steps)[0]
 
 
 def _layer_r(packed: np.ndarray, first: int, cols: int, frame: tuple, index: SurfaceIndex,
              r_range: tuple[float, float], tolerance: float, top: int, with_spread: bool,
-             table: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """(r or, with ``table``, codes; the bounds or (0, 0)) of the layer of columns 0:cols that are the bits of
+             steps: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """(r or, with ``steps``, r's steps; the bounds or (0, 0)) of the layer of columns 0:cols that are the bits of
     ``packed`` from byte ``first`` on (:func:`heoslice.material.surface_kernels.layer_r`); anything off the solid."""
     from heoslice.material.surface_kernels import LayerFrame
     from heoslice.material.surface_kernels import layer_r as kernel
 
-    coded = table is not None
-    if coded and not 0 < len(table) <= 1 << 16:
-        raise ValueError(f"a table of codes has 1 to 65536 entries (the kernel indexes it by uint16), not {len(table)}")
+    coded = steps is not None
+    if coded and not 0 < steps < 1 << 16:
+        raise ValueError(f"r's steps are 1 to 65535 (the kernel writes them as uint16), not {steps}")
     shape = (packed.shape[0], int(cols))
-    # r written at every solid pixel, anything off it; codes zero off it, since the droplet kernels look up
-    # every pixel of a run of 16 in a table of 258 labels before they mask the solid
     r = np.empty((0, 0) if coded else shape)
-    codes = np.zeros(shape if coded else (0, 0), np.uint16)
+    codes = np.empty(shape if coded else (0, 0), np.uint16)
     spread = np.empty(shape if with_spread else (0, 0))
     kernel(packed, int(first), int(cols), LayerFrame(*map(float, frame)), index.tree, float(r_range[0]),
-           float(r_range[1]), float(tolerance), int(top), r, spread,
-           np.ascontiguousarray(table if coded else [0], np.uint16), codes)
+           float(r_range[1]), float(tolerance), int(top), r, spread, int(steps or 0), codes)
     return (codes if coded else r), spread

@@ -389,13 +389,13 @@ TANGENT_CELL = 64
 
 @kernel(EXACT)
 def layer_r(packed: np.ndarray, first: int, cols: int, frame: LayerFrame, tree: Hierarchy, r0: float, r1: float,
-            tolerance: float, top: int, r: np.ndarray, spread: np.ndarray, table: np.ndarray,
+            tolerance: float, top: int, r: np.ndarray, spread: np.ndarray, steps: int,
             codes: np.ndarray) -> None:  # pragma: no cover - compiled
     """r (h, w) at each solid pixel centre of a layer of h rows, w = ``cols`` columns (its pixels the bits of
     ``packed`` (h, bytes) uint8 from byte ``first`` on, MSB first), normalised from the exact distance to ``tree``
     over (r0, r1) mm, each within spread[i, j] <= tolerance / 2 of its true r (``spread`` (h, w) written too,
-    or (0, 0) to skip it); or, where ``codes`` (h, w) is not (0, 0), instead of r its code from ``table`` (n,)
-    at r rounded to the nearest step 1 / (n - 1). Cells of ``top`` x ``top`` pixels are halved until a bound settles
+    or (0, 0) to skip it); or, where ``codes`` (h, w) uint16 is not (0, 0), instead of r its step k = round(r
+    ``steps``) (``steps`` < 65536; off the solid, codes are left as they were). Cells of ``top`` x ``top`` pixels are halved until a bound settles
     them. A cell of pixel rows i0:i1, columns j0:j1 has its corners at the pixel centres (i0, j0), (i0, j1),
     (i1, j0), (i1, j1) (shared with its neighbours), where d is measured exactly (d_k, nearest triangle T_k);
     a = (j1 - j0) px, b = (i1 - i0) py, h = sqrt(a^2 + b^2) / 2 (every point of the cell is within h of a corner):
@@ -419,7 +419,7 @@ def layer_r(packed: np.ndarray, first: int, cols: int, frame: LayerFrame, tree: 
       when there are at most NEAR_TRIANGLES of them; a cell of at most 2 x 2 pixels by the hierarchy search.
     """
     rows = packed.shape[0]
-    coded, keep, steps = codes.shape[0] > 0, spread.shape[0] > 0, table.shape[0] - 1
+    coded, keep = codes.shape[0] > 0, spread.shape[0] > 0
     stack = np.empty(STACK_DEPTH, np.int64)
     bound = np.empty(STACK_DEPTH)
     found = np.empty(NEAR_TRIANGLES, np.int64)
@@ -434,7 +434,6 @@ def layer_r(packed: np.ndarray, first: int, cols: int, frame: LayerFrame, tree: 
     pitch_x, pitch_y = abs(frame.dx), abs(frame.dy)
     nearest = 0
     spans = np.empty((rows, 2), np.int64)
-    index = np.empty(cols + 1, np.uint16)
     _row_spans(packed, first, cols, spans)
     # the top cells' corners, measured where a solid pixel needs them
     lattice_rows, lattice_cols = (rows + top - 1) // top + 1, (cols + top - 1) // top + 1
@@ -482,7 +481,7 @@ def layer_r(packed: np.ndarray, first: int, cols: int, frame: LayerFrame, tree: 
                 hi = _normalised(high + half + slack, r0, r1)
                 if hi - lo <= tolerance:
                     value = 0.5 * (lo + hi)
-                    code = table[int(value * steps + 0.5)]
+                    code = np.uint16(int(value * steps + 0.5))
                     for i in range(i0, min(i1, rows)):
                         for j in range(max(j0, spans[i, 0]), min(j1, spans[i, 1] + 1)):
                             if coded:
@@ -518,12 +517,11 @@ def layer_r(packed: np.ndarray, first: int, cols: int, frame: LayerFrame, tree: 
                         slope = ((1.0 - s) * (cd[1] - cd[0]) + s * (cd[3] - cd[2])) / (j1 - j0)
                         lo_j, hi_j = max(j0, spans[i, 0]), min(j1, spans[i, 1] + 1)
                         if coded:
-                            row = codes[i]  # unsigned indices and one row: no wraparound test per pixel
-                            for j in range(lo_j, hi_j):
-                                index[j] = np.uint16(min(max((left + (j - j0) * slope) * scale, 0.0), 1.0) * steps
-                                                     + 0.5)
-                            for j in range(lo_j, hi_j):
-                                row[j] = table[index[j]]
+                            run = codes[i, lo_j:hi_j]  # a loop from 0 over a slice vectorises
+                            skip = lo_j - j0
+                            for t in range(hi_j - lo_j):
+                                run[t] = np.uint16(min(max((left + (skip + t) * slope) * scale, 0.0), 1.0) * steps
+                                                   + 0.5)
                         else:
                             for j in range(lo_j, hi_j):
                                 r[i, j] = min(max((left + (j - j0) * slope) * scale, 0.0), 1.0)
@@ -546,7 +544,7 @@ def layer_r(packed: np.ndarray, first: int, cols: int, frame: LayerFrame, tree: 
                                     best, nearest = nearest_triangle(px, py, frame.z, tree, nearest, stack, bound)
                                 value = _normalised(np.sqrt(best), r0, r1)
                                 if coded:
-                                    codes[i, j] = table[int(value * steps + 0.5)]
+                                    codes[i, j] = np.uint16(int(value * steps + 0.5))
                                 else:
                                     r[i, j] = value
                                 if keep:
