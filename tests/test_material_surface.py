@@ -89,6 +89,26 @@ def test_surface_distance_on_a_fine_sphere_in_chunks():
     assert calls == [(32, 120), (64, 120), (96, 120), (120, 120)]
 
 
+def test_a_degenerate_triangle_has_no_plane_bound_and_is_still_measured():
+    """A collinear triangle (no plane: its row of planes is zeros, so it is never skipped by a plane's distance)
+    nearest to points beside it, among triangles whose planes pass near those points: brute force distances."""
+    from heoslice.material.surface import _planes
+
+    corners = np.array([[[0, 0, 0], [2, 0, 0], [4, 0, 0]],  # collinear: measured as its segment
+                        [[0, 5, -3], [4, 5, -3], [0, 5, 3]],  # a wall whose plane y = 5 is near y = 4 points
+                        [[10, 0, 0], [11, 0, 0], [10, 1, 0]]], dtype=float)
+    planes = _planes(corners)
+    assert np.array_equal(planes[0], np.zeros(4)) and np.allclose(np.abs(planes[1]), [0, 1, 0, 5])
+    points = np.array([[1.0, 0.5, 0.0], [3.0, 4.0, 0.0], [2.0, -0.25, 0.1], [5.0, 0.3, 0.0]])
+    along = np.clip(points[:, 0], 0.0, 4.0)  # the segment's nearest point, written out (trimesh is not exact there)
+    segment = np.linalg.norm(points - np.column_stack([along, np.zeros((len(points), 2))]), axis=1)
+    others = brute_force_distance(points, trimesh.Trimesh(corners[1:].reshape(-1, 3), np.arange(6).reshape(2, 3),
+                                                          process=False))
+    ours = surface_distance(points, build_surface_index(corners.reshape(-1, 3), np.arange(9).reshape(3, 3)))
+    assert np.allclose(ours, np.minimum(segment, others), rtol=0, atol=1e-12)
+    assert (segment < others).sum() == 3
+
+
 def test_coloring_by_a_surface_loads_no_numba(tmp_path):
     """`heoslice color --ref surface` (a fresh process) runs the surface distance's compiled kernels: it never
     imports numba or LLVM, which would compile them just in time on a machine's first run."""

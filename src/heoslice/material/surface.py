@@ -58,8 +58,20 @@ def build_surface_index(vertices: np.ndarray, faces: np.ndarray) -> SurfaceIndex
     centre = corners.mean(axis=1)
     radius = np.sqrt(np.einsum("ijk,ijk->ij", corners - centre[:, None], corners - centre[:, None]).max(axis=1))
     tree = Hierarchy(low, high, left, right, first, count, corners, np.ascontiguousarray(centre),
-                     radius * (1.0 + 1e-12) + 1e-12)
+                     radius * (1.0 + 1e-12) + 1e-12, _planes(corners))
     return SurfaceIndex(vertices, faces, tree)
+
+
+def _planes(corners: np.ndarray) -> np.ndarray:
+    """Each triangle's plane (m, 4): unit normal and offset n . a, zeros for a triangle the distance kernel measures
+    as its three edges (:func:`heoslice.material.surface_kernels.triangle_offset`'s rule), whose plane is no bound."""
+    ab, ac = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    normal = np.cross(ab, ac)
+    length2 = np.einsum("ij,ij->i", normal, normal)
+    flat = ~(length2 > 1e-24 * np.einsum("ij,ij->i", ab, ab) * np.einsum("ij,ij->i", ac, ac))
+    normal = normal / np.sqrt(np.where(flat, 1.0, length2))[:, None]
+    normal[flat] = 0.0
+    return np.ascontiguousarray(np.column_stack([normal, np.einsum("ij,ij->i", normal, corners[:, 0])]))
 
 
 def _workers() -> int:

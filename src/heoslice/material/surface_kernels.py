@@ -28,7 +28,8 @@ class Hierarchy(NamedTuple):
     for a leaf); first, count (k,) int64: a leaf's triangles order[first:first + count];
     corners (m, 3, 3) float64 mm: the triangles in leaf order (node 0 is the root);
     centre (m, 3) float64 mm, radius (m,) float64 mm: a sphere around each triangle
-    (its corners' mean and the largest corner distance from it).
+    (its corners' mean and the largest corner distance from it); planes (m, 4) float64: each
+    triangle's plane, unit normal n and offset n . a (zeros for a degenerate triangle).
     """
 
     low: np.ndarray
@@ -40,6 +41,7 @@ class Hierarchy(NamedTuple):
     corners: np.ndarray
     centre: np.ndarray
     radius: np.ndarray
+    planes: np.ndarray
 
 
 @kernel(EXACT)
@@ -105,6 +107,15 @@ def _box_distance2(px, py, pz, low, high, node):  # pragma: no cover - compiled
     gy = max(low[node, 1] - py, 0.0, py - high[node, 1])
     gz = max(low[node, 2] - pz, 0.0, pz - high[node, 2])
     return gx * gx + gy * gy + gz * gz
+
+
+@helper(EXACT)
+def _beyond_plane(px, py, pz, planes, j, reach):  # pragma: no cover - compiled
+    """Whether the point is farther than ``reach`` (mm) from triangle j's plane, so from the triangle (a lower bound
+    that holds where the sphere around it does not: inside a closed surface, most triangles' spheres are as near as
+    the nearest triangle; the comparison is widened by rounding's reach)."""
+    height = abs(planes[j, 0] * px + planes[j, 1] * py + planes[j, 2] * pz - planes[j, 3])
+    return height > reach * (1.0 + 1e-12) + 1e-12 * (1.0 + abs(planes[j, 3]))
 
 
 @helper(EXACT)
@@ -187,7 +198,8 @@ def nearest_triangle(px, py, pz, tree, start, stack, bound):  # pragma: no cover
     Depth first, the nearer child first; a node is skipped when its box is no nearer than
     the best triangle so far (the box bound), so every triangle not measured is no nearer.
     In a leaf, a triangle whose sphere is no nearer than the best (|p - centre| - radius >= best)
-    is not measured: the sphere holds the triangle, so that is a lower bound too.
+    is not measured: the sphere holds the triangle, so that is a lower bound too; nor one whose plane is
+    farther than the best (:func:`_beyond_plane`).
     """
     nearest = start
     best = triangle_distance2(px, py, pz, tree.corners[nearest])
@@ -205,7 +217,8 @@ def nearest_triangle(px, py, pz, tree, start, stack, bound):  # pragma: no cover
             for j in range(tree.first[node], tree.first[node] + tree.count[node]):
                 cx, cy, cz = px - tree.centre[j, 0], py - tree.centre[j, 1], pz - tree.centre[j, 2]
                 outside = reach + tree.radius[j]
-                if cx * cx + cy * cy + cz * cz >= outside * outside:
+                if cx * cx + cy * cy + cz * cz >= outside * outside or _beyond_plane(px, py, pz, tree.planes, j,
+                                                                                     reach):
                     continue
                 d = triangle_distance2(px, py, pz, tree.corners[j])
                 if d < best:
@@ -335,7 +348,8 @@ def _triangles_near(px, py, pz, reach, tree, stack, found):  # pragma: no cover 
             top += 2
             continue
         for j in range(tree.first[node], tree.first[node] + tree.count[node]):
-            if triangle_distance2(px, py, pz, tree.corners[j]) <= reach2:
+            if not _beyond_plane(px, py, pz, tree.planes, j, reach) and \
+                    triangle_distance2(px, py, pz, tree.corners[j]) <= reach2:
                 if count == found.shape[0]:
                     return -1
                 found[count] = j
@@ -395,8 +409,8 @@ def layer_r(packed: np.ndarray, first: int, cols: int, frame: LayerFrame, tree: 
     ``packed`` (h, bytes) uint8 from byte ``first`` on, MSB first), normalised from the exact distance to ``tree``
     over (r0, r1) mm, each within spread[i, j] <= tolerance / 2 of its true r (``spread`` (h, w) written too,
     or (0, 0) to skip it); or, where ``codes`` (h, w) uint16 is not (0, 0), instead of r its step k = round(r
-    ``steps``) (``steps`` < 65536; off the solid, codes are left as they were). Cells of ``top`` x ``top`` pixels are halved until a bound settles
-    them. A cell of pixel rows i0:i1, columns j0:j1 has its corners at the pixel centres (i0, j0), (i0, j1),
+    ``steps``) (``steps`` < 65536; off the solid, codes are left as they were). Cells of ``top`` x ``top`` pixels
+    are halved until a bound settles them. A cell of pixel rows i0:i1, columns j0:j1 has its corners at the pixel centres (i0, j0), (i0, j1),
     (i1, j0), (i1, j1) (shared with its neighbours), where d is measured exactly (d_k, nearest triangle T_k);
     a = (j1 - j0) px, b = (i1 - i0) py, h = sqrt(a^2 + b^2) / 2 (every point of the cell is within h of a corner):
 
@@ -407,7 +421,8 @@ def layer_r(packed: np.ndarray, first: int, cols: int, frame: LayerFrame, tree: 
       weights w_k(x) (>= 0, reproducing x), d(x) >= B(x) - (a^2 t(1 - t) + b^2 s(1 - s)) / 2m, B = sum w_k d_k,
       (t, s) the pixel's place in the cell, so d(x) >= B(x) - (a^2 + b^2) / 8m; by convexity
       d(x) <= d_T(x) <= sum w_k d_T(x_k) <= B(x) + e_T, e_T = max_k (d_T(x_k) - d_k), for each T among the T_k.
-      Settled where (a^2 + b^2) / 8m + min e_T is at most ``tolerance`` (r1 - r0): each pixel's r is that
+      Since B >= min d_k, d >= min d_k - (a^2 + b^2) / 8m on the cell, a larger m where it is: m is raised to it
+      (up to three times), each time a smaller bound. Settled where (a^2 + b^2) / 8m + min e_T is at most ``tolerance`` (r1 - r0): each pixel's r is that
       interval's midpoint, clipped (clipping moves it no farther from the true r).
     - Tangent planes: where that lower bound fails (m small or <= 0: near the surface, where d is nearly a plane's
       distance), a cell of at most TANGENT_CELL pixels a side whose upper bound min e_T is below ``tolerance``
@@ -499,6 +514,11 @@ def layer_r(packed: np.ndarray, first: int, cols: int, frame: LayerFrame, tree: 
                     above = _corners_above(cx, cy, cd, ct, frame.z, tree) + slack
                 if m > 0.0:
                     below = (a * a + b * b) / (8.0 * m) + slack
+                    for _ in range(3):  # d >= B - below >= low - below on the cell: a larger m, a smaller bound
+                        if low - below <= m:
+                            break
+                        m = low - below
+                        below = (a * a + b * b) / (8.0 * m) + slack
                 if below + above > tolerance * width and (small or (above < tolerance * width and (
                         i1 - i0 <= TANGENT_CELL and j1 - j0 <= TANGENT_CELL))):
                     xc, yc = 0.5 * (cx[0] + cx[3]), 0.5 * (cy[0] + cy[3])
