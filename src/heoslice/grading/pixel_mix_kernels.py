@@ -117,15 +117,24 @@ def step_planes(packed: np.ndarray, row0: int, c0: int, steps: np.ndarray, below
     last_step = below.shape[0] - 1
     last_col = steps.shape[1] - 1
     masks = _dither_masks(level)
-    index = np.empty(8 * width, dtype=np.uint32)
+    parts = masks.shape[1] - 1
     for i in range(packed.shape[0]):
         row = packed[i]
         row_masks = masks[(row0 + i) & wrap]
         given = steps[i]
         begin, end = _next_run(row, c0 >> 3)
         while begin < width:
-            offset = 8 * begin - c0
-            for t in range(8 * (end - begin)):  # the last byte may reach past the last solid column
-                index[t] = min(given[min(offset + t, last_col)], last_step)
-            _run_bits(row, begin, end, index, below, row_masks, planes, start, target, row0 + i)
+            for byte in range(begin, end):  # each pixel's step read where its bit is made (no array between)
+                byte_masks = row_masks[byte & parts]
+                at = 8 * byte - c0
+                bits = 0
+                if at + 8 <= last_col + 1:
+                    for t in range(8):
+                        bits |= byte_masks[below[min(given[at + t], last_step)]] & (128 >> t)
+                else:  # the last byte may reach past the last solid column
+                    for t in range(8):
+                        bits |= byte_masks[below[min(given[min(at + t, last_col)], last_step)]] & (128 >> t)
+                solid = row[byte]
+                planes[start, row0 + i, byte] = solid & ~bits
+                planes[target, row0 + i, byte] |= solid & bits
             begin, end = _next_run(row, end)
