@@ -15,8 +15,8 @@ from heoslice.printing import (
     check_log_output,
     Progress,
     default_log_path,
+    dry_run,
     job_summary,
-    plan_transfer,
     print_job,
     stack_job,
 )
@@ -93,10 +93,9 @@ def _dry_run(stack: Path, baud: int | None, max_payload: int, from_layer: int | 
     baud = baud or DEFAULT_BAUD
     with progress_bar("verifying", enabled=not as_json) as verifying, \
             progress_bar("sizing", enabled=not as_json) as sizing:
-        job, get_layer = stack_job(stack, verifying)
-        summary = {"stack": str(stack), "ok": True, "job_id": f"{job.job_id:08x}",
-                   **plan_transfer(job, get_layer, baud=baud, max_payload=max_payload, from_layer=from_layer or 0,
-                                   sample=None if exact else SAMPLE_LAYERS, progress=sizing)}
+        job, plan = dry_run(stack, baud=baud, max_payload=max_payload, from_layer=from_layer or 0,
+                            sample=None if exact else SAMPLE_LAYERS, verifying=verifying, sizing=sizing)
+        summary = {"stack": str(stack), "ok": True, "job_id": f"{job.job_id:08x}", **plan}
     if as_json:
         click.echo(json.dumps(summary))
         return

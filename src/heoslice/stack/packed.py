@@ -13,6 +13,7 @@ import functools
 import hashlib
 import io
 import os
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -114,18 +115,18 @@ def _known_page(data: bytes, layout: _Layout) -> StripPage | None:
     if len(data) < len(head):
         return None
     masked = bytearray(data[:len(head)])
-    offsets = np.frombuffer(masked, dtype="<u4", count=strips, offset=layout.offsets_at).astype(np.int64)
-    counts = np.frombuffer(masked, dtype="<u4", count=strips, offset=layout.counts_at).astype(np.int64)
+    table = f"<{strips}I"  # a dozen strips: Python's ints beat numpy's per-call cost here
+    offsets = struct.unpack_from(table, masked, layout.offsets_at)
+    counts = struct.unpack_from(table, masked, layout.counts_at)
     for at in (layout.offsets_at, layout.counts_at):
         masked[at:at + 4 * strips] = bytes(4 * strips)
     if masked != head:
         return None
-    raw = page.rowsperstrip * row_bytes(page.imagewidth)
-    if (counts > 2 * raw + 1024).any() or (counts == 0).any() or (offsets < 8).any() \
-            or (offsets + counts > len(data)).any():
+    most, size = 2 * page.rowsperstrip * row_bytes(page.imagewidth) + 1024, len(data)
+    if any(not 0 < count <= most or offset < 8 or offset + count > size for offset, count in zip(offsets, counts)):
         return None
-    page = StripPage(*(getattr(page, name) for name in StripPage.__slots__[:8]),
-                     tuple(offsets.tolist()), tuple(counts.tolist()))
+    page = StripPage(page.imagelength, page.imagewidth, page.rowsperstrip, page.bitspersample, page.samplesperpixel,
+                     page.fillorder, page.predictor, page.compression, offsets, counts)
     if len(data) > file_limit(page):
         return None
     return page
@@ -200,11 +201,19 @@ _BLANK_STRIPS: set[bytes] = set()
 _MAX_BLANK_STRIPS, _BLANK_STRIP_BYTES, _BLANK_RATIO = 64, 4096, 256
 
 
-def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, stop: int) -> tuple[int, int] | None:
+#: Strips inflated earlier while reading one layer's files (:func:`solid_bits`' ``inflated``): (compression code,
+#: bytes inflated, the strip's bytes) -> its packed rows. A droplet mask's strip off the other materials is the
+#: layer's own strip byte for byte (a layer of one material: the whole file), and is copied, not inflated again.
+InflatedStrips = dict[tuple[int, int, bytes], np.ndarray]
+
+
+def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, stop: int,
+                  inflated: InflatedStrips | None = None) -> tuple[int, int] | None:
     """Inflate the strips of a plain 1-bit page holding rows first..stop-1 into ``flat`` (the packed rows of
     the image, one spare byte after them; the rows of every other strip are zeroed); return the rows (first,
-    stop) that may hold set bits (blank strips are known by their bytes and zeroed, not inflated). None
-    (``flat`` partly written) when the page or a strip is not laid out as heoslice writes it."""
+    stop) that may hold set bits (blank strips are known by their bytes and zeroed, not inflated; a strip in
+    ``inflated`` is copied from there, and the strips inflated here are added to it). None (``flat`` partly
+    written) when the page or a strip is not laid out as heoslice writes it."""
     page = layer.page
     if (page.bitspersample, page.samplesperpixel) != (1, 1) or page.fillorder != 1 or page.predictor != 1:
         return None
@@ -227,6 +236,12 @@ def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, st
         if short and bytes(strip) in _BLANK_STRIPS:
             target[:expected] = 0
             continue
+        key = (code, expected, bytes(strip)) if inflated is not None and decode is not None else None
+        known = inflated.get(key) if key is not None else None
+        if known is not None:
+            target[:expected] = known
+            span = [min(span[0], row), max(span[1], row + expected // width)]
+            continue
         try:
             if decode is None:
                 done = min(len(strip), expected + 1)
@@ -241,6 +256,8 @@ def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, st
         if short and len(_BLANK_STRIPS) < _MAX_BLANK_STRIPS and not target[:expected].any():
             _BLANK_STRIPS.add(bytes(strip))
             continue
+        if key is not None:
+            inflated[key] = target[:expected]
         span = [min(span[0], row), max(span[1], row + expected // width)]
     return (span[0], span[1]) if span[0] < span[1] else (0, 0)
 
@@ -264,17 +281,20 @@ class Bits:
     span: tuple[int, int]
 
 
-def solid_bits(layer: LayerFile, alpha: bool, rows: tuple[int, int] | None = None) -> Bits:
+def solid_bits(layer: LayerFile, alpha: bool, rows: tuple[int, int] | None = None,
+               inflated: InflatedStrips | None = None) -> Bits:
     """The solid pixels of a checked layer file (:class:`Bits`): a set sample of a 1-bit or grey file, any
     non-zero sample of a colour one (its alpha when ``alpha``). With ``rows`` (first, stop) only the strips
-    holding those rows are decoded; other rows are left zero."""
+    holding those rows are decoded; other rows are left zero. ``inflated`` (one dict for the files of one
+    layer, :data:`InflatedStrips`) lets a strip already inflated be copied instead; the rows it holds are
+    the returned Bits' own, not to be written while it is in use."""
     page = layer.page
     height, width = page.imagelength, row_bytes(page.imagewidth)
     first, stop = (0, height) if rows is None else rows
     flat = np.empty(height * width + 1, dtype=np.uint8)  # _inflate_bits writes or zeroes every row
     flat[-1] = 0
     out = flat[:-1].reshape(height, width)
-    span = _inflate_bits(layer, flat, width, first, stop)
+    span = _inflate_bits(layer, flat, width, first, stop, inflated)
     if span is None:
         mask = np.zeros((height, page.imagewidth), dtype=bool)
         decode_solid(layer.tiff_page(), layer.name, alpha, out=mask)
@@ -287,11 +307,17 @@ def solid_bits(layer: LayerFile, alpha: bool, rows: tuple[int, int] | None = Non
 def partition_counts(layer: Bits, masks: list[Bits]) -> tuple[list[int], bool]:
     """Set bits of a layer's solid pixels and of each of its droplet masks ([layer's, each mask's]), and whether
     the masks partition the layer (no pixel in two masks, their union exactly the layer's solid pixels): one
-    compiled pass per file over the rows holding set bits (:func:`heoslice.layers.packed_kernels.fold_words`)."""
+    compiled pass per file over the rows holding set bits (:func:`heoslice.layers.packed_kernels.fold_words`);
+    one count when a single mask is the layer's own Bits object (its file the layer's bytes) and the others hold
+    no set row."""
     from heoslice.layers.packed_kernels import COMPARE, JOIN, START, fold_words
 
     if not masks:
         raise ValueError("partition_counts: a layer without droplet masks has nothing to partition it")
+    whole = [mask is layer for mask in masks]  # a mask read from the layer's own bytes (one material)
+    if sum(whole) == 1 and all(same or mask.span[0] >= mask.span[1] for same, mask in zip(whole, masks)):
+        count = count_bits(layer.rows[layer.span[0]:layer.span[1]])  # the others blank: a partition
+        return [count, *(count if same else 0 for same in whole)], True
     files = [*masks, layer]
     first, stop = min(b.span[0] for b in files), max(b.span[1] for b in files)
     out = np.zeros((len(files), 2), dtype=np.int64)
