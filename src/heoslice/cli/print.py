@@ -10,16 +10,7 @@ import click
 from heoslice.cli.common import progress_bar
 from heoslice.locks import hold_stack
 from heoslice.printing.ports import DEFAULT_BAUD
-from heoslice.printing import (
-    SAMPLE_LAYERS,
-    check_log_output,
-    Progress,
-    default_log_path,
-    dry_run,
-    job_summary,
-    print_job,
-    stack_job,
-)
+from heoslice.printing import SAMPLE_LAYERS, dry_run, job_summary, stack_job
 from heoslice.stack import check_input_path
 
 
@@ -112,6 +103,8 @@ def _dry_run(stack: Path, baud: int | None, max_payload: int, from_layer: int | 
 def _print(stack: Path, port: str, baud: int | None, from_layer: int | None, resume: bool, restart: bool,
            log_path: Path | None, max_payload: int, as_json: bool) -> None:
     """Print the held stack and report."""
+    from heoslice.printing import Progress, check_log_output, default_log_path, print_job
+
     log_path = log_path or default_log_path(stack)
     check_log_output(log_path, inputs=(stack,))
     with progress_bar("verifying", enabled=not as_json) as verifying:

@@ -223,28 +223,34 @@ def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, st
     decode = _strip_decoder(code)
     rows = _strip_rows(page)
     view = memoryview(layer.data)
-    span = [page.imagelength, 0]
+    height = page.imagelength
+    full = rows * width  # bytes of a whole strip's rows; the last strip may hold fewer
+    short_bytes = min(_BLANK_STRIP_BYTES, full // _BLANK_RATIO + 64)
+    blank, keyed = _BLANK_STRIPS, inflated is not None and decode is not None
+    span = [height, 0]
     for number, (offset, count) in enumerate(zip(page.dataoffsets, page.databytecounts)):
         row = number * rows
-        expected = min(rows, page.imagelength - row) * width
-        target = flat[row * width:row * width + expected + 1]
+        expected = full if row + rows <= height else (height - row) * width
+        at = row * width
         if row + rows <= first or row >= stop:
-            target[:expected] = 0
+            flat[at:at + expected] = 0
             continue
-        strip = view[offset:offset + count]
-        short = count <= min(_BLANK_STRIP_BYTES, expected // _BLANK_RATIO + 64)
-        if short and bytes(strip) in _BLANK_STRIPS:
-            target[:expected] = 0
+        short = count <= (short_bytes if expected == full else min(_BLANK_STRIP_BYTES, expected // _BLANK_RATIO + 64))
+        blob = bytes(view[offset:offset + count]) if short or keyed else None
+        if short and blob in blank:
+            flat[at:at + expected] = 0
             continue
-        key = (code, expected, bytes(strip)) if inflated is not None and decode is not None else None
-        known = inflated.get(key) if key is not None else None
+        key = (code, expected, blob) if keyed else None
+        known = inflated.get(key) if keyed else None
         if known is not None:
-            target[:expected] = known
+            flat[at:at + expected] = known
             span = [min(span[0], row), max(span[1], row + expected // width)]
             continue
+        target = flat[at:at + expected + 1]
+        strip = view[offset:offset + count]
         try:
             if decode is None:
-                done = min(len(strip), expected + 1)
+                done = min(count, expected + 1)
                 target[:done] = np.frombuffer(strip[:done], dtype=np.uint8)
             else:
                 done = len(decode(strip, out=target))
@@ -253,10 +259,10 @@ def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, st
         if done != expected:
             return None
         target[expected] = 0  # the spare byte, which a decoder may have written: the next strip's, if decoded
-        if short and len(_BLANK_STRIPS) < _MAX_BLANK_STRIPS and not target[:expected].any():
-            _BLANK_STRIPS.add(bytes(strip))
+        if short and len(blank) < _MAX_BLANK_STRIPS and not target[:expected].any():
+            blank.add(blob)
             continue
-        if key is not None:
+        if keyed:
             inflated[key] = target[:expected]
         span = [min(span[0], row), max(span[1], row + expected // width)]
     return (span[0], span[1]) if span[0] < span[1] else (0, 0)
@@ -310,33 +316,47 @@ def partition_counts(layer: Bits, masks: list[Bits]) -> tuple[list[int], bool]:
     compiled pass per file over the rows holding set bits (:func:`heoslice.layers.packed_kernels.fold_words`);
     one count when a single mask is the layer's own Bits object (its file the layer's bytes) and the others hold
     no set row."""
-    from heoslice.layers.packed_kernels import COMPARE, JOIN, START, fold_words
+    from heoslice.layers.packed_kernels import COMPARE, JOIN, START
 
     if not masks:
         raise ValueError("partition_counts: a layer without droplet masks has nothing to partition it")
     whole = [mask is layer for mask in masks]  # a mask read from the layer's own bytes (one material)
     if sum(whole) == 1 and all(same or mask.span[0] >= mask.span[1] for same, mask in zip(whole, masks)):
-        count = count_bits(layer.rows[layer.span[0]:layer.span[1]])  # the others blank: a partition
+        count = int(_fold([layer], layer.span, [COMPARE], against_self=True)[0, 0])  # the others blank: a partition
         return [count, *(count if same else 0 for same in whole)], True
     files = [*masks, layer]
-    first, stop = min(b.span[0] for b in files), max(b.span[1] for b in files)
-    out = np.zeros((len(files), 2), dtype=np.int64)
-    if first < stop:
-        width = layer.rows.shape[1]
-        flats = [np.ascontiguousarray(b.rows).reshape(-1) for b in files]
-        whole = len(flats[0]) // 8
-        low, high = first * width // 8, min(whole, -(-stop * width // 8))
-        tail = len(flats[0]) - 8 * whole  # the last bytes, short of a word: one zero-padded word of their own
-        union, union_tail = np.empty(whole, dtype=np.uint64), np.empty(1, dtype=np.uint64)
-        for number, flat in enumerate(flats):
-            mode = COMPARE if number == len(masks) else START if number == 0 else JOIN
-            fold_words(union, flat[:8 * whole].view(np.uint64), low, high, mode, out[number])
-            if tail and stop * width > 8 * whole:
-                padded = np.zeros(8, dtype=np.uint8)
-                padded[:tail] = flat[8 * whole:]
-                fold_words(union_tail, padded.view(np.uint64), 0, 1, mode, out[number])
+    span = min(b.span[0] for b in files), max(b.span[1] for b in files)
+    out = _fold(files, span, [START] + [JOIN] * (len(masks) - 1) + [COMPARE])
     counts = [int(count) for count in out[:, 0]]
     return [counts[-1], *counts[:-1]], not out[:, 1].any()
+
+
+def _fold(files: list[Bits], span: tuple[int, int], modes: list[int], against_self: bool = False) -> np.ndarray:
+    """(len(files), 2) int64: :func:`heoslice.layers.packed_kernels.fold_words` of each file in ``modes`` over the
+    words of rows span[0]..span[1]-1 (set bits, wrong flag), the files folded into one union in turn, or each
+    compared with itself (``against_self``: its count alone). Whole arrays are passed, their words aligned."""
+    from heoslice.layers.packed_kernels import fold_words
+
+    first, stop = span
+    out = np.zeros((len(files), 2), dtype=np.int64)
+    if first >= stop:
+        return out
+    width = files[0].rows.shape[1]
+    flats = [np.ascontiguousarray(b.rows).reshape(-1) for b in files]
+    whole = len(flats[0]) // 8
+    low, high = first * width // 8, min(whole, -(-stop * width // 8))
+    tail = len(flats[0]) - 8 * whole  # the last bytes, short of a word: one zero-padded word of their own
+    union = None if against_self else np.empty(whole, dtype=np.uint64)
+    union_tail = np.empty(1, dtype=np.uint64)
+    for number, (flat, mode) in enumerate(zip(flats, modes)):
+        words = flat[:8 * whole].view(np.uint64)
+        fold_words(words if against_self else union, words, low, high, mode, out[number])
+        if tail and stop * width > 8 * whole:
+            padded = np.zeros(8, dtype=np.uint8)
+            padded[:tail] = flat[8 * whole:]
+            padded_words = padded.view(np.uint64)
+            fold_words(padded_words if against_self else union_tail, padded_words, 0, 1, mode, out[number])
+    return out
 
 
 def count_bits(bits: np.ndarray) -> int:

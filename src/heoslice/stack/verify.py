@@ -40,7 +40,7 @@ FileCheck = tuple[Path, str, str, int | None, str | None]
 
 
 def _file_bits(check: FileCheck, manifest: dict, check_pixels: bool, inflated: InflatedStrips,
-               decoded: dict[tuple, Bits]) -> tuple[str | None, Bits | None]:
+               decoded: list[tuple[bytes, str | None, bool, Bits]]) -> tuple[str | None, Bits | None]:
     """(problem of one listed image file or None, its solid pixels as packed rows when decoded): layout, size
     and hash checked, the file read and decoded once (a strip already inflated from another file of the layer,
     in ``inflated``, copied; a file whose bytes and reading are another's, in ``decoded``, given its Bits)."""
@@ -50,10 +50,12 @@ def _file_bits(check: FileCheck, manifest: dict, check_pixels: bool, inflated: I
         if not check_pixels:
             return None, None
         alpha = manifest["mask"] == "alpha" and mode is not None
-        key = (layer.data, mode, alpha)
-        if key not in decoded:
-            decoded[key] = solid_bits(layer, alpha, inflated=inflated)
-        return None, decoded[key]
+        for data, its_mode, its_alpha, bits in decoded:
+            if (its_mode, its_alpha) == (mode, alpha) and data == layer.data:
+                return None, bits
+        bits = solid_bits(layer, alpha, inflated=inflated)
+        decoded.append((layer.data, mode, alpha, bits))
+        return None, bits
     except VerifyError as err:
         return str(err), None
 
@@ -71,7 +73,7 @@ def layer_check(index: int, plan: list, manifest: dict, check_pixels: bool) -> t
     outside), counted and checked in one pass per file (:func:`heoslice.stack.packed.partition_counts`)."""
     found: list[tuple[str | None, FileCheck | None, Bits | None]] = []  # per listed file: problem, check, bits
     inflated: InflatedStrips = {}
-    known: dict[tuple, Bits] = {}
+    known: list[tuple[bytes, str | None, bool, Bits]] = []
     for item in plan:
         if isinstance(item, str):
             found.append((item, None, None))
