@@ -8,6 +8,7 @@ Channel 0 of a layer is its solid mask, channels 1.. its droplet masks, each bit
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -143,8 +144,9 @@ def channel_payloads(job: JobSpec, targets: Sequence[int], solid, masks: Sequenc
 def stored_layer_bytes(directory: Path, layers: list[dict]) -> tuple[int, ...]:
     """Bytes of each layer's files (its own and its droplet masks') in a verified stack, from the file system;
     StackChangedError when one went missing since it was verified."""
+    folder = str(directory)
     try:
-        return tuple(sum((directory / name).stat().st_size
+        return tuple(sum(os.stat(os.path.join(folder, name)).st_size
                          for name in [entry["file"], *(channel["file"] for channel in entry.get("channels") or [])])
                      for entry in layers)
     except OSError as err:

@@ -162,7 +162,7 @@ def _fast_bound(manifest: dict) -> int:
     return 2 * height * row_bytes(manifest["image"]["width"]) + 1024 * height + (1 << 20)
 
 
-def read_layer_file(path: Path | None, name: str, sha256: str | None, manifest: dict,
+def read_layer_file(path: Path | str | None, name: str, sha256: str | None, manifest: dict,
                     mode: str | None) -> LayerFile:
     """The bytes and checked page of one layer file: inside the stack (``path`` None otherwise), a regular file,
     its layout passing :func:`checked_page` (``mode`` a manifest image mode, or None for a droplet mask), at

@@ -102,7 +102,7 @@ def regular_files(directory: Path) -> set[str]:
         return set()
 
 
-def open_regular(path: Path, name: str):
+def open_regular(path: Path | str, name: str):
     """``path`` opened for binary reading if it is a regular file; VerifyError otherwise. Opened without
     blocking, so a FIFO or device planted in a stack is refused instead of waited on forever."""
     handle = open(path, "rb", opener=lambda target, flags: os.open(target, flags | os.O_NONBLOCK))
@@ -113,7 +113,7 @@ def open_regular(path: Path, name: str):
     return handle
 
 
-def read_checked(path: Path, name: str, sha256: str | None, manifest: dict, mode: str | None) -> bytes:
+def read_checked(path: Path | str, name: str, sha256: str | None, manifest: dict, mode: str | None) -> bytes:
     """The bytes of a layer file whose TIFF layout passed :func:`checked_page`, at most what that layout
     can need, and matching ``sha256`` when given. Memory: bounded by twice the raw image size."""
     try:

@@ -35,8 +35,9 @@ class StackReport:
 
 
 
-#: One listed file of a layer to check: (path, name, sha256, solid pixel count or None, image mode or None).
-FileCheck = tuple[Path, str, str, int | None, str | None]
+#: One listed file of a layer to check: (its resolved path as text, name, sha256, solid pixel count or None, image
+#: mode or None).
+FileCheck = tuple[str, str, str, int | None, str | None]
 
 
 def _file_bits(check: FileCheck, manifest: dict, check_pixels: bool, inflated: InflatedStrips,
@@ -131,9 +132,10 @@ def plan_stack(directory: Path) -> StackPlan:
     cannot be read), each listed file resolved inside the stack and listed once."""
     directory = Path(directory)
     manifest = read_manifest(directory)
-    listed: dict[Path, str] = {}
+    listed: dict[str, str] = {}  # resolved path -> the layer listing it
     mode = manifest["image"].get("mode", "1")
     root = directory.resolve()
+    root_text = str(root)
     regular = regular_files(root)
     plans = []
     for entry in manifest["layers"]:
@@ -144,7 +146,11 @@ def plan_stack(directory: Path) -> StackPlan:
         plan: list = []
         for name, digest, solid, file_mode in files:
             plain = isinstance(name, str) and name in regular  # a regular file of the folder: no stat needed
-            path = root / name if plain else resolve_inside(root, name, resolved=True)
+            if plain:  # joined as text: a Path a file made this loop the parent's slowest part
+                path = os.path.join(root_text, name)
+            else:
+                inside = resolve_inside(root, name, resolved=True)
+                path = None if inside is None else str(inside)
             if path is None:
                 plan.append(f"layer {index}: file {name!r} lies outside the stack")
                 continue
@@ -152,8 +158,8 @@ def plan_stack(directory: Path) -> StackPlan:
                 plan.append(f"layer {index}: {name} is listed twice (also by {listed[path]})")
                 continue
             listed[path] = f"layer {index}"
-            if not plain and not path.is_file():
-                plan.append(f"layer {index}: {name} is {'not a regular file' if path.exists() else 'missing'}")
+            if not plain and not os.path.isfile(path):
+                plan.append(f"layer {index}: {name} is {'not a regular file' if os.path.exists(path) else 'missing'}")
                 continue
             plan.append((path, name, digest, solid, file_mode))
         plans.append(plan)
@@ -164,7 +170,7 @@ def plan_stack(directory: Path) -> StackPlan:
         problems.append(str(err))
     z_min, z_max = manifest["z_range_mm"]
     problems += layer_height_problems(manifest, z_min, z_max, "the manifest's")
-    names = {path.name for path in listed if path.parent == root}
+    names = {os.path.basename(path) for path in listed if os.path.dirname(path) == root_text}
     for entry in sorted(os.listdir(directory)):
         if LAYER_PATTERN.match(entry) and entry not in names:
             problems.append(f"{entry}: layer file not listed in the manifest")
