@@ -199,3 +199,27 @@ def test_a_mask_that_is_the_layers_own_bits_is_partitioned_as_written_out(height
     bits = _bits(layer)
     counts, partitioned = packed.partition_counts(bits, [bits, *(_bits(mask) for mask in rest)])
     assert (counts, partitioned) == _reference_partition(layer, [layer, *rest])
+
+
+def test_a_file_of_known_blank_strips_is_not_inflated(tmp_path, monkeypatch):
+    """A blank droplet mask whose strips are all known to inflate to zeros (learned from an earlier file) reads as
+    zero rows with an empty span without a strip inflated, and its rows cannot be written; a file with one set
+    pixel more is inflated as before."""
+    manifest = {"image": {"width": 70, "height": 800}, "dpi": [300.0, 300.0], "mask": "nonzero"}
+    pixels = np.zeros((800, 70), dtype=bool)
+    one = pixels.copy()
+    one[700, 3] = True
+    for name, image in (("blank.tif", pixels), ("one.tif", one)):
+        (tmp_path / name).write_bytes(encode_bilevel_tiff(np.packbits(image, axis=1), 70, (300.0, 300.0), "deflate"))
+    blank = read_layer_file(tmp_path / "blank.tif", "blank.tif", None, manifest, None)
+    solid_bits(blank, False)  # its strips learned as blank
+    decoder = packed._strip_decoder(8)
+    calls = []
+    monkeypatch.setattr(packed, "_strip_decoder",
+                        lambda code: lambda strip, out: calls.append(1) or decoder(strip, out=out))
+    again = solid_bits(blank, False)
+    assert calls == [] and again.span == (0, 0) and not again.rows.any() and again.rows.shape == (800, 9)
+    with pytest.raises(ValueError, match="read-only"):
+        again.rows[0, 0] = 1
+    bits = solid_bits(read_layer_file(tmp_path / "one.tif", "one.tif", None, manifest, None), False)
+    assert calls and np.array_equal(unpack_bits(bits.rows, 70), one) and bits.span[0] <= 700 < bits.span[1]

@@ -268,6 +268,30 @@ def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, st
     return (span[0], span[1]) if span[0] < span[1] else (0, 0)
 
 
+def _known_blank(layer: LayerFile) -> bool:
+    """Whether every strip of a plain 1-bit page is one known to inflate to zeros (a droplet mask of a material
+    absent from its layer), so that nothing need be inflated or zeroed."""
+    page = layer.page
+    if (page.bitspersample, page.samplesperpixel) != (1, 1) or page.fillorder != 1 or page.predictor != 1:
+        return False
+    rows, width, height = _strip_rows(page), row_bytes(page.imagewidth), page.imagelength
+    data = layer.data
+    for number, (offset, count) in enumerate(zip(page.dataoffsets, page.databytecounts)):
+        expected = min(rows, height - number * rows) * width  # as _inflate_bits tells a blank strip
+        if count > min(_BLANK_STRIP_BYTES, expected // _BLANK_RATIO + 64) or data[offset:offset + count] not in \
+                _BLANK_STRIPS:
+            return False
+    return True
+
+
+@functools.lru_cache(maxsize=4)
+def _blank_rows(height: int, width: int) -> np.ndarray:
+    """Zero packed rows of a layer size, shared and read-only (a blank file's :class:`Bits`)."""
+    rows = np.zeros((height, width), dtype=np.uint8)
+    rows.flags.writeable = False
+    return rows
+
+
 @functools.cache
 def _strip_decoder(code: int):
     """imagecodecs' decoder of a strip compression code (None: stored as is)."""
@@ -296,6 +320,8 @@ def solid_bits(layer: LayerFile, alpha: bool, rows: tuple[int, int] | None = Non
     the returned Bits' own, not to be written while it is in use."""
     page = layer.page
     height, width = page.imagelength, row_bytes(page.imagewidth)
+    if _known_blank(layer):
+        return Bits(_blank_rows(height, width), (0, 0))
     first, stop = (0, height) if rows is None else rows
     flat = np.empty(height * width + 1, dtype=np.uint8)  # _inflate_bits writes or zeroes every row
     flat[-1] = 0
