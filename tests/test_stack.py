@@ -590,3 +590,18 @@ def test_verify_works_on_the_layers_also_names_from_their_checked_bits(graded_va
     edit_manifest(broken, lambda m: m["layers"][4].update(solid_pixels=m["layers"][4]["solid_pixels"] + 1))
     report = verify_stack(broken, also=also)
     assert not report.ok and sorted(report.also) == [1]
+
+
+def test_read_small_regular_reads_a_small_file_and_refuses_a_fifo_without_waiting(tmp_path):
+    """A regular file of at most ``most`` bytes is read whole, a larger one is left to the careful reader (None),
+    and a FIFO planted in its place is refused at once (opened without blocking), naming the file."""
+    from heoslice.stack.read import read_small_regular
+
+    path = tmp_path / "layer_00000.tif"
+    path.write_bytes(b"x" * 100)
+    assert read_small_regular(path, "layer_00000.tif", 100) == b"x" * 100
+    assert read_small_regular(str(path), "layer_00000.tif", 99) is None
+    fifo = tmp_path / "layer_00001.tif"
+    os.mkfifo(fifo)
+    with pytest.raises(VerifyError, match="layer_00001.tif: is not a regular file"):
+        read_small_regular(fifo, "layer_00001.tif", 100)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import io
-import os
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from heoslice.errors import VerifyError
-from heoslice.stack.read import open_regular, read_checked, resolve_inside
+from heoslice.stack.read import read_checked, read_small_regular, resolve_inside
 from heoslice.stack.tiff import checked_page, decode_solid, file_limit, open_tiff
 
 #: TIFF compression code -> imagecodecs decoder names, the first it has taken, for the strips of 1-bit layers
@@ -171,9 +170,7 @@ def read_layer_file(path: Path | str | None, name: str, sha256: str | None, mani
     if path is None:
         raise VerifyError(f"{name}: lies outside the stack")
     try:
-        with open_regular(path, name) as handle:
-            size = os.fstat(handle.fileno()).st_size
-            data = handle.read(size + 1) if size <= _fast_bound(manifest) else None
+        data = read_small_regular(path, name, _fast_bound(manifest))
     except OSError as err:
         raise VerifyError(f"{name}: cannot read ({err.strerror})") from err
     if data is None:
