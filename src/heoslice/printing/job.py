@@ -81,11 +81,11 @@ def verified_job(directory: Path, progress: Callable[[int, int], None] | None = 
     from heoslice.stack.verify import refusal
 
     directory = Path(directory)
-    made = {}  # the manifest's job, made once
+    made = {}  # the manifest's job and mask channels, made once (the report's manifest is the one given here)
 
     def also(manifest: dict):
         try:
-            job, targets = made[id(manifest)] = _job_of(manifest, directory)
+            job, targets = made["job"] = _job_of(manifest, directory)
         except (HeosliceError, KeyError, TypeError, ValueError):  # not a manifest that verifies: no early work
             return None
         layers, work = early(job)
@@ -98,7 +98,7 @@ def verified_job(directory: Path, progress: Callable[[int, int], None] | None = 
     if not manifest["layers"]:
         raise InputError(f"{directory}: the stack has no layers")
     check_printable(manifest, directory)
-    job, targets = made.get(id(manifest)) or _job_of(manifest, directory)
+    job, targets = made.get("job") or _job_of(manifest, directory)
     job = replace(job, stored_bytes=stored_layer_bytes(directory, manifest["layers"]))
 
     def read(index: int) -> list[bytes]:

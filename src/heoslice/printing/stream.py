@@ -3,7 +3,8 @@
 :func:`next_chunk` picks DATA (raw, address implicit) or an encoded CHUNK for each piece of a layer
 (docs/protocol.md section 4); :func:`job_messages` yields the messages with chunk sizes chosen by
 the caller at the moment each chunk is made, so they follow the link's error rate; :func:`plan_transfer`
-sizes the stream without a port (a dry run), from every layer or from an even sample of them.
+sizes the stream without a port (a dry run), from every layer or from an even sample of them, and
+:func:`dry_run` sizes it from the verification's reading of the layers it encodes.
 """
 
 from __future__ import annotations
