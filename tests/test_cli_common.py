@@ -218,7 +218,7 @@ def test_every_long_command_draws_a_moving_bar_on_a_terminal(ball_200):
         (("export", stack, "--format", "png", "-o", ball_200 / "png"), "exporting png"),
         (("export", stack, "--format", "voxel-print", "--pitch", "0.1", "-o", ball_200 / "voxels"),
          "exporting voxel-print"),
-        (("print", stack, "--dry-run"), "sizing"),
+        (("print", stack, "--dry-run"), "verifying"),  # its sample is encoded in the verification's pass
         (("print", stack, "--port", "sim://"), "printing"),
     ]
     for args, description in runs:

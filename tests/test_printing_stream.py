@@ -4,6 +4,7 @@ of the print's own message stream; sampled, it is within the bound the help text
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,9 @@ from hypothesis import strategies as st
 from printing_jobs import synthetic_job
 
 from heoslice import procedural
-from heoslice.printing import SAMPLE_LAYERS, job_messages, plan_transfer, stack_job
+from heoslice.errors import InputError, VerifyError
+from heoslice.printing import (SAMPLE_LAYERS, JobSpec, dry_run, encoded_layers, job_messages, plan_transfer,
+                               stack_job)
 from heoslice.printing import protocol as P
 from heoslice.printing.stream import regression_total, sample_layers
 
@@ -173,3 +176,50 @@ def test_few_layers_with_solid_pixels_and_many_blank_ones_are_sized_exactly_from
     assert {key: estimate[key] for key in ("frames", "wire_bytes", "raw_bytes")} == {
         key: value for key, value in plan_transfer(job, layer, workers=1).items()
         if key in ("frames", "wire_bytes", "raw_bytes")}
+
+
+def test_channels_equal_to_an_earlier_one_are_framed_as_the_print_sends_them():
+    """A layer whose droplet mask repeats its solid mask (a part of one material) and a third channel of the same
+    length but other bytes: the exact plan is the print's stream, each channel framed from its own bytes."""
+    job, get_layer = synthetic_job(6, width=300, height=40, channels=2)
+    job = JobSpec(job.job_id, job.layer_count, 3, job.width, job.height)
+
+    def layer(index: int) -> list[bytes]:
+        solid, other = get_layer(index)
+        return [solid, solid, other]
+
+    plan = plan_transfer(job, layer, max_payload=200, workers=1)
+    assert (plan["frames"], plan["wire_bytes"]) == stream_figures(job, layer, 0, 200)
+
+
+@pytest.mark.parametrize("from_layer, sample", [(0, SAMPLE_LAYERS), (17, SAMPLE_LAYERS), (0, None), (5, 3)])
+def test_dry_run_sizes_from_the_verification_as_the_job_and_its_plan_do(ball_stack, from_layer, sample):
+    """dry_run gives stack_job's job and plan_transfer's figures (sampled or exact, from any layer), every layer
+    it encodes encoded from the verification's reading of it: nothing is left to size (and read) after it."""
+    sized = []
+    job, plan = dry_run(ball_stack, from_layer=from_layer, sample=sample, sizing=lambda done, total: sized.append(1))
+    expected_job, get_layer = stack_job(ball_stack)
+    assert job == expected_job and job.stored_bytes == expected_job.stored_bytes
+    assert plan == plan_transfer(job, get_layer, from_layer=from_layer, sample=sample)
+    assert sized == []
+
+
+def test_dry_run_refuses_what_a_print_refuses(ball_stack, tmp_path):
+    """A layer whose file changed (one of the sampled layers) is the verification's refusal, word for word as
+    stack_job's; a --from-layer outside the stack is plan_transfer's after a clean verification."""
+    broken = tmp_path / "broken"
+    shutil.copytree(ball_stack, broken)
+    manifest = json.loads((broken / "manifest.json").read_text())
+    job, _ = stack_job(ball_stack)
+    sampled = encoded_layers(job, 0, SAMPLE_LAYERS)[3]
+    path = broken / manifest["layers"][sampled]["file"]
+    data = bytearray(path.read_bytes())
+    data[-1] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(VerifyError) as printing:
+        stack_job(broken)
+    with pytest.raises(VerifyError) as dry:
+        dry_run(broken)
+    assert str(dry.value) == str(printing.value) and "sha256" in str(dry.value)
+    with pytest.raises(InputError, match="--from-layer 160 is outside the stack's layers 0..159"):
+        dry_run(ball_stack, from_layer=160)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import tracemalloc
 import zlib
 from dataclasses import replace
@@ -508,3 +509,99 @@ def test_droplet_masks_must_partition_the_layer(tmp_path, run_cli):
                                "pixel x ") for line in found), found
     assert any(line.startswith(f"layer 4: {second['solid_pixels']} solid pixel(s) in no droplet mask, first at ")
                for line in found), found
+
+
+@pytest.fixture(scope="module")
+def graded_vase(tmp_path_factory) -> Path:
+    """A small graded vase with two droplet masks a layer (M1, M2), 5 mm layers at 100 dpi."""
+    from heoslice.cli import main
+
+    folder = tmp_path_factory.mktemp("graded")
+    model = folder / "vase.ply"
+    procedural.vase(rings_outer=10, rings_inner=8, sections=24).export(model)
+    try:
+        main(["slice", str(model), "-o", str(folder / "stack"), "--layer", "5", "--dpi", "100", "--grade", "linear",
+              "--channels"])
+    except SystemExit as done:
+        assert done.code in (0, None)
+    return folder / "stack"
+
+
+def one_material_layer(directory: Path, index: int, other: str) -> tuple[dict, dict]:
+    """Make layer ``index``'s first droplet mask its layer's own file, byte for byte (as a part of one material
+    writes it), hash and count updated; the other mask is left as it is (``other`` 'kept') or made blank
+    ('blank'). Returns the layer entry and its masks' entries as they were."""
+    manifest = read_manifest(directory)
+    entry = manifest["layers"][index]
+    first, second = entry["channels"][:2]
+    (directory / first["file"]).write_bytes((directory / entry["file"]).read_bytes())
+    blank = None
+    if other == "blank":
+        from heoslice.stack import encode_bilevel_tiff
+
+        image = manifest["image"]
+        rows = np.zeros((image["height"], -(-image["width"] // 8)), np.uint8)
+        blank = encode_bilevel_tiff(rows, image["width"], tuple(manifest["dpi"]), "deflate")
+        (directory / second["file"]).write_bytes(blank)
+
+    def change(m: dict) -> None:
+        masks = m["layers"][index]["channels"]
+        masks[0].update(sha256=entry["sha256"], solid_pixels=entry["solid_pixels"])
+        if blank is not None:
+            masks[1].update(sha256=hashlib.sha256(blank).hexdigest(), solid_pixels=0)
+
+    edit_manifest(directory, change)
+    return entry, second
+
+
+def test_a_mask_that_is_its_layers_file_is_checked_against_the_other_masks(graded_vase, tmp_path):
+    """A layer whose first droplet mask is its own file byte for byte (read once, its bits shared) verifies
+    clean when the other mask is blank, and when the other mask still holds pixels they are reported as jetted
+    twice (not taken as a partition)."""
+    blank, kept = tmp_path / "blank", tmp_path / "kept"
+    for copy in (blank, kept):
+        shutil.copytree(graded_vase, copy)
+    one_material_layer(blank, 4, "blank")
+    assert verify_stack(blank).ok, verify_stack(blank).problems
+    _, second = one_material_layer(kept, 4, "kept")
+    assert second["solid_pixels"] > 0, "the test needs a layer using both materials"
+    found = problems(kept)
+    assert any(line.startswith(f"layer 4: {second['solid_pixels']} pixel(s) in two or more droplet masks")
+               for line in found), found
+
+
+def test_verify_works_on_the_layers_also_names_from_their_checked_bits(graded_vase, tmp_path):
+    """verify_stack's ``also`` is given the manifest, and its work runs on each layer it names that passes its
+    check, with the bits layer_bits reads (the layer's, then its masks'); a layer with a problem gets no work."""
+    from heoslice.stack.packed import layer_bits
+
+    def also(manifest: dict):
+        assert manifest["layers"][0]["index"] == 0
+        return [1, 4], lambda index, bits: [bits[0].rows.copy(), *(b.rows.copy() for b in bits[1:])]
+
+    report = verify_stack(graded_vase, also=also)
+    assert report.ok and sorted(report.also) == [1, 4]
+    manifest = read_manifest(graded_vase)
+    for index, rows in report.also.items():
+        solid, masks = layer_bits(graded_vase, manifest, index)
+        assert all(np.array_equal(got, want.rows) for got, want in zip(rows, [solid, *masks], strict=True))
+    broken = tmp_path / "broken"
+    shutil.copytree(graded_vase, broken)
+    edit_manifest(broken, lambda m: m["layers"][4].update(solid_pixels=m["layers"][4]["solid_pixels"] + 1))
+    report = verify_stack(broken, also=also)
+    assert not report.ok and sorted(report.also) == [1]
+
+
+def test_read_small_regular_reads_a_small_file_and_refuses_a_fifo_without_waiting(tmp_path):
+    """A regular file of at most ``most`` bytes is read whole, a larger one is left to the careful reader (None),
+    and a FIFO planted in its place is refused at once (opened without blocking), naming the file."""
+    from heoslice.stack.read import read_small_regular
+
+    path = tmp_path / "layer_00000.tif"
+    path.write_bytes(b"x" * 100)
+    assert read_small_regular(path, "layer_00000.tif", 100) == b"x" * 100
+    assert read_small_regular(str(path), "layer_00000.tif", 99) is None
+    fifo = tmp_path / "layer_00001.tif"
+    os.mkfifo(fifo)
+    with pytest.raises(VerifyError, match="layer_00001.tif: is not a regular file"):
+        read_small_regular(fifo, "layer_00001.tif", 100)

@@ -157,3 +157,69 @@ def test_partition_counts_see_a_fault_in_the_last_bytes():
     assert packed.partition_counts(_bits(layer), [_bits(mask) for mask in masks]) == ([1, 1, 1], False)
     masks[1][2, 39] = False
     assert packed.partition_counts(_bits(layer), [_bits(mask) for mask in masks]) == ([1, 1, 0], True)
+
+
+def test_strips_shared_by_a_layers_files_are_inflated_once(tmp_path, monkeypatch):
+    """Files read with one ``inflated`` dict (a layer's files) give the rows each gives alone, and a strip whose
+    bytes an earlier file held is copied: the second file, equal but for one strip, inflates that strip only."""
+    rng = np.random.default_rng(5)
+    pixels = rng.random((800, 70)) < 0.5  # noise: every strip long, none known blank
+    other = pixels.copy()
+    other[5, :] = ~other[5, :]  # the first strip differs
+    manifest = {"image": {"width": 70, "height": 800}, "dpi": [300.0, 300.0], "mask": "nonzero"}
+    files = []
+    for name, image in (("a.tif", pixels), ("b.tif", other)):
+        (tmp_path / name).write_bytes(encode_bilevel_tiff(np.packbits(image, axis=1), 70, (300.0, 300.0), "deflate"))
+        files.append(read_layer_file(tmp_path / name, name, None, manifest, "1"))
+    strips = len(tifffile.TiffFile(tmp_path / "a.tif").pages.first.dataoffsets)
+    assert strips > 2, "the test needs several strips"
+    decoder = packed._strip_decoder(8)
+    calls = []
+    monkeypatch.setattr(packed, "_strip_decoder",
+                        lambda code: lambda strip, out: calls.append(1) or decoder(strip, out=out))
+    inflated = {}
+    first = solid_bits(files[0], False, inflated=inflated)
+    assert len(calls) == strips
+    second = solid_bits(files[1], False, inflated=inflated)
+    assert len(calls) == strips + 1
+    assert np.array_equal(unpack_bits(first.rows, 70), pixels) and np.array_equal(unpack_bits(second.rows, 70), other)
+    assert first.span == second.span == (0, 800)
+
+
+@settings(max_examples=100, deadline=None)
+@given(height=st.integers(1, 9), width=st.integers(1, 70), seed=st.integers(0, 2**32 - 1), others=st.integers(1, 2),
+       blank=st.booleans())
+def test_a_mask_that_is_the_layers_own_bits_is_partitioned_as_written_out(height, width, seed, others, blank):
+    """A droplet mask read from the layer's own bytes (the layer's Bits object itself, a part of one material)
+    beside other masks, blank or not: counts and verdict equal the plain numpy reference (a partition only when
+    every other mask is blank)."""
+    rng = np.random.default_rng(seed)
+    layer = rng.random((height, width)) < 0.6
+    rest = [np.zeros_like(layer) if blank else rng.random((height, width)) < 0.3 for _ in range(others)]
+    bits = _bits(layer)
+    counts, partitioned = packed.partition_counts(bits, [bits, *(_bits(mask) for mask in rest)])
+    assert (counts, partitioned) == _reference_partition(layer, [layer, *rest])
+
+
+def test_a_file_of_known_blank_strips_is_not_inflated(tmp_path, monkeypatch):
+    """A blank droplet mask whose strips are all known to inflate to zeros (learned from an earlier file) reads as
+    zero rows with an empty span without a strip inflated, and its rows cannot be written; a file with one set
+    pixel more is inflated as before."""
+    manifest = {"image": {"width": 70, "height": 800}, "dpi": [300.0, 300.0], "mask": "nonzero"}
+    pixels = np.zeros((800, 70), dtype=bool)
+    one = pixels.copy()
+    one[700, 3] = True
+    for name, image in (("blank.tif", pixels), ("one.tif", one)):
+        (tmp_path / name).write_bytes(encode_bilevel_tiff(np.packbits(image, axis=1), 70, (300.0, 300.0), "deflate"))
+    blank = read_layer_file(tmp_path / "blank.tif", "blank.tif", None, manifest, None)
+    solid_bits(blank, False)  # its strips learned as blank
+    decoder = packed._strip_decoder(8)
+    calls = []
+    monkeypatch.setattr(packed, "_strip_decoder",
+                        lambda code: lambda strip, out: calls.append(1) or decoder(strip, out=out))
+    again = solid_bits(blank, False)
+    assert calls == [] and again.span == (0, 0) and not again.rows.any() and again.rows.shape == (800, 9)
+    with pytest.raises(ValueError, match="read-only"):
+        again.rows[0, 0] = 1
+    bits = solid_bits(read_layer_file(tmp_path / "one.tif", "one.tif", None, manifest, None), False)
+    assert calls and np.array_equal(unpack_bits(bits.rows, 70), one) and bits.span[0] <= 700 < bits.span[1]

@@ -10,16 +10,7 @@ import click
 from heoslice.cli.common import progress_bar
 from heoslice.locks import hold_stack
 from heoslice.printing.ports import DEFAULT_BAUD
-from heoslice.printing import (
-    SAMPLE_LAYERS,
-    check_log_output,
-    Progress,
-    default_log_path,
-    job_summary,
-    plan_transfer,
-    print_job,
-    stack_job,
-)
+from heoslice.printing import SAMPLE_LAYERS, dry_run, job_summary, stack_job
 from heoslice.stack import check_input_path
 
 
@@ -93,10 +84,9 @@ def _dry_run(stack: Path, baud: int | None, max_payload: int, from_layer: int | 
     baud = baud or DEFAULT_BAUD
     with progress_bar("verifying", enabled=not as_json) as verifying, \
             progress_bar("sizing", enabled=not as_json) as sizing:
-        job, get_layer = stack_job(stack, verifying)
-        summary = {"stack": str(stack), "ok": True, "job_id": f"{job.job_id:08x}",
-                   **plan_transfer(job, get_layer, baud=baud, max_payload=max_payload, from_layer=from_layer or 0,
-                                   sample=None if exact else SAMPLE_LAYERS, progress=sizing)}
+        job, plan = dry_run(stack, baud=baud, max_payload=max_payload, from_layer=from_layer or 0,
+                            sample=None if exact else SAMPLE_LAYERS, verifying=verifying, sizing=sizing)
+        summary = {"stack": str(stack), "ok": True, "job_id": f"{job.job_id:08x}", **plan}
     if as_json:
         click.echo(json.dumps(summary))
         return
@@ -113,6 +103,8 @@ def _dry_run(stack: Path, baud: int | None, max_payload: int, from_layer: int | 
 def _print(stack: Path, port: str, baud: int | None, from_layer: int | None, resume: bool, restart: bool,
            log_path: Path | None, max_payload: int, as_json: bool) -> None:
     """Print the held stack and report."""
+    from heoslice.printing import Progress, check_log_output, default_log_path, print_job
+
     log_path = log_path or default_log_path(stack)
     check_log_output(log_path, inputs=(stack,))
     with progress_bar("verifying", enabled=not as_json) as verifying:

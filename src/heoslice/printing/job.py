@@ -8,8 +8,9 @@ Channel 0 of a layer is its solid mask, channels 1.. its droplet masks, each bit
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+import os
+from collections.abc import Callable, Collection, Iterator, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -60,32 +61,49 @@ def stack_job(directory: Path, progress: Callable[[int, int], None] | None = Non
     the verification. A layer's masks are read as packed rows (:mod:`heoslice.stack.packed`), which are the
     channel payloads as they are.
     """
-    from heoslice.stack import check_printable, load_verified
+    job, get_layer, _ = verified_job(directory, progress)
+    return job, get_layer
+
+
+#: ``early(job)``: the layers whose channels a reader wants while the stack is verified, and what to make of
+#: them, ``work(index, channels)`` (small: it is sent back from the worker); ``job`` is made from the manifest
+#: before it is verified (without ``stored_bytes``).
+EarlyWork = Callable[[JobSpec], tuple[Collection[int], Callable[[int, list[bytes]], object]]]
+
+
+def verified_job(directory: Path, progress: Callable[[int, int], None] | None = None,
+                 early: EarlyWork | None = None) -> tuple[JobSpec, LayerSource, dict[int, object]]:
+    """:func:`stack_job`'s job and layer source, and what ``early`` (:data:`EarlyWork`) made of the channels of
+    the layers it named, from the same reading of each as its verification (a dry run sizes its sample so,
+    without reading those layers again). Refuses exactly as :func:`stack_job` does, whatever ``early`` is."""
+    from heoslice.stack import check_printable, verify_stack
     from heoslice.stack.packed import layer_bits
+    from heoslice.stack.verify import refusal
 
     directory = Path(directory)
-    manifest = load_verified(directory, progress, layer_map)
-    layers = manifest["layers"]
-    if not layers:
+    made = {}  # the manifest's job and mask channels, made once (the report's manifest is the one given here)
+
+    def also(manifest: dict):
+        try:
+            job, targets = made["job"] = _job_of(manifest, directory)
+        except (HeosliceError, KeyError, TypeError, ValueError):  # not a manifest that verifies: no early work
+            return None
+        layers, work = early(job)
+        return layers, lambda index, bits: work(index, channel_payloads(job, targets, bits[0], bits[1:]))
+
+    report = verify_stack(directory, layer_map=layer_map, progress=progress, also=also if early else None)
+    if not report.ok:
+        raise refusal(directory, report.problems)
+    manifest = report.manifest
+    if not manifest["layers"]:
         raise InputError(f"{directory}: the stack has no layers")
     check_printable(manifest, directory)
-    width, height = manifest["image"]["width"], manifest["image"]["height"]
-    widest = widest_masks(manifest)
-    targets = mask_channels(manifest, directory)
-    channels = 1 + max(targets, default=0)
-    names = ["solid", *(["unused"] * (channels - 1))]
-    for channel, target in zip(widest, targets):
-        names[target] = str(channel.get("material", f"channel {target}"))
-    job_id = P.crc32(json.dumps(manifest, sort_keys=True).encode()) or 1
-    job = JobSpec(job_id, len(layers), channels, width, height, tuple(names), stored_layer_bytes(directory, layers),
-                  tuple(entry["solid_pixels"] == 0 for entry in layers))
+    job, targets = made.get("job") or _job_of(manifest, directory)
+    job = replace(job, stored_bytes=stored_layer_bytes(directory, manifest["layers"]))
 
     def read(index: int) -> list[bytes]:
         solid, masks = layer_bits(directory, manifest, index)
-        out = [solid.rows.tobytes()] + [bytes(job.channel_bytes)] * (channels - 1)
-        for mask, target in zip(masks, targets):
-            out[target] = mask.rows.tobytes()
-        return out
+        return channel_payloads(job, targets, solid, masks)
 
     def get_layer(index: int) -> list[bytes]:
         """Layer ``index``, read and checked again now: a file that changed since verification stops the print."""
@@ -95,14 +113,40 @@ def stack_job(directory: Path, progress: Callable[[int, int], None] | None = Non
             raise StackChangedError(f"{directory}: the stack changed while it was being printed (layer {index}: "
                                     f"{err}); ABORT sent; verify the stack and print it again") from None
 
-    return job, get_layer
+    return job, get_layer, report.also
+
+
+def _job_of(manifest: dict, directory: Path) -> tuple[JobSpec, tuple[int, ...]]:
+    """The :class:`JobSpec` of a stack's manifest (without ``stored_bytes``) and each droplet mask's printer
+    channel (:func:`mask_channels`)."""
+    layers = manifest["layers"]
+    widest = widest_masks(manifest)
+    targets = mask_channels(manifest, directory)
+    channels = 1 + max(targets, default=0)
+    names = ["solid", *(["unused"] * (channels - 1))]
+    for channel, target in zip(widest, targets):
+        names[target] = str(channel.get("material", f"channel {target}"))
+    job_id = P.crc32(json.dumps(manifest, sort_keys=True).encode()) or 1
+    job = JobSpec(job_id, len(layers), channels, manifest["image"]["width"], manifest["image"]["height"],
+                  tuple(names), (), tuple(entry["solid_pixels"] == 0 for entry in layers))
+    return job, targets
+
+
+def channel_payloads(job: JobSpec, targets: Sequence[int], solid, masks: Sequence) -> list[bytes]:
+    """A layer's channel payloads from its files' packed rows (:class:`heoslice.stack.packed.Bits`): the solid
+    pixels on channel 0, each droplet mask on its printer channel ``targets`` gives, empty masks elsewhere."""
+    out = [solid.rows.tobytes()] + [bytes(job.channel_bytes)] * (job.channels - 1)
+    for mask, target in zip(masks, targets):
+        out[target] = mask.rows.tobytes()
+    return out
 
 
 def stored_layer_bytes(directory: Path, layers: list[dict]) -> tuple[int, ...]:
     """Bytes of each layer's files (its own and its droplet masks') in a verified stack, from the file system;
     StackChangedError when one went missing since it was verified."""
+    folder = str(directory)
     try:
-        return tuple(sum((directory / name).stat().st_size
+        return tuple(sum(os.stat(os.path.join(folder, name)).st_size
                          for name in [entry["file"], *(channel["file"] for channel in entry.get("channels") or [])])
                      for entry in layers)
     except OSError as err:

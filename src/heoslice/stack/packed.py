@@ -12,14 +12,14 @@ from __future__ import annotations
 import functools
 import hashlib
 import io
-import os
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from heoslice.errors import VerifyError
-from heoslice.stack.read import open_regular, read_checked, resolve_inside
+from heoslice.stack.read import read_checked, read_small_regular, resolve_inside
 from heoslice.stack.tiff import checked_page, decode_solid, file_limit, open_tiff
 
 #: TIFF compression code -> imagecodecs decoder names, the first it has taken, for the strips of 1-bit layers
@@ -114,18 +114,18 @@ def _known_page(data: bytes, layout: _Layout) -> StripPage | None:
     if len(data) < len(head):
         return None
     masked = bytearray(data[:len(head)])
-    offsets = np.frombuffer(masked, dtype="<u4", count=strips, offset=layout.offsets_at).astype(np.int64)
-    counts = np.frombuffer(masked, dtype="<u4", count=strips, offset=layout.counts_at).astype(np.int64)
+    table = f"<{strips}I"  # a dozen strips: Python's ints beat numpy's per-call cost here
+    offsets = struct.unpack_from(table, masked, layout.offsets_at)
+    counts = struct.unpack_from(table, masked, layout.counts_at)
     for at in (layout.offsets_at, layout.counts_at):
         masked[at:at + 4 * strips] = bytes(4 * strips)
     if masked != head:
         return None
-    raw = page.rowsperstrip * row_bytes(page.imagewidth)
-    if (counts > 2 * raw + 1024).any() or (counts == 0).any() or (offsets < 8).any() \
-            or (offsets + counts > len(data)).any():
+    most, size = 2 * page.rowsperstrip * row_bytes(page.imagewidth) + 1024, len(data)
+    if any(not 0 < count <= most or offset < 8 or offset + count > size for offset, count in zip(offsets, counts)):
         return None
-    page = StripPage(*(getattr(page, name) for name in StripPage.__slots__[:8]),
-                     tuple(offsets.tolist()), tuple(counts.tolist()))
+    page = StripPage(page.imagelength, page.imagewidth, page.rowsperstrip, page.bitspersample, page.samplesperpixel,
+                     page.fillorder, page.predictor, page.compression, offsets, counts)
     if len(data) > file_limit(page):
         return None
     return page
@@ -161,7 +161,7 @@ def _fast_bound(manifest: dict) -> int:
     return 2 * height * row_bytes(manifest["image"]["width"]) + 1024 * height + (1 << 20)
 
 
-def read_layer_file(path: Path | None, name: str, sha256: str | None, manifest: dict,
+def read_layer_file(path: Path | str | None, name: str, sha256: str | None, manifest: dict,
                     mode: str | None) -> LayerFile:
     """The bytes and checked page of one layer file: inside the stack (``path`` None otherwise), a regular file,
     its layout passing :func:`checked_page` (``mode`` a manifest image mode, or None for a droplet mask), at
@@ -170,9 +170,7 @@ def read_layer_file(path: Path | None, name: str, sha256: str | None, manifest: 
     if path is None:
         raise VerifyError(f"{name}: lies outside the stack")
     try:
-        with open_regular(path, name) as handle:
-            size = os.fstat(handle.fileno()).st_size
-            data = handle.read(size + 1) if size <= _fast_bound(manifest) else None
+        data = read_small_regular(path, name, _fast_bound(manifest))
     except OSError as err:
         raise VerifyError(f"{name}: cannot read ({err.strerror})") from err
     if data is None:
@@ -200,11 +198,19 @@ _BLANK_STRIPS: set[bytes] = set()
 _MAX_BLANK_STRIPS, _BLANK_STRIP_BYTES, _BLANK_RATIO = 64, 4096, 256
 
 
-def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, stop: int) -> tuple[int, int] | None:
+#: Strips inflated earlier while reading one layer's files (:func:`solid_bits`' ``inflated``): (compression code,
+#: bytes inflated, the strip's bytes) -> its packed rows. A droplet mask's strip off the other materials is the
+#: layer's own strip byte for byte (a layer of one material: the whole file), and is copied, not inflated again.
+InflatedStrips = dict[tuple[int, int, bytes], np.ndarray]
+
+
+def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, stop: int,
+                  inflated: InflatedStrips | None = None) -> tuple[int, int] | None:
     """Inflate the strips of a plain 1-bit page holding rows first..stop-1 into ``flat`` (the packed rows of
     the image, one spare byte after them; the rows of every other strip are zeroed); return the rows (first,
-    stop) that may hold set bits (blank strips are known by their bytes and zeroed, not inflated). None
-    (``flat`` partly written) when the page or a strip is not laid out as heoslice writes it."""
+    stop) that may hold set bits (blank strips are known by their bytes and zeroed, not inflated; a strip in
+    ``inflated`` is copied from there, and the strips inflated here are added to it). None (``flat`` partly
+    written) when the page or a strip is not laid out as heoslice writes it."""
     page = layer.page
     if (page.bitspersample, page.samplesperpixel) != (1, 1) or page.fillorder != 1 or page.predictor != 1:
         return None
@@ -214,22 +220,34 @@ def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, st
     decode = _strip_decoder(code)
     rows = _strip_rows(page)
     view = memoryview(layer.data)
-    span = [page.imagelength, 0]
+    height = page.imagelength
+    full = rows * width  # bytes of a whole strip's rows; the last strip may hold fewer
+    short_bytes = min(_BLANK_STRIP_BYTES, full // _BLANK_RATIO + 64)
+    blank, keyed = _BLANK_STRIPS, inflated is not None and decode is not None
+    span = [height, 0]
     for number, (offset, count) in enumerate(zip(page.dataoffsets, page.databytecounts)):
         row = number * rows
-        expected = min(rows, page.imagelength - row) * width
-        target = flat[row * width:row * width + expected + 1]
+        expected = full if row + rows <= height else (height - row) * width
+        at = row * width
         if row + rows <= first or row >= stop:
-            target[:expected] = 0
+            flat[at:at + expected] = 0
             continue
+        short = count <= (short_bytes if expected == full else min(_BLANK_STRIP_BYTES, expected // _BLANK_RATIO + 64))
+        blob = bytes(view[offset:offset + count]) if short or keyed else None
+        if short and blob in blank:
+            flat[at:at + expected] = 0
+            continue
+        key = (code, expected, blob) if keyed else None
+        known = inflated.get(key) if keyed else None
+        if known is not None:
+            flat[at:at + expected] = known
+            span = [min(span[0], row), max(span[1], row + expected // width)]
+            continue
+        target = flat[at:at + expected + 1]
         strip = view[offset:offset + count]
-        short = count <= min(_BLANK_STRIP_BYTES, expected // _BLANK_RATIO + 64)
-        if short and bytes(strip) in _BLANK_STRIPS:
-            target[:expected] = 0
-            continue
         try:
             if decode is None:
-                done = min(len(strip), expected + 1)
+                done = min(count, expected + 1)
                 target[:done] = np.frombuffer(strip[:done], dtype=np.uint8)
             else:
                 done = len(decode(strip, out=target))
@@ -238,11 +256,37 @@ def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, st
         if done != expected:
             return None
         target[expected] = 0  # the spare byte, which a decoder may have written: the next strip's, if decoded
-        if short and len(_BLANK_STRIPS) < _MAX_BLANK_STRIPS and not target[:expected].any():
-            _BLANK_STRIPS.add(bytes(strip))
+        if short and len(blank) < _MAX_BLANK_STRIPS and not target[:expected].any():
+            blank.add(blob)
             continue
+        if keyed:
+            inflated[key] = target[:expected]
         span = [min(span[0], row), max(span[1], row + expected // width)]
     return (span[0], span[1]) if span[0] < span[1] else (0, 0)
+
+
+def _known_blank(layer: LayerFile) -> bool:
+    """Whether every strip of a plain 1-bit page is one known to inflate to zeros (a droplet mask of a material
+    absent from its layer), so that nothing need be inflated or zeroed."""
+    page = layer.page
+    if (page.bitspersample, page.samplesperpixel) != (1, 1) or page.fillorder != 1 or page.predictor != 1:
+        return False
+    rows, width, height = _strip_rows(page), row_bytes(page.imagewidth), page.imagelength
+    data = layer.data
+    for number, (offset, count) in enumerate(zip(page.dataoffsets, page.databytecounts)):
+        expected = min(rows, height - number * rows) * width  # as _inflate_bits tells a blank strip
+        if count > min(_BLANK_STRIP_BYTES, expected // _BLANK_RATIO + 64) or data[offset:offset + count] not in \
+                _BLANK_STRIPS:
+            return False
+    return True
+
+
+@functools.lru_cache(maxsize=4)
+def _blank_rows(height: int, width: int) -> np.ndarray:
+    """Zero packed rows of a layer size, shared and read-only (a blank file's :class:`Bits`)."""
+    rows = np.zeros((height, width), dtype=np.uint8)
+    rows.flags.writeable = False
+    return rows
 
 
 @functools.cache
@@ -264,17 +308,22 @@ class Bits:
     span: tuple[int, int]
 
 
-def solid_bits(layer: LayerFile, alpha: bool, rows: tuple[int, int] | None = None) -> Bits:
+def solid_bits(layer: LayerFile, alpha: bool, rows: tuple[int, int] | None = None,
+               inflated: InflatedStrips | None = None) -> Bits:
     """The solid pixels of a checked layer file (:class:`Bits`): a set sample of a 1-bit or grey file, any
     non-zero sample of a colour one (its alpha when ``alpha``). With ``rows`` (first, stop) only the strips
-    holding those rows are decoded; other rows are left zero."""
+    holding those rows are decoded; other rows are left zero. ``inflated`` (one dict for the files of one
+    layer, :data:`InflatedStrips`) lets a strip already inflated be copied instead; the rows it holds are
+    the returned Bits' own, not to be written while it is in use."""
     page = layer.page
     height, width = page.imagelength, row_bytes(page.imagewidth)
+    if _known_blank(layer):
+        return Bits(_blank_rows(height, width), (0, 0))
     first, stop = (0, height) if rows is None else rows
     flat = np.empty(height * width + 1, dtype=np.uint8)  # _inflate_bits writes or zeroes every row
     flat[-1] = 0
     out = flat[:-1].reshape(height, width)
-    span = _inflate_bits(layer, flat, width, first, stop)
+    span = _inflate_bits(layer, flat, width, first, stop, inflated)
     if span is None:
         mask = np.zeros((height, page.imagewidth), dtype=bool)
         decode_solid(layer.tiff_page(), layer.name, alpha, out=mask)
@@ -287,30 +336,50 @@ def solid_bits(layer: LayerFile, alpha: bool, rows: tuple[int, int] | None = Non
 def partition_counts(layer: Bits, masks: list[Bits]) -> tuple[list[int], bool]:
     """Set bits of a layer's solid pixels and of each of its droplet masks ([layer's, each mask's]), and whether
     the masks partition the layer (no pixel in two masks, their union exactly the layer's solid pixels): one
-    compiled pass per file over the rows holding set bits (:func:`heoslice.layers.packed_kernels.fold_words`)."""
-    from heoslice.layers.packed_kernels import COMPARE, JOIN, START, fold_words
+    compiled pass per file over the rows holding set bits (:func:`heoslice.layers.packed_kernels.fold_words`);
+    one count when a single mask is the layer's own Bits object (its file the layer's bytes) and the others hold
+    no set row."""
+    from heoslice.layers.packed_kernels import COMPARE, JOIN, START
 
     if not masks:
         raise ValueError("partition_counts: a layer without droplet masks has nothing to partition it")
+    whole = [mask is layer for mask in masks]  # a mask read from the layer's own bytes (one material)
+    if sum(whole) == 1 and all(same or mask.span[0] >= mask.span[1] for same, mask in zip(whole, masks)):
+        count = int(_fold([layer], layer.span, [COMPARE], against_self=True)[0, 0])  # the others blank: a partition
+        return [count, *(count if same else 0 for same in whole)], True
     files = [*masks, layer]
-    first, stop = min(b.span[0] for b in files), max(b.span[1] for b in files)
-    out = np.zeros((len(files), 2), dtype=np.int64)
-    if first < stop:
-        width = layer.rows.shape[1]
-        flats = [np.ascontiguousarray(b.rows).reshape(-1) for b in files]
-        whole = len(flats[0]) // 8
-        low, high = first * width // 8, min(whole, -(-stop * width // 8))
-        tail = len(flats[0]) - 8 * whole  # the last bytes, short of a word: one zero-padded word of their own
-        union, union_tail = np.empty(whole, dtype=np.uint64), np.empty(1, dtype=np.uint64)
-        for number, flat in enumerate(flats):
-            mode = COMPARE if number == len(masks) else START if number == 0 else JOIN
-            fold_words(union, flat[:8 * whole].view(np.uint64), low, high, mode, out[number])
-            if tail and stop * width > 8 * whole:
-                padded = np.zeros(8, dtype=np.uint8)
-                padded[:tail] = flat[8 * whole:]
-                fold_words(union_tail, padded.view(np.uint64), 0, 1, mode, out[number])
+    span = min(b.span[0] for b in files), max(b.span[1] for b in files)
+    out = _fold(files, span, [START] + [JOIN] * (len(masks) - 1) + [COMPARE])
     counts = [int(count) for count in out[:, 0]]
     return [counts[-1], *counts[:-1]], not out[:, 1].any()
+
+
+def _fold(files: list[Bits], span: tuple[int, int], modes: list[int], against_self: bool = False) -> np.ndarray:
+    """(len(files), 2) int64: :func:`heoslice.layers.packed_kernels.fold_words` of each file in ``modes`` over the
+    words of rows span[0]..span[1]-1 (set bits, wrong flag), the files folded into one union in turn, or each
+    compared with itself (``against_self``: its count alone). Whole arrays are passed, their words aligned."""
+    from heoslice.layers.packed_kernels import fold_words
+
+    first, stop = span
+    out = np.zeros((len(files), 2), dtype=np.int64)
+    if first >= stop:
+        return out
+    width = files[0].rows.shape[1]
+    flats = [np.ascontiguousarray(b.rows).reshape(-1) for b in files]
+    whole = len(flats[0]) // 8
+    low, high = first * width // 8, min(whole, -(-stop * width // 8))
+    tail = len(flats[0]) - 8 * whole  # the last bytes, short of a word: one zero-padded word of their own
+    union = None if against_self else np.empty(whole, dtype=np.uint64)
+    union_tail = np.empty(1, dtype=np.uint64)
+    for number, (flat, mode) in enumerate(zip(flats, modes)):
+        words = flat[:8 * whole].view(np.uint64)
+        fold_words(words if against_self else union, words, low, high, mode, out[number])
+        if tail and stop * width > 8 * whole:
+            padded = np.zeros(8, dtype=np.uint8)
+            padded[:tail] = flat[8 * whole:]
+            padded_words = padded.view(np.uint64)
+            fold_words(padded_words if against_self else union_tail, padded_words, 0, 1, mode, out[number])
+    return out
 
 
 def count_bits(bits: np.ndarray) -> int:

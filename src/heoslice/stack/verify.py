@@ -6,25 +6,28 @@ each layer as it is read (:func:`verified_layer`; :func:`check_unread_layers` fo
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 
 from heoslice.errors import VerifyError
 from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST, MASK_MODE, layer_height_problems, mask_channels
-from heoslice.stack.packed import Bits, count_bits, partition_counts, read_layer_file, solid_bits
+from heoslice.stack.packed import (Bits, InflatedStrips, count_bits, partition_counts, read_layer_file,
+                                   solid_bits)
 from heoslice.stack.read import read_manifest, regular_files, resolve_inside
 from heoslice.stack.report import fault_lines, mask_faults
 
 
 @dataclass(frozen=True)
 class StackReport:
-    """Outcome of :func:`verify_stack`: ``problems`` (one line each; empty when clean) and the manifest."""
+    """Outcome of :func:`verify_stack`: ``problems`` (one line each; empty when clean), the manifest, and what its
+    ``also`` made of the layers it was given (layer index -> its value)."""
 
     directory: Path
     problems: tuple[str, ...]
     manifest: dict = field(default_factory=dict)
+    also: dict = field(default_factory=dict, repr=False)
 
     @property
     def ok(self) -> bool:
@@ -32,19 +35,28 @@ class StackReport:
 
 
 
-#: One listed file of a layer to check: (path, name, sha256, solid pixel count or None, image mode or None).
-FileCheck = tuple[Path, str, str, int | None, str | None]
+#: One listed file of a layer to check: (its resolved path as text, name, sha256, solid pixel count or None, image
+#: mode or None).
+FileCheck = tuple[str, str, str, int | None, str | None]
 
 
-def _file_bits(check: FileCheck, manifest: dict, check_pixels: bool) -> tuple[str | None, Bits | None]:
+def _file_bits(check: FileCheck, manifest: dict, check_pixels: bool, inflated: InflatedStrips,
+               decoded: list[tuple[bytes, str | None, bool, Bits]]) -> tuple[str | None, Bits | None]:
     """(problem of one listed image file or None, its solid pixels as packed rows when decoded): layout, size
-    and hash checked, the file read and decoded once."""
+    and hash checked, the file read and decoded once (a strip already inflated from another file of the layer,
+    in ``inflated``, copied; a file whose bytes and reading are another's, in ``decoded``, given its Bits)."""
     path, name, digest, _, mode = check
     try:
         layer = read_layer_file(path, name, digest, manifest, mode)
         if not check_pixels:
             return None, None
-        return None, solid_bits(layer, manifest["mask"] == "alpha" and mode is not None)
+        alpha = manifest["mask"] == "alpha" and mode is not None
+        for data, its_mode, its_alpha, bits in decoded:
+            if (its_mode, its_alpha) == (mode, alpha) and data == layer.data:
+                return None, bits
+        bits = solid_bits(layer, alpha, inflated=inflated)
+        decoded.append((layer.data, mode, alpha, bits))
+        return None, bits
     except VerifyError as err:
         return str(err), None
 
@@ -61,11 +73,13 @@ def layer_check(index: int, plan: list, manifest: dict, check_pixels: bool) -> t
     droplet masks checked against the layer when every file passed (a solid pixel in exactly one mask, none
     outside), counted and checked in one pass per file (:func:`heoslice.stack.packed.partition_counts`)."""
     found: list[tuple[str | None, FileCheck | None, Bits | None]] = []  # per listed file: problem, check, bits
+    inflated: InflatedStrips = {}
+    known: list[tuple[bytes, str | None, bool, Bits]] = []
     for item in plan:
         if isinstance(item, str):
             found.append((item, None, None))
             continue
-        problem, decoded = _file_bits(item, manifest, check_pixels)
+        problem, decoded = _file_bits(item, manifest, check_pixels, inflated, known)
         found.append((f"layer {index}: {problem}" if problem else None, item, decoded))
     bits = [decoded for _, check, decoded in found if check is not None]
     decoded = [b for b in bits if b is not None]
@@ -118,9 +132,10 @@ def plan_stack(directory: Path) -> StackPlan:
     cannot be read), each listed file resolved inside the stack and listed once."""
     directory = Path(directory)
     manifest = read_manifest(directory)
-    listed: dict[Path, str] = {}
+    listed: dict[str, str] = {}  # resolved path -> the layer listing it
     mode = manifest["image"].get("mode", "1")
     root = directory.resolve()
+    root_text = str(root)
     regular = regular_files(root)
     plans = []
     for entry in manifest["layers"]:
@@ -131,7 +146,11 @@ def plan_stack(directory: Path) -> StackPlan:
         plan: list = []
         for name, digest, solid, file_mode in files:
             plain = isinstance(name, str) and name in regular  # a regular file of the folder: no stat needed
-            path = root / name if plain else resolve_inside(root, name, resolved=True)
+            if plain:  # joined as text: a Path a file made this loop the parent's slowest part
+                path = os.path.join(root_text, name)
+            else:
+                inside = resolve_inside(root, name, resolved=True)
+                path = None if inside is None else str(inside)
             if path is None:
                 plan.append(f"layer {index}: file {name!r} lies outside the stack")
                 continue
@@ -139,8 +158,8 @@ def plan_stack(directory: Path) -> StackPlan:
                 plan.append(f"layer {index}: {name} is listed twice (also by {listed[path]})")
                 continue
             listed[path] = f"layer {index}"
-            if not plain and not path.is_file():
-                plan.append(f"layer {index}: {name} is {'not a regular file' if path.exists() else 'missing'}")
+            if not plain and not os.path.isfile(path):
+                plan.append(f"layer {index}: {name} is {'not a regular file' if os.path.exists(path) else 'missing'}")
                 continue
             plan.append((path, name, digest, solid, file_mode))
         plans.append(plan)
@@ -151,35 +170,54 @@ def plan_stack(directory: Path) -> StackPlan:
         problems.append(str(err))
     z_min, z_max = manifest["z_range_mm"]
     problems += layer_height_problems(manifest, z_min, z_max, "the manifest's")
-    names = {path.name for path in listed if path.parent == root}
+    names = {os.path.basename(path) for path in listed if os.path.dirname(path) == root_text}
     for entry in sorted(os.listdir(directory)):
         if LAYER_PATTERN.match(entry) and entry not in names:
             problems.append(f"{entry}: layer file not listed in the manifest")
     return StackPlan(directory, manifest, tuple(plans), tuple(problems))
 
 
+#: ``also(manifest)``: the work a reader of a stack wants done on some of its layers while they are checked, or
+#: None: (the layers, ``work(index, bits)``), called on each of those layers that passed its check with its
+#: files' :class:`Bits` (the layer's own, then its droplet masks' in manifest order), in the process that checked
+#: it; what it returns goes back (keep it small). The manifest is not yet verified: only a layer's bits are.
+AlsoWork = Callable[[dict], tuple[Collection[int], Callable[[int, list[Bits]], object]] | None]
+
+
 def verify_stack(directory: Path, *, check_pixels: bool = True, layer_map: LayerMap = map,
-                 progress: Callable[[int, int], None] | None = None) -> StackReport:
+                 progress: Callable[[int, int], None] | None = None, also: AlsoWork | None = None) -> StackReport:
     """Check a stack: manifest, every listed file (inside, present, sha256, size, dpi, solid pixels), extras.
 
     Returns a report listing every problem found, one line each. The layers are checked through
     ``layer_map`` (:data:`LayerMap`), each file read and decoded once; ``progress(done, total)`` is called
-    as each layer's check is done.
+    as each layer's check is done. ``also`` (:data:`AlsoWork`, with ``check_pixels``) works on the decoded
+    layers it names in the same pass, its results in the report's ``also``, so that a reader needs no
+    second reading of them.
     """
     directory = Path(directory)
     try:
         plan = plan_stack(directory)
     except VerifyError as err:
         return StackReport(directory, (str(err),))
+    asked = also(plan.manifest) if also is not None and check_pixels else None
+    layers, work = (set(asked[0]), asked[1]) if asked is not None else ((), None)
+
+    def check(index: int) -> tuple[list[str], object]:
+        if index not in layers:
+            return layer_problems(index, plan.plans[index], plan.manifest, check_pixels), None
+        found, bits = layer_check(index, plan.plans[index], plan.manifest, check_pixels)
+        return found, (None if found else work(index, bits))
+
     problems: list[str] = []
+    worked = {}
     total = len(plan.plans)
-    for done, found in enumerate(layer_map(lambda index: layer_problems(index, plan.plans[index], plan.manifest,
-                                                                        check_pixels),
-                                           range(total)), start=1):
+    for done, (found, result) in enumerate(layer_map(check, range(total)), start=1):
         problems += found
+        if result is not None:
+            worked[done - 1] = result
         if progress is not None:
             progress(done, total)
-    return StackReport(directory, tuple(problems) + plan.problems, plan.manifest)
+    return StackReport(directory, tuple(problems) + plan.problems, plan.manifest, worked)
 
 
 def refusal(directory: Path, problems: tuple[str, ...] | list[str]) -> VerifyError:
