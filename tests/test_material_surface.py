@@ -109,6 +109,47 @@ def test_a_degenerate_triangle_has_no_plane_bound_and_is_still_measured():
     assert (segment < others).sum() == 3
 
 
+def _one_by_one(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """The least over the triangles of the kernel's own distance to each alone (n,): what the search must find,
+    whatever it prunes."""
+    return np.min([surface_distance(points, build_surface_index(t, np.array([[0, 1, 2]]))) for t in triangles], axis=0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), thin=st.floats(-13.0, -3.0), shift=st.sampled_from([0.0, 1e3, 1e4, 1e5]))
+def test_the_search_never_prunes_a_nearer_sliver(seed, thin, shift):
+    """Slivers (a third corner 10^thin mm off the line of the other two, some under the width whose computed normal
+    is rounding noise), beside ordinary triangles, far from the origin too: the hierarchy's search gives exactly
+    the least of the kernel's own distances to each triangle alone (the bounds it prunes by, the spheres and the
+    planes, never skip a nearer triangle; a plane used as a bound for a sliver did, by 2e-7 mm in 0.5)."""
+    rng = np.random.default_rng(seed)
+    a, b = rng.normal(size=(2, 3))
+    across = np.cross(b - a, rng.normal(size=3))
+    sliver = np.array([a, b, a + rng.uniform(-0.5, 1.5) * (b - a) + 10.0 ** thin * across / np.linalg.norm(across)])
+    others = rng.normal(size=(6, 3, 3)) * 0.3 + (a + b) / 2 + rng.normal(size=(6, 1, 3))
+    triangles = np.concatenate([sliver[None], others]) + shift
+    points = (a + b) / 2 + rng.normal(size=(40, 3)) * rng.choice([0.05, 0.5, 3.0], size=(40, 1)) + shift
+    ours = surface_distance(points, build_surface_index(triangles.reshape(-1, 3), np.arange(21).reshape(7, 3)))
+    assert np.array_equal(ours, _one_by_one(points, triangles))
+
+
+def test_a_sliver_whose_computed_normal_tilts_is_not_pruned_by_its_plane():
+    """A review's case: a sliver (angle sine 7e-12) whose computed plane passes 2e-7 mm too far from a point beside
+    it, and a small triangle just farther away: the sliver is the nearer, and the search finds it, in either
+    order of the triangles."""
+    sliver = np.array([[0.345584192064786, 0.8216181435011584, 0.33043707618338714],
+                       [-0.4449869335091003, 1.3708597769758128, 0.6012339067906368],
+                       [-0.04970137072144151, 1.0962389602408695, 0.46583549148426623]])
+    small = np.array([[-0.03986450653153688, 1.0971791157420527, 0.45571856455304594],
+                      [-0.0556759290430146, 1.1081639484115458, 0.46113450116519095],
+                      [-0.05356333631136168, 1.083374128926017, 0.48065376861622666]])
+    point = np.array([[-0.34026468550596145, 0.8295147493186374, 0.1585389646419595]])
+    for triangles in (np.array([sliver, small]), np.array([small, sliver])):
+        got = surface_distance(point, build_surface_index(triangles.reshape(-1, 3), np.arange(6).reshape(2, 3)))
+        assert np.array_equal(got, _one_by_one(point, triangles))
+        assert got[0] < 0.5
+
+
 def test_coloring_by_a_surface_loads_no_numba(tmp_path):
     """`heoslice color --ref surface` (a fresh process) runs the surface distance's compiled kernels: it never
     imports numba or LLVM, which would compile them just in time on a machine's first run."""

@@ -62,13 +62,19 @@ def build_surface_index(vertices: np.ndarray, faces: np.ndarray) -> SurfaceIndex
     return SurfaceIndex(vertices, faces, tree)
 
 
+#: Sine of a triangle's smallest angle at corner a below which its plane is not used as a bound: the cross
+#: product's rounding tilts a unit normal by about 16 eps / sine (4e-11 here), which the plane test's slack covers.
+PLANE_SINE = 1e-4
+
+
 def _planes(corners: np.ndarray) -> np.ndarray:
-    """Each triangle's plane (m, 4): unit normal and offset n . a, zeros for a triangle the distance kernel measures
-    as its three edges (:func:`heoslice.material.surface_kernels.triangle_offset`'s rule), whose plane is no bound."""
+    """Each triangle's plane (m, 4): unit normal and offset n . a; zeros (no bound) for a sliver whose angle at its
+    first corner has a sine under PLANE_SINE, whose computed normal rounding may tilt too far (and for a triangle
+    the distance kernel measures as its three edges, :func:`heoslice.material.surface_kernels.triangle_offset`)."""
     ab, ac = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
     normal = np.cross(ab, ac)
     length2 = np.einsum("ij,ij->i", normal, normal)
-    flat = ~(length2 > 1e-24 * np.einsum("ij,ij->i", ab, ab) * np.einsum("ij,ij->i", ac, ac))
+    flat = ~(length2 > PLANE_SINE ** 2 * np.einsum("ij,ij->i", ab, ab) * np.einsum("ij,ij->i", ac, ac))
     normal = normal / np.sqrt(np.where(flat, 1.0, length2))[:, None]
     normal[flat] = 0.0
     return np.ascontiguousarray(np.column_stack([normal, np.einsum("ij,ij->i", normal, corners[:, 0])]))

@@ -110,12 +110,15 @@ def _box_distance2(px, py, pz, low, high, node):  # pragma: no cover - compiled
 
 
 @helper(EXACT)
-def _beyond_plane(px, py, pz, planes, j, reach):  # pragma: no cover - compiled
+def _beyond_plane(px, py, pz, planes, radius, j, reach):  # pragma: no cover - compiled
     """Whether the point is farther than ``reach`` (mm) from triangle j's plane, so from the triangle (a lower bound
     that holds where the sphere around it does not: inside a closed surface, most triangles' spheres are as near as
-    the nearest triangle; the comparison is widened by rounding's reach)."""
+    the nearest triangle). The rounding of the normal (planes holds none for slivers, whose normal it may tilt
+    more than 1e-10) moves the triangle off its plane by at most 1e-10 of its size (twice ``radius[j]``), and the
+    height's own rounding is far below 1e-10 of the coordinates: both are added to ``reach``."""
     height = abs(planes[j, 0] * px + planes[j, 1] * py + planes[j, 2] * pz - planes[j, 3])
-    return height > reach * (1.0 + 1e-12) + 1e-12 * (1.0 + abs(planes[j, 3]))
+    slack = 1e-10 * (2.0 * radius[j] + abs(px) + abs(py) + abs(pz) + abs(planes[j, 3]))
+    return height > reach * (1.0 + 1e-12) + slack
 
 
 @helper(EXACT)
@@ -217,8 +220,8 @@ def nearest_triangle(px, py, pz, tree, start, stack, bound):  # pragma: no cover
             for j in range(tree.first[node], tree.first[node] + tree.count[node]):
                 cx, cy, cz = px - tree.centre[j, 0], py - tree.centre[j, 1], pz - tree.centre[j, 2]
                 outside = reach + tree.radius[j]
-                if cx * cx + cy * cy + cz * cz >= outside * outside or _beyond_plane(px, py, pz, tree.planes, j,
-                                                                                     reach):
+                if cx * cx + cy * cy + cz * cz >= outside * outside or \
+                        _beyond_plane(px, py, pz, tree.planes, tree.radius, j, reach):
                     continue
                 d = triangle_distance2(px, py, pz, tree.corners[j])
                 if d < best:
@@ -348,7 +351,7 @@ def _triangles_near(px, py, pz, reach, tree, stack, found):  # pragma: no cover 
             top += 2
             continue
         for j in range(tree.first[node], tree.first[node] + tree.count[node]):
-            if not _beyond_plane(px, py, pz, tree.planes, j, reach) and \
+            if not _beyond_plane(px, py, pz, tree.planes, tree.radius, j, reach) and \
                     triangle_distance2(px, py, pz, tree.corners[j]) <= reach2:
                 if count == found.shape[0]:
                     return -1
