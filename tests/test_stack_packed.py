@@ -205,6 +205,7 @@ def test_a_file_of_known_blank_strips_is_not_inflated(tmp_path, monkeypatch):
     """A blank droplet mask whose strips are all known to inflate to zeros (learned from an earlier file) reads as
     zero rows with an empty span without a strip inflated, and its rows cannot be written; a file with one set
     pixel more is inflated as before."""
+    monkeypatch.setattr(packed, "_BLANK_STRIPS", set())  # room to learn, whatever this process read before
     manifest = {"image": {"width": 70, "height": 800}, "dpi": [300.0, 300.0], "mask": "nonzero"}
     pixels = np.zeros((800, 70), dtype=bool)
     one = pixels.copy()
@@ -223,3 +224,21 @@ def test_a_file_of_known_blank_strips_is_not_inflated(tmp_path, monkeypatch):
         again.rows[0, 0] = 1
     bits = solid_bits(read_layer_file(tmp_path / "one.tif", "one.tif", None, manifest, None), False)
     assert calls and np.array_equal(unpack_bits(bits.rows, 70), one) and bits.span[0] <= 700 < bits.span[1]
+
+
+def test_a_strip_is_known_blank_by_its_codec_and_length_too(tmp_path, monkeypatch):
+    """A raw (uncompressed) file whose first strip's bytes are those of a deflated strip learned as blank is read
+    as what it holds, set bits and all (the bytes alone once made it all zeros, a review of the blank files'
+    shortcut found)."""
+    monkeypatch.setattr(packed, "_BLANK_STRIPS", set())
+    manifest = {"image": {"width": 8, "height": 2000}, "dpi": [300.0, 300.0], "mask": "nonzero"}
+    (tmp_path / "blank.tif").write_bytes(encode_bilevel_tiff(np.zeros((2000, 1), np.uint8), 8, (300.0, 300.0),
+                                                             "deflate", rows_per_strip=2000))
+    solid_bits(read_layer_file(tmp_path / "blank.tif", "blank.tif", None, manifest, None), False)
+    (code, _, blob), = packed._BLANK_STRIPS
+    assert code == 8 and any(blob)
+    rows = np.frombuffer(blob, dtype=np.uint8)[:, None]  # one byte a row: the raw strip is the blob
+    raw = {**manifest, "image": {"width": 8, "height": len(rows)}}
+    (tmp_path / "raw.tif").write_bytes(encode_bilevel_tiff(rows, 8, (300.0, 300.0), "none", rows_per_strip=len(rows)))
+    bits = solid_bits(read_layer_file(tmp_path / "raw.tif", "raw.tif", None, raw, None), False)
+    assert np.array_equal(bits.rows, rows) and bits.span == (0, len(rows))

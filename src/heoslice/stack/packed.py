@@ -190,11 +190,12 @@ def _strip_rows(page) -> int:
 
 
 #: Compressed strips known to inflate to zeros (the blank strips off the part, the same bytes in every layer
-#: of a stack): skipped instead of inflated. Only short strips are remembered, at most this many: strips of
+#: of a stack), by (compression code, bytes inflated, the strip's bytes): skipped instead of inflated (the same
+#: bytes stored raw, or inflating to another length, are not blank). Only short strips are remembered, at most this many: strips of
 #: at most _BLANK_STRIP_BYTES, and at most 1 / _BLANK_RATIO (+ 64 bytes) of what they inflate to (zeros
 #: deflate about 1000:1; a strip holding part of the layer is rarely that short, and is not searched for a set
 #: bit each time it is read).
-_BLANK_STRIPS: set[bytes] = set()
+_BLANK_STRIPS: set[tuple[int, int, bytes]] = set()
 _MAX_BLANK_STRIPS, _BLANK_STRIP_BYTES, _BLANK_RATIO = 64, 4096, 256
 
 
@@ -234,10 +235,10 @@ def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, st
             continue
         short = count <= (short_bytes if expected == full else min(_BLANK_STRIP_BYTES, expected // _BLANK_RATIO + 64))
         blob = bytes(view[offset:offset + count]) if short or keyed else None
-        if short and blob in blank:
+        key = (code, expected, blob)
+        if short and key in blank:
             flat[at:at + expected] = 0
             continue
-        key = (code, expected, blob) if keyed else None
         known = inflated.get(key) if keyed else None
         if known is not None:
             flat[at:at + expected] = known
@@ -257,7 +258,7 @@ def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, st
             return None
         target[expected] = 0  # the spare byte, which a decoder may have written: the next strip's, if decoded
         if short and len(blank) < _MAX_BLANK_STRIPS and not target[:expected].any():
-            blank.add(blob)
+            blank.add(key)
             continue
         if keyed:
             inflated[key] = target[:expected]
@@ -272,11 +273,11 @@ def _known_blank(layer: LayerFile) -> bool:
     if (page.bitspersample, page.samplesperpixel) != (1, 1) or page.fillorder != 1 or page.predictor != 1:
         return False
     rows, width, height = _strip_rows(page), row_bytes(page.imagewidth), page.imagelength
-    data = layer.data
+    code, data = int(page.compression), layer.data
     for number, (offset, count) in enumerate(zip(page.dataoffsets, page.databytecounts)):
         expected = min(rows, height - number * rows) * width  # as _inflate_bits tells a blank strip
-        if count > min(_BLANK_STRIP_BYTES, expected // _BLANK_RATIO + 64) or data[offset:offset + count] not in \
-                _BLANK_STRIPS:
+        if count > min(_BLANK_STRIP_BYTES, expected // _BLANK_RATIO + 64) or \
+                (code, expected, bytes(data[offset:offset + count])) not in _BLANK_STRIPS:
             return False
     return True
 
