@@ -115,16 +115,17 @@ def numpy_step_planes(solid: np.ndarray, steps: np.ndarray, row0: int, c0: int, 
 
 @pytest.mark.parametrize("start, target, channels, table", [(0, 1, 2, 65536), (1, 0, 2, 1001), (2, 0, 3, 65536)])
 def test_step_planes_are_the_numpy_rule_with_anything_off_the_solid(start, target, channels, table):
-    """Random solid pixels in a box from row 7 and column 24 (gaps of whole zero bytes, an empty row, a last solid
-    column inside a byte), steps below the table's length at solid pixels and anything up to 65535 elsewhere in
-    the box (the kernel reads them before it masks the solid; past a short table they are clipped, not read out
-    of bounds): the masks equal the rule's, and every solid pixel jets one of the two channels, no other pixel
-    any."""
+    """Random solid pixels in a box from row 7 and column 24 (gaps of whole zero bytes, an empty row, solid pixels
+    in the last byte of a row 123 pixels wide, whose bits past the width the kernel reads too), steps below the
+    table's length at solid pixels and anything up to 65535 elsewhere in the box (read before the solid masks
+    them; the kernel clips them to the table, which the masks cannot show): the masks equal the rule's, and every
+    solid pixel jets one of the two channels, no other pixel any."""
     rng = np.random.default_rng(start + 7 * target + table)
     solid = rng.random((90, 123)) < 0.7
     solid[:7] = False
     solid[:, :24] = False
-    solid[:, 118:] = False
+    solid[:, 121:] = False
+    solid[7:80, 120] = True
     solid[40:44, 50:90] = False
     solid[70] = False
     packed = np.packbits(solid, axis=1)
