@@ -113,14 +113,14 @@ def numpy_step_planes(solid: np.ndarray, steps: np.ndarray, row0: int, c0: int, 
     return masks
 
 
-@pytest.mark.parametrize("start, target, channels, table", [(0, 1, 2, 65536), (1, 0, 2, 1001), (2, 0, 3, 65536)])
-def test_step_planes_are_the_numpy_rule_with_anything_off_the_solid(start, target, channels, table):
+@pytest.mark.parametrize("start, target, channels, largest", [(0, 1, 2, 65536), (1, 0, 2, 1001), (2, 0, 3, 300)])
+def test_step_planes_are_the_numpy_rule_with_anything_off_the_solid(start, target, channels, largest):
     """Random solid pixels in a box from row 7 and column 24 (gaps of whole zero bytes, an empty row, solid pixels
-    in the last byte of a row 123 pixels wide, whose bits past the width the kernel reads too), steps below the
-    table's length at solid pixels and anything up to 65535 elsewhere in the box (read before the solid masks
-    them; the kernel clips them to the table, which the masks cannot show): the masks equal the rule's, and every
-    solid pixel jets one of the two channels, no other pixel any."""
-    rng = np.random.default_rng(start + 7 * target + table)
+    in the last byte of a row 123 pixels wide, whose bits past the width the kernel reads too), steps under
+    ``largest`` at solid pixels and anything up to 65535 elsewhere in the box (read before the solid masks them, so
+    the table has an entry for every uint16): the masks equal the rule's, and every solid pixel jets one of the
+    two channels, no other pixel any."""
+    rng = np.random.default_rng(start + 7 * target + largest)
     solid = rng.random((90, 123)) < 0.7
     solid[:7] = False
     solid[:, :24] = False
@@ -132,11 +132,20 @@ def test_step_planes_are_the_numpy_rule_with_anything_off_the_solid(start, targe
     row0, row1, c0, c1 = solid_box(packed, solid.shape[1])
     steps = rng.integers(0, 65536, (row1 - row0, c1 - c0)).astype(np.uint16)
     inside = solid[row0:row1, c0:c1]
-    steps[inside] = rng.integers(0, table, int(inside.sum()))
-    below = rng.integers(0, LEVELS + 1, table).astype(np.uint16)
+    steps[inside] = rng.integers(0, largest, int(inside.sum()))
+    below = rng.integers(0, LEVELS + 1, 65536).astype(np.uint16)
     level = np.ascontiguousarray(np.rint(layer_tile(3) * LEVELS - 0.5), dtype=np.int32)
     planes = np.zeros((channels, *packed.shape), dtype=np.uint8)
     step_planes(np.ascontiguousarray(packed[row0:row1]), row0, c0, steps, below, level, start, target, planes)
     got = np.unpackbits(planes, axis=2, count=solid.shape[1]).astype(bool)
     assert np.array_equal(got, numpy_step_planes(solid, steps, row0, c0, below, level, start, target, channels))
     assert (got.sum(axis=0) == solid).all()
+
+
+def test_step_planes_refuse_a_table_without_an_entry_for_every_step():
+    """A table shorter than 65536 entries would be read past its end by a step off the solid: ValueError."""
+    packed = np.packbits(np.ones((4, 16), dtype=bool), axis=1)
+    level = np.ascontiguousarray(np.rint(layer_tile(0) * LEVELS - 0.5), dtype=np.int32)
+    with pytest.raises(ValueError, match="65536"):
+        step_planes(packed, 0, 0, np.zeros((4, 16), np.uint16), np.zeros(1001, np.uint16), level, 0, 1,
+                    np.zeros((2, 4, 2), np.uint8))

@@ -110,12 +110,15 @@ def step_planes(packed: np.ndarray, row0: int, c0: int, steps: np.ndarray, below
                 start: int, target: int, planes: np.ndarray) -> None:  # pragma: no cover - compiled
     """:func:`quadratic_planes`' dither with each solid pixel's table index given: the pixel (row0 + i, c0 + j) of
     ``packed`` (rows, bytes) takes below[steps[i, j]] (``steps`` (rows, cols) uint16, r's step as a surface
-    reference's bounds gave it, cols reaching the last solid column; anything off the solid, read clipped to the
-    table)."""
+    reference's bounds gave it, cols reaching the last solid column; anything off the solid). ``below`` has an
+    entry for every uint16 (65536; ValueError else), so a step off the solid indexes it too, and every index is
+    unsigned (read without a test for negative indices, nor a clip)."""
+    if below.shape[0] != 65536:
+        raise ValueError("step_planes: below has an entry for every uint16 step (65536)")
     width = packed.shape[1]
     wrap = level.shape[0] - 1
-    last_step = below.shape[0] - 1
-    last_col = steps.shape[1] - 1
+    cols = steps.shape[1]
+    last = np.uint64(cols - 1)
     masks = _dither_masks(level)
     parts = masks.shape[1] - 1
     for i in range(packed.shape[0]):
@@ -126,14 +129,15 @@ def step_planes(packed: np.ndarray, row0: int, c0: int, steps: np.ndarray, below
         while begin < width:
             for byte in range(begin, end):  # each pixel's step read where its bit is made (no array between)
                 byte_masks = row_masks[byte & parts]
-                at = 8 * byte - c0
+                first = 8 * byte - c0  # >= 0: c0 is at or left of the first solid column
+                at = np.uint64(first)
                 bits = 0
-                if at + 8 <= last_col + 1:
+                if first + 8 <= cols:
                     for t in range(8):
-                        bits |= byte_masks[below[min(given[at + t], last_step)]] & (128 >> t)
+                        bits |= byte_masks[below[given[at + np.uint64(t)]]] & (128 >> t)
                 else:  # the last byte may reach past the last solid column
                     for t in range(8):
-                        bits |= byte_masks[below[min(given[min(at + t, last_col)], last_step)]] & (128 >> t)
+                        bits |= byte_masks[below[given[min(at + np.uint64(t), last)]]] & (128 >> t)
                 solid = row[byte]
                 planes[start, row0 + i, byte] = solid & ~bits
                 planes[target, row0 + i, byte] |= solid & bits
