@@ -40,8 +40,9 @@ def colour_command(folder, target) -> list[str]:
 @pytest.fixture(scope="module")
 def colour_job(tmp_path_factory):
     """A sphere of 1,310,720 triangles coloured by the distance to a small one, and how long that takes here
-    uninterrupted (s): (folder, seconds). The signals are sent at fractions of that time, so that they reach the
-    command while it colours however fast this machine is."""
+    uninterrupted (s), the shorter of two runs (the first reads cold files): (folder, seconds). The signals are
+    sent at fractions of that time, so that they reach the command while it colours however fast this machine is
+    (a first run's time alone once let the command finish before six tenths of it)."""
     import time
 
     from heoslice import procedural
@@ -49,18 +50,20 @@ def colour_job(tmp_path_factory):
     folder = tmp_path_factory.mktemp("colour")
     procedural.sphere(subdivisions=8).export(folder / "big.ply")
     procedural.sphere(radius=3.0, subdivisions=3).export(folder / "small.ply")
-    started = time.monotonic()
-    subprocess.run(colour_command(folder, folder / "timed.ply"), check=True, capture_output=True)
-    seconds = time.monotonic() - started
-    (folder / "timed.ply").unlink()
-    return folder, seconds
+    times = []
+    for _ in range(2):
+        started = time.monotonic()
+        subprocess.run(colour_command(folder, folder / "timed.ply"), check=True, capture_output=True)
+        times.append(time.monotonic() - started)
+        (folder / "timed.ply").unlink()
+    return folder, min(times)
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
-@pytest.mark.parametrize("fraction", [0.1, 0.6])
+@pytest.mark.parametrize("fraction", [0.1, 0.5])
 def test_color_ends_on_every_ending_signal(colour_job, signum, fraction):
     """`heoslice color` given SIGTERM, SIGINT or SIGHUP, early (during start-up) or while colouring (a tenth and
-    six tenths of its uninterrupted time): exit 128 + signum, the one line 'heoslice: interrupted', and no output
+    half of its uninterrupted time): exit 128 + signum, the one line 'heoslice: interrupted', and no output
     (nor a partial file) left beside the model."""
     import time
 
