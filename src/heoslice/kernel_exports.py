@@ -46,7 +46,7 @@ from heoslice.jit import (
     source_digest,
 )
 from heoslice.layers import contours_kernels, packed_kernels, rasterising_kernels, slicing_kernels
-from heoslice.material import surface_kernels
+from heoslice.material import surface_kernels, surface_layer_kernels
 from heoslice.mesh import topology_kernels, weld_kernels
 from heoslice.volume import resample_kernels
 
@@ -68,7 +68,7 @@ ONE_RING_FIT = types.NamedUniTuple(f8, 10, fit_kernels.OneRingFit)
 DIFFUSION_STATE = types.Tuple((f4_3, i8, i8, i8, f4_3))
 DIFFUSION_SETTINGS = types.Tuple((f4_2, f4_1, f4_2, i8))
 HIERARCHY = types.NamedTuple((f8_2, f8_2, i8_1, i8_1, i8_1, i8_1, f8_3, f8_2, f8_1, f8_2), surface_kernels.Hierarchy)
-LAYER_FRAME = types.NamedUniTuple(f8, 5, surface_kernels.LayerFrame)
+LAYER_FRAME = types.NamedUniTuple(f8, 5, surface_layer_kernels.LayerFrame)
 
 
 #: The kernels' modules whose exports go into the second extension module (COMPILED_MODULES[1]); every other
@@ -143,8 +143,8 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
     slicing_kernels._layer_segments: (f8_2, i8_2, f8_1, i8_1, i8_1),
     surface_kernels.build_nodes: (f8_2, f8_2, f8_2, i8),
     surface_kernels.nearest_distances: (f8_2, HIERARCHY, f8_1),
-    surface_kernels.layer_r: (u1_2, i8, i8, LAYER_FRAME, HIERARCHY, f8, f8, f8, i8, f8_2, f8_2, i8,
-                              types.uint16[:, ::1]),
+    surface_layer_kernels.layer_r: (u1_2, i8, i8, LAYER_FRAME, HIERARCHY, f8, f8, f8, i8, f8_2, f8_2, i8,
+                                    types.uint16[:, ::1]),
     topology_kernels._edge_runs: (i8_2, i8),
     topology_kernels._lowest_connected: (i8_1, i8_1, i8),
     weld_kernels._first_rows: (u8_1, u4_2),

@@ -154,7 +154,7 @@ def layer_r(solid: np.ndarray, frame: tuple[float, float, float, float, float], 
             steps: int | None = None) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """r (h, w) float64 at the solid pixel centres of a layer (solid (h, w) bool; 0 elsewhere): the exact distance
     to the surface normalised over r_range (R0, R1) mm and clipped to [0, 1], each within tolerance / 2 of its
-    true r (:func:`heoslice.material.surface_kernels.layer_r`'s bounds settle cells of up to ``top`` pixels a side,
+    true r (:func:`heoslice.material.surface_layer_kernels.layer_r`'s bounds settle cells of up to ``top`` pixels a side,
     the rest is measured pixel by pixel). frame: (x of column 0's centre, x step per column, y of row 0's centre,
     y step per row, z), mm. With ``steps`` (< 65536): each pixel's step round(r steps) (h, w) uint16 instead of r.
     ``with_spread`` also returns each pixel's proven bound on its r's error (h, w)."""
@@ -182,9 +182,9 @@ def _layer_r(packed: np.ndarray, first: int, cols: int, frame: tuple, index: Sur
              r_range: tuple[float, float], tolerance: float, top: int, with_spread: bool,
              steps: int | None) -> tuple[np.ndarray, np.ndarray]:
     """(r or, with ``steps``, r's steps; the bounds or (0, 0)) of the layer of columns 0:cols that are the bits of
-    ``packed`` from byte ``first`` on (:func:`heoslice.material.surface_kernels.layer_r`); anything off the solid."""
-    from heoslice.material.surface_kernels import LayerFrame
-    from heoslice.material.surface_kernels import layer_r as kernel
+    ``packed`` from byte ``first`` on (:func:`heoslice.material.surface_layer_kernels.layer_r`); anything off the solid."""
+    from heoslice.material.surface_layer_kernels import LayerFrame
+    from heoslice.material.surface_layer_kernels import layer_r as kernel
 
     coded = steps is not None
     if coded and not 0 < steps < 1 << 16:
