@@ -109,7 +109,8 @@ def quadratic_planes(packed: np.ndarray, row0: int, c0: int, frame: tuple, squar
 def step_planes(packed: np.ndarray, row0: int, c0: int, steps: np.ndarray, below: np.ndarray, level: np.ndarray,
                 start: int, target: int, planes: np.ndarray) -> None:  # pragma: no cover - compiled
     """:func:`quadratic_planes`' dither with each solid pixel's table index given: the pixel (row0 + i, c0 + j) of
-    ``packed`` (rows, bytes) takes below[steps[i, j]] (``steps`` (rows, cols) uint16, r's step as a surface
+    ``packed`` (rows, bytes; c0 a multiple of 8 at or left of the first solid column, as there) takes
+    below[steps[i, j]] (``steps`` (rows, cols) uint16, r's step as a surface
     reference's bounds gave it, cols reaching the last solid column; anything off the solid). ``below`` has an
     entry for every uint16 (65536; ValueError else), so a step off the solid indexes it too, and every index is
     unsigned (read without a test for negative indices, nor a clip)."""
@@ -129,7 +130,7 @@ def step_planes(packed: np.ndarray, row0: int, c0: int, steps: np.ndarray, below
         while begin < width:
             for byte in range(begin, end):  # each pixel's step read where its bit is made (no array between)
                 byte_masks = row_masks[byte & parts]
-                first = 8 * byte - c0  # >= 0: c0 is at or left of the first solid column
+                first = 8 * byte - c0  # >= 0: c0 is a multiple of 8 at or left of the first solid column
                 at = np.uint64(first)
                 bits = 0
                 if first + 8 <= cols:
