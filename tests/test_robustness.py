@@ -31,8 +31,12 @@ from heoslice.mesh import load_mesh
 from heoslice.pipeline import SliceSpec, slice_to_stack
 from heoslice.stack import MANIFEST, read_manifest, verify_stack
 
-SLICE_ARGS = ["--dpi", "200", "--layer", "0.2", "-j", "2"]
-LAYERS = 300  # the procedural vase is 60 mm tall
+#: Thin layers (1,200 of the 60 mm vase), so that a kill after 150 layer files lands with about a quarter of a
+#: second of the slice still to go (at 0.2 mm, 300 layers, the last 150 took 32 ms, and a busy CI machine once let
+#: a slice finish first).
+LAYER_MM, DPI = 0.05, 200
+SLICE_ARGS = ["--dpi", str(DPI), "--layer", str(LAYER_MM), "-j", "2"]
+LAYERS = round(60 / LAYER_MM)  # the procedural vase is 60 mm tall
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +50,7 @@ def vase_model(tmp_path_factory) -> Path:
 def reference(vase_model, tmp_path_factory) -> dict:
     """The manifest of an uninterrupted slice, to compare repaired stacks with."""
     directory = tmp_path_factory.mktemp("reference") / "stack"
-    manifest, _ = slice_to_stack(load_mesh(vase_model), directory, SliceSpec(layer_height_mm=0.2, dpi=(200.0, 200.0)))
+    manifest, _ = slice_to_stack(load_mesh(vase_model), directory, SliceSpec(layer_height_mm=LAYER_MM, dpi=(DPI, DPI)))
     return manifest
 
 
@@ -310,7 +314,7 @@ def test_verify_command_flags_a_wrong_mesh(tmp_path, vase_model, run_cli):
     assert code == EXIT_VERIFY
     lines = out.splitlines()
     assert any("differs from the mesh volume" in line for line in lines)
-    assert any("z-range" in line and "needs 200" in line for line in lines)
+    assert any("z-range" in line and f"needs {round(40 / LAYER_MM)}" in line for line in lines)  # a 40 mm sphere
     assert "sha256 differs" in err and one_error_line(err).endswith("problem(s); do not print this stack")
 
 
