@@ -121,24 +121,24 @@ def step_planes(packed: np.ndarray, row0: int, c0: int, steps: np.ndarray, below
     cols = steps.shape[1]
     last = np.uint64(cols - 1)
     masks = _dither_masks(level)
-    parts = masks.shape[1] - 1
+    parts, counts = masks.shape[1] - 1, np.uint64(masks.shape[2])
     for i in range(packed.shape[0]):
         row = packed[i]
-        row_masks = masks[(row0 + i) & wrap]
+        row_masks = masks[(row0 + i) & wrap].ravel()  # one view a row: a view a byte costs two reference counts
         given = steps[i]
         begin, end = _next_run(row, c0 >> 3)
         while begin < width:
             for byte in range(begin, end):  # each pixel's step read where its bit is made (no array between)
-                byte_masks = row_masks[byte & parts]
+                part = np.uint64(byte & parts) * counts
                 first = 8 * byte - c0  # >= 0: c0 is a multiple of 8 at or left of the first solid column
                 at = np.uint64(first)
                 bits = 0
                 if first + 8 <= cols:
                     for t in range(8):
-                        bits |= byte_masks[below[given[at + np.uint64(t)]]] & (128 >> t)
+                        bits |= row_masks[part + below[given[at + np.uint64(t)]]] & (128 >> t)
                 else:  # the last byte may reach past the last solid column
                     for t in range(8):
-                        bits |= byte_masks[below[given[min(at + np.uint64(t), last)]]] & (128 >> t)
+                        bits |= row_masks[part + below[given[min(at + np.uint64(t), last)]]] & (128 >> t)
                 solid = row[byte]
                 planes[start, row0 + i, byte] = solid & ~bits
                 planes[target, row0 + i, byte] |= solid & bits
