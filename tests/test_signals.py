@@ -26,6 +26,40 @@ def test_terminating_signals_raise_interrupted(signum):
     assert out.split() == ["Interrupted", str(128 + signum)]
 
 
+FINALIZER_SCRIPT = """
+import os, signal, sys, time
+from heoslice.errors import Interrupted
+from heoslice.signals import interrupt_on_terminating_signals
+interrupt_on_terminating_signals()
+
+class Slow:
+    def __del__(self):  # the signal lands while Python runs this finalizer, which drops what it raises
+        os.kill(os.getpid(), signal.SIG{name})
+        end = time.monotonic() + 0.05
+        while time.monotonic() < end:
+            pass
+
+try:
+    item = Slow()
+    del item
+    time.sleep(2.0)
+    print("finished")
+except Interrupted as stop:
+    print("interrupted", stop.signum)
+"""
+
+
+@pytest.mark.parametrize("name", ["TERM", "INT", "HUP"])
+def test_a_signal_during_a_finalizer_still_interrupts(name):
+    """A signal whose Interrupted Python drops (raised inside a finalizer: "Exception ignored in ...") is delivered
+    again just after, so the command is interrupted instead of finishing (CI once saw `color` exit 0 that way);
+    stderr holds no "Exception ignored" report."""
+    result = subprocess.run([sys.executable, "-c", FINALIZER_SCRIPT.replace("{name}", name)], capture_output=True,
+                            text=True, timeout=30)
+    assert result.stdout.split() == ["interrupted", str(int(getattr(signal, f"SIG{name}")))], result
+    assert "Exception ignored" not in result.stderr
+
+
 def test_interrupted_is_a_keyboard_interrupt():
     """Every path that handles Ctrl-C handles Interrupted too."""
     assert issubclass(Interrupted, KeyboardInterrupt) and Interrupted(15).exit_code == 143
