@@ -439,10 +439,8 @@ class PrinterLink:
                 "check the link, then rerun with --resume")
 
     def _remake_smaller(self, head: OutFrame, stuck: int) -> bool:
-        """Whether to re-split: the oldest unacknowledged frame is twice the size now chosen once sent 3 times, or
-        any larger once it failed two thirds of the retry cap's rounds in a row (a frame made before the error
-        estimate caught up); a chunk failing that often within the chosen size caps the size at half its own
-        (the estimate is behind a link that got worse), so only the smallest chunks meet the retry cap."""
+        """Whether to re-split: the oldest frame is twice the chosen size once sent 3 times, or larger once it failed
+        2/3 of the retry cap's rounds in a row, when a chunk also caps the size at half its own (the estimate lags)."""
         late = stuck >= 2 * self.timing.retry_limit // 3
         if late and head.raw and head.payload > MIN_CHUNK_PAYLOAD:
             self.sizer.cap(head.payload // 2)
