@@ -9,13 +9,17 @@ r range, else 0 .. the largest vertex distance). Then, every repeat in the oppos
 into a new path after os.sync(): ``heoslice slice COLOURED --layer 0.1 --dpi 600`` in the field interior (its
 default) and with ``--interior contour`` for each reference, and PrusaSlicer's ``--export-sla`` of the plain mesh
 (as bench_prusa.py runs it; left out when it is not installed). It prints the median wall and CPU time of each and
-the ratios field / contour (the issue's bound: at most 1.5) and field / PrusaSlicer (at most 0.5).
+the ratios field / contour (the issue's bound: at most 1.5) and field / PrusaSlicer (at most 0.5). Meshes and
+outputs go to a temporary folder, deleted at the end; ``--workdir`` puts that folder elsewhere, e.g. on a file
+system without ext4's no-journal inode scan (benchmarks/README.md: it makes each new file cost up to ~0.7 ms of
+CPU after many deletions, which a stack of thousands of files pays and PrusaSlicer's one file does not).
 
 Examples:
   python benchmarks/bench_field.py                                  # liver_scan, 2 repeats
   python benchmarks/bench_field.py --meshes liver_scan,lucy,dragon --repeats 2 --json field.json
   python benchmarks/bench_field.py --quick --meshes organ           # 40 mm meshes, a smoke test
   python benchmarks/bench_field.py --refs surface --range 0 5       # the surface case alone, r over 0 .. 5 mm
+  python benchmarks/bench_field.py --meshes dragon --workdir /dev/shm  # outputs on tmpfs
 """
 
 from __future__ import annotations
@@ -78,13 +82,15 @@ def main() -> None:
     parser.add_argument("--dpi", type=float, default=600.0)
     parser.add_argument("--prusa", default=shutil.which("prusa-slicer"), help="PrusaSlicer [prusa-slicer on PATH]")
     parser.add_argument("--json", type=Path, default=None, help="write the results here too")
+    parser.add_argument("--workdir", type=Path, default=None,
+                        help="the folder the run's temporary folder goes in [the system's temporary folder]")
     options = parser.parse_args()
     refs = options.refs.split(",")
     if not options.prusa:
         print(prusa_sla.INSTALL_HINT, file=sys.stderr)
     print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}", flush=True)
     results = {}
-    with tempfile.TemporaryDirectory() as work:
+    with tempfile.TemporaryDirectory(prefix="bench_field_", dir=options.workdir) as work:
         work = Path(work)
         for name in options.meshes.split(","):
             folder = work / name
