@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from heoslice.jit import EXACT, compiled_module, helper, i64, kernel
+from heoslice.layers.packed_kernels import _popcount
 
 if compiled_module() is None:  # the kernel compiles just in time: numba's count of leading zeros (LLVM's ctlz)
     from numba.cpython.unsafe.numbers import leading_zeros
@@ -52,6 +53,26 @@ def _adler_run(a, b, n, red, green, blue):
     return (a + m * s) % ADLER_BASE, b
 
 
+@helper(EXACT)
+def _too_many_runs(words, row_of, top, scale, least_bits, room):
+    """Whether the sampled rows' runs, estimated by their pixels unlike the one before in some plane (scaled by
+    ``scale``, the sampled columns per stack column, up to 1), would need more than ``room`` bytes at
+    ``least_bits`` a run: a dithered layer is found by a popcount a word before any of it is coded."""
+    changes_seen = 0
+    for y in range(row_of.shape[0]):
+        row = row_of[y]
+        if row < 0:
+            continue
+        for w in range(words.shape[2]):
+            changes = np.uint64(0)
+            for p in range(words.shape[0]):
+                word = words[p, row, w]
+                before = words[p, row, w - 1] << np.uint64(63) if w else word & top
+                changes |= word ^ ((word >> np.uint64(1)) | before)
+            changes_seen += np.int64(_popcount(changes))
+    return changes_seen * min(scale, 1.0) * least_bits > 8.0 * room
+
+
 @kernel(EXACT)
 def _run_stream(words, row_of, width, first, colours, codes, lengths, header, header_bits,
                 out):  # pragma: no cover - compiled
@@ -66,6 +87,8 @@ def _run_stream(words, row_of, width, first, colours, codes, lengths, header, he
             slot = LITERAL + colours[label, channel]
             first_code[label] |= codes[slot] << np.uint64(first_bits[label])
             first_bits[label] += lengths[slot]
+    if _too_many_runs(words, row_of, top, first[width] / max(width, 1), first_bits.min(), out.shape[0]):
+        return -1
     longest = max(1, 32 // lengths[LONGEST_MATCH])
     repeat_code, repeat_bits = np.zeros(longest + 1, dtype=np.uint64), np.zeros(longest + 1, dtype=np.int64)
     for k in range(1, longest + 1):
