@@ -27,10 +27,12 @@ LITERAL = 259
 def _put(out, held, count, at, code, bits):
     """Append ``bits`` (at most 32) of ``code``, least significant first, to a stream of ``at`` bytes in ``out``
     and ``count`` bits ``held`` (fewer than 32): 4 bytes are stored whenever 32 bits are held. Returns the new
-    (held, count, at), ``at`` -1 when ``out`` is full (and stays -1)."""
+    (held, count, at), ``at`` -1 when ``out`` is full (and stays -1, nothing more appended)."""
+    if at < 0:
+        return held, count, at
     held |= code << np.uint64(count)
     count += bits
-    if count >= 32 and at >= 0:
+    if count >= 32:
         if at + 4 > out.shape[0]:
             return held, count - 32, -1
         for k in range(4):
@@ -109,7 +111,7 @@ def _run_stream(words, row_of, width, first, colours, codes, lengths, header, he
         else:
             label, start = -1, 0  # the run being read, from stack column start
             for w in range(words_per_row):
-                uniform = 0  # the label of all 64 pixels, or -2 when they differ
+                uniform = 0  # the label of all 64 pixels, or -2 when they differ (a full plane hides those before it)
                 changes = np.uint64(0)  # bit 63 - q set where pixel q differs from pixel q - 1 in some plane
                 for p in range(planes):
                     word = words[p, row, w]
@@ -179,6 +181,7 @@ def _run_stream(words, row_of, width, first, colours, codes, lengths, header, he
         out[at + k] = np.uint8((checksum >> (24 - 8 * k)) & 0xFF)
     return at + 4
 
+
 def run_stream(planes: list, width: int, rows: np.ndarray, columns: np.ndarray, colours: np.ndarray, code,
                limit: int) -> bytes | None:
     """The zlib stream of the PNG scanlines of a Voxel Print slice (filter byte 0, then the colour (``colours``
@@ -193,9 +196,10 @@ def run_stream(planes: list, width: int, rows: np.ndarray, columns: np.ndarray, 
     row_of = np.full(len(rows), -1, dtype=np.int64)
     row_of[inside] = np.arange(np.count_nonzero(inside))
     row_bytes = planes[0].rows.shape[1]
-    words = np.zeros((len(planes), np.count_nonzero(inside), -(-row_bytes // 8)), dtype=np.uint64)
+    words = np.empty((len(planes), np.count_nonzero(inside), -(-row_bytes // 8)), dtype=np.uint64)
     for plane, bits in zip(words.view(np.uint8), planes):
         np.take(bits.rows, rows[inside], axis=0, out=plane[:, :row_bytes])
+        plane[:, row_bytes:] = 0
     words.byteswap(inplace=True)  # pixel 0 of each word its top bit, as in the packed bytes
     edges = i64(np.searchsorted(columns, np.arange(width + 1), side="left"))
     out = np.empty(limit, dtype=np.uint8)
