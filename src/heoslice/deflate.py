@@ -67,7 +67,7 @@ class RunCode:
     least significant first) is the zlib header and the block's header; ``codes`` / ``lengths`` (516,) uint64 /
     int64 the bits to write (least significant first) for a match of length L at the distance (slot L, 3..258,
     with its extra bits), literal byte b (slot 259 + b; length 0 for a literal without a code) and the end of the
-    block (slot 515)."""
+    block (slot 515); none longer than 32 bits."""
 
     header: np.ndarray
     header_bits: int
@@ -141,6 +141,8 @@ def run_code(literals: frozenset[int], distance: int) -> RunCode:
         codes[length], lengths[length] = _joined(parts)
     for symbol in range(257):
         codes[259 + symbol], lengths[259 + symbol] = literal_codes[symbol], literal_lengths[symbol]
+    if lengths.max() > 32:  # the coders append at most 32 bits at once
+        raise ValueError(f"run_code: a match at distance {distance} takes {lengths.max()} bits, more than 32")
     header, header_bits = _joined([(byte, 8) for byte in ZLIB_HEADER] + _block_header(literal_lengths,
                                                                                       distance_lengths))
     return RunCode(np.frombuffer(header.to_bytes((header_bits + 7) // 8, "little"), dtype=np.uint8), header_bits,
