@@ -149,8 +149,9 @@ def slice_scanlines(planes: list[Bits], width: int, rows: np.ndarray, columns: n
 def slice_png(planes: list[Bits], width: int, rows: np.ndarray, columns: np.ndarray, colours: np.ndarray,
               dpi: tuple[float, float]) -> bytes:
     """The RGB PNG of a Voxel Print slice taken from a layer's label ``planes`` (sampled at ``rows`` x ``columns``,
-    label k coloured ``colours[k]``, (labels, 3) uint8): its image data written from the rows' runs of one colour (:func:`run_stream`) when that stream is short
-    (:func:`run_stream_limit`), else its scanlines coloured (:func:`slice_scanlines`) and deflated by zlib-ng."""
+    label k coloured ``colours[k]``, (labels, 3) uint8): its image data written from the rows' runs of one colour
+    (:func:`run_stream`) when that stream is short (:func:`run_stream_limit`), else its scanlines coloured
+    (:func:`slice_scanlines`) and deflated by zlib-ng."""
     code = run_code(frozenset({0, *np.asarray(colours, dtype=np.uint8).ravel().tolist()}), 3)
     data = run_stream(planes, width, rows, columns, colours, code, run_stream_limit(len(columns), len(rows)))
     if data is None:
@@ -161,8 +162,8 @@ def slice_png(planes: list[Bits], width: int, rows: np.ndarray, columns: np.ndar
 
 def run_stream_limit(width: int, height: int) -> int:
     """Longest image data (bytes) :func:`slice_png` writes from runs for a ``width`` x ``height`` px slice:
-    1 / RUN_STREAM_SHARE of its RGB scanlines' bytes, RUN_STREAM_ROW_BYTES a row and 1 KB. A longer stream is a layer of
-    short runs (a dithered grading), which zlib-ng deflates smaller, finding its repeats."""
+    1 / RUN_STREAM_SHARE of its RGB scanlines' bytes, RUN_STREAM_ROW_BYTES a row and 1 KB. A longer stream is a
+    layer of short runs (a dithered grading), which zlib-ng deflates smaller, finding its repeats."""
     return height * (1 + 3 * width) // RUN_STREAM_SHARE + RUN_STREAM_ROW_BYTES * height + 1024
 
 
