@@ -1,4 +1,4 @@
-"""Builds the one compiled part of heoslice: the mesh's, the layers' and the grading's kernels, compiled
+"""Builds the one compiled part of heoslice: the mesh's, the layers', the grading's and the export's kernels, compiled
 ahead of time from their numba sources (heoslice.kernel_exports) into the extension modules
 heoslice._compiled and heoslice._compiled_b (a share each, compiled side by side), for this machine's processor. Everything else is in pyproject.toml.
 
@@ -84,7 +84,7 @@ def _enter_kernel_packages() -> None:
     source = Path(__file__).resolve().parent / "src" / "heoslice"
     for name, path in (("heoslice", source), ("heoslice.mesh", source / "mesh"),
                        ("heoslice.layers", source / "layers"), ("heoslice.material", source / "material"),
-                       ("heoslice.grading", source / "grading")):
+                       ("heoslice.grading", source / "grading"), ("heoslice.export", source / "export")):
         package = types.ModuleType(name)
         package.__path__ = [str(path)]
         sys.modules[name] = package

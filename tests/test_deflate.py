@@ -1,14 +1,18 @@
 """The zlib encoders (heoslice.deflate): a stream any inflater reads, by zlib-ng where imagecodecs has it, and
 by zlib where the build lacks it (imagecodecs then hands out a placeholder that fails only when called); by ISA-L
-(isal, a dependency) for noise-like masks."""
+(isal, a dependency) for noise-like masks; the codes of a block of runs (run_code) by RFC 1951's rules."""
 
 from __future__ import annotations
 
+import itertools
 import types
 import zlib
+from fractions import Fraction
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from heoslice import deflate
 
@@ -56,3 +60,53 @@ def test_a_build_without_zlib_ng_falls_back_to_zlib(monkeypatch):
         assert png_file(rows, 16, 1, 1, None).startswith(b"\x89PNG")
     finally:
         deflate.deflater.cache_clear()
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.dictionaries(st.integers(0, 285), st.integers(1, 10**6), min_size=2, max_size=60), st.integers(7, 15))
+def test_huffman_lengths_make_a_complete_code_within_the_limit(weights, limit):
+    """huffman_lengths gives every symbol a length of at most ``limit`` bits whose Kraft sum is exactly 1 (a
+    complete prefix code, as zlib's inflater requires of a dynamic block), a heavier symbol never longer."""
+    lengths = deflate.huffman_lengths(weights, limit)
+    assert set(lengths) == set(weights) and max(lengths.values()) <= limit
+    assert sum(Fraction(1, 2 ** length) for length in lengths.values()) == 1
+    if max(weights.values()) < 2**limit // len(weights):  # weights never halved: Huffman's own code
+        for s, t in itertools.combinations(weights, 2):
+            assert weights[s] <= weights[t] or lengths[s] <= lengths[t]
+
+
+def test_canonical_codes_are_rfc_1951s_example():
+    """RFC 1951 3.2.2's example: lengths (3, 3, 3, 3, 3, 2, 4, 4) give codes 010, 011, 100, 101, 110, 00, 1110,
+    1111 (written here bit-reversed, least significant bit first)."""
+    codes = deflate.canonical_codes([3, 3, 3, 3, 3, 2, 4, 4])
+    expected = ["010", "011", "100", "101", "110", "00", "1110", "1111"]
+    assert codes == [int(code[::-1], 2) for code in expected]
+
+
+@pytest.mark.parametrize("distance", [1, 3, 4, 300, 32768])
+def test_a_run_code_stream_of_literals_and_matches_inflates(distance):
+    """A stream written with run_code's header and codes (random literals from its set, then matches of every
+    length at its distance, the end of the block) inflates with zlib to the bytes they stand for."""
+    rng = np.random.default_rng(distance)
+    literals = frozenset(rng.integers(0, 256, 5).tolist())
+    code = deflate.run_code(literals, distance)
+    value, count, data = int.from_bytes(code.header.tobytes(), "little"), code.header_bits, bytearray()
+
+    def put(bits, length):
+        nonlocal value, count
+        value |= int(bits) << count
+        count += int(length)
+
+    value &= (1 << count) - 1
+    for _ in range(distance):
+        byte = int(rng.choice(sorted(literals)))
+        put(code.codes[259 + byte], code.lengths[259 + byte])
+        data.append(byte)
+    for length in list(range(3, 259)) + rng.integers(3, 259, 50).tolist():
+        put(code.codes[length], code.lengths[length])
+        for _ in range(length):
+            data.append(data[-distance])
+    put(code.codes[259 + 256], code.lengths[259 + 256])
+    stream = value.to_bytes((count + 7) // 8, "little") + zlib.adler32(bytes(data)).to_bytes(4, "big")
+    assert zlib.decompress(stream) == bytes(data)
+    assert all(code.lengths[259 + byte] == 0 for byte in range(256) if byte not in literals)

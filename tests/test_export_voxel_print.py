@@ -3,6 +3,7 @@ with sequential slice names, 600 x 300 dpi, one exact colour per material and no
 
 from __future__ import annotations
 
+import io
 import json
 import zipfile
 
@@ -151,6 +152,71 @@ def test_slice_scanlines_colour_each_sampled_pixel_by_its_label(planes_count, sa
         out = slice_scanlines(planes, width, rows, columns, colours)
         assert (out[:, 0] == 0).all()
         assert np.array_equal(out[:, 1:].reshape(len(rows), len(columns), samples), colours[labels[np.ix_(rows, columns)]])
+
+
+def image_data(png: bytes) -> bytes:
+    """The zlib stream of a PNG's image data (its IDAT chunks joined)."""
+    at, data = 8, b""
+    while at < len(png):
+        length = int.from_bytes(png[at:at + 4], "big")
+        if png[at + 4:at + 8] == b"IDAT":
+            data += png[at + 8:at + 8 + length]
+        at += 12 + length
+    return data
+
+
+@pytest.mark.parametrize("columns_step", [1.0, 0.7, 2.5])
+def test_a_slice_of_long_runs_is_written_from_runs_and_one_of_noise_from_its_rows(columns_step):
+    """slice_png writes a slice of long runs (two parts, rows off them) from its runs (the zlib header 78 01 of
+    run_stream) and one of random pixels (a dither) from its coloured rows by zlib-ng (not 78 01); either way
+    the PNG is RGB and decodes to colours[label] of each sampled pixel, the label the last plane holding it."""
+    from heoslice.export.voxel_print import slice_png
+    from heoslice.stack.packed import Bits
+
+    height, width = 300, 1001
+    yy, xx = np.mgrid[:height, :width]
+    parts = np.stack([(yy - 150) ** 2 + (xx - 500) ** 2 < 120 ** 2, (yy - 150) ** 2 + (xx - 530) ** 2 < 40 ** 2])
+    noise = np.random.default_rng(1).random((2, height, width)) < 0.3
+    colours = np.array([[0, 0, 0], [240, 240, 240], [0, 255, 0]], dtype=np.uint8)
+    rows = np.arange(0, height, 2)
+    columns = np.minimum((np.arange(int(width / columns_step)) * columns_step).astype(np.int64), width - 1)
+    for masks, from_runs in ((parts, True), (noise, False)):
+        planes = [Bits(np.packbits(mask, axis=1), (0, height)) for mask in masks]
+        png = slice_png(planes, width, rows, columns, colours, (600.0, 300.0))
+        assert (image_data(png)[:2] == b"\x78\x01") == from_runs
+        labels = np.where(masks[1], 2, np.where(masks[0], 1, 0))[np.ix_(rows, columns)]
+        image = Image.open(io.BytesIO(png))
+        assert image.mode == "RGB" and np.array_equal(np.asarray(image), colours[labels])
+
+
+def test_a_parts_stack_exports_every_slice_from_runs_exactly(tmp_path):
+    """A two-part stack (a ball inside a ball, --parts, one material each) exports every slice from its runs,
+    each pixel the colour of the material of the stack pixel and layer it samples, black where empty; slices
+    sampling one layer are one file, hard-linked."""
+    procedural.sphere(4.0, subdivisions=3).export(tmp_path / "outer.ply")
+    procedural.sphere(1.5, subdivisions=3).export(tmp_path / "inner.ply")
+    stack = tmp_path / "stack"
+    assert in_process("slice", tmp_path / "outer.ply", tmp_path / "inner.ply", "--parts", "--part", "outer=M1",
+                      "--part", "inner=M2", "--layer", "0.5", "--dpi", "150", "-o", stack) == 0
+    out = tmp_path / "voxels"
+    assert in_process("export", stack, "--format", "voxel-print", "-o", out) == 0
+    from heoslice.export.voxel_print import printer_grid
+
+    manifest = read_manifest(stack)
+    width, height, slices, columns, rows, sources = printer_grid(manifest, (600.0, 300.0), 0.027)
+    palette = np.array([(0, 0, 0)] + [m["color"] for m in json.loads((out / "voxelprint.json").read_text())
+                                      ["materials"]], dtype=np.uint8)
+    assert len(palette) == 3
+    for number in range(slices):
+        png = (out / f"slice_{number:05d}.png").read_bytes()
+        assert image_data(png)[:2] == b"\x78\x01"
+        masks = read_layer_channels(stack, manifest, int(sources[number]))[:, rows][:, :, columns]
+        labels = np.where(masks[1], 2, np.where(masks[0], 1, 0))
+        assert np.array_equal(np.asarray(Image.open(io.BytesIO(png))), palette[labels]), number
+    for layer in set(sources.tolist()):
+        inodes = {(out / f"slice_{number:05d}.png").stat().st_ino for number in np.flatnonzero(sources == layer)}
+        assert len(inodes) == 1
+    assert len(set(sources.tolist())) < slices
 
 
 def test_export_refuses_a_stack_with_a_bad_layer_and_writes_nothing(tmp_path):

@@ -10,8 +10,9 @@ import pytest
 import heoslice
 
 SOURCE = Path(heoslice.__file__).resolve().parent
-#: The stages in pipeline order; a module may import its own stage or an earlier one, never a later one.
-STAGES = ("base", "mesh", "material", "layers", "grading", "volume", "build", "stack", "pipeline", "preview", "export",
+#: The stages in pipeline order; a module may import its own stage or an earlier one, never a later one. The
+#: kernels' build comes after the last stage with compiled kernels (export's Voxel Print run coder), as it imports them all.
+STAGES = ("base", "mesh", "material", "layers", "grading", "volume", "stack", "pipeline", "preview", "export", "build",
           "printing", "cli")
 #: The stage of each first name under heoslice (a package, or a base module that every stage may use).
 STAGE_OF = {

@@ -94,6 +94,19 @@ def test_long_image_data_is_split_into_idat_chunks_that_decode_as_one(monkeypatc
     assert np.array_equal(decoded(split)[1], rows.reshape(30, 30, 3))
 
 
+def test_image_data_deflated_elsewhere_makes_the_same_file():
+    """deflated_png of the zlib stream of the scanlines (filter byte 0 a row) is the file png_file writes of
+    the same rows with the same stream: the same chunks and pixels; a colour type PNG lacks is refused."""
+    rows = np.random.default_rng(8).integers(0, 256, (7, 33)).astype(np.uint8)
+    scanlines = np.concatenate([np.zeros((7, 1), dtype=np.uint8), rows], axis=1)
+    stream = pngfile.deflater(pngfile.DEFLATE_LEVEL)(scanlines.tobytes())
+    assert pngfile.deflated_png(stream, 11, 7, 3, 8, DPI) == png_file(rows, 11, 3, 8, DPI)
+    assert np.array_equal(decoded(pngfile.deflated_png(zlib.compress(scanlines.tobytes()), 11, 7, 3, 8, DPI))[1],
+                          rows.reshape(7, 11, 3))
+    with pytest.raises(ValueError, match="samples"):
+        pngfile.deflated_png(stream, 11, 7, 2, 8, DPI)
+
+
 def test_rows_that_do_not_fit_the_width_are_refused():
     """Scanlines of the wrong length for the width, samples and bit depth: ValueError, not a corrupt file."""
     with pytest.raises(ValueError, match="do not hold"):

@@ -2,7 +2,8 @@
 
 The kernels are written once, as numba functions in the ``*_kernels`` modules beside the code they speed up
 (the weld's, the edge grouping's and the shells' in ``mesh``; the slicing's, the chaining's and the
-rasteriser's in ``layers``; the surface distance's in ``material``; the grading's in ``grading``). Installing heoslice compiles them ahead of time
+rasteriser's in ``layers``; the surface distance's in ``material``; the grading's in ``grading``; Voxel
+Print's run stream in ``export``). Installing heoslice compiles them ahead of time
 into the extension modules ``heoslice._compiled`` and ``heoslice._compiled_b`` (a share each, compiled side by side) (:mod:`heoslice.kernel_exports`, run by ``setup.py``), so
 that a slice loads neither numba nor LLVM: they cost every process of a slice its largest fixed share of
 memory and start-up time (benchmarks/README.md). :func:`kernel` hands each module the compiled function

@@ -1,5 +1,6 @@
 """The ahead-of-time build of every compiled kernel (the mesh's, the slicing's, the chaining's, the
-rasteriser's, the surface distance's and the grading's): what each kernel Python calls takes, and the compile.
+rasteriser's, the surface distance's, the grading's and Voxel Print's run stream): what each kernel Python
+calls takes, and the compile.
 
 Run by ``setup.py`` when heoslice is installed (never at run time: it needs numba, and kernels compiled
 just in time, ``HEOSLICE_JIT=1``). Each kernel listed in :data:`heoslice.jit.ENTRIES` is exported
@@ -22,6 +23,7 @@ from numba.core.targetconfig import Option
 from numba.pycc import CC
 from numba.pycc import compiler as pycc_compiler
 
+from heoslice.export import voxel_print_kernels
 from heoslice.grading import (
     diffusion_kernels,
     droplets_kernels,
@@ -55,7 +57,7 @@ f8_1, f8_2, f8_3, f8_4 = types.float64[::1], types.float64[:, ::1], types.float6
 f4_1, f4_2, f4_3 = types.float32[::1], types.float32[:, ::1], types.float32[:, :, ::1]
 i8_1, i8_2, i1_2 = types.int64[::1], types.int64[:, ::1], types.int8[:, ::1]
 b_2, u1_2, u1_3 = types.boolean[:, ::1], types.uint8[:, ::1], types.uint8[:, :, ::1]
-u4_2, u8_1 = types.uint32[:, ::1], types.uint64[::1]
+u4_2, u8_1, u8_3, u1_1 = types.uint32[:, ::1], types.uint64[::1], types.uint64[:, :, ::1], types.uint8[::1]
 
 EDGES = types.NamedUniTuple(f8_1, 5, edges_kernels.EdgeArrays)
 TREE = types.NamedTuple((f8_2, i8_1, f8_2), search_kernels.EdgeTree)
@@ -147,6 +149,7 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
                                     types.uint16[:, ::1]),
     topology_kernels._edge_runs: (i8_2, i8),
     topology_kernels._lowest_connected: (i8_1, i8_1, i8),
+    voxel_print_kernels._run_stream: (u8_3, i8_1, i8, i8_1, i8_2, u8_1, i8_1, u1_1, i8, u1_1),
     weld_kernels._first_rows: (u8_1, u4_2),
     resample_kernels._label_codes: (types.float32[:, :, ::1], f4_1, types.uint8[::1], i8_2, f8, i8_1, f4_1, i8_1,
                                     f4_1, u1_3, i8_1),

@@ -1,5 +1,6 @@
 """heoslice's one PNG writer (exports and previews): scanlines to a PNG file (signature, IHDR, pHYs, tEXt,
-IDAT, IEND), every row unfiltered and the image data deflated by zlib-ng (:func:`heoslice.deflate.deflater`).
+IDAT, IEND), every row unfiltered and the image data deflated by zlib-ng (:func:`heoslice.deflate.deflater`), or
+image data deflated by its caller (:func:`deflated_png`: Voxel Print's slices, written from their runs).
 
 Why not Pillow's encoder: it chooses a filter per row by trying each, then deflates with zlib at level 6,
 which costs far more than zlib-ng on the raw rows; imagecodecs' libpng encoder takes no 1-bit images.
@@ -54,7 +55,16 @@ def scanlines_png(scanlines: np.ndarray, width: int, samples: int, bit_depth: in
     if stride != -(-width * samples * bit_depth // 8) or samples not in COLOUR_TYPES or bit_depth not in (1, 8):
         raise ValueError(f"scanlines_png: rows of {stride} bytes do not hold {width} px of {samples} x {bit_depth} "
                          "bits")
-    data = deflater(DEFLATE_LEVEL)(np.ascontiguousarray(scanlines))
+    return deflated_png(deflater(DEFLATE_LEVEL)(np.ascontiguousarray(scanlines)), width, height, samples, bit_depth,
+                        dpi, text)
+
+
+def deflated_png(data: bytes, width: int, height: int, samples: int, bit_depth: int,
+                 dpi: tuple[float, float] | None, text: tuple[tuple[str, str], ...] = ()) -> bytes:
+    """:func:`png_file` of image data already deflated: ``data`` the zlib stream (RFC 1950) of the PNG scanlines
+    of a ``width`` x ``height`` image (each row a filter byte, then its pixels as :func:`png_file` lays them)."""
+    if samples not in COLOUR_TYPES or bit_depth not in (1, 8):
+        raise ValueError(f"deflated_png: no PNG of {samples} samples of {bit_depth} bits")
     header = struct.pack(">IIBBBBB", width, height, bit_depth, COLOUR_TYPES[samples], 0, 0, 0)
     extra = [] if dpi is None else [
         _chunk(b"pHYs", struct.pack(">IIB", *(int(value / METRES_PER_INCH + 0.5) for value in dpi), 1))]

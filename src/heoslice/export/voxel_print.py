@@ -6,9 +6,11 @@ or white for a one-material stack), empty pixels the background colour (default 
 at a 0.027 mm pitch (the J750's high-mix mode) unless asked otherwise. The stack is resampled by
 nearest sample, never blended, so every printed voxel keeps exactly one material: in the plane each
 slice pixel takes the stack pixel under its centre, in z each slice the stack layer holding its
-centre height. Refused: stacks that cannot print (:mod:`heoslice.stack.printable`: RGBA previews sliced
-with ``--rgba``, every layer empty), materials without a colour, two materials of one colour or one of
-the background's.
+centre height. A slice's image data is written straight from the runs of one label along its sampled
+rows (:mod:`heoslice.export.voxel_print_kernels`: literals and matches, never the RGB rows); a layer of
+short runs (a dithered grading) has its rows coloured and deflated by zlib-ng instead. Refused: stacks
+that cannot print (:mod:`heoslice.stack.printable`: RGBA previews sliced with ``--rgba``, every layer
+empty), materials without a colour, two materials of one colour or one of the background's.
 """
 
 from __future__ import annotations
@@ -19,10 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
+from heoslice.deflate import run_code
 from heoslice.errors import InputError
 from heoslice.export.base import ExportFormat, ExportOptions, Sink
+from heoslice.export.voxel_print_kernels import run_stream
 from heoslice.pipeline.parallel import ordered_map
-from heoslice.pngfile import scanlines_png
+from heoslice.pngfile import deflated_png, scanlines_png
 from heoslice.stack import MANIFEST, MAX_IMAGE_PIXELS, MAX_LAYERS, check_printable
 from heoslice.stack.packed import Bits, layer_bits
 from heoslice.stack.verify import StackPlan, verified_layer
@@ -94,6 +98,10 @@ def label_planes(solid: Bits, masks: list[Bits]) -> list[Bits]:
     return masks or [solid]
 
 
+#: :func:`run_stream_limit`: a slice's image data is written from its runs when that takes at most 1/256 of its
+#: scanlines' bytes and 8 bytes a row, and 1 KB (sizes measured in benchmarks/README.md).
+RUN_STREAM_SHARE, RUN_STREAM_ROW_BYTES = 256, 8
+
 #: Most label planes :func:`slice_scanlines` colours a packed byte of at once: a table of 256 ** planes entries of
 #: 8 pixels each (2 planes: 65,536 x 24 bytes in RGB).
 MOST_TABLE_PLANES = 2
@@ -140,9 +148,23 @@ def slice_scanlines(planes: list[Bits], width: int, rows: np.ndarray, columns: n
 
 def slice_png(planes: list[Bits], width: int, rows: np.ndarray, columns: np.ndarray, colours: np.ndarray,
               dpi: tuple[float, float]) -> bytes:
-    """The PNG of a Voxel Print slice taken from a layer's label ``planes`` (sampled at ``rows`` x ``columns``)."""
-    return scanlines_png(slice_scanlines(planes, width, rows, columns, colours), len(columns), colours.shape[1], 8,
-                         dpi)
+    """The RGB PNG of a Voxel Print slice taken from a layer's label ``planes`` (sampled at ``rows`` x ``columns``,
+    label k coloured ``colours[k]``, (labels, 3) uint8): its image data written from the rows' runs of one colour
+    (:func:`run_stream`) when that stream is short (:func:`run_stream_limit`), else its scanlines coloured
+    (:func:`slice_scanlines`) and deflated by zlib-ng."""
+    code = run_code(frozenset({0, *np.asarray(colours, dtype=np.uint8).ravel().tolist()}), 3)
+    data = run_stream(planes, width, rows, columns, colours, code, run_stream_limit(len(columns), len(rows)))
+    if data is None:
+        return scanlines_png(slice_scanlines(planes, width, rows, columns, colours), len(columns), colours.shape[1],
+                             8, dpi)
+    return deflated_png(data, len(columns), len(rows), colours.shape[1], 8, dpi)
+
+
+def run_stream_limit(width: int, height: int) -> int:
+    """Longest image data (bytes) :func:`slice_png` writes from runs for a ``width`` x ``height`` px slice:
+    1 / RUN_STREAM_SHARE of its RGB scanlines' bytes, RUN_STREAM_ROW_BYTES a row and 1 KB. A longer stream is a
+    layer of short runs (a dithered grading), which zlib-ng deflates smaller, finding its repeats."""
+    return height * (1 + 3 * width) // RUN_STREAM_SHARE + RUN_STREAM_ROW_BYTES * height + 1024
 
 
 def printer_grid(manifest: dict, dpi: tuple[float, float], pitch: float) -> tuple:
@@ -175,7 +197,7 @@ def source_runs(sources: np.ndarray) -> list[tuple[int, int, int]]:
 def write(stack: StackPlan, sink: Sink, options: ExportOptions) -> dict:
     """Write the slices and ``voxelprint.json`` (materials, colours, resolution, pitch). Every layer is checked
     as it is read (:func:`heoslice.stack.verify.verified_layer`), over the cores; each run of slices sampling one
-    layer is encoded once."""
+    layer is encoded and written once, its other slices hard links to the first in a folder (:meth:`Sink.add`)."""
     directory, manifest = stack.directory, stack.manifest
     dpi = options.dpi or DEFAULT_DPI
     pitch = options.pitch_mm or DEFAULT_PITCH_MM
@@ -194,8 +216,10 @@ def write(stack: StackPlan, sink: Sink, options: ExportOptions) -> dict:
     total = len(manifest["layers"])
     for index, data in enumerate(ordered_map(encoded, range(total))):
         if data is not None:
-            for number in range(*runs[index]):
-                sink.add(f"slice_{number:05d}.png", data)
+            start, stop = runs[index]
+            sink.add(f"slice_{start:05d}.png", data)
+            for number in range(start + 1, stop):
+                sink.add(f"slice_{number:05d}.png", data, same_as=f"slice_{start:05d}.png")
         sink.progress(index + 1, total)
     summary = {"format": "voxel-print", "slices": slices, "width": width, "height": height, "dpi": list(dpi),
                "pitch_mm": pitch, "background": list(background),
