@@ -8,7 +8,6 @@ interrupted export never leaves something that looks complete.
 
 from __future__ import annotations
 
-import os
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -92,29 +91,17 @@ class Sink:
         if self.on_progress is not None:
             self.on_progress(done, total)
 
-    def add(self, name: str, data: bytes, same_as: str | None = None) -> None:
-        """Write one file of the export; ``same_as``, a file of it already written with these very bytes, makes
-        it a hard link to that file in a folder (where the file system refuses one, a copy): creating a file
-        costs several times a link on some file systems (benchmarks/README.md, issue 46)."""
+    def add(self, name: str, data: bytes) -> None:
+        """Write one file of the export."""
         try:
             if self.is_zip:
                 self._zip.writestr(name, data)
-            elif same_as is not None and self._linked(name, same_as):
-                pass
             else:
                 (self._temporary / name).write_bytes(data)
         except OSError as err:
             self.discard()
             raise write_problem(f"{self.target}/{name}", err) from err
         self.files.append(name)
-
-    def _linked(self, name: str, same_as: str) -> bool:
-        """Whether ``name`` was made a hard link to ``same_as`` in the partial folder."""
-        try:
-            os.link(self._temporary / same_as, self._temporary / name)
-        except OSError:
-            return False
-        return True
 
     def commit(self) -> None:
         """Move the finished export into place (replacing an old export only now)."""

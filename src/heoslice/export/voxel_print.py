@@ -197,7 +197,7 @@ def source_runs(sources: np.ndarray) -> list[tuple[int, int, int]]:
 def write(stack: StackPlan, sink: Sink, options: ExportOptions) -> dict:
     """Write the slices and ``voxelprint.json`` (materials, colours, resolution, pitch). Every layer is checked
     as it is read (:func:`heoslice.stack.verify.verified_layer`), over the cores; each run of slices sampling one
-    layer is encoded and written once, its other slices hard links to the first in a folder (:meth:`Sink.add`)."""
+    layer is encoded once."""
     directory, manifest = stack.directory, stack.manifest
     dpi = options.dpi or DEFAULT_DPI
     pitch = options.pitch_mm or DEFAULT_PITCH_MM
@@ -216,10 +216,8 @@ def write(stack: StackPlan, sink: Sink, options: ExportOptions) -> dict:
     total = len(manifest["layers"])
     for index, data in enumerate(ordered_map(encoded, range(total))):
         if data is not None:
-            start, stop = runs[index]
-            sink.add(f"slice_{start:05d}.png", data)
-            for number in range(start + 1, stop):
-                sink.add(f"slice_{number:05d}.png", data, same_as=f"slice_{start:05d}.png")
+            for number in range(*runs[index]):
+                sink.add(f"slice_{number:05d}.png", data)
         sink.progress(index + 1, total)
     summary = {"format": "voxel-print", "slices": slices, "width": width, "height": height, "dpi": list(dpi),
                "pitch_mm": pitch, "background": list(background),
