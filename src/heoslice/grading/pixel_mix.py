@@ -101,11 +101,19 @@ def field_planes(field, packed: np.ndarray, grid: Grid, z: float, layer: int, st
     level = np.ascontiguousarray(np.rint(layer_tile(layer) * LEVELS - 0.5), dtype=np.int32)  # 0 .. 255
     rows = np.ascontiguousarray(packed[row0:row1])
     if steps is not None:
-        step_planes(rows, row0, col0, steps, below, level, start, target, planes)
+        step_planes(rows, row0, col0, steps, _step_levels(field), level, start, target, planes)
     else:
         quadratic_planes(rows, row0, col0, square.frame, square.square, *square.r_range, below, level, start, target,
                          planes)
     return planes
+
+
+@functools.lru_cache(maxsize=4)
+def _step_levels(field) -> np.ndarray:
+    """:func:`_levels_table` padded with zeros to an entry for every uint16 (65536,), as :func:`step_planes` reads
+    it (a step off the solid, anything up to 65535, indexes it unclipped)."""
+    below = _levels_table(field)
+    return np.concatenate([below, np.zeros(65536 - len(below), dtype=below.dtype)])
 
 
 @functools.lru_cache(maxsize=4)
