@@ -88,6 +88,27 @@ def test_voxel_print_of_masks_without_colours_names_the_manifest(stacks, tmp_pat
     assert not (tmp_path / "out").exists()
 
 
+def test_voxel_print_refuses_a_layer_whose_masks_are_not_the_first_layers(stacks, tmp_path):
+    """A hand-edited stack whose first layer lists no droplet masks and whose manifest names no materials (so
+    verify has no order to hold the masks to, and passes) would colour the other layers' two masks from a palette
+    of one material (before: a crash of the export's worker): one line naming the manifest and layer 1, exit 2,
+    nothing written."""
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    for item in (stacks / "masks").iterdir():
+        (copy / item.name).write_bytes(item.read_bytes())
+    manifest = json.loads((copy / "manifest.json").read_text())
+    for channel in manifest["layers"][0].pop("channels"):
+        (copy / channel["file"]).unlink()
+    manifest["grading"]["materials"] = None
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    assert heoslice("verify", copy).returncode == 0
+    done = heoslice("export", copy, "--format", "voxel-print", "-o", tmp_path / "out")
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert str(copy / "manifest.json") in done.stderr and "layer 1 has droplet masks (M1, M2)" in done.stderr
+    assert not (tmp_path / "out").exists()
+
+
 def test_png_zip_holds_every_layer_and_the_manifest(stacks, tmp_path):
     """`--format png -o X.zip`: one PNG per layer image and droplet mask at the stack's size, solid black
     on white as in the TIFFs, with manifest.json beside them."""

@@ -157,6 +157,17 @@ def test_colours_must_be_rgb():
         stream_of(np.zeros((1, 2, 9), dtype=bool), [0, 1], np.arange(9), np.zeros((2, 4), dtype=np.uint8))
 
 
+def test_a_plane_without_a_colour_is_refused():
+    """Every label a plane gives needs a colour row (the kernel reads colours[label] unchecked): two planes with one
+    colour besides the background's, or no plane, are refused before anything is coded."""
+    colours = np.array([[0, 0, 0], [255, 0, 0]], dtype=np.uint8)
+    with pytest.raises(ValueError, match="label planes"):
+        stream_of(np.ones((2, 2, 9), dtype=bool), [0, 1], np.arange(9), colours)
+    with pytest.raises(ValueError, match="label planes"):
+        stream_of(np.ones((0, 2, 9), dtype=bool), [0, 1], np.arange(9), colours)
+    assert stream_of(np.ones((1, 2, 9), dtype=bool), [0, 1], np.arange(9), colours) is not None
+
+
 @settings(max_examples=200, deadline=None)
 @given(st.integers(0, 65520), st.integers(0, 65520), st.integers(1, 3000), st.tuples(*[st.integers(0, 255)] * 3))
 def test_a_runs_adler_sums_are_zlibs(a, b, n, colour):

@@ -9,13 +9,13 @@ import pytest
 
 @pytest.fixture()
 def lazy_package(tmp_path, monkeypatch):
-    """A package ``lazyprobe`` whose one public name ``answer`` lives in its submodule ``part``."""
+    """A package ``lazyprobe`` whose public names ``answer`` and ``part`` live in its submodule ``part``."""
     package = tmp_path / "lazyprobe"
     package.mkdir()
     (package / "__init__.py").write_text(
         "from heoslice.lazy import lazy_exports\n"
-        "__all__, __getattr__, __dir__ = lazy_exports(__name__, {'part': ('answer',)})\n")
-    (package / "part.py").write_text("answer = object()\n")
+        "__all__, __getattr__, __dir__ = lazy_exports(__name__, {'part': ('answer', 'part')})\n")
+    (package / "part.py").write_text("answer = object()\npart = object()\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     yield
     for name in ("lazyprobe", "lazyprobe.part"):
@@ -44,4 +44,16 @@ def test_an_unknown_name_is_an_attribute_error_and_dir_lists_the_exports(lazy_pa
     with pytest.raises(AttributeError, match="lazyprobe"):
         lazyprobe.missing  # noqa: B018
     assert "answer" in dir(lazyprobe)
-    assert lazyprobe.__all__ == ["answer"]
+    assert lazyprobe.__all__ == ["answer", "part"]
+
+
+def test_a_name_that_is_also_a_submodule_leaves_the_package_attribute_to_the_submodule(lazy_package):
+    """Reading ``part`` (a name of submodule ``part``) before the submodule is imported gives the name, and does not
+    store it over the submodule: ``import lazyprobe.part`` still gives the module."""
+    import lazyprobe
+
+    value = lazyprobe.part
+    assert value is sys.modules["lazyprobe.part"].part
+    import lazyprobe.part as submodule
+
+    assert submodule is sys.modules["lazyprobe.part"]

@@ -68,6 +68,25 @@ def palette(manifest: dict, background: tuple[int, int, int],
     return materials
 
 
+def check_same_masks(manifest: dict, source: str | Path = MANIFEST) -> None:
+    """InputError (naming ``source``) unless every layer lists the droplet masks of the first, by material and in
+    its order: a slice's label m + 1 is the layer's mask m, coloured as :func:`palette` colours the first layer's
+    (a layer whose masks were other materials, or in another order, would print in the wrong colours)."""
+    def materials(entry: dict) -> list:
+        return [str(channel.get("material")) for channel in entry.get("channels") or []]
+
+    def listed(names: list) -> str:
+        return f"({', '.join(names)})" if names else "none"
+
+    layers = manifest["layers"]
+    first = materials(layers[0]) if layers else []
+    for entry in layers[1:]:
+        if materials(entry) != first:
+            raise InputError(f"{source}: layer {entry.get('index')} has droplet masks {listed(materials(entry))}, the "
+                             f"first layer {listed(first)}; voxel-print colours every layer's masks as the first "
+                             "layer's")
+
+
 def sample_indices(count: int, step: float, new_step: float, new_count: int) -> np.ndarray:
     """Index of the source cell (size ``step``) holding the centre of each of ``new_count`` cells of size
     ``new_step`` laid from the same origin: (new_count,) int, clipped to 0..count-1."""
@@ -203,6 +222,7 @@ def write(stack: StackPlan, sink: Sink, options: ExportOptions) -> dict:
     pitch = options.pitch_mm or DEFAULT_PITCH_MM
     background = tuple(options.background or DEFAULT_BACKGROUND)
     check_printable(manifest, directory)
+    check_same_masks(manifest, Path(directory) / MANIFEST)
     materials = palette(manifest, background, Path(directory) / MANIFEST)
     width, height, slices, columns, rows, sources = printer_grid(manifest, dpi, pitch)
     colours = np.array([background] + [colour for _, colour in materials], dtype=np.uint8)

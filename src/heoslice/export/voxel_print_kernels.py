@@ -191,6 +191,8 @@ def run_stream(planes: list, width: int, rows: np.ndarray, columns: np.ndarray, 
     None when it would be longer than ``limit`` bytes (a layer of many short runs, left to a general encoder)."""
     if colours.ndim != 2 or colours.shape[1] != 3:
         raise ValueError(f"run_stream: colours of shape {colours.shape}, not (labels, 3)")
+    if not 0 < len(planes) < colours.shape[0]:  # the kernel reads colours[label] unchecked
+        raise ValueError(f"run_stream: {len(planes)} label planes for {colours.shape[0] - 1} colours of labels")
     first, stop = min(bits.span[0] for bits in planes), max(bits.span[1] for bits in planes)
     inside = (rows >= first) & (rows < stop)
     row_of = np.full(len(rows), -1, dtype=np.int64)

@@ -113,7 +113,7 @@ class MaterialField:
 
     def layer_steps(self, packed: np.ndarray, grid, z: float) -> tuple[tuple[int, int, int, int], np.ndarray]:
         """The box of a layer's solid pixels (as :meth:`layer_fraction`) and, at each of them, its r to a surface
-        reference as the step k of r = k / R_STEPS nearest it (uint16 (rows, cols); anything up to R_STEPS
+        reference as the step k of r = k / R_STEPS nearest it (uint16 (rows, cols); anything up to 65535
         elsewhere in the box, which a halftone may read before it masks the solid): f then read from
         :attr:`fraction_table` per voxel, in one compiled pass, instead of evaluated at every voxel. A plane,
         point or axis gives its r as :meth:`layer_square` (ValueError here)."""

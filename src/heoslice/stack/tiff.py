@@ -42,8 +42,8 @@ class Deflation(NamedTuple):
 #: each pixel is one part's or label's material, in large flat regions). Every halftone's masks go to ISA-L's
 #: level 2: on blue noise and error diffusion (masks like noise, few repeats to find) it is as small as zlib-ng's
 #: level 2 in 0.3-0.4x its time; on ordered dither's masks it misses some short repeats (files 5-11 % larger) in
-#: about half zlib-ng's time, a tenth of a graded slice's CPU (zlib-ng's level 1 is slower than ISA-L and 50 %
-#: larger). One table of sizes and times in benchmarks/README.md.
+#: about half zlib-ng's time, a tenth of a graded slice's CPU (zlib-ng's level 1 is slower than ISA-L and about
+#: 40 % larger). One table of sizes and times in benchmarks/README.md.
 MASK_DEFLATION = {None: Deflation("zlib-ng", MULTI_MATERIAL_DEFLATE_LEVEL),
                   "ordered": Deflation("isa-l", 2),
                   "blue-noise": Deflation("isa-l", 2),
