@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import prusa_meshes  # noqa: E402
 from bench_prusa import GRADED_ARGS, heoslice_base  # noqa: E402
-from prusa_measure import run_measured  # noqa: E402
+from prusa_measure import compile_bytecode, run_measured  # noqa: E402
 
 from heoslice import procedural  # noqa: E402
 
@@ -113,7 +113,9 @@ def main(argv: list[str] | None = None) -> None:
     if unknown:
         raise SystemExit(f"--commands: unknown {', '.join(unknown)}; choose from {', '.join(COMMANDS)}")
     runners = [("", base, None)]
+    compile_bytecode(Path(procedural.__file__).parent)  # heoslice's bytecode, as an install writes it
     if args.baseline is not None:
+        compile_bytecode(args.baseline / "heoslice")
         environment = {**os.environ, "PYTHONPATH": str(args.baseline.resolve())}
         runners.insert(0, ("baseline ", [sys.executable, "-m", "heoslice"], environment))
     results = {}

@@ -8,7 +8,8 @@ a fifth of the mesh's smallest extent at its centre, 1,280 triangles: the lab's 
 r range, else 0 .. the largest vertex distance). Then, every repeat in the opposite order to the last, each run
 into a new path after os.sync(): ``heoslice slice COLOURED --layer 0.1 --dpi 600`` in the field interior (its
 default) and with ``--interior contour`` for each reference, and PrusaSlicer's ``--export-sla`` of the plain mesh
-(as bench_prusa.py runs it; left out when it is not installed). It prints the median wall and CPU time of each and
+(as bench_prusa.py runs it; left out when it is not installed), heoslice's bytecode written first as an
+install writes it (``prusa_measure.compile_bytecode``). It prints the median wall and CPU time of each and
 the ratios field / contour (the issue's bound: at most 1.5) and field / PrusaSlicer (at most 0.5). Meshes and
 outputs go to a temporary folder, deleted at the end; ``--workdir`` puts that folder elsewhere, e.g. on a file
 system without ext4's no-journal inode scan (benchmarks/README.md: it makes each new file cost up to ~0.7 ms of
@@ -39,7 +40,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import prusa_meshes  # noqa: E402
 import prusa_sla  # noqa: E402
-from prusa_measure import run_measured, tail  # noqa: E402
+from prusa_measure import compile_bytecode, run_measured, tail  # noqa: E402
+
+import heoslice  # noqa: E402
 
 #: What each heoslice mode adds to the slice command.
 MODES = {"field": [], "contour": ["--interior", "contour"]}
@@ -88,6 +91,7 @@ def main() -> None:
     refs = options.refs.split(",")
     if not options.prusa:
         print(prusa_sla.INSTALL_HINT, file=sys.stderr)
+    compile_bytecode(Path(heoslice.__file__).parent)
     print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}", flush=True)
     results = {}
     with tempfile.TemporaryDirectory(prefix="bench_field_", dir=options.workdir) as work:
