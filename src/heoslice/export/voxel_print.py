@@ -10,7 +10,8 @@ centre height. A slice's image data is written straight from the runs of one lab
 rows (:mod:`heoslice.export.voxel_print_kernels`: literals and matches, never the RGB rows); a layer of
 short runs (a dithered grading) has its rows coloured and deflated by zlib-ng instead. Refused: stacks
 that cannot print (:mod:`heoslice.stack.printable`: RGBA previews sliced with ``--rgba``, every layer
-empty), materials without a colour, two materials of one colour or one of the background's.
+empty), materials without a colour, two materials of one colour or one of the background's, a layer whose
+droplet masks are not the first layer's (:func:`check_same_masks`).
 """
 
 from __future__ import annotations
