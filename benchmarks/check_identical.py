@@ -102,6 +102,21 @@ def stack_digest(stack: Path) -> dict:
     return {"files": len(files), "sha256": total.hexdigest()}
 
 
+def second_slice(model: Path, case: Case, stack: Path, recorded: dict) -> str:
+    """What a stack that differs from its record says on a second slice of the same case (a failure either way):
+    whether the second matches the record (the first was not reproducible) and the files that differ between the
+    two slices, so that a run that fails once names where to look."""
+    again = stack.with_name(stack.name + "_again")
+    heoslice("slice", str(model), "-o", str(again), "--force", *case.options)
+    files = sorted(p.relative_to(stack) for p in stack.rglob("*") if p.is_file())
+    changed = [str(name) for name in files if not (again / name).is_file()
+               or (stack / name).read_bytes() != (again / name).read_bytes()]
+    matches = stack_digest(again) == recorded
+    shutil.rmtree(again)
+    return (f"a second slice {'matches the record' if matches else 'does not match the record either'}, "
+            f"{len(changed)} file(s) differ between the two slices{': ' + ', '.join(changed[:8]) if changed else ''}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      epilog="examples:" + __doc__.split("Examples:")[1],
@@ -129,7 +144,6 @@ def main(argv: list[str] | None = None) -> int:
             started = time.perf_counter()
             heoslice("slice", str(model), "-o", str(stack), "--force", *case.options)
             digest = stack_digest(stack)
-            shutil.rmtree(stack)
             seconds = time.perf_counter() - started
             if args.record:
                 recorded[case.name] = digest
@@ -140,6 +154,8 @@ def main(argv: list[str] | None = None) -> int:
                 verdict = "identical"
             else:
                 verdict, failures = f"DIFFERENT (recorded {recorded[case.name]})", failures + 1
+                verdict += "; " + second_slice(model, case, stack, recorded[case.name])
+            shutil.rmtree(stack)
             print(f"{case.name:24s} {digest['files']:6d} files  {digest['sha256'][:16]}  {seconds:6.1f} s  {verdict}",
                   flush=True)
     if args.record:
