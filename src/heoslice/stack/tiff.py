@@ -39,13 +39,14 @@ class Deflation(NamedTuple):
 
 
 #: How a multi-material stack's droplet masks are deflated, by the halftoning method that made them (None: none did,
-#: each pixel is one part's or label's material, in large flat regions). Every halftone's masks go to ISA-L's
-#: level 2: on blue noise and error diffusion (masks like noise, few repeats to find) it is as small as zlib-ng's
-#: level 2 in 0.3-0.4x its time; on ordered dither's masks it misses some short repeats (files 5-11 % larger) in
-#: about half zlib-ng's time, a tenth of a graded slice's CPU (zlib-ng's level 1 is slower than ISA-L and about
-#: 40 % larger). One table of sizes and times in benchmarks/README.md.
+#: each pixel is one part's or label's material). Blue noise and error diffusion leave masks like noise, with few
+#: repeats to find: ISA-L's level 2 makes them as small as zlib-ng's level 2 in 0.3-0.4x its time (zlib-ng's level
+#: 1: files 27 % larger, still slower); on ordered dither's masks it misses the short repeats (files 11 % larger).
+#: Ordered dither's masks stay at zlib-ng: at ISA-L's level 2 they took half the time, but a stack's bytes
+#: differed now and then between two slices of one model (benchmarks/README.md, issue 44's fourth round). One table
+#: of sizes and times in benchmarks/README.md.
 MASK_DEFLATION = {None: Deflation("zlib-ng", MULTI_MATERIAL_DEFLATE_LEVEL),
-                  "ordered": Deflation("isa-l", 2),
+                  "ordered": Deflation("zlib-ng", MULTI_MATERIAL_DEFLATE_LEVEL),
                   "blue-noise": Deflation("isa-l", 2),
                   "error-diffusion": Deflation("isa-l", 2)}
 
