@@ -19,7 +19,8 @@ from heoslice.grading.droplets import (
     labelled_droplet_planes,
 )
 from heoslice.grading.halftone import TILE
-from heoslice.layers.rasterising import Grid, count_solid, packed_mask
+from heoslice.layers.bits import count_solid
+from heoslice.layers.rasterising import Grid, packed_mask
 from heoslice.material import DEFAULT_MATERIALS, Material, make_function
 
 PX = 25.4 / 600

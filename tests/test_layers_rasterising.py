@@ -11,9 +11,9 @@ from hypothesis import strategies as st
 
 from heoslice import procedural
 from heoslice.errors import InputError
+from heoslice.layers.bits import count_solid
 from heoslice.layers.rasterising import (
     Grid,
-    count_solid,
     grid_for,
     packed_mask,
     packed_mask_and_count,
@@ -200,13 +200,3 @@ def test_rgba_layer_shows_contour_colours_and_base_inside():
     assert tuple(image[44, 7, :3]) == (255, 0, 0)  # bottom-left corner, near the red points (y = -2)
     assert tuple(image[5, 40, :3]) == (0, 0, 255)  # top-right corner, near the blue points (y = +2)
     assert image[0, 0, 3] == 0
-
-
-@settings(max_examples=50, deadline=None)
-@given(st.integers(0, 2 ** 32 - 1), st.integers(1, 40), st.integers(1, 23))
-def test_count_solid_counts_every_bit_of_any_shape(seed, rows, row_bytes):
-    """count_solid equals the number of ones np.unpackbits finds, for byte counts that are not a multiple
-    of 8 (the 64-bit words and the tail) and for non-contiguous views."""
-    data = np.random.default_rng(seed).integers(0, 256, (rows, row_bytes + 3), dtype=np.uint8)
-    view = data[:, 1:row_bytes + 1]
-    assert count_solid(view) == int(np.unpackbits(view).sum())

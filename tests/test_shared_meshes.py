@@ -16,7 +16,8 @@ from helpers import layer_loops, near_contour, winding_reference
 from heoslice.errors import HeosliceError
 from heoslice.layers import plane_heights, slice_mesh
 from heoslice.layers.contours import build_contours
-from heoslice.layers.rasterising import count_solid, grid_for, packed_mask, solid_mask
+from heoslice.layers.bits import count_solid
+from heoslice.layers.rasterising import grid_for, packed_mask, solid_mask
 from heoslice.mesh import load_mesh
 
 pytestmark = pytest.mark.shared_data

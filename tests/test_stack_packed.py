@@ -16,7 +16,8 @@ from heoslice import procedural
 from heoslice.errors import VerifyError
 from heoslice.stack import encode_bilevel_tiff, read_layer_mask, read_manifest
 from heoslice.stack import packed
-from heoslice.stack.packed import count_bits, layer_bits, read_layer_file, solid_bits, unpack_bits
+from heoslice.layers.bits import count_solid
+from heoslice.stack.packed import layer_bits, read_layer_file, solid_bits, unpack_bits
 
 
 @pytest.fixture(scope="module")
@@ -47,10 +48,10 @@ def test_bits_are_the_masks_tifffile_decodes(channels_stack):
         for bits, record in zip([solid, *masks], files):
             expected = tifffile.imread(channels_stack / record["file"]).astype(bool)
             assert np.array_equal(unpack_bits(bits.rows, width), expected)
-            assert count_bits(bits.rows) == int(expected.sum())
+            assert count_solid(bits.rows) == int(expected.sum())
             assert not (bits.rows[:, -1] & np.uint8(0xFF >> (width % 8))).any()
             assert not bits.rows[:bits.span[0]].any() and not bits.rows[bits.span[1]:].any()
-        assert count_bits(solid.rows) == entry["solid_pixels"]
+        assert count_solid(solid.rows) == entry["solid_pixels"]
 
 
 def test_rows_decode_only_their_strips(channels_stack):

@@ -18,7 +18,8 @@ from heoslice.grading.halftone import DEFAULT_METHOD, TILE, check_method, layer_
 from heoslice.grading.labels import LayerRegions, layer_regions
 from heoslice.grading.materials import family_starts, target_fractions
 from heoslice.grading.spec import GradeSpec, RegionSpec
-from heoslice.layers.rasterising import Grid, count_solid
+from heoslice.layers.bits import count_solid
+from heoslice.layers.rasterising import Grid
 from heoslice.mesh.weld import distinct_rows
 
 #: Most (distinct fraction, distinct cell mix) pairs whose choices :func:`_choice_table` tabulates for one

@@ -107,15 +107,6 @@ def packed_mask(points: np.ndarray, offsets: np.ndarray, grid: Grid) -> np.ndarr
     return packed_mask_and_count(points, offsets, grid)[0]
 
 
-def count_solid(packed: np.ndarray) -> int:
-    """Number of set bits (solid pixels) of a packed mask (any shape, uint8), counted 64 bits at a
-    time (faster than byte by byte: benchmarks/README.md)."""
-    flat = np.ascontiguousarray(packed).reshape(-1)
-    whole = flat.size // 8 * 8
-    return (int(np.bitwise_count(flat[:whole].view(np.uint64)).sum(dtype=np.int64))
-            + int(np.bitwise_count(flat[whole:]).sum(dtype=np.int64)))
-
-
 def solid_mask(points: np.ndarray, offsets: np.ndarray, grid: Grid) -> np.ndarray:
     """(height, width) bool: pixel centres the loops wind more than 0 times around."""
     return np.unpackbits(packed_mask(points, offsets, grid), axis=1, count=grid.width).astype(bool)

@@ -23,7 +23,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from heoslice.errors import InputError
-from heoslice.layers.rasterising import Grid, count_solid, packed_mask
+from heoslice.layers.bits import count_solid
+from heoslice.layers.rasterising import Grid, packed_mask
 from heoslice.material import Material, PartSetting, check_one_per_channel, nearest_materials, table_material
 from heoslice.pipeline.spec import channel_name
 from heoslice.stack import encode_bilevel_tiff, layer_file_name, write_file

@@ -383,14 +383,6 @@ def _fold(files: list[Bits], span: tuple[int, int], modes: list[int], against_se
     return out
 
 
-def count_bits(bits: np.ndarray) -> int:
-    """Set bits of packed rows (solid pixels, the padding being zero)."""
-    flat = np.ascontiguousarray(bits).reshape(-1)
-    whole = len(flat) // 8 * 8
-    return (int(np.bitwise_count(flat[:whole].view(np.uint64)).sum(dtype=np.int64))
-            + int(np.bitwise_count(flat[whole:]).sum(dtype=np.int64)))
-
-
 def layer_bits(directory: Path, manifest: dict, index: int, channels: bool = True,
                rows: tuple[int, int] | None = None, solid: bool = True) -> tuple[Bits | None, list[Bits]]:
     """Layer ``index`` of a stack as packed rows: (its solid pixels, [each droplet mask's] in the order of its

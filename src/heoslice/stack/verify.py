@@ -13,7 +13,7 @@ from pathlib import Path
 
 from heoslice.errors import VerifyError
 from heoslice.stack.manifest import LAYER_PATTERN, MANIFEST, MASK_MODE, layer_height_problems, mask_channels
-from heoslice.stack.packed import (Bits, InflatedStrips, count_bits, partition_counts, read_layer_file,
+from heoslice.stack.packed import (Bits, InflatedStrips, partition_counts, read_layer_file,
                                    solid_bits)
 from heoslice.stack.read import read_manifest, regular_files, resolve_inside
 from heoslice.stack.report import fault_lines, mask_faults
@@ -88,7 +88,9 @@ def layer_check(index: int, plan: list, manifest: dict, check_pixels: bool) -> t
     if channels and check_pixels and len(decoded) == len(plan) > 1:
         counts, partitioned = partition_counts(decoded[0], decoded[1:])
     else:
-        counts = [count_bits(b.rows[b.span[0]:b.span[1]]) for b in decoded]
+        from heoslice.layers.bits import count_solid
+
+        counts = [count_solid(b.rows[b.span[0]:b.span[1]]) for b in decoded]
     counted = iter(counts)
     lines: list[str] = []
     for problem, check, decoded_bits in found:
