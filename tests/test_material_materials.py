@@ -20,6 +20,7 @@ from heoslice.material import (
     blend,
     check_one_per_channel,
     is_channel,
+    material_roles,
     parse_color,
     read_materials_file,
     resolve_material,
@@ -231,3 +232,32 @@ def test_three_materials_on_one_channel_are_named_in_one_sentence():
     materials = [Material(name, (k, 0, 0), 2) for k, name in enumerate("abc")]
     with pytest.raises(InputError, match="'a', 'b' and 'c' all print on channel 2, but the masks need"):
         check_one_per_channel(materials, "the masks")
+
+
+THREE = {name: Material(name, color, channel) for name, color, channel in
+         (("gel", (240, 240, 240), 1), ("cells", (0, 255, 0), 2), ("tumour", (200, 0, 0), 3))}
+
+
+@pytest.mark.parametrize("table, start, target, m1, m2", [
+    (DEFAULT_MATERIALS, None, None, "M1", "M2"),
+    (DEFAULT_MATERIALS, "M2", None, "M2", "M1"),  # the table's second named as the start: M1 is the target
+    (DEFAULT_MATERIALS, None, "M1", "M2", "M1"),  # the table's first named as the target: M2 is the start
+    (DEFAULT_MATERIALS, "M1", None, "M1", "M2"),
+    (DEFAULT_MATERIALS, None, "M2", "M1", "M2"),
+    (THREE, "cells", None, "cells", "gel"),
+    (THREE, None, "gel", "cells", "gel"),
+    (THREE, "tumour", None, "tumour", "cells"),
+    (THREE, None, "tumour", "gel", "tumour"),
+])
+def test_a_role_named_alone_takes_a_partner_other_than_itself(table, start, target, m1, m2):
+    """A start or target named alone leaves the other role to the table's default (first, second) unless that is
+    the named material itself, then to the table's first other material: never one material in both roles."""
+    roles = material_roles(dict(table), start=start, target=target)
+    assert (roles.m1.name, roles.m2.name) == (m1, m2)
+
+
+@pytest.mark.parametrize("start, target", [("M1", "M1"), ("M2", "0,255,0"), ("255,0,0", "255,0,0")])
+def test_one_material_in_both_roles_is_refused(start, target):
+    """--from and --to naming one material (by name or by its colour) is a one-line error naming both."""
+    with pytest.raises(InputError, match="start, target: both name"):
+        material_roles(dict(DEFAULT_MATERIALS), start=start, target=target)

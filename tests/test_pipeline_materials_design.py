@@ -241,3 +241,17 @@ def test_interior_choices_are_checked(run_cli, vase_file, tmp_path):
     assert json.loads((tmp_path / "c" / "manifest.json").read_text())["grading"]["interior"] == "contour"
     code, _, err = run_cli("slice", shelled, "--interior", "field", "-o", tmp_path / "d")
     assert code == 2 and "shell" in err
+
+
+@pytest.mark.parametrize("start, target", [("M2", "M1"), ("M1", "255,0,0")])
+def test_a_grade_without_to_grades_towards_the_designs_target(run_cli, vase_file, tmp_path, start, target):
+    """`slice --grade FUNC` without --to, on a model coloured from ``start`` to ``target``, grades towards the
+    design's target (not the table's second material, which may be the design's start or no material of it)."""
+    coloured = tmp_path / "v.ply"
+    assert run_cli("color", vase_file, "--from", start, "--to", target, "-o", coloured)[0] == 0
+    stack = tmp_path / "stack"
+    code, _, err = run_cli("slice", coloured, "--grade", "linear", "--layer", "2", "--dpi", "100", "-o", stack)
+    assert code == 0, err
+    grading = json.loads((stack / "manifest.json").read_text())["grading"]
+    assert grading["target"]["name"] == target
+    assert {m["name"] for m in grading["materials"]} == {start, target}

@@ -24,13 +24,15 @@ FUNCTION_FLAGS = {"alpha": "--alpha", "beta": "--beta", "lam": "--lambda", "peri
 
 @contextmanager
 def flags(mapping: dict[str, str]) -> Iterator[None]:
-    """Re-raise an InputError whose message starts with ``PARAMETER:`` with that parameter's option instead."""
+    """Re-raise an InputError whose message starts with ``PARAMETER:`` (or ``A, B:``) with those parameters'
+    options instead."""
     try:
         yield
     except InputError as err:
-        parameter, sep, rest = str(err).partition(": ")
-        if sep and parameter in mapping:
-            raise InputError(f"{mapping[parameter]}: {rest}", exit_code=err.exit_code) from None
+        named, sep, rest = str(err).partition(": ")
+        parameters = named.split(", ")
+        if sep and all(parameter in mapping for parameter in parameters):
+            raise InputError(f"{', '.join(mapping[p] for p in parameters)}: {rest}", exit_code=err.exit_code) from None
         raise
 
 

@@ -132,7 +132,7 @@ def grade_spec(kind, alpha, beta, lam, periods, expression, target, start, nozzl
         regions=RegionSpec(nozzle_mm=nozzle, depth_mm=depth, direction=direction, count=offset_count,
                            depth_from=depth_from),
         function=function, target=roles.m2 if function is not None else roles.target, start=roles.start,
-        base=roles.first, second=roles.second, shells=tuple(sorted(shells.items())),
+        base=roles.first, second=roles.second, shells=tuple(sorted(shells.items())), target_named=bool(target),
     )
 
 

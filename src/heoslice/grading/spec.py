@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from heoslice.errors import InputError
+from heoslice.material.materials import material_identity
 
 DIRECTIONS = ("in", "out")
 #: Where --depth is measured from: each layer's own contour (the paper's offset sub-regions, eq. 8-10), or the
@@ -100,7 +101,8 @@ class GradeSpec:
     material fraction m mixes as (1 - m) base + m second (without it a contour is
     ``base``); ``shells``: (shell number, Material) pairs, a shell's own material
     (its region keeps it, nested shells win); ``mapped``: the table materials a mesh's
-    colours were mapped to (:func:`heoslice.material.nearest_materials`), each a channel.
+    colours were mapped to (:func:`heoslice.material.nearest_materials`), each a channel; ``target_named``: whether
+    ``--to`` named the target (else it is the default, which a model's recorded design replaces with its own).
     """
 
     regions: RegionSpec
@@ -111,6 +113,7 @@ class GradeSpec:
     second: object | None = None
     shells: tuple = ()
     mapped: tuple = ()
+    target_named: bool = True
 
     def channel_materials(self) -> tuple:
         """The K materials of the droplet masks, without repeats (same name and colour), in a fixed order."""
@@ -157,5 +160,5 @@ class GradeSpec:
 
 
 def _identity(material) -> tuple:
-    """What makes two materials the same droplet-mask material: the same name and display colour."""
-    return (material.name, material.color)
+    """What makes two materials the same droplet-mask material (:func:`heoslice.material.material_identity`)."""
+    return material_identity(material)

@@ -297,30 +297,55 @@ class MaterialRoles:
 
     first, second: the table's first and second materials (second None for a one-material
     table), which a mesh's material fraction m mixes as (1 - m) first + m second; start,
-    target: the materials named as M1 and M2, or None.
+    target: the materials named as M1 and M2, or None; ``table``: every table material, in order (the
+    partner of a role named alone is taken from it).
     """
 
     first: Material
     second: Material | None
     start: Material | None
     target: Material | None
+    table: tuple[Material, ...] = ()
 
     @property
     def m1(self) -> Material:
-        """M1 (f <= 0): the named start material, else the table's first."""
-        return self.start if self.start is not None else self.first
+        """M1 (f <= 0): the named start material, else the table's first (its first other material when that one
+        is the named target)."""
+        if self.start is not None:
+            return self.start
+        return self._partner(self.first, self.target) or self.first
 
     @property
     def m2(self) -> Material | None:
-        """M2 (f >= 1): the named target material, else the table's second (None for a one-material table)."""
-        return self.target if self.target is not None else self.second
+        """M2 (f >= 1): the named target material, else the table's second (its first other material when that
+        one is the named start; None for a one-material table)."""
+        if self.target is not None:
+            return self.target
+        return self._partner(self.second, self.start)
+
+    def _partner(self, default: Material | None, named: Material | None) -> Material | None:
+        """``default`` unless it is the material named for the other role, then the table's first other one."""
+        if default is None or named is None or not same_material(default, named):
+            return default
+        return next((m for m in self.table if not same_material(m, named)), None)
+
+
+def material_identity(material: Material) -> tuple:
+    """What makes two materials one (a role, a droplet mask): the same name and display colour."""
+    return material.name, tuple(material.color)
+
+
+def same_material(a: Material, b: Material) -> bool:
+    """Whether two materials are one (:func:`material_identity`)."""
+    return material_identity(a) == material_identity(b)
 
 
 def material_roles(table: dict[str, Material], start: str | None = None,
                    target: str | None = None) -> MaterialRoles:
     """The roles of the materials of ``table`` with an optional start (M1) and target (M2) name or colour.
 
-    Raises InputError naming the parameter (``start``, ``target``) that does not resolve.
+    Raises InputError naming the parameter (``start``, ``target``) that does not resolve, and naming both when
+    they are one material (a grade from a material to itself jets it alone: nothing to design).
     """
     names = list(table)
     resolved = {}
@@ -329,8 +354,11 @@ def material_roles(table: dict[str, Material], start: str | None = None,
             resolved[parameter] = _table_material(resolve_material(text, table), table) if text else None
         except InputError as err:
             raise InputError(f"{parameter}: {err}") from None
+    if resolved["start"] is not None and resolved["target"] is not None and \
+            same_material(resolved["start"], resolved["target"]):
+        raise InputError(f"start, target: both name {resolved['start'].name!r}; a grade needs two materials")
     return MaterialRoles(first=table[names[0]], second=table[names[1]] if len(names) > 1 else None,
-                         start=resolved["start"], target=resolved["target"])
+                         start=resolved["start"], target=resolved["target"], table=tuple(table.values()))
 
 
 def blend(m1, m2, f: np.ndarray) -> np.ndarray:

@@ -151,9 +151,11 @@ def _interior(spec: SliceSpec, design) -> str:
 
 
 def _designed(grade, design):
-    """``grade`` with the design's roles: its fraction mixes the design's start (base) and target (second),
-    and its shells coloured whole keep their material (a materials file's [shells] entry wins)."""
-    return replace(grade, base=design.start, second=design.target,
+    """``grade`` with the design's roles: its fraction mixes the design's start (base) and target (second), a
+    gradient that ``--to`` names no target for grades towards the design's target, and its shells coloured whole
+    keep their material (a materials file's [shells] entry wins)."""
+    target = design.target if grade.function is not None and not grade.target_named else grade.target
+    return replace(grade, base=design.start, second=design.target, target=target,
                    shells=tuple(sorted({**dict(design.shells), **dict(grade.shells)}.items())))
 
 
