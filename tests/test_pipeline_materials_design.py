@@ -255,3 +255,31 @@ def test_a_grade_without_to_grades_towards_the_designs_target(run_cli, vase_file
     grading = json.loads((stack / "manifest.json").read_text())["grading"]
     assert grading["target"]["name"] == target
     assert {m["name"] for m in grading["materials"]} == {start, target}
+
+
+def test_color_scale_reaches_the_reference_surface(run_cli, tmp_path):
+    """`color --scale 1000` of an organ and its lesion given in metres records the lesion's scale with it, so
+    the slice (and verify) measure r from the lesion at the size it was coloured at: the stack is the one the same
+    organ and lesion in mm give, mask for mask."""
+    stacks = {}
+    for unit, factor in (("mm", 1.0), ("m", 0.001)):
+        organ, lesion = procedural.sphere(10.0, 3), procedural.sphere(3.0, 3)
+        lesion.apply_translation((2.0, 0.0, 0.0))
+        organ_path, lesion_path = tmp_path / f"organ_{unit}.ply", tmp_path / f"lesion_{unit}.ply"
+        trimesh.Trimesh(organ.vertices * factor, organ.faces).export(organ_path)
+        trimesh.Trimesh(lesion.vertices * factor, lesion.faces).export(lesion_path)
+        coloured = tmp_path / f"coloured_{unit}.ply"
+        scale = ["--scale", "1000"] if factor != 1.0 else []
+        code, _, err = run_cli("color", organ_path, *scale, "--ref", "surface", "--surface", lesion_path,
+                               "--func", "linear", "-o", coloured)
+        assert code == 0, err
+        stacks[unit] = tmp_path / f"stack_{unit}"
+        code, _, err = run_cli("slice", coloured, "--layer", "1", "--dpi", "100", "-o", stacks[unit])
+        assert code == 0, err
+    counts = {unit: [[c["solid_pixels"] for c in layer["channels"]]
+                     for layer in json.loads((stack / "manifest.json").read_text())["layers"]]
+              for unit, stack in stacks.items()}
+    assert counts["m"] == counts["mm"]
+    code, out, _ = run_cli("verify", stacks["m"], "--json")
+    bands = json.loads(out)["delivered"]["bands"]
+    assert bands and max(abs(b["difference"]) for b in bands if b["voxels"] > 500) < 0.02

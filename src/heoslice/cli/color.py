@@ -185,7 +185,7 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
     if not as_json:
         echo_warnings(model, mesh.warnings)
     spec = ColorSpec(function=function, reference=ref_kind, at=point, normal=plane_normal,
-                     direction=axis_direction, surface=surface,
+                     direction=axis_direction, surface=surface, surface_scale=scale,
                      r_range=None if r_range is None else (float(r_range[0]), float(r_range[1])),
                      m1=roles.m1, m2=roles.m2, max_edge=max_edge, shell_materials=tuple(sorted(shells.items())))
     range_flag = "--range" if spec.r_range is not None else f"--ref {ref_kind}"

@@ -56,7 +56,8 @@ class ColorSpec:
 
     at / normal / direction: (3,) mm or unit vectors, None for the defaults of
     :func:`heoslice.material.references.make_reference`. surface: a second mesh (or its path) for
-    ``reference='surface'``. r_range: (R0, R1) mm, None = 0 .. largest distance.
+    ``reference='surface'``; surface_scale: how much that mesh's file coordinates were multiplied by (``color
+    --scale``), recorded with it so that ``slice`` reads the file at the same size. r_range: (R0, R1) mm, None = 0 .. largest distance.
     shell_materials: ((shell number, Material), ...): those shells are coloured whole with
     that material, and their material fraction is 1 (the shell is its own target material).
     """
@@ -67,6 +68,7 @@ class ColorSpec:
     normal: tuple[float, float, float] | None = None
     direction: tuple[float, float, float] | None = None
     surface: Path | Mesh | None = None
+    surface_scale: float = 1.0
     r_range: tuple[float, float] | None = None
     m1: Material = DEFAULT_MATERIALS["M1"]
     m2: Material = DEFAULT_MATERIALS["M2"]
@@ -187,19 +189,22 @@ def color_mesh(mesh: Mesh, spec: ColorSpec, progress: Callable[[int, int], None]
         colors[mine] = material.color
         fraction[mine] = 1.0
         comments.append(material_comment(f"shell {number}", material))
-    design = Design(spec.m1, spec.m2, _reference_record(reference, surface_source), spec.function,
+    design = Design(spec.m1, spec.m2, _reference_record(reference, surface_source, spec.surface_scale), spec.function,
                     (float(r_range[0]), float(r_range[1])), "max" if spec.r_range is None else "range",
                     tuple(spec.shell_materials))
     comments.extend(design.to_header())
     return ColoredMesh(vertices, faces, colors, fraction, r, vertex_shell, reference, tuple(comments), design)
 
 
-def _reference_record(reference: Reference, surface_source: tuple[str, str] | None) -> ReferenceRecord:
-    """The design's record of a resolved reference (a surface by its mesh's absolute path and SHA-256)."""
+def _reference_record(reference: Reference, surface_source: tuple[str, str] | None,
+                      surface_scale: float = 1.0) -> ReferenceRecord:
+    """The design's record of a resolved reference (a surface by its mesh's absolute path and SHA-256, and the
+    factor its file's coordinates were multiplied by)."""
     if reference.kind == "surface":
         if surface_source is None:
             return ReferenceRecord("surface")
-        return ReferenceRecord("surface", surface=surface_source[0], surface_sha256=surface_source[1])
+        return ReferenceRecord("surface", surface=surface_source[0], surface_sha256=surface_source[1],
+                               surface_scale=surface_scale)
     return ReferenceRecord(reference.kind, reference.point, reference.direction)
 
 

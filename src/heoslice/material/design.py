@@ -27,6 +27,7 @@ A reader refuses a version it does not know. The version is :data:`DESIGN_VERSIO
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -55,13 +56,16 @@ class ReferenceRecord:
     direction: tuple[float, float, float] | None = None
     surface: str | None = None
     surface_sha256: str | None = None
-    #: How much the reference surface's coordinates are to be multiplied by (``slice --scale``; not recorded).
+    #: How much the reference surface file's coordinates are to be multiplied by (``color --scale`` times ``slice
+    #: --scale``), recorded as ``scale`` where it is not 1.
     surface_scale: float = 1.0
 
     def record(self) -> dict:
         out = {"kind": self.kind}
         if self.kind == "surface":
             out.update(path=self.surface, sha256=self.surface_sha256)
+            if self.surface_scale != 1.0:
+                out["scale"] = self.surface_scale
         else:
             out["point"] = None if self.point is None else list(self.point)
             if self.direction is not None:
@@ -184,6 +188,13 @@ def _material(value: dict) -> Material:
     return Material(str(value["name"]), color, None if channel is None else int(channel))  # type: ignore[arg-type]
 
 
+def _scale(value) -> float:
+    scale = float(value)
+    if not (math.isfinite(scale) and scale > 0):
+        raise ValueError(f"scale {value!r}")
+    return scale
+
+
 def _vector(value) -> tuple[float, float, float] | None:
     if value is None:
         return None
@@ -196,7 +207,7 @@ def _vector(value) -> tuple[float, float, float] | None:
 def _design_of(fields: dict, shells: list) -> Design:
     ref = fields["reference"]
     reference = ReferenceRecord(str(ref["kind"]), _vector(ref.get("point")), _vector(ref.get("direction")),
-                                ref.get("path"), ref.get("sha256"))
+                                ref.get("path"), ref.get("sha256"), _scale(ref.get("scale", 1.0)))
     fn = fields["function"]
     if fn["kind"] == "expression":
         function = make_function("expression", expression=fn["expression"])

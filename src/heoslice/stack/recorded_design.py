@@ -87,7 +87,8 @@ def field_comparison(directory: Path, manifest: dict) -> RecordedField | None:
     from heoslice.material.field import material_field
 
     design = Design.from_record(record, str(directory))
-    if design.reference.kind == "surface":  # the recorded range and point are scaled; the surface file is not
+    if design.reference.kind == "surface" and "scale" not in record["reference"]:
+        # a record from before the surface's scale was recorded: the slice's --scale alone
         design = replace(design, reference=replace(design.reference, surface_scale=source_scale(manifest)))
     names = [str(mask.get("material")) for mask in widest_masks(manifest)]
     missing = [m.name for m in (design.start, design.target) if m.name not in names]
