@@ -121,3 +121,26 @@ def test_a_missing_or_changed_reference_surface_is_one_warning(sine_ball, tmp_pa
     assert ("missing" if change == "missing" else "changed") in summary["warnings"][0]
     assert summary["delivered"]["design"] is None and summary["delivered"]["bands"] == []
     assert summary["delivered"]["worst_window"] is None
+
+
+def test_a_surface_found_beside_the_moved_model_is_the_one_verify_compares_with(tmp_path, run_cli):
+    """A model moved with its reference surface slices against the surface beside it, and the stack's record names
+    that file: verify compares the stack with the design (bands of r) instead of warning that the surface is
+    missing."""
+    organ, lesion = procedural.sphere(10.0, 3), procedural.sphere(3.0, 3)
+    lesion.apply_translation((2.0, 0.0, 0.0))
+    first, moved = tmp_path / "first", tmp_path / "moved"
+    first.mkdir()
+    organ.export(first / "organ.ply")
+    lesion.export(first / "lesion.ply")
+    assert run_cli("color", first / "organ.ply", "--ref", "surface", "--surface", first / "lesion.ply", "--func",
+                   "linear", "-o", first / "organ_c.ply")[0] == 0
+    first.rename(moved)
+    stack = tmp_path / "stacks" / "organ"
+    code, _, err = run_cli("slice", moved / "organ_c.ply", "--layer", "1", "--dpi", "100", "-o", stack)
+    assert code == 0, err
+    reference = json.loads((stack / "manifest.json").read_text())["grading"]["design"]["reference"]
+    assert reference["path"] == str((moved / "lesion.ply").resolve())
+    code, out, _ = run_cli("verify", stack, "--json")
+    summary = json.loads(out)
+    assert summary["warnings"] == [] and summary["delivered"]["bands"], summary

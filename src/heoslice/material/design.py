@@ -265,5 +265,5 @@ def surface_path(design: Design, model: Path | None) -> Path:
     beside = None if model is None else Path(model).parent / recorded.name
     if beside is not None and beside.is_file():
         return beside
-    raise InputError(f"{model or 'model'}: the design's reference surface {recorded} is missing "
-                     f"(nor is {recorded.name} beside the model)")
+    elsewhere = "" if beside is None else f" (nor is {recorded.name} in {beside.parent})"
+    raise InputError(f"{model or 'model'}: the design's reference surface {recorded} is missing{elsewhere}")

@@ -15,7 +15,7 @@ cells the bounds cannot settle are halved, down to pixels measured one by one.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -184,7 +184,8 @@ def solid_box(packed: np.ndarray, width: int) -> tuple[int, int, int, int]:
 
 def material_field(design: Design, model: Path | None = None) -> MaterialField:
     """The design's field: a surface reference's mesh read (its recorded path, else beside ``model``), checked
-    against its recorded SHA-256, scaled as the design is, and indexed. InputError when it is missing or
+    against its recorded SHA-256, scaled as the design is, and indexed; the field's design records the path it
+    was read from (a stack's manifest then names the file its slice used). InputError when it is missing or
     changed."""
     ref = design.reference
     if ref.kind != "surface":
@@ -197,5 +198,6 @@ def material_field(design: Design, model: Path | None = None) -> MaterialField:
     if ref.surface_sha256 is not None and mesh.sha256 != ref.surface_sha256:
         raise InputError(f"{model or 'model'}: the design's reference surface {path} has changed since the model "
                          "was coloured (its SHA-256 differs); colour the model again")
+    design = replace(design, reference=replace(ref, surface=str(Path(path).resolve())))
     return MaterialField(design, Reference("surface", surface=build_surface_index(
         mesh.vertices * ref.surface_scale, mesh.faces)))

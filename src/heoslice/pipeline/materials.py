@@ -177,6 +177,7 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
             from heoslice.material.field import material_field
 
             field = material_field(design, mesh.source)
+            spec = replace(spec, design=field.design)  # its surface where the slice found it
         elif grade.second is not None:
             mix = _fraction_mix(mesh.material, grade)
     elif mesh.colors is not None:
