@@ -386,3 +386,17 @@ def test_fig2_without_its_environment_fails_in_one_line(tmp_path):
     assert done.returncode != 0 and len(lines) == 1, done.stderr
     assert lines[0].startswith("fig2.py: error: cannot import") and ".venv/bin/python examples/fig2.py" in lines[0]
     assert not (tmp_path / "f.png").exists()
+
+
+def test_a_material_named_in_any_script_survives_the_ply(tmp_path):
+    """The PLY header is ASCII: a material named 'tümour core' (or in any script) is written (backslash-escaped in
+    the readable comment) and read back by name from the recorded design, exactly."""
+    from heoslice.material.design import design_of
+
+    start, target = Material("tümour core", (200, 0, 0), 1), Material("肝臓", (240, 240, 240), 2)
+    colored = color_mesh(load_mesh(VASE), ColorSpec(m1=start, m2=target))
+    path = tmp_path / "v.ply"
+    write_ply(path, colored)
+    assert path.read_bytes().split(b"end_header")[0].isascii()
+    design = design_of(load_mesh(path))
+    assert (design.start.name, design.target.name) == (start.name, target.name)

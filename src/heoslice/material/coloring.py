@@ -229,7 +229,8 @@ def ply_bytes(colored: ColoredMesh, ascii: bool = False) -> bytes:
     header += [f"property uchar {c}" for c in ("red", "green", "blue")]
     header += [f"property float {MATERIAL_PROPERTY}", f"element face {m}",
                "property list uchar int vertex_indices", "end_header"]
-    head = ("\n".join(header) + "\n").encode("ascii")
+    # a PLY header is ASCII: a comment's other characters (a material named in any script) as backslash escapes
+    head = ("\n".join(header) + "\n").encode("ascii", "backslashreplace")
     if ascii:
         coordinate = "%.9g" if ply_type == "float" else "%.17g"
         table = np.column_stack([colored.vertices, colored.colors.astype(np.float64),
