@@ -283,3 +283,17 @@ def test_color_scale_reaches_the_reference_surface(run_cli, tmp_path):
     code, out, _ = run_cli("verify", stacks["m"], "--json")
     bands = json.loads(out)["delivered"]["bands"]
     assert bands and max(abs(b["difference"]) for b in bands if b["voxels"] > 500) < 0.02
+
+
+@pytest.mark.parametrize("role", ["--from", "--to"])
+def test_color_refuses_a_colour_its_materials_file_lacks(run_cli, vase_file, tmp_path, role):
+    """With --materials, `color` settles its materials against the file as `slice` will: a colour that is no
+    material of the file is one line naming the option and the file (it was written, then refused by slice)."""
+    other = {"--from": "--to", "--to": "--from"}[role]
+    code, _, err = run_cli("color", vase_file, role, "255,255,0", other, "gel", "--materials",
+                           vase_file.parent / "mats.toml", "-o", tmp_path / "v.ply")
+    assert code == 2 and err.count("\n") == 1 and err.startswith(f"heoslice: error: {role}: ") and "mats.toml" in err
+    assert not (tmp_path / "v.ply").exists()
+    code, _, err = run_cli("color", vase_file, role, "200,0,0", other, "gel", "--materials",
+                           vase_file.parent / "mats.toml", "-o", tmp_path / "v.ply")
+    assert code == 0, err  # a table colour is that material

@@ -175,6 +175,13 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
         roles = material_roles(table, start=m1_text, target=m2_text)
     if roles.m2 is None:
         raise InputError(f"--to: {materials_file} defines one material: name the target material (M2)")
+    if materials_file is not None:  # slice settles the design against the same file: a colour outside it is refused
+        from heoslice.material.design import settle_material
+
+        for flag, material in (("--from", roles.m1), ("--to", roles.m2)):
+            with flags({str(model): flag}):
+                settle_material(material, table, "start" if flag == "--from" else "target", str(materials_file),
+                                str(model))
     shells = {**file_shells, **parse_shell_colors(shell_colors, table)}
 
     mesh = apply_scale(load_mesh(model), scale)

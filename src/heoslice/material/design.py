@@ -241,19 +241,27 @@ def settle_materials(design: Design, table: dict[str, Material] | None, table_na
         return design
 
     def settled(role: str, material: Material) -> Material:
-        known = table_material(material.name, table)
-        if known is None and material.channel is None:
-            known = next((m for m in table.values() if m.color == material.color), None)
-        if known is None:
-            raise InputError(f"{source}: the design's {role} material {_shown(material)} is not in {table_name} "
-                             f"(materials: {', '.join(table)})")
-        if known.color != material.color or (material.channel is not None and known.channel != material.channel):
-            raise InputError(f"{source}: the design's {role} material is {_shown(material)}, but {table_name} "
-                             f"has {_shown(known)}")
-        return known
+        return settle_material(material, table, role, table_name, source)
 
     return replace(design, start=settled("start", design.start), target=settled("target", design.target),
                    shells=tuple((n, settled(f"shell {n}", m)) for n, m in design.shells))
+
+
+def settle_material(material: Material, table: dict[str, Material], role: str, table_name: str,
+                    source: str = "model") -> Material:
+    """One material of a design as ``table`` has it (:func:`settle_materials`' rule): the table's material of the
+    same name, with the same colour and (if given) channel, else, for a colour without a channel, the table's
+    material of that colour; InputError naming ``source``, the ``role`` and ``table_name`` otherwise."""
+    known = table_material(material.name, table)
+    if known is None and material.channel is None:
+        known = next((m for m in table.values() if m.color == material.color), None)
+    if known is None:
+        raise InputError(f"{source}: the design's {role} material {_shown(material)} is not in {table_name} "
+                         f"(materials: {', '.join(table)})")
+    if known.color != material.color or (material.channel is not None and known.channel != material.channel):
+        raise InputError(f"{source}: the design's {role} material is {_shown(material)}, but {table_name} "
+                         f"has {_shown(known)}")
+    return known
 
 
 def surface_path(design: Design, model: Path | None) -> Path:
