@@ -135,3 +135,19 @@ def test_a_non_finite_material_fraction_is_refused(tmp_path, run_cli, value):
         code, _, err = run_cli(*command)
         assert code == 2 and err.count("\n") == 1 and "vertex 1: 'material' is" in err, err
     assert not (tmp_path / "stack" / "manifest.json").exists()
+
+
+def test_scaling_settles_every_parts_metres_warning(tmp_path):
+    """An assembly of parts in metres warns per part; scaled by 1000 it warns no more (the scale settles each
+    part's note, not only a whole model's)."""
+    from heoslice.mesh.assembly import load_assembly
+    from heoslice.mesh.load import scaled
+
+    paths = []
+    for name, radius in (("organ", 0.01), ("lesion", 0.003)):
+        sphere = procedural.sphere(radius=radius, subdivisions=1)
+        paths.append(write(tmp_path, f"{name}.ply", ply_bytes("binary_little_endian", sphere.vertices,
+                                                                sphere.faces.tolist())))
+    assembly = load_assembly(paths)
+    assert sum("metres" in note for note in assembly.warnings) == 2
+    assert not any("metres" in note for note in scaled(assembly, 1000.0).warnings)

@@ -250,6 +250,13 @@ def _metres_note(extent: float) -> str:
             "heoslice reads coordinates as mm (use --scale 1000)")
 
 
+def _is_metres_note(note: str) -> bool:
+    """Whether ``note`` is :func:`_metres_note`'s, of the whole model or of one part (``part 'NAME': ...``), which a
+    scale settles: it is measured again on the scaled model."""
+    return note.startswith(_METRES_NOTE) or (note.startswith("part ") and f": {_METRES_NOTE}" in note
+                                              and note.endswith("(use --scale 1000)"))
+
+
 def scaled(mesh: Mesh, factor: float) -> Mesh:
     """The same mesh with coordinates multiplied by ``factor`` (e.g. 1000 for metres to mm).
 
@@ -267,7 +274,7 @@ def scaled(mesh: Mesh, factor: float) -> Mesh:
         raise InputError(f"scale: {factor:g} makes the part {float(high[2] - low[2]) * factor:.3g} mm high, "
                          f"below {_MIN_HEIGHT_MM:g} mm")
     vertices = mesh.vertices * float(factor)
-    notes = [note for note in mesh.warnings if not note.startswith(_METRES_NOTE)]
+    notes = [note for note in mesh.warnings if not _is_metres_note(note)]
     low, high = column_bounds(vertices)
     extent = float((high - low).max())
     if extent < 1.0:
