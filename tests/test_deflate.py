@@ -1,6 +1,6 @@
 """The zlib encoders (heoslice.deflate): a stream any inflater reads, by zlib-ng where imagecodecs has it, and
 by zlib where the build lacks it (imagecodecs then hands out a placeholder that fails only when called); by ISA-L
-(isal, a dependency) for noise-like masks; the codes of a block of runs (run_code) by RFC 1951's rules."""
+(isal, the test extra) for the benchmarks' comparisons; the codes of a block of runs (run_code) by RFC 1951's rules."""
 
 from __future__ import annotations
 

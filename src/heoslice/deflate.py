@@ -1,7 +1,8 @@
 """heoslice's zlib encoders, for the layers' TIFF strips, every PNG and the printer's chunks: a zlib stream
 (RFC 1950) at a given level, by zlib-ng (imagecodecs) where this build of imagecodecs has it, else by the standard
-library's zlib; or by ISA-L's igzip (isal), the faster on bits like noise (a blue-noise or error-diffusion mask)
-at about zlib-ng's level 2 size. Any inflater reads every one; figures in benchmarks/README.md. And the codes of
+library's zlib; or, for the benchmarks' comparisons (``benchmarks/bench_encode.py``), by ISA-L's igzip (isal, in the
+test extra), which no stack uses: faster on noise-like masks, but not reproducible byte for byte
+(:data:`heoslice.stack.tiff.MASK_DEFLATION`). Any inflater reads every one; figures in benchmarks/README.md. And the codes of
 one dynamic-Huffman block (RFC 1951) for data that is a few literals and many matches at one distance
 (:func:`run_code`), with which Voxel Print's slices are written from their runs without an encoder.
 """
@@ -26,8 +27,8 @@ def deflater(level: int, encoder: str = "zlib-ng") -> Callable[[bytes], bytes]:
 
     zlib-ng falls back to zlib where imagecodecs lacks it: imagecodecs answers an import of a codec it was built
     without with a placeholder that fails only when called, so zlib-ng's availability is asked, never inferred
-    from an import. ISA-L has no fallback: isal is a dependency, and a silent change of encoder would change
-    a stack's bytes and hashes."""
+    from an import. ISA-L has no fallback (a silent change of encoder would change the bytes compared): it needs
+    isal, which the test extra installs."""
     if level not in ENCODERS.get(encoder, ()):
         raise ValueError(f"deflate: no level {level} for encoder {encoder!r} (encoders: {', '.join(ENCODERS)})")
     if encoder == "isa-l":

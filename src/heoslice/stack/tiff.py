@@ -39,16 +39,13 @@ class Deflation(NamedTuple):
 
 
 #: How a multi-material stack's droplet masks are deflated, by the halftoning method that made them (None: none did,
-#: each pixel is one part's or label's material). Blue noise and error diffusion leave masks like noise, with few
-#: repeats to find: ISA-L's level 2 makes them as small as zlib-ng's level 2 in 0.3-0.4x its time (zlib-ng's level
-#: 1: files 27 % larger, still slower); on ordered dither's masks it misses the short repeats (files 11 % larger).
-#: Ordered dither's masks stay at zlib-ng: at ISA-L's level 2 they took half the time, but a stack's bytes
-#: differed now and then between two slices of one model (benchmarks/README.md, issue 44's fourth round). One table
-#: of sizes and times in benchmarks/README.md.
-MASK_DEFLATION = {None: Deflation("zlib-ng", MULTI_MATERIAL_DEFLATE_LEVEL),
-                  "ordered": Deflation("zlib-ng", MULTI_MATERIAL_DEFLATE_LEVEL),
-                  "blue-noise": Deflation("isa-l", 2),
-                  "error-diffusion": Deflation("isa-l", 2)}
+#: each pixel is one part's or label's material): zlib-ng at level 2 for every method. ISA-L's level 2 deflates
+#: noise-like masks (blue noise, error diffusion) in 0.4x zlib-ng's time at the same size, but it is not
+#: reproducible: inside a slice it once wrote a strip whose bytes differ from what it writes for the same bits
+#: anywhere else (the same pixels, one byte shorter; 1 slice in 111 of a graded organ), so a stack's files and
+#: hashes would differ between two slices of one model. Figures in benchmarks/README.md.
+MASK_DEFLATION = {method: Deflation("zlib-ng", MULTI_MATERIAL_DEFLATE_LEVEL)
+                  for method in (None, "ordered", "blue-noise", "error-diffusion")}
 
 
 def deflate_level(multi_material: bool) -> int:
