@@ -271,7 +271,7 @@ def test_dicom_gantry_tilt_refused(tmp_path):
     hu = np.zeros((5, 4, 6), np.float32)
     affine = FLIP_XY @ grid_affine(0.5, [1.0, 2.0, 3.0])
     affine[:3, 2] = [0.0, 1.0, 2.0]  # 1 mm sideways (y) per 2 mm slice step: about 26.6 degrees of tilt
-    _raises(write_dicom_series(tmp_path / "ct", hu, affine), "ct: the slices step 1 mm sideways .*gantry tilt.*"
+    _raises(write_dicom_series(tmp_path / "ct", hu, affine), "ct: the slices step [0-9.]+ mm sideways .*gantry tilt.*"
             "resample it to an orthogonal grid")
 
 
@@ -350,3 +350,32 @@ def test_guessed_label_map_of_many_values_warns(tmp_path):
     assert volume.kind_guessed and any("--as intensity" in text for text in volume.warnings)
     assert not load_volume(path, "labels").warnings and not load_volume(path, "labels").kind_guessed
     assert not load_volume(write_nifti(tmp_path / "few.nii", labels_array(), np.eye(4))).warnings
+
+
+def test_dicom_small_tilt_adding_up_refused_and_rounded_positions_read(tmp_path):
+    """A tilt too small to see from one slice to the next (0.01 mm per 1 mm step) is refused from the first to
+    the last slice of a long series; positions rounded to two decimals (no tilt) read."""
+    import pydicom
+
+    hu = np.zeros((3, 3, 40), np.float32)
+    affine = FLIP_XY @ grid_affine(1.0, [0.0, 0.0, 0.0])
+    affine[:3, 2] = [0.0, 0.01, 1.0]
+    _raises(write_dicom_series(tmp_path / "tilt", hu, affine), "sideways")
+    affine = FLIP_XY @ grid_affine(1.0, [0.123456, 0.654321, 0.0])
+    affine[2, 2] = 1.2345
+    folder = write_dicom_series(tmp_path / "rounded", hu, affine)
+    for path in folder.iterdir():
+        dataset = pydicom.dcmread(path)
+        dataset.ImagePositionPatient = [round(float(v), 2) for v in dataset.ImagePositionPatient]
+        dataset.save_as(path)
+    assert load_volume(folder).shape == (3, 3, 40)
+
+
+def test_nrrd_spacings_with_units_scale_to_millimetres(tmp_path):
+    """An NRRD without space directions takes its voxel size from spacings times its per-axis 'units'."""
+    import nrrd
+
+    path = tmp_path / "s.nrrd"
+    nrrd.write(str(path), labels_array(), {"spacings": [500.0, 250.0, 1000.0], "units": ["um", "um", "um"],
+                                           "encoding": "raw"})
+    assert np.allclose(load_volume(path).voxel_size_mm, [0.5, 0.25, 1.0])

@@ -43,8 +43,10 @@ MAX_DICOM_FILE_BYTES = 256 << 20
 GUESS_MAX_LABELS = 1000
 #: Relative spread of a DICOM series' slice steps accepted as one even spacing.
 SLICE_STEP_TOLERANCE = 0.01
-#: Largest part of a DICOM slice step off the slice normal, relative to the step (more: gantry tilt, a shear).
+#: Largest part of a DICOM slice step off the slice normal, relative to the step (more: gantry tilt, a shear),
+#: plus POSITION_ROUNDING_MM for positions written to two decimals; checked per step and first to last slice.
 SLICE_NORMAL_TOLERANCE = 1e-3
+POSITION_ROUNDING_MM = 0.02
 #: A guessed label map with more values than this is flagged (likely an intensity image: say --as intensity).
 GUESS_WARN_LABELS = 64
 #: NIfTI xyzt_units spatial code (xyzt_units % 8) -> (its name, millimetres per unit); 0 "unknown" is taken as mm.
@@ -503,13 +505,15 @@ def read_dicom_series(path: Path, files: list[Path]) -> Volume:
 
 
 def check_slice_normal(path: Path, corners: np.ndarray, normal: np.ndarray) -> None:
-    """Refuse a series whose consecutive slice corners ((n, 3) mm, ImagePositionPatient in slice order) do not
-    step along the slice normal: a gantry-tilted (sheared) grid, whose slices the normal alone would misplace."""
-    moves = np.diff(corners, axis=0)
+    """Refuse a series whose slice corners ((n, 3) mm, ImagePositionPatient in slice order) do not step along
+    the slice normal, from one slice to the next or from the first to the last (a small tilt adds up): a
+    gantry-tilted (sheared) grid, whose slices the normal alone would misplace."""
+    moves = np.concatenate([np.diff(corners, axis=0), corners[-1:] - corners[:1]])
     along = moves @ normal
     off = np.linalg.norm(moves - along[:, None] * normal, axis=1)
-    if len(moves) and np.any(off > SLICE_NORMAL_TOLERANCE * np.abs(along)):
-        worst = int(np.argmax(off / np.abs(along)))
+    excess = off - SLICE_NORMAL_TOLERANCE * np.abs(along) - POSITION_ROUNDING_MM
+    if len(corners) > 1 and np.any(excess > 0):
+        worst = int(np.argmax(excess))
         raise InputError(f"{path}: the slices step {off[worst]:.3g} mm sideways per {abs(along[worst]):.3g} mm "
                          "along the slice normal (gantry tilt: a sheared volume); resample it to an orthogonal "
                          "grid")
