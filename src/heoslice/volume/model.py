@@ -183,7 +183,8 @@ def as_label_array(path: Path, data: np.ndarray) -> np.ndarray:
         return data
     if data.dtype.kind == "f" and np.all(data == np.round(data)) and np.abs(data).max(initial=0) < 2**31:
         return data.astype(np.int32)
-    raise InputError(f"{path}: voxels are not whole numbers, so not a label map (an intensity volume: say --as intensity)")
+    raise InputError(f"{path}: voxels are not whole numbers, so not a label map (an intensity volume: say --as "
+                     "intensity)")
 
 
 def is_number_key(key) -> bool:

@@ -162,7 +162,8 @@ def read_nifti(path: Path, kind: str | None = None) -> Volume:
     data = raw * np.float32(slope) + np.float32(inter) if scaled and kind != "labels" else raw
     code = int(header["xyzt_units"]) % 8
     if code not in NIFTI_UNITS:
-        raise InputError(f"{path}: NIfTI spatial unit code {code} is not a known unit (meter, mm, micron)")
+        raise InputError(f"{path}: NIfTI spatial unit code {code} is not a known unit "
+                         f"({', '.join(name for name, _ in NIFTI_UNITS.values())})")
     affine = np.diag([NIFTI_UNITS[code][1]] * 3 + [1.0]) @ image.affine
     warnings = ()
     if int(header["sform_code"]) == 0 and int(header["qform_code"]) == 0:
@@ -230,19 +231,17 @@ def _nrrd_units(path: Path, header: dict, field: str, count: int) -> np.ndarray:
 def _nrrd_axes(path: Path, header: dict, ndim: int) -> tuple[list[int], list[int]]:
     """(the spatial axes, the other axes) of an NRRD's data, from its space directions (a "none" row is not
     spatial) or, without them, its kinds (domain, space) or spacings (NaN: not spatial); else the first three."""
-    directions = header.get("space directions")
-    kinds = header.get("kinds")
-    if directions is not None:
-        spatial = [row is not None and not np.all(np.isnan(np.asarray(row, float))) for row in directions]
-    elif kinds is not None:
-        spatial = [str(kind).lower() in NRRD_SPACE_KINDS for kind in kinds]
-    elif header.get("spacings") is not None:
-        spatial = [bool(np.isfinite(float(spacing))) for spacing in header["spacings"]]
+    field = next((name for name in ("space directions", "kinds", "spacings") if header.get(name) is not None), None)
+    if field == "space directions":
+        spatial = [row is not None and not np.all(np.isnan(np.asarray(row, float))) for row in header[field]]
+    elif field == "kinds":
+        spatial = [str(kind).lower() in NRRD_SPACE_KINDS for kind in header[field]]
+    elif field == "spacings":
+        spatial = [bool(np.isfinite(float(spacing))) for spacing in header[field]]
     else:
         spatial = [axis < 3 for axis in range(ndim)]
     if len(spatial) != ndim:
-        raise InputError(f"{path}: NRRD {'space directions' if directions is not None else 'kinds'} describe "
-                         f"{len(spatial)} axes of a {ndim}-D image")
+        raise InputError(f"{path}: NRRD {field} describe {len(spatial)} axes of a {ndim}-D image")
     return [a for a in range(ndim) if spatial[a]], [a for a in range(ndim) if not spatial[a]]
 
 
@@ -320,8 +319,9 @@ def read_nrrd(path: Path, kind: str | None = None) -> Volume:
         if encoding not in ("raw", "gzip", "gz", "bzip2", "bz2"):
             raise InputError(f"{path}: NRRD encoding {encoding!r} is not read (raw, gzip and bzip2 are)")
         raw = _inflate(path, handle, encoding, int(np.prod(sizes)) * dtype.itemsize)
-    data, spatial = _nrrd_layout(path, header, np.frombuffer(raw, dtype=dtype).reshape(sizes[::-1]).T)
-    layered = data.ndim == 4  # NRRD's first axis varies fastest, hence .T
+    data = np.frombuffer(raw, dtype=dtype).reshape(sizes[::-1]).T  # NRRD's first axis varies fastest
+    data, spatial = _nrrd_layout(path, header, data)
+    layered = data.ndim == 4
     if layered and kind == "intensity":
         raise InputError(f"{path}: a label map in {data.shape[0]} layers (overlapping segments); it cannot be "
                          "read --as intensity")
@@ -517,5 +517,3 @@ def check_slice_normal(path: Path, corners: np.ndarray, normal: np.ndarray) -> N
         raise InputError(f"{path}: the slices step {off[worst]:.3g} mm sideways per {abs(along[worst]):.3g} mm "
                          "along the slice normal (gantry tilt: a sheared volume); resample it to an orthogonal "
                          "grid")
-
-
