@@ -186,3 +186,35 @@ def test_a_bad_materials_file_is_one_line_naming_it(run_cli, models, text):
     assert code == EXIT_INPUT and out == ""
     assert err.count("\n") == 1 and err.startswith(f"heoslice: error: --materials: {path}: ")
     assert not (models / "out").exists()
+
+
+def _label_map(path: Path) -> Path:
+    import nibabel as nib
+    import numpy as np
+
+    data = np.zeros((6, 6, 6), np.uint8)
+    data[1:5, 1:5, 1:5] = 1
+    nib.save(nib.Nifti1Image(data, np.diag([2.0, 2.0, 2.0, 1.0])), str(path))
+    return path
+
+
+@pytest.mark.parametrize("order", ["volumes", "mesh-first"])
+def test_two_volumes_or_a_volume_and_a_mesh_is_one_line(run_cli, models, order):
+    """Two volumes on one command line (or a volume after a mesh) are one line saying one volume per run, not a
+    misleading 'unsupported file type'; nothing is written."""
+    first, second = _label_map(models / "a.nii.gz"), _label_map(models / "b.nii.gz")
+    inputs = [first, second] if order == "volumes" else ["scans/tall.off", second]
+    code, out, err = run_cli("slice", *inputs, *FAST)
+    assert code == EXIT_INPUT and out == "" and err.count("\n") == 1
+    assert "one volume per run" in err and "unsupported" not in err
+    assert not list(models.glob("*_stack"))
+
+
+@pytest.mark.parametrize("flag", [["--up", "A"], ["--smooth", "1"], ["--labels", "seg.nii.gz"],
+                                  ["--as", "labels"]], ids=lambda flag: flag[0] if isinstance(flag, list) else flag)
+def test_volume_options_with_a_mesh_are_refused(run_cli, models, flag):
+    """A volume-only option given with a mesh is one line naming it, not silently ignored; nothing written."""
+    code, out, err = run_cli("slice", "scans/tall.off", *flag, "-o", "out", *FAST)
+    assert code == EXIT_INPUT and out == "" and err.count("\n") == 1
+    assert f"{flag[0]}: only used when slicing a volume" in err
+    assert not (models / "out").exists()

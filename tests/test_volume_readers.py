@@ -166,3 +166,216 @@ def test_mixed_grids_in_a_structure_folder_refused(tmp_path):
     write_nifti(tmp_path / "a.nii.gz", labels_array(), np.eye(4))
     write_nifti(tmp_path / "b.nii.gz", labels_array(), grid_affine(2.0, [0, 0, 0]))
     _raises(tmp_path, "must share one grid")
+
+
+@pytest.mark.parametrize("unit, mm", [("meter", 1000.0), ("micron", 1e-3), ("mm", 1.0), ("unknown", 1.0)])
+def test_nifti_spatial_units_scale_to_millimetres(tmp_path, unit, mm):
+    """A NIfTI's xyzt_units spatial unit scales its affine (voxel axes and origin) to mm: a micro-CT in microns
+    is not 1000 times too large; 'unknown' keeps the mm assumption."""
+    import nibabel as nib
+
+    affine = grid_affine(2.0 / mm, np.array([10.0, -20.0, 30.0]) / mm)  # 2 mm voxels, in the file's unit
+    image = nib.Nifti1Image(labels_array(), affine)
+    image.header.set_xyzt_units(unit)
+    path = tmp_path / "u.nii.gz"
+    nib.save(image, str(path))
+    volume = load_volume(path)
+    assert np.allclose(volume.affine, grid_affine(2.0, [10.0, -20.0, 30.0]))
+
+
+def test_nifti_unknown_unit_code_refused(tmp_path):
+    """A spatial unit code NIfTI does not define (here 5) is refused, naming the file."""
+    import nibabel as nib
+
+    image = nib.Nifti1Image(labels_array(), np.eye(4))
+    image.header["xyzt_units"] = 5
+    path = tmp_path / "u.nii"
+    nib.save(image, str(path))
+    _raises(path, "u.nii: NIfTI spatial unit code 5")
+
+
+@pytest.mark.parametrize("units, mm", [(["m", "m", "m"], 1000.0), (["um", "um", "um"], 1e-3),
+                                       (["mm", "mm", "mm"], 1.0), (["cm", "cm", "cm"], 10.0)])
+def test_nrrd_space_units_scale_to_millimetres(tmp_path, units, mm):
+    """An NRRD's 'space units' scale its space directions and origin to mm."""
+    affine = grid_affine(0.5 / mm, np.array([1.0, 2.0, 3.0]) / mm)  # 0.5 mm voxels, in the file's unit
+    volume = load_volume(write_nrrd(tmp_path / "u.nrrd", labels_array(), affine, {"space units": units}))
+    assert np.allclose(volume.affine, grid_affine(0.5, [1.0, 2.0, 3.0]))
+
+
+def test_nrrd_unknown_space_unit_refused(tmp_path):
+    path = write_nrrd(tmp_path / "u.nrrd", labels_array(), np.eye(4), {"space units": ["mm", "furlong", "mm"]})
+    _raises(path, "u.nrrd: NRRD space units 'furlong' is not a known length unit")
+
+
+def _nrrd_with_axes(path, data, kinds, directions, origin=(0.0, 0.0, 0.0), extra=None):
+    import nrrd
+
+    header = {"space": "left-posterior-superior", "space origin": list(origin), "encoding": "gzip",
+              "kinds": kinds, "space directions": np.array(directions, dtype=float)}
+    header.update(extra or {})
+    nrrd.write(str(path), data, header, custom_field_map={key: "string" for key in extra or {}})
+    return path
+
+
+NONE3 = [np.nan] * 3
+AXES = [[2.0, 0, 0], [0, 1.5, 0], [0, 0, 2.5]]
+
+
+@pytest.mark.parametrize("list_axis", [0, 1, 3])
+def test_4d_nrrd_list_axis_found_wherever_it_is(tmp_path, list_axis):
+    """A label map in layers reads the same, voxel for voxel, whichever axis holds the list of layers (found
+    from kinds and the 'none' space direction, not assumed first)."""
+    layers = np.zeros((2, 6, 5, 4), np.uint8)
+    layers[0, 1:4, 1:3, 1:3] = 1
+    layers[1, 2:5, 2:4, 0:2] = 3
+    data = np.moveaxis(layers, 0, list_axis)
+    kinds = ["domain"] * 3
+    kinds.insert(list_axis, "list")
+    directions = list(AXES)
+    directions.insert(list_axis, NONE3)
+    volume = load_volume(_nrrd_with_axes(tmp_path / "l.seg.nrrd", data, kinds, directions))
+    assert volume.layer_count == 2 and volume.shape == (6, 5, 4)
+    assert np.array_equal(volume.data, layers)
+    assert np.allclose(volume.affine[:3, :3], np.array(AXES).T)
+
+
+def test_4d_nrrd_singleton_list_axis_is_a_3d_label_map(tmp_path):
+    """A trailing list axis of length 1 is dropped: the 3-D label map reads with its own values and axes."""
+    data = labels_array()
+    volume = load_volume(_nrrd_with_axes(tmp_path / "t.nrrd", data[..., None], ["domain"] * 3 + ["list"],
+                                         AXES + [NONE3]))
+    assert volume.layer_count == 1 and np.array_equal(volume.data, data)
+    assert np.allclose(volume.affine[:3, :3], np.array(AXES).T)
+
+
+@pytest.mark.parametrize("kind", ["time", "RGB-color", "vector"])
+def test_4d_nrrd_time_series_or_vectors_refused(tmp_path, kind):
+    """A 4-D NRRD whose extra axis is not a list of layers is refused, one line naming the file."""
+    data = np.zeros((3, 6, 5, 4), np.uint8)
+    path = _nrrd_with_axes(tmp_path / "v.nrrd", data, [kind] + ["domain"] * 3, [NONE3] + AXES)
+    _raises(path, "v.nrrd: a 4-D NRRD .* time series or vector")
+
+
+def test_4d_nrrd_label_layers_refuse_as_intensity(tmp_path):
+    """--as intensity on a label map in layers is refused, not ignored."""
+    layers = np.zeros((2, 6, 5, 4), np.uint8)
+    path = _nrrd_with_axes(tmp_path / "l.seg.nrrd", layers, ["list"] + ["domain"] * 3, [NONE3] + AXES)
+    with pytest.raises(InputError, match="l.seg.nrrd: a label map in 2 layers .* --as intensity"):
+        load_volume(path, "intensity")
+
+
+def test_dicom_gantry_tilt_refused(tmp_path):
+    """A series whose slice corners step sideways as well as along the slice normal (gantry tilt) is refused
+    with the resample advice of a sheared grid, not placed sheared."""
+    hu = np.zeros((5, 4, 6), np.float32)
+    affine = FLIP_XY @ grid_affine(0.5, [1.0, 2.0, 3.0])
+    affine[:3, 2] = [0.0, 1.0, 2.0]  # 1 mm sideways (y) per 2 mm slice step: about 26.6 degrees of tilt
+    _raises(write_dicom_series(tmp_path / "ct", hu, affine), "ct: the slices step [0-9.]+ mm sideways .*gantry tilt.*"
+            "resample it to an orthogonal grid")
+
+
+def test_dicom_one_slice_shifted_sideways_refused(tmp_path):
+    """Each consecutive step is checked, not only first to last: one slice moved 0.5 mm sideways is refused."""
+    hu = np.zeros((5, 4, 6), np.float32)
+    folder = write_dicom_series(tmp_path / "ct", hu, FLIP_XY @ grid_affine(1.0, [0, 0, 0]))
+    import pydicom
+
+    path = folder / "slice_002.dcm"
+    dataset = pydicom.dcmread(path)
+    dataset.ImagePositionPatient = [float(dataset.ImagePositionPatient[0]) + 0.5,
+                                    *map(float, dataset.ImagePositionPatient[1:])]
+    dataset.save_as(path)
+    _raises(folder, "sideways")
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.float32])
+def test_negative_label_values_refused(tmp_path, dtype):
+    """A label map forced with --as labels that holds a negative value is refused, naming the file (no label
+    box lookup on a negative index)."""
+    data = labels_array().astype(dtype)
+    data[0, 0, 0] = -1
+    path = write_nifti(tmp_path / "neg.nii.gz", data, np.eye(4))
+    with pytest.raises(InputError, match="neg.nii.gz: 1 voxel.* negative value"):
+        load_volume(path, "labels")
+
+
+def test_nifti_without_sform_or_qform_warns(tmp_path):
+    """A NIfTI with both sform and qform codes 0 reads with a warning that left/right cannot be trusted; one
+    with an sform does not."""
+    import nibabel as nib
+
+    image = nib.Nifti1Image(labels_array(), None)
+    path = tmp_path / "bare.nii"
+    nib.save(image, str(path))
+    volume = load_volume(path)
+    assert any("no orientation in the header" in text and "left/right" in text for text in volume.warnings)
+    assert load_volume(write_nifti(tmp_path / "ok.nii", labels_array(), np.eye(4))).warnings == ()
+
+
+def test_rgb_nifti_refused(tmp_path):
+    """An RGB NIfTI (a structured voxel type) is one line naming the file."""
+    import nibabel as nib
+
+    rgb = np.zeros((4, 4, 4), dtype=[("R", "u1"), ("G", "u1"), ("B", "u1")])
+    path = tmp_path / "rgb.nii.gz"
+    nib.save(nib.Nifti1Image(rgb, np.eye(4)), str(path))
+    _raises(path, "rgb.nii.gz: voxels of type .* are not read")
+
+
+@pytest.mark.parametrize("field, text, match", [
+    ("Segment0_LabelValue", "three", "Segment0_LabelValue 'three' is not a whole number"),
+    ("Segment0_Layer", "x", "Segment0_Layer 'x' is not a whole number"),
+    ("Segment0_Color", "2.0 0 0", "Segment0_Color '2.0 0 0' is not three numbers from 0 to 1"),
+    ("Segment0_Color", "0.5 0.5", "Segment0_Color '0.5 0.5' is not three numbers from 0 to 1"),
+])
+def test_malformed_segment_fields_name_the_file(tmp_path, field, text, match):
+    """A malformed SegmentN_* field is one line naming the file and the field; a colour must be three numbers
+    0..1 (2.0 would be colour 510)."""
+    extra = {"Segment0_Name": "liver", "Segment0_LabelValue": "5", "Segment0_Layer": "0", "Segment0_Color": "1 0 0"}
+    extra[field] = text
+    path = write_nrrd(tmp_path / "bad.seg.nrrd", labels_array(), np.eye(4), extra)
+    _raises(path, "bad.seg.nrrd: " + match)
+
+
+def test_guessed_label_map_of_many_values_warns(tmp_path):
+    """An 8-bit image of more than GUESS_WARN_LABELS values, its kind guessed, reads as labels with a warning
+    to say --as intensity; forced with --as labels, or with few values, it does not warn."""
+    from heoslice.volume.readers import GUESS_WARN_LABELS
+
+    data = np.arange(4 * 5 * 6, dtype=np.uint8).reshape(4, 5, 6)
+    assert len(np.unique(data)) - 1 > GUESS_WARN_LABELS
+    path = write_nifti(tmp_path / "ct8.nii.gz", data, np.eye(4))
+    volume = load_volume(path)
+    assert volume.kind_guessed and any("--as intensity" in text for text in volume.warnings)
+    assert not load_volume(path, "labels").warnings and not load_volume(path, "labels").kind_guessed
+    assert not load_volume(write_nifti(tmp_path / "few.nii", labels_array(), np.eye(4))).warnings
+
+
+def test_dicom_small_tilt_adding_up_refused_and_rounded_positions_read(tmp_path):
+    """A tilt too small to see from one slice to the next (0.01 mm per 1 mm step) is refused from the first to
+    the last slice of a long series; positions rounded to two decimals (no tilt) read."""
+    import pydicom
+
+    hu = np.zeros((3, 3, 40), np.float32)
+    affine = FLIP_XY @ grid_affine(1.0, [0.0, 0.0, 0.0])
+    affine[:3, 2] = [0.0, 0.01, 1.0]
+    _raises(write_dicom_series(tmp_path / "tilt", hu, affine), "sideways")
+    affine = FLIP_XY @ grid_affine(1.0, [0.123456, 0.654321, 0.0])
+    affine[2, 2] = 1.2345
+    folder = write_dicom_series(tmp_path / "rounded", hu, affine)
+    for path in folder.iterdir():
+        dataset = pydicom.dcmread(path)
+        dataset.ImagePositionPatient = [round(float(v), 2) for v in dataset.ImagePositionPatient]
+        dataset.save_as(path)
+    assert load_volume(folder).shape == (3, 3, 40)
+
+
+def test_nrrd_spacings_with_units_scale_to_millimetres(tmp_path):
+    """An NRRD without space directions takes its voxel size from spacings times its per-axis 'units'."""
+    import nrrd
+
+    path = tmp_path / "s.nrrd"
+    nrrd.write(str(path), labels_array(), {"spacings": [500.0, 250.0, 1000.0], "units": ["um", "um", "um"],
+                                           "encoding": "raw"})
+    assert np.allclose(load_volume(path).voxel_size_mm, [0.5, 0.25, 1.0])

@@ -314,6 +314,14 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
         slice_volume(models[0], output, spec, force, as_json, materials, bool(channels), up, smooth, volume_kind,
                      label_map)
         return
+    volumes = [model for model in models if is_volume_path(model)]
+    if volumes:
+        raise InputError(f"{volumes[0]}: a volume is sliced on its own, one volume per run (with "
+                         f"{plural(len(models) - 1, 'other model')} here); give each its own heoslice slice")
+    given = [flag for flag, value in (("--up", up != "S"), ("--smooth", smooth is not None),
+                                      ("--labels", label_map is not None), ("--as", volume_kind is not None)) if value]
+    if given:
+        raise InputError(f"{given[0]}: only used when slicing a volume (NIfTI, NRRD, a folder), not a mesh")
     if is_parts_job(models, parts_flag, part_options, materials):
         if grade_kind is not None:
             raise InputError(GRADE_REFUSAL)

@@ -50,9 +50,15 @@ def slice_volume(model: Path, output: Path | None, spec: SliceSpec, force: bool,
     its [intensity] curve, with ``label_map`` restricting it to labels)."""
     from heoslice.pipeline.volume_job import plan_labels, slice_volume_to_stack
     from heoslice.volume import load_volume
+    from heoslice.volume.model import check_label_keys
+    from heoslice.volume.readers import GUESS_WARN_LABELS
 
     if smooth is not None and not 0 <= smooth <= 10:
         raise InputError(f"--smooth: must be from 0 to 10 voxels, got {smooth:g}")
+    table = materials.data.get("intensity")
+    if label_map is None and isinstance(table, dict) and "within" in table:
+        raise InputError(f"{materials.path}: [intensity] within lists labels of a CT's label map: give that label "
+                         "map with --labels MAP (or remove 'within')")
     volume = load_volume(model, kind)
     grades = ()
     if "grade" in materials.data:
@@ -61,6 +67,11 @@ def slice_volume(model: Path, output: Path | None, spec: SliceSpec, force: bool,
         if label_map is not None or volume.kind != "labels":
             raise InputError(f"{materials.path}: [grade] grades labels of a label map; slice the label map itself")
         grades = read_grades(materials.data["grade"], materials.materials, f"{materials.path}: [grade]")
+        check_label_keys(volume, [key for grade in grades for key in (grade.label, grade.toward) if key is not None],
+                         f"{materials.path}: [grade]")
+    if label_map is None and volume.kind == "intensity" and materials.has_labels:
+        raise InputError(f"{materials.path}: [labels] maps a label map's labels, but {model} is an intensity volume: "
+                         "give its label map with --labels MAP (or remove [labels])")
     if label_map is not None:
         if volume.kind != "intensity":
             raise InputError(f"--labels: {model} is a label map; --labels goes with a CT (an intensity volume)")
@@ -71,6 +82,11 @@ def slice_volume(model: Path, output: Path | None, spec: SliceSpec, force: bool,
         slice_intensity(model, volume, output, spec, force, as_json, materials, up)
         return
     settings = materials.labels() if materials.has_labels else None
+    if settings is None and volume.kind_guessed and len(volume.labels) > GUESS_WARN_LABELS:
+        raise InputError(f"{model}: read as a label map of {len(volume.labels)} values (guessed from its whole-number "
+                         "voxels) and, with no [labels] table, all would print as one block; if it is an intensity "
+                         "image (a CT) say --as intensity, to print every label say --as labels")
+    check_label_keys(volume, settings or (), f"{materials.path}: [labels]")
     plan = plan_labels(volume, materials.materials, settings, channels)
     directory = output if output is not None else Path.cwd() / f"{volume_stem(model)}_stack"
     if not as_json:
@@ -109,6 +125,8 @@ def slice_intensity(model: Path, volume, output: Path | None, spec: SliceSpec, f
                          "materials) in the --materials file; or slice its label map, or say --as labels")
     curve = read_curve(materials.data["intensity"], materials.materials, f"{materials.path}: [intensity]")
     directory = output if output is not None else Path.cwd() / f"{volume_stem(model)}_stack"
+    if not as_json:
+        echo_warnings(model, volume.warnings)
     with progress_bar("slicing", unit="layer") as update:
         manifest, times = slice_intensity_to_stack(volume, directory, spec, curve, up=up, force=force,
                                                    progress=update)
@@ -134,7 +152,7 @@ def slice_ct_with_labels(model: Path, ct, labels, output: Path | None, spec: Sli
     the CT's values through its curve."""
     from heoslice.material import PartSetting
     from heoslice.pipeline.volume_job import plan_labels, slice_ct_with_labels_to_stack
-    from heoslice.volume.model import labels_named
+    from heoslice.volume.model import check_label_keys, labels_named
     from heoslice.volume.intensity import read_curve
 
     table = materials.data.get("intensity")
@@ -144,6 +162,7 @@ def slice_ct_with_labels(model: Path, ct, labels, output: Path | None, spec: Sli
     curve = read_curve(table, materials.materials, f"{materials.path}: [intensity]")
     settings = dict(materials.labels())
     within = [str(key) for key in table["within"]]
+    check_label_keys(labels, [*settings, *within], f"{materials.path}: [labels] and [intensity] within")
     for key in within:
         if key in settings:
             raise InputError(f"{materials.path}: label {key} is in both [labels] and [intensity] within")
@@ -151,6 +170,8 @@ def slice_ct_with_labels(model: Path, ct, labels, output: Path | None, spec: Sli
     plan = plan_labels(labels, materials.materials, settings, True)
     chosen = {index for key in within for index in labels_named(key, plan.labels)}
     directory = output if output is not None else Path.cwd() / f"{volume_stem(model)}_stack"
+    if not as_json:
+        echo_warnings(model, [*ct.warnings, *labels.warnings, *plan.warnings])
     with progress_bar("slicing", unit="layer") as update:
         manifest, times = slice_ct_with_labels_to_stack(ct, labels, directory, spec, plan, curve, frozenset(chosen),
                                                         up=up, smooth=smooth, force=force, progress=update)

@@ -57,7 +57,9 @@ class Volume:
     affine: (4, 4) float64 mapping voxel indices (i, j, k, 1) to millimetres in ``space`` ("RAS" or "LPS");
     kind: "labels" (integer label values, 0 = background) or "intensity" (e.g. CT in Hounsfield units);
     labels: the labels (value, name, colour, layer) a label map holds, () for an intensity volume;
-    source, sha256: the file (or folder) read and a digest of its content; warnings: notes for the user.
+    source, sha256: the file (or folder) read and a digest of its content; warnings: notes for the user;
+    kind_guessed: the kind was guessed from the voxels (not forced, not implied by the format); names_only: the
+    label values are not the file's own (a folder's structures, numbered by file order), so only names select.
     """
 
     data: np.ndarray
@@ -68,6 +70,8 @@ class Volume:
     source: Path
     sha256: str
     warnings: tuple[str, ...] = ()
+    kind_guessed: bool = False
+    names_only: bool = False
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -157,7 +161,7 @@ def make_labels(path: Path, data: np.ndarray, known: dict[int, Label] | None = N
     values = label_values(data)
     if len(values) > MAX_LABELS:
         raise InputError(f"{path}: {len(values)} distinct labels, more than the {MAX_LABELS} of a label map "
-                         "(is it an intensity volume? say --intensity)")
+                         "(is it an intensity volume? say --as intensity)")
     known = known or {}
     return tuple(known.get(int(value), Label(int(value))) for value in values)
 
@@ -165,20 +169,45 @@ def make_labels(path: Path, data: np.ndarray, known: dict[int, Label] | None = N
 def as_label_array(path: Path, data: np.ndarray) -> np.ndarray:
     """``data`` as an integer label array: integers unchanged, float voxels that are all whole numbers cast;
     anything else refused."""
-    if data.dtype.kind in "iu":
-        return data
     if data.dtype.kind == "b":
         return data.astype(np.uint8)
-    check_values(path, data)
+    if data.dtype.kind == "u":
+        return data
+    if data.dtype.kind == "f":
+        check_values(path, data)
+    if data.dtype.kind in "if" and data.size and data.min() < 0:
+        raise InputError(f"{path}: {int(np.count_nonzero(data < 0))} voxel(s) of negative value (e.g. "
+                         f"{data.min():g}): label values are 0 (background) or positive, so not a label map "
+                         "(an intensity volume: say --as intensity)")
+    if data.dtype.kind == "i":
+        return data
     if data.dtype.kind == "f" and np.all(data == np.round(data)) and np.abs(data).max(initial=0) < 2**31:
         return data.astype(np.int32)
-    raise InputError(f"{path}: voxels are not whole numbers, so not a label map (an intensity volume: say --intensity)")
+    raise InputError(f"{path}: voxels are not whole numbers, so not a label map (an intensity volume: say --as "
+                     "intensity)")
+
+
+def is_number_key(key) -> bool:
+    """Whether a [labels] key is a label value (a whole number) rather than a name."""
+    return str(key).strip().lstrip("-").isdigit()
+
+
+def check_label_keys(volume: Volume, keys, where: str) -> None:
+    """Refuse label-value keys (numbers) for a volume whose labels only names select (a folder of structure
+    files numbers them by file order, so a number would pick whichever file sorts there)."""
+    if not volume.names_only:
+        return
+    numbers = [str(key) for key in keys if is_number_key(key)]
+    if numbers:
+        example = next((label.name for label in volume.labels if label.name), "liver")
+        raise InputError(f"{where}: {numbers[0]}: {volume.source} is a folder of structure files, whose labels have "
+                         f"no values of their own; name the structure instead (e.g. {example})")
 
 
 def labels_named(key: str, labels: tuple[Label, ...]) -> list[int]:
     """Indices of the labels a [labels] key names: a whole number is a label value, anything else a segment
     or structure name (case ignored)."""
     text = str(key).strip()
-    if text.lstrip("-").isdigit():
+    if is_number_key(text):
         return [index for index, label in enumerate(labels) if label.value == int(text)]
     return [index for index, label in enumerate(labels) if label.name and label.name.lower() == text.lower()]
