@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import json
-from contextlib import contextmanager
 from pathlib import Path
 
 import click
 import numpy as np
 
 from heoslice.cli.common import echo_warnings, progress_bar
+from heoslice.cli.options import flags
 from heoslice.errors import InputError, VerifyError
 from heoslice.files import check_output, write_output
 from heoslice.pipeline.parallel import ordered_map
@@ -22,18 +22,6 @@ from heoslice.stack.verify import check_unread_layers, open_verified, refusal
 #: Library parameter names -> the options that set them, for error messages.
 FLAGS = {"section": "--section", "size": "--size", "tile": "--tile", "columns": "--columns", "layers": "--layers",
          "layer": "--layer"}
-
-
-@contextmanager
-def flags_named():
-    """Re-raise a library InputError that names a parameter with the option's name instead."""
-    try:
-        yield
-    except InputError as err:
-        name, _, rest = str(err).partition(": ")
-        if name in FLAGS:
-            raise InputError(f"{FLAGS[name]}: {rest}") from err
-        raise
 
 
 @click.command("preview", epilog="""\b
@@ -81,7 +69,7 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
     count = len(manifest["layers"])
     if count == 0:
         raise InputError(f"{stack}: the stack has no layers")
-    with flags_named():
+    with flags(FLAGS):
         target, drawn, draw = _plan(stack, manifest, layer, sheet, layers, size, tile, columns, section, output)
         check_output(target, "preview PNG", force=force, made_here=is_preview, inputs=(stack,))
         if target.suffix.lower() != ".png":
