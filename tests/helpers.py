@@ -359,3 +359,18 @@ def lesion_distance(lesion: trimesh.Trimesh, points: np.ndarray, cap: float = np
         np.minimum.at(distance, point, np.linalg.norm(chunk[point] - feet, axis=1))
         out[near[start:start + 2000]] = distance
     return out
+
+
+#: A CT's two materials (soft tissue, bone) and the intensity curve between them, for the volume tests.
+CT_MATERIALS = """
+[materials.tissue]
+color = "#f0a0a0"
+channel = 1
+[materials.bone]
+color = "#ffffff"
+channel = 2
+"""
+CT_CURVE = """
+[intensity]
+points = [ { value = 100, mix = { tissue = 1.0 } }, { value = 900, mix = { bone = 1.0 } } ]
+"""

@@ -8,22 +8,12 @@ from pathlib import Path
 
 import nibabel as nib
 import numpy as np
+from helpers import CT_CURVE, CT_MATERIALS
 
 from heoslice.errors import EXIT_INPUT
 
 FAST = ["--dpi", "50", "--layer", "1", "-j", "1"]
-MATERIALS = """
-[materials.tissue]
-color = "#f0a0a0"
-channel = 1
-[materials.bone]
-color = "#ffffff"
-channel = 2
-"""
-CURVE = """
-[intensity]
-points = [ { value = 100, mix = { tissue = 1.0 } }, { value = 900, mix = { bone = 1.0 } } ]
-"""
+MATERIALS, CURVE = CT_MATERIALS, CT_CURVE
 
 
 def nifti(path: Path, data: np.ndarray, affine=None) -> Path:

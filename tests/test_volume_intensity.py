@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers import in_process
+from helpers import CT_CURVE, CT_MATERIALS, in_process
 from volume_phantoms import grid_affine, write_nifti
 
 from heoslice.errors import InputError
@@ -17,16 +17,7 @@ from heoslice.stack import read_layer_channels, read_layer_mask
 from heoslice.grading.halftone import METHODS, halftone
 from heoslice.volume.intensity import read_curve
 
-MATERIALS = """
-[materials.tissue]
-color = "#f0a0a0"
-channel = 1
-[materials.bone]
-color = "#ffffff"
-channel = 2
-[intensity]
-points = [ { value = 100, mix = { tissue = 1.0 } }, { value = 900, mix = { bone = 1.0 } } ]
-"""
+MATERIALS = CT_MATERIALS + CT_CURVE
 
 
 def curve(tmp_path):
