@@ -112,3 +112,12 @@ def test_relative_paths_are_read_from_the_files_folder(run_cli, place):
     user = user_file(place, '[slice]\nmaterials = "mats.toml"\n')
     code, _, err = run_cli("slice", "box.off")
     assert code == EXIT_INPUT and str(user.parent / "mats.toml") in err
+
+
+def test_a_defaults_files_volume_settings_leave_a_mesh_alone(run_cli, place):
+    """A lab's ./heoslice.toml with volume settings ([slice] up, smooth, as) for its CT work still slices a mesh
+    with them unused; typed on the command line with a mesh, the same options are refused."""
+    (place / "heoslice.toml").write_text('[slice]\nup = "A"\nsmooth = 1.5\nas = "intensity"\n')
+    assert layers(run_cli) == 100
+    code, _, err = run_cli("slice", "box.off", "--force", "-j", "1", "--up", "A")
+    assert code == EXIT_INPUT and "--up: only used when slicing a volume" in err

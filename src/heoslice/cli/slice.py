@@ -318,8 +318,13 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     if volumes:
         raise InputError(f"{volumes[0]}: a volume is sliced on its own, one volume per run (with "
                          f"{plural(len(models) - 1, 'other model')} here); give each its own heoslice slice")
-    given = [flag for flag, value in (("--up", up != "S"), ("--smooth", smooth is not None),
-                                      ("--labels", label_map is not None), ("--as", volume_kind is not None)) if value]
+    # typed on this command line (a defaults file's [slice] volume settings stay for the volumes it is also used for)
+    typed = {name for name in ("up", "smooth", "label_map", "volume_kind")
+             if ctx.get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE}
+    given = [flag for flag, name, value in (("--up", "up", up != "S"), ("--smooth", "smooth", smooth is not None),
+                                            ("--labels", "label_map", label_map is not None),
+                                            ("--as", "volume_kind", volume_kind is not None))
+             if value and name in typed]
     if given:
         raise InputError(f"{given[0]}: only used when slicing a volume (NIfTI, NRRD, a folder), not a mesh")
     if is_parts_job(models, parts_flag, part_options, materials):
