@@ -379,3 +379,18 @@ def test_nrrd_spacings_with_units_scale_to_millimetres(tmp_path):
     nrrd.write(str(path), labels_array(), {"spacings": [500.0, 250.0, 1000.0], "units": ["um", "um", "um"],
                                            "encoding": "raw"})
     assert np.allclose(load_volume(path).voxel_size_mm, [0.5, 0.25, 1.0])
+
+
+@pytest.mark.parametrize("header, spacing", [({"kinds": ["???"] * 3, "spacings": [1.0, 1.0, 2.0]}, (1, 1, 2)),
+                                             ({"kinds": ["none"] * 3}, (1, 1, 1)),
+                                             ({"spacings": [0.5, 0.5, 1.0]}, (0.5, 0.5, 1))])
+def test_a_3d_nrrd_whose_kinds_say_nothing_reads_as_3d(tmp_path, header, spacing):
+    """Kinds '???' or 'none' (legal, and what some writers put) say nothing of which axes are spatial: a 3-D NRRD
+    with them reads as its three axes (spacings where given), as before kinds were consulted."""
+    import nrrd
+
+    data = labels_array()
+    nrrd.write(str(tmp_path / "k.nrrd"), data, header)
+    volume = load_volume(tmp_path / "k.nrrd")
+    assert np.array_equal(volume.data, data)
+    assert np.allclose(np.abs(np.diag(volume.affine)[:3]), spacing)

@@ -230,8 +230,14 @@ def _nrrd_units(path: Path, header: dict, field: str, count: int) -> np.ndarray:
 
 def _nrrd_axes(path: Path, header: dict, ndim: int) -> tuple[list[int], list[int]]:
     """(the spatial axes, the other axes) of an NRRD's data, from its space directions (a "none" row is not
-    spatial) or, without them, its kinds (domain, space) or spacings (NaN: not spatial); else the first three."""
-    field = next((name for name in ("space directions", "kinds", "spacings") if header.get(name) is not None), None)
+    spatial) or, without them, its kinds (domain, space) where they say anything ("???" and "none" do not) or
+    spacings (NaN: not spatial); else the first three."""
+    def says(name: str) -> bool:
+        value = header.get(name)
+        return value is not None and (name != "kinds" or any(str(kind).lower() not in ("???", "none")
+                                                              for kind in value))
+
+    field = next((name for name in ("space directions", "kinds", "spacings") if says(name)), None)
     if field == "space directions":
         spatial = [row is not None and not np.all(np.isnan(np.asarray(row, float))) for row in header[field]]
     elif field == "kinds":
