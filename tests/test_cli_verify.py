@@ -219,3 +219,17 @@ def test_a_listed_name_with_a_backslash_is_outside_the_stack(two_part_stack):
     (stack / "manifest.json").write_text(json.dumps(manifest))
     problems = verify_stack(stack).problems
     assert any("lies outside the stack" in line and "sub\\\\" in line for line in problems), problems
+
+
+def test_verify_against_a_ct_of_a_stack_without_labels_says_so(run_cli, tmp_path):
+    """`verify --mesh CT.nii.gz` on a stack sliced from no label map: one line saying the stack lists no printed
+    labels (not the CT's refusal as a label map, which advises an option verify does not have)."""
+    import nibabel as nib
+    import numpy as np
+
+    procedural.box((10.0, 10.0, 5.0)).export(tmp_path / "box.ply")
+    assert run_cli("slice", tmp_path / "box.ply", "--layer", "1", "--dpi", "50", "-o", tmp_path / "stack")[0] == 0
+    ct = np.full((8, 8, 8), -1000, dtype=np.int16)
+    nib.save(nib.Nifti1Image(ct, np.eye(4)), tmp_path / "ct.nii.gz")
+    code, _, err = run_cli("verify", tmp_path / "stack", "--mesh", tmp_path / "ct.nii.gz")
+    assert code == EXIT_INPUT and err.count("\n") == 1 and "lists no printed labels" in err

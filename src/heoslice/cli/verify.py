@@ -95,12 +95,12 @@ def volume_checks(manifest: dict, model: Path, tolerance: float) -> tuple[list[s
     from heoslice.volume import load_volume
     from heoslice.volume.info import printed_voxel_volume_mm3
 
+    records = manifest.get("labels")
+    if not isinstance(records, list):  # asked before the file is read as labels (a CT's are refused there)
+        raise InputError(f"--mesh: {model} is a volume, but this stack lists no printed labels (not sliced from one)")
     volume = load_volume(model, "labels")
     warnings = [] if (manifest.get("source") or {}).get("sha256") in (None, volume.sha256) else [
         f"{model}: not the file this stack was sliced from (its sha256 differs from the manifest's)"]
-    records = manifest.get("labels")
-    if not isinstance(records, list):
-        raise InputError(f"--mesh: {model} is a volume, but this stack lists no printed labels (not sliced from one)")
     expected = printed_voxel_volume_mm3(volume, records)
     relative = (stack_volume_mm3(manifest) - expected) / expected if expected else float("inf")
     problems = [] if abs(relative) <= tolerance else [
