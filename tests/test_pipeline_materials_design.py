@@ -297,3 +297,29 @@ def test_color_refuses_a_colour_its_materials_file_lacks(run_cli, vase_file, tmp
     code, _, err = run_cli("color", vase_file, role, "200,0,0", other, "gel", "--materials",
                            vase_file.parent / "mats.toml", "-o", tmp_path / "v.ply")
     assert code == 0, err  # a table colour is that material
+
+
+def test_a_grade_from_the_designs_target_goes_towards_its_start(run_cli, vase_file, tmp_path):
+    """`slice --grade FUNC --from M2` on a model coloured M1 -> M2, without --to: the grade goes from M2 towards the
+    design's other material, M1 (not from M2 to itself, a one-material print)."""
+    coloured = tmp_path / "v.ply"
+    assert run_cli("color", vase_file, "-o", coloured)[0] == 0
+    stack = tmp_path / "stack"
+    code, _, err = run_cli("slice", coloured, "--grade", "linear", "--from", "M2", "--layer", "2", "--dpi", "100",
+                           "-o", stack)
+    assert code == 0, err
+    grading = json.loads((stack / "manifest.json").read_text())["grading"]
+    assert (grading["from"]["name"], grading["target"]["name"]) == ("M2", "M1")
+
+
+@pytest.mark.parametrize("args, flag", [(("--to", "gel"), "--from, --to: both are 'gel'"),
+                                        (("--shell-colors", "0=1,2,3"), "--shell-colors: the design")])
+def test_color_refuses_what_slice_would_refuse(run_cli, vase_file, tmp_path, args, flag):
+    """`color` with a one-material table and --to naming it (a grade from it to itself), or a --shell-colors colour
+    its materials file lacks: one line naming the option, nothing written (slice would refuse the file)."""
+    one = tmp_path / "one.toml"
+    one.write_text('[materials.gel]\ncolor = "#f0f0f0"\nchannel = 1\n')
+    table = one if args[0] == "--to" else vase_file.parent / "mats.toml"
+    code, _, err = run_cli("color", vase_file, *args, "--materials", table, "-o", tmp_path / "v.ply")
+    assert code == 2 and err.count("\n") == 1 and flag in err
+    assert not (tmp_path / "v.ply").exists()

@@ -28,6 +28,7 @@ from heoslice.material import (
     read_materials_file,
     reference_kinds_taking,
     resolve_material,
+    same_material,
     write_ply,
 )
 from heoslice.mesh import load_mesh
@@ -175,14 +176,18 @@ def color(model: Path, output: Path | None, func_kind: str | None, alpha, beta, 
         roles = material_roles(table, start=m1_text, target=m2_text)
     if roles.m2 is None:
         raise InputError(f"--to: {materials_file} defines one material: name the target material (M2)")
+    if same_material(roles.m1, roles.m2):  # a role named alone, and the table has no other material
+        raise InputError(f"--from, --to: both are {roles.m1.name!r}; a grade needs two materials (name the other)")
+    typed_shells = parse_shell_colors(shell_colors, table)
+    shells = {**file_shells, **typed_shells}
     if materials_file is not None:  # slice settles the design against the same file: a colour outside it is refused
         from heoslice.material.design import settle_material
 
-        for flag, material in (("--from", roles.m1), ("--to", roles.m2)):
+        settled = [("--from", "start", roles.m1), ("--to", "target", roles.m2)]
+        settled += [("--shell-colors", f"shell {number}", material) for number, material in typed_shells.items()]
+        for flag, role, material in settled:
             with flags({str(model): flag}):
-                settle_material(material, table, "start" if flag == "--from" else "target", str(materials_file),
-                                str(model))
-    shells = {**file_shells, **parse_shell_colors(shell_colors, table)}
+                settle_material(material, table, role, str(materials_file), str(model))
 
     mesh = apply_scale(load_mesh(model), scale)
     surface = surface_path

@@ -36,6 +36,7 @@ from heoslice.material import (
     check_one_per_channel,
     material_roles,
     nearest_materials,
+    same_material,
     with_table_channels,
 )
 from heoslice.mesh import Mesh
@@ -152,9 +153,13 @@ def _interior(spec: SliceSpec, design) -> str:
 
 def _designed(grade, design):
     """``grade`` with the design's roles: its fraction mixes the design's start (base) and target (second), a
-    gradient that ``--to`` names no target for grades towards the design's target, and its shells coloured whole
-    keep their material (a materials file's [shells] entry wins)."""
-    target = design.target if grade.function is not None and not grade.target_named else grade.target
+    gradient that ``--to`` names no target for grades towards the design's target (its start when ``--from`` names
+    the target: never from a material to itself), and its shells coloured whole keep their material (a materials
+    file's [shells] entry wins)."""
+    target = grade.target
+    if grade.function is not None and not grade.target_named:
+        named_start = grade.start is not None and same_material(grade.start, design.target)
+        target = design.start if named_start else design.target
     return replace(grade, base=design.start, second=design.target, target=target,
                    shells=tuple(sorted({**dict(design.shells), **dict(grade.shells)}.items())))
 
