@@ -323,3 +323,22 @@ def test_color_refuses_what_slice_would_refuse(run_cli, vase_file, tmp_path, arg
     code, _, err = run_cli("color", vase_file, *args, "--materials", table, "-o", tmp_path / "v.ply")
     assert code == 2 and err.count("\n") == 1 and flag in err
     assert not (tmp_path / "v.ply").exists()
+
+
+def test_scales_that_cancel_keep_the_surface_at_the_size_it_was_coloured(run_cli, tmp_path):
+    """`color --scale 10` then `slice --scale 0.1`: the surface is read at 1x by the slice, and the stack records
+    that (scale 1), so verify measures r from the same surface and finds the design delivered."""
+    organ, lesion = procedural.sphere(10.0, 3), procedural.sphere(3.0, 3)
+    lesion.apply_translation((2.0, 0.0, 0.0))
+    organ.export(tmp_path / "organ.ply")
+    lesion.export(tmp_path / "lesion.ply")
+    coloured = tmp_path / "c.ply"
+    assert run_cli("color", tmp_path / "organ.ply", "--scale", "10", "--ref", "surface", "--surface",
+                   tmp_path / "lesion.ply", "--func", "linear", "-o", coloured)[0] == 0
+    stack = tmp_path / "stack"
+    assert run_cli("slice", coloured, "--scale", "0.1", "--layer", "1", "--dpi", "100", "-o", stack)[0] == 0
+    reference = json.loads((stack / "manifest.json").read_text())["grading"]["design"]["reference"]
+    assert reference["scale"] == 1.0
+    code, out, _ = run_cli("verify", stack, "--json")
+    bands = json.loads(out)["delivered"]["bands"]
+    assert bands and max(abs(b["difference"]) for b in bands if b["voxels"] > 500) < 0.02

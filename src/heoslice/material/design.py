@@ -57,15 +57,13 @@ class ReferenceRecord:
     surface: str | None = None
     surface_sha256: str | None = None
     #: How much the reference surface file's coordinates are to be multiplied by (``color --scale`` times ``slice
-    #: --scale``), recorded as ``scale`` where it is not 1.
+    #: --scale``), recorded as ``scale`` (a record without it is older: its surface at the slice's --scale alone).
     surface_scale: float = 1.0
 
     def record(self) -> dict:
         out = {"kind": self.kind}
         if self.kind == "surface":
-            out.update(path=self.surface, sha256=self.surface_sha256)
-            if self.surface_scale != 1.0:
-                out["scale"] = self.surface_scale
+            out.update(path=self.surface, sha256=self.surface_sha256, scale=self.surface_scale)
         else:
             out["point"] = None if self.point is None else list(self.point)
             if self.direction is not None:
