@@ -141,3 +141,18 @@ def test_missing_orientation_warned_by_slice_and_info(run_cli, tmp_path):
     assert code == 0 and "left/right cannot be trusted" in err
     code, out, _ = run_cli("info", path)
     assert code == 0 and "left/right cannot be trusted" in out
+
+
+def test_a_label_maps_warnings_are_printed_under_its_own_name(run_cli, tmp_path):
+    """A CT with an orientation and a label map without one (sform and qform codes 0): the label map's warning
+    names the label map, not the CT."""
+    image = nib.Nifti1Image(np.asarray(nib.load(str(organs(tmp_path / "l.nii.gz"))).dataobj), None)
+    image.set_sform(None, code=0)
+    image.set_qform(None, code=0)
+    bare = tmp_path / "bare.nii.gz"
+    nib.save(image, str(bare))
+    path = materials(tmp_path, CURVE + "within = [1]\n")
+    code, _, err = run_cli("slice", ct(tmp_path / "ct.nii.gz"), "--labels", bare, "--materials", path, "-o",
+                           tmp_path / "out", *FAST)
+    lines = [line for line in err.splitlines() if "no orientation" in line]
+    assert lines and all(line.startswith(f"warning: {bare}: ") for line in lines), err

@@ -171,7 +171,8 @@ def slice_ct_with_labels(model: Path, ct, labels, output: Path | None, spec: Sli
     chosen = {index for key in within for index in labels_named(key, plan.labels)}
     directory = output if output is not None else Path.cwd() / f"{volume_stem(model)}_stack"
     if not as_json:
-        echo_warnings(model, [*ct.warnings, *labels.warnings, *plan.warnings])
+        echo_warnings(model, [*ct.warnings, *plan.warnings])
+        echo_warnings(labels.source, labels.warnings)  # the label map's own notes under its own name
     with progress_bar("slicing", unit="layer") as update:
         manifest, times = slice_ct_with_labels_to_stack(ct, labels, directory, spec, plan, curve, frozenset(chosen),
                                                         up=up, smooth=smooth, force=force, progress=update)
