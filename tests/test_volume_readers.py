@@ -354,15 +354,18 @@ def test_guessed_label_map_of_many_values_warns(tmp_path):
 
 def test_dicom_small_tilt_adding_up_refused_and_rounded_positions_read(tmp_path):
     """A tilt too small to see from one slice to the next (0.01 mm per 1 mm step) is refused from the first to
-    the last slice of a long series; positions rounded to two decimals (no tilt) read."""
+    the last slice of a long series; an oblique series (no tilt) whose positions are rounded to two decimals, and
+    so step sideways by up to 0.01 mm, reads."""
     import pydicom
 
     hu = np.zeros((3, 3, 40), np.float32)
     affine = FLIP_XY @ grid_affine(1.0, [0.0, 0.0, 0.0])
     affine[:3, 2] = [0.0, 0.01, 1.0]
     _raises(write_dicom_series(tmp_path / "tilt", hu, affine), "sideways")
+    angle = np.radians(30.0)
+    oblique = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(angle), -np.sin(angle)], [0.0, np.sin(angle), np.cos(angle)]])
     affine = FLIP_XY @ grid_affine(1.0, [0.123456, 0.654321, 0.0])
-    affine[2, 2] = 1.2345
+    affine[:3, :3] = affine[:3, :3] @ oblique @ np.diag([1.0, 1.0, 1.2345])
     folder = write_dicom_series(tmp_path / "rounded", hu, affine)
     for path in folder.iterdir():
         dataset = pydicom.dcmread(path)
