@@ -123,9 +123,11 @@ def parse_shell_colors(entries: tuple[str, ...], table) -> dict:
 @click.option("--range", "r_range", type=float, nargs=2, default=None, metavar="R0 R1",
               help="Distances (mm) mapped to r = 0 and r = 1 [default: 0 and the largest distance].")
 @click.option("--from", "m1_text", default=None, metavar="MATERIAL",
-              help="M1 (f <= 0): a material name, #hex or r,g,b [default: first material].")
+              help="M1 (f <= 0): a material name, #hex or r,g,b [default: first material, or the next one when --to "
+                   "names the first].")
 @click.option("--to", "m2_text", default=None, metavar="MATERIAL",
-              help="M2 (f >= 1): a material name, #hex or r,g,b [default: second material].")
+              help="M2 (f >= 1): a material name, #hex or r,g,b [default: second material, or the first one when "
+                   "--from names the second].")
 @click.option("--materials", "materials_file", type=click.Path(path_type=Path), default=None,
               help="Materials file (TOML) [default: built-in M1, M2].")
 @click.option("--max-edge", type=float, default=None, metavar="MM",

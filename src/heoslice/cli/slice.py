@@ -200,7 +200,8 @@ Volumes (a label map: NIfTI .nii/.nii.gz, NRRD or Slicer .seg.nrrd, a folder of 
 @function_options
 @click.option("--to", "target", default=None, metavar="MATERIAL",
               help="Target material M2 reached at r = 1: a name from the materials file, #hex or r,g,b "
-                   "[default with --grade: the second material, M2].")
+                   "[default with --grade: a coloured model's design target (its start when --from names the "
+                   "target), else the second material, M2 (the first when --from names M2)].")
 @click.option("--from", "start", default=None, metavar="MATERIAL",
               help="Start material M1 at the contour [default: the contour's own material].")
 @click.option("--nozzle", type=float, default=0.2, show_default=True,
