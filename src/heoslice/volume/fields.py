@@ -43,12 +43,14 @@ class LabelField:
     """One label's field on its padded box of the oriented grid (z, y, x along the printer's axes).
 
     start: (3,) int64, the box's first index in the oriented grid (it may start before the grid: padding);
-    values: (nz, ny, nx) float32, voxels, positive inside; voxels: the label's voxel count.
+    values: (nz, ny, nx) float32, voxels, positive inside; voxels: the label's voxel count; radius: voxels, its
+    largest inscribed radius (the largest value of its Euclidean distance transform: 1 for a one-voxel line).
     """
 
     start: np.ndarray
     values: np.ndarray
     voxels: int
+    radius: float
 
     @property
     def stop(self) -> np.ndarray:
@@ -185,7 +187,7 @@ def _field_of(crop: np.ndarray, start: np.ndarray, smooth: float | None) -> Labe
     voxels = int(np.count_nonzero(crop))
     depth = ndimage.distance_transform_edt(crop)
     sigma = label_smooth(crop, depth) if smooth is None else smooth
-    return LabelField(start, smooth_field(crop, voxels, sigma, depth), voxels)
+    return LabelField(start, smooth_field(crop, voxels, sigma, depth), voxels, float(depth.max(initial=0.0)))
 
 
 def label_field(oriented: np.ndarray, value: int, box: tuple[slice, ...], smooth: float | None = None) -> LabelField:
