@@ -12,7 +12,8 @@ inside, the organ around a one-voxel vessel or wall would take most of it. So a 
 boosted by thinness (:func:`map_boost`): a label of largest inscribed radius r < THIN_RADIUS voxels gets
 THIN_RADIUS - r, so where its field and a thicker label's are both positive, it wins and keeps the volume its
 own field holds; labels of THIN_RADIUS or more (an organ) keep the rule "most inside wins", and the boost
-fades to 0 with thickness (no step in voxels or radius). A higher ``priority`` of the materials file's
+fades to 0 with thickness (no step in voxels or radius). What a label loses so to more boosted ones, its
+level, set again outside their region (:func:`yielding`), gives back at its other surfaces. A higher ``priority`` of the materials file's
 [labels] wins over lower ones wherever both fields are positive. Overlapping structures (a folder of one
 file per structure, a .seg.nrrd in layers) are boosted by rank (:func:`heoslice.pipeline.parts.part_order`):
 where several claim a pixel, the higher rank wins.
@@ -20,12 +21,12 @@ where several claim a pixel, the higher rank wins.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from heoslice.layers.rasterising import Grid
-from heoslice.volume.fields import FAR_OUTSIDE, LabelField, label_field
+from heoslice.volume.fields import FAR_OUTSIDE, LabelField, label_field, level_offset
 from heoslice.volume.model import Label, Volume
 from heoslice.volume.placement import Placement
 from heoslice.volume.resample_kernels import _label_codes
@@ -71,6 +72,27 @@ def map_boost(fields: list[LabelField] | tuple[LabelField, ...], priorities: lis
     return (BOOST * steps + thin).astype(np.float32)
 
 
+def yielding(fields: list[LabelField], boost: np.ndarray) -> list[LabelField]:
+    """A label map's ``fields`` with each one's volume-preserving level set again outside the region the labels
+    of higher ``boost`` win (their fields positive), from the highest boost down: what a thin label takes back
+    from the organ around it, the organ gains at its other surfaces, so it too keeps its voxel volume."""
+    out = list(fields)
+    for index in sorted(range(len(fields)), key=lambda i: -boost[i]):
+        field = out[index]
+        taken = np.full(field.values.shape, FAR_OUTSIDE, dtype=np.float32)
+        for other in np.flatnonzero(boost > boost[index]):
+            low = np.maximum(out[other].start, field.start)
+            high = np.minimum(out[other].stop, field.stop)
+            if (high > low).all():
+                here = tuple(slice(a, b) for a, b in zip(low - field.start, high - field.start))
+                there = tuple(slice(a, b) for a, b in zip(low - out[other].start, high - out[other].start))
+                np.maximum(taken[here], out[other].values[there], out=taken[here])
+        if (taken > 0).any():
+            values = field.values - np.float32(level_offset(field.values, field.voxels, taken))
+            out[index] = replace(field, values=values.astype(np.float32))
+    return out
+
+
 def label_print(volume: Volume, placement: Placement, printed: list[tuple[Label, int]], smooth: float | None = None,
                 ranks: list[int] | None = None, priorities: list[int] | None = None) -> LabelPrint:
     """The :class:`LabelPrint` of ``printed`` ((label, material code 1..K) pairs, labels with voxels) of
@@ -92,6 +114,7 @@ def label_print(volume: Volume, placement: Placement, printed: list[tuple[Label,
         boxes.append([[piece.start for piece in box], [piece.stop for piece in box]])
     if ranks is None:
         boost = map_boost(fields, priorities)
+        fields = yielding(fields, boost)
     else:
         boost = np.array([BOOST * (len(ranks) - rank) for rank in ranks], dtype=np.float32)
     shape = volume.shape
