@@ -52,7 +52,8 @@ from heoslice.volume.resample import label_print, layer_masks
 class LabelPlan:
     """Which labels print and how: the printed labels (with voxels), each one's material (index into
     ``materials``, the droplet masks' materials in mask order), their voxel counts, ranks where they overlap
-    (None for a label map, whose labels cannot), and whether droplet masks are written."""
+    (None for a label map, whose labels cannot), whether droplet masks are written, and each one's [labels]
+    ``priority`` (0 when not given: in a label map, it decides a pixel two labels' fields both claim)."""
 
     labels: tuple[Label, ...]
     materials: tuple[Material, ...]
@@ -61,6 +62,7 @@ class LabelPlan:
     ranks: tuple[int, ...] | None
     channels: bool
     warnings: tuple[str, ...] = ()
+    priorities: tuple[int, ...] = ()
 
     def records(self) -> list[dict]:
         """The manifest's ``labels`` list: per printed label its value, name, layer, material and voxels."""
@@ -103,14 +105,15 @@ def plan_labels(volume: Volume, table: dict[str, Material], settings: Mapping[st
     used = _mask_order(materials_of, "the labels", tuple(table))
     position = {material.name: index for index, material in enumerate(used)}
     voxels = tuple(counts[index] for index in printed)
+    priorities = tuple(chosen[index].priority or 0 for index in printed)
     ranks = None
     if volume.layer_count > 1:
-        order = part_order([float(v) for v in voxels], [chosen[index].priority for index in printed])
+        order = part_order([float(v) for v in voxels], list(priorities))
         ranks = tuple(order.index(index) for index in range(len(printed)))
     warnings = tuple(f"[labels]: label {name} has no voxels: left out" for name in empty)
     return LabelPlan(tuple(volume.labels[index] for index in printed), tuple(used),
                      tuple(position[material.name] for material in materials_of), voxels, ranks,
-                     channels or len(used) > 1, warnings)
+                     channels or len(used) > 1, warnings, priorities)
 
 
 def _check_layers(spec: SliceSpec, bounds: np.ndarray, masks: tuple[Material, ...]) -> None:
@@ -236,7 +239,7 @@ def slice_volume_to_stack(volume: Volume, directory: Path, spec: SliceSpec, plan
     for number, grade in enumerate(graded):
         codes[grade.index] = len(masks) + 1 + number
     prepared = label_print(volume, placement, list(zip(plan.labels, codes)), smooth,
-                           None if plan.ranks is None else list(plan.ranks))
+                           None if plan.ranks is None else list(plan.ranks), list(plan.priorities))
     fields = [_grade_field(volume, placement, prepared, plan, grade, smooth) for grade in graded]
     times.slice = time.perf_counter() - started
     bounds = prepared.bounds_mm()
@@ -359,7 +362,7 @@ def slice_ct_with_labels_to_stack(ct: Volume, labels: Volume, directory: Path, s
     codes = [curve_code if index in curve_labels else position[plan.materials[material].name] + 1
              for index, material in enumerate(plan.label_material)]
     prepared = label_print(labels, placement, list(zip(plan.labels, codes)), smooth,
-                           None if plan.ranks is None else list(plan.ranks))
+                           None if plan.ranks is None else list(plan.ranks), list(plan.priorities))
     times.slice = time.perf_counter() - started
     bounds = prepared.bounds_mm()
     grid = _grid(spec, bounds)

@@ -43,12 +43,14 @@ class LabelField:
     """One label's field on its padded box of the oriented grid (z, y, x along the printer's axes).
 
     start: (3,) int64, the box's first index in the oriented grid (it may start before the grid: padding);
-    values: (nz, ny, nx) float32, voxels, positive inside; voxels: the label's voxel count.
+    values: (nz, ny, nx) float32, voxels, positive inside; voxels: the label's voxel count; radius: voxels, its
+    largest inscribed radius (the largest value of its Euclidean distance transform: 1 for a one-voxel line).
     """
 
     start: np.ndarray
     values: np.ndarray
     voxels: int
+    radius: float
 
     @property
     def stop(self) -> np.ndarray:
@@ -88,38 +90,54 @@ def supersampled(values: np.ndarray, factor: int) -> np.ndarray:
     return out
 
 
-def _samples_near(values: np.ndarray, factor: int, low: float) -> np.ndarray:
+def _samples_near(values: np.ndarray, factor: int, low: float, taken: np.ndarray | None = None) -> np.ndarray:
     """The trilinear samples of ``values`` at ``factor`` evenly spaced points across each voxel (as
     :func:`supersampled`), taken only around voxels with a neighbour above ``low`` (elsewhere every sample is at
-    most ``low``): (n,) float32. Each voxel's samples are a separable weighting of its 3 x 3 x 3 neighbours
-    (edges clamped)."""
+    most ``low``), less those where ``taken`` (a field on the same box) is positive: (n,) float32. Each voxel's
+    samples are a separable weighting of its 3 x 3 x 3 neighbours (edges clamped)."""
     from scipy import ndimage
 
     chosen = np.argwhere(ndimage.maximum_filter(values, size=3, mode="nearest") > low)
     if not len(chosen):
         return np.zeros(0, np.float32)
     index = [np.clip(chosen[:, axis, None] + np.arange(-1, 2), 0, values.shape[axis] - 1) for axis in range(3)]
-    near = values[index[0][:, :, None, None], index[1][:, None, :, None], index[2][:, None, None, :]]
     offsets = (np.arange(factor) + 0.5) / factor - 0.5
     weights = np.zeros((factor, 3), dtype=np.float32)
     weights[:, 1] = 1.0 - np.abs(offsets)
     weights[:, 0] = np.maximum(-offsets, 0.0)
     weights[:, 2] = np.maximum(offsets, 0.0)
-    return np.einsum("nabc,ia,jb,kc->nijk", near, weights, weights, weights, optimize=True).ravel()
+
+    def sampled(field: np.ndarray, rows=slice(None)) -> np.ndarray:
+        near = field[index[0][rows, :, None, None], index[1][rows, None, :, None], index[2][rows, None, None, :]]
+        return np.einsum("nabc,ia,jb,kc->nijk", near, weights, weights, weights, optimize=True)
+
+    flat = sampled(values)
+    if taken is None:
+        return flat.ravel()
+    reached = np.flatnonzero(ndimage.maximum_filter(taken, size=3, mode="nearest")[tuple(chosen.T)] > 0)
+    keep = np.ones(flat.shape, dtype=bool)
+    keep[reached] = sampled(taken, reached) <= 0
+    return flat[keep]
 
 
-def level_offset(values: np.ndarray, voxels: int) -> float:
+def level_offset(values: np.ndarray, voxels: int, taken: np.ndarray | None = None) -> float:
     """The value whose upper level set of ``values`` ((nz, ny, nx) float32), trilinearly interpolated and
     sampled k times per voxel along each axis (k from 2 to 4, enough samples inside even a one-voxel label),
     holds ``voxels`` voxels: the volume-preserving zero level. Only samples near the label are made (those
-    above ``low``, lowered until they hold the volume), so a thin label with a large box stays cheap."""
+    above ``low``, lowered until they hold the volume), so a thin label with a large box stays cheap. Samples
+    where ``taken`` (another field on the same box: the labels that win over this one) is positive do not
+    count, so the level set holds the volume outside them."""
     factor = int(np.clip(np.ceil((LEVEL_SAMPLES_INSIDE / max(voxels, 1)) ** (1 / 3)), 2, 4))
     wanted = int(max(1, round(voxels * factor ** 3)))
     for low in (-1.0, -3.0, -np.inf):
-        flat = _samples_near(values, factor, low) if np.isfinite(low) else supersampled(values, factor).ravel()
+        if np.isfinite(low):
+            flat = _samples_near(values, factor, low, taken)
+        else:
+            flat = supersampled(values, factor).ravel()
+            flat = flat if taken is None else flat[supersampled(taken, factor).ravel() <= 0]
         if np.count_nonzero(flat > low) >= wanted or not np.isfinite(low):
             wanted = min(wanted, flat.size)
-            return float(-np.partition(-flat, wanted - 1)[wanted - 1])
+            return float(-np.partition(-flat, wanted - 1)[wanted - 1]) if wanted else 0.0
     raise AssertionError("unreachable")
 
 
@@ -185,7 +203,7 @@ def _field_of(crop: np.ndarray, start: np.ndarray, smooth: float | None) -> Labe
     voxels = int(np.count_nonzero(crop))
     depth = ndimage.distance_transform_edt(crop)
     sigma = label_smooth(crop, depth) if smooth is None else smooth
-    return LabelField(start, smooth_field(crop, voxels, sigma, depth), voxels)
+    return LabelField(start, smooth_field(crop, voxels, sigma, depth), voxels, float(depth.max(initial=0.0)))
 
 
 def label_field(oriented: np.ndarray, value: int, box: tuple[slice, ...], smooth: float | None = None) -> LabelField:

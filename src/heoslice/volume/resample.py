@@ -6,28 +6,36 @@ packed masks; nothing grows with the number of layers.
 The rule at a pixel: it is solid where a printed label's field is positive, or where two labels' fields
 both come within CRACK_VOXELS of it (the seam of two touching labels); it takes the label of highest score,
 a label's score being its field plus its boost where its field is positive. A label map's labels do not
-overlap, so their boost is 0 and the label most inside wins, except labels of fewer than PROTECT_VOXELS
-voxels, boosted: they keep every pixel their own field marks inside (a one-voxel label is never swallowed
-by the organ around it). Overlapping structures (a folder of one file per structure, a .seg.nrrd in
-layers) are boosted by rank (:func:`heoslice.pipeline.parts.part_order`): where several claim a pixel, the
-higher rank wins.
+overlap, but each field may reach BAND (:mod:`heoslice.volume.fields`) past its voxels into a neighbour's,
+and a thin label's field is low everywhere (at most about half a voxel plus BAND): left to the label most
+inside, the organ around a one-voxel vessel or wall would take most of it. So a label map's labels are
+boosted by thinness (:func:`map_boost`): a label of largest inscribed radius r < THIN_RADIUS voxels gets
+THIN_RADIUS - r, so where its field and a thicker label's are both positive, it wins and keeps the volume its
+own field holds; labels of THIN_RADIUS or more (an organ) keep the rule "most inside wins", and the boost
+fades to 0 with thickness (no step in voxels or radius). What a label loses so to more boosted ones, its
+level, set again outside their region (:func:`yielding`), gives back at its other surfaces. A higher
+``priority`` of the materials file's [labels] wins over lower ones wherever both fields are positive.
+Overlapping structures (a folder of one file per structure, a .seg.nrrd in layers) are boosted by rank
+(:func:`heoslice.pipeline.parts.part_order`): where several claim a pixel, the higher rank wins.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from heoslice.layers.rasterising import Grid
-from heoslice.volume.fields import FAR_OUTSIDE, LabelField, label_field
+from heoslice.volume.fields import FAR_OUTSIDE, LabelField, label_field, level_offset
 from heoslice.volume.model import Label, Volume
 from heoslice.volume.placement import Placement
 from heoslice.volume.resample_kernels import _label_codes
 
-#: Labels of fewer voxels win every pixel their own field marks inside (a label map's small structures).
-PROTECT_VOXELS = 64
-#: The boost of a protected label, and of each rank of overlapping structures: above any field's range.
+#: Voxels: a label map's label of largest inscribed radius r below this is boosted by THIN_RADIUS - r. A field
+#: may reach BAND (0.3 voxel) into a neighbour's voxels, a loss of about BAND / r of a label's volume left
+#: unboosted: above 3 voxels, under a tenth.
+THIN_RADIUS = 3.0
+#: The boost of each rank of overlapping structures, and of each step of priority: above any field's range.
 BOOST = np.float32(1e4)
 #: Voxels: two labels whose fields both come this close to positive at a pixel make it solid (their seam).
 CRACK_VOXELS = 0.25
@@ -55,12 +63,42 @@ class LabelPrint:
         return np.stack([low[::-1], high[::-1]])
 
 
+def map_boost(fields: list[LabelField] | tuple[LabelField, ...], priorities: list[int] | None = None) -> np.ndarray:
+    """(L,) float32, voxels: the boosts of a label map's labels (the module's rule): BOOST per step of
+    ``priorities`` (None: all 0) above the lowest, plus THIN_RADIUS less the label's largest inscribed radius
+    where it is thinner."""
+    steps = np.unique(priorities, return_inverse=True)[1].reshape(-1) if priorities else np.zeros(len(fields))
+    thin = np.array([max(THIN_RADIUS - field.radius, 0.0) for field in fields])
+    return (BOOST * steps + thin).astype(np.float32)
+
+
+def yielding(fields: list[LabelField], boost: np.ndarray) -> list[LabelField]:
+    """A label map's ``fields`` with each one's volume-preserving level set again outside the region the labels
+    of higher ``boost`` win (their fields positive), from the highest boost down: what a thin label takes back
+    from the organ around it, the organ gains at its other surfaces, so it too keeps its voxel volume."""
+    out = list(fields)
+    for index in sorted(range(len(fields)), key=lambda i: -boost[i]):
+        field = out[index]
+        taken = np.full(field.values.shape, FAR_OUTSIDE, dtype=np.float32)
+        for other in np.flatnonzero(boost > boost[index]):
+            low = np.maximum(out[other].start, field.start)
+            high = np.minimum(out[other].stop, field.stop)
+            if (high > low).all():
+                here = tuple(slice(a, b) for a, b in zip(low - field.start, high - field.start))
+                there = tuple(slice(a, b) for a, b in zip(low - out[other].start, high - out[other].start))
+                np.maximum(taken[here], out[other].values[there], out=taken[here])
+        if (taken > 0).any():
+            values = field.values - np.float32(level_offset(field.values, field.voxels, taken))
+            out[index] = replace(field, values=values.astype(np.float32))
+    return out
+
+
 def label_print(volume: Volume, placement: Placement, printed: list[tuple[Label, int]], smooth: float | None = None,
-                ranks: list[int] | None = None) -> LabelPrint:
+                ranks: list[int] | None = None, priorities: list[int] | None = None) -> LabelPrint:
     """The :class:`LabelPrint` of ``printed`` ((label, material code 1..K) pairs, labels with voxels) of
     ``volume`` placed by ``placement``, blurred by ``smooth`` voxels (None: by each label's thickness);
-    ``ranks`` (overlapping structures: 0 wins over all) gives boosts by rank, else small labels are protected
-    (the module's rule)."""
+    ``ranks`` (overlapping structures: 0 wins over all) gives boosts by rank, else :func:`map_boost` by
+    ``priorities`` (one per printed label, None: all 0) and thinness (the module's rule)."""
     from scipy import ndimage
 
     oriented_layers = [placement.orient(volume.layer(layer)) for layer in range(volume.layer_count)]
@@ -75,7 +113,8 @@ def label_print(volume: Volume, placement: Placement, printed: list[tuple[Label,
         fields.append(label_field(oriented_layers[label.layer], label.value, box, smooth))
         boxes.append([[piece.start for piece in box], [piece.stop for piece in box]])
     if ranks is None:
-        boost = np.array([BOOST if field.voxels < PROTECT_VOXELS else 0.0 for field in fields], dtype=np.float32)
+        boost = map_boost(fields, priorities)
+        fields = yielding(fields, boost)
     else:
         boost = np.array([BOOST * (len(ranks) - rank) for rank in ranks], dtype=np.float32)
     shape = volume.shape
