@@ -13,6 +13,7 @@ from heoslice.stack.report import (
     WINDOW_MM,
     MaterialReport,
     PartShare,
+    material_names,
     material_report,
     part_shares,
     pixel_position,
@@ -71,6 +72,18 @@ def design_of_preview(stack: Path, manifest: dict, preview: Path):
         raise InputError(f"--design: {preview}: {err}") from None
 
 
+def recorded_target(manifest: dict) -> int:
+    """The mask index of the material the stack's design is a share of, as its manifest records it: the
+    grading's target (``--to``), else its recorded design's target (a coloured model), else the second mask
+    (a stack that records neither)."""
+    names = material_names(manifest)
+    grading = manifest.get("grading") or {}
+    for target in (grading.get("target"), (grading.get("design") or {}).get("target")):
+        if isinstance(target, dict) and target.get("name") in names:
+            return names.index(target["name"])
+    return len(names) - 1
+
+
 @dataclass(frozen=True)
 class Comparison:
     """What the report's design came from: ``preview`` (--design) or ``manifest`` (the recorded design of a
@@ -91,8 +104,9 @@ def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None
     ``problems`` (what prints must be what was designed)."""
     comparison = None
     if preview is not None:
-        design, bands = design_of_preview(stack, manifest, preview), share_bands(SHARE_BANDS)
-        comparison = Comparison("preview", "share", -1)
+        target = recorded_target(manifest)
+        design, bands = design_of_preview(stack, manifest, preview), share_bands(SHARE_BANDS, target)
+        comparison = Comparison("preview", "share", target)
     else:
         design = bands = None
         try:
