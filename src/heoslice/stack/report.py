@@ -262,22 +262,19 @@ def window_starts(length: int, size: int, step: int) -> np.ndarray:
     return np.unique(np.append(np.arange(0, last + 1, step), last))
 
 
-def _window_sums(values: np.ndarray, grid: WindowGrid) -> np.ndarray:
-    """Sums of (..., h, w) values over the windows of ``grid`` (pixels past the image count zero), from
-    cumulative sums along the columns, then along the rows of the windows' column sums (exact sums, the cost of
-    one pass over the pixels): (..., len(rows), len(columns)) for the windows' starts ``grid.starts((h, w))``.
-    Integers are summed as int64, floats as float64."""
+def _window_sums(values: np.ndarray, size: tuple[int, int], starts: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Sums of (..., h, w) values over the windows of ``size`` (rows, columns) whose top-left pixels are ``starts``
+    (rows, columns; increasing, each window inside the image but the last, which is cut at its edge): each
+    window's columns summed along its rows, then those sums along its columns, by ``np.add.reduceat`` over the
+    windows' (start, end) bounds (exact sums; the first pass reads every pixel once):
+    (..., len(rows), len(columns)). Integers and booleans are summed as int64, floats as float64."""
     total = np.int64 if values.dtype.kind in "biu" else np.float64
     sums = values
-    for axis, size, step in ((-1, grid.size[1], grid.step[1]), (-2, grid.size[0], grid.step[0])):
-        length = sums.shape[axis]
-        starts = window_starts(length, size, step)
-        shape = list(sums.shape)
-        shape[axis] += 1
-        running = np.zeros(shape, dtype=total)  # running[..., i] = the sum of the first i pixels along axis
-        np.cumsum(sums, axis=axis, dtype=total, out=running[(..., slice(1, None), *(slice(None),) * (-1 - axis))])
-        sums = (np.take(running, np.minimum(starts + size, length), axis=axis)
-                - np.take(running, starts, axis=axis))
+    for axis, length, first in ((-1, size[1], starts[1]), (-2, size[0], starts[0])):
+        bounds = np.stack([first, first + length], axis=1).ravel()
+        bounds = bounds[:-1] if bounds[-1] >= sums.shape[axis] else bounds  # the last window ends at the edge
+        reduced = np.add.reduceat(sums, bounds, axis=axis, dtype=total)  # even entries: the windows' sums
+        sums = reduced[..., ::2] if axis == -1 else reduced[..., ::2, :]
     return sums
 
 
@@ -285,18 +282,30 @@ def worst_window(index: int, solid: np.ndarray, masks: np.ndarray, designed: np.
                  grid: WindowGrid) -> Window | None:
     """The window of one layer whose delivered share of some material is furthest from its designed share, over
     the windows of ``grid`` (every ``grid.step`` pixels, not only a tiling) at least WINDOW_MIN_SOLID solid.
-    solid (h, w) bool; masks (K, h, w) bool; designed (K, h, w) float shares per pixel."""
-    solid_count = _window_sums(solid, grid)
-    compared = solid_count >= WINDOW_MIN_SOLID * grid.size[0] * grid.size[1]
+    solid (h, w) bool; masks (K, h, w) bool; designed (K, h, w) float shares per pixel. Only the windows that
+    reach the solid's bounding box are summed, over the pixels they cover (the others hold no solid pixel)."""
+    filled = [np.flatnonzero(solid.any(axis=axis)) for axis in (1, 0)]
+    if not len(filled[0]):
+        return None
+    starts = []
+    for first, size, solid_at in zip(grid.starts(solid.shape), grid.size, filled):
+        starts.append(first[(first + size > solid_at[0]) & (first <= solid_at[-1])])
+    (rows, columns), (height, width) = starts, grid.size
+    if not len(rows) or not len(columns):  # a step longer than the window can pass the solid by
+        return None
+    crop = np.s_[rows[0]:rows[-1] + height, columns[0]:columns[-1] + width]
+    solid = solid[crop]
+    relative = (rows - rows[0], columns - columns[0])
+    solid_count = _window_sums(solid, grid.size, relative)
+    compared = solid_count >= WINDOW_MIN_SOLID * height * width
     if not compared.any():
         return None
     count = solid_count[compared]
-    delivered = np.stack([_window_sums(mask & solid, grid)[compared] for mask in masks]) / count
-    planned = np.stack([_window_sums(np.where(solid, share, np.float32(0.0)), grid)[compared]
+    delivered = np.stack([_window_sums(mask[crop] & solid, grid.size, relative)[compared] for mask in masks]) / count
+    planned = np.stack([_window_sums(np.where(solid, share[crop], np.float32(0.0)), grid.size, relative)[compared]
                         for share in designed]) / count
     material, position = np.unravel_index(int(np.argmax(np.abs(delivered - planned))), delivered.shape)
     row, column = np.argwhere(compared)[position]
-    rows, columns = grid.starts(solid.shape)
     return Window(index, (int(rows[row]), int(columns[column])), int(count[position]), int(material),
                   float(planned[material, position]), float(delivered[material, position]))
 
