@@ -158,7 +158,7 @@ Examples:
               help="Largest relative volume difference accepted with --mesh (0.01 = 1 %).")
 @click.option("--design", "preview", type=click.Path(path_type=Path), default=None, metavar="PREVIEW_STACK",
               help="The --rgba preview stack of the same slice: compare every 2 mm x 2 mm window (one every "
-                   "quarter window, 0.47 mm at 600 dpi) of a two-material graded or coloured stack with the mix "
+                   "quarter window, 0.466 mm at 600 dpi) of a two-material graded or coloured stack with the mix "
                    "its colours design, as shares of the target the manifest records (a field-interior stack is "
                    "compared with the design its manifest records without it).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
