@@ -13,7 +13,7 @@ import pytest
 
 from heoslice import procedural
 from heoslice.stack import read_manifest
-from heoslice.stack.read import read_layer_mask
+from heoslice.stack.read import read_layer_channels, read_layer_mask
 from heoslice.stack.recorded_design import field_comparison
 from heoslice.stack.report import pixel_position
 
@@ -144,3 +144,56 @@ def test_a_surface_found_beside_the_moved_model_is_the_one_verify_compares_with(
     code, out, _ = run_cli("verify", stack, "--json")
     summary = json.loads(out)
     assert summary["warnings"] == [] and summary["delivered"]["bands"], summary
+
+
+def sliding_sums(values: np.ndarray, size: int) -> np.ndarray:
+    """Reference: the sum over the size x size window at every top-left pixel, window by window."""
+    return np.lib.stride_tricks.sliding_window_view(values, (size, size)).sum(axis=(-2, -1))
+
+
+def test_a_deviation_between_the_tiles_is_found(sine_ball, tmp_path, run_cli):
+    """One layer of the sine ball delivering M2 where it should be mixed over an 8 x 8 pixel patch centred on the
+    corner of four 47-pixel tiles (so the stack still verifies: hashes and counts rewritten): every tile from the
+    image's top-left is within 2 points, and a window over the patch is not. verify finds that window (exit 4),
+    its shares are those a brute-force sliding 47-pixel window gives at its pixel, it is within half a point of
+    the worst sliding window at any pixel, and the report states the 0.47 mm step between windows."""
+    from heoslice.stack.tiff import encode_bilevel_tiff
+
+    _, stack = sine_ball
+    broken = tmp_path / "broken"
+    shutil.copytree(stack, broken)
+    manifest = json.loads((broken / "manifest.json").read_text())
+    layer, size, corner, half = 6, 47, 3 * 47, 4
+    solid = read_layer_mask(broken, manifest, layer)
+    masks = read_layer_channels(broken, manifest, layer)
+    recorded = field_comparison(broken, manifest)
+    mix = recorded.design(layer)
+    patch = (slice(corner - half, corner + half),) * 2
+    assert solid[patch].all() and mix[recorded.target][patch].mean() < 0.8
+    masks[:, patch[0], patch[1]] = False
+    masks[recorded.target][patch] = True
+    for channel, mask in zip(manifest["layers"][layer]["channels"], masks):
+        data = encode_bilevel_tiff(np.packbits(mask, axis=-1), mask.shape[1], tuple(manifest["dpi"]),
+                                   manifest["image"]["compression"], manifest["layer_height_mm"])
+        (broken / channel["file"]).write_bytes(data)
+        channel["sha256"], channel["solid_pixels"] = hashlib.sha256(data).hexdigest(), int(mask.sum())
+    (broken / "manifest.json").write_text(json.dumps(manifest))
+
+    count = sliding_sums(solid.astype(np.int64), size)
+    compared = count >= 0.5 * size * size
+    off = np.stack([np.abs(sliding_sums((mask & solid).astype(np.float64), size)
+                           - sliding_sums(np.where(solid, share, 0.0), size)) / np.maximum(count, 1)
+                    for mask, share in zip(masks, mix)]) * compared
+    assert off[:, ::size, ::size].max() <= 0.02 < off.max()
+    code, out, err = run_cli("verify", broken, "--json")
+    summary = json.loads(out)
+    worst = summary["delivered"]["worst_window"]
+    assert code == 4 and worst["layer"] == layer, worst
+    column, row = worst["pixel"]
+    material = [m["name"] for m in summary["delivered"]["materials"]].index(worst["material"])
+    assert abs(worst["difference"]) == pytest.approx(off[material, row, column], abs=1e-6)
+    assert off.max() - 0.005 <= abs(worst["difference"]) <= off.max() + 1e-9
+    assert worst["step_mm"] == pytest.approx([11 * 25.4 / 600] * 2)
+    assert "the worst 2 mm window (layer 6)" in summary["problems"][0]
+    code, out, err = run_cli("verify", broken)
+    assert code == 4 and "windows every 0.466 mm" in out

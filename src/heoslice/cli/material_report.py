@@ -10,14 +10,16 @@ from typing import TYPE_CHECKING
 from heoslice.errors import InputError, VerifyError
 from heoslice.stack import read_manifest
 from heoslice.stack.report import (
+    WINDOW_MM,
     MaterialReport,
     PartShare,
+    material_names,
     material_report,
     part_shares,
     pixel_position,
     preview_design,
     share_bands,
-    window_pixels,
+    window_grid,
 )
 from heoslice.stack.recorded_design import R_BANDS, field_comparison
 
@@ -70,6 +72,18 @@ def design_of_preview(stack: Path, manifest: dict, preview: Path):
         raise InputError(f"--design: {preview}: {err}") from None
 
 
+def recorded_target(manifest: dict) -> int:
+    """The mask index of the material the stack's design is a share of, as its manifest records it: the
+    grading's target (``--to``), else its recorded design's target (a coloured model), else the second mask
+    (a stack that records neither)."""
+    names = material_names(manifest)
+    grading = manifest.get("grading") or {}
+    for target in (grading.get("target"), (grading.get("design") or {}).get("target")):
+        if isinstance(target, dict) and target.get("name") in names:
+            return names.index(target["name"])
+    return len(names) - 1
+
+
 @dataclass(frozen=True)
 class Comparison:
     """What the report's design came from: ``preview`` (--design) or ``manifest`` (the recorded design of a
@@ -90,8 +104,9 @@ def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None
     ``problems`` (what prints must be what was designed)."""
     comparison = None
     if preview is not None:
-        design, bands = design_of_preview(stack, manifest, preview), share_bands(SHARE_BANDS)
-        comparison = Comparison("preview", "share", -1)
+        target = recorded_target(manifest)
+        design, bands = design_of_preview(stack, manifest, preview), share_bands(SHARE_BANDS, target)
+        comparison = Comparison("preview", "share", target)
     else:
         design = bands = None
         try:
@@ -112,14 +127,15 @@ def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None
 
 def design_mismatch(report: MaterialReport, comparison: Comparison | None) -> str | None:
     """A line when the delivered material strays more than DESIGN_TOLERANCE from the design in a band or
-    in the worst 2 mm window, else None."""
+    in the worst window, else None."""
     if comparison is None:
         return None
     off = [f"band {b.band} of {'r' if comparison.bands_of == 'r' else 'designed share'} by "
            f"{100 * b.difference:.2f} points" for b in report.bands if b.difference > DESIGN_TOLERANCE]
     worst = report.worst
     if worst is not None and abs(worst.difference) > DESIGN_TOLERANCE:
-        off.append(f"the worst 2 mm window (layer {worst.layer}) by {100 * abs(worst.difference):.2f} points")
+        off.append(f"the worst {WINDOW_MM:g} mm window (layer {worst.layer}) by "
+                   f"{100 * abs(worst.difference):.2f} points")
     if not off:
         return None
     return (f"the delivered material differs from the design by more than {100 * DESIGN_TOLERANCE:g} points: "
@@ -128,8 +144,16 @@ def design_mismatch(report: MaterialReport, comparison: Comparison | None) -> st
 
 def window_centre_mm(manifest: dict, pixel: tuple[int, int]) -> tuple[float, float]:
     """Model coordinates (x, y) mm of the centre of the window whose top-left pixel is (row, column)."""
-    rows, columns = window_pixels(manifest)
+    rows, columns = window_grid(manifest).size
     return pixel_position(manifest, (pixel[0] + (rows - 1) / 2, pixel[1] + (columns - 1) / 2))
+
+
+def window_step_text(manifest: dict) -> str:
+    """The step between the windows verify compares, 'S mm' (or 'SX x SY mm' when x and y differ)."""
+    step = window_grid(manifest).step
+    px, py = manifest["pixel_size_mm"]
+    x, y = f"{step[1] * px:.3g}", f"{step[0] * py:.3g}"
+    return f"{x} mm" if x == y else f"{x} x {y} mm"
 
 
 def as_json(manifest: dict, report: MaterialReport, parts: tuple[PartShare, ...] | None,
@@ -140,10 +164,12 @@ def as_json(manifest: dict, report: MaterialReport, parts: tuple[PartShare, ...]
     target = -1 if comparison is None else comparison.target
     window = None
     if worst is not None:
-        rows, columns = window_pixels(manifest)
+        grid = window_grid(manifest)
+        (rows, columns), (row_step, column_step) = grid.size, grid.step
         px, py = manifest["pixel_size_mm"]
         window = {"layer": worst.layer, "pixel": [worst.pixel[1], worst.pixel[0]],
                   "centre_mm": list(window_centre_mm(manifest, worst.pixel)), "size_mm": [columns * px, rows * py],
+                  "step_mm": [column_step * px, row_step * py],
                   "solid_pixels": worst.solid, "material": names[worst.material],
                   "designed_share": worst.designed, "delivered_share": worst.delivered,
                   "difference": worst.difference}
@@ -179,9 +205,10 @@ def text_lines(manifest: dict, report: MaterialReport, parts: tuple[PartShare, .
     worst = report.worst
     if worst is not None:
         x, y = window_centre_mm(manifest, worst.pixel)
-        lines.append(f"  worst 2 mm window: layer {worst.layer}, centred at x {x:.4g}, y {y:.4g} mm: "
+        lines.append(f"  worst {WINDOW_MM:g} mm window: layer {worst.layer}, centred at x {x:.4g}, y {y:.4g} mm: "
                      f"{report.materials[worst.material].name} designed {_percent(worst.designed)}, "
-                     f"delivered {_percent(worst.delivered)} ({100 * worst.difference:+.2f} points)")
+                     f"delivered {_percent(worst.delivered)} ({100 * worst.difference:+.2f} points); "
+                     f"windows every {window_step_text(manifest)}")
     index = -1 if comparison is None else comparison.target
     target = report.materials[index].name
     for band in report.bands:

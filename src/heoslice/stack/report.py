@@ -2,9 +2,10 @@
 
 Per material: its voxels (set pixels of its droplet mask over all layers), volume (voxels x pixel area x layer
 height, mm^3) and share of the solid. With a design: the designed against the delivered share of each part
-(:func:`part_shares`), of every 2 mm x 2 mm window of every layer (the worst is reported) and of every band of
-a :data:`BandSource` (bands of r, or of the designed share: :func:`share_bands`). A solid pixel in
-no droplet mask, or in two, is a fault named by layer and position (:func:`mask_faults`, which ``verify`` uses).
+(:func:`part_shares`), of every 2 mm x 2 mm window of every layer (a window starting every quarter of its side,
+about 0.5 mm, in both directions: :class:`WindowGrid`; the worst is reported) and of every band of a
+:data:`BandSource` (bands of r, or of the designed share: :func:`share_bands`). A solid pixel in no droplet mask,
+or in two, is a fault named by layer and position (:func:`mask_faults`, which ``verify`` uses).
 
 "Designed" per stack kind (docs in README, ``verify``):
 
@@ -31,6 +32,10 @@ from heoslice.stack.read import read_layer_channels, read_layer_mask, read_layer
 
 #: Side of the windows the design is checked over, mm.
 WINDOW_MM = 2.0
+#: Windows start every 1 / WINDOW_STEPS of a window's side (rounded down to whole pixels) in both directions, so a
+#: deviation straddling the edges of a tiling is seen whole by some window (a window at every pixel would add each
+#: pixel into a window's width of sums, 47 at 600 dpi, instead of WINDOW_STEPS).
+WINDOW_STEPS = 4
 #: A window is compared when at least this share of its pixels is solid: in a window the part barely enters,
 #: one droplet is a large share, which no halftone can match.
 WINDOW_MIN_SOLID = 0.5
@@ -62,6 +67,20 @@ class MaskFaults:
     uncovered: PixelFault | None
     doubled: PixelFault | None
     outside: PixelFault | None
+
+
+@dataclass(frozen=True, slots=True)
+class WindowGrid:
+    """The windows a layer is checked over: ``size`` (rows, columns) pixels, their top-left pixels every ``step``
+    (rows, columns) pixels from the image's top-left, plus the windows flush with its bottom and right edges."""
+
+    size: tuple[int, int]
+    step: tuple[int, int]
+
+    def starts(self, shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """The windows' first rows and first columns on an (h, w) image."""
+        return (window_starts(shape[-2], self.size[0], self.step[0]),
+                window_starts(shape[-1], self.size[1], self.step[1]))
 
 
 @dataclass(frozen=True, slots=True)
@@ -227,38 +246,69 @@ def fault_lines(index: int, faults: MaskFaults, manifest: dict) -> list[str]:
     return lines
 
 
-def window_pixels(manifest: dict) -> tuple[int, int]:
-    """(rows, columns) of a WINDOW_MM x WINDOW_MM window at the stack's pixel size (at least 1)."""
+def window_grid(manifest: dict) -> WindowGrid:
+    """The windows of a stack: WINDOW_MM x WINDOW_MM at its pixel size (at least 1 pixel), a step of a
+    WINDOW_STEPS-th of that (at least 1 pixel)."""
     px, py = manifest["pixel_size_mm"]
-    return max(1, round(WINDOW_MM / py)), max(1, round(WINDOW_MM / px))
+    size = max(1, round(WINDOW_MM / py)), max(1, round(WINDOW_MM / px))
+    return WindowGrid(size, (max(1, size[0] // WINDOW_STEPS), max(1, size[1] // WINDOW_STEPS)))
 
 
-def _window_sums(values: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Sums of (..., h, w) values over windows of ``size`` (rows, columns) tiling the image from its top-left
-    corner (the last row and column of windows padded with zeros): (..., h / rows, w / columns)."""
-    rows, columns = size
-    h, w = values.shape[-2:]
-    padded = np.zeros((*values.shape[:-2], -(-h // rows) * rows, -(-w // columns) * columns), dtype=values.dtype)
-    padded[..., :h, :w] = values
-    shape = (*values.shape[:-2], padded.shape[-2] // rows, rows, padded.shape[-1] // columns, columns)
-    return padded.reshape(shape).sum(axis=(-3, -1))
+def window_starts(length: int, size: int, step: int) -> np.ndarray:
+    """First pixels of the windows along one axis of ``length`` pixels: every multiple of ``step`` up to
+    ``length - size``, and ``length - size`` itself (the window flush with the far edge); (0,) for an image
+    narrower than a window."""
+    last = max(length - size, 0)
+    return np.unique(np.append(np.arange(0, last + 1, step), last))
+
+
+def _window_sums(values: np.ndarray, size: tuple[int, int], starts: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Sums of (..., h, w) values over the windows of ``size`` (rows, columns) whose top-left pixels are ``starts``
+    (rows, columns; increasing, each window inside the image but the last, which is cut at its edge): each
+    window's columns summed along its rows, then those sums along its columns, by ``np.add.reduceat`` over the
+    windows' (start, end) bounds (exact sums; each pixel is added into the sums of the windows along its row that
+    hold it, about WINDOW_STEPS):
+    (..., len(rows), len(columns)). Integers and booleans are summed as int64, floats as float64."""
+    total = np.int64 if values.dtype.kind in "biu" else np.float64
+    sums = values
+    for axis, length, first in ((-1, size[1], starts[1]), (-2, size[0], starts[0])):
+        bounds = np.stack([first, first + length], axis=1).ravel()
+        bounds = bounds[:-1] if bounds[-1] >= sums.shape[axis] else bounds  # the last window ends at the edge
+        reduced = np.add.reduceat(sums, bounds, axis=axis, dtype=total)  # even entries: the windows' sums
+        sums = reduced[..., ::2] if axis == -1 else reduced[..., ::2, :]
+    return sums
 
 
 def worst_window(index: int, solid: np.ndarray, masks: np.ndarray, designed: np.ndarray,
-                 size: tuple[int, int]) -> Window | None:
+                 grid: WindowGrid) -> Window | None:
     """The window of one layer whose delivered share of some material is furthest from its designed share, over
-    windows at least WINDOW_MIN_SOLID solid. solid (h, w) bool; masks (K, h, w) bool; designed (K, h, w) float
-    shares per pixel; size (rows, columns) of a window."""
-    solid_count = _window_sums(solid.astype(np.int64), size)
-    compared = solid_count >= WINDOW_MIN_SOLID * size[0] * size[1]
+    the windows of ``grid`` (every ``grid.step`` pixels, not only a tiling) at least WINDOW_MIN_SOLID solid.
+    solid (h, w) bool; masks (K, h, w) bool; designed (K, h, w) float shares per pixel. Only the windows that
+    reach the solid's bounding box are summed, over the pixels they cover (the others hold no solid pixel)."""
+    filled = [np.flatnonzero(solid.any(axis=axis)) for axis in (1, 0)]
+    if not len(filled[0]):
+        return None
+    starts = []
+    for first, size, solid_at in zip(grid.starts(solid.shape), grid.size, filled):
+        starts.append(first[(first + size > solid_at[0]) & (first <= solid_at[-1])])
+    (rows, columns), (height, width) = starts, grid.size
+    if not len(rows) or not len(columns):  # a step longer than the window can pass the solid by
+        return None
+    crop = np.s_[rows[0]:rows[-1] + height, columns[0]:columns[-1] + width]
+    solid = solid[crop]
+    relative = (rows - rows[0], columns - columns[0])
+    solid_count = _window_sums(solid, grid.size, relative)
+    compared = solid_count >= WINDOW_MIN_SOLID * height * width
     if not compared.any():
         return None
-    delivered = _window_sums((masks & solid).astype(np.int64), size)[:, compared] / solid_count[compared]
-    planned = _window_sums(np.where(solid, designed, np.float32(0.0)), size)[:, compared] / solid_count[compared]
+    count = solid_count[compared]
+    delivered = np.stack([_window_sums(mask[crop] & solid, grid.size, relative)[compared] for mask in masks]) / count
+    planned = np.stack([_window_sums(np.where(solid, share[crop], np.float32(0.0)), grid.size, relative)[compared]
+                        for share in designed]) / count
     material, position = np.unravel_index(int(np.argmax(np.abs(delivered - planned))), delivered.shape)
-    window = np.argwhere(compared)[position]
-    return Window(index, (int(window[0]) * size[0], int(window[1]) * size[1]), int(solid_count[tuple(window)]),
-                  int(material), float(planned[material, position]), float(delivered[material, position]))
+    row, column = np.argwhere(compared)[position]
+    return Window(index, (int(rows[row]), int(columns[column])), int(count[position]), int(material),
+                  float(planned[material, position]), float(delivered[material, position]))
 
 
 def band_table(solid: np.ndarray, masks: np.ndarray, designed: np.ndarray, labels: np.ndarray,
@@ -274,10 +324,10 @@ def band_table(solid: np.ndarray, masks: np.ndarray, designed: np.ndarray, label
 
 
 def layer_tally(index: int, solid: np.ndarray, masks: np.ndarray, designed: np.ndarray | None = None,
-                window: tuple[int, int] = (1, 1), bands: np.ndarray | None = None,
+                window: WindowGrid = WindowGrid((1, 1), (1, 1)), bands: np.ndarray | None = None,
                 band_count: int = 0) -> LayerTally:
     """One layer's tally: solid (h, w) bool; masks (K, h, w) bool, the droplet masks (K = 0: the solid is the
-    one material); designed (K, h, w) float per-pixel shares, or None; window (rows, columns); bands (h, w)
+    one material); designed (K, h, w) float per-pixel shares, or None; window: the windows; bands (h, w)
     int band labels of ``band_count`` bands (with a design), or None."""
     packed_solid = np.packbits(solid, axis=-1)
     if not len(masks):
@@ -333,7 +383,7 @@ def tally_layer(directory: Path, manifest: dict, index: int, design: DesignSourc
     masks = read_layer_channels(directory, manifest, index)
     designed = None if design is None or not len(masks) else design(index)
     labels = None if bands is None or designed is None else bands(index, designed)
-    return layer_tally(index, solid, masks, designed, window_pixels(manifest), labels, band_count)
+    return layer_tally(index, solid, masks, designed, window_grid(manifest), labels, band_count)
 
 
 def counted_tally(manifest: dict, index: int) -> LayerTally | None:
