@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from heoslice.layers.rasterising import Grid
-from heoslice.volume.fields import FAR_OUTSIDE, LabelField, label_field, level_offset
+from heoslice.volume.fields import BAND, FAR_OUTSIDE, LabelField, label_field, level_offset
 from heoslice.volume.model import Label, Volume
 from heoslice.volume.placement import Placement
 from heoslice.volume.resample_kernels import _label_codes
@@ -73,12 +73,17 @@ def map_boost(fields: list[LabelField] | tuple[LabelField, ...], priorities: lis
 
 
 def yielding(fields: list[LabelField], boost: np.ndarray) -> list[LabelField]:
-    """A label map's ``fields`` with each one's volume-preserving level set again outside the region the labels
-    of higher ``boost`` win (their fields positive), from the highest boost down: what a thin label takes back
-    from the organ around it, the organ gains at its other surfaces, so it too keeps its voxel volume."""
+    """A label map's ``fields`` with each thick one's (largest inscribed radius at least THIN_RADIUS)
+    volume-preserving level set again outside the region the labels of higher ``boost`` win (their fields
+    positive), from the highest boost down, by at most BAND voxels outwards: what a thin label takes back from the
+    organ around it, the organ gains at its other surfaces, so it too keeps its voxel volume. A thin label does not
+    yield (a line moved by a fraction of a voxel doubles its width), and the bound keeps an organ mostly wrapped by
+    a thin wall (a cyst in its wall) inside the wall instead of growing through it."""
     out = list(fields)
     for index in sorted(range(len(fields)), key=lambda i: -boost[i]):
         field = out[index]
+        if field.radius < THIN_RADIUS:
+            continue
         taken = np.full(field.values.shape, FAR_OUTSIDE, dtype=np.float32)
         for other in np.flatnonzero(boost > boost[index]):
             low = np.maximum(out[other].start, field.start)
@@ -88,7 +93,8 @@ def yielding(fields: list[LabelField], boost: np.ndarray) -> list[LabelField]:
                 there = tuple(slice(a, b) for a, b in zip(low - out[other].start, high - out[other].start))
                 np.maximum(taken[here], out[other].values[there], out=taken[here])
         if (taken > 0).any():
-            values = field.values - np.float32(level_offset(field.values, field.voxels, taken))
+            offset = max(level_offset(field.values, field.voxels, taken), -BAND)
+            values = field.values - np.float32(offset)
             out[index] = replace(field, values=values.astype(np.float32))
     return out
 
