@@ -10,6 +10,7 @@ layer's solid mask read back gives the same box and the same r at every solid pi
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from dataclasses import field as dataclass_field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -40,8 +41,10 @@ def recorded_design(manifest: dict) -> dict | None:
 @dataclass(eq=False)
 class RecordedField:
     """A stack's recorded design ready to compare: the stack (folder, manifest), the field, its pixel grid, which
-    masks (indices in mask order) hold the start and the target, and the r (h, w) of the last layer evaluated
-    (the band source reads the r the design source computed; -1 off the solid's box)."""
+    masks (indices in mask order) hold the start and the target, and the last layer evaluated (its index, the
+    solid's box (r0, r1, c0, c1) and r over it, (r1 - r0, c1 - c0) float32, which the band source reads). The
+    layer-size arrays it returns are kept and refilled layer after layer (:meth:`_kept`): a large array made
+    afresh comes back as newly mapped pages every layer (most of a verify's time was the kernel's)."""
 
     directory: Path
     manifest: dict
@@ -49,30 +52,54 @@ class RecordedField:
     grid: Grid
     start: int
     target: int
-    last: tuple[int, np.ndarray] | None = None
+    last: tuple[int, tuple[int, int, int, int], np.ndarray] | None = None
+    kept: dict = dataclass_field(default_factory=dict)
+
+    def _kept(self, name: str, shape: tuple[int, ...], dtype, fill) -> np.ndarray:
+        """The array kept as ``name``, of this shape and dtype, filled with ``fill`` (made on first use)."""
+        array = self.kept.get(name)
+        if array is None or array.shape != shape or array.dtype != dtype:
+            array = self.kept[name] = np.empty(shape, dtype=dtype)
+        array.fill(fill)
+        return array
+
+    def _box_r(self, solid: np.ndarray, z: float) -> tuple[tuple[int, int, int, int], np.ndarray, np.ndarray]:
+        """The solid's box, and r and f(r) over it (float32): a surface reference's from the slice's own
+        per-voxel steps of r (:meth:`MaterialField.layer_steps`) and its table of f, as the slice halftoned them;
+        another's from its closed form."""
+        packed = np.packbits(solid, axis=-1)
+        if self.field.reference.kind == "surface":
+            from heoslice.material.field import R_STEPS
+
+            box, steps = self.field.layer_steps(packed, self.grid, z)
+            steps = np.minimum(steps, R_STEPS)  # a step off the solid may be anything
+            return box, steps.astype(np.float32) / np.float32(R_STEPS), np.take(self.field.fraction_table, steps)
+        box, r = self.field.layer_distance(packed, self.grid, z)
+        r = np.broadcast_to(np.asarray(r, dtype=np.float32), (box[1] - box[0], box[3] - box[2]))
+        return box, r, self.field.fraction(np.clip(r, 0.0, 1.0))
 
     def design(self, index: int) -> np.ndarray:
         """Layer ``index``'s designed mix (masks, h, w) float32: 1 - f(r) on the start's mask, f(r) on the
-        target's, 0 elsewhere: f at each solid pixel as the slice halftoned it (anything outside the solid)."""
+        target's, over the solid's box (0 elsewhere): f at each solid pixel as the slice halftoned it. Valid until
+        the next layer's."""
         solid = read_layer_mask(self.directory, self.manifest, index)
-        z = float(self.manifest["layers"][index]["z_mm"])
-        (r0, r1, c0, c1), r = self.field.layer_distance(np.packbits(solid, axis=-1), self.grid, z)
-        full = np.full(solid.shape, -1.0)
-        full[r0:r1, c0:c1] = np.broadcast_to(r, (r1 - r0, c1 - c0))
-        self.last = (index, full)
-        f = self.field.fraction(np.clip(full, 0.0, 1.0).astype(np.float32))
-        mix = np.zeros((len(widest_masks(self.manifest)), *solid.shape), dtype=np.float32)
-        mix[self.start] = 1.0 - f
-        mix[self.target] += f
+        (r0, r1, c0, c1), r, f = self._box_r(solid, float(self.manifest["layers"][index]["z_mm"]))
+        self.last = (index, (r0, r1, c0, c1), r)
+        mix = self._kept("mix", (len(widest_masks(self.manifest)), *solid.shape), np.float32, 0.0)
+        mix[self.target, r0:r1, c0:c1] = f
+        np.subtract(np.float32(1.0), mix[self.target, r0:r1, c0:c1], out=mix[self.start, r0:r1, c0:c1])
         return mix
 
     def bands(self, index: int, designed: np.ndarray | None) -> np.ndarray:
-        """Layer ``index``'s band of r per pixel (h, w) int: 0..R_BANDS-1 (r = 1 in the last), -1 off the solid's
-        box."""
+        """Layer ``index``'s band of r per pixel (h, w) int8: 0..R_BANDS-1 (r = 1 in the last), -1 off the solid's
+        box. Valid until the next layer's."""
         if self.last is None or self.last[0] != index:
             self.design(index)
-        r = self.last[1]
-        return np.where(r < 0, -1, np.minimum((r * R_BANDS).astype(np.int64), R_BANDS - 1))
+        _, (r0, r1, c0, c1), r = self.last
+        shape = (int(self.manifest["image"]["height"]), int(self.manifest["image"]["width"]))
+        labels = self._kept("bands", shape, np.int8, -1)
+        labels[r0:r1, c0:c1] = np.minimum(np.clip(r, 0.0, 1.0) * R_BANDS, R_BANDS - 1).astype(np.int8)
+        return labels
 
 
 def field_comparison(directory: Path, manifest: dict) -> RecordedField | None:
