@@ -10,7 +10,6 @@ layer's solid mask read back gives the same box and the same r at every solid pi
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from dataclasses import field as dataclass_field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -43,8 +42,8 @@ class RecordedField:
     """A stack's recorded design ready to compare: the stack (folder, manifest), the field, its pixel grid, which
     masks (indices in mask order) hold the start and the target, and the last layer evaluated (its index, the
     solid's box (r0, r1, c0, c1) and r over it, (r1 - r0, c1 - c0) float32, which the band source reads). The
-    layer-size arrays it returns are kept and refilled layer after layer (:meth:`_kept`): a large array made
-    afresh comes back as newly mapped pages every layer (most of a verify's time was the kernel's)."""
+    layer-size arrays it returns (``mix``, ``labels``) are kept and refilled layer after layer (:func:`_refilled`):
+    a large array made afresh comes back as newly mapped pages every layer (benchmarks/README.md)."""
 
     directory: Path
     manifest: dict
@@ -53,15 +52,8 @@ class RecordedField:
     start: int
     target: int
     last: tuple[int, tuple[int, int, int, int], np.ndarray] | None = None
-    kept: dict = dataclass_field(default_factory=dict)
-
-    def _kept(self, name: str, shape: tuple[int, ...], dtype, fill) -> np.ndarray:
-        """The array kept as ``name``, of this shape and dtype, filled with ``fill`` (made on first use)."""
-        array = self.kept.get(name)
-        if array is None or array.shape != shape or array.dtype != dtype:
-            array = self.kept[name] = np.empty(shape, dtype=dtype)
-        array.fill(fill)
-        return array
+    mix: np.ndarray | None = None
+    labels: np.ndarray | None = None
 
     def _box_r(self, solid: np.ndarray, z: float) -> tuple[tuple[int, int, int, int], np.ndarray, np.ndarray]:
         """The solid's box, and r and f(r) over it (float32): a surface reference's from the slice's own
@@ -85,7 +77,7 @@ class RecordedField:
         solid = read_layer_mask(self.directory, self.manifest, index)
         (r0, r1, c0, c1), r, f = self._box_r(solid, float(self.manifest["layers"][index]["z_mm"]))
         self.last = (index, (r0, r1, c0, c1), r)
-        mix = self._kept("mix", (len(widest_masks(self.manifest)), *solid.shape), np.float32, 0.0)
+        mix = self.mix = _refilled(self.mix, (len(widest_masks(self.manifest)), *solid.shape), np.float32, 0.0)
         mix[self.target, r0:r1, c0:c1] = f
         np.subtract(np.float32(1.0), mix[self.target, r0:r1, c0:c1], out=mix[self.start, r0:r1, c0:c1])
         return mix
@@ -97,9 +89,17 @@ class RecordedField:
             self.design(index)
         _, (r0, r1, c0, c1), r = self.last
         shape = (int(self.manifest["image"]["height"]), int(self.manifest["image"]["width"]))
-        labels = self._kept("bands", shape, np.int8, -1)
+        labels = self.labels = _refilled(self.labels, shape, np.int8, -1)
         labels[r0:r1, c0:c1] = np.minimum(np.clip(r, 0.0, 1.0) * R_BANDS, R_BANDS - 1).astype(np.int8)
         return labels
+
+
+def _refilled(array: np.ndarray | None, shape: tuple[int, ...], dtype, fill) -> np.ndarray:
+    """``array`` filled with ``fill``, or a new one of this shape and dtype when it is None or another."""
+    if array is None or array.shape != shape or array.dtype != dtype:
+        array = np.empty(shape, dtype=dtype)
+    array.fill(fill)
+    return array
 
 
 def field_comparison(directory: Path, manifest: dict) -> RecordedField | None:
