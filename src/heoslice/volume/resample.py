@@ -12,8 +12,9 @@ inside, the organ around a one-voxel vessel or wall would take most of it. So a 
 boosted by thinness (:func:`map_boost`): a label of largest inscribed radius r < THIN_RADIUS voxels gets
 THIN_RADIUS - r, so where its field and a thicker label's are both positive, it wins and keeps the volume its
 own field holds; labels of THIN_RADIUS or more (an organ) keep the rule "most inside wins", and the boost
-fades to 0 with thickness (no step in voxels or radius). What a label loses so to more boosted ones, its
-level, set again outside their region (:func:`yielding`), gives back at its other surfaces. A higher
+fades to 0 with thickness (no step in voxels or radius). What a thick label loses so to more boosted ones, its
+level, set again outside their region by at most BAND outwards (:func:`yielding`), gives back at its other
+surfaces. A higher
 ``priority`` of the materials file's [labels] wins over lower ones wherever both fields are positive.
 Overlapping structures (a folder of one file per structure, a .seg.nrrd in layers) are boosted by rank
 (:func:`heoslice.pipeline.parts.part_order`): where several claim a pixel, the higher rank wins.
