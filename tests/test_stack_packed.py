@@ -36,6 +36,25 @@ def channels_stack(tmp_path_factory):
     return folder / "stack"
 
 
+@pytest.fixture(scope="module")
+def tall_stack(tmp_path_factory):
+    """A graded stack with droplet masks of a 10 x 60 x 4 mm box (long in y: its layers three strips tall),
+    1 mm layers, 300 dpi."""
+    import trimesh
+
+    from heoslice.cli import main
+
+    folder = tmp_path_factory.mktemp("tall")
+    mesh = folder / "box.stl"
+    trimesh.creation.box(extents=(10.0, 60.0, 4.0)).export(mesh)
+    try:
+        main(["slice", str(mesh), "--layer", "1", "--dpi", "300", "--grade", "linear", "--to", "0,255,0",
+              "--nozzle", "0.5", "--channels", "-o", str(folder / "stack")])
+    except SystemExit as done:
+        assert done.code in (0, None)
+    return folder / "stack"
+
+
 def test_bits_are_the_masks_tifffile_decodes(channels_stack):
     """Every layer and droplet mask, unpacked, equals tifffile's own decoding of the file, and its set bits
     are the manifest's solid pixel count; the padding bits are zero."""
@@ -54,18 +73,29 @@ def test_bits_are_the_masks_tifffile_decodes(channels_stack):
         assert count_solid(solid.rows) == entry["solid_pixels"]
 
 
-def test_rows_decode_only_their_strips(channels_stack):
-    """With rows (first, stop) the strips holding them are decoded exactly and every other row is zero."""
-    manifest = read_manifest(channels_stack)
+@pytest.mark.parametrize("axis", ["x", "y"])
+def test_a_line_is_the_layers_line(tall_stack, axis):
+    """line_bits along a column (x) or a row (y) of every file of a layer equals that line of tifffile's decoding
+    of the file, through the part's middle, at the image's edges and on a strip boundary; strips shared through
+    ``seen`` give the same lines."""
+    from heoslice.stack.packed import layer_files, line_bits
+
+    manifest = read_manifest(tall_stack)
     index = len(manifest["layers"]) // 2
-    whole = read_layer_mask(channels_stack, manifest, index)
-    line = whole.shape[0] // 2
-    solid, _ = layer_bits(channels_stack, manifest, index, channels=False, rows=(line, line + 1))
-    got = unpack_bits(solid.rows, whole.shape[1])
-    assert np.array_equal(got[line], whole[line]) and whole[line].any()
-    strip = int(tifffile.TiffFile(channels_stack / manifest["layers"][index]["file"]).pages.first.rowsperstrip)
-    start = line // strip * strip
-    assert not got[:start].any() and not got[start + strip:].any()
+    entry = manifest["layers"][index]
+    layer, masks = layer_files(tall_stack, manifest, index)
+    strip = int(tifffile.TiffFile(tall_stack / entry["file"]).pages.first.rowsperstrip)
+    assert manifest["image"]["height"] > strip, "the test needs more than one strip"
+    size = manifest["image"]["width"] if axis == "x" else manifest["image"]["height"]
+    for line in sorted({0, size // 2, size - 1} | ({strip - 1, strip} if axis == "y" else set())):
+        seen: packed.SeenLines = {}
+        for file, record in zip([layer, *masks], [entry, *entry["channels"]]):
+            whole = tifffile.imread(tall_stack / record["file"]).astype(bool)
+            expected = whole[:, line] if axis == "x" else whole[line]
+            assert np.array_equal(line_bits(file, False, axis, line, seen), expected)
+            assert np.array_equal(line_bits(file, False, axis, line), expected)
+    middle = size // 2
+    assert line_bits(layer, False, axis, middle).any(), "the middle line crosses the part"
 
 
 def test_a_known_layout_is_checked_like_a_new_one(tmp_path):

@@ -13,7 +13,7 @@ from heoslice.errors import InputError, VerifyError
 from heoslice.pipeline.parallel import ordered_map
 from heoslice.preview.layer import MAX_PREVIEW_SIDE, _display, _planes, channel_colors, check_size
 from heoslice.stack import MANIFEST, layer_strips, read_manifest
-from heoslice.stack.packed import layer_bits, unpack_bits
+from heoslice.stack.packed import SeenLines, layer_files, line_bits
 
 SECTION_PATTERN = re.compile(r"^\s*([xyXY])\s*=\s*([-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)\s*$")
 
@@ -45,25 +45,19 @@ def section_line(manifest: dict, axis: str, position_mm: float) -> int:
 
 def _line_planes(directory: Path, manifest: dict, index: int, axis: str, line: int, kind: str) -> np.ndarray:
     """(n, C) float32: the feature planes of :func:`heoslice.preview.layer._planes` along the section line of one
-    layer. A 1-bit layer is read as packed bits (:mod:`heoslice.stack.packed`), for a y cut only the strip
-    holding the line; a layer with droplet masks is drawn from its masks, checked on the line against its solid
-    layer (each solid pixel in exactly one mask, no mask pixel outside the solid: verify's rule, where the
+    layer. A 1-bit layer is read along the line alone (:func:`heoslice.stack.packed.line_bits`: for a y cut only
+    the strip holding it); a layer with droplet masks is drawn from its masks, checked on the line against its
+    solid layer (each solid pixel in exactly one mask, no mask pixel outside the solid: verify's rule, where the
     preview draws); other layers strip by strip."""
     with_channels = kind == "channels"
     if kind in ("bilevel", "channels") and manifest["image"].get("mode", "1") in ("1", "L"):
-        rows = (line, line + 1) if axis == "y" else None
-        solid, masks = layer_bits(directory, manifest, index, channels=with_channels, rows=rows)
-        width = manifest["image"]["width"]
-
-        def on_line(bits) -> np.ndarray:
-            if axis == "y":
-                return unpack_bits(bits.rows[line:line + 1], width)[0]
-            return (bits.rows[:, line // 8] >> (7 - line % 8)) & 1 != 0
-
-        lines = [on_line(bits) for bits in masks or [solid]]
+        layer, masks = layer_files(directory, manifest, index, channels=with_channels)
+        seen: SeenLines = {}
+        solid = line_bits(layer, manifest["mask"] == "alpha", axis, line, seen)
+        lines = [line_bits(mask, False, axis, line, seen) for mask in masks] or [solid]
         if with_channels:
             held = np.sum(lines, axis=0, dtype=np.uint8)
-            wrong = np.flatnonzero(held != on_line(solid))
+            wrong = np.flatnonzero(held != solid)
             if len(wrong):
                 where = "in two droplet masks" if held[wrong[0]] > 1 else (
                     "in no droplet mask" if held[wrong[0]] == 0 else "in a droplet mask outside the solid")
@@ -86,10 +80,11 @@ def _layer_line(directory: Path, manifest: dict, index: int, axis: str, line: in
     colors = channel_colors(manifest, index, Path(directory) / MANIFEST) if with_channels else None
     samples = {"1": "bilevel", "L": "bilevel", "RGB": "rgb", "RGBA": "rgba"}[manifest["image"].get("mode", "1")]
     kind = "channels" if with_channels else samples
-    features = _line_planes(directory, manifest, index, axis, line, kind)
-    starts = np.arange(0, len(features), factor)
-    counts = np.diff(np.append(starts, len(features))).astype(np.float32)[:, None]
-    means = np.add.reduceat(features, starts, axis=0) / counts
+    means = _line_planes(directory, manifest, index, axis, line, kind)
+    if factor > 1:
+        starts = np.arange(0, len(means), factor)
+        counts = np.diff(np.append(starts, len(means))).astype(np.float32)[:, None]
+        means = np.add.reduceat(means, starts, axis=0) / counts
     return _display(kind, colors)(means[None])[0]
 
 

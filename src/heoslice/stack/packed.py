@@ -205,65 +205,130 @@ _MAX_BLANK_STRIPS, _BLANK_STRIP_BYTES, _BLANK_RATIO = 64, 4096, 256
 InflatedStrips = dict[tuple[int, int, bytes], np.ndarray]
 
 
-def _inflate_bits(layer: LayerFile, flat: np.ndarray, width: int, first: int, stop: int,
-                  inflated: InflatedStrips | None = None) -> tuple[int, int] | None:
-    """Inflate the strips of a plain 1-bit page holding rows first..stop-1 into ``flat`` (the packed rows of
-    the image, one spare byte after them; the rows of every other strip are zeroed); return the rows (first,
-    stop) that may hold set bits (blank strips are known by their bytes and zeroed, not inflated; a strip in
-    ``inflated`` is copied from there, and the strips inflated here are added to it). None (``flat`` partly
-    written) when the page or a strip is not laid out as heoslice writes it."""
-    page = layer.page
+def _plain_strips(page) -> list[tuple[int, int, bool, int, int]] | None:
+    """(first row, bytes it inflates to, short enough to be blank, offset, bytes) of each strip of a plain
+    1-bit page (one sample, bit order and no predictor as heoslice writes them) compressed by a code
+    STRIP_DECODERS knows; None for another page, which the generic decoder reads. Blank strips are the short
+    ones of :data:`_BLANK_STRIPS`."""
     if (page.bitspersample, page.samplesperpixel) != (1, 1) or page.fillorder != 1 or page.predictor != 1:
         return None
-    code = int(page.compression)
-    if code != 1 and code not in STRIP_DECODERS:
+    if int(page.compression) != 1 and int(page.compression) not in STRIP_DECODERS:
         return None
-    decode = _strip_decoder(code)
-    rows = _strip_rows(page)
-    view = memoryview(layer.data)
-    height = page.imagelength
-    full = rows * width  # bytes of a whole strip's rows; the last strip may hold fewer
-    short_bytes = min(_BLANK_STRIP_BYTES, full // _BLANK_RATIO + 64)
-    blank, keyed = _BLANK_STRIPS, inflated is not None and decode is not None
-    span = [height, 0]
+    rows, height, width = _strip_rows(page), page.imagelength, row_bytes(page.imagewidth)
+    strips = []
     for number, (offset, count) in enumerate(zip(page.dataoffsets, page.databytecounts)):
-        row = number * rows
-        expected = full if row + rows <= height else (height - row) * width
+        expected = min(rows, height - number * rows) * width
+        strips.append((number * rows, expected, count <= min(_BLANK_STRIP_BYTES, expected // _BLANK_RATIO + 64),
+                       offset, count))
+    return strips
+
+
+def _inflate_strip(decode, strip: memoryview, target: np.ndarray, expected: int) -> bool:
+    """Inflate one strip into ``target`` (``expected`` + 1 bytes: room to tell a longer strip, its last byte then
+    zeroed); whether it inflated to exactly ``expected`` bytes (False for a corrupt strip too: the generic
+    decoder reports it). ``decode`` None: stored as is."""
+    try:
+        if decode is None:
+            done = min(len(strip), expected + 1)
+            target[:done] = np.frombuffer(strip[:done], dtype=np.uint8)
+        else:
+            done = len(decode(strip, out=target))
+    except Exception:  # noqa: BLE001 - a corrupt strip: the generic decoder reports it
+        return False
+    target[expected] = 0
+    return done == expected
+
+
+def _learned_blank(key: tuple, short: bool, inflated: np.ndarray) -> bool:
+    """Whether a strip just inflated (``inflated``: its bytes) is blank, remembered as such (module limits)."""
+    if short and len(_BLANK_STRIPS) < _MAX_BLANK_STRIPS and not inflated.any():
+        _BLANK_STRIPS.add(key)
+        return True
+    return False
+
+
+def _inflate_bits(layer: LayerFile, flat: np.ndarray, inflated: InflatedStrips | None = None) -> tuple[int, int] | None:
+    """Inflate every strip of a plain 1-bit page into ``flat`` (the packed rows of the image, one spare byte
+    after them); return the rows (first, stop) that may hold set bits (blank strips are known by their bytes
+    and zeroed, not inflated; a strip in ``inflated`` is copied from there, and the strips inflated here are
+    added to it). None (``flat`` partly written) when the page or a strip is not laid out as heoslice writes it."""
+    strips = _plain_strips(layer.page)
+    if strips is None:
+        return None
+    code = int(layer.page.compression)
+    decode, view, width = _strip_decoder(code), memoryview(layer.data), row_bytes(layer.page.imagewidth)
+    keyed = inflated is not None and decode is not None
+    span = [layer.page.imagelength, 0]
+    for row, expected, short, offset, count in strips:
         at = row * width
-        if row + rows <= first or row >= stop:
-            flat[at:at + expected] = 0
-            continue
-        short = count <= (short_bytes if expected == full else min(_BLANK_STRIP_BYTES, expected // _BLANK_RATIO + 64))
-        blob = bytes(view[offset:offset + count]) if short or keyed else None
-        key = (code, expected, blob)
-        if short and key in blank:
+        key = (code, expected, bytes(view[offset:offset + count]) if short or keyed else None)
+        if short and key in _BLANK_STRIPS:
             flat[at:at + expected] = 0
             continue
         known = inflated.get(key) if keyed else None
-        if known is not None:
-            flat[at:at + expected] = known
-            span = [min(span[0], row), max(span[1], row + expected // width)]
-            continue
         target = flat[at:at + expected + 1]
-        strip = view[offset:offset + count]
-        try:
-            if decode is None:
-                done = min(count, expected + 1)
-                target[:done] = np.frombuffer(strip[:done], dtype=np.uint8)
-            else:
-                done = len(decode(strip, out=target))
-        except Exception:  # noqa: BLE001 - a corrupt strip: the generic decoder reports it
+        if known is not None:
+            target[:expected] = known
+        elif not _inflate_strip(decode, view[offset:offset + count], target, expected):
             return None
-        if done != expected:
-            return None
-        target[expected] = 0  # the spare byte, which a decoder may have written: the next strip's, if decoded
-        if short and len(blank) < _MAX_BLANK_STRIPS and not target[:expected].any():
-            blank.add(key)
+        elif _learned_blank(key, short, target[:expected]):
             continue
-        if keyed:
+        elif keyed:
             inflated[key] = target[:expected]
         span = [min(span[0], row), max(span[1], row + expected // width)]
     return (span[0], span[1]) if span[0] < span[1] else (0, 0)
+
+
+#: Lines of strips read earlier from one layer's files (:func:`line_bits`' ``seen``): (compression code, bytes
+#: inflated, the strip's bytes) -> the strip's pixels on the line, as :data:`InflatedStrips` for whole strips.
+SeenLines = dict[tuple[int, int, bytes], np.ndarray]
+
+
+def line_bits(layer: LayerFile, alpha: bool, axis: str, line: int, seen: SeenLines | None = None) -> np.ndarray:
+    """The solid pixels of a checked layer file (as :func:`solid_bits`) along image column ``line`` (``axis``
+    'x': (height,) bool) or row ``line`` ('y': (width,) bool), without the whole layer in memory: a y cut
+    inflates only the strip holding its row, an x cut each strip in turn into one strip-sized buffer (blank
+    strips known by their bytes are not inflated). ``seen`` (one dict for the files of one layer) lets a strip
+    met before give its line without being inflated again."""
+    page = layer.page
+    strips = _plain_strips(page)
+    if strips is None:
+        bits = solid_bits(layer, alpha)
+        return _line_of(bits.rows, axis, line, page.imagewidth)
+    code = int(page.compression)
+    decode, view, width = _strip_decoder(code), memoryview(layer.data), row_bytes(page.imagewidth)
+    out = np.zeros(page.imagelength if axis == "x" else page.imagewidth, dtype=bool)
+    buffer = np.empty(_strip_rows(page) * width + 1, dtype=np.uint8)
+    for row, expected, short, offset, count in strips:
+        held = expected // width
+        if axis == "y" and not row <= line < row + held:
+            continue
+        key = (code, expected, bytes(view[offset:offset + count]) if short or seen is not None else None)
+        if short and key in _BLANK_STRIPS:
+            continue
+        known = None if seen is None else seen.get(key)
+        if known is None:
+            target = buffer[:expected + 1]
+            if not _inflate_strip(decode, view[offset:offset + count], target, expected):
+                return _line_of(solid_bits(layer, alpha).rows, axis, line, page.imagewidth)
+            if _learned_blank(key, short, target[:expected]):
+                continue
+            rows = target[:expected].reshape(held, width)
+            known = _line_of(rows, axis, line - row if axis == "y" else line, page.imagewidth)
+            if seen is not None:
+                seen[key] = known
+        if axis == "x":
+            out[row:row + held] = known
+        else:
+            out[:] = known
+    return out
+
+
+def _line_of(rows: np.ndarray, axis: str, line: int, width: int) -> np.ndarray:
+    """Pixels of packed rows along column ``line`` (axis 'x') or row ``line`` ('y'), bool."""
+    if axis == "y":
+        return unpack_bits(rows[line:line + 1], width)[0]
+    return (rows[:, line // 8] >> (7 - line % 8)) & 1 != 0
 
 
 def _known_blank(layer: LayerFile) -> bool:
@@ -309,22 +374,19 @@ class Bits:
     span: tuple[int, int]
 
 
-def solid_bits(layer: LayerFile, alpha: bool, rows: tuple[int, int] | None = None,
-               inflated: InflatedStrips | None = None) -> Bits:
+def solid_bits(layer: LayerFile, alpha: bool, inflated: InflatedStrips | None = None) -> Bits:
     """The solid pixels of a checked layer file (:class:`Bits`): a set sample of a 1-bit or grey file, any
-    non-zero sample of a colour one (its alpha when ``alpha``). With ``rows`` (first, stop) only the strips
-    holding those rows are decoded; other rows are left zero. ``inflated`` (one dict for the files of one
+    non-zero sample of a colour one (its alpha when ``alpha``). ``inflated`` (one dict for the files of one
     layer, :data:`InflatedStrips`) lets a strip already inflated be copied instead; the rows it holds are
     the returned Bits' own, not to be written while it is in use."""
     page = layer.page
     height, width = page.imagelength, row_bytes(page.imagewidth)
     if _known_blank(layer):
         return Bits(_blank_rows(height, width), (0, 0))
-    first, stop = (0, height) if rows is None else rows
     flat = np.empty(height * width + 1, dtype=np.uint8)  # _inflate_bits writes or zeroes every row
     flat[-1] = 0
     out = flat[:-1].reshape(height, width)
-    span = _inflate_bits(layer, flat, width, first, stop, inflated)
+    span = _inflate_bits(layer, flat, inflated)
     if span is None:
         mask = np.zeros((height, page.imagewidth), dtype=bool)
         decode_solid(layer.tiff_page(), layer.name, alpha, out=mask)
@@ -383,24 +445,29 @@ def _fold(files: list[Bits], span: tuple[int, int], modes: list[int], against_se
     return out
 
 
-def layer_bits(directory: Path, manifest: dict, index: int, channels: bool = True,
-               rows: tuple[int, int] | None = None, solid: bool = True) -> tuple[Bits | None, list[Bits]]:
-    """Layer ``index`` of a stack as packed rows: (its solid pixels, [each droplet mask's] in the order of its
-    ``channels`` list, empty unless ``channels``). Every file is checked (inside, layout, sha256) and read
-    once; with ``rows`` (first, stop) only the strips holding those rows are decoded; with ``solid`` False the
-    layer's own file is not read (None in its place: a verified stack's masks hold its solid pixels)."""
+def layer_files(directory: Path, manifest: dict, index: int, channels: bool = True,
+                solid: bool = True) -> tuple[LayerFile | None, list[LayerFile]]:
+    """The files of layer ``index`` of a stack, each checked (inside, layout, sha256) and read once: (its own
+    file, [each droplet mask's] in the order of its ``channels`` list, empty unless ``channels``); with
+    ``solid`` False the layer's own file is not read (None in its place: a verified stack's masks hold its
+    solid pixels)."""
     root = Path(directory).resolve()
     entry = manifest["layers"][index]
-    mode = manifest["image"].get("mode", "1")
-    alpha = manifest["mask"] == "alpha"
-    layer = (solid_bits(read_layer_file(resolve_inside(root, entry["file"], resolved=True),
-                                        f"layer {index}: {entry['file']}", entry["sha256"], manifest, mode), alpha, rows)
-             if solid else None)
-    masks = [solid_bits(read_layer_file(resolve_inside(root, channel["file"], resolved=True),
-                                        f"layer {index}: {channel['file']}", channel["sha256"], manifest, None),
-                        False, rows)
+    layer = (read_layer_file(resolve_inside(root, entry["file"], resolved=True), f"layer {index}: {entry['file']}",
+                             entry["sha256"], manifest, manifest["image"].get("mode", "1")) if solid else None)
+    masks = [read_layer_file(resolve_inside(root, channel["file"], resolved=True),
+                             f"layer {index}: {channel['file']}", channel["sha256"], manifest, None)
              for channel in (entry.get("channels") or [] if channels else [])]
     return layer, masks
+
+
+def layer_bits(directory: Path, manifest: dict, index: int, channels: bool = True,
+               solid: bool = True) -> tuple[Bits | None, list[Bits]]:
+    """Layer ``index`` of a stack as packed rows (:func:`layer_files` read by :func:`solid_bits`): (its solid
+    pixels or None, [each droplet mask's])."""
+    layer, masks = layer_files(directory, manifest, index, channels, solid)
+    return (None if layer is None else solid_bits(layer, manifest["mask"] == "alpha"),
+            [solid_bits(mask, False) for mask in masks])
 
 
 def unpack_bits(bits: np.ndarray, width: int) -> np.ndarray:
