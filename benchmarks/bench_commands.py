@@ -3,8 +3,9 @@
 For each benchmark stack (the real scans of prusa_meshes.SCANS, graded with droplet masks as
 bench_prusa.py's ``--graded`` slices them, and a multi-part stack: the liver scan with a 30 mm ball
 inside it, ``--parts``), at 0.1 mm and 600 dpi: slice it, then run ``verify``, ``preview --section``
-(through the part's middle), ``export --format png``, ``export --format voxel-print`` and ``print
---dry-run`` on it, each once per repeat, in that order, the repeats alternating. Reports each command's
+(through the part's middle, across x and across y), ``export --format png``, ``export --format voxel-print``
+and ``print --dry-run`` on it, each once per repeat, in that order, the repeats alternating, and read_floor.py (the
+reading alone that every command over the whole stack needs: its files read and hashed, every strip inflated). Reports each command's
 wall time as a ratio to the slice's of the same repeat (median over repeats), its CPU time and the
 peak RSS of its largest process (GNU time, as bench_prusa.py measures) and the load average around the
 stack's runs, against the targets of issue
@@ -48,10 +49,14 @@ from heoslice import procedural  # noqa: E402
 COMMANDS = {
     "verify": ([], 0.3),
     "preview --section": (["preview", "--section"], 0.1),
+    "preview --section y": (["preview", "--section"], 0.1),
     "export png": (["export", "--format", "png"], 1.0),
     "export voxel-print": (["export", "--format", "voxel-print"], 1.0),
     "print --dry-run": (["print", "--dry-run"], 0.2),
+    "read floor": ([], None),
 }
+#: The reading every whole-stack command needs and nothing else (read_floor.py): not a heoslice command.
+FLOOR = [sys.executable, str(Path(__file__).with_name("read_floor.py"))]
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -90,12 +95,15 @@ def command_args(name: str, stack: Path, output: Path) -> list[str]:
     """The heoslice arguments of one timed command on ``stack``."""
     if name == "verify":
         return ["verify", str(stack)]
-    if name == "preview --section":
+    if name.startswith("preview --section"):
         manifest = json.loads((stack / "manifest.json").read_text())
-        x_left = manifest["image"]["origin_mm"][0]
-        middle = x_left + manifest["image"]["width"] * manifest["pixel_size_mm"][0] / 2
-        return ["preview", str(stack), "--section", f"x={middle:.3f}", "-o", str(output.with_suffix(".png")),
-                "--force"]
+        image, (px, py) = manifest["image"], manifest["pixel_size_mm"]
+        x_left, y_top = image["origin_mm"]
+        cut = (f"y={y_top - image['height'] * py / 2:.3f}" if name.endswith(" y")
+               else f"x={x_left + image['width'] * px / 2:.3f}")
+        return ["preview", str(stack), "--section", cut, "-o", str(output.with_suffix(".png")), "--force"]
+    if name == "read floor":
+        return [str(stack)]
     args, _ = COMMANDS[name]
     if args[0] == "export":
         return ["export", str(stack), *args[1:], "-o", str(output), "--force"]
@@ -134,7 +142,7 @@ def main(argv: list[str] | None = None) -> None:
                     raise SystemExit(f"{name}: slice failed, see {sliced.log}")
                 rows["slice"].append((sliced.wall_s, sliced.cpu_s, sliced.max_rss_mb, 1.0))
                 for command in commands:
-                    for label, runner, environment in runners:
+                    for label, runner, environment in runners if command != "read floor" else [("", FLOOR, None)]:
                         output = folder / f"out_{command.replace(' ', '_').replace('-', '')}"
                         done = run_measured([*runner, *command_args(command, stack, output)],
                                             folder / f"{label.strip()}{command.replace(' ', '_')}{repeat}.log",
