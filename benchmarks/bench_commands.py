@@ -3,7 +3,7 @@
 For each benchmark stack (the real scans of prusa_meshes.SCANS, graded with droplet masks as
 bench_prusa.py's ``--graded`` slices them, and a multi-part stack: the liver scan with a 30 mm ball
 inside it, ``--parts``), at 0.1 mm and 600 dpi: slice it, then run ``verify``, ``preview --section``
-(through the part's middle, across x and across y), ``export --format png``, ``export --format voxel-print``
+(through the middle of the image, across x and across y), ``export --format png``, ``export --format voxel-print``
 and ``print --dry-run`` on it, each once per repeat, in that order, the repeats alternating, and read_floor.py (the
 reading alone that every command over the whole stack needs: its files read and hashed, every strip inflated). Reports each command's
 wall time as a ratio to the slice's of the same repeat (median over repeats), its CPU time and the

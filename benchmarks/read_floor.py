@@ -1,7 +1,9 @@
 """The least time any command that reads a whole stack can take: every layer file read, hashed and its layout
-checked (:func:`heoslice.stack.packed.read_layer_file`), and every distinct strip of every file inflated once
-into one reused buffer (blank strips, known by their bytes, not inflated), the layers split over the cores in
-forked processes, nothing else: no counts, no checks of the pixels, no output. bench_commands.py runs it beside
+checked (:func:`heoslice.stack.packed.read_layer_file`), and every strip of a layer's files inflated once (a strip
+whose bytes another file of the same layer holds, once for both) into one reused buffer, blank strips (known by
+their bytes) not at all, the layers split over the cores in forked processes, nothing else: no counts, no checks
+of the pixels, no output. For the 1-bit, deflated files heoslice writes (the benchmark stacks): a grey or colour
+file, or strips stored raw, are read and hashed but not decoded, so there it is not a floor. bench_commands.py runs it beside
 the commands (``read floor``), so that a command's ratio to the slice can be set against the ratio of the reading
 it cannot do without (verify, an x section and a print's dry run read every file and inflate every strip).
 

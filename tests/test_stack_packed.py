@@ -98,6 +98,55 @@ def test_a_line_is_the_layers_line(tall_stack, axis):
     assert line_bits(layer, False, axis, middle).any(), "the middle line crosses the part"
 
 
+def test_a_line_is_read_from_its_strips_alone(tall_stack, monkeypatch):
+    """heoslice's own files are read along the line strip by strip, never through the whole-layer reader (which a
+    failing strip falls back to): the fast path is the one the other tests check."""
+    from heoslice.stack.packed import layer_files, line_bits
+
+    manifest = read_manifest(tall_stack)
+    layer, masks = layer_files(tall_stack, manifest, len(manifest["layers"]) // 2)
+
+    def whole_layer(*_args, **_kwargs):
+        raise AssertionError("line_bits fell back to the whole layer")
+
+    monkeypatch.setattr(packed, "solid_bits", whole_layer)
+    for file in [layer, *masks]:
+        for axis, line in (("x", manifest["image"]["width"] // 2), ("y", manifest["image"]["height"] // 2)):
+            line_bits(file, False, axis, line, {})
+    with pytest.raises(ValueError, match="outside"):
+        line_bits(layer, False, "y", manifest["image"]["height"])
+
+
+def test_lines_shared_between_files_of_other_strip_heights(tmp_path):
+    """Files of one layer cut into strips of other heights may hold byte-identical strips starting on other rows:
+    a y cut's row shared through ``seen`` is taken only from a strip holding the same row at the same place, and
+    a strip met again at the same place gives its line without being inflated (each file's line is its own)."""
+    from heoslice.stack.packed import line_bits
+
+    width, height = 40, 267
+    solid, mask = np.zeros((height, width), bool), np.zeros((height, width), bool)
+    for k in range(11):  # the solid's last strip (rows 256..266) is the mask's 24th (rows 253..263), byte for byte
+        solid[256 + k, :30 - 2 * k] = True
+        mask[253 + k, :30 - 2 * k] = True
+    manifest = {"image": {"width": width, "height": height}, "dpi": [300.0, 300.0], "mask": "nonzero"}
+    files = {}
+    for name, pixels, rows in (("solid", solid, 256), ("mask", mask, 11), ("again", solid, 256)):
+        (tmp_path / f"{name}.tif").write_bytes(encode_bilevel_tiff(np.packbits(pixels, axis=1), width,
+                                                                   (300.0, 300.0), "deflate", rows_per_strip=rows))
+        files[name] = read_layer_file(tmp_path / f"{name}.tif", f"{name}.tif", None, manifest, None)
+    page_solid, page_mask = (tifffile.TiffFile(tmp_path / f"{n}.tif").pages.first for n in ("solid", "mask"))
+    last = (page_solid.dataoffsets[-1], page_solid.databytecounts[-1])
+    strip = (page_mask.dataoffsets[23], page_mask.databytecounts[23])
+    solid_bytes, mask_bytes = (tmp_path / "solid.tif").read_bytes(), (tmp_path / "mask.tif").read_bytes()
+    assert solid_bytes[last[0]:sum(last)] == mask_bytes[strip[0]:sum(strip)], "the layout the test needs"
+    for axis, lines in (("y", range(250, height)), ("x", range(width))):
+        for line in lines:
+            seen: packed.SeenLines = {}
+            for name, pixels in (("solid", solid), ("mask", mask), ("again", solid)):
+                expected = pixels[:, line] if axis == "x" else pixels[line]
+                assert np.array_equal(line_bits(files[name], False, axis, line, seen), expected), (name, axis, line)
+
+
 def test_a_known_layout_is_checked_like_a_new_one(tmp_path):
     """A file matching a layout seen before still has its strip table checked: a strip pointing past the end
     of the file is refused with the careful reader's message."""

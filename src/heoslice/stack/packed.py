@@ -280,8 +280,10 @@ def _inflate_bits(layer: LayerFile, flat: np.ndarray, inflated: InflatedStrips |
 
 
 #: Lines of strips read earlier from one layer's files (:func:`line_bits`' ``seen``): (compression code, bytes
-#: inflated, the strip's bytes) -> the strip's pixels on the line, as :data:`InflatedStrips` for whole strips.
-SeenLines = dict[tuple[int, int, bytes], np.ndarray]
+#: inflated, the strip's bytes, the line's row within the strip (a y cut; -1 for an x cut, whose column spans the
+#: strip)) -> the strip's pixels on the line. The row within the strip is part of the key because files of one
+#: layer may be cut into strips of different heights: equal strips may start on different rows.
+SeenLines = dict[tuple[int, int, bytes, int], np.ndarray]
 
 
 def line_bits(layer: LayerFile, alpha: bool, axis: str, line: int, seen: SeenLines | None = None) -> np.ndarray:
@@ -291,6 +293,8 @@ def line_bits(layer: LayerFile, alpha: bool, axis: str, line: int, seen: SeenLin
     strips known by their bytes are not inflated). ``seen`` (one dict for the files of one layer) lets a strip
     met before give its line without being inflated again."""
     page = layer.page
+    if not 0 <= line < (page.imagewidth if axis == "x" else page.imagelength):
+        raise ValueError(f"line_bits: {axis} line {line} lies outside the {page.imagewidth} x {page.imagelength} image")
     strips = _plain_strips(page)
     if strips is None:
         bits = solid_bits(layer, alpha)
@@ -306,7 +310,8 @@ def line_bits(layer: LayerFile, alpha: bool, axis: str, line: int, seen: SeenLin
         key = (code, expected, bytes(view[offset:offset + count]) if short or seen is not None else None)
         if short and key in _BLANK_STRIPS:
             continue
-        known = None if seen is None else seen.get(key)
+        seen_key = (*key, line - row if axis == "y" else -1)
+        known = None if seen is None else seen.get(seen_key)
         if known is None:
             target = buffer[:expected + 1]
             if not _inflate_strip(decode, view[offset:offset + count], target, expected):
@@ -316,7 +321,7 @@ def line_bits(layer: LayerFile, alpha: bool, axis: str, line: int, seen: SeenLin
             rows = target[:expected].reshape(held, width)
             known = _line_of(rows, axis, line - row if axis == "y" else line, page.imagewidth)
             if seen is not None:
-                seen[key] = known
+                seen[seen_key] = known
         if axis == "x":
             out[row:row + held] = known
         else:
