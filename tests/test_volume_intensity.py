@@ -125,3 +125,39 @@ def test_ct_bone_by_its_curve_and_labelled_soft_tissue_in_one_job(tmp_path, caps
     assert masks[0, row:row + 47, tissue:tissue + 47].all()
     beyond = int(np.ceil((36.2 - left) / px))  # past label 2 (face 35, its rounded box bulges < 1 mm): the dense slab
     assert beyond < solid.shape[1] and not solid[:, beyond:].any()
+
+
+def test_a_within_label_below_the_curves_first_point_is_air(tmp_path):
+    """Inside a label the [intensity] table's 'within' prints by the CT, the voxels below the curve's first point
+    are not printed (air), as a CT sliced alone leaves them: a -1000 HU hollow inside label 1 stays empty, its
+    700 HU rest prints."""
+    hu = np.full((24, 16, 10), -1000, np.int16)
+    hu[2:20, 2:14, 2:8] = 700
+    hu[8:14, 6:10, 2:8] = -1000  # a hollow (marrow, a pore) inside the label
+    labels = np.zeros(hu.shape, np.uint8)
+    labels[2:20, 2:14, 2:8] = 1
+    ct = write_nifti(tmp_path / "ct.nii.gz", hu, grid_affine(2.0, [0, 0, 0]))
+    seg = write_nifti(tmp_path / "seg.nii.gz", labels, grid_affine(2.0, [0, 0, 0]))
+    (tmp_path / "m.toml").write_text(MATERIALS + 'within = [1]\n')
+    assert in_process("slice", ct, "--labels", seg, "--materials", tmp_path / "m.toml", "--layer", "0.5", "--dpi",
+                      "200", "-o", tmp_path / "out") == 0
+    manifest, solid, _ = middle_layer(tmp_path / "out")
+    left, top = manifest["image"]["origin_mm"]
+    px = manifest["pixel_size_mm"][0]
+    row, hollow, dense = int((top - 16.0) / px), int((22.0 - left) / px), int((8.0 - left) / px)
+    assert not solid[row, hollow] and solid[row, dense]
+
+
+def test_a_scans_end_slices_print_their_whole_thickness(tmp_path):
+    """A CT's voxels are cells, as a label map's are: a slab filling the scan's 5 slices of 2 mm prints 10 mm of
+    layers (half a slice beyond the first and last slice centres), not the 8 mm between those centres."""
+    hu = np.full((12, 12, 5), -1000, np.int16)
+    hu[2:10, 2:10, :] = 700
+    ct = write_nifti(tmp_path / "ct.nii.gz", hu, grid_affine(2.0, [0, 0, 0]))
+    (tmp_path / "m.toml").write_text(MATERIALS)
+    assert in_process("slice", ct, "--materials", tmp_path / "m.toml", "--layer", "0.5", "--dpi", "100", "-o",
+                      tmp_path / "out") == 0
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    printed = [entry["z_mm"] for entry in manifest["layers"] if entry["solid_pixels"]]
+    assert len(printed) * 0.5 == pytest.approx(10.0, abs=0.5)
+    assert min(printed) < 0.0 < 8.0 < max(printed)  # below the first slice's centre (z 0), above the last (z 8)

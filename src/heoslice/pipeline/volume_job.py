@@ -374,8 +374,10 @@ def slice_ct_with_labels_to_stack(ct: Volume, labels: Volume, directory: Path, s
         planes = np.unpackbits(packed, axis=2, count=grid.width).astype(bool)[:-1]
         inside = np.unpackbits(packed[-1], axis=1, count=grid.width).astype(bool)
         if inside.any():
-            values, _ = intensity_plane(oriented, origin, spacing, z, grid)
-            blend = halftone(curve.mix(values) * inside[..., None], index, spec.halftone)
+            values, covered = intensity_plane(oriented, origin, spacing, z, grid)
+            air = inside & ~(covered & (values >= curve.values[0]))  # below the curve's first point, as a CT alone
+            planes[0] &= ~air
+            blend = halftone(curve.mix(values) * (inside & ~air)[..., None], index, spec.halftone)
             for column, plane in zip(curve_columns, blend):
                 planes[column + 1] |= plane
         return _packed(planes)

@@ -82,13 +82,16 @@ def intensity_plane(oriented: np.ndarray, origin: np.ndarray, spacing: np.ndarra
                     grid: Grid) -> tuple[np.ndarray, np.ndarray]:
     """((H, W) float32 values, (H, W) bool inside) of an intensity volume at the layer's pixel centres:
     ``oriented`` its (z, y, x) array along the printer's axes, ``origin`` printer (z, y, x) mm of its first
-    voxel, ``spacing`` (3,) mm; trilinear between voxel centres, inside only between the outermost centres."""
+    voxel, ``spacing`` (3,) mm; trilinear between voxel centres, and inside the volume's voxels as cells: up to
+    half a voxel beyond the outermost centres, where the outermost value holds (as a label map's voxels are cells,
+    so that a scan's first and last slices print their whole thickness)."""
     x, y = grid.centres()
     k = (z_mm - origin[0]) / spacing[0]
     values = np.zeros((grid.height, grid.width), dtype=np.float32)
     inside = np.zeros((grid.height, grid.width), dtype=bool)
-    if not 0 <= k <= oriented.shape[0] - 1:
+    if not -0.5 <= k <= oriented.shape[0] - 0.5:
         return values, inside
+    k = min(max(k, 0.0), oriented.shape[0] - 1.0)
     below = min(int(np.floor(k)), max(oriented.shape[0] - 2, 0))
     weight = np.float32(k - below)
     plane = oriented[below].astype(np.float32)
@@ -96,8 +99,8 @@ def intensity_plane(oriented: np.ndarray, origin: np.ndarray, spacing: np.ndarra
         plane = plane + weight * (oriented[below + 1].astype(np.float32) - plane)
     gy = (y - origin[1]) / spacing[1]
     gx = (x - origin[2]) / spacing[2]
-    rows = (gy >= 0) & (gy <= plane.shape[0] - 1)
-    columns = (gx >= 0) & (gx <= plane.shape[1] - 1)
+    rows = (gy >= -0.5) & (gy <= plane.shape[0] - 0.5)  # np.interp holds the end values beyond the centres
+    columns = (gx >= -0.5) & (gx <= plane.shape[1] - 0.5)
     if not rows.any() or not columns.any():
         return values, inside
     ry, cx = np.flatnonzero(rows), np.flatnonzero(columns)
