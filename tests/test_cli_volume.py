@@ -62,6 +62,14 @@ def test_labels_table_for_a_ct_without_labels_is_refused(run_cli, tmp_path):
     assert f"{path}: [labels]" in err and "intensity volume" in err and "--labels MAP" in err
 
 
+def test_mesh_options_with_a_volume_are_refused(run_cli, tmp_path):
+    """--rgba (a preview stack) and --interior (a coloured mesh's interior) would be ignored for a volume, whose
+    stack is a print job of its labels: each is one line naming it, nothing written."""
+    for flags in (("--rgba",), ("--interior", "contour")):
+        err = refused(run_cli, tmp_path, organs(tmp_path / "seg.nii.gz"), *flags)
+        assert flags[0] in err and "do not apply" in err
+
+
 def test_ct_with_its_curve_alone_still_slices(run_cli, tmp_path):
     """The refusals above leave the plain CT-by-curve job alone."""
     code, _, err = run_cli("slice", ct(tmp_path / "ct.nii.gz"), "--materials", materials(tmp_path, CURVE), "-o",

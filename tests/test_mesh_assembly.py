@@ -156,6 +156,8 @@ BAD_INPUTS = [
      'lesion = "tumour"\nvessel = "blood"\n', (), "both print on channel 2"),
     ("a part with no material", '[parts]\norgan = "tissue"\n', ("--parts",), "part 'lesion' has no material"),
     ("grading refused", '[parts]\norgan = "tissue"\n', ("--grade", "linear"), "not graded"),
+    ("a preview refused", '[parts]\norgan = "tissue"\n', ("--rgba",), "--rgba: a multi-part job is a print job"),
+    ("an interior refused", '[parts]\norgan = "tissue"\n', ("--interior", "contour"), "--interior: each part"),
     ("a part file that fails to load", '[parts]\norgan = "tissue"\n', ("broken",), "broken.stl"),
 ]
 

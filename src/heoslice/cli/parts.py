@@ -11,8 +11,13 @@ from heoslice.cli.options import option
 from heoslice.errors import InputError
 from heoslice.material import MaterialsFile, PartSetting, table_material
 
-#: What a multi-part job refuses, and why (one line each).
-GRADE_REFUSAL = "--grade: a multi-part job is not graded (slice a part on its own to grade it)"
+#: What a multi-part job refuses, and why (one line each): the option -> its line.
+REFUSALS = {
+    "--grade": "--grade: a multi-part job is not graded (slice a part on its own to grade it)",
+    "--interior": "--interior: each part of a multi-part job is one material (it applies to a coloured model)",
+    "--rgba": "--rgba: a multi-part job is a print job with a droplet mask per material (see it with heoslice "
+              "preview STACK)",
+}
 
 
 def is_parts_job(models: tuple[Path, ...], parts_flag: bool, part_options: tuple[str, ...],

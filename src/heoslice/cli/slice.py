@@ -17,7 +17,7 @@ from heoslice.cli.common import (
     run_each,
 )
 from heoslice.cli.options import apply_scale, flags, function_from_options, function_options, option, scale_option
-from heoslice.cli.parts import GRADE_REFUSAL, is_parts_job, part_settings, report_parts
+from heoslice.cli.parts import REFUSALS, is_parts_job, part_settings, report_parts
 from heoslice.cli.volume import slice_volume, volume_options
 from heoslice.errors import InputError
 from heoslice.grading.halftone import DEFAULT_METHOD, METHODS
@@ -301,9 +301,11 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     with option("--materials"):
         materials = read_materials_file(materials_file)  # the one read of the file: its tables are passed on
     if len(models) == 1 and is_volume_path(models[0]):
-        if grade_kind is not None or parts_flag or part_options or solid_only or scale != 1.0:
-            raise InputError("a volume is sliced by its labels: --grade, --parts, --part, --solid and --scale do "
-                             "not apply (map labels to materials in the materials file's [labels] table)")
+        if (grade_kind is not None or parts_flag or part_options or solid_only or scale != 1.0 or interior is not None
+                or channels is False):
+            raise InputError("a volume is sliced by its labels: --grade, --parts, --part, --solid, --scale, --interior "
+                             "and --rgba do not apply (map labels to materials in the materials file's [labels] "
+                             "table; its stack is a print job: see it with heoslice preview STACK)")
         if into is not None:
             raise click.UsageError("--into: one volume makes one stack; name it with -o/--output")
         try:
@@ -329,8 +331,10 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     if given:
         raise InputError(f"{given[0]}: only used when slicing a volume (NIfTI, NRRD, a folder), not a mesh")
     if is_parts_job(models, parts_flag, part_options, materials):
-        if grade_kind is not None:
-            raise InputError(GRADE_REFUSAL)
+        given = [flag for flag, value in (("--grade", grade_kind is not None), ("--interior", interior is not None),
+                                           ("--rgba", channels is False)) if value]
+        if given:
+            raise InputError(REFUSALS[given[0]])
         refuse_options_without_grade(alpha, beta, lam, periods, expression, depth, offset_count, target, start)
         if into is not None:
             raise click.UsageError("--into: a multi-part job makes one stack; name it with -o/--output")
