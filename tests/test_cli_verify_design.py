@@ -197,3 +197,24 @@ def test_a_deviation_between_the_tiles_is_found(sine_ball, tmp_path, run_cli):
     assert "the worst 2 mm window (layer 6)" in summary["problems"][0]
     code, out, err = run_cli("verify", broken)
     assert code == 4 and "windows every 0.466 mm" in out
+
+
+def test_windows_of_a_coarse_stack_hold_as_many_pixels_as_at_600_dpi(tmp_path, run_cli):
+    """At 150 dpi a 2 mm window is 12 x 12 pixels, less than one ordered-dither tile: verify's windows there are 47
+    pixels a side (7.96 mm), as at 600 dpi, so the linear vase (every band within 2 points) verifies clean, and
+    the report names the window's true size."""
+    from helpers import in_process
+
+    from heoslice.stack.report import WINDOW_LEAST_PIXELS
+
+    procedural.vase().export(tmp_path / "vase.ply")
+    assert in_process("color", tmp_path / "vase.ply", "--func", "linear", "-o", tmp_path / "vase_c.ply") == 0
+    assert in_process("slice", tmp_path / "vase_c.ply", "--layer", "0.5", "--dpi", "150", "-o",
+                      tmp_path / "stack") == 0
+    code, out, err = run_cli("verify", tmp_path / "stack", "--json")
+    worst = json.loads(out)["delivered"]["worst_window"]
+    assert code == 0, (out, err)
+    assert worst["size_mm"] == pytest.approx([WINDOW_LEAST_PIXELS * 25.4 / 150] * 2)
+    assert abs(worst["difference"]) <= 0.02
+    code, out, _ = run_cli("verify", tmp_path / "stack")
+    assert code == 0 and "worst 7.96 mm window" in out

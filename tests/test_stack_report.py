@@ -147,11 +147,14 @@ def test_every_window_of_the_grid_is_searched(h, w, rows, columns, row_step, col
 
 
 def test_the_grid_steps_a_quarter_window():
-    """A stack's windows are 2 mm at its pixel size, starting every quarter window rounded down (at least 1 px)."""
+    """A stack's windows are 2 mm at its pixel size, and at least 47 pixels a side (2 mm at 600 dpi) on a coarser
+    stack, starting every quarter window rounded down."""
     pitch = 25.4 / 600
     assert window_grid({"pixel_size_mm": [pitch, pitch]}) == WindowGrid((47, 47), (11, 11))
-    assert window_grid({"pixel_size_mm": [0.254, 0.1]}) == WindowGrid((20, 8), (5, 2))
-    assert window_grid({"pixel_size_mm": [5.0, 5.0]}) == WindowGrid((1, 1), (1, 1))
+    assert window_grid({"pixel_size_mm": [pitch / 2, pitch / 2]}) == WindowGrid((94, 94), (23, 23))
+    assert window_grid({"pixel_size_mm": [0.254, 0.1]}) == WindowGrid((47, 47), (11, 11))
+    assert window_grid({"pixel_size_mm": [pitch, 25.4 / 300]}) == WindowGrid((47, 47), (11, 11))
+    assert window_grid({"pixel_size_mm": [pitch / 2, 0.254]}) == WindowGrid((47, 94), (11, 23))
 
 
 def test_a_deviation_straddling_the_tiles_corner_is_found():

@@ -120,12 +120,12 @@ def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None
     report = material_report(stack, manifest, design, bands, SHARE_BANDS)
     designed = designed_part_volumes(manifest, mesh)
     parts = None if designed is None else part_shares(manifest, report, designed)
-    off = design_mismatch(report, comparison)
+    off = design_mismatch(report, comparison, manifest)
     problems += [f"{stack}: {off}"] if off else []
     return report, parts, comparison
 
 
-def design_mismatch(report: MaterialReport, comparison: Comparison | None) -> str | None:
+def design_mismatch(report: MaterialReport, comparison: Comparison | None, manifest: dict) -> str | None:
     """A line when the delivered material strays more than DESIGN_TOLERANCE from the design in a band or
     in the worst window, else None."""
     if comparison is None:
@@ -134,7 +134,7 @@ def design_mismatch(report: MaterialReport, comparison: Comparison | None) -> st
            f"{100 * b.difference:.2f} points" for b in report.bands if b.difference > DESIGN_TOLERANCE]
     worst = report.worst
     if worst is not None and abs(worst.difference) > DESIGN_TOLERANCE:
-        off.append(f"the worst {WINDOW_MM:g} mm window (layer {worst.layer}) by "
+        off.append(f"the worst {window_size_text(manifest)} window (layer {worst.layer}) by "
                    f"{100 * abs(worst.difference):.2f} points")
     if not off:
         return None
@@ -150,9 +150,22 @@ def window_centre_mm(manifest: dict, pixel: tuple[int, int]) -> tuple[float, flo
 
 def window_step_text(manifest: dict) -> str:
     """The step between the windows verify compares, 'S mm' (or 'SX x SY mm' when x and y differ)."""
-    step = window_grid(manifest).step
+    return _mm_text(manifest, window_grid(manifest).step)
+
+
+def window_size_text(manifest: dict) -> str:
+    """The side of the windows verify compares: '2 mm' (WINDOW_MM), or on a stack coarser than 600 dpi, whose
+    windows are larger (:data:`heoslice.stack.report.WINDOW_LEAST_PIXELS`), 'S mm' or 'SX x SY mm'."""
+    size, (px, py) = window_grid(manifest).size, manifest["pixel_size_mm"]
+    if size == (max(1, round(WINDOW_MM / py)), max(1, round(WINDOW_MM / px))):
+        return f"{WINDOW_MM:g} mm"
+    return _mm_text(manifest, size)
+
+
+def _mm_text(manifest: dict, pixels: tuple[int, int]) -> str:
+    """(rows, columns) pixels of the stack in mm, 'S mm' or 'SX x SY mm'."""
     px, py = manifest["pixel_size_mm"]
-    x, y = f"{step[1] * px:.3g}", f"{step[0] * py:.3g}"
+    x, y = f"{pixels[1] * px:.3g}", f"{pixels[0] * py:.3g}"
     return f"{x} mm" if x == y else f"{x} x {y} mm"
 
 
@@ -205,7 +218,7 @@ def text_lines(manifest: dict, report: MaterialReport, parts: tuple[PartShare, .
     worst = report.worst
     if worst is not None:
         x, y = window_centre_mm(manifest, worst.pixel)
-        lines.append(f"  worst {WINDOW_MM:g} mm window: layer {worst.layer}, centred at x {x:.4g}, y {y:.4g} mm: "
+        lines.append(f"  worst {window_size_text(manifest)} window: layer {worst.layer}, centred at x {x:.4g}, y {y:.4g} mm: "
                      f"{report.materials[worst.material].name} designed {_percent(worst.designed)}, "
                      f"delivered {_percent(worst.delivered)} ({100 * worst.difference:+.2f} points); "
                      f"windows every {window_step_text(manifest)}")

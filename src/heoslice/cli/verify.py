@@ -175,8 +175,9 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     is named by layer, pixel and mm. A stack whose files pass is followed by what it
     delivers: each material's voxels, mm^3 and share of the solid; each part's designed
     against delivered share (a multi-part stack); with --design, the worst 2 mm x 2 mm
-    window (windows start every quarter window across and down each layer: 11 pixels,
-    0.466 mm, at 600 dpi; the step is printed) and each band of designed share of the
+    window (at least 47 pixels a side: larger on a stack coarser than 600 dpi; windows
+    start every quarter window across and down each layer: 11 pixels, 0.466 mm, at
+    600 dpi; the size and step are printed) and each band of designed share of the
     recorded target (grading.target) against the design. A stack sliced with the
     field interior from a designed model is compared with the design its manifest
     records: f(r) per pixel computed again, 10 bands of r and the worst window (a missing

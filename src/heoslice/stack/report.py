@@ -32,6 +32,10 @@ from heoslice.stack.read import read_layer_channels, read_layer_mask, read_layer
 
 #: Side of the windows the design is checked over, mm.
 WINDOW_MM = 2.0
+#: Least side of a window, pixels: WINDOW_MM at 600 dpi, the paper's resolution. A coarser stack's windows hold as
+#: many pixels (as many droplets), so are larger in mm: no halftone delivers a share within 2 points over a few
+#: dozen droplets (2 mm at 150 dpi is 12 x 12 px, less than one 16 x 16 tile of the ordered dither).
+WINDOW_LEAST_PIXELS = 47
 #: Windows start every 1 / WINDOW_STEPS of a window's side (rounded down to whole pixels) in both directions, so a
 #: deviation straddling the edges of a tiling is seen whole by some window (a window at every pixel would add each
 #: pixel into a window's width of sums, 47 at 600 dpi, instead of WINDOW_STEPS).
@@ -247,10 +251,10 @@ def fault_lines(index: int, faults: MaskFaults, manifest: dict) -> list[str]:
 
 
 def window_grid(manifest: dict) -> WindowGrid:
-    """The windows of a stack: WINDOW_MM x WINDOW_MM at its pixel size (at least 1 pixel), a step of a
-    WINDOW_STEPS-th of that (at least 1 pixel)."""
+    """The windows of a stack: WINDOW_MM x WINDOW_MM at its pixel size, at least WINDOW_LEAST_PIXELS a side, a
+    step of a WINDOW_STEPS-th of that (at least 1 pixel)."""
     px, py = manifest["pixel_size_mm"]
-    size = max(1, round(WINDOW_MM / py)), max(1, round(WINDOW_MM / px))
+    size = max(WINDOW_LEAST_PIXELS, round(WINDOW_MM / py)), max(WINDOW_LEAST_PIXELS, round(WINDOW_MM / px))
     return WindowGrid(size, (max(1, size[0] // WINDOW_STEPS), max(1, size[1] // WINDOW_STEPS)))
 
 
