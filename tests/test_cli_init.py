@@ -71,7 +71,7 @@ def test_bash_completion_completes_commands_and_options(words, expected):
 # --- the statuses a command lists are the statuses its code can give ---------------------------------------------
 
 #: Statuses every command can give whatever its code: success, a bug, a usage error (click), the signals.
-ANY_COMMAND = {0, 1, 2, 129, 130, 143}
+ANY_COMMAND = {0, 1, 2, 129, 130, 141, 143}
 #: (command, module) pairs whose raised statuses the command never gives, and why: what the reference below cannot
 #: see (it reads whole modules, not the functions a command calls).
 NEVER_REACHED = {
@@ -164,3 +164,20 @@ def test_a_commands_listed_statuses_are_exactly_those_its_code_can_give(command)
                 for status in possible - listed}
     assert not unlisted, f"{command} can give {unlisted} (status: raised in) but its help does not list them"
     assert listed <= possible, f"{command}'s help lists {sorted(listed - possible)}, which nothing it runs gives"
+
+
+@pytest.mark.parametrize("args", [["--help"], ["slice", "--help"], ["verify", "no_such_stack"]])
+def test_a_reader_gone_away_ends_quietly_with_its_status(args):
+    """Output to a pipe whose reader went away (`heoslice ... | head`) ends the command with 141 (128 + SIGPIPE, as a
+    shell reports it) and nothing on stderr: not 'internal error' and exit 1 (a bug), nor a traceback at exit."""
+    from heoslice.errors import EXIT_PIPE
+
+    reader, writer = os.pipe()
+    os.close(reader)  # gone before the command writes
+    done = subprocess.run([sys.executable, "-m", "heoslice", *args], stdout=writer, stderr=subprocess.PIPE,
+                          text=True, timeout=120)
+    os.close(writer)
+    if args[0] == "verify":  # its error line goes to stderr, and it writes nothing to stdout: its own status
+        assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+        return
+    assert done.returncode == EXIT_PIPE and done.stderr == "", (done.returncode, done.stderr)

@@ -16,6 +16,8 @@ EXIT_INTERRUPTED = 130  # Ctrl-C (SIGINT); any signal ends with 128 + its number
 EXIT_STACK_BUSY = 18  # another process holds the stack (a print, or a slice writing it)
 EXIT_HANGUP = 129  # SIGHUP
 EXIT_TERMINATED = 143  # SIGTERM
+EXIT_PIPE = 141  # the reader of the output went away (`heoslice verify STACK | head`): 128 + SIGPIPE, as a shell
+#                 reports a writer that a closed pipe ended
 
 
 def shown(value, limit: int = 40) -> str:
@@ -193,5 +195,6 @@ EXIT_CODES: dict[int, str] = {
     EXIT_FINISHED: "the controller already finished this job: rerun with --restart to print it again",
     EXIT_HANGUP: "hung up (SIGHUP); a print sends ABORT first",
     EXIT_INTERRUPTED: "interrupted (Ctrl-C); a print sends ABORT first",
+    EXIT_PIPE: "the reader of the output went away (a closed pipe, as in | head)",
     EXIT_TERMINATED: "terminated (SIGTERM); a print sends ABORT first",
 }

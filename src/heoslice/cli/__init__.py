@@ -29,6 +29,7 @@ from heoslice.errors import (
     EXIT_LINK_DEAD,
     EXIT_OK,
     EXIT_OUTPUT,
+    EXIT_PIPE,
     EXIT_PORT,
     EXIT_PROTOCOL,
     EXIT_RESET,
@@ -73,7 +74,7 @@ COMMANDS = {
 }
 
 
-_COMMON_EXITS = (EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_HANGUP, EXIT_INTERRUPTED, EXIT_TERMINATED)
+_COMMON_EXITS = (EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_HANGUP, EXIT_INTERRUPTED, EXIT_PIPE, EXIT_TERMINATED)
 _PRINTER_EXITS = (EXIT_PORT, EXIT_LINK_DEAD, EXIT_PROTOCOL, EXIT_RETRIES, EXIT_RESET, EXIT_CONTROLLER, EXIT_BUSY,
                   EXIT_UNFINISHED, EXIT_STACK_BUSY, EXIT_STACK_CHANGED, EXIT_FINISHED)
 
@@ -86,7 +87,7 @@ EXIT_STATUSES = {
     "verify": (*_COMMON_EXITS, EXIT_VERIFY),
     "print": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_VERIFY, *_PRINTER_EXITS),
     "export": (*_COMMON_EXITS, EXIT_OUTPUT, EXIT_VERIFY),
-    "controller": (EXIT_OK, EXIT_BUG, EXIT_INPUT),  # a signal stops it normally
+    "controller": (EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_PIPE),  # a signal stops it normally
 }
 
 
@@ -141,8 +142,26 @@ def _interrupted_line(interrupt: BaseException | None) -> str:
     return ": ".join(["heoslice: interrupted", *(" ".join(str(note).split()) for note in notes)])
 
 
+def _end_on_closed_pipe() -> None:
+    """Exit EXIT_PIPE, quietly: standard output's reader went away (its later flushes go nowhere)."""
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    sys.exit(EXIT_PIPE)
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Console-script entry point: run the group, map errors to one line and an exit status."""
+    """Console-script entry point: :func:`run`, and standard output flushed while an exit status can still be set
+    (a reader that went away ends it with EXIT_PIPE, not a traceback at the interpreter's exit)."""
+    try:
+        run(argv)
+    finally:
+        try:
+            sys.stdout.flush()
+        except BrokenPipeError:
+            _end_on_closed_pipe()
+
+
+def run(argv: list[str] | None = None) -> None:
+    """Run the group, map errors to one line and an exit status."""
     args = sys.argv[1:] if argv is None else argv
     if argv is None:
         parallel.command_environment()
@@ -171,6 +190,8 @@ def main(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt as interrupt:
         click.echo(_interrupted_line(interrupt), err=True)
         sys.exit(getattr(interrupt, "exit_code", EXIT_INTERRUPTED))
+    except BrokenPipeError:  # the reader went away (`| head`): end quietly, as a shell reports a closed pipe's writer
+        _end_on_closed_pipe()
     except Exception as err:  # noqa: BLE001 - the last line of defence for users; a HeosliceError is theirs
         line, code = error_line(err, debug)
         where = state["defaults"].origin(str(err), args) if "defaults" in state and code != EXIT_BUG else None
