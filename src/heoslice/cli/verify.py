@@ -11,7 +11,7 @@ import click
 
 from heoslice.cli import material_report
 from heoslice.cli.common import plural, progress_bar, signed_percent
-from heoslice.errors import InputError, VerifyError
+from heoslice.errors import HeosliceError, InputError, VerifyError
 from heoslice.pipeline.parallel import ordered_map
 from heoslice.volume import is_volume_path
 from heoslice.stack import (
@@ -123,16 +123,35 @@ def mesh_scale(stack: Path, manifest: dict, given: float | None) -> float:
     return recorded
 
 
-def _check_mesh_options_first(stack: Path, models: tuple[Path, ...], given: float | None) -> float:
+def in_part_order(manifest: dict, models: tuple[Path, ...]) -> tuple[Path, ...]:
+    """The --mesh files of a multi-part stack in the order of its parts' files, matched by content (sha256) when
+    each is a file the stack was sliced from, in whatever order they were given; as given otherwise (then
+    :func:`source_warnings` names the ones that differ)."""
+    files = part_files(manifest)
+    if len(models) < 2 or len(files) != len(models):
+        return models
+    from heoslice.mesh import file_sha256
+
+    try:
+        by_digest = {file_sha256(model): model for model in models}
+    except (OSError, HeosliceError):  # a file that cannot be read: loading it reports it
+        return models
+    if set(by_digest) != {digest for _, digest in files}:
+        return models
+    return tuple(by_digest[digest] for _, digest in files)
+
+
+def _check_mesh_options_first(stack: Path, models: tuple[Path, ...],
+                              given: float | None) -> tuple[float, tuple[Path, ...]]:
     """:func:`check_mesh_count` and :func:`mesh_scale` before any mesh is loaded or layer hashed (both are
-    known from the manifest alone); the scale. A manifest that cannot be read is left to verify_stack's
-    problem lines (the scale is then ``given``, or 1)."""
+    known from the manifest alone): the scale, and the --mesh files :func:`in_part_order`. A manifest that
+    cannot be read is left to verify_stack's problem lines (the scale is then ``given``, or 1)."""
     try:
         manifest = read_manifest(stack)
     except VerifyError:
-        return 1.0 if given is None else given
+        return (1.0 if given is None else given), models
     check_mesh_count(stack, manifest, models)
-    return mesh_scale(stack, manifest, given)
+    return mesh_scale(stack, manifest, given), in_part_order(manifest, models)
 
 
 @click.command("verify", epilog="""\b
@@ -181,15 +200,15 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     recorded target (grading.target) against the design. A stack sliced with the
     field interior from a designed model is compared with the design its manifest
     records: f(r) per pixel computed again, 10 bands of r and the worst window (a missing
-    or changed reference surface is a warning, and no comparison). A band or window more
-    than 2 points off the design is a problem. Exit status 0 only when the stack is
+    or changed reference surface is a warning, and no comparison). A band, window or part
+    more than 2 points off the design is a problem. Exit status 0 only when the stack is
     clean, 4 when it has problems, 2 when STACK or the mesh cannot be read.
     """
     check_input_path(stack)
     mesh = None
     volume_model = models[0] if len(models) == 1 and is_volume_path(models[0]) else None
     if models and volume_model is None:
-        scale = _check_mesh_options_first(stack, models, scale)
+        scale, models = _check_mesh_options_first(stack, models, scale)
         from heoslice.mesh import load_assembly, load_mesh, scaled
 
         mesh = load_mesh(models[0]) if len(models) == 1 else load_assembly(models)
