@@ -261,3 +261,17 @@ def test_one_material_in_both_roles_is_refused(start, target):
     """--from and --to naming one material (by name or by its colour) is a one-line error naming both."""
     with pytest.raises(InputError, match="start, target: both name"):
         material_roles(dict(DEFAULT_MATERIALS), start=start, target=target)
+
+
+def test_the_colour_examples_an_error_gives_are_one_colour():
+    """The three ways of writing a colour an unparsable colour's error suggests name one colour: a user copying
+    one does not get another (CSS's 'green' is (0, 128, 0), not #00ff00)."""
+    import re
+
+    from heoslice.material.materials import COLOUR_EXAMPLES, parse_color
+
+    with pytest.raises(InputError) as raised:
+        parse_color("no-such-colour")
+    assert COLOUR_EXAMPLES in str(raised.value)
+    name, hex_code, triple = re.search(r"'(\w+)', a hex (#[0-9a-f]{6}) or r,g,b ([\d,]+)", COLOUR_EXAMPLES).groups()
+    assert parse_color(name) == parse_color(hex_code) == parse_color(triple)

@@ -77,8 +77,12 @@ DEFAULT_MATERIALS = {
 _TRIPLE = re.compile(r"^\s*\(?\s*([^,()]+),([^,()]+),([^,()]+)\)?\s*$")
 
 
+#: The three ways of writing a colour, one colour each way (a CSS name's hex is CSS's: 'green' is #008000).
+COLOUR_EXAMPLES = "a colour name such as 'red', a hex #ff0000 or r,g,b 255,0,0"
+
+
 def parse_color(text) -> tuple[int, int, int]:
-    """(r, g, b) 0..255 from a colour name ("green"), "#0f0" / "#00ff00", or "0,255,0".
+    """(r, g, b) 0..255 from a colour name ("green", CSS's #008000), "#0f0" / "#00ff00", or "0,255,0".
 
     Names and hex codes are Pillow's (CSS colour names). Raises InputError naming the text.
     """
@@ -96,7 +100,7 @@ def parse_color(text) -> tuple[int, int, int]:
     try:
         rgb = ImageColor.getrgb(spec)
     except (ValueError, AttributeError):
-        raise InputError(f"colour {spec!r} does not parse (use a name like 'green', #00ff00 or 0,255,0)") from None
+        raise InputError(f"colour {spec!r} does not parse (use {COLOUR_EXAMPLES})") from None
     return tuple(int(v) for v in rgb[:3])  # type: ignore[return-value]
 
 
@@ -280,7 +284,7 @@ def resolve_material(text: str, table: dict[str, Material]) -> Material:
         color = parse_color(spec)
     except InputError:
         raise InputError(f"{spec!r} is neither a material name ({', '.join(table) or 'none defined'}) "
-                         "nor a colour (a name like 'green', #00ff00 or 0,255,0)") from None
+                         f"nor a colour ({COLOUR_EXAMPLES})") from None
     return Material(spec, color, None)
 
 
