@@ -146,9 +146,8 @@ def _read_raw(path: Path, suffix: str) -> RawMesh:
         raise InputError(f"{path}: is {kind}, not a mesh (renamed to {suffix}?)")
     if suffix == ".ply":
         counts = check_ply_header(path)
-        if counts.get("face", 0) == 0:
-            extra = " (only 'tristrips' elements; convert to triangles first)" if "tristrips" in counts else ""
-            raise InputError(f"{path}: the mesh has no faces{extra}")
+        if counts.get("face", 0) == 0 and counts.get("tristrips", 0) == 0:
+            raise InputError(f"{path}: the mesh has no faces")
         return read_ply(path)
     if suffix == ".stl" and (soup := read_binary_stl(path)) is not None:
         return soup

@@ -16,7 +16,7 @@ import numpy as np
 from heoslice.errors import InputError
 from heoslice.files import open_regular, read_bounded
 from heoslice.mesh.limits import MAX_MESH_BYTES, MAX_TRIANGLES, MAX_VERTICES, check_count, check_text_body
-from heoslice.mesh.raw import RawMesh, checked_triangles
+from heoslice.mesh.raw import RawMesh, checked_triangles, strip_triangles
 from heoslice.mesh.text import as_type, ascii_rows
 
 #: PLY scalar type names (with their aliases) -> numpy type code.
@@ -367,16 +367,16 @@ def _ply_mesh(path: Path, elements: dict[str, dict], comments: tuple[str, ...] =
     if not finite.all():
         raise InputError(f"{path}: vertex {int(np.argmin(finite))} has a NaN or infinite coordinate")
     face = elements.get("face")
-    if face is None:
-        extra = " (only 'tristrips'; convert to triangles first)" if "tristrips" in elements else ""
-        raise InputError(f"{path}: PLY has no 'face' element{extra}")
-    key = next((name for name in _PLY_FACE_LISTS if isinstance(face.get(name), tuple)), None)
-    if key is None:
-        raise InputError(f"{path}: PLY face element has no list property 'vertex_indices'")
-    lengths, flat = face[key]
-    if flat.dtype.kind == "f":
-        raise InputError(f"{path}: PLY face property {key!r} holds floats; vertex indices must be integers")
-    triangles, polygon = checked_triangles(path, len(vertices), lengths, flat)
+    if face is None and "tristrips" in elements:
+        face = {}
+        lengths, flat = _index_list(path, elements["tristrips"], "tristrips")
+        triangles = strip_triangles(flat)
+        triangles, polygon = checked_triangles(path, len(vertices), np.full(len(triangles), 3), triangles.ravel())
+    elif face is None:
+        raise InputError(f"{path}: PLY has no 'face' element")
+    else:
+        lengths, flat = _index_list(path, face, "face")
+        triangles, polygon = checked_triangles(path, len(vertices), lengths, flat)
     vertex_columns = {k: v for k, v in vertex.items() if not isinstance(v, tuple)}
     face_colors = None
     if all(not isinstance(face.get(c), tuple) and getattr(face.get(c), "dtype", None) == np.uint8
@@ -386,6 +386,17 @@ def _ply_mesh(path: Path, elements: dict[str, dict], comments: tuple[str, ...] =
     source = "vertex" if vertex_colors is not None else "face" if face_colors is not None else None
     return RawMesh(vertices, triangles, vertex_colors=vertex_colors, face_colors=face_colors, color_source=source,
                    vertex_properties=vertex_columns, comments=comments)
+
+
+def _index_list(path: Path, element: dict, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """(lengths, concatenated indices) of an element's vertex index list property (``face`` or ``tristrips``)."""
+    key = next((key for key in _PLY_FACE_LISTS if isinstance(element.get(key), tuple)), None)
+    if key is None:
+        raise InputError(f"{path}: PLY {name} element has no list property 'vertex_indices'")
+    lengths, flat = element[key]
+    if flat.dtype.kind == "f":
+        raise InputError(f"{path}: PLY {name} property {key!r} holds floats; vertex indices must be integers")
+    return lengths, flat
 
 
 def _vertex_rgb(columns: dict[str, np.ndarray]) -> np.ndarray | None:

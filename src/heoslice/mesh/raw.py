@@ -74,3 +74,21 @@ def checked_triangles(path: Path, vertex_count: int, lengths: np.ndarray, flat: 
                          f"outside 0..{vertex_count - 1}")
     return fan_triangles(lengths, flat)
 
+
+
+def strip_triangles(flat: np.ndarray) -> np.ndarray:
+    """(k, 3) int64 triangles of triangle strips given as one index list, a negative index (PLY's -1) between
+    strips (the PLY ``tristrips`` element): a strip v0 v1 v2 v3 ... makes (v0, v1, v2), (v2, v1, v3), (v2, v3,
+    v4), ..., every other triangle's first two swapped so all keep the strip's winding; triangles with a repeated
+    vertex (the degenerate ones that join strips) are left out."""
+    flat = np.asarray(flat, dtype=np.int64)
+    if len(flat) < 3:
+        return np.empty((0, 3), dtype=np.int64)
+    positions = np.arange(len(flat))
+    start = np.maximum.accumulate(np.where(flat < 0, positions + 1, 0))  # each index's strip's first position
+    first, second, third = flat[:-2], flat[1:-1], flat[2:]
+    odd = (positions[:-2] - start[:-2]) % 2 == 1
+    triangles = np.stack([np.where(odd, second, first), np.where(odd, first, second), third], axis=1)
+    keep = (np.minimum(np.minimum(first, second), third) >= 0) & (first != second) & (second != third) & (
+        first != third)
+    return triangles[keep]
