@@ -262,3 +262,21 @@ def test_export_refuses_a_stack_with_a_bad_layer_and_writes_nothing(tmp_path):
         assert done.returncode == 4 and done.stderr.count("\n") == 1 and victim.name in done.stderr, done.stderr
     assert sorted((p.name, p.read_bytes()) for p in (tmp_path / "old").iterdir()) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ball.ply", "old", "stack"]
+
+
+@pytest.mark.parametrize("colours, advice", [
+    ({"M1": [0, 0, 0], "M2": [0, 255, 0]}, "give it another colour in the materials file"),
+    ({"M1": [0, 255, 0], "M2": [0, 255, 0]}, "give one of them another colour in the materials file"),
+])
+def test_materials_an_export_cannot_tell_apart_say_what_to_change(colours, advice):
+    """A material coloured as the background (black, a .gcvf's fixed one) or two materials of one colour: one line
+    naming the manifest and what to change (the materials' colours; --background only where the format takes
+    one), not advice that the format refuses."""
+    from heoslice.errors import InputError
+    from heoslice.export.voxel_print import palette
+
+    manifest = {"layers": [{"channels": [{"material": "M1"}, {"material": "M2"}]}],
+                "grading": {"materials": [{"name": name, "color": colour} for name, colour in colours.items()]}}
+    with pytest.raises(InputError, match=advice) as raised:
+        palette(manifest, (0, 0, 0), "st/manifest.json")
+    assert str(raised.value).startswith("st/manifest.json: material ") and "\n" not in str(raised.value)

@@ -63,8 +63,11 @@ def palette(manifest: dict, background: tuple[int, int, int],
     seen = {tuple(background): "the background"}
     for name, colour in materials:
         if colour in seen:
-            raise InputError(f"background: material {name!r} has colour {list(colour)}, the same as {seen[colour]}; "
-                             "Voxel Print tells materials apart by colour (choose another --background)")
+            advice = ("give it another colour in the materials file (--materials), or choose another --background "
+                      "where the format takes one" if seen[colour] == "the background"
+                      else "give one of them another colour in the materials file (--materials)")
+            raise InputError(f"{source}: material {name!r} has colour {list(colour)}, the same as {seen[colour]}; "
+                             f"the export tells materials apart by colour: {advice}")
         seen[colour] = f"material {name!r}"
     return materials
 
