@@ -7,8 +7,9 @@ file, or strips stored raw, are read and hashed but not decoded, so there it is 
 the commands (``read floor``), so that a command's ratio to the slice can be set against the ratio of the reading
 it cannot do without (verify, an x section and a print's dry run read every file and inflate every strip).
 
-Example:
-  python benchmarks/read_floor.py STACK          # prints the files, the strips inflated and the time taken
+Examples:
+  python benchmarks/read_floor.py STACK             # prints the files, the strips inflated and the time taken
+  python benchmarks/read_floor.py STACK --no-hash   # without the sha256 checks: the reading and inflating alone
 """
 
 from __future__ import annotations
@@ -21,16 +22,19 @@ from multiprocessing import get_context
 from pathlib import Path
 
 
-def read_layers(directory: Path, manifest: dict, layers: range) -> tuple[int, int]:
-    """(files read, strips inflated) of ``layers``: each file read and checked, each distinct strip inflated."""
+def read_layers(directory: Path, manifest: dict, layers: range, hashed: bool = True) -> tuple[int, int]:
+    """(files read, strips inflated) of ``layers``: each file read and checked (its sha256 against the manifest's
+    unless not ``hashed``), each distinct strip inflated."""
     import numpy as np
 
     from heoslice.stack.packed import _BLANK_STRIPS, _plain_strips, _strip_decoder, layer_files
 
     files = inflated = 0
     buffer = np.empty(0, dtype=np.uint8)
+    unhashed = {**manifest, "layers": [{**entry, "sha256": None, "channels": [
+        {**channel, "sha256": None} for channel in entry.get("channels") or []]} for entry in manifest["layers"]]}
     for index in layers:
-        layer, masks = layer_files(directory, manifest, index)
+        layer, masks = layer_files(directory, manifest if hashed else unhashed, index)
         seen: set[bytes] = set()
         for file in [layer, *masks]:
             files += 1
@@ -55,6 +59,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("stack", type=Path)
     parser.add_argument("--processes", type=int, default=len(os.sched_getaffinity(0)),
                         help="forked processes the layers are split over [the usable cores]")
+    parser.add_argument("--no-hash", action="store_true",
+                        help="do not check the files' sha256 (the reading and inflating alone)")
     args = parser.parse_args(argv)
     started = time.perf_counter()
     from heoslice.stack import read_manifest
@@ -63,10 +69,10 @@ def main(argv: list[str] | None = None) -> None:
     count = len(manifest["layers"])
     shares = [range(count * k // args.processes, count * (k + 1) // args.processes) for k in range(args.processes)]
     with get_context("fork").Pool(args.processes) as pool:
-        done = pool.starmap(read_layers, [(args.stack, manifest, share) for share in shares])
+        done = pool.starmap(read_layers, [(args.stack, manifest, share, not args.no_hash) for share in shares])
     files, inflated = map(sum, zip(*done))
-    print(f"{args.stack}: {count} layers, {files} files read and checked, {inflated} strips inflated in "
-          f"{time.perf_counter() - started:.2f} s ({args.processes} processes)")
+    print(f"{args.stack}: {count} layers, {files} files read and checked{'' if args.no_hash else ' (sha256 too)'}, "
+          f"{inflated} strips inflated in {time.perf_counter() - started:.2f} s ({args.processes} processes)")
 
 
 if __name__ == "__main__":
