@@ -181,3 +181,48 @@ def test_a_reader_gone_away_ends_quietly_with_its_status(args):
         assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
         return
     assert done.returncode == EXIT_PIPE and done.stderr == "", (done.returncode, done.stderr)
+
+
+class _GoneReader:
+    """A standard output whose reader went away: writes are kept, the flush fails as a closed pipe's does."""
+
+    def write(self, text: str) -> int:
+        return len(text)
+
+    def flush(self) -> None:
+        raise BrokenPipeError(32, "Broken pipe")
+
+    def fileno(self) -> int:
+        return os.open(os.devnull, os.O_WRONLY)
+
+
+@pytest.mark.parametrize("status", [0, 4, 2])
+def test_a_closed_pipe_at_exit_keeps_a_failed_commands_status(monkeypatch, status):
+    """When the last flush finds the reader gone, a command that failed keeps its own status (its error line went
+    to stderr); only one that succeeded ends with 141. A closed standard output (None) keeps the status too."""
+    import heoslice.cli as cli_module
+    from heoslice.errors import EXIT_PIPE
+
+    def finished(argv):
+        if status:
+            raise SystemExit(status)
+
+    monkeypatch.setattr(cli_module, "run", finished)
+    monkeypatch.setattr(cli_module, "_silence_stdout", lambda: None)
+    for stdout, expected in ((_GoneReader(), status or EXIT_PIPE), (None, status)):
+        monkeypatch.setattr(sys, "stdout", stdout)
+        if expected:
+            with pytest.raises(SystemExit) as ended:
+                cli_module.main([])
+            assert ended.value.code == expected
+        else:
+            cli_module.main([])
+
+
+@pytest.mark.parametrize("args, status", [(["--version"], 0), (["verify", "no_such_stack"], 2)])
+def test_a_closed_standard_output_keeps_the_status(args, status):
+    """Started with standard output closed (`>&-`, some daemons): the command's own status and at most its one
+    error line, not a traceback and exit 1."""
+    done = subprocess.run([sys.executable, "-m", "heoslice", *args], stderr=subprocess.PIPE, text=True, timeout=120,
+                          preexec_fn=lambda: os.close(1))
+    assert done.returncode == status and done.stderr.count("\n") == (1 if status else 0), done.stderr

@@ -142,22 +142,37 @@ def _interrupted_line(interrupt: BaseException | None) -> str:
     return ": ".join(["heoslice: interrupted", *(" ".join(str(note).split()) for note in notes)])
 
 
+def _silence_stdout() -> None:
+    """Point standard output at /dev/null: its reader went away, and later flushes (at exit) would fail again."""
+    sink = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(sink, sys.stdout.fileno())
+    os.close(sink)
+
+
 def _end_on_closed_pipe() -> None:
-    """Exit EXIT_PIPE, quietly: standard output's reader went away (its later flushes go nowhere)."""
-    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    """Exit EXIT_PIPE, quietly: standard output's reader went away while the command wrote."""
+    _silence_stdout()
     sys.exit(EXIT_PIPE)
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Console-script entry point: :func:`run`, and standard output flushed while an exit status can still be set
-    (a reader that went away ends it with EXIT_PIPE, not a traceback at the interpreter's exit)."""
+    """Console-script entry point: :func:`run`, and standard output flushed while an exit status can still be set:
+    a reader that went away ends a command that succeeded with EXIT_PIPE (a failed one keeps its status), not with
+    a traceback at the interpreter's exit. A closed standard output (``>&-``: no sys.stdout) is left alone."""
+    status = 0
     try:
         run(argv)
+    except SystemExit as done:
+        status = done.code
+        raise
     finally:
-        try:
-            sys.stdout.flush()
-        except BrokenPipeError:
-            _end_on_closed_pipe()
+        if sys.stdout is not None:
+            try:
+                sys.stdout.flush()
+            except BrokenPipeError:
+                _silence_stdout()
+                if not status:
+                    sys.exit(EXIT_PIPE)
 
 
 def run(argv: list[str] | None = None) -> None:
