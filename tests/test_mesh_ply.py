@@ -333,13 +333,17 @@ def test_row_starts_are_the_same_for_any_window(tmp_path, window):
 
 
 
-def tristrips_ply(vertices, strips: list[list[int]]) -> bytes:
-    """An ASCII PLY whose triangles are one ``tristrips`` list, the strips joined by -1 (PLY's convention)."""
-    flat = [index for number, strip in enumerate(strips) for index in ([-1] if number else []) + strip]
+def tristrips_ply(vertices, strips: list[list[int]], *, rows: bool = False, index: str = "int",
+                  restart: int = -1, faces: bool = False) -> bytes:
+    """An ASCII PLY whose triangles are a ``tristrips`` element: one list, the strips joined by ``restart`` (PLY's
+    -1), or (``rows``) one row a strip; ``faces``: an empty face element before it."""
+    lists = strips if rows else [[i for n, strip in enumerate(strips) for i in ([restart] if n else []) + strip]]
     header = ["ply", "format ascii 1.0", f"element vertex {len(vertices)}", "property float x", "property float y",
-              "property float z", "element tristrips 1", "property list int int vertex_indices", "end_header"]
-    rows = [" ".join(repr(float(v)) for v in vertex) for vertex in vertices] + [" ".join(map(str, [len(flat), *flat]))]
-    return ("\n".join(header + rows) + "\n").encode()
+              "property float z", *(["element face 0", "property list uchar int vertex_indices"] if faces else []),
+              f"element tristrips {len(lists)}", f"property list int {index} vertex_indices", "end_header"]
+    body = [" ".join(repr(float(v)) for v in vertex) for vertex in vertices]
+    body += [" ".join(map(str, [len(row), *row])) for row in lists]
+    return ("\n".join(header + body) + "\n").encode()
 
 
 def reference_strip_triangles(strips: list[list[int]]) -> list[tuple[int, int, int]]:
@@ -361,8 +365,11 @@ def test_strips_decode_as_one_at_a_time(strips):
     from heoslice.mesh.raw import strip_triangles
 
     flat = [index for number, strip in enumerate(strips) for index in ([-1] if number else []) + strip]
-    assert [tuple(t) for t in strip_triangles(np.array(flat, dtype=np.int64)).tolist()] == \
-        reference_strip_triangles(strips)
+    joined = strip_triangles("t.ply", 7, np.array([len(flat)]), np.array(flat, dtype=np.int32))
+    assert [tuple(t) for t in joined.tolist()] == reference_strip_triangles(strips)
+    by_row = strip_triangles("t.ply", 7, np.array([len(strip) for strip in strips]),
+                             np.array([i for strip in strips for i in strip], dtype=np.int32))
+    assert np.array_equal(by_row, joined), "a row ends its strip, as -1 does"
 
 
 def test_a_tristrips_ply_reads_as_its_triangles(tmp_path):
@@ -371,11 +378,21 @@ def test_a_tristrips_ply_reads_as_its_triangles(tmp_path):
     from heoslice.mesh import mesh_info
 
     faces = mesh_info(load_mesh(write(tmp_path, "faces.ply", TETRA_BINARY)))
-    for strips in ([list(face) for face in TETRA_FACES], [[0, 2, 1, 3, 0, 2]]):
-        mesh = load_mesh(write(tmp_path, "strips.ply", tristrips_ply(TETRA_VERTICES, strips)))
+    one_strip, per_face = [[0, 2, 1, 3, 0, 2]], [list(face) for face in TETRA_FACES]
+    for data in (tristrips_ply(TETRA_VERTICES, per_face), tristrips_ply(TETRA_VERTICES, per_face, rows=True),
+                 tristrips_ply(TETRA_VERTICES, one_strip), tristrips_ply(TETRA_VERTICES, one_strip, faces=True),
+                 tristrips_ply(TETRA_VERTICES, per_face, index="uint", restart=2**32 - 1)):
+        mesh = load_mesh(write(tmp_path, "strips.ply", data))
         info = mesh_info(mesh)
         assert len(mesh.faces) == 4 and info["watertight"] and info["winding_consistent"]
         assert info["volume_mm3"] == pytest.approx(faces["volume_mm3"]) == pytest.approx(1000 / 6)
+
+
+@pytest.mark.parametrize("strips, expected", [([[0, 2, 1, -5, 3, 0, 2]], "index -5 is outside 0..3"),
+                                               ([[0, 2, 1, 3, 9]], "index 9 is outside 0..3")])
+def test_a_bad_strip_index_is_one_line(tmp_path, strips, expected):
+    """A negative index other than -1 (the one separator) or an index past the vertices: one line naming the file."""
+    assert expected in one_line_error(write(tmp_path, "bad.ply", tristrips_ply(TETRA_VERTICES, strips, rows=True)))
 
 
 @pytest.mark.shared_data

@@ -367,11 +367,10 @@ def _ply_mesh(path: Path, elements: dict[str, dict], comments: tuple[str, ...] =
     if not finite.all():
         raise InputError(f"{path}: vertex {int(np.argmin(finite))} has a NaN or infinite coordinate")
     face = elements.get("face")
-    if face is None and "tristrips" in elements:
+    if "tristrips" in elements and (face is None or not len(_index_list(path, face, "face")[0])):
         face = {}
-        lengths, flat = _index_list(path, elements["tristrips"], "tristrips")
-        triangles = strip_triangles(flat)
-        triangles, polygon = checked_triangles(path, len(vertices), np.full(len(triangles), 3), triangles.ravel())
+        triangles = strip_triangles(path, len(vertices), *_index_list(path, elements["tristrips"], "tristrips"))
+        polygon = np.arange(len(triangles))
     elif face is None:
         raise InputError(f"{path}: PLY has no 'face' element")
     else:

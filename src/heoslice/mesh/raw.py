@@ -76,17 +76,30 @@ def checked_triangles(path: Path, vertex_count: int, lengths: np.ndarray, flat: 
 
 
 
-def strip_triangles(flat: np.ndarray) -> np.ndarray:
-    """(k, 3) int64 triangles of triangle strips given as one index list, a negative index (PLY's -1) between
-    strips (the PLY ``tristrips`` element): a strip v0 v1 v2 v3 ... makes (v0, v1, v2), (v2, v1, v3), (v2, v3,
-    v4), ..., every other triangle's first two swapped so all keep the strip's winding; triangles with a repeated
-    vertex (the degenerate ones that join strips) are left out."""
-    flat = np.asarray(flat, dtype=np.int64)
-    if len(flat) < 3:
+def strip_triangles(path: Path, vertex_count: int, lengths: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """(k, 3) int64 triangles of triangle strips (the PLY ``tristrips`` element): rows of ``lengths`` (m,) indices
+    (concatenated: ``flat``), each row one or more strips with -1 between them (for an unsigned list type, its
+    largest value, -1's bits). A strip v0 v1 v2 v3 ... makes (v0, v1, v2), (v2, v1, v3), (v2, v3, v4), ..., every
+    other triangle's first two swapped so all keep the strip's winding; triangles with a repeated vertex (the
+    degenerate ones that join strips) are left out. InputError naming ``path`` for another negative index, one
+    outside the vertices, or more than MAX_TRIANGLES (refused before they are made)."""
+    flat = np.asarray(flat)
+    restart = flat == (np.iinfo(flat.dtype).max if flat.dtype.kind == "u" else -1)
+    indices = np.where(restart, -1, flat.astype(np.int64))
+    outside = ~restart & ((indices < 0) | (indices >= vertex_count))
+    if outside.any():
+        raise InputError(f"{path}: tristrips index {int(indices[np.argmax(outside)])} is outside 0..{vertex_count - 1} "
+                         "(-1 alone separates strips)")
+    if len(indices) > MAX_TRIANGLES + 2 * len(lengths):
+        raise InputError(f"{path}: its strips hold {len(indices)} indices, more than the {MAX_TRIANGLES} triangles "
+                         "heoslice reads")
+    row_ends = np.cumsum(lengths)[:-1]
+    indices = np.insert(indices, row_ends, -1)  # a row ends its strip: the next row starts a new one
+    if len(indices) < 3:
         return np.empty((0, 3), dtype=np.int64)
-    positions = np.arange(len(flat))
-    start = np.maximum.accumulate(np.where(flat < 0, positions + 1, 0))  # each index's strip's first position
-    first, second, third = flat[:-2], flat[1:-1], flat[2:]
+    positions = np.arange(len(indices))
+    start = np.maximum.accumulate(np.where(indices < 0, positions + 1, 0))  # each index's strip's first position
+    first, second, third = indices[:-2], indices[1:-1], indices[2:]
     odd = (positions[:-2] - start[:-2]) % 2 == 1
     triangles = np.stack([np.where(odd, second, first), np.where(odd, first, second), third], axis=1)
     keep = (np.minimum(np.minimum(first, second), third) >= 0) & (first != second) & (second != third) & (
