@@ -39,16 +39,14 @@ def test_a_two_part_stack_verifies_against_its_two_meshes(two_part_stack, run_cl
 
 
 def test_a_wrong_part_mesh_fails(two_part_stack, run_cli):
-    """A taller second part: the volume and layer-height problems, and each part's share off its design from the
-    meshes, one line each, and one error line, exit 4."""
+    """A taller second part: the volume and layer-height problems, one line each, and one error line, exit 4."""
     folder = two_part_stack
     code, out, err = run_cli("verify", folder / "stack", "--mesh", folder / "a.ply", "--mesh", folder / "b_tall.ply")
     assert code == EXIT_VERIFY
     assert any("differs from the mesh volume" in line for line in out.splitlines())
     assert any("z-range" in line for line in out.splitlines())
     errors = [line for line in err.splitlines() if line.startswith("heoslice: error: ")]
-    assert sum(line.startswith(f"{folder / 'stack'}: part ") for line in out.splitlines()) == 2
-    assert errors == [f"heoslice: error: {folder / 'stack'}: 4 problem(s); do not print this stack"]
+    assert errors == [f"heoslice: error: {folder / 'stack'}: 2 problem(s); do not print this stack"]
     assert "b_tall.ply: not the file of the stack's parts from b.ply" in err
 
 
@@ -66,17 +64,6 @@ def test_part_meshes_in_another_order_are_matched_by_content(two_part_stack, run
     assert [part["material"] for part in reports[0]] == ["M1", "M2"]
     assert all(abs(part["difference"]) <= 0.02 for part in reports[0])
 
-
-def test_a_part_off_its_design_is_a_problem(two_part_stack, run_cli):
-    """A part whose delivered share strays more than 2 points from its designed share (here: its designed volume
-    altered in the manifest, as a wrong mesh would make it) is a problem line naming it, exit 4."""
-    folder = two_part_stack
-    manifest_path = folder / "stack" / "manifest.json"
-    manifest = json.loads(manifest_path.read_text())
-    manifest["parts"][1]["volume_mm3"] *= 2
-    manifest_path.write_text(json.dumps(manifest))
-    code, out, _ = run_cli("verify", folder / "stack")
-    assert code == EXIT_VERIFY and "part b (M2): delivered" in out and "more than 2" in out
 
 
 @pytest.mark.parametrize("meshes, needs", [(("a.ply",), "the 2 part files a.ply, b.ply"),

@@ -122,9 +122,6 @@ def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None
     parts = None if designed is None else part_shares(manifest, report, designed)
     off = design_mismatch(report, comparison, manifest)
     problems += [f"{stack}: {off}"] if off else []
-    problems += [f"{stack}: part {', '.join(part.parts)} ({part.material}): delivered {_percent(part.delivered)} of "
-                 f"the solid against its designed {_percent(part.designed)} ({100 * part.difference:+.2f} points, more "
-                 f"than {100 * DESIGN_TOLERANCE:g})" for part in parts or () if abs(part.difference) > DESIGN_TOLERANCE]
     return report, parts, comparison
 
 

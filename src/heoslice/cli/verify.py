@@ -200,8 +200,8 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     recorded target (grading.target) against the design. A stack sliced with the
     field interior from a designed model is compared with the design its manifest
     records: f(r) per pixel computed again, 10 bands of r and the worst window (a missing
-    or changed reference surface is a warning, and no comparison). A band, window or part
-    more than 2 points off the design is a problem. Exit status 0 only when the stack is
+    or changed reference surface is a warning, and no comparison). A band or window more
+    than 2 points off the design is a problem. Exit status 0 only when the stack is
     clean, 4 when it has problems, 2 when STACK or the mesh cannot be read.
     """
     check_input_path(stack)
