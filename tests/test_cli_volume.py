@@ -70,6 +70,16 @@ def test_mesh_options_with_a_volume_are_refused(run_cli, tmp_path):
         assert flags[0] in err and "do not apply" in err
 
 
+def test_a_defaults_files_mesh_settings_leave_a_volume_alone(run_cli, tmp_path):
+    """A defaults file's [slice] interior and --rgba (channels = false), there for the lab's coloured meshes, do not
+    stop a volume's slice (they are refused only when typed for it): it slices its labels, a print job."""
+    (tmp_path / "heoslice.toml").write_text('[slice]\ninterior = "contour"\nchannels = false\n')
+    code, _, err = run_cli("--config", tmp_path / "heoslice.toml", "slice", organs(tmp_path / "seg.nii.gz"), "-o",
+                           tmp_path / "out", *FAST)
+    assert code == 0, err
+    assert (tmp_path / "out" / "manifest.json").exists()
+
+
 def test_ct_with_its_curve_alone_still_slices(run_cli, tmp_path):
     """The refusals above leave the plain CT-by-curve job alone."""
     code, _, err = run_cli("slice", ct(tmp_path / "ct.nii.gz"), "--materials", materials(tmp_path, CURVE), "-o",

@@ -162,6 +162,19 @@ BAD_INPUTS = [
 ]
 
 
+def test_a_defaults_files_mesh_settings_leave_a_multi_part_job_alone(tmp_path, run_cli):
+    """A defaults file's [slice] interior and channels = false (for the lab's coloured meshes) do not stop a
+    multi-part job: they are refused only when typed for it."""
+    for name, mesh in {"organ": trimesh.creation.icosphere(1, 8.0), "lesion": trimesh.creation.box()}.items():
+        mesh.export(tmp_path / f"{name}.stl")
+    (tmp_path / "heoslice.toml").write_text('[slice]\ninterior = "contour"\nchannels = false\n')
+    (tmp_path / "mats.toml").write_text(MATERIALS_TOML + '[parts]\norgan = "tissue"\nlesion = "tumour"\n')
+    code, _, err = run_cli("--config", tmp_path / "heoslice.toml", "slice", tmp_path / "organ.stl",
+                           tmp_path / "lesion.stl", "--materials", tmp_path / "mats.toml", "-o", tmp_path / "stack",
+                           "--layer", "1", "--dpi", "50")
+    assert code == 0, err
+
+
 @pytest.mark.parametrize("case, toml, extra, expected", BAD_INPUTS, ids=[case[0] for case in BAD_INPUTS])
 def test_bad_multi_part_inputs_are_one_line_errors(tmp_path, run_cli, case, toml, extra, expected):
     """Each bad input of a multi-part job exits 2 with one line naming what is wrong, and leaves no stack."""

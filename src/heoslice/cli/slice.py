@@ -300,9 +300,15 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
         layer_height, dpi = preset_grid(ctx, preset, layer_height, dpi)
     with option("--materials"):
         materials = read_materials_file(materials_file)  # the one read of the file: its tables are passed on
+    # a coloured mesh's interior and the preview stack, typed on this command line (a defaults file's [slice]
+    # settings of them stay for the coloured meshes it is also used for)
+    typed_for_meshes = {name for name in ("interior", "channels")
+                        if ctx.get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE}
+    interior_given, rgba_given = interior is not None and "interior" in typed_for_meshes, (
+        channels is False and "channels" in typed_for_meshes)
     if len(models) == 1 and is_volume_path(models[0]):
-        if (grade_kind is not None or parts_flag or part_options or solid_only or scale != 1.0 or interior is not None
-                or channels is False):
+        if (grade_kind is not None or parts_flag or part_options or solid_only or scale != 1.0 or interior_given
+                or rgba_given):
             raise InputError("a volume is sliced by its labels: --grade, --parts, --part, --solid, --scale, --interior "
                              "and --rgba do not apply (map labels to materials in the materials file's [labels] "
                              "table; its stack is a print job: see it with heoslice preview STACK)")
@@ -331,8 +337,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
     if given:
         raise InputError(f"{given[0]}: only used when slicing a volume (NIfTI, NRRD, a folder), not a mesh")
     if is_parts_job(models, parts_flag, part_options, materials):
-        given = [flag for flag, value in (("--grade", grade_kind is not None), ("--interior", interior is not None),
-                                           ("--rgba", channels is False)) if value]
+        given = [flag for flag, value in (("--grade", grade_kind is not None), ("--interior", interior_given),
+                                           ("--rgba", rgba_given)) if value]
         if given:
             raise InputError(REFUSALS[given[0]])
         refuse_options_without_grade(alpha, beta, lam, periods, expression, depth, offset_count, target, start)
