@@ -218,3 +218,18 @@ def test_windows_of_a_coarse_stack_hold_as_many_pixels_as_at_600_dpi(tmp_path, r
     assert abs(worst["difference"]) <= 0.02
     code, out, _ = run_cli("verify", tmp_path / "stack")
     assert code == 0 and "worst 7.96 mm window" in out
+
+
+def test_a_design_with_no_window_half_solid_says_so(tmp_path, run_cli):
+    """A designed stack too thin for any window to be half solid (a 3 mm plate coloured across, at 150 dpi: its
+    windows are 7.96 mm) says its design is compared per band only, rather than leaving the window line out."""
+    from helpers import in_process
+
+    procedural.box((40.0, 3.0, 3.0)).export(tmp_path / "plate.ply")
+    assert in_process("color", tmp_path / "plate.ply", "--ref", "plane", "--func", "linear", "-o",
+                      tmp_path / "plate_c.ply") == 0
+    assert in_process("slice", tmp_path / "plate_c.ply", "--layer", "0.5", "--dpi", "150", "-o",
+                      tmp_path / "stack") == 0
+    code, out, err = run_cli("verify", tmp_path / "stack")
+    assert code == 0, out + err
+    assert "no 7.96 mm window is half solid: the design is compared per band only" in out

@@ -222,6 +222,8 @@ def text_lines(manifest: dict, report: MaterialReport, parts: tuple[PartShare, .
                      f"{report.materials[worst.material].name} designed {_percent(worst.designed)}, "
                      f"delivered {_percent(worst.delivered)} ({100 * worst.difference:+.2f} points); "
                      f"windows every {window_step_text(manifest)}")
+    elif comparison is not None:
+        lines.append(f"  no {window_size_text(manifest)} window is half solid: the design is compared per band only")
     index = -1 if comparison is None else comparison.target
     target = report.materials[index].name
     for band in report.bands:
