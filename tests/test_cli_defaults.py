@@ -121,3 +121,40 @@ def test_a_defaults_files_volume_settings_leave_a_mesh_alone(run_cli, place):
     assert layers(run_cli) == 100
     code, _, err = run_cli("slice", "box.off", "--force", "-j", "1", "--up", "A")
     assert code == EXIT_INPUT and "--up: only used when slicing a volume" in err
+
+
+def test_every_true_false_flag_a_file_sets_is_applied():
+    """Each true/false flag of every command, set true or false in a defaults file, is that value in the command's
+    defaults (its off switch, --rgba of --channels/--rgba, the opposite), whatever click keeps as a flag's own
+    value: a lab's `dry-run = true` must not be dropped (click 8.2 and later keep an unset sentinel there)."""
+    import click
+
+    from heoslice.cli import COMMANDS, cli
+    from heoslice.cli.defaults import PER_RUN_OPTIONS, DefaultsFile, command_defaults
+
+    with click.Context(cli) as ctx:
+        checked = 0
+        for name in COMMANDS:
+            command = cli.get_command(ctx, name)
+            for param in command.params:
+                if not (isinstance(param, click.Option) and param.is_flag and not param.count):
+                    continue
+                for flag in (*param.opts, *param.secondary_opts):
+                    if not flag.startswith("--") or flag[2:] in PER_RUN_OPTIONS:
+                        continue
+                    for value in (True, False):
+                        file = DefaultsFile(Path("heoslice.toml"), {name: {flag[2:]: value}})
+                        got = command_defaults([file], name, command).values[param.name]
+                        assert got is (value != (flag in param.secondary_opts)), (name, flag, value, got)
+                        checked += 1
+    assert checked >= 20
+
+
+def test_dry_run_set_in_a_file_does_not_print(run_cli, place):
+    """`dry-run = true` in [print] makes `heoslice print STACK --port sim://` a dry run: nothing is sent, no print
+    log is written."""
+    assert layers(run_cli, "slice", "--dpi", "25", "--layer", "1") == 10
+    (place / "heoslice.toml").write_text("[print]\ndry-run = true\n")
+    code, out, err = run_cli("print", "box_stack", "--port", "sim://", "--json", "--log", place / "print.log")
+    assert code == 0, err
+    assert "seconds_at_baud" in json.loads(out) and not (place / "print.log").exists()

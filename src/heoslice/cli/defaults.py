@@ -132,18 +132,20 @@ def command_defaults(files: list[DefaultsFile], name: str, command: click.Comman
                 near = difflib.get_close_matches(flag, [k for k in options if k not in PER_RUN_OPTIONS], n=1)
                 hint = f"did you mean {near[0]!r}?" if near else f"see 'heoslice {name} --help'"
                 raise InputError(f"{where}: not an option of 'heoslice {name}' ({hint})")
-            defaults[param.name] = _checked(param, value, where, source.path.parent)
+            defaults[param.name] = _checked(param, value, where, source.path.parent, f"--{flag}" in param.secondary_opts)
             sources.update(dict.fromkeys(param.opts + param.secondary_opts, where))
     return Defaults(values=defaults, sources=sources)
 
 
-def _checked(param: click.Option, value: object, where: str, folder: Path) -> object:
-    """``value`` converted by the option's own type, as the command line would; relative paths from ``folder``."""
+def _checked(param: click.Option, value: object, where: str, folder: Path, secondary: bool = False) -> object:
+    """``value`` converted by the option's own type, as the command line would; relative paths from ``folder``. A
+    true/false flag's value is the flag's (``secondary``: the key is its off switch, ``rgba`` of
+    ``--channels/--rgba``), whatever click keeps as the flag's own value (8.2 and later: an unset sentinel)."""
     if param.is_flag and not param.count:
         if not isinstance(value, bool):
             raise InputError(f"{where}: expected true or false, got {value!r}")
-        if isinstance(param.flag_value, bool):
-            return value
+        if getattr(param, "is_bool_flag", False) or isinstance(param.flag_value, bool):
+            return value != secondary
         return param.flag_value if value else param.default
     if param.multiple or param.nargs != 1:
         if not isinstance(value, list):
