@@ -302,6 +302,28 @@ def test_job_too_big_for_the_printer(sim_factory):
     assert sim.stats["frames"] == 1
 
 
+@pytest.mark.parametrize("printer, stack, refused", [((600.0, 600.0), (150.0, 150.0), True),
+                                                    ((600.0, 300.0), (600.0, 600.0), True),
+                                                    ((600.0, 300.0), (600.0, 300.0), False),
+                                                    ((0.0, 0.0), (150.0, 150.0), False)])
+def test_a_stack_at_another_resolution_is_refused(sim_factory, printer, stack, refused):
+    """A stack whose dpi is not the printer's (it would print at another size) is refused with exit 12 before any
+    layer is sent, both resolutions named; the same dpi prints, and a printer that reports none (0) is not checked."""
+    from dataclasses import replace
+
+    job, get_layer = synthetic_job(3, 64, 16)
+    job = replace(job, dpi=stack)
+    sim = sim_factory(dpi_x=printer[0], dpi_y=printer[1])
+    if not refused:
+        print_job("sim://", job, get_layer, connector=SimConnector(sim))
+        assert sim.executed_layers() == [0, 1, 2]
+        return
+    with pytest.raises(IncompatibleControllerError, match=f"{stack[0]:g} x {stack[1]:g} dpi.*"
+                                                          f"{printer[0]:g} x {printer[1]:g} dpi") as info:
+        print_job("sim://", job, get_layer, connector=SimConnector(sim))
+    assert info.value.exit_code == 12 and sim.stats["frames"] == 1
+
+
 def test_unopenable_port_and_loopback_and_silence(tmp_path):
     """No such device: exit 10; loop:// (our own frames echoed): exit 12; a silent pty: exit 11."""
     job, get_layer = synthetic_job(3, 64, 16)

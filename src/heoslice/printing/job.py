@@ -38,6 +38,7 @@ class JobSpec:
     names: tuple[str, ...] = ()
     stored_bytes: tuple[int, ...] = field(default=(), repr=False, compare=False)
     blank: tuple[bool, ...] = field(default=(), repr=False, compare=False)
+    dpi: tuple[float, float] | None = None  # the stack's (x, y) resolution, which the printer's must be
 
     @property
     def channel_bytes(self) -> int:
@@ -128,7 +129,8 @@ def _job_of(manifest: dict, directory: Path) -> tuple[JobSpec, tuple[int, ...]]:
         names[target] = str(channel.get("material", f"channel {target}"))
     job_id = P.crc32(json.dumps(manifest, sort_keys=True).encode()) or 1
     job = JobSpec(job_id, len(layers), channels, manifest["image"]["width"], manifest["image"]["height"],
-                  tuple(names), (), tuple(entry["solid_pixels"] == 0 for entry in layers))
+                  tuple(names), (), tuple(entry["solid_pixels"] == 0 for entry in layers),
+                  (float(manifest["dpi"][0]), float(manifest["dpi"][1])))
     return job, targets
 
 

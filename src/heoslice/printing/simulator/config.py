@@ -27,8 +27,8 @@ class SimConfig:
     channels: int = 4
     max_width: int = 20000  # pixels
     max_height: int = 20000  # pixels
-    dpi_x: float = 600.0
-    dpi_y: float = 600.0
+    dpi_x: float = 0.0  # the printer's resolution, reported to the host, which refuses a stack at another;
+    dpi_y: float = 0.0  # 0: not reported (a simulated printer of any resolution), nothing checked
     print_queue: int = 2  # layers held ready beside the one printing
     status_interval_s: float = 0.5  # heartbeat period, real seconds (not scaled)
     version: int = P.PROTOCOL_VERSION
@@ -83,7 +83,7 @@ FAST_PACING = {"baud": 1_000_000, "layer_time_s": 0.002}
 #: ``pace=real`` / ``--real-pacing``: a 115200-baud UART and a 0.2 s head.
 REAL_PACING = {"baud": 115200, "layer_time_s": 0.2}
 #: Options that must be > 0; others must be >= 0; rates must also be <= 1.
-_POSITIVE = frozenset({"baud", "time_scale", "status_interval_s", "print_queue", "dpi_x", "dpi_y"})
+_POSITIVE = frozenset({"baud", "time_scale", "status_interval_s", "print_queue"})
 _BYTE_FIELDS = frozenset({"encodings", "channels", "version", "features"})
 
 
