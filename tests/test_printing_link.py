@@ -256,6 +256,47 @@ def test_reset_requires_from_layer_even_in_a_new_run(sim_factory):
     assert_exactly_once(sim, job, get_layer)
 
 
+def test_a_controller_that_lost_the_job_is_not_reprinted_over_the_part(tmp_path, sim_factory):
+    """A controller reset mid-print, then replaced by one that remembers nothing (power-cycled: no job): the print
+    log's last run of the job stopped at layer N, so a plain rerun, and --resume, are refused (exit 14) naming
+    --from-layer N + 1, not printed from layer 0 over the part; --from-layer past it would skip layers and is
+    refused; --from-layer N + 1 prints the rest, and the log's layers are then every layer exactly once."""
+    import json
+
+    job, get_layer = synthetic_job(60, 64, 16)
+    log = tmp_path / "print.log"
+    first = sim_factory(FaultSpec(reset_at_layer=25))
+    with pytest.raises(ControllerResetError) as reset:
+        print_job("sim://", job, get_layer, connector=SimConnector(first), log_path=log)
+    following = reset.value.next_layer
+    fresh = sim_factory()
+    for options in ({}, {"resume": True}, {"from_layer": following + 5}, {"from_layer": 0}):
+        with pytest.raises(ControllerResetError) as refused:
+            print_job("sim://", job, get_layer, connector=SimConnector(fresh), log_path=log, **options)
+        assert refused.value.exit_code == 14 and f"--from-layer {following}" in str(refused.value), options
+        assert fresh.executed == []
+    print_job("sim://", job, get_layer, connector=SimConnector(fresh), log_path=log, from_layer=following)
+    assert fresh.executed_layers() == list(range(following, 60))
+    layers = [json.loads(line)["layer"] for line in log.read_text().splitlines()
+              if json.loads(line)["event"] == "layer"]
+    assert sorted(layers) == list(range(60))
+    print_job("sim://", job, get_layer, connector=SimConnector(sim_factory()), log_path=log)  # finished: anew
+
+
+def test_from_layer_past_the_next_after_a_reset_is_refused(sim_factory):
+    """After a controller reset the controller holds the job up to layer N: --from-layer beyond N + 1 would leave
+    layers unprinted and is refused (exit 17) naming N + 1; nothing is sent."""
+    job, get_layer = synthetic_job(60, 64, 16)
+    sim = sim_factory(FaultSpec(reset_at_layer=25))
+    connector = SimConnector(sim)
+    with pytest.raises(ControllerResetError) as reset:
+        print_job("sim://", job, get_layer, connector=connector)
+    executed = len(sim.executed)
+    with pytest.raises(UnfinishedJobError, match=f"use --from-layer {reset.value.next_layer}") as refused:
+        print_job("sim://", job, get_layer, connector=connector, from_layer=reset.value.next_layer + 10)
+    assert refused.value.exit_code == 17 and len(sim.executed) == executed
+
+
 def test_retry_limit_pauses_and_a_rerun_resumes(sim_factory):
     """A one-way link failure hits the retry cap (exit 13) with the job paused; once the link heals, a plain rerun
     is refused naming --resume, and --resume continues where the controller stands: every layer exactly once."""

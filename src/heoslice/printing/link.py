@@ -19,7 +19,7 @@ from heoslice.errors import (ControllerBusyError, ControllerFaultError, Controll
                              StackChangedError, UnfinishedJobError)
 from heoslice.printing import protocol as P
 from heoslice.printing.job import JobSpec, LayerSource
-from heoslice.printing.log import PrintLog
+from heoslice.printing.log import PrintLog, last_run
 from heoslice.printing.ports import Connector, connector_for
 from heoslice.printing.resume import decide_start
 from heoslice.printing.session import LinkLost, LinkTiming, Session
@@ -139,12 +139,14 @@ class PrinterLink:
         self._generator: Iterator | None = None
         self._generator_done = False
         self._started = 0.0
+        self._logged = None  # the print log's last run of this job before this one (log.last_run)
 
     # -- public ------------------------------------------------------------------------
 
     def run(self, from_layer: int | None = None, *, resume: bool = False, restart: bool = False) -> PrintResult:
         """Print the job: from layer 0, or as ``--from-layer`` / ``--resume`` / ``--restart`` say (resume.py)."""
         self._started = time.monotonic()
+        self._logged = last_run(self.log.path, self.job.job_id)  # before this run's own start is logged
         self.log.write("start", port=self.name, job_id=f"{self.job.job_id:08x}", host_id=f"{self.host_id:08x}",
                        layers=self.job.layer_count, channels=self.job.channels, width=self.job.width,
                        height=self.job.height, from_layer=from_layer, resume=resume, restart=restart)
@@ -273,6 +275,8 @@ class PrinterLink:
         """Raise ControllerResetError naming the layer to resume from."""
         done = last_completed if job_id == self.job.job_id and last_completed < self.job.layer_count \
             else self.last_completed
+        if self.last_completed < done <= max(self._sent_execute, self._queued_base):  # executed, not yet logged
+            self._note_progress(max(self.last_queued, done), done)
         raise ControllerResetError(
             f"{self.name}: the controller was reset during the print (boot id {self.boot_id:08x} -> {boot_id:08x}); "
             f"layers up to {done} were printed: check the part, then rerun with --from-layer {done + 1}",
@@ -281,7 +285,7 @@ class PrinterLink:
     def _begin(self, ack: P.HelloAck, from_layer: int | None, resume: bool, restart: bool) -> int:
         """The first layer of this run (resume.decide_start), after ABORT / RESUME where the decision asks."""
         start = decide_start(ack, self.job, self.name, self.label, from_layer=from_layer, resume=resume,
-                             restart=restart)
+                             restart=restart, logged=self._logged)
         if start.event:
             self.log.write(start.event, layer=start.layer, controller_job=f"{ack.job_id:08x}",
                            controller_state=P.STATE_NAMES.get(ack.state), last_completed=ack.last_completed)

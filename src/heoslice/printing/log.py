@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 from heoslice.errors import OutputError
@@ -40,6 +41,51 @@ def check_log_output(path: Path, inputs: tuple[Path, ...] = ()) -> None:
             and not is_print_log(path):
         raise OutputError(f"{path}: exists and is not a print log heoslice wrote; print appends only to its own "
                           "logs (remove it yourself, or choose another --log)")
+
+
+#: Most bytes of a print log read for its last run of a job (a log of thousands of layers is a few MB).
+_MOST_LOG_BYTES = 64 << 20
+
+
+@dataclass(frozen=True)
+class LoggedRun:
+    """The last run of a job a print log holds: the last layer it logged executed (or, none logged, the layer
+    before the one it started at: 0, its --from-layer, or where it resumed) and whether it finished (a ``done``
+    record after its ``start``)."""
+
+    last_completed: int
+    finished: bool
+
+
+def last_run(path: Path | None, job_id: int) -> LoggedRun | None:
+    """What the print log at ``path`` says of the last run of job ``job_id`` that reached the controller (a run
+    refused before it connected leaves the one before as the last), :class:`LoggedRun`; None when it holds none (or
+    cannot be read: a print does not fail on its own log's history)."""
+    if path is None:
+        return None
+    try:
+        with open(path, "rb") as handle:
+            lines = handle.read(_MOST_LOG_BYTES).splitlines()
+    except OSError:
+        return None
+    wanted, run, ours = f"{job_id:08x}", None, False
+    for line in lines:
+        try:
+            record = json.loads(line)
+        except ValueError:
+            continue
+        event = record.get("event") if isinstance(record, dict) else None
+        if event == "start":
+            ours = record.get("job_id") == wanted
+        elif not ours:
+            continue
+        elif event == "connected" and isinstance(record.get("first_layer"), int):
+            run = LoggedRun(record["first_layer"] - 1, False)
+        elif run is not None and event == "layer" and isinstance(record.get("layer"), int):
+            run = LoggedRun(max(run.last_completed, record["layer"]), False)
+        elif run is not None and event == "done":
+            run = LoggedRun(run.last_completed, True)
+    return run
 
 
 class PrintLog:

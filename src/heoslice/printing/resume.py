@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from heoslice.errors import ControllerResetError, FinishedJobError, InputError, UnfinishedJobError
 from heoslice.printing import protocol as P
 from heoslice.printing.job import JobSpec
+from heoslice.printing.log import LoggedRun
 from heoslice.printing.stream import check_from_layer
 
 
@@ -45,10 +46,12 @@ def finished(ack: P.HelloAck, job: JobSpec) -> bool:
 
 
 def decide_start(ack: P.HelloAck, job: JobSpec, port: str, label: str, *, from_layer: int | None = None,
-                 resume: bool = False, restart: bool = False) -> Start:
+                 resume: bool = False, restart: bool = False, logged: LoggedRun | None = None) -> Start:
     """The :class:`Start` of a new run, or the one-line refusal (UnfinishedJobError exit 17, reset exit 14).
 
-    ``label`` names this run's stack in messages.
+    ``label`` names this run's stack in messages; ``logged`` is the print log's last run of this job: one that
+    printed some layers and did not finish, on a controller that holds no unfinished job (restarted or power-cycled
+    since, its memory of the job gone), is continued only from the layer after it (--from-layer), or restarted.
     """
     if resume and restart:
         raise InputError("--resume and --restart exclude each other")
@@ -65,6 +68,16 @@ def decide_start(ack: P.HelloAck, job: JobSpec, port: str, label: str, *, from_l
             f"{port}: the controller reports job {ack.job_id:08x} ({label}) finished: the head executed its layers "
             f"up to {ack.last_completed}, all {ack.layer_count}; nothing was sent{asked}; rerun with --restart "
             "to print it again on purpose")
+    if not unfinished(ack) and ack.job_id != job.job_id and not restart and logged is not None \
+            and not logged.finished and 0 <= logged.last_completed < job.layer_count - 1:
+        following = logged.last_completed + 1
+        if from_layer != following:
+            raise ControllerResetError(
+                f"{port}: the print log shows {label} printed up to layer {logged.last_completed} by a run that did "
+                f"not finish, and the controller holds no unfinished print of it (restarted or power-cycled since?): "
+                f"check the part, then rerun with --from-layer {following} (or --restart to start over)",
+                next_layer=following)
+        return Start(from_layer, event="resume")
     if not unfinished(ack):
         if resume:
             raise InputError(f"--resume: {port} holds no unfinished job to resume (controller {state}, "
@@ -89,6 +102,10 @@ def decide_start(ack: P.HelloAck, job: JobSpec, port: str, label: str, *, from_l
         if from_layer <= done:
             raise UnfinishedJobError(f"--from-layer {from_layer}: layers up to {done} of {label} were already "
                                      f"printed; use --from-layer {done + 1}, or --restart to start over")
+        if from_layer > done + 1:
+            raise UnfinishedJobError(f"--from-layer {from_layer}: layers {done + 1} to {from_layer - 1} of {label} "
+                                     f"were not printed (the controller completed layer {done}); use --from-layer "
+                                     f"{done + 1}, or --restart to start over")
         return Start(from_layer, event="resume")
     resume_at = ack.last_queued + 1
     if from_layer is not None and from_layer != resume_at:

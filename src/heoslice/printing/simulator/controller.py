@@ -125,9 +125,11 @@ class SimController:
             self._pending_transport = transport
 
     def start(self, transport: Transport | None = None) -> "SimController":
-        """Run on a daemon thread."""
+        """Run on a daemon thread (one: a controller already running goes on, as a powered board does)."""
         if transport is not None:
             self.attach(transport)
+        if self._thread is not None and self._thread.is_alive():
+            return self
         self._thread = threading.Thread(target=self.run, name="heoslice-sim", daemon=True)
         self._thread.start()
         return self
