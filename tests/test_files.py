@@ -254,3 +254,48 @@ def test_print_log_that_is_another_file_is_refused_without_offering_force(projec
     result = run_cli("print", project / "stack", "--port", "sim://", "--log", other)
     assert_refused(result, "is not a print log", "--log")
     assert "--force" not in result[2] and other.read_text() == "a lab's notes\n"
+
+
+def test_a_signal_between_the_renames_puts_the_old_output_back(tmp_path, monkeypatch):
+    """move_into_place interrupted after the old folder output was moved aside, before the new one took its place
+    (a signal between the two renames): the old output is back where it was and the new one's partial is gone."""
+    from heoslice import files
+
+    old, new = tmp_path / "export", partial_path(tmp_path / "export", folder=True)
+    old.mkdir()
+    (old / "kept.png").write_text("old")
+    new.mkdir(exist_ok=True)
+    (new / "new.png").write_text("new")
+    real_replace, calls = os.replace, []
+
+    def interrupted_replace(source, target):
+        calls.append(source)
+        if len(calls) == 2:  # the new output's rename
+            raise KeyboardInterrupt
+        real_replace(source, target)
+
+    monkeypatch.setattr(files.os, "replace", interrupted_replace)
+    with pytest.raises(KeyboardInterrupt):
+        files.move_into_place(new, old, folder=True)
+    monkeypatch.setattr(files.os, "replace", real_replace)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["export"] and (old / "kept.png").read_text() == "old"
+
+
+def test_a_signal_while_an_export_is_committed_leaves_nothing(project, tmp_path, monkeypatch):
+    """An export interrupted while its output is closed and moved into place (the last step) leaves no partial
+    beside the output and no output."""
+    from heoslice import files
+    from heoslice.export import ExportOptions, export_stack
+
+    stack = project / "stack"
+
+    def interrupted(*_args, **_kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(files, "move_into_place", interrupted)
+    monkeypatch.setattr("heoslice.export.base.move_into_place", interrupted)
+    folder = tmp_path / "exports"
+    folder.mkdir()
+    with pytest.raises(KeyboardInterrupt):
+        export_stack(stack, "png", folder / "out.zip", ExportOptions())
+    assert list(folder.iterdir()) == []

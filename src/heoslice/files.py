@@ -266,9 +266,14 @@ def move_into_place(partial: Path, target: str | os.PathLike, folder: bool = Fal
             aside = partial_path(target, folder=True)
             os.replace(target, aside)
         os.replace(partial, target)
-    except OSError as err:
+    except BaseException as err:  # a failure, or a signal between the two renames: the old output put back
+        if aside is not None and not os.path.lexists(target):
+            with contextlib.suppress(OSError):
+                os.replace(aside, target)
         discard_partial(partial)
-        raise write_problem(target, err) from None
+        if isinstance(err, OSError):
+            raise write_problem(target, err) from None
+        raise
     if aside is not None:
         shutil.rmtree(aside, ignore_errors=True)
 

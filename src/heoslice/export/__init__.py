@@ -41,10 +41,10 @@ def export_stack(directory: Path, format_name: str, output: Path, options: Expor
     sink.on_progress = writing
     try:
         summary = known[format_name].write(stack, sink, options)
+        sink.commit()  # inside: a signal while the output is closed or moved into place discards it too
     except BaseException:
         sink.discard()
         raise
-    sink.commit()
     return {"stack": str(directory), "format": format_name, "output": str(output), "files": len(sink.files),
             **summary}
 
