@@ -392,3 +392,11 @@ def test_a_job_finished_after_its_host_was_killed_is_not_printed_again(tmp_path,
     restarted = run("print", stack, "--port", ctl.port, "--baud", 1000000, "--restart")
     assert restarted.returncode == 0, restarted.stderr
     assert ctl.executed(job) == list(range(20)) * 2
+
+
+@pytest.mark.parametrize("listen", ["127.0.0.1:99999", "127.0.0.1:-1", "127.0.0.1:abc", "127.0.0.1"])
+def test_a_bad_listen_address_is_one_line(run_cli, listen):
+    """`controller --listen` with a port that is not 0..65535 (or none): one line naming it and the form, exit 2,
+    not an internal error."""
+    code, out, err = run_cli("controller", "--listen", listen, "-q")
+    assert code == 2 and err.count("\n") == 1 and f"--listen {listen}: expected HOST:PORT" in err, err

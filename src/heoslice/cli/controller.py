@@ -91,10 +91,12 @@ def controller(use_pty: bool, listen: str | None, baud: int | None, layer_time: 
         where = os.ttyname(slave)
     else:
         host, _, port = listen.rpartition(":")
+        if not (port.isdigit() and int(port) <= 65535):
+            raise InputError(f"--listen {listen}: expected HOST:PORT with a port from 0 to 65535 (0: any free one)")
         try:
             transport = TcpServerTransport(host or "127.0.0.1", int(port))
-        except (ValueError, OSError) as err:
-            raise InputError(f"--listen {listen}: cannot listen ({err})") from err
+        except OSError as err:
+            raise InputError(f"--listen {listen}: cannot listen ({err.strerror or err})") from err
         where = "socket://{}:{}".format(*transport.address)
     if as_json:
         echo_json({"port": where, "ok": True, "baud": config.baud, "boot_id": f"{sim.boot_id:08x}"})
