@@ -351,3 +351,23 @@ def test_slice_json_names_the_material_of_a_one_material_stack(run_cli, vase_fil
     assert json.loads(out)["materials"] == ["M2"] and json.loads(out)["droplet_masks"] is False
     code, out, err = run_cli("slice", vase_file, "--layer", "2", "--dpi", "50", "-o", tmp_path / "text")
     assert code == 0 and "one material (M1): a solid mask per layer" in out
+
+
+@pytest.mark.parametrize("channel, number, sent", [("channel = 3\n", 3, "4 channel(s) (solid, unused, unused, gel)"),
+                                                  ("", 1, "2 channel(s) (solid, gel)")])
+def test_one_material_of_a_materials_file_is_recorded(tmp_path, run_cli, channel, number, sent):
+    """An uncoloured model printed in a materials file's one material: the stack holds its droplet mask on the
+    material's printer channel (the one the file names, else its place in the table), so the manifest, verify and
+    print name the material and its channel (it was a bare solid stack, sent as 'solid' only, exported as 'model')."""
+    procedural.box((6.0, 6.0, 2.0)).export(tmp_path / "box.ply")
+    (tmp_path / "m.toml").write_text(f'[materials.gel]\ncolor = "#30c0f0"\n{channel}')
+    code, _, err = run_cli("slice", tmp_path / "box.ply", "--materials", tmp_path / "m.toml", "--layer", "1",
+                           "--dpi", "50", "-o", tmp_path / "stack")
+    assert code == 0, err
+    manifest = json.loads((tmp_path / "stack" / "manifest.json").read_text())
+    assert [(m["name"], m["channel"]) for m in manifest["grading"]["materials"]] == [("gel", number)]
+    assert [c["material"] for c in manifest["layers"][0]["channels"]] == ["gel"]
+    code, out, _ = run_cli("print", tmp_path / "stack", "--dry-run")
+    assert code == 0 and sent in out
+    code, out, _ = run_cli("verify", tmp_path / "stack")
+    assert code == 0 and "gel: " in out

@@ -194,12 +194,16 @@ def material_job(mesh: Mesh, spec: SliceSpec) -> MaterialJob:
             columns = np.array([grade.channel_index(table[i]) for i in used])
             mix = np.zeros((len(chosen), len(grade.channel_materials())))
             mix[np.arange(len(chosen)), columns[np.searchsorted(used, chosen)]] = 1.0
+    wanted = spec.channels
+    if grade is None and wanted is None and spec.materials and spec.materials[0].channel is not None:
+        # one material of a materials file, on its printer channel: its droplet mask records which, and where
+        grade, wanted = _masks_used(_plain_grade(table), mesh), True
     if grade is None:
-        return MaterialJob(replace(spec, channels=bool(spec.channels)), None)
+        return MaterialJob(replace(spec, channels=bool(wanted)), None)
     several = len(grade.channel_materials()) > 1
-    if not several and grade.function is None and spec.channels is None:
+    if not several and grade.function is None and wanted is None:
         return MaterialJob(replace(spec, grade=None, channels=False), None)
-    channels = several if spec.channels is None else spec.channels
+    channels = several if wanted is None else wanted
     if channels:
         grade = grade.with_printer_channels(table)
         check_one_per_channel(grade.channel_materials(), "the droplet masks")
