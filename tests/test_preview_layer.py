@@ -147,3 +147,21 @@ def test_fifo_layer_is_refused_not_waited_on(tmp_path):
     assert code == 4 and "not a regular file" in one_error(err), err
     code, out, err, seconds, rss = measured("preview", stack, "--sheet", "-o", tmp_path / "s.png", timeout=30)
     assert code == 4 and "not a regular file" in one_error(err), err
+
+
+def test_a_layer_of_oblong_pixels_draws_at_its_true_aspect(tmp_path, run_cli):
+    """A stack sliced at 150 x 75 dpi (pixels twice as tall as wide): a layer of a 20 x 20 mm box draws square (its
+    drawn width and height within 2 px of each other), not squashed 2:1 (a contact sheet's tiles are these images)."""
+    from heoslice import procedural
+    from heoslice.preview.layer import layer_image
+    from heoslice.stack import read_manifest
+
+    procedural.box((20.0, 20.0, 2.0)).export(tmp_path / "box.ply")
+    code, _, err = run_cli("slice", tmp_path / "box.ply", "--layer", "1", "--dpi", "150x75", "--margin", "2",
+                           "-o", tmp_path / "stack")
+    assert code == 0, err
+    manifest = read_manifest(tmp_path / "stack")
+    image = np.asarray(layer_image(tmp_path / "stack", 1, manifest=manifest))
+    solid = np.argwhere((image != image[0, 0]).any(axis=2))
+    height, width = solid.max(axis=0) - solid.min(axis=0) + 1
+    assert abs(int(width) - int(height)) <= 2, (width, height)

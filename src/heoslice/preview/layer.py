@@ -207,7 +207,20 @@ def layer_image(directory: Path, index: int, size: int | None = None, manifest: 
         raise InputError(f"layer: layer {index} does not exist (the stack has layers 0..{count - 1})")
     longest = max(manifest["image"]["width"], manifest["image"]["height"])
     factor = max(1, longest // size)
-    return fit(Image.fromarray(layer_display(Path(directory), manifest, index, factor)), size)
+    return fit(true_aspect(Image.fromarray(layer_display(Path(directory), manifest, index, factor)), manifest), size)
+
+
+def true_aspect(image, manifest: dict):
+    """A layer's PIL image (on the stack's pixel grid) stretched to its true aspect in mm where the pixels are not
+    square (``--dpi 600x300``): the coarser axis's pixels repeated (nearest), so a round part draws round."""
+    from PIL import Image
+
+    px, py = manifest["pixel_size_mm"]
+    if abs(px - py) <= 1e-9 * max(px, py):
+        return image
+    width, height = image.size
+    stretched = (round(width * px / py), height) if px > py else (width, round(height * py / px))
+    return image.resize(stretched, Image.Resampling.NEAREST)
 
 
 def annotated_layer_image(directory: Path, index: int, size: int | None = None, manifest: dict | None = None):
