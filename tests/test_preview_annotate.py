@@ -40,13 +40,25 @@ def longest_ink_run(footer: np.ndarray) -> int:
 
 
 def title_drawn(annotated: np.ndarray, top: int, title: str) -> bool:
-    """Whether the first footer line shows exactly ``title`` in Pillow's default font."""
+    """Whether the footer's first lines show exactly ``title`` in Pillow's default font: on one line, or broken at
+    spaces where the footer is too narrow for it, every line within the footer."""
+    from heoslice.preview.annotate import LINE_GAP, wrapped
+
     font = ImageFont.load_default()
-    height = ImageDraw.Draw(Image.new("RGB", (1, 1))).textbbox((0, 0), "Ag0", font=font)[3]
-    reference = Image.new("RGB", (annotated.shape[1], height), FOOTER_BACKGROUND)
-    ImageDraw.Draw(reference).text((PAD, 0), title, fill=INK, font=font)
-    expected = np.asarray(reference)
-    return (expected != FOOTER_BACKGROUND).any() and np.array_equal(annotated[top + PAD:top + PAD + height], expected)
+    probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    height = probe.textbbox((0, 0), "Ag0", font=font)[3]
+    lines = wrapped(title, annotated.shape[1] - 2 * PAD, lambda text: probe.textlength(text, font=font))
+    if " ".join(lines) != title or any(probe.textlength(line, font=font) > annotated.shape[1] - 2 * PAD
+                                       for line in lines if " " in line):
+        return False
+    for number, line in enumerate(lines):
+        reference = Image.new("RGB", (annotated.shape[1], height), FOOTER_BACKGROUND)
+        ImageDraw.Draw(reference).text((PAD, 0), line, fill=INK, font=font)
+        expected = np.asarray(reference)
+        at = top + PAD + number * (max(SWATCH, height) + LINE_GAP)
+        if not (expected != FOOTER_BACKGROUND).any() or not np.array_equal(annotated[at:at + height], expected):
+            return False
+    return True
 
 
 def check_bar(footer: np.ndarray, drawn_width: int, px_per_mm: float) -> None:
@@ -113,3 +125,19 @@ def test_a_wide_parts_sheet_is_mostly_part(tmp_path):
     grey = np.all(sheet == 200, axis=-1).mean()
     assert grey < 0.4, grey
     assert sheet.shape[1] > sheet.shape[0] / 2  # laid out about square, not one tall column
+
+
+def test_a_long_title_on_a_narrow_picture_wraps_within_the_footer():
+    """A title wider than a narrow preview's footer is broken at spaces onto lines that each fit (none cut at the
+    edge), every word kept in order, and the footer grows to hold them."""
+    from heoslice.preview.annotate import Legend, annotate, wrapped
+
+    font = ImageFont.load_default()
+    probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    title = "section x = 0 mm; layers 0..92, z 91.80..183.80 mm"
+    lines = wrapped(title, 200 - 2 * PAD, lambda text: probe.textlength(text, font=font))
+    assert len(lines) > 1 and " ".join(lines) == title
+    assert all(probe.textlength(line, font=font) <= 200 - 2 * PAD for line in lines)
+    one = annotate(Image.new("RGB", (120, 60)), "short", Legend((("M1", (255, 255, 255)),)), 1.0)
+    many = annotate(Image.new("RGB", (120, 60)), title, Legend((("M1", (255, 255, 255)),)), 1.0)
+    assert many.size[0] == one.size[0] and many.size[1] > one.size[1]

@@ -52,6 +52,18 @@ def scale_bar_mm(px_per_mm: float, width_px: int) -> float:
     return 10.0 ** exponent
 
 
+def wrapped(text: str, width: float, length) -> list[str]:
+    """``text`` broken at spaces into lines of at most ``width`` px as ``length(text)`` measures them (a word
+    longer than a line gets a line of its own)."""
+    lines: list[str] = []
+    for word in text.split(" "):
+        if lines and length(f"{lines[-1]} {word}") <= width:
+            lines[-1] = f"{lines[-1]} {word}"
+        else:
+            lines.append(word)
+    return lines or [""]
+
+
 def annotate(image, title: str, legend: Legend, px_per_mm: float):
     """``image`` (PIL RGB) with a footer below it: ``title``, the legend's swatches and names, and a scale bar
     of :func:`scale_bar_mm` mm, round(mm x ``px_per_mm``) px long (``px_per_mm`` across the drawn image)."""
@@ -68,20 +80,23 @@ def annotate(image, title: str, legend: Legend, px_per_mm: float):
             x, line = PAD, line + 1
         placed.append((x, line, name, colour))
         x += span
-    lines = 1 + (line + 1) + 1
+    titled = wrapped(title, width - 2 * PAD, lambda text: probe.textlength(text, font=font))
+    lines = len(titled) + (line + 1) + 1
     footer = PAD + lines * (text_height + LINE_GAP) + PAD
     canvas = Image.new("RGB", (width, image.size[1] + footer), FOOTER_BACKGROUND)
     canvas.paste(image, (0, 0))
     draw = ImageDraw.Draw(canvas)
     top = image.size[1] + PAD
-    draw.text((PAD, top), title, fill=INK, font=font)
+    for number, text in enumerate(titled):
+        draw.text((PAD, top + number * (text_height + LINE_GAP)), text, fill=INK, font=font)
+    top += (len(titled) - 1) * (text_height + LINE_GAP)
     for x, line, name, colour in placed:
         y = top + (1 + line) * (text_height + LINE_GAP)
         draw.rectangle([x, y, x + SWATCH - 1, y + SWATCH - 1], fill=tuple(colour), outline=INK)
         draw.text((x + SWATCH + 3, y), name, fill=INK, font=font)
     millimetres = scale_bar_mm(px_per_mm, image.size[0])
     length = max(1, round(millimetres * px_per_mm))
-    y = top + (lines - 1) * (text_height + LINE_GAP)
+    y = top + (lines - len(titled)) * (text_height + LINE_GAP)
     draw.rectangle([PAD, y + 2, PAD + length - 1, y + 1 + BAR_HEIGHT], fill=INK)
     draw.text((PAD + length + 6, y), f"{millimetres:g} mm", fill=INK, font=font)
     return canvas
