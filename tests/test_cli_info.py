@@ -85,3 +85,15 @@ def test_info_of_100000_shells_is_bounded(many_shells, name, exact):
     if exact:
         assert summary["volume_mm3"] == pytest.approx(100_000 / 6.0)
     assert seconds < 60.0 and rss < 1500.0, (seconds, rss)
+
+
+@pytest.mark.parametrize("command", ["info", "slice"])
+def test_a_stack_folder_given_as_a_model_is_one_line(tmp_path, run_cli, command):
+    """A heoslice stack folder given to info or slice (as a model) is named as a stack, with the commands that read
+    one, exit 2: not a DICOM error about its first layer file."""
+    from heoslice import procedural
+
+    procedural.box((6.0, 6.0, 2.0)).export(tmp_path / "box.ply")
+    assert run_cli("slice", tmp_path / "box.ply", "--layer", "1", "--dpi", "50", "-o", tmp_path / "stack")[0] == 0
+    code, out, err = run_cli(command, tmp_path / "stack")
+    assert code == 2 and err.count("\n") == 1 and "is a heoslice stack" in err and "DICOM" not in err, err

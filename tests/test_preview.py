@@ -238,3 +238,12 @@ def test_preview_refuses_altered_channels(run_cli, channels_stack, tmp_path):
     (uncoloured / "manifest.json").write_text(json.dumps(manifest))
     code, _, stderr = run_cli("preview", uncoloured, "--layer", "3", "-o", tmp_path / "z.png")
     assert code == 4 and "grading.materials" in stderr and len(stderr.strip().splitlines()) == 1
+
+
+def test_more_columns_than_tiles_lay_them_on_one_row():
+    """--columns beyond the number of layers lays them all on one row (no empty columns), instead of refusing a
+    sheet too wide."""
+    from heoslice.preview.sheet import sheet_size
+
+    columns, width, height = sheet_size(11, 1024, 400)
+    assert columns == 11 and (width, height) == sheet_size(11, 1024, 11)[1:]

@@ -271,6 +271,7 @@ def test_stack_changed_under_a_print(tmp_path, controller):
     (stack / "layer_00025.tif").write_bytes(b"not the layer")
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 19 and "changed while it was being printed" in one_line(err)
+    assert one_line(err).count("layer 25:") == 1, "the layer named once"
     ctl.wait_for("abort")
     assert 25 not in ctl.executed()
 

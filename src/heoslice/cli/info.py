@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from heoslice.cli.common import refuse_stack_as_model
 from heoslice.cli.options import apply_scale, scale_option
 from heoslice.errors import InputError
 from heoslice.mesh import load_mesh, mesh_info
@@ -56,6 +57,7 @@ def info(model: Path, scale: float, as_json: bool, kind: str | None) -> None:
     folder): its shape, voxel size, orientation, extent in mm and, for a label map, each label's name (where
     the file has one), voxel count and volume.
     """
+    refuse_stack_as_model(model)
     if is_volume_path(model):
         from heoslice.volume import load_volume
         from heoslice.volume.info import info_lines, volume_info

@@ -14,6 +14,7 @@ from heoslice.cli.common import (
     expand_inputs,
     plural,
     progress_bar,
+    refuse_stack_as_model,
     run_each,
 )
 from heoslice.cli.options import apply_scale, flags, function_from_options, function_options, option, scale_option
@@ -306,6 +307,8 @@ def slice_cmd(ctx: click.Context, models: tuple[Path, ...], output: Path | None,
                         if ctx.get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE}
     interior_given, rgba_given = interior is not None and "interior" in typed_for_meshes, (
         channels is False and "channels" in typed_for_meshes)
+    for model in models:
+        refuse_stack_as_model(model)
     if len(models) == 1 and is_volume_path(models[0]):
         if (grade_kind is not None or parts_flag or part_options or solid_only or scale != 1.0 or interior_given
                 or rgba_given):

@@ -83,6 +83,7 @@ def sheet_size(count: int, tile: int, columns: int | None, aspect: float = 1.0) 
     columns = columns or max(1, min(count, int(np.ceil(np.sqrt(count * box_height / box_width) - 1e-9))))
     if not (isinstance(columns, int) and 1 <= columns <= MAX_SHEET_LAYERS):
         raise InputError(f"columns: must be an integer from 1 to {MAX_SHEET_LAYERS}, not {shown(columns)}"[:160])
+    columns = min(columns, count)  # no empty columns: more than the tiles lay them all on one row
     rows = -(-count // columns)
     width, height = columns * step_x + 4, rows * step_y + 4
     if width * height > MAX_SHEET_PIXELS:

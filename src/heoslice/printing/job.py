@@ -111,8 +111,9 @@ def verified_job(directory: Path, progress: Callable[[int, int], None] | None = 
         try:
             return read(index)
         except (HeosliceError, OSError, ValueError) as err:
-            raise StackChangedError(f"{directory}: the stack changed while it was being printed (layer {index}: "
-                                    f"{err}); ABORT sent; verify the stack and print it again") from None
+            named = str(err) if str(err).startswith(f"layer {index}:") else f"layer {index}: {err}"
+            raise StackChangedError(f"{directory}: the stack changed while it was being printed ({named}); ABORT "
+                                    "sent; verify the stack and print it again") from None
 
     return job, get_layer, report.also
 
