@@ -36,6 +36,11 @@ def export_stack(directory: Path, format_name: str, output: Path, options: Expor
     if format_name not in known:
         raise InputError(f"format: unknown export format {format_name!r}; choose from {', '.join(known)}")
     check_options(options)
+    unused = [name for name in ("pitch_mm", "dpi", "background")
+              if getattr(options, name) is not None and name not in known[format_name].takes]
+    if unused:
+        raise InputError(f"{unused[0]}: --format {format_name} does not use it (it writes the stack's own "
+                         "resolution and colours)")
     stack = open_verified(Path(directory))
     sink = Sink(output, force=force, inputs=(Path(directory),))
     sink.on_progress = writing

@@ -40,6 +40,7 @@ class ExportFormat:
     name: str
     summary: str
     write: Callable[[StackPlan, "Sink", ExportOptions], dict]
+    takes: frozenset[str] = frozenset({"pitch_mm", "dpi", "background"})  # the ExportOptions fields it uses
 
 
 

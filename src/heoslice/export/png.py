@@ -56,4 +56,4 @@ def write(stack: StackPlan, sink: Sink, options: ExportOptions) -> dict:
 
 
 FORMAT = ExportFormat("png", "one PNG per layer image and droplet mask at the stack's resolution, manifest "
-                      "beside them", write)
+                      "beside them", write, takes=frozenset())
