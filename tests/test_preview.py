@@ -247,3 +247,17 @@ def test_more_columns_than_tiles_lay_them_on_one_row():
 
     columns, width, height = sheet_size(11, 1024, 400)
     assert columns == 11 and (width, height) == sheet_size(11, 1024, 11)[1:]
+
+
+@pytest.mark.parametrize("options, problem", [(("--sheet", "--size", "100"), "--size: a sheet's tiles are sized by --tile"),
+                                              (("--layer", "1", "--tile", "100"), "--tile: only used with --sheet"),
+                                              (("--layer", "1", "--columns", "3"), "--columns: only used with --sheet")])
+def test_preview_options_the_drawing_does_not_use_are_refused(tmp_path, run_cli, options, problem):
+    """--size with --sheet, --tile or --columns without it: one line naming the option and why, exit 2, not ignored."""
+    from heoslice import procedural
+
+    procedural.box((6.0, 6.0, 2.0)).export(tmp_path / "box.ply")
+    assert run_cli("slice", tmp_path / "box.ply", "--layer", "1", "--dpi", "50", "-o", tmp_path / "stack")[0] == 0
+    code, out, err = run_cli("preview", tmp_path / "stack", *options, "-o", tmp_path / "p.png")
+    assert code == 2 and err.count("\n") == 1 and problem in err, err
+    assert not (tmp_path / "p.png").exists()

@@ -69,7 +69,14 @@ def preview(stack: Path, layer: int | None, sheet: bool, layers: str | None, siz
     count = len(manifest["layers"])
     if count == 0:
         raise InputError(f"{stack}: the stack has no layers")
+    context = click.get_current_context()
+    typed = {name for name in ("size", "tile", "columns")
+             if context.get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE}
     with flags(FLAGS):
+        unused = [name for name in (("size",) if sheet else ("tile", "columns")) if name in typed]
+        if unused:
+            raise InputError(f"{unused[0]}: " + ("a sheet's tiles are sized by --tile" if sheet
+                                                  else "only used with --sheet"))
         target, drawn, draw = _plan(stack, manifest, layer, sheet, layers, size, tile, columns, section, output)
         check_output(target, "preview PNG", force=force, made_here=is_preview, inputs=(stack,))
         if target.suffix.lower() != ".png":
