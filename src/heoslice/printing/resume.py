@@ -1,8 +1,10 @@
-"""Where a print run starts, decided from the controller's HELLO_ACK alone (docs/protocol.md section 2).
+"""Where a print run starts, decided from the controller's HELLO_ACK (docs/protocol.md section 2) and the print
+log's last run of the job.
 
-A pure function of what the controller reports and what the user typed (``--resume``, ``--restart``,
-``--from-layer``), so no layer the controller holds as queued, executing or done for this job is sent
-again, and an unfinished job is never continued or overwritten without being asked.
+A pure function of what the controller reports, what the log recorded (:class:`heoslice.printing.log.LoggedRun`:
+a controller restarted since remembers nothing) and what the user typed (``--resume``, ``--restart``,
+``--from-layer``), so no layer the controller holds as queued, executing or done for this job is sent again, none
+is skipped, and an unfinished job is never continued or overwritten without being asked.
 """
 
 from __future__ import annotations
