@@ -28,21 +28,10 @@ from heoslice.errors import (
     EXIT_INPUT,
     EXIT_INTERRUPTED,
     HeosliceError,
-    InputError,
 )
 
 #: Characters that make a MODEL argument a pattern for heoslice to expand (when no file has that name).
 GLOB_CHARACTERS = frozenset("*?[")
-
-
-def refuse_stack_as_model(path: Path) -> None:
-    """InputError (one line) when a folder given as a model or volume is a heoslice stack (its manifest.json):
-    read as a volume it would be taken for a DICOM series, and fail on its first layer file."""
-    from heoslice.stack import MANIFEST
-
-    if Path(path).is_dir() and (Path(path) / MANIFEST).is_file():
-        raise InputError(f"{path}: is a heoslice stack (it holds {MANIFEST}), not a model or volume: see it with "
-                         f"heoslice verify or heoslice preview")
 
 
 def echo_warnings(source: Path, warnings: tuple[str, ...] | list[str]) -> None:

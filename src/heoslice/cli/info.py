@@ -7,7 +7,6 @@ from pathlib import Path
 
 import click
 
-from heoslice.cli.common import refuse_stack_as_model
 from heoslice.cli.options import apply_scale, scale_option
 from heoslice.errors import InputError
 from heoslice.mesh import load_mesh, mesh_info
@@ -16,6 +15,16 @@ from heoslice.volume import is_volume_path
 
 #: Shells listed one a line in the text output (--json lists every shell).
 SHELLS_SHOWN = 20
+
+
+def refuse_stack_as_model(path: Path) -> None:
+    """InputError (one line) when a folder given as a model or volume is a heoslice stack (its manifest.json):
+    read as a volume it would be taken for a DICOM series, and fail on its first layer file."""
+    from heoslice.stack.manifest import MANIFEST
+
+    if Path(path).is_dir() and (Path(path) / MANIFEST).is_file():
+        raise InputError(f"{path}: is a heoslice stack (it holds {MANIFEST}), not a model or volume: see it with "
+                         f"heoslice verify or heoslice preview")
 
 
 def _shell_lines(shells: list[dict]) -> list[str]:

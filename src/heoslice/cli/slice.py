@@ -14,9 +14,9 @@ from heoslice.cli.common import (
     expand_inputs,
     plural,
     progress_bar,
-    refuse_stack_as_model,
     run_each,
 )
+from heoslice.cli.info import refuse_stack_as_model
 from heoslice.cli.options import apply_scale, flags, function_from_options, function_options, option, scale_option
 from heoslice.cli.parts import REFUSALS, is_parts_job, part_settings, report_parts
 from heoslice.cli.volume import slice_volume, volume_options
