@@ -137,9 +137,9 @@ def test_json_fields_have_one_form_across_commands(run_cli, tmp_path, monkeypatc
     assert code == 0 and re.fullmatch(r"[0-9a-f]{8}", json.loads(out)["boot_id"])
 # --- progress bars, under a real pseudo-terminal -------------------------------------------------------------
 
-def on_terminal(*args: str, timeout: float = 300.0) -> tuple[int, str]:
-    """Run ``python -m heoslice ARGS`` with stdout and stderr on a new pseudo-terminal (as in a lab's shell, the
-    CI variable unset); return (exit status, everything it wrote there)."""
+def on_terminal(*args: str, timeout: float = 300.0, size: tuple[int, int] = (40, 120)) -> tuple[int, str]:
+    """Run ``python -m heoslice ARGS`` with stdout and stderr on a new pseudo-terminal of ``size`` (rows, columns)
+    characters (as in a lab's shell, the CI variable unset); return (exit status, everything it wrote there)."""
     import fcntl
     import pty
     import select
@@ -150,7 +150,7 @@ def on_terminal(*args: str, timeout: float = 300.0) -> tuple[int, str]:
     import time
 
     leader, follower = pty.openpty()
-    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))  # 40 x 120 characters
+    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", *size, 0, 0))
     env = {key: value for key, value in os.environ.items() if key != "CI"}
     env["TERM"] = "xterm"
     process = subprocess.Popen([sys.executable, "-m", "heoslice", *map(str, args)], stdin=subprocess.DEVNULL,
@@ -225,6 +225,18 @@ def test_every_long_command_draws_a_moving_bar_on_a_terminal(ball_200):
         code, output = on_terminal(*args)
         assert code == 0, output
         assert len(bar_counts(output, description)) >= 10, (args, output[-2000:])
+
+
+def test_a_terminal_of_no_size_still_shows_the_bar(ball_200):
+    """A pseudo-terminal that reports 0 x 0 characters (as `script` gives a piped shell): verify still draws a
+    bar that advances at least ten times over a 200-layer stack (80 columns assumed; tqdm hid it below a screen of
+    0 rows)."""
+    stack = ball_200 / "stack0"
+    code, output = on_terminal("slice", ball_200 / "ball.ply", "--layer", "0.1", "--dpi", "50", "-o", stack)
+    assert code == 0, output
+    code, output = on_terminal("verify", stack, size=(0, 0))
+    assert code == 0, output
+    assert len(bar_counts(output, "verifying")) >= 10, output[-2000:]
 
 
 def test_no_progress_without_a_terminal_or_with_json(ball_200, tmp_path):

@@ -61,10 +61,16 @@ def progress_bar(description: str, unit: str = "layer",
 
     bars: list = []
 
+    try:  # a terminal that reports no size (0 x 0: some pseudo-terminals) gets a bar of 80 columns, 24 rows (tqdm
+        sized = min(os.get_terminal_size(sys.stderr.fileno())) > 0  # hides a bar below a screen of 0 rows)
+    except OSError:
+        sized = False
+
     def update(done: int, total: int, note: str | None = None) -> None:
         if not bars:
-            bars.append(tqdm(desc=description, unit=unit, total=total, leave=False, dynamic_ncols=True,
-                             file=sys.stderr, mininterval=0, miniters=1))
+            bars.append(tqdm(desc=description, unit=unit, total=total, leave=False, dynamic_ncols=sized,
+                             ncols=None if sized else 80, nrows=None if sized else 24, file=sys.stderr,
+                             mininterval=0, miniters=1))
         bar = bars[0]
         if bar.disable:
             return
