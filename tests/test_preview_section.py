@@ -84,3 +84,15 @@ def test_a_section_through_a_pixel_in_two_droplet_masks_or_none_is_refused(tmp_p
     said = {"two": "in two droplet masks", "none": "in no droplet mask"}[fault]
     assert done.returncode == 4 and f"layer 4: a pixel of the section is {said}" in done.stderr, done.stderr
     assert done.stderr.count("\n") == 1 and not (tmp_path / "faulty.png").exists()
+
+
+def test_a_cut_at_the_far_edge_says_the_edge_is_not_included():
+    """A cut at the image's far edge (outside: the last pixel ends there) says the range excludes that edge, so
+    the message does not read as if its own bound were refused."""
+    from heoslice.errors import InputError
+    from heoslice.preview.section import section_line
+
+    manifest = {"image": {"origin_mm": [-2.0, 2.0], "width": 40, "height": 40}, "pixel_size_mm": [0.1, 0.1]}
+    assert section_line(manifest, "x", 1.95) == 39
+    with pytest.raises(InputError, match=r"x from -2 mm up to, not including, 2 mm"):
+        section_line(manifest, "x", 2.0)

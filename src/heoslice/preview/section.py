@@ -38,8 +38,8 @@ def section_line(manifest: dict, axis: str, position_mm: float) -> int:
         line, count = np.floor((y_top - position_mm) / py), image["height"]
         low, high = y_top - image["height"] * py, y_top
     if not 0 <= line < count:
-        raise InputError(f"section: {axis}={position_mm:g} mm lies outside the stack ({axis} from {low:.6g} to "
-                         f"{high:.6g} mm)")
+        raise InputError(f"section: {axis}={position_mm:g} mm lies outside the stack ({axis} from {low:.6g} mm up "
+                         f"to, not including, {high:.6g} mm: the image's edges)")
     return int(line)
 
 
