@@ -135,6 +135,25 @@ def _job_of(manifest: dict, directory: Path) -> tuple[JobSpec, tuple[int, ...]]:
     return job, targets
 
 
+#: How far (a share of the printer's) a stack's dpi may be from the printer's: the manifest's dpi is the slice's
+#: --dpi, exact; a printer reports its resolution as a float (HELLO_ACK dpi_x, dpi_y; 0: not reported, not checked).
+DPI_SLACK = 1e-3
+
+
+def misfit(job: JobSpec, ack: P.HelloAck) -> str | None:
+    """Why ``job`` cannot print on the printer a HELLO_ACK describes (more channels or pixels than it has, or a
+    resolution other than its own: the part would come out at another size), or None when it fits."""
+    if job.channels > ack.channels or job.width > ack.max_width or job.height > ack.max_height:
+        return (f"the job ({job.channels} channel(s), {job.width} x {job.height} px) does not fit the printer "
+                f"({ack.channels} channel(s), at most {ack.max_width} x {ack.max_height} px)")
+    if job.dpi is not None and min(ack.dpi_x, ack.dpi_y) > 0 and (
+            abs(job.dpi[0] - ack.dpi_x) > DPI_SLACK * ack.dpi_x or abs(job.dpi[1] - ack.dpi_y) > DPI_SLACK * ack.dpi_y):
+        return (f"the stack is at {job.dpi[0]:g} x {job.dpi[1]:g} dpi, the printer prints at {ack.dpi_x:g} x "
+                f"{ack.dpi_y:g} dpi (the part would come out at another size); slice it again with --dpi "
+                f"{ack.dpi_x:g}x{ack.dpi_y:g}")
+    return None
+
+
 def channel_payloads(job: JobSpec, targets: Sequence[int], solid, masks: Sequence) -> list[bytes]:
     """A layer's channel payloads from its files' packed rows (:class:`heoslice.stack.packed.Bits`): the solid
     pixels on channel 0, each droplet mask on its printer channel ``targets`` gives, empty masks elsewhere."""

@@ -18,7 +18,7 @@ from heoslice.errors import (ControllerBusyError, ControllerFaultError, Controll
                              IncompatibleControllerError, InputError, LinkDeadError, PortError, PrintInterrupted, ProtocolError, RetryLimitError,
                              StackChangedError, UnfinishedJobError)
 from heoslice.printing import protocol as P
-from heoslice.printing.job import JobSpec, LayerSource
+from heoslice.printing.job import JobSpec, LayerSource, misfit
 from heoslice.printing.log import PrintLog, last_run
 from heoslice.printing.ports import Connector, connector_for
 from heoslice.printing.resume import decide_start
@@ -29,9 +29,6 @@ from heoslice.printing.window import MIN_CHUNK_PAYLOAD, FrameSizer, OutFrame, Se
 
 #: Without SACK, writes run ahead of the wire by at most this many mean error-free runs (see PrinterLink._lead_s).
 LEAD_RUNS = 0.5
-#: How far (a share of the printer's) a stack's dpi may be from the printer's: the manifest's dpi is the slice's
-#: --dpi, exact; a printer reports its resolution as a float (HELLO_ACK dpi_x, dpi_y; 0: not reported, not checked).
-DPI_SLACK = 1e-3
 
 
 @dataclass(frozen=True)
@@ -244,17 +241,9 @@ class PrinterLink:
                 f"{self.name}: the controller offers a window of {ack.window} frame(s), a {ack.rx_buffer}-byte "
                 f"receive buffer and {ack.max_payload}-byte payloads: too little to send one data frame")
         if self.boot_id is None:
-            if job.channels > ack.channels or job.width > ack.max_width or job.height > ack.max_height:
-                raise IncompatibleControllerError(
-                    f"{self.name}: the job ({job.channels} channel(s), {job.width} x {job.height} px) does not fit "
-                    f"the printer ({ack.channels} channel(s), at most {ack.max_width} x {ack.max_height} px)")
-            if job.dpi is not None and min(ack.dpi_x, ack.dpi_y) > 0 and (
-                    abs(job.dpi[0] - ack.dpi_x) > DPI_SLACK * ack.dpi_x
-                    or abs(job.dpi[1] - ack.dpi_y) > DPI_SLACK * ack.dpi_y):
-                raise IncompatibleControllerError(
-                    f"{self.name}: the stack is at {job.dpi[0]:g} x {job.dpi[1]:g} dpi, the printer prints at "
-                    f"{ack.dpi_x:g} x {ack.dpi_y:g} dpi (the part would come out at another size); slice it again "
-                    f"with --dpi {ack.dpi_x:g}x{ack.dpi_y:g}")
+            problem = misfit(job, ack)
+            if problem:
+                raise IncompatibleControllerError(f"{self.name}: {problem}")
             self.boot_id = ack.boot_id
         elif ack.boot_id != self.boot_id:
             self._reset_detected(ack.boot_id, ack.job_id, ack.last_completed)
