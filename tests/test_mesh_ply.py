@@ -404,3 +404,13 @@ def test_the_shared_tristrips_scan_reads_closed(shared_data):
     mesh = load_mesh(shared_data / "bad" / "igea_tristrips.ply")
     info = mesh_info(mesh)
     assert len(mesh.faces) == 268686 and info["watertight"] and info["winding_consistent"]
+
+
+def test_an_unsigned_strips_largest_value_is_a_vertex_where_it_can_be_one():
+    """In a uchar strip list over 256 vertices, 255 is vertex 255, not a separator (only where the type's largest
+    value cannot be a vertex does it stand for -1)."""
+    from heoslice.mesh.raw import strip_triangles
+
+    flat = np.array([0, 1, 255, 2], dtype=np.uint8)
+    assert strip_triangles("t.ply", 256, np.array([4]), flat).tolist() == [[0, 1, 255], [255, 1, 2]]
+    assert strip_triangles("t.ply", 200, np.array([4]), flat).tolist() == []

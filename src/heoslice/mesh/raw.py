@@ -75,16 +75,16 @@ def checked_triangles(path: Path, vertex_count: int, lengths: np.ndarray, flat: 
     return fan_triangles(lengths, flat)
 
 
-
 def strip_triangles(path: Path, vertex_count: int, lengths: np.ndarray, flat: np.ndarray) -> np.ndarray:
     """(k, 3) int64 triangles of triangle strips (the PLY ``tristrips`` element): rows of ``lengths`` (m,) indices
     (concatenated: ``flat``), each row one or more strips with -1 between them (for an unsigned list type, its
-    largest value, -1's bits). A strip v0 v1 v2 v3 ... makes (v0, v1, v2), (v2, v1, v3), (v2, v3, v4), ..., every
+    largest value, -1's bits, where that cannot be a vertex). A strip v0 v1 v2 v3 ... makes (v0, v1, v2), (v2, v1, v3), (v2, v3, v4), ..., every
     other triangle's first two swapped so all keep the strip's winding; triangles with a repeated vertex (the
     degenerate ones that join strips) are left out. InputError naming ``path`` for another negative index, one
     outside the vertices, or more than MAX_TRIANGLES (refused before they are made)."""
     flat = np.asarray(flat)
-    restart = flat == (np.iinfo(flat.dtype).max if flat.dtype.kind == "u" else -1)
+    largest = np.iinfo(flat.dtype).max if flat.dtype.kind in "iu" else 0
+    restart = flat == (largest if flat.dtype.kind == "u" and largest >= vertex_count else -1)
     indices = np.where(restart, -1, flat.astype(np.int64))
     outside = ~restart & ((indices < 0) | (indices >= vertex_count))
     if outside.any():
