@@ -65,9 +65,11 @@ def test_other_halftone_methods_keep_one_material_per_pixel_and_the_share(method
     assert abs(masks[1][solid].mean() - share) <= 0.01
 
 
+@pytest.mark.parametrize("method", ["ordered", "blue-noise"])
 @pytest.mark.parametrize("kind", ["point", "axis"])
-def test_a_closed_form_fields_masks_follow_f_of_each_pixels_exact_r(kind):
-    """field_planes of a point- or axis-referenced sine (the field interior's ordered dither): each solid pixel
+def test_a_closed_form_fields_masks_follow_f_of_each_pixels_exact_r(kind, method):
+    """field_planes of a point- or axis-referenced sine (the field interior's ordered or blue-noise dither, by the
+    same compiled pass): each solid pixel
     jets the target exactly where its threshold is below f at its own r (from the closed-form distance written
     out here, rounded to the field's steps; a pixel whose r lies within rounding of a step's edge may take
     either neighbour's f), and over the layer the target's share is the mean of f within 1 %."""
@@ -87,7 +89,7 @@ def test_a_closed_form_fields_masks_follow_f_of_each_pixels_exact_r(kind):
     solid[:11] = False
     solid[:, :13] = False
     z = 0.7
-    planes = field_planes(field, np.packbits(solid, axis=1), grid, z, 6, 1, 0, 3)
+    planes = field_planes(field, np.packbits(solid, axis=1), grid, z, 6, 1, 0, 3, method)
     masks = np.unpackbits(planes, axis=2, count=grid.width).astype(bool)
     assert (masks[:2].sum(axis=0) == solid).all() and not masks[2].any()
     rows, cols = np.nonzero(solid)
@@ -95,7 +97,7 @@ def test_a_closed_form_fields_masks_follow_f_of_each_pixels_exact_r(kind):
                          np.full(len(rows), z)]) - np.array(at)
     d = np.linalg.norm(o, axis=1) if kind == "point" else np.linalg.norm(np.cross(o, np.array(unit)), axis=1)
     r = np.clip(d / 5.0, 0.0, 1.0)
-    t = thresholds((grid.height, grid.width), 6)[rows, cols]
+    t = thresholds((grid.height, grid.width), 6, method=method)[rows, cols]
     f = field.fraction_table
     jets = [t < f[np.clip(np.rint(r * R_STEPS).astype(np.int64) + step, 0, R_STEPS)] for step in (-1, 0, 1)]
     got = masks[0][rows, cols]

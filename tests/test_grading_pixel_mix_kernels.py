@@ -41,7 +41,8 @@ def numpy_planes(solid: np.ndarray, row0: int, c0: int, frame, square, r_range, 
 
 
 def kernel_masks(solid: np.ndarray, reference: Reference, z: float, px: float, layer: int, below: np.ndarray,
-                 r_range, start: int, target: int, channels: int) -> tuple[np.ndarray, np.ndarray]:
+                 r_range, start: int, target: int, channels: int,
+                 method: str = "ordered") -> tuple[np.ndarray, np.ndarray]:
     """(quadratic_planes' masks, numpy_planes' masks), both unpacked, of a solid layer on a grid from (-6, 6) mm."""
     height, width = solid.shape
     packed = np.packbits(solid, axis=1)
@@ -49,7 +50,7 @@ def kernel_masks(solid: np.ndarray, reference: Reference, z: float, px: float, l
     p = reference.point
     frame = (-6.0 + (c0 + 0.5) * px - p[0], px, 6.0 - (row0 + 0.5) * px - p[1], -px)
     square = grid_square(reference, z)
-    level = np.ascontiguousarray(np.rint(layer_tile(layer) * LEVELS - 0.5), dtype=np.int32)
+    level = np.ascontiguousarray(np.rint(layer_tile(layer, method) * LEVELS - 0.5), dtype=np.int32)
     planes = np.zeros((channels, height, packed.shape[1]), dtype=np.uint8)
     quadratic_planes(np.ascontiguousarray(packed[row0:row1]), row0, c0, frame, square, *r_range, below, level,
                      start, target, planes)
@@ -57,13 +58,14 @@ def kernel_masks(solid: np.ndarray, reference: Reference, z: float, px: float, l
     return np.unpackbits(planes, axis=2, count=width).astype(bool), expected
 
 
+@pytest.mark.parametrize("method", ["ordered", "blue-noise"])
 @pytest.mark.parametrize("kind", sorted(REFERENCES))
 @pytest.mark.parametrize("start, target, channels", [(0, 1, 2), (1, 0, 2), (2, 0, 3)])
-def test_masks_are_the_numpy_rule_bit_for_bit(kind, start, target, channels):
+def test_masks_are_the_numpy_rule_bit_for_bit(kind, start, target, channels, method):
     """Random solid pixels (gaps of zero bytes inside rows, short and long, an empty row, a box from row 7 and
     column 19 on a 121-pixel-wide grid) and a
-    table of levels that is not monotone in r: the kernel's masks equal the rule's; every solid pixel jets one
-    of the two channels, no other pixel any."""
+    table of levels that is not monotone in r: the kernel's masks equal the rule's, with the 16-pixel ordered
+    tile and the 64-pixel blue-noise one; every solid pixel jets one of the two channels, no other pixel any."""
     rng = np.random.default_rng(len(kind) + 10 * start)
     solid = rng.random((90, 121)) < 0.7
     solid[:7] = False
@@ -73,7 +75,7 @@ def test_masks_are_the_numpy_rule_bit_for_bit(kind, start, target, channels):
     solid[70] = False
     below = rng.integers(0, LEVELS + 1, 65536).astype(np.uint16)
     got, expected = kernel_masks(solid, REFERENCES[kind], 1.7, 0.1, 5, below, (0.5, 9.0), start, target,
-                                 channels)
+                                 channels, method)
     assert np.array_equal(got, expected)
     assert (got.sum(axis=0) == solid).all()
 
@@ -113,13 +115,14 @@ def numpy_step_planes(solid: np.ndarray, steps: np.ndarray, row0: int, c0: int, 
     return masks
 
 
+@pytest.mark.parametrize("method", ["ordered", "blue-noise"])
 @pytest.mark.parametrize("start, target, channels, largest", [(0, 1, 2, 65536), (1, 0, 2, 1001), (2, 0, 3, 300)])
-def test_step_planes_are_the_numpy_rule_with_anything_off_the_solid(start, target, channels, largest):
+def test_step_planes_are_the_numpy_rule_with_anything_off_the_solid(start, target, channels, largest, method):
     """Random solid pixels in a box from row 7 and column 24 (gaps of whole zero bytes, an empty row, solid pixels
     in the last byte of a row 123 pixels wide, whose bits past the width the kernel reads too), steps under
     ``largest`` at solid pixels and anything up to 65535 elsewhere in the box (read before the solid masks them, so
-    the table has an entry for every uint16): the masks equal the rule's, and every solid pixel jets one of the
-    two channels, no other pixel any."""
+    the table has an entry for every uint16): the masks equal the rule's (the ordered and the blue-noise tile),
+    and every solid pixel jets one of the two channels, no other pixel any."""
     rng = np.random.default_rng(start + 7 * target + largest)
     solid = rng.random((90, 123)) < 0.7
     solid[:7] = False
@@ -134,7 +137,7 @@ def test_step_planes_are_the_numpy_rule_with_anything_off_the_solid(start, targe
     inside = solid[row0:row1, c0:c1]
     steps[inside] = rng.integers(0, largest, int(inside.sum()))
     below = rng.integers(0, LEVELS + 1, 65536).astype(np.uint16)
-    level = np.ascontiguousarray(np.rint(layer_tile(3) * LEVELS - 0.5), dtype=np.int32)
+    level = np.ascontiguousarray(np.rint(layer_tile(3, method) * LEVELS - 0.5), dtype=np.int32)
     planes = np.zeros((channels, *packed.shape), dtype=np.uint8)
     step_planes(np.ascontiguousarray(packed[row0:row1]), row0, c0, steps, below, level, start, target, planes)
     got = np.unpackbits(planes, axis=2, count=solid.shape[1]).astype(bool)

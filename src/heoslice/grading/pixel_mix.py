@@ -1,14 +1,15 @@
 """Droplet masks and preview colours of a layer whose every solid pixel has its own share f of a target material
 against a start material: the ``field`` interior (:mod:`heoslice.material.field`).
 
-The masks are the graded layers' own compiled ordered dither (:func:`heoslice.grading.droplets_kernels.droplet_bits`)
-with one label per dither level: a pixel jets the target where its threshold t (one of the 256 levels
-(k + 1/2) / 256 of :mod:`heoslice.grading.halftone`) is below f, so every f between two levels decides alike,
-and a pixel's label is q + 1, q = the number of levels below its f; the table of choices per label and level
-is then the whole halftone (no per-pixel arithmetic in the kernel). Over each aligned 16 x 16 tile of one f the
-target's share is q / 256, within 1/512 of f. A design's field (:func:`field_planes`) reads q from a table of f's
-levels at r's steps; for a plane, point or axis the pixel's r, its q and its comparison with the threshold are made
-in one compiled pass (:func:`heoslice.grading.pixel_mix_kernels.quadratic_planes`), the same rule.
+The masks are the graded layers' own compiled threshold dither
+(:func:`heoslice.grading.droplets_kernels.droplet_bits`) with one label per dither level: a pixel jets the target
+where its threshold t (one of the 256 levels (k + 1/2) / 256 of :mod:`heoslice.grading.halftone`, from the ordered or
+the blue-noise tile) is below f, so every f between two levels decides alike, and a pixel's label is q + 1, q = the
+number of levels below its f; the table of choices per label and level is then the whole halftone (no per-pixel
+arithmetic in the kernel). Over each aligned tile of one f (16 x 16 ordered, 64 x 64 blue noise) the target's share is
+q / 256, within 1/512 of f. A design's field (:func:`field_planes`) reads q from a table of f's levels at r's steps;
+for a plane, point or axis the pixel's r, its q and its comparison with the threshold are made in one compiled pass
+(:func:`heoslice.grading.pixel_mix_kernels.quadratic_planes`), the same rule.
 """
 
 from __future__ import annotations
@@ -18,17 +19,20 @@ import functools
 import numpy as np
 
 from heoslice.grading.droplets_kernels import Dither, LabelledLayer, LayerMixes, droplet_bits
-from heoslice.grading.halftone import DEFAULT_METHOD, TILE, halftone, layer_tile
+from heoslice.grading.halftone import DEFAULT_METHOD, TILE, check_method, halftone, layer_tile
 from heoslice.layers.rasterising import Grid
 
-#: The dither's levels: a tile holds each of them once.
+#: The dither's levels: an ordered tile holds each of them once, a blue-noise tile each on 16 pixels.
 LEVELS = TILE * TILE
+#: The halftoning methods that compare each pixel with a threshold tile of LEVELS levels (the fast path here);
+#: error diffusion goes through :func:`heoslice.grading.halftone.halftone`.
+THRESHOLD_METHODS = ("ordered", "blue-noise")
 
 
 def levels_below(f: np.ndarray) -> np.ndarray:
     """q int64 of f's shape: how many of the dither levels (k + 1/2) / 256 lie below each f in [0, 1]."""
-    q = np.asarray(f) * np.float32(LEVELS) if np.asarray(f).dtype == np.float32 else (
-        np.asarray(f, dtype=np.float64) * LEVELS)
+    f = np.asarray(f)
+    q = np.array(f * np.float32(LEVELS) if f.dtype == np.float32 else f.astype(np.float64) * LEVELS)  # 0-d too
     q -= 0.5
     np.ceil(q, out=q)
     np.clip(q, 0, LEVELS, out=q)
@@ -41,13 +45,13 @@ def fraction_planes(packed: np.ndarray, box: tuple[int, int, int, int], f: np.nd
     """The droplet masks ((channels, h, ceil(w / 8)) uint8, bit-packed) of a layer whose solid pixels (``packed``,
     every one inside ``box``: first row, end row, first column, end column) jet the ``target`` channel in the
     share f (in [0, 1], an array that broadcasts to the box; its values off the solid pixels are not read) and
-    the ``start`` channel otherwise: by the layer's ordered dither (the module's rule), or by another halftoning
-    ``method`` through :func:`heoslice.grading.halftone.halftone` (``carry``: error diffusion's layer carry)."""
+    the ``start`` channel otherwise: by the layer's ordered or blue-noise tile (the module's rule), or by error
+    diffusion through :func:`heoslice.grading.halftone.halftone` (``carry``: its layer carry)."""
     planes = np.zeros((channels, grid.height, -(-grid.width // 8)), dtype=np.uint8)
     row0, row1, col0, col1 = box
     if row1 <= row0 or col1 <= col0:
         return planes
-    if method != DEFAULT_METHOD:
+    if check_method(method) not in THRESHOLD_METHODS:
         solid = np.unpackbits(packed[row0:row1], axis=1, count=grid.width)[:, col0:col1].view(bool)
         share = np.where(solid, np.broadcast_to(np.asarray(f, dtype=np.float32), solid.shape), np.float32(0))
         mix = np.zeros((*solid.shape, channels), dtype=np.float32)
@@ -57,7 +61,7 @@ def fraction_planes(packed: np.ndarray, box: tuple[int, int, int, int], f: np.nd
         masks[:, :, col0:col1] = halftone(mix, layer, method, carry, origin=(row0, col0))
         planes[:, row0:row1] = np.packbits(masks, axis=2)
         return planes
-    return label_planes(packed, box, level_labels(f), grid, layer, start, target, channels)
+    return label_planes(packed, box, level_labels(f), grid, layer, start, target, channels, method)
 
 
 def level_labels(f: np.ndarray) -> np.ndarray:
@@ -66,9 +70,10 @@ def level_labels(f: np.ndarray) -> np.ndarray:
 
 
 def label_planes(packed: np.ndarray, box: tuple[int, int, int, int], labels: np.ndarray, grid: Grid, layer: int,
-                 start: int, target: int, channels: int) -> np.ndarray:
-    """The droplet masks of :func:`fraction_planes` by the ordered dither, from each solid pixel's label
-    (:func:`level_labels` of its f; uint16, broadcasting to ``box``) instead of f."""
+                 start: int, target: int, channels: int, method: str = DEFAULT_METHOD) -> np.ndarray:
+    """The droplet masks of :func:`fraction_planes` by the threshold tile of ``method`` (one of
+    :data:`THRESHOLD_METHODS`), from each solid pixel's label (:func:`level_labels` of its f; uint16, broadcasting
+    to ``box``) instead of f."""
     planes = np.zeros((channels, grid.height, -(-grid.width // 8)), dtype=np.uint8)
     row0, row1, col0, col1 = box
     if row1 <= row0 or col1 <= col0:
@@ -79,16 +84,17 @@ def label_planes(packed: np.ndarray, box: tuple[int, int, int, int], labels: np.
     labels = LEVELS + 2
     mixing = LayerMixes(np.zeros(labels, np.int64), np.zeros(labels), np.array([[row0, col0, 1, 1, 0]], np.int64),
                         np.zeros(channels), np.zeros(channels))
-    return droplet_bits(LabelledLayer(label, row0, col0, packed), mixing, Dither(layer_tile(layer), table, start),
-                        planes)
+    return droplet_bits(LabelledLayer(label, row0, col0, packed), mixing,
+                        Dither(layer_tile(layer, method), table, start), planes)
 
 
 def field_planes(field, packed: np.ndarray, grid: Grid, z: float, layer: int, start: int, target: int,
-                 channels: int) -> np.ndarray:
-    """The ordered dither's droplet masks ((channels, h, ceil(w / 8)) uint8, bit-packed) of a layer cut at height z
-    (mm) whose solid pixels (``packed``) jet the ``target`` channel in the share f(r) of a design's ``field``
+                 channels: int, method: str = DEFAULT_METHOD) -> np.ndarray:
+    """The droplet masks ((channels, h, ceil(w / 8)) uint8, bit-packed) of a layer cut at height z (mm) whose solid
+    pixels (``packed``) jet the ``target`` channel in the share f(r) of a design's ``field``
     (:class:`heoslice.material.field.MaterialField`) at each pixel's own r, rounded to the field's steps, and the
-    ``start`` channel otherwise: the module's rule, with q read from one table of f's levels per field."""
+    ``start`` channel otherwise: the module's rule with the threshold tile of ``method`` (one of
+    :data:`THRESHOLD_METHODS`), q read from one table of f's levels per field."""
     below = _levels_table(field)
     square = field.layer_square(packed, grid, z)
     planes = np.zeros((channels, grid.height, -(-grid.width // 8)), dtype=np.uint8)
@@ -98,7 +104,7 @@ def field_planes(field, packed: np.ndarray, grid: Grid, z: float, layer: int, st
         return planes
     from heoslice.grading.pixel_mix_kernels import quadratic_planes, step_planes
 
-    level = np.ascontiguousarray(np.rint(layer_tile(layer) * LEVELS - 0.5), dtype=np.int32)  # 0 .. 255
+    level = np.ascontiguousarray(np.rint(layer_tile(layer, method) * LEVELS - 0.5), dtype=np.int32)  # 0 .. 255
     rows = np.ascontiguousarray(packed[row0:row1])
     if steps is not None:
         step_planes(rows, row0, col0, steps, _step_levels(field), level, start, target, planes)

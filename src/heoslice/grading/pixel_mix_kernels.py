@@ -14,16 +14,16 @@ from heoslice.jit import EXACT, helper, kernel
 def _dither_masks(level):  # pragma: no cover - compiled
     """masks (n, n / 8, 257) uint8: for each tile row, byte of the tile and count of levels c (0 .. 256), the byte
     whose bit 7 - t is set where level[row, 8 byte + t] < c (``level`` (n, n) int32, the dither's level per tile
-    position)."""
+    position, 0 .. 255): each position's bit set at its level + 1, then carried to every larger count, so a
+    64-pixel tile costs a pass over its masks, not one per count and position."""
     size = level.shape[0]
     masks = np.zeros((size, size // 8, 257), dtype=np.uint8)
     for tile_row in range(size):
+        for col in range(size):
+            masks[tile_row, col >> 3, level[tile_row, col] + 1] |= np.uint8(128 >> (col & 7))
         for part in range(size // 8):
-            for count in range(257):
-                bits = 0
-                for t in range(8):
-                    bits |= (1 if level[tile_row, 8 * part + t] < count else 0) << (7 - t)
-                masks[tile_row, part, count] = bits
+            for count in range(1, 257):
+                masks[tile_row, part, count] |= masks[tile_row, part, count - 1]
     return masks
 
 

@@ -184,16 +184,16 @@ def _render_field_and_write(job: LayerJob, packed: np.ndarray, solid: int, cache
                             started: float) -> tuple:
     """The ``field`` interior's branch of :func:`render_and_write`: each solid pixel's share of the design's target,
     f(r) at the pixel centre's own 3-D r (:class:`heoslice.material.field.MaterialField`), as droplet masks beside
-    the 1-bit solid layer (:func:`heoslice.grading.pixel_mix.fraction_planes`; by the ordered dither, each pixel's
-    dither level read from the table of f's levels at r's step, :func:`heoslice.grading.pixel_mix.field_planes`), or
-    as an RGBA preview layer."""
-    from heoslice.grading.pixel_mix import field_planes, fraction_colors, fraction_planes
+    the 1-bit solid layer (:func:`heoslice.grading.pixel_mix.fraction_planes`; by a threshold tile, ordered or blue
+    noise, each pixel's dither level read from the table of f's levels at r's step,
+    :func:`heoslice.grading.pixel_mix.field_planes`), or as an RGBA preview layer."""
+    from heoslice.grading.pixel_mix import THRESHOLD_METHODS, field_planes, fraction_colors, fraction_planes
 
     graded = job.graded
     grade, design = graded.spec, graded.field.design
-    if graded.channel_paths is not None and graded.halftone == "ordered":
+    if graded.channel_paths is not None and graded.halftone in THRESHOLD_METHODS:
         planes = field_planes(graded.field, packed, job.grid, graded.z, job.index, grade.channel_index(design.start),
-                              grade.channel_index(design.target), len(grade.channel_materials()))
+                              grade.channel_index(design.target), len(grade.channel_materials()), graded.halftone)
         return _write_masks(job, packed, solid, planes, cache, started)
     box, f = graded.field.layer_fraction(packed, job.grid, graded.z)
     if graded.channel_paths is not None:
