@@ -84,7 +84,8 @@ def _enter_kernel_packages() -> None:
     source = Path(__file__).resolve().parent / "src" / "heoslice"
     for name, path in (("heoslice", source), ("heoslice.mesh", source / "mesh"),
                        ("heoslice.layers", source / "layers"), ("heoslice.material", source / "material"),
-                       ("heoslice.grading", source / "grading"), ("heoslice.export", source / "export")):
+                       ("heoslice.grading", source / "grading"), ("heoslice.export", source / "export"),
+                       ("heoslice.stack", source / "stack")):
         package = types.ModuleType(name)
         package.__path__ = [str(path)]
         sys.modules[name] = package

@@ -50,6 +50,7 @@ from heoslice.jit import (
 from heoslice.layers import contours_kernels, packed_kernels, rasterising_kernels, slicing_kernels
 from heoslice.material import surface_kernels, surface_layer_kernels
 from heoslice.mesh import topology_kernels, weld_kernels
+from heoslice.stack import report_kernels
 from heoslice.volume import resample_kernels
 
 f8, i8, b1 = types.float64, types.int64, types.boolean
@@ -137,6 +138,8 @@ ARGUMENTS: dict[Callable, tuple | Callable[[int], tuple]] = {
                                          types.uint16[::1], types.int32[:, ::1], i8, i8, u1_3),
     pixel_mix_kernels.step_planes: (u1_2, i8, i8, types.uint16[:, ::1], types.uint16[::1], types.int32[:, ::1], i8, i8,
                                     u1_3),
+    report_kernels.design_tally: (u1_2, u1_3, i8_1, types.uint16[:, ::1], f4_1, i8_1, i8, i8, i8, i8_1, i8_1, i8_1,
+                                  i8, i8_1, i8_2, f8_2, f8_1),
     search_kernels._candidates: (f8_1, f8_1, f8_1, f8_2, i8_1),
     search_kernels._nearest_in_batches: (f8_1, f8_1, f8_1, f4_1, f4_1, TREE, EDGES, b1),
     search_kernels._chunks_apart: (i8_1, i8_1, f8_2, f8_2, f8_2, f8_2, f8),

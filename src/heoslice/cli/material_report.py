@@ -18,6 +18,7 @@ from heoslice.stack.report import (
     part_shares,
     pixel_position,
     preview_design,
+    reduce_tallies,
     share_bands,
     window_grid,
 )
@@ -95,29 +96,44 @@ class Comparison:
     target: int
 
 
+class RecordedWork:
+    """``verify_stack``'s extra work (:data:`heoslice.stack.verify.AlsoWork`) on a field-interior stack: each layer,
+    as it is checked, tallied against the design its manifest records (:meth:`RecordedField.tally`), in the process
+    that checked it, so the comparison reads no file twice. ``recorded`` is the design once found (None: none, or
+    ``warning`` says why it cannot be evaluated)."""
+
+    def __init__(self, stack: Path):
+        self.stack, self.recorded, self.warning = stack, None, None
+
+    def __call__(self, manifest: dict):
+        try:
+            self.recorded = field_comparison(self.stack, manifest)
+        except InputError as err:
+            self.warning = f"{err}; the delivered material is not compared with the design"
+            return None
+        return None if self.recorded is None else (range(len(manifest["layers"])), self.recorded.tally)
+
+
 def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None, warnings: list[str],
-            problems: list[str]):
+            problems: list[str], recorded: RecordedWork | None = None, tallies: dict | None = None):
     """The report of a verified stack and its parts against their design (None without): (report, parts,
     comparison). A field-interior stack is compared with the design its manifest records (bands of r) unless
-    --design is given; when that design cannot be evaluated (its reference surface missing or changed) one line
-    is added to ``warnings`` and the design is not compared; a delivered material off its design is a line in
+    --design is given: ``recorded`` did that work while the stack was verified, its layers' tallies in
+    ``tallies`` (by layer); when that design cannot be evaluated (its reference surface missing or changed) one
+    line is added to ``warnings`` and the design is not compared; a delivered material off its design is a line in
     ``problems`` (what prints must be what was designed)."""
     comparison = None
     if preview is not None:
         target = recorded_target(manifest)
-        design, bands = design_of_preview(stack, manifest, preview), share_bands(SHARE_BANDS, target)
+        report = material_report(stack, manifest, design_of_preview(stack, manifest, preview),
+                                 share_bands(SHARE_BANDS, target), SHARE_BANDS)
         comparison = Comparison("preview", "share", target)
+    elif recorded is not None and recorded.recorded is not None and tallies is not None:
+        report = reduce_tallies(manifest, [tallies[index] for index in sorted(tallies)])
+        comparison = Comparison("manifest", "r", recorded.recorded.target)
     else:
-        design = bands = None
-        try:
-            recorded = field_comparison(stack, manifest)
-        except InputError as err:
-            recorded = None
-            warnings.append(f"{err}; the delivered material is not compared with the design")
-        if recorded is not None:
-            design, bands = recorded.design, recorded.bands
-            comparison = Comparison("manifest", "r", recorded.target)
-    report = material_report(stack, manifest, design, bands, SHARE_BANDS)
+        warnings += [recorded.warning] if recorded is not None and recorded.warning else []
+        report = material_report(stack, manifest)
     designed = designed_part_volumes(manifest, mesh)
     parts = None if designed is None else part_shares(manifest, report, designed)
     off = design_mismatch(report, comparison, manifest)

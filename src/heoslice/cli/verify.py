@@ -213,8 +213,9 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
 
         mesh = load_mesh(models[0]) if len(models) == 1 else load_assembly(models)
         mesh = scaled(mesh, scale) if scale != 1.0 else mesh
+    recorded = None if preview is not None else material_report.RecordedWork(stack)
     with progress_bar("verifying", enabled=not as_json) as progress:
-        report = verify_stack(stack, progress=progress, layer_map=ordered_map)
+        report = verify_stack(stack, progress=progress, layer_map=ordered_map, also=recorded)
     problems, warnings, mesh_summary = list(report.problems), [], None
     if mesh is not None and report.manifest:
         mesh_problems, warnings, mesh_summary = mesh_checks(report.manifest, mesh, scale, tolerance, models)
@@ -227,7 +228,8 @@ def verify(stack: Path, models: tuple[Path, ...], scale: float | None, tolerance
     layers = report.manifest.get("layers", []) if report.manifest else []
     delivered = None
     if report.ok and layers:
-        delivered = material_report.compute(stack, report.manifest, mesh, preview, warnings, problems)
+        delivered = material_report.compute(stack, report.manifest, mesh, preview, warnings, problems, recorded,
+                                            report.also)
     summary = {
         "stack": str(stack),
         "ok": not problems,

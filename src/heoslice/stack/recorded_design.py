@@ -10,6 +10,7 @@ layer's solid mask read back gives the same box and the same r at every solid pi
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -17,7 +18,9 @@ import numpy as np
 
 from heoslice.errors import InputError
 from heoslice.stack.manifest import source_scale, widest_masks
+from heoslice.stack.packed import Bits
 from heoslice.stack.read import read_layer_mask
+from heoslice.stack.report import CodedDesign, LayerTally, coded_tally, window_grid
 
 if TYPE_CHECKING:
     from heoslice.layers.rasterising import Grid
@@ -39,11 +42,10 @@ def recorded_design(manifest: dict) -> dict | None:
 
 @dataclass(eq=False)
 class RecordedField:
-    """A stack's recorded design ready to compare: the stack (folder, manifest), the field, its pixel grid, which
-    masks (indices in mask order) hold the start and the target, and the last layer evaluated (its index, the
-    solid's box (r0, r1, c0, c1) and r over it, (r1 - r0, c1 - c0) float32, which the band source reads). The
-    layer-size arrays it returns (``mix``, ``labels``) are kept and refilled layer after layer (:func:`_refilled`):
-    a large array made afresh comes back as newly mapped pages every layer (benchmarks/README.md)."""
+    """A stack's recorded design ready to compare: the stack (folder, manifest), the field, its pixel grid, and
+    which masks (indices in mask order) hold the start and the target. A layer's design is a code per solid pixel,
+    r's step k of r = k / R_STEPS (:meth:`coded`), read through tables of f and of r's band per step: the steps a
+    surface reference's slice halftoned, and a closed form's r rounded to them as its slice rounds it."""
 
     directory: Path
     manifest: dict
@@ -51,55 +53,56 @@ class RecordedField:
     grid: Grid
     start: int
     target: int
-    last: tuple[int, tuple[int, int, int, int], np.ndarray] | None = None
-    mix: np.ndarray | None = None
-    labels: np.ndarray | None = None
 
-    def _box_r(self, solid: np.ndarray, z: float) -> tuple[tuple[int, int, int, int], np.ndarray, np.ndarray]:
-        """The solid's box, and r and f(r) over it (float32): a surface reference's from the slice's own
-        per-voxel steps of r (:meth:`MaterialField.layer_steps`) and its table of f, as the slice halftoned them;
-        another's from its closed form."""
-        packed = np.packbits(solid, axis=-1)
+    @cached_property
+    def tables(self) -> tuple[np.ndarray, np.ndarray]:
+        """(f (R_STEPS + 1,) float32, the field's :attr:`MaterialField.fraction_table`; the band of r (R_STEPS +
+        1,) int64: min(r R_BANDS, R_BANDS - 1) in float32, r = k / R_STEPS)."""
+        from heoslice.material.field import R_STEPS
+
+        r = np.arange(R_STEPS + 1, dtype=np.float32) / np.float32(R_STEPS)
+        return self.field.fraction_table, np.minimum(r * np.float32(R_BANDS), R_BANDS - 1).astype(np.int64)
+
+    def coded(self, index: int, packed: np.ndarray) -> CodedDesign:
+        """Layer ``index``'s design over its solid pixels (``packed``: (h, ceil(w / 8)) uint8, MSB first), as the
+        compiled tally reads it (:class:`heoslice.stack.report.CodedDesign`)."""
+        from heoslice.material.field import R_STEPS
+
+        z = float(self.manifest["layers"][index]["z_mm"])
+        shares, bands = self.tables
+        empty = CodedDesign((0, 0, 0, 0), np.zeros((0, 0), np.uint16), shares, bands, R_BANDS, self.start, self.target)
+        if not packed.any():
+            return empty
         if self.field.reference.kind == "surface":
-            from heoslice.material.field import R_STEPS
+            box, codes = self.field.layer_steps(packed, self.grid, z)
+        else:
+            box, r = self.field.layer_distance(packed, self.grid, z)
+            shape = (box[1] - box[0], box[3] - box[2])
+            codes = np.rint(np.clip(np.broadcast_to(r, shape), 0.0, 1.0) * R_STEPS).astype(np.uint16)
+        return replace(empty, box=box, codes=np.ascontiguousarray(codes, dtype=np.uint16))
 
-            box, steps = self.field.layer_steps(packed, self.grid, z)
-            steps = np.minimum(steps, R_STEPS)  # a step off the solid may be anything
-            return box, steps.astype(np.float32) / np.float32(R_STEPS), np.take(self.field.fraction_table, steps)
-        box, r = self.field.layer_distance(packed, self.grid, z)
-        r = np.broadcast_to(np.asarray(r, dtype=np.float32), (box[1] - box[0], box[3] - box[2]))
-        return box, r, self.field.fraction(np.clip(r, 0.0, 1.0))
-
-    def design(self, index: int) -> np.ndarray:
-        """Layer ``index``'s designed mix (masks, h, w) float32: 1 - f(r) on the start's mask, f(r) on the
-        target's, over the solid's box (0 elsewhere): f at each solid pixel as the slice halftoned it. Valid until
-        the next layer's."""
+    def design(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Layer ``index``'s designed mix (masks, h, w) float32 (1 - f on the start's mask, f on the target's, 0
+        elsewhere) and band of r per pixel (h, w) int8 (-1 off the solid), from :meth:`coded`: what the compiled
+        tally compares, as arrays (for a script or a test; ``verify`` does not make them)."""
         solid = read_layer_mask(self.directory, self.manifest, index)
-        (r0, r1, c0, c1), r, f = self._box_r(solid, float(self.manifest["layers"][index]["z_mm"]))
-        self.last = (index, (r0, r1, c0, c1), r)
-        mix = self.mix = _refilled(self.mix, (len(widest_masks(self.manifest)), *solid.shape), np.float32, 0.0)
-        mix[self.target, r0:r1, c0:c1] = f
-        np.subtract(np.float32(1.0), mix[self.target, r0:r1, c0:c1], out=mix[self.start, r0:r1, c0:c1])
-        return mix
+        coded = self.coded(index, np.packbits(solid, axis=-1))
+        (r0, r1, c0, c1), shares, bands = coded.box, *self.tables
+        codes = np.minimum(coded.codes, len(shares) - 1)
+        mix = np.zeros((len(widest_masks(self.manifest)), *solid.shape), np.float32)
+        mix[self.target, r0:r1, c0:c1] = shares[codes]
+        mix[self.start, r0:r1, c0:c1] = np.float32(1.0) - shares[codes]
+        mix *= solid
+        labels = np.full(solid.shape, -1, np.int8)
+        labels[r0:r1, c0:c1] = bands[codes]
+        labels[~solid] = -1
+        return mix, labels
 
-    def bands(self, index: int, designed: np.ndarray | None) -> np.ndarray:
-        """Layer ``index``'s band of r per pixel (h, w) int8: 0..R_BANDS-1 (r = 1 in the last), -1 off the solid's
-        box. Valid until the next layer's."""
-        if self.last is None or self.last[0] != index:
-            self.design(index)
-        _, (r0, r1, c0, c1), r = self.last
-        shape = (int(self.manifest["image"]["height"]), int(self.manifest["image"]["width"]))
-        labels = self.labels = _refilled(self.labels, shape, np.int8, -1)
-        labels[r0:r1, c0:c1] = np.minimum(np.clip(r, 0.0, 1.0) * R_BANDS, R_BANDS - 1).astype(np.int8)
-        return labels
-
-
-def _refilled(array: np.ndarray | None, shape: tuple[int, ...], dtype, fill) -> np.ndarray:
-    """``array`` filled with ``fill``, or a new one of this shape and dtype when it is None or another."""
-    if array is None or array.shape != shape or array.dtype != dtype:
-        array = np.empty(shape, dtype=dtype)
-    array.fill(fill)
-    return array
+    def tally(self, index: int, bits: list[Bits]) -> LayerTally:
+        """Layer ``index``'s tally against the design, from its files' bits (its solid pixels', then its droplet
+        masks'): :func:`heoslice.stack.report.coded_tally`."""
+        return coded_tally(index, bits, self.coded(index, bits[0].rows), window_grid(self.manifest),
+                           self.grid.width)
 
 
 def field_comparison(directory: Path, manifest: dict) -> RecordedField | None:

@@ -131,6 +131,23 @@ class LayerTally:
 
 
 @dataclass(frozen=True, slots=True)
+class CodedDesign:
+    """A layer's design as a code per solid pixel (r's step, for a field interior) and tables per code, as
+    :func:`coded_tally` reads it: ``box`` (first row, end row, first column, end column) the pixels ``codes``
+    ((rows, columns) uint16) covers; ``shares`` (n,) float32 the target's designed share per code (the start's is 1
+    minus it, every other mask's 0); ``bands`` (n,) int64 the band per code, of ``band_count``; ``start`` and
+    ``target`` the two materials' mask indices."""
+
+    box: tuple[int, int, int, int]
+    codes: np.ndarray
+    shares: np.ndarray
+    bands: np.ndarray
+    band_count: int
+    start: int
+    target: int
+
+
+@dataclass(frozen=True, slots=True)
 class MaterialShare:
     """One material of the report: name, voxels, volume (mm^3), share of the solid (0..1)."""
 
@@ -325,6 +342,31 @@ def band_table(solid: np.ndarray, masks: np.ndarray, designed: np.ndarray, label
     delivered = np.stack([np.bincount(band, weights=mask[solid][keep], minlength=count) for mask in masks])
     planned = np.stack([np.bincount(band, weights=share[solid][keep], minlength=count) for share in designed])
     return BandTable(np.bincount(band, minlength=count), delivered, planned)
+
+
+def coded_tally(index: int, bits: Sequence[Bits], design: CodedDesign, grid: WindowGrid, width: int) -> LayerTally:
+    """One layer's tally (:func:`layer_tally`'s) against a design per pixel, from its files' bits (``bits``: its
+    solid pixels, then its droplet masks' in manifest order; ``width`` pixels a row): the worst window and the
+    band table as :func:`worst_window` and :func:`band_table` give them from per-pixel arrays, in one compiled
+    pass over the packed rows (:func:`heoslice.stack.report_kernels.design_tally`: the sums in another order, so
+    equal to rounding)."""
+    from heoslice.stack.report_kernels import design_tally
+
+    solid, masks = bits[0].rows, np.stack([b.rows for b in bits[1:]])
+    count = design.band_count
+    counts, delivered = np.zeros(count, np.int64), np.zeros((len(masks), count), np.int64)
+    planned, worst = np.zeros((len(masks), count)), np.zeros(6)
+    rows, columns = grid.starts((solid.shape[0], width))
+    least = int(np.ceil(WINDOW_MIN_SOLID * grid.size[0] * grid.size[1]))
+    design_tally(solid, masks, np.array(design.box, np.int64), design.codes, design.shares, design.bands,
+                 design.start, design.target, width, np.array(grid.size, np.int64), rows.astype(np.int64),
+                 columns.astype(np.int64), least, counts, delivered, planned, worst)
+    material, row, column, pixels, designed, got = worst
+    window = None if material < 0 else Window(index, (int(row), int(column)), int(pixels), int(material),
+                                              float(designed), float(got))
+    voxels = np.bitwise_count(masks).sum(axis=(1, 2)).astype(np.int64)
+    return LayerTally(index, voxels, int(np.bitwise_count(solid).sum()), mask_faults(solid, masks), window,
+                      BandTable(counts, delivered, planned))
 
 
 def layer_tally(index: int, solid: np.ndarray, masks: np.ndarray, designed: np.ndarray | None = None,
