@@ -236,3 +236,40 @@ def test_a_design_with_no_window_half_solid_says_so(tmp_path, run_cli):
     code, out, err = run_cli("verify", tmp_path / "stack")
     assert code == 0, out + err
     assert "no 7.96 mm window is half solid: the design is compared per band only" in out
+
+
+@pytest.mark.parametrize("function", [("--expr", "0.5-0.5*cos(2*pi*r)"), ("--func", "constant", "--lambda", "0.3")])
+def test_an_expression_or_constant_design_is_compared(tmp_path, run_cli, function):
+    """A design whose f table is float64 (an expression, a constant) is compared as the slice dithered it (in
+    float32): verify of its field stack reports ten bands of r within 2 points and exits 0 (the compiled tally
+    was handed the float64 table and crashed)."""
+    from helpers import in_process
+
+    procedural.sphere(radius=4.0, subdivisions=3).export(tmp_path / "ball.ply")
+    assert in_process("color", tmp_path / "ball.ply", "--ref", "point", "--at", "0,0,0", *function, "-o",
+                      tmp_path / "ball_c.ply") == 0
+    assert in_process("slice", tmp_path / "ball_c.ply", "--layer", "1", "--dpi", "300", "-j", "1", "-o",
+                      tmp_path / "stack") == 0
+    code, out, err = run_cli("verify", tmp_path / "stack", "--json")
+    assert code == 0, out + err
+    delivered = json.loads(out)["delivered"]
+    assert delivered["design"]["bands_of"] == "r" and delivered["bands"]
+    assert all(abs(band["difference"]) <= 0.02 for band in delivered["bands"]), delivered["bands"]
+
+
+def test_a_layer_listing_no_droplet_masks_is_counted_without_its_design(sine_ball, tmp_path, run_cli):
+    """A field stack one of whose layers lists no droplet masks (its masks' files removed from the manifest and
+    the folder: the manifest allows it) still verifies and reports; that layer's solid counts without a design
+    (it crashed the compiled tally)."""
+    _, stack = sine_ball
+    edited = tmp_path / "edited"
+    shutil.copytree(stack, edited)
+    manifest = json.loads((edited / "manifest.json").read_text())
+    layer = manifest["layers"][0]
+    for channel in layer.pop("channels"):
+        (edited / channel["file"]).unlink()
+    (edited / "manifest.json").write_text(json.dumps(manifest))
+    code, out, err = run_cli("verify", edited, "--json")
+    assert "internal error" not in err, err
+    summary = json.loads(out)
+    assert summary["delivered"]["bands"], summary

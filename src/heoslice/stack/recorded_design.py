@@ -56,12 +56,14 @@ class RecordedField:
 
     @cached_property
     def tables(self) -> tuple[np.ndarray, np.ndarray]:
-        """(f (R_STEPS + 1,) float32, the field's :attr:`MaterialField.fraction_table`; the band of r (R_STEPS +
-        1,) int64: min(r R_BANDS, R_BANDS - 1) in float32, r = k / R_STEPS)."""
+        """(f (R_STEPS + 1,) float32, the field's :attr:`MaterialField.fraction_table` in the precision the slice
+        dithers it (an expression's or a constant's table is float64); the band of r (R_STEPS + 1,) int64: min(r
+        R_BANDS, R_BANDS - 1) in float32, r = k / R_STEPS)."""
         from heoslice.material.field import R_STEPS
 
         r = np.arange(R_STEPS + 1, dtype=np.float32) / np.float32(R_STEPS)
-        return self.field.fraction_table, np.minimum(r * np.float32(R_BANDS), R_BANDS - 1).astype(np.int64)
+        return (self.field.fraction_table.astype(np.float32),
+                np.minimum(r * np.float32(R_BANDS), R_BANDS - 1).astype(np.int64))
 
     def coded(self, index: int, packed: np.ndarray) -> CodedDesign:
         """Layer ``index``'s design over its solid pixels (``packed``: (h, ceil(w / 8)) uint8, MSB first), as the

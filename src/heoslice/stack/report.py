@@ -352,13 +352,18 @@ def coded_tally(index: int, bits: Sequence[Bits], design: CodedDesign, grid: Win
     equal to rounding)."""
     from heoslice.stack.report_kernels import design_tally
 
-    solid, masks = bits[0].rows, np.stack([b.rows for b in bits[1:]])
+    solid = bits[0].rows
+    if len(bits) == 1:  # a layer without droplet masks: its solid is the one material, nothing to compare
+        pixels = int(np.bitwise_count(solid).sum())
+        return LayerTally(index, np.array([pixels]), pixels, MaskFaults(None, None, None), None)
+    masks = np.stack([b.rows for b in bits[1:]])
     count = design.band_count
     counts, delivered = np.zeros(count, np.int64), np.zeros((len(masks), count), np.int64)
     planned, worst = np.zeros((len(masks), count)), np.zeros(6)
     rows, columns = grid.starts((solid.shape[0], width))
     least = int(np.ceil(WINDOW_MIN_SOLID * grid.size[0] * grid.size[1]))
-    design_tally(solid, masks, np.array(design.box, np.int64), design.codes, design.shares, design.bands,
+    design_tally(solid, masks, np.array(design.box, np.int64), np.ascontiguousarray(design.codes, np.uint16),
+                 np.ascontiguousarray(design.shares, np.float32), np.ascontiguousarray(design.bands, np.int64),
                  design.start, design.target, width, np.array(grid.size, np.int64), rows.astype(np.int64),
                  columns.astype(np.int64), least, counts, delivered, planned, worst)
     material, row, column, pixels, designed, got = worst
