@@ -45,7 +45,8 @@ class RecordedField:
     """A stack's recorded design ready to compare: the stack (folder, manifest), the field, its pixel grid, and
     which masks (indices in mask order) hold the start and the target. A layer's design is a code per solid pixel,
     r's step k of r = k / R_STEPS (:meth:`coded`), read through tables of f and of r's band per step: the steps a
-    surface reference's slice halftoned, and a closed form's r rounded to them as its slice rounds it."""
+    surface reference's slice halftoned, and a closed form's r rounded to the nearest step, as its slice rounds it
+    (a tie at half a step aside)."""
 
     directory: Path
     manifest: dict

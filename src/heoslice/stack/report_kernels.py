@@ -116,24 +116,12 @@ def design_tally(solid: np.ndarray, masks: np.ndarray, box: np.ndarray, codes: n
             if bits == 0:
                 continue
             base = 8 * byte - first_col
-            whole = 8 * byte + 8 <= end_col
-            if whole:
-                for t in range(8):
-                    solid_row[base + t] += (bits >> (7 - t)) & 1
-            else:
-                for t in range(end_col - 8 * byte):
-                    solid_row[base + t] += (bits >> (7 - t)) & 1
+            in_image = min(8, end_col - 8 * byte)  # the last byte may reach past the image
+            _add_bits(solid_row, base, bits, in_image)
             for k in range(count):
                 held = masks[k, i, byte] & bits
-                if held == 0:
-                    continue
-                mask_row = sums[3 + k]
-                if whole:
-                    for t in range(8):
-                        mask_row[base + t] += (held >> (7 - t)) & 1
-                else:
-                    for t in range(end_col - 8 * byte):
-                        mask_row[base + t] += (held >> (7 - t)) & 1
+                if held != 0:
+                    _add_bits(sums[3 + k], base, held, in_image)
             if not coded_row or 8 * byte + 8 <= col0 or 8 * byte >= col1:
                 continue
             code_row = codes[i - row0]
@@ -178,6 +166,18 @@ def design_tally(solid: np.ndarray, masks: np.ndarray, box: np.ndarray, codes: n
             worst[0] = k
             for q in range(5):
                 worst[q + 1] = found[k, q]
+
+
+@helper(EXACT)
+def _add_bits(row, base, bits, pixels):  # pragma: no cover - compiled
+    """Bit 7 - t of ``bits`` (MSB first) added into row[base + t] for t < ``pixels`` (8 but in a last byte that
+    reaches past the image)."""
+    if pixels == 8:
+        for t in range(8):  # a constant count: unrolled
+            row[base + t] += (bits >> (7 - t)) & 1
+    else:
+        for t in range(pixels):
+            row[base + t] += (bits >> (7 - t)) & 1
 
 
 @helper(EXACT)
