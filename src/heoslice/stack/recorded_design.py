@@ -20,7 +20,7 @@ from heoslice.errors import InputError
 from heoslice.stack.manifest import source_scale, widest_masks
 from heoslice.stack.packed import Bits
 from heoslice.stack.read import read_layer_mask
-from heoslice.stack.report import CodedDesign, LayerTally, coded_tally, window_grid
+from heoslice.stack.report import CodedDesign, LayerTally, coded_tally, counted_tally, window_grid
 
 if TYPE_CHECKING:
     from heoslice.layers.rasterising import Grid
@@ -102,10 +102,10 @@ class RecordedField:
         return mix, labels
 
     def tally(self, index: int, bits: list[Bits]) -> LayerTally:
-        """Layer ``index``'s tally against the design, from its files' bits (its solid pixels', then its droplet
-        masks'): :func:`heoslice.stack.report.coded_tally`."""
+        """Layer ``index``'s tally against the design, from the bits of its files that verify checked (its solid
+        pixels', then its droplet masks'; its counts are then its manifest entry's): :func:`coded_tally`."""
         return coded_tally(index, bits, self.coded(index, bits[0].rows), window_grid(self.manifest),
-                           self.grid.width)
+                           self.grid.width, counted_tally(self.manifest, index))
 
 
 def field_comparison(directory: Path, manifest: dict) -> RecordedField | None:

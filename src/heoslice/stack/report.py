@@ -21,7 +21,7 @@ so layers can be tallied in any order or in parallel; the bit logic runs on ``np
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -344,18 +344,20 @@ def band_table(solid: np.ndarray, masks: np.ndarray, designed: np.ndarray, label
     return BandTable(np.bincount(band, minlength=count), delivered, planned)
 
 
-def coded_tally(index: int, bits: Sequence[Bits], design: CodedDesign, grid: WindowGrid, width: int) -> LayerTally:
+def coded_tally(index: int, bits: Sequence[Bits], design: CodedDesign, grid: WindowGrid, width: int,
+                counted: LayerTally | None = None) -> LayerTally:
     """One layer's tally (:func:`layer_tally`'s) against a design per pixel, from its files' bits (``bits``: its
     solid pixels, then its droplet masks' in manifest order; ``width`` pixels a row): the worst window and the
     band table as :func:`worst_window` and :func:`band_table` give them from per-pixel arrays, in one compiled
     pass over the packed rows (:func:`heoslice.stack.report_kernels.design_tally`: the sums in another order, so
-    equal to rounding)."""
+    equal to rounding). ``counted``: the layer's counts from its verified manifest entry (:func:`counted_tally`),
+    taken instead of counting and checking its bits again."""
     from heoslice.stack.report_kernels import design_tally
 
     solid = bits[0].rows
     if len(bits) == 1:  # a layer without droplet masks: its solid is the one material, nothing to compare
         pixels = int(np.bitwise_count(solid).sum())
-        return LayerTally(index, np.array([pixels]), pixels, MaskFaults(None, None, None), None)
+        return counted or LayerTally(index, np.array([pixels]), pixels, MaskFaults(None, None, None), None)
     masks = np.stack([b.rows for b in bits[1:]])
     count = design.band_count
     counts, delivered = np.zeros(count, np.int64), np.zeros((len(masks), count), np.int64)
@@ -369,9 +371,11 @@ def coded_tally(index: int, bits: Sequence[Bits], design: CodedDesign, grid: Win
     material, row, column, pixels, designed, got = worst
     window = None if material < 0 else Window(index, (int(row), int(column)), int(pixels), int(material),
                                               float(designed), float(got))
+    table = BandTable(counts, delivered, planned)
+    if counted is not None:
+        return replace(counted, worst=window, bands=table)
     voxels = np.bitwise_count(masks).sum(axis=(1, 2)).astype(np.int64)
-    return LayerTally(index, voxels, int(np.bitwise_count(solid).sum()), mask_faults(solid, masks), window,
-                      BandTable(counts, delivered, planned))
+    return LayerTally(index, voxels, int(np.bitwise_count(solid).sum()), mask_faults(solid, masks), window, table)
 
 
 def layer_tally(index: int, solid: np.ndarray, masks: np.ndarray, designed: np.ndarray | None = None,
