@@ -273,3 +273,32 @@ def test_a_layer_listing_no_droplet_masks_is_counted_without_its_design(sine_bal
     assert "internal error" not in err, err
     summary = json.loads(out)
     assert summary["delivered"]["bands"], summary
+
+
+@pytest.mark.parametrize("edit", [
+    lambda g: g["design"]["reference"].update(kind="banana"),
+    lambda g: g["design"]["reference"].pop("point"),
+    lambda g: g["design"]["function"].update(kind="wobble"),
+    lambda g: g["design"]["function"].update(kind="expression", expression='__import__("os").getcwd()'),
+    lambda g: g["design"]["range"].update(mm=[5, 5]),
+    lambda g: g["design"]["target"].update(name=7) if isinstance(g["design"]["target"], dict) else g["design"].pop(
+        "target"),
+    lambda g: g.pop("design"),
+    lambda g: g.update(design=None),
+], ids=["kind", "no-point", "function", "expression", "range", "target", "no-design", "null-design"])
+def test_a_field_stack_whose_design_record_cannot_be_read_fails(sine_ball, tmp_path, run_cli, edit):
+    """A field-interior stack whose manifest's design record was edited into one heoslice cannot read (an unknown
+    reference or function kind, a point or the record missing, an empty range, an expression of an unknown
+    function) fails verify with one problem line naming the stack, exit 4, never an internal error nor a pass
+    without the comparison (a crash with KeyError or TypeError, or a warning and exit 0, before)."""
+    _, stack = sine_ball
+    edited = tmp_path / "edited"
+    shutil.copytree(stack, edited)
+    manifest = json.loads((edited / "manifest.json").read_text())
+    edit(manifest["grading"])
+    (edited / "manifest.json").write_text(json.dumps(manifest))
+    code, out, err = run_cli("verify", edited, "--json")
+    assert code == 4, (code, out, err)
+    assert "internal error" not in err and "Traceback" not in err
+    problems = json.loads(out)["problems"]
+    assert len(problems) == 1 and problems[0].startswith(f"{edited}: ") and "design record" in problems[0], problems

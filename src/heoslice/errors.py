@@ -60,6 +60,11 @@ class InputError(HeosliceError):
     exit_code = EXIT_INPUT
 
 
+class MalformedDesign(InputError):
+    """A design record that cannot be read (a stack's manifest or a model's header): unknown version, kind or
+    function, a field missing or of the wrong type."""
+
+
 class OutputError(HeosliceError):
     """The output cannot be written."""
 

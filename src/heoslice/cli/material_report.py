@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from heoslice.errors import InputError, VerifyError
+from heoslice.errors import InputError, MalformedDesign, VerifyError
 from heoslice.stack import read_manifest
 from heoslice.stack.report import (
     WINDOW_MM,
@@ -99,15 +99,19 @@ class Comparison:
 class RecordedWork:
     """``verify_stack``'s extra work (:data:`heoslice.stack.verify.AlsoWork`) on a field-interior stack: each layer,
     as it is checked, tallied against the design its manifest records (:meth:`RecordedField.tally`), in the process
-    that checked it, so the comparison reads no file twice. ``recorded`` is the design once found (None: none, or
-    ``warning`` says why it cannot be evaluated)."""
+    that checked it, so the comparison reads no file twice. ``recorded`` is the design once found (None: none;
+    ``problem`` says why a record that cannot be read fails the stack, ``warning`` why a design that cannot be
+    evaluated, its reference surface missing or changed, is not compared)."""
 
     def __init__(self, stack: Path):
-        self.stack, self.recorded, self.warning = stack, None, None
+        self.stack, self.recorded, self.warning, self.problem = stack, None, None, None
 
     def __call__(self, manifest: dict):
         try:
             self.recorded = field_comparison(self.stack, manifest)
+        except MalformedDesign as err:
+            self.problem = f"{err}: what the stack delivers cannot be compared with its design"
+            return None
         except InputError as err:
             self.warning = f"{err}; the delivered material is not compared with the design"
             return None
@@ -133,6 +137,7 @@ def compute(stack: Path, manifest: dict, mesh: Mesh | None, preview: Path | None
         comparison = Comparison("manifest", "r", recorded.recorded.target)
     else:
         warnings += [recorded.warning] if recorded is not None and recorded.warning else []
+        problems += [recorded.problem] if recorded is not None and recorded.problem else []
         report = material_report(stack, manifest)
     designed = designed_part_volumes(manifest, mesh)
     parts = None if designed is None else part_shares(manifest, report, designed)

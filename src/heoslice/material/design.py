@@ -31,7 +31,7 @@ import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from heoslice.errors import InputError
+from heoslice.errors import InputError, MalformedDesign
 from heoslice.material.functions import DistributionFunction, make_function
 from heoslice.material.materials import Material, table_material
 
@@ -146,12 +146,14 @@ class Design:
         ``source`` for an unknown version or a malformed record."""
         version = record.get("version") if isinstance(record, dict) else None
         if version != DESIGN_VERSION:
-            raise InputError(f"{source}: design record version {version} (this heoslice reads version "
+            raise MalformedDesign(f"{source}: design record version {version} (this heoslice reads version "
                              f"{DESIGN_VERSION})")
         try:
             return _design_of(record, list(record.get("shells") or []))
+        except InputError as err:  # a function the record names that heoslice does not make
+            raise MalformedDesign(f"{source}: malformed design record ({err})") from None
         except (KeyError, TypeError, ValueError, IndexError) as err:
-            raise InputError(f"{source}: malformed design record ({type(err).__name__}: {err})") from None
+            raise MalformedDesign(f"{source}: malformed design record ({type(err).__name__}: {err})") from None
 
     def scaled(self, factor: float) -> Design:
         """The design of the model with coordinates multiplied by ``factor`` (``slice --scale``): the reference
@@ -203,12 +205,24 @@ def _vector(value) -> tuple[float, float, float] | None:
 
 
 def _design_of(fields: dict, shells: list) -> Design:
+    from heoslice.material.functions import FUNCTION_KINDS
+    from heoslice.material.references import REFERENCES
+
     ref = fields["reference"]
     reference = ReferenceRecord(str(ref["kind"]), _vector(ref.get("point")), _vector(ref.get("direction")),
                                 ref.get("path"), ref.get("sha256"), _scale(ref.get("scale", 1.0)))
+    kind = REFERENCES.get(reference.kind)
+    if kind is None:
+        raise ValueError(f"reference kind {reference.kind!r}")
+    if kind.closed_form is not None and reference.point is None:
+        raise ValueError(f"a {reference.kind} reference without its point")
+    if {"normal", "direction"} & set(kind.options) and reference.direction is None:
+        raise ValueError(f"a {reference.kind} reference without its direction")
     fn = fields["function"]
     if fn["kind"] == "expression":
         function = make_function("expression", expression=fn["expression"])
+    elif fn["kind"] not in FUNCTION_KINDS:
+        raise ValueError(f"function kind {fn['kind']!r}")
     else:
         function = DistributionFunction(str(fn["kind"]), float(fn["alpha"]), float(fn["beta"]), float(fn["lam"]))
     low, high = (float(v) for v in fields["range"]["mm"])

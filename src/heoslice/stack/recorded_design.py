@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from heoslice.errors import InputError
+from heoslice.errors import MalformedDesign
 from heoslice.stack.manifest import source_scale, widest_masks
 from heoslice.stack.packed import Bits
 from heoslice.stack.read import read_layer_mask
@@ -30,14 +30,17 @@ if TYPE_CHECKING:
 R_BANDS = 10
 
 
-def recorded_design(manifest: dict) -> dict | None:
+def recorded_design(manifest: dict, source: str = "stack") -> dict | None:
     """The ``grading.design`` record of a stack whose solid got the design's field (``grading.interior`` is
-    ``field``), or None for any other stack."""
+    ``field``), or None for any other stack; MalformedDesign for a field stack without one (its design lost, so
+    what it delivers cannot be compared)."""
     grading = manifest.get("grading")
     if not isinstance(grading, dict) or grading.get("interior") != "field":
         return None
     design = grading.get("design")
-    return design if isinstance(design, dict) else None
+    if not isinstance(design, dict):
+        raise MalformedDesign(f"{source}: a field-interior stack without its design record (grading.design)")
+    return design
 
 
 @dataclass(eq=False)
@@ -110,9 +113,10 @@ class RecordedField:
 
 def field_comparison(directory: Path, manifest: dict) -> RecordedField | None:
     """The recorded design of a verified field-interior stack as design and band sources (None for a stack
-    without one). InputError (one line) when the design cannot be evaluated: a malformed record, a mask of the
-    design's materials missing, or a surface reference missing or changed since the model was coloured."""
-    record = recorded_design(manifest)
+    without one, or without droplet masks). MalformedDesign (one line) for a record that cannot be read, is
+    missing or names a material the stack has no droplet mask of; InputError when the design cannot be evaluated:
+    its surface reference missing or changed since the model was coloured."""
+    record = recorded_design(manifest, str(directory))
     if record is None:
         return None
     from heoslice.layers.rasterising import Grid  # the design's machinery, loaded only for a stack that has one
@@ -124,10 +128,12 @@ def field_comparison(directory: Path, manifest: dict) -> RecordedField | None:
         # a record from before the surface's scale was recorded: the slice's --scale alone
         design = replace(design, reference=replace(design.reference, surface_scale=source_scale(manifest)))
     names = [str(mask.get("material")) for mask in widest_masks(manifest)]
+    if not names:  # an RGBA preview of the design: no droplets to compare (verify refuses to print it)
+        return None
     missing = [m.name for m in (design.start, design.target) if m.name not in names]
     if missing:
-        raise InputError(f"{directory}: the design's material(s) {', '.join(missing)} have no droplet mask "
-                         f"(masks: {', '.join(names) or 'none'})")
+        raise MalformedDesign(f"{directory}: the design record's material(s) {', '.join(missing)} have no droplet "
+                              f"mask (masks: {', '.join(names) or 'none'})")
     image = manifest["image"]
     (px, py), (x_left, y_top) = manifest["pixel_size_mm"], image["origin_mm"]
     grid = Grid(int(image["width"]), int(image["height"]), float(x_left), float(y_top), float(px), float(py))
