@@ -302,3 +302,26 @@ def test_a_field_stack_whose_design_record_cannot_be_read_fails(sine_ball, tmp_p
     assert "internal error" not in err and "Traceback" not in err
     problems = json.loads(out)["problems"]
     assert len(problems) == 1 and problems[0].startswith(f"{edited}: ") and "design record" in problems[0], problems
+
+
+def test_a_band_of_fewer_voxels_than_a_window_is_shown_not_judged(tmp_path, run_cli):
+    """A plate one pixel thin (0.05 mm at 150 dpi) coloured by a plane-referenced sine: its bands hold a few dozen
+    voxels, over which no halftone holds a share within 2 points, so they are reported, marked not judged, and the
+    stack verifies (exit 0; it failed by 28.5 points before); a band's `judged` in --json says which."""
+    from helpers import in_process
+
+    from heoslice.stack.report import WINDOW_LEAST_PIXELS, WINDOW_MIN_SOLID
+
+    procedural.box((0.05, 10.0, 5.0)).export(tmp_path / "plate.ply")
+    assert in_process("color", tmp_path / "plate.ply", "--ref", "plane", "--func", "sine", "-o",
+                      tmp_path / "plate_c.ply") == 0
+    assert in_process("slice", tmp_path / "plate_c.ply", "--layer", "1", "--dpi", "150", "-o",
+                      tmp_path / "stack") == 0
+    code, out, err = run_cli("verify", tmp_path / "stack", "--json")
+    assert code == 0, out + err
+    bands = json.loads(out)["delivered"]["bands"]
+    least = np.ceil(WINDOW_MIN_SOLID * WINDOW_LEAST_PIXELS ** 2)
+    assert bands and all(band["judged"] == (band["voxels"] >= least) for band in bands)
+    assert not any(band["judged"] for band in bands)
+    code, out, _ = run_cli("verify", tmp_path / "stack")
+    assert code == 0 and "not judged" in out

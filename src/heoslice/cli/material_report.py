@@ -14,6 +14,7 @@ from heoslice.stack.report import (
     MaterialReport,
     PartShare,
     material_names,
+    least_solid,
     material_report,
     part_shares,
     pixel_position,
@@ -151,8 +152,10 @@ def design_mismatch(report: MaterialReport, comparison: Comparison | None, manif
     in the worst window, else None."""
     if comparison is None:
         return None
+    least = least_solid(window_grid(manifest))
     off = [f"band {b.band} of {'r' if comparison.bands_of == 'r' else 'designed share'} by "
-           f"{100 * b.difference:.2f} points" for b in report.bands if b.difference > DESIGN_TOLERANCE]
+           f"{100 * b.difference:.2f} points" for b in report.bands
+           if b.difference > DESIGN_TOLERANCE and b.voxels >= least]
     worst = report.worst
     if worst is not None and abs(worst.difference) > DESIGN_TOLERANCE:
         off.append(f"the worst {window_size_text(manifest)} window (layer {worst.layer}) by "
@@ -220,7 +223,8 @@ def as_json(manifest: dict, report: MaterialReport, parts: tuple[PartShare, ...]
                                                     "target": names[target]},
         "bands": [{"designed_share_of": names[target], "band": [b.band / SHARE_BANDS, (b.band + 1) / SHARE_BANDS],
                    "voxels": b.voxels, "designed": dict(zip(names, b.designed)),
-                   "delivered": dict(zip(names, b.delivered)), "difference": b.difference} for b in report.bands],
+                   "delivered": dict(zip(names, b.delivered)), "difference": b.difference,
+                   "judged": b.voxels >= least_solid(window_grid(manifest))} for b in report.bands],
     }
 
 
@@ -243,7 +247,7 @@ def text_lines(manifest: dict, report: MaterialReport, parts: tuple[PartShare, .
                      f"{report.materials[worst.material].name} designed {_percent(worst.designed)}, "
                      f"delivered {_percent(worst.delivered)} ({100 * worst.difference:+.2f} points); "
                      f"windows every {window_step_text(manifest)}")
-    elif comparison is not None:
+    elif comparison is not None and report.solid_voxels:
         lines.append(f"  no {window_size_text(manifest)} window is half solid: the design is compared per band only")
     index = -1 if comparison is None else comparison.target
     target = report.materials[index].name
@@ -251,6 +255,8 @@ def text_lines(manifest: dict, report: MaterialReport, parts: tuple[PartShare, .
         low, high = 100 * band.band // SHARE_BANDS, 100 * (band.band + 1) // SHARE_BANDS
         what = (f"r {low / 100:.1f}-{high / 100:.1f}" if comparison is not None and comparison.bands_of == "r"
                 else f"designed {target} {low}-{high} %")
+        few = (f" (fewer voxels than a compared window's {least_solid(window_grid(manifest))}: not judged)"
+               if comparison is not None and band.voxels < least_solid(window_grid(manifest)) else "")
         lines.append(f"  {what}: {band.voxels} voxels, {target} designed "
-                     f"{_percent(band.designed[index])}, delivered {_percent(band.delivered[index])}")
+                     f"{_percent(band.designed[index])}, delivered {_percent(band.delivered[index])}{few}")
     return lines

@@ -275,6 +275,12 @@ def window_grid(manifest: dict) -> WindowGrid:
     return WindowGrid(size, (max(1, size[0] // WINDOW_STEPS), max(1, size[1] // WINDOW_STEPS)))
 
 
+def least_solid(grid: WindowGrid) -> int:
+    """The solid pixels a window needs to be compared (WINDOW_MIN_SOLID of it); a band of fewer solid voxels over
+    the whole stack is reported but not judged either: over so few droplets no halftone holds a share."""
+    return int(np.ceil(WINDOW_MIN_SOLID * grid.size[0] * grid.size[1]))
+
+
 def window_starts(length: int, size: int, step: int) -> np.ndarray:
     """First pixels of the windows along one axis of ``length`` pixels: every multiple of ``step`` up to
     ``length - size``, and ``length - size`` itself (the window flush with the far edge); (0,) for an image
@@ -319,7 +325,7 @@ def worst_window(index: int, solid: np.ndarray, masks: np.ndarray, designed: np.
     solid = solid[crop]
     relative = (rows - rows[0], columns - columns[0])
     solid_count = _window_sums(solid, grid.size, relative)
-    compared = solid_count >= WINDOW_MIN_SOLID * height * width
+    compared = solid_count >= least_solid(grid)
     if not compared.any():
         return None
     count = solid_count[compared]
@@ -363,7 +369,7 @@ def coded_tally(index: int, bits: Sequence[Bits], design: CodedDesign, grid: Win
     counts, delivered = np.zeros(count, np.int64), np.zeros((len(masks), count), np.int64)
     planned, worst = np.zeros((len(masks), count)), np.zeros(6)
     rows, columns = grid.starts((solid.shape[0], width))
-    least = int(np.ceil(WINDOW_MIN_SOLID * grid.size[0] * grid.size[1]))
+    least = least_solid(grid)
     design_tally(solid, masks, np.array(design.box, np.int64), np.ascontiguousarray(design.codes, np.uint16),
                  np.ascontiguousarray(design.shares, np.float32), np.ascontiguousarray(design.bands, np.int64),
                  design.start, design.target, width, np.array(grid.size, np.int64), rows.astype(np.int64),
