@@ -74,6 +74,7 @@ def test_verify_compares_a_field_stack_with_its_recorded_design(sine_ball, run_c
     assert sum(band["voxels"] for band in delivered["bands"]) == delivered["solid"]["voxels"]
     assert abs(delivered["worst_window"]["difference"]) <= 0.02, delivered["worst_window"]
     assert delivered["worst_window"]["solid_pixels"] >= 1100
+    assert delivered["worst_window"]["material"] == "M2"  # the target, as the bands give it
     code, out, err = run_cli("verify", stack)
     assert code == 0 and err == ""
     assert "  r 0.9-1.0: " in out and "  worst 2 mm window: layer " in out

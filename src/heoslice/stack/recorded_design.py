@@ -107,8 +107,15 @@ class RecordedField:
     def tally(self, index: int, bits: list[Bits]) -> LayerTally:
         """Layer ``index``'s tally against the design, from the bits of its files that verify checked (its solid
         pixels', then its droplet masks'; its counts are then its manifest entry's): :func:`coded_tally`."""
-        return coded_tally(index, bits, self.coded(index, bits[0].rows), window_grid(self.manifest),
-                           self.grid.width, counted_tally(self.manifest, index))
+        tally = coded_tally(index, bits, self.coded(index, bits[0].rows), window_grid(self.manifest),
+                            self.grid.width, counted_tally(self.manifest, index))
+        worst = tally.worst
+        if worst is not None and worst.material == self.start and len(bits) == 3:
+            # two masks partition the solid: the start's miss is the target's, told as the target's share (the
+            # one the bands give) rather than whichever of the two rounding put first
+            worst = replace(worst, material=self.target, designed=1.0 - worst.designed,
+                            delivered=1.0 - worst.delivered)
+        return replace(tally, worst=worst)
 
 
 def field_comparison(directory: Path, manifest: dict) -> RecordedField | None:
