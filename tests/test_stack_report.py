@@ -366,3 +366,13 @@ def test_the_counts_a_verified_manifest_records_are_the_files_counts(graded_vase
     manifest = read_manifest(folder)
     read = reduce_tallies(manifest, [tally_layer(folder, manifest, index) for index in range(len(manifest["layers"]))])
     assert material_report(folder, manifest) == read and read.solid_voxels > 0
+
+
+def test_a_design_that_is_not_a_preview_says_what_it_is(graded_vase, run_cli):
+    """--design given a droplet-mask stack instead of the --rgba preview: one line, exit 2, naming what it is (its
+    mode and layers) and what the preview would be, so the two counts are not mistaken for each other."""
+    stack = graded_vase / "masks"
+    layers = len(read_manifest(stack)["layers"])
+    code, out, err = run_cli("verify", stack, "--design", stack)
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"it is 1 with {layers} layers" in err and f"would be RGBA with {layers}" in err, err

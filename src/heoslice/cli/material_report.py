@@ -66,8 +66,9 @@ def design_of_preview(stack: Path, manifest: dict, preview: Path):
     except VerifyError as err:
         raise InputError(f"--design: {err}") from None
     if other["image"].get("mode") != "RGBA" or len(other["layers"]) != len(manifest["layers"]):
-        raise InputError(f"--design: {preview} is not the --rgba preview stack of the same slice (an RGBA stack "
-                         f"of {len(manifest['layers'])} layers)")
+        raise InputError(f"--design: {preview} is not the --rgba preview stack of the same slice: it is "
+                         f"{other['image'].get('mode')} with {len(other['layers'])} layers, and {stack}'s preview "
+                         f"would be RGBA with {len(manifest['layers'])}")
     try:
         return preview_design(preview, manifest, [m["color"] for m in materials], other)
     except ValueError as err:
