@@ -389,3 +389,23 @@ def test_ordered_map_batches_keep_the_order_and_stay_small():
     with pytest.raises(KeyError, match="item 205"):
         list(ordered_map(uneven, range(300), workers=2))
     assert not multiprocessing.active_children()
+
+
+def test_a_started_child_no_pool_kept_does_not_hold_up_the_exit(tmp_path):
+    """A worker started but not yet kept by its pool when Ctrl-C arrives (here: started and left) is killed when
+    the command exits: the exit takes well under the worker's 30 s of work, and the worker is gone (before,
+    multiprocessing's exit handler sent it SIGTERM, which workers ignore, and waited: a lab user's `verify` hung
+    after 'interrupted')."""
+    script = tmp_path / "orphan.py"
+    script.write_text("import sys, time\n"
+                      "from heoslice.pipeline.parallel import _enter_worker, _start\n"
+                      "child = _start(_enter_worker, time.sleep, 30)\n"
+                      "print(child.pid, flush=True)\n"
+                      "sys.exit(130)\n")
+    started = time.monotonic()
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=25)
+    assert done.returncode == 130, done.stderr
+    assert time.monotonic() - started < 10
+    pid = int(done.stdout.strip())
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)

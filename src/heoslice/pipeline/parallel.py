@@ -25,6 +25,7 @@ stages are imported by the functions that use them.
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import gc
 import os
@@ -166,17 +167,34 @@ def _enter_portable_worker(parent: int) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
+#: Every child :func:`_start` started and :func:`_end` has not ended: killed when this process exits
+#: (:func:`_end_started`), so that one a signal kept from reaching its pool (Ctrl-C between its start and its
+#: caller keeping it) does not outlive a run, nor hang the exit: multiprocessing's own exit handler asks daemon
+#: children to end with SIGTERM, which ours ignore, then waits for them.
+_STARTED: set = set()
+
+
 def _start(enter: Callable[[int], None], target: Callable, *args, method: str = "fork"):
     """Start (fork, or ``method``) a daemon process that calls ``enter(pid of this process)`` (:func:`_enter_child`,
     :func:`_enter_worker` or :func:`_enter_portable_worker`) and then ``target(*args)``, with the ending signals
-    held back over the start: the child ignores them before any can arrive (they reach this process after)."""
+    held back over the start: the child ignores them before any can arrive (they reach this process after), and
+    it is in :data:`_STARTED` before any can."""
     child = get_context(method).Process(target=_child_main, args=(os.getpid(), enter, target, args), daemon=True)
     held = signal.pthread_sigmask(signal.SIG_BLOCK, ENDING_SIGNALS)
     try:
         child.start()
+        _STARTED.add(child)
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, held)
     return child
+
+
+@atexit.register
+def _end_started() -> None:
+    """At this process's exit (before multiprocessing's handler, registered earlier): every started child not yet
+    ended is killed and reaped."""
+    for child in list(_STARTED):
+        _end(child)
 
 
 def _child_main(parent: int, enter: Callable[[int], None], target: Callable, args: tuple) -> None:
@@ -190,6 +208,7 @@ def _end(child) -> None:
     if child.is_alive():
         child.kill()
     child.join()
+    _STARTED.discard(child)
 
 
 @contextmanager
