@@ -191,8 +191,9 @@ def _start(enter: Callable[[int], None], target: Callable, *args, method: str = 
 
 @atexit.register
 def _end_started() -> None:
-    """At this process's exit (before multiprocessing's handler, registered earlier): every started child not yet
-    ended is killed and reaped."""
+    """At this process's exit, before multiprocessing's own handler (exit handlers run last registered first, and
+    ``multiprocessing.connection``, imported above, registered it with ``multiprocessing.util``): every started
+    child not yet ended is killed and reaped."""
     for child in list(_STARTED):
         _end(child)
 
