@@ -252,12 +252,13 @@ def text_lines(manifest: dict, report: MaterialReport, parts: tuple[PartShare, .
         lines.append(f"  no {window_size_text(manifest)} window is half solid: the design is compared per band only")
     index = -1 if comparison is None else comparison.target
     target = report.materials[index].name
+    least = least_solid(window_grid(manifest))
     for band in report.bands:
         low, high = 100 * band.band // SHARE_BANDS, 100 * (band.band + 1) // SHARE_BANDS
         what = (f"r {low / 100:.1f}-{high / 100:.1f}" if comparison is not None and comparison.bands_of == "r"
                 else f"designed {target} {low}-{high} %")
-        few = (f" (fewer voxels than a compared window's {least_solid(window_grid(manifest))}: not judged)"
-               if comparison is not None and band.voxels < least_solid(window_grid(manifest)) else "")
+        few = (f" (fewer voxels than a compared window's {least}: not judged)"
+               if comparison is not None and band.voxels < least else "")
         lines.append(f"  {what}: {band.voxels} voxels, {target} designed "
                      f"{_percent(band.designed[index])}, delivered {_percent(band.delivered[index])}{few}")
     return lines

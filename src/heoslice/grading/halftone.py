@@ -38,6 +38,9 @@ METHODS = {
                        "(the least low-frequency noise; the slowest)",
 }
 DEFAULT_METHOD = "ordered"
+#: The methods that compare each pixel with a threshold tile of LEVELS levels (:func:`layer_tile`); error diffusion
+#: has none.
+THRESHOLD_METHODS = ("ordered", "blue-noise")
 
 #: Side of the ordered-dither matrix (256 threshold levels).
 TILE = 16
@@ -142,7 +145,7 @@ def layer_tile(layer: int, method: str = DEFAULT_METHOD) -> np.ndarray:
     if check_method(method) == "blue-noise":
         ranks = np.roll(blue_noise_ranks(), blue_noise_shift(layer), axis=(0, 1))
         return (ranks // (BLUE_TILE * BLUE_TILE // LEVELS) + 0.5) / LEVELS
-    if method != "ordered":
+    if method not in THRESHOLD_METHODS:
         raise ValueError(f"halftone: {method} has no threshold tile")
     flip_rows, flip_cols = ordered_flips(layer)
     index = np.arange(TILE)

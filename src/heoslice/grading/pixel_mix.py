@@ -19,14 +19,11 @@ import functools
 import numpy as np
 
 from heoslice.grading.droplets_kernels import Dither, LabelledLayer, LayerMixes, droplet_bits
-from heoslice.grading.halftone import DEFAULT_METHOD, TILE, check_method, halftone, layer_tile
+from heoslice.grading.halftone import DEFAULT_METHOD, THRESHOLD_METHODS, TILE, check_method, halftone, layer_tile
 from heoslice.layers.rasterising import Grid
 
 #: The dither's levels: an ordered tile holds each of them once, a blue-noise tile each on 16 pixels.
 LEVELS = TILE * TILE
-#: The halftoning methods that compare each pixel with a threshold tile of LEVELS levels (the fast path here);
-#: error diffusion goes through :func:`heoslice.grading.halftone.halftone`.
-THRESHOLD_METHODS = ("ordered", "blue-noise")
 
 
 def levels_below(f: np.ndarray) -> np.ndarray:

@@ -187,7 +187,8 @@ def _render_field_and_write(job: LayerJob, packed: np.ndarray, solid: int, cache
     the 1-bit solid layer (:func:`heoslice.grading.pixel_mix.fraction_planes`; by a threshold tile, ordered or blue
     noise, each pixel's dither level read from the table of f's levels at r's step,
     :func:`heoslice.grading.pixel_mix.field_planes`), or as an RGBA preview layer."""
-    from heoslice.grading.pixel_mix import THRESHOLD_METHODS, field_planes, fraction_colors, fraction_planes
+    from heoslice.grading.halftone import THRESHOLD_METHODS
+    from heoslice.grading.pixel_mix import field_planes, fraction_colors, fraction_planes
 
     graded = job.graded
     grade, design = graded.spec, graded.field.design
